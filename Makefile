@@ -1,0 +1,38 @@
+# The README's two commands: `make run` and `make test`. Each installs missing Debian packages
+# (scripts/install-deps.sh), configures with CMake presets and builds.
+PRESET ?= $(if $(CI),ci,release)
+BUILD_DIR := build/$(PRESET)
+JOBS ?= 2
+SCENARIO ?= scenarios/paper.yaml
+OUT ?= out/paper
+
+.PHONY: all deps configure build run test bench clean format
+
+all: build
+
+deps:
+	@bash scripts/install-deps.sh
+
+configure: deps
+	@cmake --preset $(PRESET) >/dev/null
+
+build: configure
+	@cmake --build $(BUILD_DIR) -j $(JOBS)
+
+run: build
+	$(BUILD_DIR)/ukdyn simulate $(SCENARIO) --out $(OUT)
+
+test: build
+	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
+
+bench:
+	@bash scripts/install-deps.sh --bench
+	@cmake --preset bench >/dev/null
+	@cmake --build build/bench -j $(JOBS)
+	build/bench/bench/ukdyn_bench --benchmark_min_time=0.2 $(BENCH_ARGS)
+
+format:
+	clang-format -i $$(git ls-files '*.cpp' '*.hpp')
+
+clean:
+	rm -rf build out

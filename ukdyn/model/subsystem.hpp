@@ -1,0 +1,36 @@
+// An unconstrained subsystem in Lagrange form, paper Eq. (10): M(q) q̈ + C(q, q̇) q̇ + G(q) = τ.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "ukdyn/core/types.hpp"
+
+namespace ukdyn {
+
+using VecRef = Eigen::Ref<Vec>;
+using CVecRef = const Eigen::Ref<const Vec>&;
+using MatRef = Eigen::Ref<Mat>;
+
+/// A subsystem owns `dof()` consecutive generalized coordinates of the system. Implementations are
+/// constant after construction; every method writes into caller-owned storage and allocates nothing.
+class Subsystem {
+ public:
+  virtual ~Subsystem() = default;
+  [[nodiscard]] virtual Index dof() const = 0;
+  [[nodiscard]] virtual const std::string& name() const = 0;
+  [[nodiscard]] virtual const std::vector<std::string>& coordinate_names() const = 0;
+
+  /// Mass matrix M(q), paper Eq. (5). Writes a dof × dof block.
+  virtual void mass(CVecRef q, MatRef M) const = 0;
+  /// Coriolis/centrifugal matrix C(q, q̇) with Ṁ − 2C skew-symmetric, paper Eq. (9).
+  virtual void coriolis(CVecRef q, CVecRef qd, MatRef C) const = 0;
+  /// The vector C(q, q̇) q̇ (cheaper than forming C).
+  virtual void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const = 0;
+  /// Generalized gravity G(q) = ∂V/∂q, paper Eq. (8).
+  virtual void gravity(CVecRef q, VecRef G) const = 0;
+  /// Potential energy V(q) (gravity), up to a constant.
+  [[nodiscard]] virtual double potential(CVecRef q) const = 0;
+};
+
+}  // namespace ukdyn

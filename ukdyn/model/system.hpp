@@ -1,0 +1,86 @@
+// A constrained multibody system: subsystems (block-diagonal M, C, G, paper Eq. (10)-(11)) plus
+// constraint blocks stacked by rows (paper: Â = [A; A_t], b̂ = [b; b_t]).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ukdyn/core/uk_solve.hpp"
+#include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/subsystem.hpp"
+
+namespace ukdyn {
+
+/// Constant description of the system. Build it once; share it between threads.
+class System {
+ public:
+  /// Appends a subsystem; its coordinates follow those already added. Returns its offset in q.
+  Index add_subsystem(std::shared_ptr<const Subsystem> subsystem);
+  /// Appends a block of constraint rows. Returns its first row.
+  Index add_constraint(std::shared_ptr<const Constraint> constraint);
+
+  [[nodiscard]] Index dof() const { return dof_; }
+  [[nodiscard]] Index rows() const { return rows_; }
+  [[nodiscard]] const BlockLayout& layout() const { return layout_; }
+  [[nodiscard]] const std::vector<std::shared_ptr<const Subsystem>>& subsystems() const {
+    return subsystems_;
+  }
+  [[nodiscard]] const std::vector<std::shared_ptr<const Constraint>>& constraints() const {
+    return constraints_;
+  }
+  [[nodiscard]] const std::vector<Index>& constraint_row_offsets() const { return row_offsets_; }
+  [[nodiscard]] const std::vector<std::string>& coordinate_names() const { return coord_names_; }
+  [[nodiscard]] const std::vector<std::string>& constraint_row_names() const { return row_names_; }
+
+ private:
+  std::vector<std::shared_ptr<const Subsystem>> subsystems_;
+  std::vector<std::shared_ptr<const Constraint>> constraints_;
+  std::vector<Index> row_offsets_;
+  std::vector<std::string> coord_names_;
+  std::vector<std::string> row_names_;
+  BlockLayout layout_;
+  Index dof_ = 0;
+  Index rows_ = 0;
+};
+
+/// Every buffer forward() writes, allocated once for a system. Read the results from here.
+struct ForwardData {
+  explicit ForwardData(const System& system);
+
+  Mat M;       ///< n × n, block-diagonal
+  Vec Cqd;     ///< C(q, q̇) q̇
+  Vec G;       ///< gravity
+  Vec Q;       ///< τ − C q̇ − G, paper Eq. (11)
+  Mat A;       ///< m × n, constraint rows stacked
+  Vec b;       ///< m
+  Vec Qc;      ///< constraint force, paper Eq. (4)
+  Vec qdd;     ///< q̈ = M^{-1}(Q + Qc), paper Eq. (18)
+  UkWorkspace uk;
+  UkResult result;
+};
+
+/// Forward dynamics of the constrained system at (t, q, q̇) with applied forces τ:
+///   mass blocks → Q = τ − C q̇ − G → A, b → U-K solve → q̈, Qc.   Allocation-free.
+/// If M is not positive definite, data.result.finite is false and q̈ is NaN.
+void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
+             const UkSettings& settings = {});
+
+/// Only M, C q̇, G (no constraints), into data.
+void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);
+/// Only A and b, into data.
+void evaluate_constraints(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd);
+
+/// The full C matrix (n × n, block-diagonal). Allocates nothing if C has the right size.
+void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C);
+/// Position residuals Φ(q, t) of every row (m).
+void position_residuals(const System& system, double t, CVecRef q, VecRef phi);
+/// Velocity residuals Φ̇ = A q̇ + Φ_t of every row (m).
+void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, VecRef phid);
+
+/// Kinetic energy ½ q̇ᵀ M q̇ (M from data.M, already evaluated at q).
+double kinetic_energy(const ForwardData& data, CVecRef qd);
+/// Potential energy Σ V_k(q).
+double potential_energy(const System& system, CVecRef q);
+
+}  // namespace ukdyn

@@ -1,0 +1,205 @@
+#include "ukdyn/models/mobile_manipulator.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace ukdyn {
+
+namespace {
+void require(bool ok, const std::string& where, const std::string& key, const std::string& what) {
+  if (!ok) throw Error(where + ": " + key + " " + what);
+}
+}  // namespace
+
+void MobileManipulatorParams::validate(const std::string& where) const {
+  auto finite_nonneg = [&](double v, const std::string& key) {
+    require(std::isfinite(v), where, key, "must be a finite number");
+    require(v >= 0.0, where, key, "must be >= 0 (got " + std::to_string(v) + ")");
+  };
+  finite_nonneg(platform_mass, "platform_mass");
+  finite_nonneg(base_mass, "base_mass");
+  finite_nonneg(base_inertia, "base_inertia");
+  finite_nonneg(base_length, "base_length");
+  double total = platform_mass + base_mass;
+  for (std::size_t k = 0; k < 3; ++k) {
+    const std::string idx = "[" + std::to_string(k) + "]";
+    finite_nonneg(link_mass[k], "link_mass" + idx);
+    finite_nonneg(link_inertia[k], "link_inertia" + idx);
+    finite_nonneg(link_length[k], "link_length" + idx);
+    require(link_length[k] > 0.0, where, "link_length" + idx, "must be > 0");
+    total += link_mass[k];
+  }
+  require(total > 0.0, where, "masses", "must not all be zero (M would be singular)");
+  require(std::isfinite(gravity), where, "gravity", "must be a finite number");
+}
+
+MobileManipulator::MobileManipulator(std::string name, MobileManipulatorParams params,
+                                     std::vector<std::string> coordinate_names)
+    : name_(std::move(name)), p_(params), names_(std::move(coordinate_names)) {
+  p_.validate(name_);
+  if (names_.size() != 6) {
+    throw Error(name_ + ": a mobile manipulator has 6 coordinates, got " +
+                std::to_string(names_.size()) + " names");
+  }
+  const auto& m = p_.link_mass;
+  a_ = {m[0] / 2 + m[1] + m[2], m[1] / 2 + m[2], m[2] / 2};
+}
+
+ArmKinematics MobileManipulator::kinematics(CVecRef q, CVecRef qd) const {
+  ArmKinematics k;
+  k.cos_delta = std::cos(q(2));
+  k.sin_delta = std::sin(q(2));
+  double sum_s_thd = 0.0;
+  for (int j = 0; j < 3; ++j) {
+    const auto u = static_cast<std::size_t>(j);
+    // ĉ_j = l_j cos θ_j (the paper prints cos δ_j: erratum 1), ŝ_j = l_j sin θ_j.
+    k.c[u] = p_.link_length[u] * std::cos(q(3 + j));
+    k.s[u] = p_.link_length[u] * std::sin(q(3 + j));
+    const double thd = qd(3 + j);
+    k.kappa += k.c[u];
+    k.rho += k.s[u];
+    sum_s_thd += k.s[u] * thd;
+    k.psi += k.c[u] * thd * thd;
+    k.gamma += k.s[u] * thd * thd;
+  }
+  k.zeta = sum_s_thd * qd(2);
+  return k;
+}
+
+Vec3 MobileManipulator::cut_point(CVecRef q) const {
+  double kappa = 0.0, rho = 0.0;
+  for (int j = 0; j < 3; ++j) {
+    const auto u = static_cast<std::size_t>(j);
+    kappa += p_.link_length[u] * std::cos(q(3 + j));
+    rho += p_.link_length[u] * std::sin(q(3 + j));
+  }
+  return {q(0) + kappa * std::cos(q(2)), q(1) + kappa * std::sin(q(2)), p_.base_length + rho};
+}
+
+void MobileManipulator::cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J,
+                                           Vec3& c) const {
+  const ArmKinematics k = kinematics(q, qd);
+  const double dd = qd(2);
+  J.setZero();
+  // Rows of paper Eq. (15) for one arm: ∂(Δx + κ̂ cos δ, Δy + κ̂ sin δ, l_r + ρ̂)/∂q.
+  J(0, 0) = 1.0;
+  J(1, 1) = 1.0;
+  J(0, 2) = -k.kappa * k.sin_delta;
+  J(1, 2) = k.kappa * k.cos_delta;
+  for (int j = 0; j < 3; ++j) {
+    const auto u = static_cast<std::size_t>(j);
+    J(0, 3 + j) = -k.s[u] * k.cos_delta;
+    J(1, 3 + j) = -k.s[u] * k.sin_delta;
+    J(2, 3 + j) = k.c[u];
+  }
+  // Velocity-product terms of Eq. (13) (moved to b in Eq. (16)).
+  const double radial = k.psi + k.kappa * dd * dd;
+  c(0) = -radial * k.cos_delta + 2 * k.zeta * k.sin_delta;
+  c(1) = -radial * k.sin_delta - 2 * k.zeta * k.cos_delta;
+  c(2) = -k.gamma;
+}
+
+// Mass matrix, paper appendix (Eq. (5) evaluated), with the printed typos corrected.
+void MobileManipulator::mass(CVecRef q, MatRef M) const {
+  const auto& m = p_.link_mass;
+  const auto& I = p_.link_inertia;
+  const auto& l = p_.link_length;
+  const double cd = std::cos(q(2)), sd = std::sin(q(2));
+  const double c1 = l[0] * std::cos(q(3)), c2 = l[1] * std::cos(q(4)), c3 = l[2] * std::cos(q(5));
+  const double s1 = l[0] * std::sin(q(3)), s2 = l[1] * std::sin(q(4)), s3 = l[2] * std::sin(q(5));
+  // K = a1 ĉ1 + a2 ĉ2 + a3 ĉ3: first moment of the arm's mass about the yaw axis.
+  const double K = a_[0] * c1 + a_[1] * c2 + a_[2] * c3;
+  const double r1 = c1 / 2, r2 = c1 + c2 / 2, r3 = c1 + c2 + c3 / 2;  // CoM radii
+
+  M.setZero();
+  M(0, 0) = M(1, 1) = p_.platform_mass + p_.base_mass + m[0] + m[1] + m[2];
+  // M33: the paper prints m1 ĉ1/4; the square is missing (erratum 3).
+  M(2, 2) = m[0] * r1 * r1 + m[1] * r2 * r2 + m[2] * r3 * r3 + I[0] + I[1] + I[2] + p_.base_inertia;
+  M(3, 3) = (m[0] / 4 + m[1] + m[2]) * l[0] * l[0] + I[0];
+  M(4, 4) = (m[1] / 4 + m[2]) * l[1] * l[1] + I[1];
+  M(5, 5) = m[2] * l[2] * l[2] / 4 + I[2];
+  M(0, 2) = M(2, 0) = -K * sd;
+  M(1, 2) = M(2, 1) = K * cd;
+  M(0, 3) = M(3, 0) = -a_[0] * s1 * cd;
+  M(1, 3) = M(3, 1) = -a_[0] * s1 * sd;
+  M(0, 4) = M(4, 0) = -a_[1] * s2 * cd;
+  M(1, 4) = M(4, 1) = -a_[1] * s2 * sd;
+  M(0, 5) = M(5, 0) = -a_[2] * s3 * cd;
+  M(1, 5) = M(5, 1) = -a_[2] * s3 * sd;
+  // M45: the paper prints (m2 + m3)/2 · l1 l2 cos(θ1 − θ2); correct is (m2/2 + m3) (erratum 4).
+  M(3, 4) = M(4, 3) = a_[1] * l[0] * l[1] * std::cos(q(3) - q(4));
+  M(3, 5) = M(5, 3) = a_[2] * l[0] * l[2] * std::cos(q(3) - q(5));
+  M(4, 5) = M(5, 4) = a_[2] * l[1] * l[2] * std::cos(q(4) - q(5));
+}
+
+// Coriolis matrix from the Christoffel symbols, paper Eq. (9) / appendix, corrected.
+void MobileManipulator::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
+  const auto& m = p_.link_mass;
+  const auto& l = p_.link_length;
+  const double cd = std::cos(q(2)), sd = std::sin(q(2));
+  const double c1 = l[0] * std::cos(q(3)), c2 = l[1] * std::cos(q(4)), c3 = l[2] * std::cos(q(5));
+  const double s1 = l[0] * std::sin(q(3)), s2 = l[1] * std::sin(q(4)), s3 = l[2] * std::sin(q(5));
+  const double dd = qd(2), t1 = qd(3), t2 = qd(4), t3 = qd(5);
+  const double K = a_[0] * c1 + a_[1] * c2 + a_[2] * c3;
+  const double S = a_[0] * s1 * t1 + a_[1] * s2 * t2 + a_[2] * s3 * t3;
+  const double r2 = c1 + c2 / 2, r3 = c1 + c2 + c3 / 2;
+
+  C.setZero();
+  // C13: the operator between the two brackets is lost in print; it is "−" (erratum 6).
+  C(0, 2) = S * sd - K * cd * dd;
+  C(0, 3) = a_[0] * (s1 * sd * dd - c1 * cd * t1);
+  C(0, 4) = a_[1] * (s2 * sd * dd - c2 * cd * t2);
+  C(0, 5) = a_[2] * (s3 * sd * dd - c3 * cd * t3);
+  C(1, 2) = -S * cd - K * sd * dd;
+  C(1, 3) = -a_[0] * (s1 * cd * dd + c1 * sd * t1);
+  C(1, 4) = -a_[1] * (s2 * cd * dd + c2 * sd * t2);
+  C(1, 5) = -a_[2] * (s3 * cd * dd + c3 * sd * t3);
+  C(2, 2) = -m[0] / 4 * c1 * s1 * t1 - m[1] / 2 * r2 * (2 * s1 * t1 + s2 * t2) -
+            m[2] / 2 * r3 * (2 * s1 * t1 + 2 * s2 * t2 + s3 * t3);
+  // C34, C43: the paper prints m1 ĉ1/2; the Christoffel symbol gives m1 ĉ1/4 (erratum 5, a real
+  // error that changes C q̇ although Ṁ − 2C stays skew-symmetric with it).
+  const double k1 = (m[0] * c1 / 4 + m[1] * r2 + m[2] * r3) * s1 * dd;
+  const double k2 = (m[1] / 2 * r2 + m[2] * r3) * s2 * dd;
+  const double k3 = m[2] / 2 * r3 * s3 * dd;
+  C(2, 3) = -k1;
+  C(2, 4) = -k2;
+  C(2, 5) = -k3;
+  C(3, 2) = k1;
+  C(4, 2) = k2;
+  C(5, 2) = k3;
+  C(3, 4) = a_[1] * l[0] * l[1] * std::sin(q(3) - q(4)) * t2;
+  C(3, 5) = a_[2] * l[0] * l[2] * std::sin(q(3) - q(5)) * t3;
+  C(4, 3) = a_[1] * l[0] * l[1] * std::sin(q(4) - q(3)) * t1;
+  C(4, 5) = a_[2] * l[1] * l[2] * std::sin(q(4) - q(5)) * t3;
+  C(5, 3) = a_[2] * l[0] * l[2] * std::sin(q(5) - q(3)) * t1;
+  C(5, 4) = a_[2] * l[1] * l[2] * std::sin(q(5) - q(4)) * t2;
+}
+
+void MobileManipulator::coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const {
+  Eigen::Matrix<double, 6, 6> C;
+  coriolis(q, qd, C);
+  Cqd.noalias() = C * qd;
+}
+
+// G = ∂V/∂q, paper appendix (Eq. (8) with gravity along −Z, erratum 7).
+void MobileManipulator::gravity(CVecRef q, VecRef G) const {
+  const auto& l = p_.link_length;
+  const double g = p_.gravity;
+  G.setZero();
+  G(3) = a_[0] * g * l[0] * std::cos(q(3));
+  G(4) = a_[1] * g * l[1] * std::cos(q(4));
+  G(5) = a_[2] * g * l[2] * std::cos(q(5));
+}
+
+double MobileManipulator::potential(CVecRef q) const {
+  const auto& m = p_.link_mass;
+  const auto& l = p_.link_length;
+  const double s1 = l[0] * std::sin(q(3)), s2 = l[1] * std::sin(q(4)), s3 = l[2] * std::sin(q(5));
+  const double lr = p_.base_length;
+  // CoM heights above the platform: joint r at l_r/2, link k at l_r + Σ_{j<k} ŝ_j + ŝ_k/2.
+  const double h = p_.base_mass * lr / 2 + m[0] * (lr + s1 / 2) + m[1] * (lr + s1 + s2 / 2) +
+                   m[2] * (lr + s1 + s2 + s3 / 2);
+  return p_.gravity * h;
+}
+
+}  // namespace ukdyn
