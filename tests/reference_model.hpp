@@ -240,3 +240,24 @@ inline std::array<Eigen::Vector3d, kBodies> com_jdot_qd(const Params& p, const V
 }
 
 }  // namespace ukref
+
+namespace ukref {
+
+/// d²/ds² of the cut point along q(s) = q + s q̇ (= J̇ q̇ of the cut point), by nested AD.
+inline Eigen::Vector3d cut_point_jdot_qd(const Params& p, const Vector6d& q, const Vector6d& qd) {
+  using AD1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+  using AD2 = Eigen::AutoDiffScalar<Eigen::Matrix<AD1, 1, 1>>;
+  V6<AD2> qa;
+  for (int i = 0; i < 6; ++i) {
+    const AD1 val(q(i), Eigen::Matrix<double, 1, 1>(qd(i)));
+    Eigen::Matrix<AD1, 1, 1> der;
+    der(0) = AD1(qd(i), Eigen::Matrix<double, 1, 1>(0.0));
+    qa(i) = AD2(val, der);
+  }
+  const V3<AD2> c = cut_point<AD2>(p, qa);
+  Eigen::Vector3d out;
+  for (int r = 0; r < 3; ++r) out(r) = c(r).derivatives()(0).derivatives()(0);
+  return out;
+}
+
+}  // namespace ukref

@@ -212,8 +212,8 @@ TEST(MobileManipulator, SystemDynamicsAreBlockDiagonalReference) {
     ukdyn::Mat C(12, 12);
     ukdyn::coriolis_matrix(*two.system, q, qd, C);
     EXPECT_LE(rel_err(ukdyn::Vec(C * qd), Cref), kTol);
-    EXPECT_EQ(C.topRightCorner<6, 6>().norm(), 0.0);
-    EXPECT_EQ(C.bottomLeftCorner<6, 6>().norm(), 0.0);
+    EXPECT_EQ((C.topRightCorner(6, 6).norm()), 0.0);
+    EXPECT_EQ((C.bottomLeftCorner(6, 6).norm()), 0.0);
     const double T = ukdyn::kinetic_energy(data, qd);
     const double Tref = ukref::kinetic_energy<double>(pl, q.head<6>(), qd.head<6>()) +
                         ukref::kinetic_energy<double>(pr, q.tail<6>(), qd.tail<6>());

@@ -1,0 +1,530 @@
+#include "ukdyn/io/scenario.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <numbers>
+#include <set>
+#include <sstream>
+
+#include "ukdyn/models/cooperative_constraints.hpp"
+#include "ukdyn/models/mobile_manipulator.hpp"
+
+namespace ukdyn {
+
+namespace {
+
+constexpr std::size_t kMaxFileBytes = 4u << 20;  // 4 MiB: a scenario is a small text file
+constexpr Index kMaxDof = 10'000;
+
+std::string hash_hex(const std::string& bytes) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char ch : bytes) {
+    h ^= ch;
+    h *= 1099511628211ull;
+  }
+  std::ostringstream os;
+  os << std::hex;
+  os.width(16);
+  os.fill('0');
+  os << h;
+  return os.str();
+}
+
+// A YAML node with the dotted key path that led to it, for messages.
+struct Node {
+  YAML::Node node;
+  std::string key;
+};
+
+class Loader {
+ public:
+  explicit Loader(std::filesystem::path path) : path_(std::move(path)) {}
+
+  [[noreturn]] void fail(const Node& at, const std::string& message) const {
+    std::ostringstream os;
+    os << path_.string();
+    const YAML::Mark mark = at.node.IsDefined() ? at.node.Mark() : YAML::Mark::null_mark();
+    if (mark.line >= 0) os << ":" << (mark.line + 1) << ":" << (mark.column + 1);
+    os << ": key '" << at.key << "': " << message;
+    throw ScenarioError(os.str());
+  }
+
+  Node child(const Node& parent, const std::string& key, bool required) const {
+    if (!parent.node.IsMap()) fail(parent, "expected a mapping");
+    YAML::Node c = parent.node[key];
+    const std::string full = parent.key.empty() ? key : parent.key + "." + key;
+    if (!c.IsDefined() || c.IsNull()) {
+      if (required) fail(parent, "missing required key '" + full + "'");
+      return Node{YAML::Node(YAML::NodeType::Undefined), full};
+    }
+    return Node{c, full};
+  }
+
+  // Unknown keys are errors: a mistyped key must not be silently ignored.
+  void only_keys(const Node& n, std::initializer_list<const char*> allowed) const {
+    if (!n.node.IsMap()) fail(n, "expected a mapping");
+    std::set<std::string> ok(allowed.begin(), allowed.end());
+    for (const auto& kv : n.node) {
+      const auto k = kv.first.as<std::string>();
+      if (!ok.count(k)) {
+        std::string list;
+        for (const auto& a : ok) list += (list.empty() ? "" : ", ") + a;
+        fail(Node{kv.first, n.key.empty() ? k : n.key + "." + k},
+             "unknown key (allowed here: " + list + ")");
+      }
+    }
+  }
+
+  // A number, or an expression of pi: "pi", "-pi/3", "2*pi", "pi/2", "0.5*pi".
+  double number(const Node& n) const {
+    if (!n.node.IsScalar()) fail(n, "expected a number");
+    const std::string s = n.node.Scalar();
+    double v = 0.0;
+    if (!parse_number(s, v)) fail(n, "expected a number (or a multiple of pi), got '" + s + "'");
+    if (!std::isfinite(v)) fail(n, "must be finite, got '" + s + "'");
+    return v;
+  }
+
+  double number_or(const Node& parent, const std::string& key, double fallback) const {
+    Node c = child(parent, key, false);
+    return c.node.IsDefined() ? number(c) : fallback;
+  }
+
+  double positive(const Node& n) const {
+    const double v = number(n);
+    if (!(v > 0.0)) fail(n, "must be > 0, got " + n.node.Scalar());
+    return v;
+  }
+
+  std::string string(const Node& n) const {
+    if (!n.node.IsScalar()) fail(n, "expected a string");
+    return n.node.Scalar();
+  }
+
+  Vec vector(const Node& n, Index expected) const {
+    if (!n.node.IsSequence()) fail(n, "expected a list of " + std::to_string(expected) + " numbers");
+    if (static_cast<Index>(n.node.size()) != expected) {
+      fail(n, "expected " + std::to_string(expected) + " numbers, got " +
+                  std::to_string(n.node.size()));
+    }
+    Vec v(expected);
+    for (Index i = 0; i < expected; ++i) {
+      v(i) = number(Node{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"});
+    }
+    return v;
+  }
+
+  static bool parse_number(std::string s, double& out) {
+    std::string t;
+    for (char ch : s) {
+      if (ch != ' ') t += ch;
+    }
+    if (t.empty()) return false;
+    // Plain number.
+    {
+      std::istringstream is(t);
+      is.imbue(std::locale::classic());
+      double v = 0.0;
+      if ((is >> v) && is.eof()) {
+        out = v;
+        return true;
+      }
+      if (t == ".nan" || t == ".NaN" || t == "nan") {
+        out = std::numeric_limits<double>::quiet_NaN();
+        return true;
+      }
+      if (t == ".inf" || t == "inf" || t == "-.inf" || t == "-inf") {
+        out = t[0] == '-' ? -std::numeric_limits<double>::infinity()
+                          : std::numeric_limits<double>::infinity();
+        return true;
+      }
+    }
+    // [sign][factor*]pi[/divisor]
+    double sign = 1.0;
+    std::size_t i = 0;
+    if (t[0] == '-' || t[0] == '+') {
+      sign = t[0] == '-' ? -1.0 : 1.0;
+      i = 1;
+    }
+    const std::size_t p = t.find("pi", i);
+    if (p == std::string::npos) return false;
+    double factor = 1.0;
+    if (p > i) {
+      const std::string f = t.substr(i, p - i);
+      if (f.back() != '*') return false;
+      std::istringstream is(f.substr(0, f.size() - 1));
+      is.imbue(std::locale::classic());
+      if (!(is >> factor) || !is.eof()) return false;
+    }
+    double divisor = 1.0;
+    const std::string rest = t.substr(p + 2);
+    if (!rest.empty()) {
+      if (rest[0] != '/') return false;
+      std::istringstream is(rest.substr(1));
+      is.imbue(std::locale::classic());
+      if (!(is >> divisor) || !is.eof() || divisor == 0.0) return false;
+    }
+    out = sign * factor * std::numbers::pi / divisor;
+    return true;
+  }
+
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+MobileManipulatorParams load_mm_params(const Loader& L, const Node& n, double gravity) {
+  MobileManipulatorParams p;
+  p.gravity = gravity;
+  if (!n.node.IsDefined()) return p;
+  L.only_keys(n, {"platform_mass", "base_mass", "base_inertia", "base_length", "link_mass",
+                  "link_inertia", "link_length"});
+  auto nonneg = [&](const std::string& key, double fallback) {
+    Node c = L.child(n, key, false);
+    if (!c.node.IsDefined()) return fallback;
+    const double v = L.number(c);
+    if (v < 0.0) L.fail(c, "must be >= 0 (a mass, inertia or length), got " + c.node.Scalar());
+    return v;
+  };
+  p.platform_mass = nonneg("platform_mass", p.platform_mass);
+  p.base_mass = nonneg("base_mass", p.base_mass);
+  p.base_inertia = nonneg("base_inertia", p.base_inertia);
+  p.base_length = nonneg("base_length", p.base_length);
+  for (const char* key : {"link_mass", "link_inertia", "link_length"}) {
+    Node c = L.child(n, key, false);
+    if (!c.node.IsDefined()) continue;
+    const Vec v = L.vector(c, 3);
+    for (Index i = 0; i < 3; ++i) {
+      const Node e{c.node[static_cast<std::size_t>(i)], c.key + "[" + std::to_string(i) + "]"};
+      if (v(i) < 0.0) L.fail(e, "must be >= 0, got " + e.node.Scalar());
+      if (std::string(key) == "link_length" && v(i) == 0.0) L.fail(e, "a link length must be > 0");
+    }
+    std::array<double, 3>& dst = std::string(key) == "link_mass"      ? p.link_mass
+                                 : std::string(key) == "link_inertia" ? p.link_inertia
+                                                                      : p.link_length;
+    dst = {v(0), v(1), v(2)};
+  }
+  if (p.platform_mass + p.base_mass + p.link_mass[0] + p.link_mass[1] + p.link_mass[2] <= 0.0) {
+    L.fail(n, "the total mass is zero: the mass matrix would be singular");
+  }
+  return p;
+}
+
+TimeFunction load_time_function(const Loader& L, const Node& n) {
+  // A bare number is a constant.
+  if (n.node.IsScalar()) return TimeFunction::make_constant(L.number(n));
+  if (!n.node.IsMap()) {
+    L.fail(n, "expected a number or a time function {type: constant|cosine|polynomial, ...}");
+  }
+  const std::string type = L.string(L.child(n, "type", true));
+  if (type == "constant") {
+    L.only_keys(n, {"type", "value"});
+    return TimeFunction::make_constant(L.number(L.child(n, "value", true)));
+  }
+  if (type == "cosine") {
+    L.only_keys(n, {"type", "mean", "amplitude", "omega", "phase"});
+    return TimeFunction::make_cosine(L.number_or(n, "mean", 0.0), L.number(L.child(n, "amplitude", true)),
+                                     L.number(L.child(n, "omega", true)), L.number_or(n, "phase", 0.0));
+  }
+  if (type == "polynomial") {
+    L.only_keys(n, {"type", "coefficients"});
+    Node c = L.child(n, "coefficients", true);
+    if (!c.node.IsSequence() || c.node.size() == 0 || c.node.size() > 8) {
+      L.fail(c, "expected a list of 1 to 8 coefficients (c0 + c1 t + c2 t^2 + ...)");
+    }
+    TimeFunction f;
+    f.kind = TimeFunction::Kind::polynomial;
+    f.ncoeff = static_cast<int>(c.node.size());
+    for (std::size_t i = 0; i < c.node.size(); ++i) {
+      f.coeff[i] = L.number(Node{c.node[i], c.key + "[" + std::to_string(i) + "]"});
+    }
+    return f;
+  }
+  L.fail(L.child(n, "type", true), "unknown time function type '" + type +
+                                       "' (expected constant, cosine or polynomial)");
+}
+
+}  // namespace
+
+Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path) {
+  Loader L(path);
+  Scenario sc;
+  sc.path = path;
+  sc.hash = hash_hex(text);
+
+  YAML::Node root_node;
+  try {
+    root_node = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    std::ostringstream os;
+    os << path.string() << ":" << (e.mark.line + 1) << ":" << (e.mark.column + 1)
+       << ": YAML syntax error: " << e.msg;
+    throw ScenarioError(os.str());
+  }
+  const Node root{root_node, ""};
+  if (!root_node.IsMap()) {
+    throw ScenarioError(path.string() + ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
+  }
+  L.only_keys(root, {"ukdyn", "name", "description", "gravity", "subsystems", "constraints",
+                     "initial", "forces", "simulation", "solver"});
+  {
+    Node v = L.child(root, "ukdyn", true);
+    if (L.number(v) != 1.0) L.fail(v, "unsupported format version (this ukdyn reads version 1)");
+  }
+  sc.name = L.string(L.child(root, "name", true));
+  if (Node d = L.child(root, "description", false); d.node.IsDefined()) sc.description = L.string(d);
+  const double gravity = L.number_or(root, "gravity", 9.8);
+
+  // ---- subsystems
+  auto system = std::make_shared<System>();
+  std::map<std::string, std::pair<std::shared_ptr<const MobileManipulator>, Index>> arms;
+  std::map<std::string, Index> coord_index;
+  Node subs = L.child(root, "subsystems", true);
+  if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
+  for (std::size_t i = 0; i < subs.node.size(); ++i) {
+    const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
+    L.only_keys(s, {"name", "type", "coordinates", "params"});
+    const Node name_node = L.child(s, "name", true);
+    const std::string name = L.string(name_node);
+    if (arms.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
+    const Node type_node = L.child(s, "type", true);
+    const std::string type = L.string(type_node);
+    if (type != "mobile_manipulator") {
+      L.fail(type_node, "unknown subsystem type '" + type + "' (this version knows mobile_manipulator)");
+    }
+    const Node cn = L.child(s, "coordinates", true);
+    if (!cn.node.IsSequence() || cn.node.size() != 6) {
+      L.fail(cn, "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
+    }
+    std::vector<std::string> names;
+    for (std::size_t j = 0; j < 6; ++j) {
+      const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
+      std::string c = L.string(e);
+      if (c.empty() || c.find_first_of(", \"\n") != std::string::npos) {
+        L.fail(e, "a coordinate name must be non-empty without commas, quotes or spaces");
+      }
+      if (coord_index.count(c)) L.fail(e, "duplicate coordinate name '" + c + "'");
+      coord_index[c] = system->dof() + static_cast<Index>(j);
+      names.push_back(std::move(c));
+    }
+    auto arm = std::make_shared<MobileManipulator>(
+        name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
+    const Index off = system->add_subsystem(arm);
+    arms[name] = {arm, off};
+    sc.subsystems.push_back({name, type, off, arm->dof()});
+  }
+  const Index n = system->dof();
+  if (n > kMaxDof) L.fail(subs, "too many coordinates");
+
+  // ---- initial state (needed by constraints that refer to it)
+  const Node init = L.child(root, "initial", true);
+  L.only_keys(init, {"q", "qd"});
+  sc.q0 = L.vector(L.child(init, "q", true), n);
+  if (Node qd = L.child(init, "qd", false); qd.node.IsDefined()) {
+    if (qd.node.IsScalar() && qd.node.Scalar() == "zeros") {
+      sc.qd0 = Vec::Zero(n);
+    } else {
+      sc.qd0 = L.vector(qd, n);
+    }
+  } else {
+    sc.qd0 = Vec::Zero(n);
+  }
+
+  // ---- constraints
+  std::set<std::string> row_names;
+  auto add = [&](const Node& at, std::shared_ptr<const Constraint> c) {
+    for (const auto& r : c->row_names()) {
+      if (!row_names.insert(r).second) L.fail(at, "duplicate constraint row name '" + r + "'");
+    }
+    system->add_constraint(std::move(c));
+  };
+  auto arm_ref = [&](const Node& parent, const std::string& key) {
+    const Node a = L.child(parent, key, true);
+    const std::string nm = L.string(a);
+    auto it = arms.find(nm);
+    if (it == arms.end()) L.fail(a, "no subsystem named '" + nm + "'");
+    return it->second;
+  };
+  if (Node cons = L.child(root, "constraints", false); cons.node.IsDefined()) {
+    if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
+    for (std::size_t i = 0; i < cons.node.size(); ++i) {
+      const Node c{cons.node[i], cons.key + "[" + std::to_string(i) + "]"};
+      const Node type_node = L.child(c, "type", true);
+      const std::string type = L.string(type_node);
+      const std::string cname = L.string(L.child(c, "name", true));
+      if (cname.empty() || cname.find_first_of(", \"\n") != std::string::npos) {
+        L.fail(L.child(c, "name", true), "a constraint name must be non-empty without commas, quotes or spaces");
+      }
+      try {
+        if (type == "closure") {
+          L.only_keys(c, {"type", "name", "left", "right", "dz", "yaw_offset", "load_pitch"});
+          auto [left, lo] = arm_ref(c, "left");
+          auto [right, ro] = arm_ref(c, "right");
+          if (left == right) L.fail(L.child(c, "right", true), "left and right must differ");
+          ClosureConstraint::Options o;
+          o.prefix = cname;
+          o.dz = L.number_or(c, "dz", 0.0);
+          o.yaw_offset = L.number_or(c, "yaw_offset", std::numbers::pi);
+          if (Node lp = L.child(c, "load_pitch", false); lp.node.IsDefined()) {
+            const Vec v = L.vector(lp, 2);
+            o.load_pitch1 = v(0);
+            o.load_pitch2 = v(1);
+          }
+          add(c, std::make_shared<ClosureConstraint>(left, lo, right, ro, o));
+        } else if (type == "cut_point_trajectory") {
+          L.only_keys(c, {"type", "name", "arm", "origin", "x", "y", "z"});
+          auto [arm, off] = arm_ref(c, "arm");
+          Vec3 origin = Vec3::Zero();
+          const Node on = L.child(c, "origin", false);
+          if (!on.node.IsDefined() || (on.node.IsScalar() && on.node.Scalar() == "initial")) {
+            origin = arm->cut_point(sc.q0.segment(off, 6));
+          } else {
+            origin = L.vector(on, 3);
+          }
+          std::array<std::optional<TimeFunction>, 3> axes;
+          const char* keys[3] = {"x", "y", "z"};
+          for (std::size_t a = 0; a < 3; ++a) {
+            if (Node f = L.child(c, keys[a], false); f.node.IsDefined()) axes[a] = load_time_function(L, f);
+          }
+          if (!axes[0] && !axes[1] && !axes[2]) L.fail(c, "give at least one of x, y, z");
+          add(c, std::make_shared<CutPointTrajectory>(arm, off, axes, origin, cname));
+        } else if (type == "coordinate") {
+          L.only_keys(c, {"type", "name", "coordinate", "value"});
+          const Node cn = L.child(c, "coordinate", true);
+          const std::string coord = L.string(cn);
+          auto it = coord_index.find(coord);
+          if (it == coord_index.end()) L.fail(cn, "no coordinate named '" + coord + "'");
+          const Node vn = L.child(c, "value", false);
+          TimeFunction f = TimeFunction::make_constant(sc.q0(it->second));
+          if (vn.node.IsDefined() && !(vn.node.IsScalar() && vn.node.Scalar() == "initial")) {
+            f = load_time_function(L, vn);
+          }
+          add(c, std::make_shared<CoordinateConstraint>(it->second, f, cname));
+        } else {
+          L.fail(type_node, "unknown constraint type '" + type +
+                                "' (expected closure, cut_point_trajectory or coordinate)");
+        }
+      } catch (const ScenarioError&) {
+        throw;
+      } catch (const Error& e) {
+        L.fail(c, e.what());
+      }
+    }
+  }
+
+  // ---- forces
+  sc.tau = Vec::Zero(n);
+  if (Node f = L.child(root, "forces", false); f.node.IsDefined()) {
+    L.only_keys(f, {"tau"});
+    if (Node t = L.child(f, "tau", false); t.node.IsDefined()) sc.tau = L.vector(t, n);
+  }
+
+  // ---- simulation
+  {
+    const Node s = L.child(root, "simulation", true);
+    L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "abs_tol", "rel_tol", "step",
+                    "initial_tolerance"});
+    auto& sim = sc.sim;
+    sim.t0 = L.number_or(s, "t0", 0.0);
+    const Node te = L.child(s, "t_end", true);
+    sim.t_end = L.number(te);
+    if (!(sim.t_end > sim.t0)) L.fail(te, "t_end must be greater than t0");
+    if (sim.t_end - sim.t0 > 1e7) L.fail(te, "duration over 1e7 s: refusing an absurd horizon");
+    const Node sd = L.child(s, "sample_dt", true);
+    sim.sample_dt = L.positive(sd);
+    if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
+      L.fail(sd, "more than 1e7 output samples: increase sample_dt");
+    }
+    if (Node in = L.child(s, "integrator", false); in.node.IsDefined()) {
+      const std::string kind = L.string(in);
+      if (kind == "dopri5") {
+        sim.integrator = IntegratorKind::dopri5;
+      } else if (kind == "rk4") {
+        sim.integrator = IntegratorKind::rk4;
+      } else {
+        L.fail(in, "unknown integrator '" + kind + "' (expected dopri5 or rk4)");
+      }
+    }
+    auto tol = [&](const char* key, double fallback) {
+      const Node t = L.child(s, key, false);
+      if (!t.node.IsDefined()) return fallback;
+      const double v = L.number(t);
+      if (!(v >= 1e-16 && v <= 1.0)) L.fail(t, "a tolerance must lie in [1e-16, 1]");
+      return v;
+    };
+    sim.abs_tol = tol("abs_tol", sim.abs_tol);
+    sim.rel_tol = tol("rel_tol", sim.rel_tol);
+    if (Node st = L.child(s, "step", false); st.node.IsDefined()) {
+      sim.step = L.positive(st);
+      if (sim.integrator == IntegratorKind::rk4) {
+        if ((sim.t_end - sim.t0) / sim.step > 1e9) L.fail(st, "more than 1e9 steps: increase step");
+        const double ratio = sim.sample_dt / sim.step;
+        if (std::abs(ratio - std::round(ratio)) > 1e-9 * ratio || std::round(ratio) < 1) {
+          L.fail(st, "the rk4 step must divide simulation.sample_dt");
+        }
+      }
+    }
+    sc.initial_tolerance = tol("initial_tolerance", sc.initial_tolerance);
+  }
+  if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
+    L.only_keys(s, {"rank_tol", "consistency_tol"});
+    if (Node r = L.child(s, "rank_tol", false); r.node.IsDefined()) {
+      sc.sim.uk.rank_rel_tol = L.number(r);
+      if (!(sc.sim.uk.rank_rel_tol > 0 && sc.sim.uk.rank_rel_tol < 1)) L.fail(r, "must lie in (0, 1)");
+    }
+    if (Node r = L.child(s, "consistency_tol", false); r.node.IsDefined()) {
+      sc.sim.uk.consistency_rel_tol = L.number(r);
+      if (!(sc.sim.uk.consistency_rel_tol > 0 && sc.sim.uk.consistency_rel_tol < 1)) L.fail(r, "must lie in (0, 1)");
+    }
+  }
+
+  // ---- the initial state must satisfy the constraints (paper, assumption 3)
+  if (system->rows() > 0) {
+    Vec phi(system->rows()), phid(system->rows());
+    position_residuals(*system, sc.sim.t0, sc.q0, phi);
+    velocity_residuals(*system, sc.sim.t0, sc.q0, sc.qd0, phid);
+    Index worst = 0;
+    const double pmax = phi.cwiseAbs().maxCoeff(&worst);
+    if (!(pmax <= sc.initial_tolerance)) {
+      std::ostringstream os;
+      os.precision(3);
+      os << "initial.q violates constraint '" << system->constraint_row_names()[static_cast<std::size_t>(worst)]
+         << "': residual " << std::scientific << phi(worst) << " > initial_tolerance "
+         << sc.initial_tolerance;
+      L.fail(init, os.str());
+    }
+    const double vmax = phid.cwiseAbs().maxCoeff(&worst);
+    if (!(vmax <= sc.initial_tolerance)) {
+      std::ostringstream os;
+      os.precision(3);
+      os << "initial.qd violates the velocity form of constraint '"
+         << system->constraint_row_names()[static_cast<std::size_t>(worst)] << "': residual "
+         << std::scientific << phid(worst) << " > initial_tolerance " << sc.initial_tolerance;
+      L.fail(init, os.str());
+    }
+  }
+  sc.system = system;
+  return sc;
+}
+
+Scenario load_scenario(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    throw ScenarioError(path.string() + ": no such scenario file");
+  }
+  const auto size = std::filesystem::file_size(path, ec);
+  if (ec || size > kMaxFileBytes) {
+    throw ScenarioError(path.string() + ": not a readable scenario (larger than 4 MiB?)");
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw ScenarioError(path.string() + ": cannot open");
+  std::ostringstream os;
+  os << in.rdbuf();
+  return load_scenario_text(os.str(), path);
+}
+
+}  // namespace ukdyn

@@ -1,0 +1,47 @@
+// Scenario files (YAML): the system, its constraints, the initial state, forces and run settings.
+// The format is documented in docs/scenario-format.md. Every error names file:line:column and key.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ukdyn/model/system.hpp"
+#include "ukdyn/simulate/simulate.hpp"
+
+namespace ukdyn {
+
+/// An error in a scenario file; what() reads "FILE:LINE:COL: key 'KEY': message".
+class ScenarioError : public Error {
+ public:
+  using Error::Error;
+};
+
+struct SubsystemInfo {
+  std::string name;
+  std::string type;  ///< "mobile_manipulator"
+  Index offset = 0;
+  Index dof = 0;
+};
+
+struct Scenario {
+  std::filesystem::path path;
+  std::string name;
+  std::string description;
+  std::string hash;  ///< FNV-1a 64 of the file's bytes, hex
+  std::shared_ptr<const System> system;
+  std::vector<SubsystemInfo> subsystems;
+  Vec q0, qd0, tau;
+  SimulationSettings sim;
+  double initial_tolerance = 1e-9;  ///< |Φ(q0, t0)| and |Φ̇(q0, q̇0, t0)| must stay under this
+};
+
+/// Loads and validates a scenario. Throws ScenarioError naming file, line, column and key.
+/// Also checks that (q0, q̇0) satisfies every constraint at t0 (position and velocity level).
+Scenario load_scenario(const std::filesystem::path& path);
+
+/// Same, from text (path is used in messages only).
+Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path);
+
+}  // namespace ukdyn
