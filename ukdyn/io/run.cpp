@@ -41,8 +41,10 @@ std::vector<Figure> default_figures(const Scenario& sc) {
   for (std::size_t c = 0; c < cons.size(); ++c) {
     Figure f;
     const std::string& first = rows[static_cast<std::size_t>(offs[c])];
-    const std::string block = first.substr(0, first.rfind('_') == std::string::npos ? first.size()
-                                                                                    : first.rfind('_'));
+    // A block of several rows is named <prefix>_<row>; a single row carries the block's name.
+    const auto cut = first.rfind('_');
+    const std::string block =
+        cons[c]->rows() == 1 || cut == std::string::npos ? first : first.substr(0, cut);
     f.file = "residuals_" + block + ".png";
     f.title = "Constraint residuals Φ of '" + block + "' (position level)";
     f.ylabel = "Φ [m or rad]";

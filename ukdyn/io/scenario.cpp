@@ -2,6 +2,8 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "ukdyn/io/yaml_loader.hpp"
+
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -15,6 +17,9 @@
 namespace ukdyn {
 
 namespace {
+
+using io_detail::Loader;
+using io_detail::Node;
 
 constexpr std::size_t kMaxFileBytes = 4u << 20;  // 4 MiB: a scenario is a small text file
 constexpr Index kMaxDof = 10'000;
@@ -32,150 +37,6 @@ std::string hash_hex(const std::string& bytes) {
   os << h;
   return os.str();
 }
-
-// A YAML node with the dotted key path that led to it, for messages.
-struct Node {
-  YAML::Node node;
-  std::string key;
-};
-
-class Loader {
- public:
-  explicit Loader(std::filesystem::path path) : path_(std::move(path)) {}
-
-  [[noreturn]] void fail(const Node& at, const std::string& message) const {
-    std::ostringstream os;
-    os << path_.string();
-    const YAML::Mark mark = at.node.IsDefined() ? at.node.Mark() : YAML::Mark::null_mark();
-    if (mark.line >= 0) os << ":" << (mark.line + 1) << ":" << (mark.column + 1);
-    os << ": key '" << at.key << "': " << message;
-    throw ScenarioError(os.str());
-  }
-
-  Node child(const Node& parent, const std::string& key, bool required) const {
-    if (!parent.node.IsMap()) fail(parent, "expected a mapping");
-    YAML::Node c = parent.node[key];
-    const std::string full = parent.key.empty() ? key : parent.key + "." + key;
-    if (!c.IsDefined() || c.IsNull()) {
-      if (required) fail(parent, "missing required key '" + full + "'");
-      return Node{YAML::Node(YAML::NodeType::Undefined), full};
-    }
-    return Node{c, full};
-  }
-
-  // Unknown keys are errors: a mistyped key must not be silently ignored.
-  void only_keys(const Node& n, std::initializer_list<const char*> allowed) const {
-    if (!n.node.IsMap()) fail(n, "expected a mapping");
-    std::set<std::string> ok(allowed.begin(), allowed.end());
-    for (const auto& kv : n.node) {
-      const auto k = kv.first.as<std::string>();
-      if (!ok.count(k)) {
-        std::string list;
-        for (const auto& a : ok) list += (list.empty() ? "" : ", ") + a;
-        fail(Node{kv.first, n.key.empty() ? k : n.key + "." + k},
-             "unknown key (allowed here: " + list + ")");
-      }
-    }
-  }
-
-  // A number, or an expression of pi: "pi", "-pi/3", "2*pi", "pi/2", "0.5*pi".
-  double number(const Node& n) const {
-    if (!n.node.IsScalar()) fail(n, "expected a number");
-    const std::string s = n.node.Scalar();
-    double v = 0.0;
-    if (!parse_number(s, v)) fail(n, "expected a number (or a multiple of pi), got '" + s + "'");
-    if (!std::isfinite(v)) fail(n, "must be finite, got '" + s + "'");
-    return v;
-  }
-
-  double number_or(const Node& parent, const std::string& key, double fallback) const {
-    Node c = child(parent, key, false);
-    return c.node.IsDefined() ? number(c) : fallback;
-  }
-
-  double positive(const Node& n) const {
-    const double v = number(n);
-    if (!(v > 0.0)) fail(n, "must be > 0, got " + n.node.Scalar());
-    return v;
-  }
-
-  std::string string(const Node& n) const {
-    if (!n.node.IsScalar()) fail(n, "expected a string");
-    return n.node.Scalar();
-  }
-
-  Vec vector(const Node& n, Index expected) const {
-    if (!n.node.IsSequence()) fail(n, "expected a list of " + std::to_string(expected) + " numbers");
-    if (static_cast<Index>(n.node.size()) != expected) {
-      fail(n, "expected " + std::to_string(expected) + " numbers, got " +
-                  std::to_string(n.node.size()));
-    }
-    Vec v(expected);
-    for (Index i = 0; i < expected; ++i) {
-      v(i) = number(Node{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"});
-    }
-    return v;
-  }
-
-  static bool parse_number(std::string s, double& out) {
-    std::string t;
-    for (char ch : s) {
-      if (ch != ' ') t += ch;
-    }
-    if (t.empty()) return false;
-    // Plain number.
-    {
-      std::istringstream is(t);
-      is.imbue(std::locale::classic());
-      double v = 0.0;
-      if ((is >> v) && is.eof()) {
-        out = v;
-        return true;
-      }
-      if (t == ".nan" || t == ".NaN" || t == "nan") {
-        out = std::numeric_limits<double>::quiet_NaN();
-        return true;
-      }
-      if (t == ".inf" || t == "inf" || t == "-.inf" || t == "-inf") {
-        out = t[0] == '-' ? -std::numeric_limits<double>::infinity()
-                          : std::numeric_limits<double>::infinity();
-        return true;
-      }
-    }
-    // [sign][factor*]pi[/divisor]
-    double sign = 1.0;
-    std::size_t i = 0;
-    if (t[0] == '-' || t[0] == '+') {
-      sign = t[0] == '-' ? -1.0 : 1.0;
-      i = 1;
-    }
-    const std::size_t p = t.find("pi", i);
-    if (p == std::string::npos) return false;
-    double factor = 1.0;
-    if (p > i) {
-      const std::string f = t.substr(i, p - i);
-      if (f.back() != '*') return false;
-      std::istringstream is(f.substr(0, f.size() - 1));
-      is.imbue(std::locale::classic());
-      if (!(is >> factor) || !is.eof()) return false;
-    }
-    double divisor = 1.0;
-    const std::string rest = t.substr(p + 2);
-    if (!rest.empty()) {
-      if (rest[0] != '/') return false;
-      std::istringstream is(rest.substr(1));
-      is.imbue(std::locale::classic());
-      if (!(is >> divisor) || !is.eof() || divisor == 0.0) return false;
-    }
-    out = sign * factor * std::numbers::pi / divisor;
-    return true;
-  }
-
-  const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
 
 MobileManipulatorParams load_mm_params(const Loader& L, const Node& n, double gravity) {
   MobileManipulatorParams p;
@@ -283,39 +144,47 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   auto system = std::make_shared<System>();
   std::map<std::string, std::pair<std::shared_ptr<const MobileManipulator>, Index>> arms;
   std::map<std::string, Index> coord_index;
+  std::set<std::string> subsystem_names;
   Node subs = L.child(root, "subsystems", true);
   if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
     const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
-    L.only_keys(s, {"name", "type", "coordinates", "params"});
     const Node name_node = L.child(s, "name", true);
     const std::string name = L.string(name_node);
-    if (arms.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
+    if (subsystem_names.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
+    subsystem_names.insert(name);
     const Node type_node = L.child(s, "type", true);
     const std::string type = L.string(type_node);
-    if (type != "mobile_manipulator") {
-      L.fail(type_node, "unknown subsystem type '" + type + "' (this version knows mobile_manipulator)");
-    }
+    // Coordinate names: unique across the system, usable as CSV column names.
     const Node cn = L.child(s, "coordinates", true);
-    if (!cn.node.IsSequence() || cn.node.size() != 6) {
-      L.fail(cn, "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
-    }
+    if (!cn.node.IsSequence() || cn.node.size() == 0) L.fail(cn, "expected a list of coordinate names");
+    if (cn.node.size() > static_cast<std::size_t>(kMaxDof)) L.fail(cn, "too many coordinates");
     std::vector<std::string> names;
-    for (std::size_t j = 0; j < 6; ++j) {
+    for (std::size_t j = 0; j < cn.node.size(); ++j) {
       const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
       std::string c = L.string(e);
-      if (c.empty() || c.find_first_of(", \"\n") != std::string::npos) {
+      if (c.empty() || c.find_first_of(", \"\n'") != std::string::npos) {
         L.fail(e, "a coordinate name must be non-empty without commas, quotes or spaces");
       }
       if (coord_index.count(c)) L.fail(e, "duplicate coordinate name '" + c + "'");
       coord_index[c] = system->dof() + static_cast<Index>(j);
       names.push_back(std::move(c));
     }
-    auto arm = std::make_shared<MobileManipulator>(
-        name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
-    const Index off = system->add_subsystem(arm);
-    arms[name] = {arm, off};
-    sc.subsystems.push_back({name, type, off, arm->dof()});
+    std::shared_ptr<const Subsystem> sub;
+    if (type == "mobile_manipulator") {
+      L.only_keys(s, {"name", "type", "coordinates", "params"});
+      if (names.size() != 6) {
+        L.fail(cn, "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
+      }
+      auto arm = std::make_shared<MobileManipulator>(
+          name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
+      arms[name] = {arm, system->dof()};
+      sub = arm;
+    } else {
+      L.fail(type_node, "unknown subsystem type '" + type + "' (expected mobile_manipulator)");
+    }
+    const Index off = system->add_subsystem(sub);
+    sc.subsystems.push_back({name, type, off, sub->dof()});
   }
   const Index n = system->dof();
   if (n > kMaxDof) L.fail(subs, "too many coordinates");

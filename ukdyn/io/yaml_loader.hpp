@@ -1,0 +1,167 @@
+// Internal to ukdyn::io: YAML access that names file:line:column and the key path in every error.
+// Used by the scenario loader and by the loaders of definition-based subsystems and constraints.
+#pragma once
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <filesystem>
+#include <initializer_list>
+#include <limits>
+#include <locale>
+#include <numbers>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "ukdyn/core/types.hpp"
+#include "ukdyn/io/scenario.hpp"
+
+namespace ukdyn::io_detail {
+
+// A YAML node with the dotted key path that led to it, for messages.
+struct Node {
+  YAML::Node node;
+  std::string key;
+};
+
+class Loader {
+ public:
+  explicit Loader(std::filesystem::path path) : path_(std::move(path)) {}
+
+  [[noreturn]] void fail(const Node& at, const std::string& message) const {
+    std::ostringstream os;
+    os << path_.string();
+    const YAML::Mark mark = at.node.IsDefined() ? at.node.Mark() : YAML::Mark::null_mark();
+    if (mark.line >= 0) os << ":" << (mark.line + 1) << ":" << (mark.column + 1);
+    os << ": key '" << at.key << "': " << message;
+    throw ScenarioError(os.str());
+  }
+
+  Node child(const Node& parent, const std::string& key, bool required) const {
+    if (!parent.node.IsMap()) fail(parent, "expected a mapping");
+    YAML::Node c = parent.node[key];
+    const std::string full = parent.key.empty() ? key : parent.key + "." + key;
+    if (!c.IsDefined() || c.IsNull()) {
+      if (required) fail(parent, "missing required key '" + full + "'");
+      return Node{YAML::Node(YAML::NodeType::Undefined), full};
+    }
+    return Node{c, full};
+  }
+
+  // Unknown keys are errors: a mistyped key must not be silently ignored.
+  void only_keys(const Node& n, std::initializer_list<const char*> allowed) const {
+    if (!n.node.IsMap()) fail(n, "expected a mapping");
+    std::set<std::string> ok(allowed.begin(), allowed.end());
+    for (const auto& kv : n.node) {
+      const auto k = kv.first.as<std::string>();
+      if (!ok.count(k)) {
+        std::string list;
+        for (const auto& a : ok) list += (list.empty() ? "" : ", ") + a;
+        fail(Node{kv.first, n.key.empty() ? k : n.key + "." + k},
+             "unknown key (allowed here: " + list + ")");
+      }
+    }
+  }
+
+  // A number, or an expression of pi: "pi", "-pi/3", "2*pi", "pi/2", "0.5*pi".
+  double number(const Node& n) const {
+    if (!n.node.IsScalar()) fail(n, "expected a number");
+    const std::string s = n.node.Scalar();
+    double v = 0.0;
+    if (!parse_number(s, v)) fail(n, "expected a number (or a multiple of pi), got '" + s + "'");
+    if (!std::isfinite(v)) fail(n, "must be finite, got '" + s + "'");
+    return v;
+  }
+
+  double number_or(const Node& parent, const std::string& key, double fallback) const {
+    Node c = child(parent, key, false);
+    return c.node.IsDefined() ? number(c) : fallback;
+  }
+
+  double positive(const Node& n) const {
+    const double v = number(n);
+    if (!(v > 0.0)) fail(n, "must be > 0, got " + n.node.Scalar());
+    return v;
+  }
+
+  std::string string(const Node& n) const {
+    if (!n.node.IsScalar()) fail(n, "expected a string");
+    return n.node.Scalar();
+  }
+
+  Vec vector(const Node& n, Index expected) const {
+    if (!n.node.IsSequence()) fail(n, "expected a list of " + std::to_string(expected) + " numbers");
+    if (static_cast<Index>(n.node.size()) != expected) {
+      fail(n, "expected " + std::to_string(expected) + " numbers, got " +
+                  std::to_string(n.node.size()));
+    }
+    Vec v(expected);
+    for (Index i = 0; i < expected; ++i) {
+      v(i) = number(Node{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"});
+    }
+    return v;
+  }
+
+  static bool parse_number(std::string s, double& out) {
+    std::string t;
+    for (char ch : s) {
+      if (ch != ' ') t += ch;
+    }
+    if (t.empty()) return false;
+    // Plain number.
+    {
+      std::istringstream is(t);
+      is.imbue(std::locale::classic());
+      double v = 0.0;
+      if ((is >> v) && is.eof()) {
+        out = v;
+        return true;
+      }
+      if (t == ".nan" || t == ".NaN" || t == "nan") {
+        out = std::numeric_limits<double>::quiet_NaN();
+        return true;
+      }
+      if (t == ".inf" || t == "inf" || t == "-.inf" || t == "-inf") {
+        out = t[0] == '-' ? -std::numeric_limits<double>::infinity()
+                          : std::numeric_limits<double>::infinity();
+        return true;
+      }
+    }
+    // [sign][factor*]pi[/divisor]
+    double sign = 1.0;
+    std::size_t i = 0;
+    if (t[0] == '-' || t[0] == '+') {
+      sign = t[0] == '-' ? -1.0 : 1.0;
+      i = 1;
+    }
+    const std::size_t p = t.find("pi", i);
+    if (p == std::string::npos) return false;
+    double factor = 1.0;
+    if (p > i) {
+      const std::string f = t.substr(i, p - i);
+      if (f.back() != '*') return false;
+      std::istringstream is(f.substr(0, f.size() - 1));
+      is.imbue(std::locale::classic());
+      if (!(is >> factor) || !is.eof()) return false;
+    }
+    double divisor = 1.0;
+    const std::string rest = t.substr(p + 2);
+    if (!rest.empty()) {
+      if (rest[0] != '/') return false;
+      std::istringstream is(rest.substr(1));
+      is.imbue(std::locale::classic());
+      if (!(is >> divisor) || !is.eof() || divisor == 0.0) return false;
+    }
+    out = sign * factor * std::numbers::pi / divisor;
+    return true;
+  }
+
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+
+}  // namespace ukdyn::io_detail
