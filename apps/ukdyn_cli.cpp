@@ -3,10 +3,10 @@
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
 // Exit codes: 0 success, 1 run incomplete or some eval lines failed, 2 bad input.
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <cmath>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -79,7 +79,8 @@ int cmd_eval(const ukdyn::Scenario& sc) {
       } catch (const json::parse_error& e) {
         throw ukdyn::Error(std::string("invalid JSON: ") + e.what());
       }
-      if (!in.is_object()) throw ukdyn::Error("expected a JSON object {\"t\", \"q\", \"qd\", \"tau\"}");
+      if (!in.is_object())
+        throw ukdyn::Error("expected a JSON object {\"t\", \"q\", \"qd\", \"tau\"}");
       double t = 0.0;
       if (in.contains("t")) {
         if (!in["t"].is_number()) throw ukdyn::Error("key 't': expected a number");
@@ -134,19 +135,22 @@ int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures
     }
   }
   if (!quiet) {
-    std::cout << fmt::format("ukdyn {}: scenario '{}' ({}), t = {} .. {} s\n", UKDYN_VERSION, sc.name,
-                             sc.path.string(), sc.sim.t0, rep.stats.t_reached);
+    std::cout << fmt::format("ukdyn {}: scenario '{}' ({}), t = {} .. {} s\n", UKDYN_VERSION,
+                             sc.name, sc.path.string(), sc.sim.t0, rep.stats.t_reached);
     std::cout << fmt::format("  status              {}{}\n", ukdyn::to_string(rep.stats.status),
                              rep.stats.message.empty() ? "" : " (" + rep.stats.message + ")");
-    std::cout << fmt::format("  steps               {} accepted, {} force evaluations, {} samples\n",
-                             rep.stats.steps, rep.stats.rhs_evaluations, rep.stats.samples);
+    std::cout << fmt::format(
+        "  steps               {} accepted, {} force evaluations, {} samples\n", rep.stats.steps,
+        rep.stats.rhs_evaluations, rep.stats.samples);
     std::cout << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
-    std::cout << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n", rep.rank_min,
-                             rep.rank_max, sc.system->rows(), sc.system->dof() - rep.rank_max);
+    std::cout << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n",
+                             rep.rank_min, rep.rank_max, sc.system->rows(),
+                             sc.system->dof() - rep.rank_max);
     std::cout << fmt::format("  max |residual|      {:.3e} ({})\n", worst, worst_name);
     std::cout << fmt::format("  max |A qdd - b|     {:.3e}\n", rep.max_acc_residual);
-    std::cout << fmt::format("  energy              E0 = {:.9g} J, max |E - E0| = {:.3e} J, max T = {:.6g} J\n",
-                             rep.E0, rep.max_energy_drift, rep.max_T);
+    std::cout << fmt::format(
+        "  energy              E0 = {:.9g} J, max |E - E0| = {:.3e} J, max T = {:.6g} J\n", rep.E0,
+        rep.max_energy_drift, rep.max_T);
     std::cout << fmt::format("  outputs             {}\n", rep.csv.string());
     std::cout << fmt::format("                      {}\n", rep.summary.string());
     if (!rep.figures.empty()) {
@@ -172,16 +176,20 @@ int main(int argc, char** argv) {
 
   std::string scenario, out = "out";
   bool no_figures = false, quiet = false;
-  auto* sim = app.add_subcommand("simulate", "Simulate a scenario; write trajectory.csv, summary.json, figures/");
+  auto* sim = app.add_subcommand(
+      "simulate", "Simulate a scenario; write trajectory.csv, summary.json, figures/");
   sim->add_option("scenario", scenario, "scenario file (YAML)")->required();
   sim->add_option("--out,-o", out, "output folder")->capture_default_str();
   sim->add_flag("--no-figures", no_figures, "skip the figures");
   sim->add_flag("--quiet,-q", quiet, "print nothing but errors");
 
-  auto* ev = app.add_subcommand("eval", "Read JSON lines {t, q, qd, tau} on stdin; write M, C, G, A, b, Qc, qdd as JSON lines");
+  auto* ev = app.add_subcommand(
+      "eval",
+      "Read JSON lines {t, q, qd, tau} on stdin; write M, C, G, A, b, Qc, qdd as JSON lines");
   ev->add_option("scenario", scenario, "scenario file (YAML)")->required();
 
-  auto* chk = app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
+  auto* chk =
+      app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
   chk->add_option("scenario", scenario, "scenario file (YAML)")->required();
 
   CLI11_PARSE(app, argc, argv);
@@ -191,8 +199,8 @@ int main(int argc, char** argv) {
     if (*sim) return cmd_simulate(sc, out, !no_figures, quiet);
     if (*ev) return cmd_eval(sc);
     if (*chk) {
-      std::cout << fmt::format("{}: ok: '{}', {} coordinates, {} constraint rows\n", scenario, sc.name,
-                               sc.system->dof(), sc.system->rows());
+      std::cout << fmt::format("{}: ok: '{}', {} coordinates, {} constraint rows\n", scenario,
+                               sc.name, sc.system->dof(), sc.system->rows());
       return 0;
     }
   } catch (const ukdyn::ScenarioError& e) {

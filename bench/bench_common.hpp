@@ -1,5 +1,5 @@
-// Shared pieces of the benchmark binary: registration helpers, the collecting reporter's results and
-// the end-of-run comparison rows.
+// Shared pieces of the benchmark binary: registration helpers, the collecting reporter's results
+// and the end-of-run comparison rows.
 #pragma once
 
 #include <benchmark/benchmark.h>
@@ -14,29 +14,31 @@ namespace ukbench {
 /// Adds min and max to the statistics Google Benchmark computes over --benchmark_repetitions.
 inline benchmark::internal::Benchmark* with_min_max(benchmark::internal::Benchmark* b) {
   return b
-      ->ComputeStatistics("min",
-                          [](const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); })
-      ->ComputeStatistics("max",
-                          [](const std::vector<double>& v) { return *std::max_element(v.begin(), v.end()); });
+      ->ComputeStatistics(
+          "min", [](const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); })
+      ->ComputeStatistics("max", [](const std::vector<double>& v) {
+        return *std::max_element(v.begin(), v.end());
+      });
 }
 
-/// Real time per iteration of one benchmark, in nanoseconds.
+/// CPU time per iteration of one benchmark, in nanoseconds.
 struct Timing {
   std::vector<double> repetitions;  ///< per-repetition times, when the reporter saw them
-  double median = -1, min = -1, max = -1;  ///< aggregates (or computed from repetitions); −1 if absent
+  double median = -1, min = -1,
+         max = -1;  ///< aggregates (or computed from repetitions); −1 if absent
   [[nodiscard]] bool valid() const { return median > 0; }
 };
 using Timings = std::map<std::string, Timing>;
 
 /// One row of the "constraint violation held over the same 4 s" table.
 struct ViolationRow {
-  std::string engine;     ///< "ukdyn" / "MuJoCo 2.2.2"
-  std::string setup;      ///< integrator, step, tolerance
-  std::string start;      ///< "qd0 = 0" or "spatial qd0"
-  double wall_ms = 0;     ///< wall time of the 4 s run (median of a few runs, no measuring)
-  double max_gap = 0;     ///< max distance between the two cut points [m]
-  double max_phi = 0;     ///< max |Φ| over the 6 closure rows (ukdyn's residuals) [m or rad]
-  double q_diff = -1;     ///< max |q − q_ref(0.5 s)| against ukdyn dopri5 1e-12 (−1: not computed)
+  std::string engine;  ///< "ukdyn" / "MuJoCo 2.2.2"
+  std::string setup;   ///< integrator, step, tolerance
+  std::string start;   ///< "qd0 = 0" or "spatial qd0"
+  double wall_ms = 0;  ///< wall time of the 4 s run (median of a few runs, no measuring)
+  double max_gap = 0;  ///< max distance between the two cut points [m]
+  double max_phi = 0;  ///< max |Φ| over the 6 closure rows (ukdyn's residuals) [m or rad]
+  double q_diff = -1;  ///< max |q − q_ref(0.5 s)| against ukdyn dopri5 1e-12 (−1: not computed)
 };
 
 /// ukdyn benchmarks (bench_ukdyn.cpp).

@@ -39,8 +39,9 @@ struct JointMap {
   std::array<int, 12> dof{};
 };
 
-const char* const kJointNames[12] = {"r1_x", "r1_y", "r1_yaw", "r1_pitch1", "r1_pitch2", "r1_pitch3",
-                                     "r2_x", "r2_y", "r2_yaw", "r2_pitch1", "r2_pitch2", "r2_pitch3"};
+const char* const kJointNames[12] = {"r1_x",      "r1_y",      "r1_yaw",    "r1_pitch1",
+                                     "r1_pitch2", "r1_pitch3", "r2_x",      "r2_y",
+                                     "r2_yaw",    "r2_pitch1", "r2_pitch2", "r2_pitch3"};
 
 struct MjSetup {
   ModelPtr model;
@@ -81,7 +82,8 @@ const MjSetup& setup() {
   return s;
 }
 
-/// Paper coordinates (absolute pitch angles) -> MuJoCo (relative hinges); linear, so also for rates.
+/// Paper coordinates (absolute pitch angles) -> MuJoCo (relative hinges); linear, so also for
+/// rates.
 void paper_to_mujoco(const Vec& q, const std::array<int, 12>& adr, mjtNum* out) {
   for (int r = 0; r < 2; ++r) {
     const int o = 6 * r;
@@ -124,7 +126,8 @@ ModelPtr variant(const MjSetup& s, int integrator, bool stiff) {
   m->opt.integrator = integrator;
   if (stiff) {
     for (int e = 0; e < m->neq; ++e) {
-      m->eq_solref[e * mjNREF + 0] = 2 * m->opt.timestep;  // the smallest time constant MuJoCo accepts
+      m->eq_solref[e * mjNREF + 0] =
+          2 * m->opt.timestep;  // the smallest time constant MuJoCo accepts
       m->eq_solref[e * mjNREF + 1] = 1.0;
       m->eq_solimp[e * mjNIMP + 0] = 0.99;
       m->eq_solimp[e * mjNIMP + 1] = 0.999;
@@ -222,7 +225,8 @@ std::vector<ViolationRow> mujoco_violation_rows(bool spatial, const std::vector<
       row.max_phi = std::max(row.max_phi, max_abs(phi));
       if (k == 500 && q_ref_05.size() == 12) {
         double dq = 0;
-        for (int i = 0; i < 12; ++i) dq = std::max(dq, std::abs(q[i] - q_ref_05[static_cast<std::size_t>(i)]));
+        for (int i = 0; i < 12; ++i)
+          dq = std::max(dq, std::abs(q[i] - q_ref_05[static_cast<std::size_t>(i)]));
         row.q_diff = dq;
       }
       if (k < kSteps) mj_step(m.get(), d.get());

@@ -1,5 +1,5 @@
-// ukdyn benchmarks: the U-K solve alone (textbook / Cholesky block-diagonal / Cholesky single block /
-// KKT), the paper model's forward dynamics, and whole simulations.
+// ukdyn benchmarks: the U-K solve alone (textbook / Cholesky block-diagonal / Cholesky single block
+// / KKT), the paper model's forward dynamics, and whole simulations.
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
@@ -27,7 +27,8 @@ using ukdyn::Vec;
 // Solve problems: the paper's M (block-diagonal 6+6, SPD) at q0 with the spatial q̇0, and
 //   m6     : the 6 closure rows at q0 (full rank),
 //   m12r12 : the 12 rows of the paper's scenario at q0 (full rank 12),
-//   m12r10 : 12 rows of rank 10 (10 random rows, 2 rows that are combinations of them), b in range(A).
+//   m12r10 : 12 rows of rank 10 (10 random rows, 2 rows that are combinations of them), b in
+//   range(A).
 struct SolveProblem {
   Mat M, A;
   Vec b, Q;
@@ -162,15 +163,16 @@ ResidualCheck check_run(const ukdyn::System& sys, const Vec& q0, const Vec& qd0,
                         std::vector<double>* q_probe = nullptr) {
   ResidualCheck c;
   Vec phi(sys.rows());
-  c.stats = ukdyn::simulate(sys, q0, qd0, zero_tau, s,
-                            [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData&) {
-                              ukdyn::position_residuals(sys, t, q, phi);
-                              c.max_phi = std::max(c.max_phi, max_abs(phi));
-                              c.max_gap = std::max(c.max_gap, phi.head(3).norm());
-                              if (q_probe != nullptr && std::abs(t - t_probe) < 1e-9)
-                                q_probe->assign(q.data(), q.data() + q.size());
-                              return true;
-                            });
+  c.stats =
+      ukdyn::simulate(sys, q0, qd0, zero_tau, s,
+                      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData&) {
+                        ukdyn::position_residuals(sys, t, q, phi);
+                        c.max_phi = std::max(c.max_phi, max_abs(phi));
+                        c.max_gap = std::max(c.max_gap, phi.head(3).norm());
+                        if (q_probe != nullptr && std::abs(t - t_probe) < 1e-9)
+                          q_probe->assign(q.data(), q.data() + q.size());
+                        return true;
+                      });
   return c;
 }
 
@@ -227,7 +229,8 @@ void register_ukdyn_benchmarks() {
       with_min_max(RegisterBenchmark(("solve/kkt/" + key).c_str(), bm_kkt, key))
           ->Unit(benchmark::kNanosecond);
   }
-  with_min_max(RegisterBenchmark("forward/closure", bm_forward, false))->Unit(benchmark::kNanosecond);
+  with_min_max(RegisterBenchmark("forward/closure", bm_forward, false))
+      ->Unit(benchmark::kNanosecond);
   with_min_max(RegisterBenchmark("forward/closure+trajectory", bm_forward, true))
       ->Unit(benchmark::kNanosecond);
   with_min_max(RegisterBenchmark("simulate/paper_4s_dopri5_1e-12", bm_simulate, true))
@@ -250,18 +253,22 @@ std::vector<ViolationRow> ukdyn_violation_rows(bool spatial, std::vector<double>
   q_ref_05 = q05;
   ukdyn::SimulationSettings dp_timed = paper_settings();
   const double wall_dp = median_wall_ms(3, [&] {
-    ukdyn::simulate(pm.closure, pm.q0, qd0, zero_tau, dp_timed,
-                    [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
+    ukdyn::simulate(
+        pm.closure, pm.q0, qd0, zero_tau, dp_timed,
+        [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
   });
   rows.push_back({"ukdyn", "dopri5 tol 1e-12", start, wall_dp, cd.max_gap, cd.max_phi, 0.0});
-  if (cd.stats.status != ukdyn::RunStatus::completed) rows.back().setup += " (" + cd.stats.message + ")";
+  if (cd.stats.status != ukdyn::RunStatus::completed)
+    rows.back().setup += " (" + cd.stats.message + ")";
 
   std::vector<double> q05_rk4;
-  const ResidualCheck cr = check_run(pm.closure, pm.q0, qd0, rk4_settings(4.0, 1e-3), 0.5, &q05_rk4);
+  const ResidualCheck cr =
+      check_run(pm.closure, pm.q0, qd0, rk4_settings(4.0, 1e-3), 0.5, &q05_rk4);
   const ukdyn::SimulationSettings rk_timed = rk4_settings(4.0, 0.01);
   const double wall_rk = median_wall_ms(3, [&] {
-    ukdyn::simulate(pm.closure, pm.q0, qd0, zero_tau, rk_timed,
-                    [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
+    ukdyn::simulate(
+        pm.closure, pm.q0, qd0, zero_tau, rk_timed,
+        [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
   });
   double dq = -1.0;
   if (q05_rk4.size() == q05.size() && !q05.empty()) {
@@ -269,7 +276,8 @@ std::vector<ViolationRow> ukdyn_violation_rows(bool spatial, std::vector<double>
     for (std::size_t i = 0; i < q05.size(); ++i) dq = std::max(dq, std::abs(q05_rk4[i] - q05[i]));
   }
   rows.push_back({"ukdyn", "rk4 dt 1e-3", start, wall_rk, cr.max_gap, cr.max_phi, dq});
-  if (cr.stats.status != ukdyn::RunStatus::completed) rows.back().setup += " (" + cr.stats.message + ")";
+  if (cr.stats.status != ukdyn::RunStatus::completed)
+    rows.back().setup += " (" + cr.stats.message + ")";
   return rows;
 }
 

@@ -61,8 +61,8 @@ inline PaperModel make_paper_model() {
   for (System* sys : {&pm.closure, &pm.full}) {
     const Index lo = sys->add_subsystem(left);
     const Index ro = sys->add_subsystem(right);
-    sys->add_constraint(
-        std::make_shared<const ClosureConstraint>(left, lo, right, ro, ClosureConstraint::Options{}));
+    sys->add_constraint(std::make_shared<const ClosureConstraint>(left, lo, right, ro,
+                                                                  ClosureConstraint::Options{}));
   }
 
   const Vec3 origin = left->cut_point(pm.q0.head(6));
@@ -71,17 +71,17 @@ inline PaperModel make_paper_model() {
                                                   TimeFunction::make_cosine(0.5, -0.5, pi),
                                                   TimeFunction::make_cosine(0.5, -0.5, pi)};
   pm.full.add_constraint(std::make_shared<const CutPointTrajectory>(left, 0, axes, origin, "traj"));
-  pm.full.add_constraint(
-      std::make_shared<const CoordinateConstraint>(0, TimeFunction::make_constant(pm.q0[0]), "hold_dx1"));
-  pm.full.add_constraint(
-      std::make_shared<const CoordinateConstraint>(6, TimeFunction::make_constant(pm.q0[6]), "hold_dx2"));
+  pm.full.add_constraint(std::make_shared<const CoordinateConstraint>(
+      0, TimeFunction::make_constant(pm.q0[0]), "hold_dx1"));
+  pm.full.add_constraint(std::make_shared<const CoordinateConstraint>(
+      6, TimeFunction::make_constant(pm.q0[6]), "hold_dx2"));
   pm.full.add_constraint(std::make_shared<const CoordinateConstraint>(
       2, TimeFunction::make_constant(pm.q0[2]), "hold_delta1"));
   return pm;
 }
 
-/// max_i |v_i| by a plain loop (Eigen's vectorised maxCoeff trips GCC 12's -Wmaybe-uninitialized with
-/// AVX-512 intrinsics under -march=native).
+/// max_i |v_i| by a plain loop (Eigen's vectorised maxCoeff trips GCC 12's -Wmaybe-uninitialized
+/// with AVX-512 intrinsics under -march=native).
 inline double max_abs(const ukdyn::Vec& v) {
   double m = 0.0;
   for (ukdyn::Index i = 0; i < v.size(); ++i) m = std::max(m, std::abs(v[i]));

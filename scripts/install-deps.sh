@@ -4,7 +4,8 @@
 #   scripts/install-deps.sh --bench    also the benchmark dependencies (MuJoCo)
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
-      libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev)
+      libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
+      libginac-dev)
 if [[ "${1:-}" == "--bench" ]]; then
   pkgs+=(libbenchmark-dev libmujoco-dev)
 fi

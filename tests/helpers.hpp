@@ -6,10 +6,10 @@
 #include <Eigen/Core>
 #include <Eigen/SVD>
 #include <array>
-#include <optional>
 #include <cmath>
 #include <memory>
 #include <numbers>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>

@@ -1,13 +1,12 @@
 // An INDEPENDENT reference formulation of one mobile manipulator, for the tests.
 //
-// Nothing here uses the library's closed-form M, C, G. Everything is derived from the kinematics alone
-// (positions of the centres of mass as functions of q) by automatic differentiation
-// (Eigen's unsupported AutoDiffScalar, nested for second derivatives):
+// Nothing here uses the library's closed-form M, C, G. Everything is derived from the kinematics
+// alone (positions of the centres of mass as functions of q) by automatic differentiation (Eigen's
+// unsupported AutoDiffScalar, nested for second derivatives):
 //   Jv_i = ∂p_i/∂q                                (AD)
-//   M    = Σ m_i Jv_iᵀ Jv_i + Σ Jω_kᵀ I_k Jω_k      (paper Eq. 5; the paper's scalar rotational model)
-//   G    = ∂V/∂q,  V = g Σ m_i z_i                  (AD; gravity along −Z)
-//   ∂M/∂q_k                                         (nested AD of M)
-//   C q̇  = Ṁ q̇ − ∂T/∂q,  Ṁ = Σ_k ∂M/∂q_k q̇_k,  ∂T/∂q_k = ½ q̇ᵀ ∂M/∂q_k q̇   (Euler–Lagrange)
+//   M    = Σ m_i Jv_iᵀ Jv_i + Σ Jω_kᵀ I_k Jω_k      (paper Eq. 5; the paper's scalar rotational
+//   model) G    = ∂V/∂q,  V = g Σ m_i z_i                  (AD; gravity along −Z) ∂M/∂q_k (nested
+//   AD of M) C q̇  = Ṁ q̇ − ∂T/∂q,  Ṁ = Σ_k ∂M/∂q_k q̇_k,  ∂T/∂q_k = ½ q̇ᵀ ∂M/∂q_k q̇   (Euler–Lagrange)
 //   C    = Christoffel symbols of M (paper Eq. 9)
 // The only inputs are the geometric description of the paper (see docs/paper-notes.md):
 // platform and joint r at the platform's (x, y); link k's CoM at horizontal radius
@@ -63,8 +62,8 @@ std::array<V3<S>, kBodies> com_positions(const Params& p, const V6<S>& q) {
   std::array<V3<S>, kBodies> out;
   out[0] = V3<S>(x, y, S(0.0));
   out[1] = V3<S>(x, y, S(0.5 * p.base_length));
-  S reach = S(0.0);            // Σ_{j<k} l_j cos θ_j
-  S rise = S(p.base_length);   // l_r + Σ_{j<k} l_j sin θ_j
+  S reach = S(0.0);           // Σ_{j<k} l_j cos θ_j
+  S rise = S(p.base_length);  // l_r + Σ_{j<k} l_j sin θ_j
   for (int k = 0; k < 3; ++k) {
     const S th = q(3 + k);
     const S l = S(p.link_length[static_cast<std::size_t>(k)]);
@@ -139,7 +138,8 @@ template <class S>
 S potential(const Params& p, const V6<S>& q) {
   const auto pos = com_positions<S>(p, q);
   S V = S(0.0);
-  for (int b = 0; b < kBodies; ++b) V += S(body_mass(p, b) * p.gravity) * pos[static_cast<std::size_t>(b)](2);
+  for (int b = 0; b < kBodies; ++b)
+    V += S(body_mass(p, b) * p.gravity) * pos[static_cast<std::size_t>(b)](2);
   return V;
 }
 
@@ -222,7 +222,7 @@ inline Eigen::Matrix<double, 3, 6> cut_point_jacobian(const Params& p, const Vec
 
 /// J̇ q̇ of every CoM: the second derivative d²/ds² p_i(q + s q̇) at s = 0, by nested AD.
 inline std::array<Eigen::Vector3d, kBodies> com_jdot_qd(const Params& p, const Vector6d& q,
-                                                       const Vector6d& qd) {
+                                                        const Vector6d& qd) {
   using AD1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
   using AD2 = Eigen::AutoDiffScalar<Eigen::Matrix<AD1, 1, 1>>;
   V6<AD2> qa;

@@ -32,7 +32,9 @@ struct Motion {
   [[nodiscard]] Vec q(double s) const { return q0 + v * s + 0.5 * a * s * s; }
 };
 
-Vec phi_along(const Constraint& c, const Motion& m, double s) { return residual(c, m.t0 + s, m.q(s)); }
+Vec phi_along(const Constraint& c, const Motion& m, double s) {
+  return residual(c, m.t0 + s, m.q(s));
+}
 
 /// d/ds and d²/ds² of Φ along the motion at s = 0: central differences, one Richardson step.
 Vec dphi_fd(const Constraint& c, const Motion& m) {
@@ -89,12 +91,12 @@ void check_constraint(const Constraint& c, std::uint64_t seed) {
     EXPECT_LE(rel_err(A, Jfd), kFdTol) << "state " << s << "\nA\n" << A << "\nFD\n" << Jfd;
     c.velocity_residual(mo.t0, mo.q0, mo.v, phid);
     const Vec d1 = dphi_fd(c, mo);
-    EXPECT_LE(rel_err(phid, d1), kFdTol) << "state " << s << "\nphid " << phid.transpose()
-                                         << "\nFD   " << d1.transpose();
+    EXPECT_LE(rel_err(phid, d1), kFdTol)
+        << "state " << s << "\nphid " << phid.transpose() << "\nFD   " << d1.transpose();
     const Vec d2 = ddphi_fd(c, mo);
     const Vec lhs = A * mo.a - b;
-    EXPECT_LE(rel_err(lhs, d2), kFdTol) << "state " << s << "\nAa-b " << lhs.transpose()
-                                        << "\nFD   " << d2.transpose();
+    EXPECT_LE(rel_err(lhs, d2), kFdTol)
+        << "state " << s << "\nAa-b " << lhs.transpose() << "\nFD   " << d2.transpose();
     // b does not depend on q̈, and A does not depend on q̇ (second-order form A(q, t) q̈ = b).
     Mat A2 = Mat::Zero(m, 12);
     Vec b2(m);
@@ -148,8 +150,9 @@ TEST(Constraints, CoordinateConstraintDerivativesByFiniteDifferences) {
   check_constraint(c1, 32);
 }
 
-// Closure against the reference kinematics: Φ = [p1 − p2 (x, y), z1 − z2 − Δz, δ1 − δ2 − yaw_offset,
-// θ3 − load1, θ6 − load2]; the x, y, z rows of A are J1 − J2 and b_xyz = −(J̇1 q̇1 − J̇2 q̇2), all by AD.
+// Closure against the reference kinematics: Φ = [p1 − p2 (x, y), z1 − z2 − Δz, δ1 − δ2 −
+// yaw_offset, θ3 − load1, θ6 − load2]; the x, y, z rows of A are J1 − J2 and b_xyz = −(J̇1 q̇1 − J̇2
+// q̇2), all by AD.
 TEST(Constraints, ClosureEqualsReferenceKinematics) {
   std::mt19937_64 rng(41);
   const auto pl = uktest::random_params(rng);
@@ -166,11 +169,12 @@ TEST(Constraints, ClosureEqualsReferenceKinematics) {
     const Vec qd = random_v12(rng);
     const Vector6d q1 = q.head<6>(), q2 = q.tail<6>(), v1 = qd.head<6>(), v2 = qd.tail<6>();
     c->position_residual(0.0, q, phi);
-    const Eigen::Vector3d d =
-        ukref::cut_point<double>(pl, q1) - ukref::cut_point<double>(pr, q2) - Eigen::Vector3d(0, 0, o.dz);
+    const Eigen::Vector3d d = ukref::cut_point<double>(pl, q1) - ukref::cut_point<double>(pr, q2) -
+                              Eigen::Vector3d(0, 0, o.dz);
     Vec phi_ref(6);
     phi_ref << d, q(2) - q(8) - o.yaw_offset, q(5) - o.load_pitch1, q(11) - o.load_pitch2;
-    EXPECT_LE(rel_err(phi, phi_ref), 1e-14) << "state " << s << "\n" << phi.transpose() << "\n"
+    EXPECT_LE(rel_err(phi, phi_ref), 1e-14) << "state " << s << "\n"
+                                            << phi.transpose() << "\n"
                                             << phi_ref.transpose();
     A.setZero();
     c->evaluate(0.0, q, qd, A, b);
@@ -192,9 +196,10 @@ TEST(Constraints, CutPointTrajectoryEqualsReferenceKinematics) {
   std::mt19937_64 rng(42);
   const auto p = uktest::random_params(rng);
   uktest::TwoArms two(uktest::random_params(rng), p);
-  const std::array<ukdyn::TimeFunction, 3> f{ukdyn::TimeFunction::make_cosine(0.3, 0.2, 1.1),
-                                             ukdyn::TimeFunction::make_cosine(0.5, -0.5, uktest::kPi),
-                                             ukdyn::TimeFunction::make_constant(-0.4)};
+  const std::array<ukdyn::TimeFunction, 3> f{
+      ukdyn::TimeFunction::make_cosine(0.3, 0.2, 1.1),
+      ukdyn::TimeFunction::make_cosine(0.5, -0.5, uktest::kPi),
+      ukdyn::TimeFunction::make_constant(-0.4)};
   const Eigen::Vector3d origin(0.8, -0.2, 0.6);
   ukdyn::CutPointTrajectory c(two.right, 6, {f[0], f[1], f[2]}, origin, "traj");
   Mat A(3, 12);

@@ -69,8 +69,9 @@ TEST(MobileManipulator, MassEqualsReference) {
     for (int s = 0; s < kStates; ++s) {
       const Vector6d q = uktest::random_q(rng);
       const Matrix6d Mref = ukref::mass_matrix<double>(p, q);
-      EXPECT_LE(rel_err(lib_mass(*arm, q), Mref), kTol)
-          << "state " << s << "\nlib\n" << lib_mass(*arm, q) << "\nref\n" << Mref;
+      EXPECT_LE(rel_err(lib_mass(*arm, q), Mref), kTol) << "state " << s << "\nlib\n"
+                                                        << lib_mass(*arm, q) << "\nref\n"
+                                                        << Mref;
     }
   }
 }
@@ -102,7 +103,8 @@ TEST(MobileManipulator, ReferenceIsSelfConsistent) {
     const Vector6d qd = uktest::random_qd(rng);
     const Vector6d el = ukref::coriolis_times_qd(p, q, qd);
     EXPECT_LE(rel_err(Vector6d(ukref::christoffel_coriolis(p, q, qd) * qd), el), 1e-13);
-    // d'Alembert: C q̇ = Σ m Jvᵀ (J̇v q̇) (the rotational Jacobians of the paper's model are constant).
+    // d'Alembert: C q̇ = Σ m Jvᵀ (J̇v q̇) (the rotational Jacobians of the paper's model are
+    // constant).
     const auto J = ukref::com_jacobians<double>(p, q);
     const auto a = ukref::com_jdot_qd(p, q, qd);
     Vector6d dal = Vector6d::Zero();
@@ -122,7 +124,9 @@ TEST(MobileManipulator, CoriolisMatrixEqualsChristoffelOfReference) {
       const Vector6d qd = uktest::random_qd(rng);
       const Matrix6d ref = ukref::christoffel_coriolis(p, q, qd);
       EXPECT_LE(rel_err(lib_coriolis(*arm, q, qd), ref), kTol)
-          << "state " << s << "\nlib\n" << lib_coriolis(*arm, q, qd) << "\nref\n" << ref;
+          << "state " << s << "\nlib\n"
+          << lib_coriolis(*arm, q, qd) << "\nref\n"
+          << ref;
     }
   }
 }
@@ -141,8 +145,7 @@ TEST(MobileManipulator, MdotMinusTwoCIsSkewSymmetric) {
       EXPECT_LE((S + S.transpose()).norm(), 1e-12 * (Md.norm() + 1.0)) << "state " << s;
       // Ṁ by central differences of the library's own M (independent of the reference).
       const double h = 1e-5;
-      const Matrix6d Mfd =
-          (lib_mass(*arm, q + h * qd) - lib_mass(*arm, q - h * qd)) / (2.0 * h);
+      const Matrix6d Mfd = (lib_mass(*arm, q + h * qd) - lib_mass(*arm, q - h * qd)) / (2.0 * h);
       const Matrix6d Sfd = Mfd - 2.0 * C;
       EXPECT_LE((Sfd + Sfd.transpose()).norm(), 1e-7 * (Md.norm() + 1.0)) << "state " << s;
     }

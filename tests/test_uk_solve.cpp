@@ -39,7 +39,8 @@ Mat random_spd_mass(std::mt19937_64& rng) {
   Mat M = Mat::Zero(12, 12);
   for (int k = 0; k < 2; ++k) {
     const Mat R = random_matrix(rng, 6, 6);
-    M.block(6 * k, 6 * k, 6, 6) = R * R.transpose() + uktest::uniform(rng, 0.5, 5.0) * Mat::Identity(6, 6);
+    M.block(6 * k, 6 * k, 6, 6) =
+        R * R.transpose() + uktest::uniform(rng, 0.5, 5.0) * Mat::Identity(6, 6);
   }
   return M;
 }
@@ -170,7 +171,8 @@ TEST(UkSolve, InconsistentRightHandSideIsReported) {
     EXPECT_FALSE(tb.res.consistent);
     EXPECT_TRUE(std::isfinite(uk.qdd.norm()));
     // Note: for an inconsistent set the production form (a basic solution of the pivoted LDLᵀ) is
-    // NOT the pseudo-inverse's least-squares answer of the textbook form; only the flag is promised.
+    // NOT the pseudo-inverse's least-squares answer of the textbook form; only the flag is
+    // promised.
   }
 }
 
@@ -205,7 +207,8 @@ TEST(UkSolve, IdealConstraintForceDoesNoVirtualWork) {
     const Vec b = random_vector(rng, m), Q = random_vector(rng, 12);
     const auto uk = solve_uk(M, A, b, Q);
     const Mat N = uktest::null_space(A);
-    EXPECT_LE((N.transpose() * uk.Qc).norm(), 1e-12 * (uk.Qc.norm() + Q.norm())) << "trial " << trial;
+    EXPECT_LE((N.transpose() * uk.Qc).norm(), 1e-12 * (uk.Qc.norm() + Q.norm()))
+        << "trial " << trial;
   }
   // Also for the redundant set.
   const Mat M = random_spd_mass(rng);

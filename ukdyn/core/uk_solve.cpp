@@ -60,8 +60,7 @@ void finish(const Mat& A, const Vec& b, const Vec& qdd, const Vec& Qc, const UkS
     scratch_m.noalias() = A * qdd;
     scratch_m -= b;
     res.residual = scratch_m.norm();
-    const double scale =
-        b.norm() + A.cwiseAbs().rowwise().sum().maxCoeff() * qdd.norm() + 1.0;
+    const double scale = b.norm() + A.cwiseAbs().rowwise().sum().maxCoeff() * qdd.norm() + 1.0;
     res.consistent = res.residual <= s.consistency_rel_tol * scale;
   }
   res.finite = all_finite(qdd) && all_finite(Qc) && std::isfinite(res.residual);
@@ -147,8 +146,8 @@ void sym_roots(const Mat& M, Mat& M_half, Mat& M_inv_half) {
     throw Error("uk_solve_textbook: M is not positive definite");
   }
   M_half = es.eigenvectors() * ev.cwiseSqrt().asDiagonal() * es.eigenvectors().transpose();
-  M_inv_half =
-      es.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
+  M_inv_half = es.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() *
+               es.eigenvectors().transpose();
 }
 }  // namespace
 

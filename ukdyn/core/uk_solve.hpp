@@ -4,14 +4,15 @@
 // Production form (Cholesky, block-diagonal M = diag(L_k L_kᵀ)):
 //   a = M^{-1} Q,  X = L^{-1} Aᵀ,  W = Xᵀ X = A M^{-1} Aᵀ,  r = b − A a,
 //   λ solves W λ = r (rank-revealing, see below),  Qc = Aᵀ λ,  q̈ = a + M^{-1} Qc.
-// This is the same force as Eq. (4): with M = L Lᵀ, M^{1/2}(A M^{-1/2})^+ = Aᵀ (A M^{-1} Aᵀ)^+ on the range
-// of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
+// This is the same force as Eq. (4): with M = L Lᵀ, M^{1/2}(A M^{-1/2})^+ = Aᵀ (A M^{-1} Aᵀ)^+ on
+// the range of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
 //
-// Rank: W is factored by an LDLᵀ with symmetric (diagonal) pivoting, i.e. a pivoted Cholesky. A pivot
-// D_k is kept when D_k > rel_tol² · max_j D_j; the pivots approximate σ_k² of A M^{-1/2}, so rel_tol is a
-// relative tolerance on its singular values (default 1e-7: pivots under 1e-14 of the largest are
-// round-off of a redundant row). Redundant but consistent rows are normal; an inconsistent set shows as a
-// residual ‖A q̈ − b‖ that is not round-off, reported in UkResult::consistent.
+// Rank: W is factored by an LDLᵀ with symmetric (diagonal) pivoting, i.e. a pivoted Cholesky. A
+// pivot D_k is kept when D_k > rel_tol² · max_j D_j; the pivots approximate σ_k² of A M^{-1/2}, so
+// rel_tol is a relative tolerance on its singular values (default 1e-7: pivots under 1e-14 of the
+// largest are round-off of a redundant row). Redundant but consistent rows are normal; an
+// inconsistent set shows as a residual ‖A q̈ − b‖ that is not round-off, reported in
+// UkResult::consistent.
 #pragma once
 
 #include <Eigen/Cholesky>
@@ -30,15 +31,17 @@ struct UkSettings {
 };
 
 struct UkResult {
-  int rank = 0;                 ///< numerical rank of A M^{-1/2}
-  double sigma_min_kept = 0.0;  ///< sqrt of the smallest kept pivot (≈ smallest kept singular value)
-  double sigma_max = 0.0;       ///< sqrt of the largest pivot (≈ largest singular value)
-  double residual = 0.0;        ///< ‖A q̈ − b‖_2
-  bool consistent = true;       ///< residual is at round-off level
-  bool finite = true;           ///< every output is finite
+  int rank = 0;  ///< numerical rank of A M^{-1/2}
+  double sigma_min_kept =
+      0.0;                 ///< sqrt of the smallest kept pivot (≈ smallest kept singular value)
+  double sigma_max = 0.0;  ///< sqrt of the largest pivot (≈ largest singular value)
+  double residual = 0.0;   ///< ‖A q̈ − b‖_2
+  bool consistent = true;  ///< residual is at round-off level
+  bool finite = true;      ///< every output is finite
 };
 
-/// Block layout of a block-diagonal mass matrix: block k covers rows/cols [start[k], start[k]+size[k]).
+/// Block layout of a block-diagonal mass matrix: block k covers rows/cols [start[k],
+/// start[k]+size[k]).
 struct BlockLayout {
   std::vector<Index> start;
   std::vector<Index> size;
@@ -78,16 +81,16 @@ UkResult uk_solve(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, UkWork
                   Vec& Qc, const UkSettings& settings = {});
 
 /// The textbook form of Eq. (4), literally: M^{1/2} by a symmetric eigen-decomposition, the
-/// Moore–Penrose inverse of A M^{-1/2} by a JacobiSVD with the same relative tolerance. Allocates; for
-/// tests and benchmarks. sigma_min_kept / sigma_max are exact singular values here.
-UkResult uk_solve_textbook(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,
-                           const UkSettings& settings = {});
+/// Moore–Penrose inverse of A M^{-1/2} by a JacobiSVD with the same relative tolerance. Allocates;
+/// for tests and benchmarks. sigma_min_kept / sigma_max are exact singular values here.
+UkResult uk_solve_textbook(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, Vec& qdd,
+                           Vec& Qc, const UkSettings& settings = {});
 
 /// Exact singular values of A M^{-1/2} (descending), for diagnostics. Allocates.
 Vec singular_values_A_Minvhalf(const Mat& M, const Mat& A);
 
-/// KKT (Lagrange multiplier) solve:  [M Aᵀ; A 0] [q̈; −λ] = [Q; b], by a full-pivot LU. Requires A of
-/// full row rank. Qc = Aᵀλ. Allocates; an independent check of the U-K solve.
+/// KKT (Lagrange multiplier) solve:  [M Aᵀ; A 0] [q̈; −λ] = [Q; b], by a full-pivot LU. Requires A
+/// of full row rank. Qc = Aᵀλ. Allocates; an independent check of the U-K solve.
 void kkt_solve(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc);
 
 }  // namespace ukdyn

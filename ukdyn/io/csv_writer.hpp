@@ -1,5 +1,6 @@
 // Streaming CSV writer: rows go to "<file>.part" as they are computed (flushed every few rows, so a
-// crash keeps what was done); commit() renames it to its final name, abandon() to "<stem>.incomplete.csv".
+// crash keeps what was done); commit() renames it to its final name, abandon() to
+// "<stem>.incomplete.csv".
 #pragma once
 
 #include <cstdio>
@@ -16,7 +17,8 @@ class CsvWriter {
   CsvWriter(const CsvWriter&) = delete;
   CsvWriter& operator=(const CsvWriter&) = delete;
 
-  /// Appends one row (size must equal the header's). Numbers are written with 17 significant digits.
+  /// Appends one row (size must equal the header's). Numbers are written with 17 significant
+  /// digits.
   void row(const std::vector<double>& values);
   /// Closes and renames to the final path. Returns it.
   std::filesystem::path commit();

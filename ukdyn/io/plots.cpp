@@ -13,8 +13,10 @@ namespace {
 std::string gp_quote(const std::string& s) {
   std::string out = "'";
   for (char c : s) {
-    if (c == '\'') out += "''";
-    else out += c;
+    if (c == '\'')
+      out += "''";
+    else
+      out += c;
   }
   return out + "'";
 }
@@ -22,8 +24,10 @@ std::string gp_quote(const std::string& s) {
 std::string sh_quote(const std::string& s) {
   std::string out = "'";
   for (char c : s) {
-    if (c == '\'') out += "'\\''";
-    else out += c;
+    if (c == '\'')
+      out += "'\\''";
+    else
+      out += c;
   }
   return out + "'";
 }
@@ -64,8 +68,8 @@ std::vector<std::filesystem::path> render_figures(const std::filesystem::path& c
       written.push_back(fig_dir / f.file);
     }
   }
-  const std::string cmd =
-      "gnuplot " + sh_quote(script.string()) + " > " + sh_quote((fig_dir / "gnuplot.log").string()) + " 2>&1";
+  const std::string cmd = "gnuplot " + sh_quote(script.string()) + " > " +
+                          sh_quote((fig_dir / "gnuplot.log").string()) + " 2>&1";
   const int rc = std::system(cmd.c_str());
   if (rc != 0) {
     error = fmt::format("gnuplot failed (exit {}); see {} (install Debian gnuplot-nox)", rc,

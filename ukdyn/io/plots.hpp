@@ -8,7 +8,7 @@
 namespace ukdyn {
 
 struct Figure {
-  std::string file;                  ///< e.g. "residuals_closure.png"
+  std::string file;  ///< e.g. "residuals_closure.png"
   std::string title;
   std::string ylabel;
   std::vector<std::string> columns;  ///< CSV column names, plotted against t

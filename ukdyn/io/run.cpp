@@ -34,7 +34,8 @@ namespace {
 std::vector<Figure> default_figures(const Scenario& sc) {
   const System& sys = *sc.system;
   std::vector<Figure> figs;
-  // One figure per constraint block: its position-level residuals (paper Figs. 3–4 for the closure).
+  // One figure per constraint block: its position-level residuals (paper Figs. 3–4 for the
+  // closure).
   const auto& rows = sys.constraint_row_names();
   const auto& cons = sys.constraints();
   const auto& offs = sys.constraint_row_offsets();
@@ -65,8 +66,10 @@ std::vector<Figure> default_figures(const Scenario& sc) {
   // Joint angles per subsystem (paper Fig. 6), constraint forces, accelerations.
   for (const auto& s : sc.subsystems) {
     Figure ang{"angles_" + s.name + ".png", "Joint angles of '" + s.name + "'", "[rad]", {}};
-    Figure qc{"constraint_force_" + s.name + ".png", "Constraint force Qc on '" + s.name + "'",
-              "Qc [N or N·m]", {}};
+    Figure qc{"constraint_force_" + s.name + ".png",
+              "Constraint force Qc on '" + s.name + "'",
+              "Qc [N or N·m]",
+              {}};
     for (Index j = 0; j < s.dof; ++j) {
       const auto& nm = sys.coordinate_names()[static_cast<std::size_t>(s.offset + j)];
       if (s.type != "mobile_manipulator" || j >= 2) ang.columns.push_back(nm);
@@ -75,7 +78,8 @@ std::vector<Figure> default_figures(const Scenario& sc) {
     figs.push_back(ang);
     figs.push_back(qc);
   }
-  figs.push_back({"energy.png", "Energy (T kinetic, V potential, E = T + V)", "[J]", {"T", "V", "E"}});
+  figs.push_back(
+      {"energy.png", "Energy (T kinetic, V potential, E = T + V)", "[J]", {"T", "V", "E"}});
   return figs;
 }
 
@@ -127,8 +131,8 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   const Index m = sys.rows();
   std::filesystem::create_directories(out_dir);
   // Remove what an earlier run left, so that nothing stale looks like this run's output.
-  for (const char* f : {"trajectory.csv", "trajectory.incomplete.csv", "trajectory.csv.part",
-                        "summary.json"}) {
+  for (const char* f :
+       {"trajectory.csv", "trajectory.incomplete.csv", "trajectory.csv.part", "summary.json"}) {
     std::filesystem::remove(out_dir / f);
   }
   std::filesystem::remove_all(out_dir / "figures");
@@ -201,14 +205,15 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef out) { out = sc.tau; };
   const auto start = std::chrono::steady_clock::now();
   rep.stats = simulate(sys, sc.q0, sc.qd0, tau, sc.sim, observer);
-  rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  rep.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.done();
 
   const bool complete = rep.stats.status == RunStatus::completed;
   rep.csv = complete ? csv.commit() : csv.abandon();
   if (complete && options.figures) {
-    rep.figures = render_figures(rep.csv, header, default_figures(sc), out_dir / "figures",
-                                 rep.figure_error);
+    rep.figures =
+        render_figures(rep.csv, header, default_figures(sc), out_dir / "figures", rep.figure_error);
   }
 
   summary["status"] = complete ? "complete" : "incomplete";

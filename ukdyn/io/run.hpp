@@ -24,7 +24,7 @@ struct RunReport {
   double wall_seconds = 0.0;
   std::vector<double> max_abs_residual;  ///< per constraint row, position level
   std::vector<double> max_abs_velocity_residual;
-  double max_acc_residual = 0.0;         ///< max ‖A q̈ − b‖ over samples
+  double max_acc_residual = 0.0;  ///< max ‖A q̈ − b‖ over samples
   double E0 = 0.0, max_energy_drift = 0.0, max_T = 0.0;
   int rank_min = 0, rank_max = 0;
   double sigma_min = 0.0;  ///< smallest kept singular value seen (pivot estimate)

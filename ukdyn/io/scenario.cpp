@@ -2,8 +2,6 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "ukdyn/io/yaml_loader.hpp"
-
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -11,6 +9,7 @@
 #include <set>
 #include <sstream>
 
+#include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
 
@@ -88,8 +87,9 @@ TimeFunction load_time_function(const Loader& L, const Node& n) {
   }
   if (type == "cosine") {
     L.only_keys(n, {"type", "mean", "amplitude", "omega", "phase"});
-    return TimeFunction::make_cosine(L.number_or(n, "mean", 0.0), L.number(L.child(n, "amplitude", true)),
-                                     L.number(L.child(n, "omega", true)), L.number_or(n, "phase", 0.0));
+    return TimeFunction::make_cosine(
+        L.number_or(n, "mean", 0.0), L.number(L.child(n, "amplitude", true)),
+        L.number(L.child(n, "omega", true)), L.number_or(n, "phase", 0.0));
   }
   if (type == "polynomial") {
     L.only_keys(n, {"type", "coefficients"});
@@ -105,8 +105,8 @@ TimeFunction load_time_function(const Loader& L, const Node& n) {
     }
     return f;
   }
-  L.fail(L.child(n, "type", true), "unknown time function type '" + type +
-                                       "' (expected constant, cosine or polynomial)");
+  L.fail(L.child(n, "type", true),
+         "unknown time function type '" + type + "' (expected constant, cosine or polynomial)");
 }
 
 }  // namespace
@@ -128,7 +128,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   }
   const Node root{root_node, ""};
   if (!root_node.IsMap()) {
-    throw ScenarioError(path.string() + ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
+    throw ScenarioError(path.string() +
+                        ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
   }
   L.only_keys(root, {"ukdyn", "name", "description", "gravity", "subsystems", "constraints",
                      "initial", "forces", "simulation", "solver"});
@@ -137,7 +138,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     if (L.number(v) != 1.0) L.fail(v, "unsupported format version (this ukdyn reads version 1)");
   }
   sc.name = L.string(L.child(root, "name", true));
-  if (Node d = L.child(root, "description", false); d.node.IsDefined()) sc.description = L.string(d);
+  if (Node d = L.child(root, "description", false); d.node.IsDefined())
+    sc.description = L.string(d);
   const double gravity = L.number_or(root, "gravity", 9.8);
 
   // ---- subsystems
@@ -157,7 +159,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     const std::string type = L.string(type_node);
     // Coordinate names: unique across the system, usable as CSV column names.
     const Node cn = L.child(s, "coordinates", true);
-    if (!cn.node.IsSequence() || cn.node.size() == 0) L.fail(cn, "expected a list of coordinate names");
+    if (!cn.node.IsSequence() || cn.node.size() == 0)
+      L.fail(cn, "expected a list of coordinate names");
     if (cn.node.size() > static_cast<std::size_t>(kMaxDof)) L.fail(cn, "too many coordinates");
     std::vector<std::string> names;
     for (std::size_t j = 0; j < cn.node.size(); ++j) {
@@ -174,7 +177,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     if (type == "mobile_manipulator") {
       L.only_keys(s, {"name", "type", "coordinates", "params"});
       if (names.size() != 6) {
-        L.fail(cn, "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
+        L.fail(cn,
+               "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
       }
       auto arm = std::make_shared<MobileManipulator>(
           name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
@@ -226,7 +230,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
       const std::string type = L.string(type_node);
       const std::string cname = L.string(L.child(c, "name", true));
       if (cname.empty() || cname.find_first_of(", \"\n") != std::string::npos) {
-        L.fail(L.child(c, "name", true), "a constraint name must be non-empty without commas, quotes or spaces");
+        L.fail(L.child(c, "name", true),
+               "a constraint name must be non-empty without commas, quotes or spaces");
       }
       try {
         if (type == "closure") {
@@ -257,7 +262,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
           std::array<std::optional<TimeFunction>, 3> axes;
           const char* keys[3] = {"x", "y", "z"};
           for (std::size_t a = 0; a < 3; ++a) {
-            if (Node f = L.child(c, keys[a], false); f.node.IsDefined()) axes[a] = load_time_function(L, f);
+            if (Node f = L.child(c, keys[a], false); f.node.IsDefined())
+              axes[a] = load_time_function(L, f);
           }
           if (!axes[0] && !axes[1] && !axes[2]) L.fail(c, "give at least one of x, y, z");
           add(c, std::make_shared<CutPointTrajectory>(arm, off, axes, origin, cname));
@@ -343,11 +349,13 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     L.only_keys(s, {"rank_tol", "consistency_tol"});
     if (Node r = L.child(s, "rank_tol", false); r.node.IsDefined()) {
       sc.sim.uk.rank_rel_tol = L.number(r);
-      if (!(sc.sim.uk.rank_rel_tol > 0 && sc.sim.uk.rank_rel_tol < 1)) L.fail(r, "must lie in (0, 1)");
+      if (!(sc.sim.uk.rank_rel_tol > 0 && sc.sim.uk.rank_rel_tol < 1))
+        L.fail(r, "must lie in (0, 1)");
     }
     if (Node r = L.child(s, "consistency_tol", false); r.node.IsDefined()) {
       sc.sim.uk.consistency_rel_tol = L.number(r);
-      if (!(sc.sim.uk.consistency_rel_tol > 0 && sc.sim.uk.consistency_rel_tol < 1)) L.fail(r, "must lie in (0, 1)");
+      if (!(sc.sim.uk.consistency_rel_tol > 0 && sc.sim.uk.consistency_rel_tol < 1))
+        L.fail(r, "must lie in (0, 1)");
     }
   }
 
@@ -361,9 +369,9 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     if (!(pmax <= sc.initial_tolerance)) {
       std::ostringstream os;
       os.precision(3);
-      os << "initial.q violates constraint '" << system->constraint_row_names()[static_cast<std::size_t>(worst)]
-         << "': residual " << std::scientific << phi(worst) << " > initial_tolerance "
-         << sc.initial_tolerance;
+      os << "initial.q violates constraint '"
+         << system->constraint_row_names()[static_cast<std::size_t>(worst)] << "': residual "
+         << std::scientific << phi(worst) << " > initial_tolerance " << sc.initial_tolerance;
       L.fail(init, os.str());
     }
     const double vmax = phid.cwiseAbs().maxCoeff(&worst);

@@ -91,14 +91,16 @@ class Loader {
   }
 
   Vec vector(const Node& n, Index expected) const {
-    if (!n.node.IsSequence()) fail(n, "expected a list of " + std::to_string(expected) + " numbers");
+    if (!n.node.IsSequence())
+      fail(n, "expected a list of " + std::to_string(expected) + " numbers");
     if (static_cast<Index>(n.node.size()) != expected) {
       fail(n, "expected " + std::to_string(expected) + " numbers, got " +
                   std::to_string(n.node.size()));
     }
     Vec v(expected);
     for (Index i = 0; i < expected; ++i) {
-      v(i) = number(Node{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"});
+      v(i) =
+          number(Node{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"});
     }
     return v;
   }
@@ -162,6 +164,5 @@ class Loader {
  private:
   std::filesystem::path path_;
 };
-
 
 }  // namespace ukdyn::io_detail

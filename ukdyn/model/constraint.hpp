@@ -17,7 +17,7 @@ class Constraint {
   [[nodiscard]] virtual Index rows() const = 0;
   /// One name per row, used for CSV columns and error messages.
   [[nodiscard]] virtual const std::vector<std::string>& row_names() const = 0;
-  /// Writes rows() rows of A (rows() × n) and b.
+  /// Overwrites its rows() rows of A (rows() × n, every entry) and of b.
   virtual void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const = 0;
   /// Position-level residual Φ(q, t) (rows()).
   virtual void position_residual(double t, CVecRef q, VecRef phi) const = 0;

@@ -13,7 +13,8 @@ using CVecRef = const Eigen::Ref<const Vec>&;
 using MatRef = Eigen::Ref<Mat>;
 
 /// A subsystem owns `dof()` consecutive generalized coordinates of the system. Implementations are
-/// constant after construction; every method writes into caller-owned storage and allocates nothing.
+/// constant after construction; every method writes into caller-owned storage and allocates
+/// nothing.
 class Subsystem {
  public:
   virtual ~Subsystem() = default;

@@ -65,9 +65,7 @@ void evaluate_constraints(const System& system, ForwardData& data, double t, CVe
   const Index n = system.dof();
   for (std::size_t c = 0; c < cons.size(); ++c) {
     const Index r = cons[c]->rows();
-    auto A_rows = data.A.block(offs[c], 0, r, n);
-    A_rows.setZero();
-    cons[c]->evaluate(t, q, qd, A_rows, data.b.segment(offs[c], r));
+    cons[c]->evaluate(t, q, qd, data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
   }
 }
 
@@ -107,15 +105,14 @@ void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, V
   }
 }
 
-double kinetic_energy(const ForwardData& data, CVecRef qd) {
-  return 0.5 * qd.dot(data.M * qd);
-}
+double kinetic_energy(const ForwardData& data, CVecRef qd) { return 0.5 * qd.dot(data.M * qd); }
 
 double potential_energy(const System& system, CVecRef q) {
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
   double V = 0.0;
-  for (std::size_t k = 0; k < subs.size(); ++k) V += subs[k]->potential(q.segment(L.start[k], L.size[k]));
+  for (std::size_t k = 0; k < subs.size(); ++k)
+    V += subs[k]->potential(q.segment(L.start[k], L.size[k]));
   return V;
 }
 

@@ -48,14 +48,14 @@ class System {
 struct ForwardData {
   explicit ForwardData(const System& system);
 
-  Mat M;       ///< n × n, block-diagonal
-  Vec Cqd;     ///< C(q, q̇) q̇
-  Vec G;       ///< gravity
-  Vec Q;       ///< τ − C q̇ − G, paper Eq. (11)
-  Mat A;       ///< m × n, constraint rows stacked
-  Vec b;       ///< m
-  Vec Qc;      ///< constraint force, paper Eq. (4)
-  Vec qdd;     ///< q̈ = M^{-1}(Q + Qc), paper Eq. (18)
+  Mat M;    ///< n × n, block-diagonal
+  Vec Cqd;  ///< C(q, q̇) q̇
+  Vec G;    ///< gravity
+  Vec Q;    ///< τ − C q̇ − G, paper Eq. (11)
+  Mat A;    ///< m × n, constraint rows stacked
+  Vec b;    ///< m
+  Vec Qc;   ///< constraint force, paper Eq. (4)
+  Vec qdd;  ///< q̈ = M^{-1}(Q + Qc), paper Eq. (18)
   UkWorkspace uk;
   UkResult result;
 };

@@ -21,8 +21,10 @@ ClosureConstraint::ClosureConstraint(std::shared_ptr<const MobileManipulator> le
       ro_(right_offset),
       opt_(std::move(options)) {
   if (!left_ || !right_) throw Error("closure constraint: both arms are required");
-  if (lo_ == ro_) throw Error("closure constraint '" + opt_.prefix + "': an arm cannot close on itself");
-  for (const char* s : {"_x", "_y", "_z", "_yaw", "_load1", "_load2"}) names_.push_back(opt_.prefix + s);
+  if (lo_ == ro_)
+    throw Error("closure constraint '" + opt_.prefix + "': an arm cannot close on itself");
+  for (const char* s : {"_x", "_y", "_z", "_yaw", "_load1", "_load2"})
+    names_.push_back(opt_.prefix + s);
 }
 
 void ClosureConstraint::evaluate(double /*t*/, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
@@ -31,14 +33,15 @@ void ClosureConstraint::evaluate(double /*t*/, CVecRef q, CVecRef qd, MatRef A, 
   left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1);
   right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2);
   // Rows 1–3 of Eq. (15): the two cut points coincide; b from Eq. (16): b = −(J̇1 q̇1 − J̇2 q̇2).
-  A.block(0, lo_, 3, 6) += J1;
-  A.block(0, ro_, 3, 6) -= J2;
+  A.setZero();
+  A.block(0, lo_, 3, 6) = J1;
+  A.block(0, ro_, 3, 6) = -J2;
   b.head<3>() = c2 - c1;
   // Rows 4–6: δ1 − δ2 = π, θ3 = 0, θ6 = 0 (Eq. (12)); second derivatives have no velocity terms.
-  A(3, lo_ + 2) += 1.0;
-  A(3, ro_ + 2) -= 1.0;
-  A(4, lo_ + 5) += 1.0;
-  A(5, ro_ + 5) += 1.0;
+  A(3, lo_ + 2) = 1.0;
+  A(3, ro_ + 2) = -1.0;
+  A(4, lo_ + 5) = 1.0;
+  A(5, ro_ + 5) = 1.0;
   b.tail<3>().setZero();
 }
 
@@ -68,8 +71,8 @@ void ClosureConstraint::velocity_residual(double /*t*/, CVecRef q, CVecRef qd, V
 // ------------------------------------------------------- cut-point trajectory, Eqs. (19), (20)
 
 CutPointTrajectory::CutPointTrajectory(std::shared_ptr<const MobileManipulator> arm, Index offset,
-                                       std::array<std::optional<TimeFunction>, 3> axes,
-                                       Vec3 origin, std::string prefix)
+                                       std::array<std::optional<TimeFunction>, 3> axes, Vec3 origin,
+                                       std::string prefix)
     : arm_(std::move(arm)), offset_(offset), origin_(origin) {
   if (!arm_) throw Error("trajectory constraint '" + prefix + "': arm is required");
   for (int a = 0; a < 3; ++a) {
@@ -86,10 +89,11 @@ void CutPointTrajectory::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, Vec
   Jac36 J;
   Vec3 c;
   arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c);
+  A.setZero();
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const auto r = static_cast<Index>(i);
     // p̈_axis = J q̈ + c = f''(t)  ⇒  A = J_axis, b = f''(t) − c_axis  (Eq. (20)).
-    A.block(r, offset_, 1, 6) += J.row(axis_[i]);
+    A.block(r, offset_, 1, 6) = J.row(axis_[i]);
     b(r) = f_[i].eval(t, 2) - c(axis_[i]);
   }
 }
@@ -121,7 +125,8 @@ CoordinateConstraint::CoordinateConstraint(Index coordinate, TimeFunction f, std
 
 void CoordinateConstraint::evaluate(double t, CVecRef /*q*/, CVecRef /*qd*/, MatRef A,
                                     VecRef b) const {
-  A(0, j_) += 1.0;
+  A.setZero();
+  A(0, j_) = 1.0;
   b(0) = f_.eval(t, 2);
 }
 

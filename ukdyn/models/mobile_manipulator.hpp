@@ -1,7 +1,7 @@
 // The paper's mobile manipulator (one half of the cooperative system, cut at the load's centre):
-// an omnidirectional platform translating in world X/Y, a base joint r rotating about the vertical by
-// δ, and three links pitching by θ1..θ3 (from the horizontal, positive up). Link 3 is half of the load.
-// Coordinates: [Δx, Δy, δ, θ1, θ2, θ3]. M, C, G are the paper's appendix, corrected as in
+// an omnidirectional platform translating in world X/Y, a base joint r rotating about the vertical
+// by δ, and three links pitching by θ1..θ3 (from the horizontal, positive up). Link 3 is half of
+// the load. Coordinates: [Δx, Δy, δ, θ1, θ2, θ3]. M, C, G are the paper's appendix, corrected as in
 // docs/paper-errata.md (each correction cited at its line in the .cpp).
 #pragma once
 
@@ -14,14 +14,14 @@
 namespace ukdyn {
 
 struct MobileManipulatorParams {
-  double platform_mass = 50.0;  ///< m_v
-  double base_mass = 2.0;       ///< m_r (joint r)
-  double base_inertia = 0.0625; ///< I_r about the vertical
-  double base_length = 0.5;     ///< l_r: height of link 1's root above the platform
+  double platform_mass = 50.0;   ///< m_v
+  double base_mass = 2.0;        ///< m_r (joint r)
+  double base_inertia = 0.0625;  ///< I_r about the vertical
+  double base_length = 0.5;      ///< l_r: height of link 1's root above the platform
   std::array<double, 3> link_mass{3.0, 4.0, 1.0};         ///< m_1..m_3
   std::array<double, 3> link_inertia{0.49, 0.855, 0.08};  ///< I_1..I_3 (paper's scalar model)
   std::array<double, 3> link_length{0.7, 0.8, 0.4};       ///< l_1..l_3
-  double gravity = 9.8;  ///< g, acting along −Z
+  double gravity = 9.8;                                   ///< g, acting along −Z
 
   /// Throws ukdyn::Error naming the first invalid parameter (negative or non-finite values, zero
   /// lengths or a zero total mass).
@@ -54,8 +54,8 @@ class MobileManipulator final : public Subsystem {
 
   /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates.
   [[nodiscard]] ArmKinematics kinematics(CVecRef q, CVecRef qd) const;
-  /// The cut point (end of link 3, the load's centre) relative to the world origin, with the platform
-  /// at height 0: (Δx + κ̂ cos δ, Δy + κ̂ sin δ, l_r + ρ̂).
+  /// The cut point (end of link 3, the load's centre) relative to the world origin, with the
+  /// platform at height 0: (Δx + κ̂ cos δ, Δy + κ̂ sin δ, l_r + ρ̂).
   [[nodiscard]] Vec3 cut_point(CVecRef q) const;
   /// Jacobian J (3 × 6) of the cut point and its acceleration bias c = J̇ q̇, so that the cut point's
   /// acceleration is J q̈ + c. These are the per-arm halves of paper Eqs. (13), (15), (16), (20):

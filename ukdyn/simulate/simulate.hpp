@@ -15,9 +15,9 @@ struct SimulationSettings {
   double t_end = 1.0;
   double sample_dt = 0.01;  ///< output sample step
   IntegratorKind integrator = IntegratorKind::dopri5;
-  double abs_tol = 1e-12;    ///< dopri5 absolute tolerance
-  double rel_tol = 1e-12;    ///< dopri5 relative tolerance
-  double step = 1e-3;        ///< rk4 fixed step (must divide sample_dt); dopri5 initial step
+  double abs_tol = 1e-12;  ///< dopri5 absolute tolerance
+  double rel_tol = 1e-12;  ///< dopri5 relative tolerance
+  double step = 1e-3;      ///< rk4 fixed step (must divide sample_dt); dopri5 initial step
   UkSettings uk;
 };
 

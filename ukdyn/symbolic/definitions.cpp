@@ -1,0 +1,557 @@
+#include "ukdyn/symbolic/definitions.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <set>
+#include <sstream>
+
+namespace ukdyn::symbolic {
+
+namespace {
+
+using GiNaC::ex;
+using GiNaC::matrix;
+using GiNaC::symbol;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string str(const ex& e) {
+  std::ostringstream os;
+  os << e;
+  return os.str();
+}
+
+// Real numeric value of an expression without symbols, or nullopt.
+std::optional<double> real_value(const ex& e) {
+  const ex v = e.evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real()) return std::nullopt;
+  return GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+}
+
+bool has_any(const ex& e, const std::vector<symbol>& syms) {
+  return std::any_of(syms.begin(), syms.end(), [&](const symbol& s) { return e.has(s); });
+}
+
+}  // namespace
+
+ex simplify_trig(const ex& e) {
+  ex r = e.expand();
+  if (!r.has(GiNaC::sin(GiNaC::wild()))) return r;
+  const ex rule = GiNaC::pow(GiNaC::sin(GiNaC::wild(0)), 2) == 1 - GiNaC::pow(GiNaC::cos(GiNaC::wild(0)), 2);
+  for (int i = 0; i < 8; ++i) {
+    const ex s = r.subs(rule, GiNaC::subs_options::algebraic).expand();
+    if (s.is_equal(r)) break;
+    r = s;
+  }
+  return r;
+}
+
+// ------------------------------------------------------------------------------ DefinitionScope
+
+ex DefinitionScope::parameter(const std::string& name, const ex& value) {
+  if (!real_value(value)) {
+    throw ExpressionError("parameter '" + name + "' must be a real number, got '" + str(value) + "'", 0);
+  }
+  symbol s = local_symbol(name);
+  scope_.add(name, s);
+  params_.push_back({name, s, value});
+  return s;
+}
+
+ex DefinitionScope::parameter(const std::string& name, double value) {
+  if (!std::isfinite(value)) throw ExpressionError("parameter '" + name + "' must be finite", 0);
+  // Doubles that are short decimals (0.7, 0.855) are taken exactly as the decimal.
+  std::ostringstream os;
+  os.precision(15);
+  os << value;
+  ex v;
+  try {
+    v = Scope().parse(os.str());
+    if (std::abs(*real_value(v) - value) > 1e-15 * std::abs(value)) v = GiNaC::numeric(value);
+  } catch (const ExpressionError&) {
+    v = GiNaC::numeric(value);
+  }
+  return parameter(name, v);
+}
+
+ex DefinitionScope::let(const std::string& name, const ex& value) {
+  scope_.add(name, value);
+  return value;
+}
+
+GiNaC::exmap DefinitionScope::parameter_values() const {
+  GiNaC::exmap m;
+  for (const auto& p : params_) m[p.symbol] = p.value;
+  return m;
+}
+
+// ------------------------------------------------------------------------------ SubsystemDef
+
+SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinates)
+    : name_(std::move(name)), coords_(std::move(coordinates)) {
+  if (coords_.empty()) throw DefinitionError("subsystem '" + name_ + "' declares no coordinates");
+  for (std::size_t i = 0; i < coords_.size(); ++i) {
+    const std::string& c = coords_[i];
+    std::string why;
+    if (!valid_name(c, &why)) throw DefinitionError(why, -1, static_cast<int>(i));
+    if (scope_.has(c)) throw DefinitionError("duplicate coordinate '" + c + "'", -1, static_cast<int>(i));
+    if (scope_.has(c + "_dot")) {
+      throw DefinitionError("coordinate '" + c + "_dot' clashes with the velocity of '" + c + "'", -1,
+                            static_cast<int>(i));
+    }
+    scope_.add(c, coordinate_symbol(c));
+    scope_.add(c + "_dot", velocity_symbol(c));
+  }
+}
+
+symbol SubsystemDef::q(const std::string& c) const {
+  if (std::find(coords_.begin(), coords_.end(), c) == coords_.end()) {
+    throw DefinitionError("subsystem '" + name_ + "' has no coordinate '" + c + "'");
+  }
+  return coordinate_symbol(c);
+}
+
+symbol SubsystemDef::qd(const std::string& c) const {
+  (void)q(c);
+  return velocity_symbol(c);
+}
+
+BodyDef& SubsystemDef::add_body(std::string body_name) {
+  bodies.emplace_back();
+  bodies.back().name = std::move(body_name);
+  return bodies.back();
+}
+
+// ------------------------------------------------------------------------------ derivation
+
+SubsystemDerivation derive(const SubsystemDef& def) {
+  const auto t0 = Clock::now();
+  const std::size_t n = def.coordinates().size();
+  std::vector<symbol> q, qd;
+  for (const auto& c : def.coordinates()) {
+    q.push_back(coordinate_symbol(c));
+    qd.push_back(velocity_symbol(c));
+  }
+  const std::vector<symbol> time{time_symbol()};
+  const GiNaC::exmap values = def.parameter_values();
+  if (def.bodies.empty()) throw DefinitionError("subsystem '" + def.name() + "' has no bodies");
+
+  ex T = 0, V = 0;
+  std::vector<bool> used(n, false);
+  for (std::size_t bi = 0; bi < def.bodies.size(); ++bi) {
+    const BodyDef& b = def.bodies[bi];
+    const int bidx = static_cast<int>(bi);
+    const std::string where = "body '" + b.name + "'";
+    auto mark_used = [&](const ex& e) {
+      for (std::size_t j = 0; j < n; ++j) {
+        if (e.has(q[j]) || e.has(qd[j])) used[j] = true;
+      }
+    };
+    // Mass: a non-negative constant.
+    if (has_any(b.mass, q) || has_any(b.mass, qd) || b.mass.has(time_symbol())) {
+      throw DefinitionError(where + ": the mass must be a constant", bidx);
+    }
+    const auto mv = real_value(b.mass.subs(values));
+    if (!mv || !(*mv >= 0.0)) throw DefinitionError(where + ": the mass must be a number >= 0, got '" + str(b.mass) + "'", bidx);
+    // Position of the centre of mass p(q).
+    std::array<ex, 3> v;
+    for (std::size_t k = 0; k < 3; ++k) {
+      const ex& p = b.com[k];
+      if (has_any(p, qd)) throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
+      if (p.has(time_symbol())) throw DefinitionError(where + ": the position may not depend on time t", bidx);
+      mark_used(p);
+      v[k] = 0;
+      for (std::size_t j = 0; j < n; ++j) v[k] += p.diff(q[j]) * qd[j];
+    }
+    T += b.mass / 2 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    V -= b.mass * (def.gravity[0] * b.com[0] + def.gravity[1] * b.com[1] + def.gravity[2] * b.com[2]);
+    // Rotation.
+    if (b.inertia_kind == BodyDef::InertiaKind::none) {
+      if (b.angular_velocity || b.rotation) {
+        throw DefinitionError(where + ": an angular velocity or rotation is given but no inertia", bidx);
+      }
+      continue;
+    }
+    std::array<ex, 3> w{0, 0, 0};
+    if (b.angular_velocity) {
+      w = *b.angular_velocity;
+      for (const ex& e : w) {
+        if (e.has(time_symbol())) throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
+        mark_used(e);
+      }
+    } else if (b.rotation) {
+      matrix R(3, 3), Rd(3, 3);
+      for (unsigned i = 0; i < 3; ++i) {
+        for (unsigned j = 0; j < 3; ++j) {
+          const ex& r = (*b.rotation)[3 * i + j];
+          if (has_any(r, qd) || r.has(time_symbol())) {
+            throw DefinitionError(where + ": the rotation may depend on the coordinates only", bidx);
+          }
+          mark_used(r);
+          R(i, j) = r;
+          ex d = 0;
+          for (std::size_t k = 0; k < n; ++k) d += r.diff(q[k]) * qd[k];
+          Rd(i, j) = d;
+        }
+      }
+      // R must be a rotation: Rᵀ R = 1 identically (checked after simplification).
+      const matrix RtR = R.transpose().mul(R);
+      for (unsigned i = 0; i < 3; ++i) {
+        for (unsigned j = 0; j < 3; ++j) {
+          const ex e = simplify_trig((RtR(i, j) - (i == j ? 1 : 0)).subs(values));
+          const auto ev = real_value(e);
+          if (!(ev && std::abs(*ev) < 1e-12)) {
+            throw DefinitionError(where + ": the rotation is not orthonormal (R^T R - 1 has entry '" + str(e) + "')", bidx);
+          }
+        }
+      }
+      const matrix S = b.inertia_frame == Frame::body ? R.transpose().mul(Rd) : Rd.mul(R.transpose());
+      w = {simplify_trig(S(2, 1)), simplify_trig(S(0, 2)), simplify_trig(S(1, 0))};
+    } else {
+      throw DefinitionError(where + ": an inertia is given but neither angular_velocity nor rotation", bidx);
+    }
+    if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+      T += b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    } else {
+      const auto& I = b.inertia_tensor;
+      for (std::size_t i = 0; i < 3; ++i) {
+        for (std::size_t j = 0; j < 3; ++j) {
+          if (!I[3 * i + j].is_equal(I[3 * j + i])) throw DefinitionError(where + ": the inertia tensor is not symmetric", bidx);
+          T += w[i] * I[3 * i + j] * w[j] / 2;
+        }
+      }
+    }
+  }
+  for (std::size_t j = 0; j < n; ++j) {
+    if (!used[j]) {
+      throw DefinitionError("coordinate '" + def.coordinates()[j] +
+                                "' appears in no body (in no position, rotation or angular velocity)",
+                            -1, static_cast<int>(j));
+    }
+  }
+  V += def.extra_potential;
+  if (has_any(V, qd) || V.has(time_symbol())) {
+    throw DefinitionError("the potential may depend on the coordinates only");
+  }
+
+  SubsystemDerivation d;
+  d.coordinates = def.coordinates();
+  d.parameter_values = values;
+  d.T = T.expand();
+  d.V = V.expand();
+  const auto un = static_cast<unsigned>(n);
+  d.M = matrix(un, un);
+  std::vector<ex> dTdqd(n);
+  for (unsigned i = 0; i < un; ++i) dTdqd[i] = d.T.diff(qd[i]);
+  for (unsigned i = 0; i < un; ++i) {
+    for (unsigned j = i; j < un; ++j) {
+      const ex m = simplify_trig(dTdqd[i].diff(qd[j]));
+      if (has_any(m, qd)) {
+        throw DefinitionError("the kinetic energy is not quadratic in the velocities (M(" + d.coordinates[i] + ", " +
+                                  d.coordinates[j] + ") depends on a velocity): angular velocities must be linear in *_dot",
+                              -1, static_cast<int>(i));
+      }
+      d.M(i, j) = m;
+      d.M(j, i) = m;
+    }
+    if (d.M(i, i).is_zero()) {
+      throw DefinitionError("coordinate '" + d.coordinates[i] + "' moves no mass and no inertia (M(" + d.coordinates[i] +
+                                ", " + d.coordinates[i] + ") = 0)",
+                            -1, static_cast<int>(i));
+    }
+  }
+  // Christoffel symbols of the first kind: C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k.
+  std::vector<matrix> dM(n, matrix(un, un));
+  for (unsigned k = 0; k < un; ++k) {
+    for (unsigned i = 0; i < un; ++i) {
+      for (unsigned j = i; j < un; ++j) {
+        const ex e = d.M(i, j).diff(q[k]);
+        dM[k](i, j) = e;
+        dM[k](j, i) = e;
+      }
+    }
+  }
+  d.C = matrix(un, un);
+  d.Cqd = matrix(un, 1);
+  d.G = matrix(un, 1);
+  for (unsigned i = 0; i < un; ++i) {
+    ex row = 0;
+    for (unsigned j = 0; j < un; ++j) {
+      ex c = 0;
+      for (unsigned k = 0; k < un; ++k) c += (dM[k](i, j) + dM[j](i, k) - dM[i](j, k)) * qd[k] / 2;
+      c = simplify_trig(c);
+      d.C(i, j) = c;
+      row += c * qd[j];
+    }
+    d.Cqd(i, 0) = simplify_trig(row);
+    d.G(i, 0) = simplify_trig(d.V.diff(q[i]));
+  }
+  d.derive_seconds = seconds_since(t0);
+  return d;
+}
+
+// ------------------------------------------------------------------------------ DerivedSubsystem
+
+namespace {
+
+InputMap subsystem_inputs(const std::vector<std::string>& coords) {
+  InputMap in;
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    in[coordinate_symbol(coords[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
+    in[velocity_symbol(coords[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
+  }
+  in[time_symbol()] = {TapeInput::Source::time, 0};
+  return in;
+}
+
+ex numeric_form(const ex& e, const GiNaC::exmap& values) { return e.subs(values).expand(); }
+
+}  // namespace
+
+DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name)
+    : d_(std::move(derivation)), name_(std::move(name)), n_(static_cast<Index>(d_.coordinates.size())) {
+  const auto t0 = Clock::now();
+  const InputMap in = subsystem_inputs(d_.coordinates);
+  const auto& pv = d_.parameter_values;
+  const auto un = static_cast<unsigned>(n_);
+  std::vector<ex> m, cqd, g, c;
+  for (unsigned i = 0; i < un; ++i) {
+    for (unsigned j = i; j < un; ++j) m.push_back(numeric_form(d_.M(i, j), pv));
+    cqd.push_back(numeric_form(d_.Cqd(i, 0), pv));
+    g.push_back(numeric_form(d_.G(i, 0), pv));
+    for (unsigned j = 0; j < un; ++j) c.push_back(numeric_form(d_.C(i, j), pv));
+  }
+  mass_ = Tape(m, in);
+  cqd_ = Tape(cqd, in);
+  grav_ = Tape(g, in);
+  cor_ = Tape(c, in);
+  pot_ = Tape({numeric_form(d_.V, pv)}, in);
+  kin_ = Tape({numeric_form(d_.T, pv)}, in);
+  d_.compile_seconds = seconds_since(t0);
+}
+
+void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
+  double buf[64 * 65 / 2];
+  std::vector<double> big;
+  double* out = buf;
+  if (mass_.outputs() > sizeof(buf) / sizeof(double)) {
+    big.resize(mass_.outputs());  // only for subsystems of more than 64 coordinates
+    out = big.data();
+  }
+  mass_.eval(0.0, q.data(), nullptr, out);
+  std::size_t k = 0;
+  for (Index i = 0; i < n_; ++i) {
+    for (Index j = i; j < n_; ++j) {
+      M(i, j) = out[k];
+      M(j, i) = out[k];
+      ++k;
+    }
+  }
+}
+
+void DerivedSubsystem::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
+  // Row-major tape output into a column-major block: go through a transposed map.
+  if (C.innerStride() == 1 && C.outerStride() == C.rows() && C.rows() == n_ && C.cols() == n_) {
+    cor_.eval(0.0, q.data(), qd.data(), C.data());
+    C.transposeInPlace();
+    return;
+  }
+  Mat tmp(n_, n_);
+  cor_.eval(0.0, q.data(), qd.data(), tmp.data());
+  C = tmp.transpose();
+}
+
+void DerivedSubsystem::coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const {
+  cqd_.eval(0.0, q.data(), qd.data(), Cqd.data());
+}
+
+void DerivedSubsystem::gravity(CVecRef q, VecRef G) const { grav_.eval(0.0, q.data(), nullptr, G.data()); }
+
+double DerivedSubsystem::potential(CVecRef q) const {
+  double v = 0.0;
+  pot_.eval(0.0, q.data(), nullptr, &v);
+  return v;
+}
+
+double DerivedSubsystem::kinetic(CVecRef q, CVecRef qd) const {
+  double v = 0.0;
+  kin_.eval(0.0, q.data(), qd.data(), &v);
+  return v;
+}
+
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def) {
+  return std::make_shared<DerivedSubsystem>(derive(def), def.name());
+}
+
+std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
+  const Index n = sub.dof();
+  Mat M(n, n);
+  sub.mass(q, M);
+  const auto& names = sub.coordinate_names();
+  if (!M.allFinite()) return "the mass matrix is not finite";
+  Eigen::SelfAdjointEigenSolver<Mat> es(M);
+  const double lmin = es.eigenvalues()(0);
+  const double lmax = es.eigenvalues()(n - 1);
+  if (lmin > 1e-12 * std::max(1.0, std::abs(lmax))) return {};
+  const Vec v = es.eigenvectors().col(0);
+  std::vector<Index> idx(static_cast<std::size_t>(n));
+  for (Index i = 0; i < n; ++i) idx[static_cast<std::size_t>(i)] = i;
+  std::sort(idx.begin(), idx.end(), [&](Index a, Index b) { return std::abs(v(a)) > std::abs(v(b)); });
+  std::ostringstream os;
+  os.precision(3);
+  os << "the mass matrix is not positive definite (smallest eigenvalue " << lmin
+     << "): nothing resists motion along coordinate";
+  int shown = 0;
+  for (Index i : idx) {
+    if (std::abs(v(i)) < 0.1 || shown == 3) break;
+    os << (shown ? ", '" : " '") << names[static_cast<std::size_t>(i)] << "' (" << v(i) << ")";
+    ++shown;
+  }
+  return os.str();
+}
+
+// ------------------------------------------------------------------------------ constraints
+
+ConstraintDef::ConstraintDef(std::string name, Kind kind, std::vector<std::string> system_coordinates)
+    : name_(std::move(name)), kind_(kind), coords_(std::move(system_coordinates)) {
+  for (const auto& c : coords_) {
+    scope_.add(c, coordinate_symbol(c));
+    scope_.add(c + "_dot", velocity_symbol(c));
+  }
+  scope_.add("t", time_symbol());
+}
+
+void ConstraintDef::add_row(std::string row_name, ex expression) {
+  rows_.emplace_back(std::move(row_name), std::move(expression));
+}
+
+ConstraintDerivation derive(const ConstraintDef& def) {
+  const auto t0 = Clock::now();
+  const std::size_t n = def.system_coordinates().size();
+  const std::size_t m = def.rows().size();
+  if (m == 0) throw DefinitionError("constraint '" + def.name() + "' has no rows");
+  std::vector<symbol> q, qd;
+  for (const auto& c : def.system_coordinates()) {
+    q.push_back(coordinate_symbol(c));
+    qd.push_back(velocity_symbol(c));
+  }
+  const symbol t = time_symbol();
+  const bool hol = def.kind() == ConstraintDef::Kind::holonomic;
+  const auto un = static_cast<unsigned>(n), um = static_cast<unsigned>(m);
+  ConstraintDerivation d;
+  d.holonomic = hol;
+  d.coordinates = def.system_coordinates();
+  d.parameter_values = def.parameter_values();
+  d.phi = matrix(um, 1);
+  d.A = matrix(um, un);
+  d.b = matrix(um, 1);
+  d.phid = matrix(um, 1);
+  for (unsigned r = 0; r < um; ++r) {
+    const auto& [rname, expr] = def.rows()[r];
+    const int ri = static_cast<int>(r);
+    d.row_names.push_back(rname);
+    const ex e = simplify_trig(expr);
+    ex vel = 0;
+    if (hol) {
+      if (has_any(e, qd)) {
+        throw DefinitionError("row '" + rname + "': a holonomic constraint Phi(q, t) may not use velocities (*_dot); "
+                              "use type: nonholonomic for B(q,t) qd + c(q,t) = 0", -1, -1, ri);
+      }
+      d.phi(r, 0) = e;
+      for (unsigned j = 0; j < un; ++j) {
+        d.A(r, j) = simplify_trig(e.diff(q[j]));
+        vel += d.A(r, j) * qd[j];
+      }
+      vel += e.diff(t);
+    } else {
+      d.phi(r, 0) = 0;
+      for (unsigned j = 0; j < un; ++j) {
+        const ex a = simplify_trig(e.diff(qd[j]));
+        if (has_any(a, qd)) {
+          throw DefinitionError("row '" + rname + "': a nonholonomic constraint must be linear in the velocities "
+                                "(B(q,t) qd + c(q,t)); its coefficient of " + def.system_coordinates()[j] +
+                                "_dot depends on velocities", -1, -1, ri);
+        }
+        d.A(r, j) = a;
+      }
+      vel = e;
+    }
+    bool any = false;
+    for (unsigned j = 0; j < un; ++j) any = any || !d.A(r, j).is_zero();
+    if (!any) {
+      throw DefinitionError("row '" + rname + "' involves no coordinate of the system (" +
+                                (hol ? std::string("dPhi/dq = 0") : std::string("no *_dot term")) + ")",
+                            -1, -1, ri);
+    }
+    vel = simplify_trig(vel);
+    d.phid(r, 0) = vel;
+    ex bb = vel.diff(t);
+    for (unsigned k = 0; k < un; ++k) bb += vel.diff(q[k]) * qd[k];
+    d.b(r, 0) = simplify_trig(-bb);
+  }
+  d.derive_seconds = seconds_since(t0);
+  return d;
+}
+
+DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
+    : d_(std::move(derivation)), m_(static_cast<Index>(d_.row_names.size())) {
+  InputMap in;
+  for (std::size_t i = 0; i < d_.coordinates.size(); ++i) {
+    in[coordinate_symbol(d_.coordinates[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
+    in[velocity_symbol(d_.coordinates[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
+  }
+  in[time_symbol()] = {TapeInput::Source::time, 0};
+  const auto& pv = d_.parameter_values;
+  std::vector<ex> ab, phi, phid;
+  for (unsigned r = 0; r < d_.A.rows(); ++r) {
+    for (unsigned j = 0; j < d_.A.cols(); ++j) {
+      if (!d_.A(r, j).is_zero()) {
+        nz_.emplace_back(static_cast<Index>(r), static_cast<Index>(j));
+        ab.push_back(numeric_form(d_.A(r, j), pv));
+      }
+    }
+  }
+  for (unsigned r = 0; r < d_.A.rows(); ++r) {
+    ab.push_back(numeric_form(d_.b(r, 0), pv));
+    phi.push_back(numeric_form(d_.phi(r, 0), pv));
+    phid.push_back(numeric_form(d_.phid(r, 0), pv));
+  }
+  ab_ = Tape(ab, in);
+  phi_ = Tape(phi, in);
+  phid_ = Tape(phid, in);
+}
+
+void DerivedConstraint::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+  constexpr std::size_t kStack = 512;
+  double buf[kStack];
+  std::vector<double> big;
+  double* out = buf;
+  if (ab_.outputs() > kStack) {
+    big.resize(ab_.outputs());
+    out = big.data();
+  }
+  ab_.eval(t, q.data(), qd.data(), out);
+  A.setZero();
+  std::size_t k = 0;
+  for (const auto& [r, c] : nz_) A(r, c) = out[k++];
+  for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+}
+
+void DerivedConstraint::position_residual(double t, CVecRef q, VecRef phi) const {
+  phi_.eval(t, q.data(), nullptr, phi.data());
+}
+
+void DerivedConstraint::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
+  phid_.eval(t, q.data(), qd.data(), phid.data());
+}
+
+std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def) {
+  return std::make_shared<DerivedConstraint>(derive(def));
+}
+
+}  // namespace ukdyn::symbolic

@@ -1,0 +1,233 @@
+// Subsystems and constraints written as definitions; everything else derived exactly with GiNaC and
+// compiled into allocation-free tapes (ukdyn/symbolic/tape.hpp).
+//
+//   Subsystem:  bodies (mass, CoM position p(q), angular velocity ω(q, q̇) or rotation R(q), inertia)
+//               and gravity  →  T = Σ ½ m ṗ·ṗ + ½ ωᵀ I ω,  V = −Σ m g·p (+ an extra potential)
+//               →  M = ∂²T/∂q̇² (Eq. 5),  G = ∂V/∂q (Eq. 8),
+//                  C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k (Eq. 9),  C q̇.
+//   Holonomic constraint rows Φ(q, t) = 0:  A = ∂Φ/∂q,  Φ_t,
+//               b = −(∂(A q̇)/∂q q̇ + 2 ∂A/∂t q̇ + Φ_tt).
+//   Nonholonomic rows e = B(q, t) q̇ + c(q, t) = 0:  A = B = ∂e/∂q̇,  b = −(∂e/∂q q̇ + ∂e/∂t).
+//
+// Build a model in C++:
+//   symbolic::SubsystemDef d("pendulum", {"phi"});
+//   auto l = d.parameter("l", 1);
+//   auto& bob = d.add_body("bob");
+//   bob.mass = d.parameter("m", 2);
+//   bob.com = {l * sin(d.q("phi")), 0, -l * cos(d.q("phi"))};   // or d.parse("l*sin(phi)")
+//   d.gravity = {0, 0, -9.81};
+//   auto sub = symbolic::make_subsystem(d);   // a ukdyn::Subsystem
+#pragma once
+
+#include <ginac/ginac.h>
+
+#include <array>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/subsystem.hpp"
+#include "ukdyn/symbolic/expression.hpp"
+#include "ukdyn/symbolic/tape.hpp"
+
+namespace ukdyn::symbolic {
+
+/// A definition that cannot be used. `body`, `coordinate` and `row` (−1 if not applicable) tell the
+/// loader which part of the file to point at.
+class DefinitionError : public Error {
+ public:
+  explicit DefinitionError(const std::string& message, int body_ = -1, int coordinate_ = -1,
+                           int row_ = -1)
+      : Error(message), body(body_), coordinate(coordinate_), row(row_) {}
+  int body, coordinate, row;
+};
+
+struct Parameter {
+  std::string name;
+  GiNaC::symbol symbol;
+  GiNaC::ex value;  ///< a real number (exact if given exactly)
+};
+
+/// Names, parameters and let-definitions shared by subsystem and constraint definitions.
+class DefinitionScope {
+ public:
+  /// Declares a parameter (a named number; it stays a symbol in the printed derivation).
+  GiNaC::ex parameter(const std::string& name, const GiNaC::ex& value);
+  GiNaC::ex parameter(const std::string& name, double value);
+  /// A named intermediate expression, usable by later expressions (substituted, never a symbol).
+  GiNaC::ex let(const std::string& name, const GiNaC::ex& value);
+  /// Parses an expression over the names known so far.
+  [[nodiscard]] GiNaC::ex parse(const std::string& text) const { return scope_.parse(text); }
+  [[nodiscard]] const Scope& scope() const { return scope_; }
+  [[nodiscard]] const std::vector<Parameter>& parameters() const { return params_; }
+  /// parameter symbol → value.
+  [[nodiscard]] GiNaC::exmap parameter_values() const;
+
+ protected:
+  Scope scope_;
+  std::vector<Parameter> params_;
+};
+
+enum class Frame { body, world };
+
+struct BodyDef {
+  std::string name;
+  GiNaC::ex mass = 0;
+  std::array<GiNaC::ex, 3> com{0, 0, 0};  ///< centre of mass in the world frame, p(q)
+  /// Angular velocity ω(q, q̇) in `inertia_frame`. If empty and `rotation` is given, it follows from
+  /// R: body frame ω = vee(Rᵀ Ṙ), world frame ω = vee(Ṙ Rᵀ).
+  std::optional<std::array<GiNaC::ex, 3>> angular_velocity;
+  /// Rotation body → world (row-major 3×3), optional.
+  std::optional<std::array<GiNaC::ex, 9>> rotation;
+  enum class InertiaKind { none, scalar, tensor } inertia_kind = InertiaKind::none;
+  /// Scalar model (the paper's): T_rot = ½ I ω·ω.
+  GiNaC::ex inertia_scalar = 0;
+  /// Full tensor about the CoM (row-major, symmetric) in `inertia_frame`: T_rot = ½ ωᵀ I ω.
+  std::array<GiNaC::ex, 9> inertia_tensor{0, 0, 0, 0, 0, 0, 0, 0, 0};
+  Frame inertia_frame = Frame::body;
+};
+
+class SubsystemDef : public DefinitionScope {
+ public:
+  /// Declares the coordinates (names unique, valid identifiers); their velocities are <name>_dot.
+  SubsystemDef(std::string name, std::vector<std::string> coordinates);
+  [[nodiscard]] const std::string& name() const { return name_; }
+  [[nodiscard]] const std::vector<std::string>& coordinates() const { return coords_; }
+  [[nodiscard]] GiNaC::symbol q(const std::string& coordinate) const;
+  [[nodiscard]] GiNaC::symbol qd(const std::string& coordinate) const;
+  BodyDef& add_body(std::string name);
+
+  std::vector<BodyDef> bodies;
+  std::array<GiNaC::ex, 3> gravity{0, 0, 0};  ///< gravitational acceleration (e.g. 0, 0, −9.8)
+  GiNaC::ex extra_potential = 0;              ///< added to V (springs, ...)
+
+ private:
+  std::string name_;
+  std::vector<std::string> coords_;
+};
+
+/// The exact derivation of a subsystem: symbolic, parameters kept as symbols. Entries are expanded
+/// with sin² → 1 − cos² so that identities such as sin² + cos² = 1 cancel.
+struct SubsystemDerivation {
+  std::vector<std::string> coordinates;
+  GiNaC::ex T, V;
+  GiNaC::matrix M, C, G, Cqd;  ///< n×n, n×n, n×1, n×1
+  GiNaC::exmap parameter_values;
+  double derive_seconds = 0.0;
+  double compile_seconds = 0.0;
+};
+
+/// Derives M, C, G and C q̇. Throws DefinitionError (a coordinate in no body, a body without mass, a
+/// velocity or time in a position, ...).
+SubsystemDerivation derive(const SubsystemDef& def);
+
+/// Simplification used everywhere: expand, then sin(x)^2 → 1 − cos(x)^2, expand again.
+GiNaC::ex simplify_trig(const GiNaC::ex& e);
+
+/// A ukdyn::Subsystem evaluated from compiled tapes of a derivation.
+class DerivedSubsystem final : public Subsystem {
+ public:
+  explicit DerivedSubsystem(SubsystemDerivation derivation, std::string name);
+
+  [[nodiscard]] Index dof() const override { return n_; }
+  [[nodiscard]] const std::string& name() const override { return name_; }
+  [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
+    return d_.coordinates;
+  }
+  void mass(CVecRef q, MatRef M) const override;
+  void coriolis(CVecRef q, CVecRef qd, MatRef C) const override;
+  void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const override;
+  void gravity(CVecRef q, VecRef G) const override;
+  [[nodiscard]] double potential(CVecRef q) const override;
+  /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
+  [[nodiscard]] double kinetic(CVecRef q, CVecRef qd) const;
+
+  [[nodiscard]] const SubsystemDerivation& derivation() const { return d_; }
+  /// Instruction counts of the mass, C q̇ and gravity tapes.
+  [[nodiscard]] std::array<std::size_t, 3> tape_operations() const {
+    return {mass_.operations(), cqd_.operations(), grav_.operations()};
+  }
+
+ private:
+  SubsystemDerivation d_;
+  std::string name_;
+  Index n_;
+  Tape mass_, cqd_, grav_, cor_, pot_, kin_;
+};
+
+/// derive + compile.
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def);
+
+/// If M(q) is not positive definite, a message naming the coordinate(s) of the weakest direction;
+/// empty if it is.
+std::string mass_matrix_problem(const Subsystem& subsystem, const Vec& q);
+
+// ------------------------------------------------------------------------------- constraints
+
+class ConstraintDef : public DefinitionScope {
+ public:
+  enum class Kind { holonomic, nonholonomic };
+  /// `system_coordinates`: all coordinates of the system in order (their names become symbols, with
+  /// their velocities <name>_dot and the time t).
+  ConstraintDef(std::string name, Kind kind, std::vector<std::string> system_coordinates);
+  [[nodiscard]] const std::string& name() const { return name_; }
+  [[nodiscard]] Kind kind() const { return kind_; }
+  [[nodiscard]] const std::vector<std::string>& system_coordinates() const { return coords_; }
+  /// Adds a row: Φ(q, t) (holonomic) or B(q, t) q̇ + c(q, t) (nonholonomic); = 0 is implied.
+  void add_row(std::string row_name, GiNaC::ex expression);
+  [[nodiscard]] const std::vector<std::pair<std::string, GiNaC::ex>>& rows() const { return rows_; }
+
+ private:
+  std::string name_;
+  Kind kind_;
+  std::vector<std::string> coords_;
+  std::vector<std::pair<std::string, GiNaC::ex>> rows_;
+};
+
+struct ConstraintDerivation {
+  std::vector<std::string> row_names;
+  std::vector<std::string> coordinates;
+  GiNaC::matrix phi;   ///< m×1 (holonomic; zero for nonholonomic rows)
+  GiNaC::matrix A;     ///< m×n
+  GiNaC::matrix b;     ///< m×1
+  GiNaC::matrix phid;  ///< m×1, A q̇ + Φ_t (holonomic) or the row itself (nonholonomic)
+  bool holonomic = true;
+  GiNaC::exmap parameter_values;
+  double derive_seconds = 0.0;
+};
+
+/// Derives A and b. Throws DefinitionError (row index set) for velocities in Φ, rows not linear in
+/// q̇, rows that involve no coordinate.
+ConstraintDerivation derive(const ConstraintDef& def);
+
+class DerivedConstraint final : public Constraint {
+ public:
+  explicit DerivedConstraint(ConstraintDerivation derivation);
+  [[nodiscard]] Index rows() const override { return m_; }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override { return d_.row_names; }
+  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
+  void position_residual(double t, CVecRef q, VecRef phi) const override;
+  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+  [[nodiscard]] const ConstraintDerivation& derivation() const { return d_; }
+  [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
+
+ private:
+  ConstraintDerivation d_;
+  Index m_;
+  std::vector<std::pair<Index, Index>> nz_;  // (row, column) of each structurally nonzero A entry
+  Tape ab_, phi_, phid_;
+};
+
+std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def);
+
+// ------------------------------------------------------------------------------- printing
+
+enum class Format { latex, c, matlab, text };
+/// The derivation of a subsystem (M, C, G) in a format.
+std::string format_derivation(const SubsystemDerivation& d, const std::string& name, Format f);
+/// The derivation of a constraint block (Φ, A, b) in a format.
+std::string format_derivation(const ConstraintDerivation& d, const std::string& name, Format f);
+
+}  // namespace ukdyn::symbolic

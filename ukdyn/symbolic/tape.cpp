@@ -1,0 +1,256 @@
+#include "ukdyn/symbolic/tape.hpp"
+
+#include <bit>
+#include <cmath>
+#include <sstream>
+
+namespace ukdyn::symbolic {
+
+namespace {
+
+using GiNaC::ex;
+using GiNaC::ex_to;
+using GiNaC::is_a;
+
+inline double apply(Tape::Op op, double x, double y, double imm) {
+  using Op = Tape::Op;
+  switch (op) {
+    case Op::add: return x + y;
+    case Op::sub: return x - y;
+    case Op::mul: return x * y;
+    case Op::div: return x / y;
+    case Op::neg: return -x;
+    case Op::add_c: return x + imm;
+    case Op::mul_c: return x * imm;
+    case Op::square: return x * x;
+    case Op::pow: return std::pow(x, y);
+    case Op::sqrt: return std::sqrt(x);
+    case Op::sin: return std::sin(x);
+    case Op::cos: return std::cos(x);
+    case Op::tan: return std::tan(x);
+    case Op::asin: return std::asin(x);
+    case Op::acos: return std::acos(x);
+    case Op::atan: return std::atan(x);
+    case Op::atan2: return std::atan2(x, y);
+    case Op::exp: return std::exp(x);
+    case Op::log: return std::log(x);
+    case Op::sinh: return std::sinh(x);
+    case Op::cosh: return std::cosh(x);
+    case Op::tanh: return std::tanh(x);
+    case Op::abs: return std::abs(x);
+    default: return imm;
+  }
+}
+
+bool is_binary(Tape::Op op) {
+  using Op = Tape::Op;
+  return op == Op::add || op == Op::sub || op == Op::mul || op == Op::div || op == Op::pow ||
+         op == Op::atan2;
+}
+
+bool is_commutative(Tape::Op op) { return op == Tape::Op::add || op == Tape::Op::mul; }
+
+double to_double(const ex& e) {
+  const ex v = e.evalf();
+  if (!is_a<GiNaC::numeric>(v) || !ex_to<GiNaC::numeric>(v).is_real()) {
+    std::ostringstream os;
+    os << "cannot evaluate '" << e << "' to a real number";
+    throw Error(os.str());
+  }
+  return ex_to<GiNaC::numeric>(v).to_double();
+}
+
+}  // namespace
+
+bool Tape::Key::operator<(const Key& o) const {
+  if (op != o.op) return op < o.op;
+  if (a != o.a) return a < o.a;
+  if (b != o.b) return b < o.b;
+  return imm_bits < o.imm_bits;
+}
+
+std::int32_t Tape::emit(Op op, std::int32_t a, std::int32_t b, double imm) {
+  const bool unary_input = op != Op::constant && op != Op::time && op != Op::q && op != Op::qd;
+  if (unary_input) {
+    // Constant folding.
+    const bool ca = code_[static_cast<std::size_t>(a)].op == Op::constant;
+    const bool cb = !is_binary(op) || code_[static_cast<std::size_t>(b)].op == Op::constant;
+    if (ca && cb) {
+      const double x = code_[static_cast<std::size_t>(a)].imm;
+      const double y = is_binary(op) ? code_[static_cast<std::size_t>(b)].imm : 0.0;
+      return constant(apply(op, x, y, imm));
+    }
+    if (!is_binary(op)) b = 0;
+    if (is_commutative(op) && b < a) std::swap(a, b);
+  }
+  // Identities that keep the tape short.
+  if (op == Op::mul_c && imm == 1.0) return a;
+  if (op == Op::add_c && imm == 0.0) return a;
+  if (op == Op::mul_c && imm == -1.0) return emit(Op::neg, a, 0, 0.0);
+  const Key key{op, a, b, std::bit_cast<std::uint64_t>(imm)};
+  if (auto it = numbering_.find(key); it != numbering_.end()) return it->second;
+  const auto id = static_cast<std::int32_t>(code_.size());
+  code_.push_back(Instr{op, a, b, imm});
+  numbering_.emplace(key, id);
+  return id;
+}
+
+std::int32_t Tape::power(std::int32_t base, long n) {
+  if (n == 0) return constant(1.0);
+  if (n < 0) return emit(Op::div, constant(1.0), power(base, -n), 0.0);
+  if (n == 1) return base;
+  if (n == 2) return emit(Op::square, base, 0, 0.0);
+  const std::int32_t half = power(base, n / 2);
+  const std::int32_t sq = emit(Op::square, half, 0, 0.0);
+  return n % 2 == 0 ? sq : emit(Op::mul, sq, base, 0.0);
+}
+
+std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
+  if (auto it = memo_.find(e); it != memo_.end()) return it->second;
+  std::int32_t id = 0;
+  if (is_a<GiNaC::numeric>(e) || is_a<GiNaC::constant>(e)) {
+    id = constant(to_double(e));
+  } else if (is_a<GiNaC::symbol>(e)) {
+    auto it = inputs.find(e);
+    if (it == inputs.end()) {
+      std::ostringstream os;
+      os << "unknown symbol '" << e << "' (not a coordinate, velocity, t or parameter)";
+      throw Error(os.str());
+    }
+    const TapeInput in = it->second;
+    const Op op = in.source == TapeInput::Source::time ? Op::time
+                  : in.source == TapeInput::Source::q  ? Op::q
+                                                       : Op::qd;
+    id = emit(op, in.index, 0, 0.0);
+  } else if (is_a<GiNaC::add>(e)) {
+    // Σ terms: numeric coefficients become mul_c, a coefficient −1 a subtraction.
+    std::int32_t acc = -1;
+    double offset = 0.0;
+    for (std::size_t i = 0; i < e.nops(); ++i) {
+      const ex term = e.op(i);
+      if (is_a<GiNaC::numeric>(term)) {
+        offset += to_double(term);
+        continue;
+      }
+      double c = 1.0;
+      ex rest = term;
+      if (is_a<GiNaC::mul>(term)) {
+        const ex last = term.op(term.nops() - 1);
+        if (is_a<GiNaC::numeric>(last)) {
+          c = to_double(last);
+          rest = term / last;
+        }
+      }
+      const std::int32_t r = compile(rest, inputs);
+      if (acc < 0) {
+        acc = emit(Op::mul_c, r, 0, c);
+      } else if (c == -1.0) {
+        acc = emit(Op::sub, acc, r, 0.0);
+      } else {
+        acc = emit(Op::add, acc, emit(Op::mul_c, r, 0, c), 0.0);
+      }
+    }
+    id = acc < 0 ? constant(offset) : emit(Op::add_c, acc, 0, offset);
+  } else if (is_a<GiNaC::mul>(e)) {
+    double c = 1.0;
+    std::int32_t num = -1, den = -1;
+    for (std::size_t i = 0; i < e.nops(); ++i) {
+      const ex f = e.op(i);
+      if (is_a<GiNaC::numeric>(f)) {
+        c *= to_double(f);
+        continue;
+      }
+      bool denominator = false;
+      std::int32_t v = 0;
+      if (is_a<GiNaC::power>(f) && is_a<GiNaC::numeric>(f.op(1)) &&
+          ex_to<GiNaC::numeric>(f.op(1)).is_negative()) {
+        denominator = true;
+        v = compile(GiNaC::pow(f.op(0), -f.op(1)), inputs);
+      } else {
+        v = compile(f, inputs);
+      }
+      std::int32_t& acc = denominator ? den : num;
+      acc = acc < 0 ? v : emit(Op::mul, acc, v, 0.0);
+    }
+    if (num < 0) num = constant(1.0);
+    if (den >= 0) num = emit(Op::div, num, den, 0.0);
+    id = emit(Op::mul_c, num, 0, c);
+  } else if (is_a<GiNaC::power>(e)) {
+    const ex base = e.op(0), expo = e.op(1);
+    const std::int32_t b = compile(base, inputs);
+    if (is_a<GiNaC::numeric>(expo) && ex_to<GiNaC::numeric>(expo).is_integer() &&
+        std::abs(ex_to<GiNaC::numeric>(expo).to_long()) <= 64) {
+      id = power(b, ex_to<GiNaC::numeric>(expo).to_long());
+    } else if (expo.is_equal(GiNaC::numeric(1, 2))) {
+      id = emit(Op::sqrt, b, 0, 0.0);
+    } else if (expo.is_equal(GiNaC::numeric(-1, 2))) {
+      id = emit(Op::div, constant(1.0), emit(Op::sqrt, b, 0, 0.0), 0.0);
+    } else {
+      id = emit(Op::pow, b, compile(expo, inputs), 0.0);
+    }
+  } else if (is_a<GiNaC::function>(e)) {
+    const std::string name = ex_to<GiNaC::function>(e).get_name();
+    static const std::map<std::string, Op> unary = {
+        {"sin", Op::sin},   {"cos", Op::cos},   {"tan", Op::tan},   {"asin", Op::asin},
+        {"acos", Op::acos}, {"atan", Op::atan}, {"exp", Op::exp},   {"log", Op::log},
+        {"sinh", Op::sinh}, {"cosh", Op::cosh}, {"tanh", Op::tanh}, {"abs", Op::abs}};
+    if (auto it = unary.find(name); it != unary.end() && e.nops() == 1) {
+      id = emit(it->second, compile(e.op(0), inputs), 0, 0.0);
+    } else if (name == "atan2" && e.nops() == 2) {
+      id = emit(Op::atan2, compile(e.op(0), inputs), compile(e.op(1), inputs), 0.0);
+    } else {
+      throw Error("function '" + name + "' cannot be compiled");
+    }
+  } else {
+    std::ostringstream os;
+    os << "cannot compile expression '" << e << "'";
+    throw Error(os.str());
+  }
+  memo_.emplace(e, id);
+  return id;
+}
+
+Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {
+  out_.reserve(outputs.size());
+  for (const ex& e : outputs) out_.push_back(compile(e, inputs));
+  numbering_.clear();
+  memo_.clear();
+}
+
+std::size_t Tape::operations() const {
+  std::size_t k = 0;
+  for (const Instr& I : code_) {
+    if (I.op != Op::constant && I.op != Op::time && I.op != Op::q && I.op != Op::qd) ++k;
+  }
+  return k;
+}
+
+void Tape::eval(double t, const double* q, const double* qd, double* out) const {
+  thread_local std::vector<double> work;
+  if (work.size() < code_.size()) work.resize(code_.size());
+  double* w = work.data();
+  const Instr* code = code_.data();
+  const std::size_t n = code_.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const Instr& I = code[i];
+    double v;
+    switch (I.op) {
+      case Op::constant: v = I.imm; break;
+      case Op::time: v = t; break;
+      case Op::q: v = q[I.a]; break;
+      case Op::qd: v = qd[I.a]; break;
+      case Op::add: v = w[I.a] + w[I.b]; break;
+      case Op::sub: v = w[I.a] - w[I.b]; break;
+      case Op::mul: v = w[I.a] * w[I.b]; break;
+      case Op::mul_c: v = w[I.a] * I.imm; break;
+      case Op::add_c: v = w[I.a] + I.imm; break;
+      case Op::neg: v = -w[I.a]; break;
+      case Op::square: v = w[I.a] * w[I.a]; break;
+      default: v = apply(I.op, w[I.a], w[I.b], I.imm); break;
+    }
+    w[i] = v;
+  }
+  for (std::size_t k = 0; k < out_.size(); ++k) out[k] = w[out_[k]];
+}
+
+}  // namespace ukdyn::symbolic

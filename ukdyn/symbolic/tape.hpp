@@ -1,0 +1,74 @@
+// A compiled, allocation-free evaluator of a list of GiNaC expressions: a flat instruction tape in
+// static single assignment form (every instruction writes its own slot). Common subexpressions are
+// shared by value numbering (hash-consing of instructions), so an identical subtree, or an identical
+// prefix of a product or sum, is computed once. Inputs are read directly from t, q and q̇.
+#pragma once
+
+#include <ginac/ginac.h>
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "ukdyn/core/types.hpp"
+
+namespace ukdyn::symbolic {
+
+/// Where a symbol's value comes from when the tape runs.
+struct TapeInput {
+  enum class Source : std::uint8_t { time, q, qd };
+  Source source = Source::q;
+  std::int32_t index = 0;
+};
+
+/// symbol → input. Symbols not in the map are errors at compile time.
+using InputMap = std::map<GiNaC::ex, TapeInput, GiNaC::ex_is_less>;
+
+class Tape {
+ public:
+  enum class Op : std::uint8_t {
+    constant, time, q, qd,
+    add, sub, mul, div, neg, add_c, mul_c, square, pow, sqrt,
+    sin, cos, tan, asin, acos, atan, atan2, exp, log, sinh, cosh, tanh, abs
+  };
+  struct Instr {
+    Op op;
+    std::int32_t a;
+    std::int32_t b;
+    double imm;
+  };
+
+  Tape() = default;
+  /// Compiles `outputs` (numbers only: every parameter already substituted). Throws ukdyn::Error on
+  /// a symbol missing from `inputs` or an unsupported function.
+  Tape(const std::vector<GiNaC::ex>& outputs, const InputMap& inputs);
+
+  [[nodiscard]] std::size_t outputs() const { return out_.size(); }
+  [[nodiscard]] std::size_t instructions() const { return code_.size(); }
+  /// Number of arithmetic/function instructions (not loads or constants).
+  [[nodiscard]] std::size_t operations() const;
+
+  /// Evaluates every output into out[0..outputs()). q and qd may be null if the tape reads none.
+  /// Allocation-free after the first call on a thread (the work buffer is thread-local).
+  void eval(double t, const double* q, const double* qd, double* out) const;
+
+ private:
+  std::int32_t emit(Op op, std::int32_t a, std::int32_t b, double imm);
+  std::int32_t compile(const GiNaC::ex& e, const InputMap& inputs);
+  std::int32_t constant(double v) { return emit(Op::constant, 0, 0, v); }
+  std::int32_t power(std::int32_t base, long n);
+
+  std::vector<Instr> code_;
+  std::vector<std::int32_t> out_;
+  struct Key {
+    Op op;
+    std::int32_t a, b;
+    std::uint64_t imm_bits;
+    bool operator<(const Key& o) const;
+  };
+  std::map<Key, std::int32_t> numbering_;  // only used while compiling
+  std::map<GiNaC::ex, std::int32_t, GiNaC::ex_is_less> memo_;
+};
+
+}  // namespace ukdyn::symbolic
