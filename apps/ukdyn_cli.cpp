@@ -120,6 +120,34 @@ int cmd_eval(const ukdyn::Scenario& sc) {
   return failures == 0 ? 0 : 1;
 }
 
+// Prints what assembly changed; returns false (and names the constraints) if it failed.
+bool report_assembly(const ukdyn::Scenario& sc, const ukdyn::AssemblyResult& a, std::ostream& os) {
+  const auto& names = sc.system->coordinate_names();
+  os << fmt::format(
+      "assembly: {} Gauss-Newton iterations, max |Phi| = {:.3e}, max |Phi_dot| = {:.3e}\n",
+      a.iterations, a.max_position_residual, a.max_velocity_residual);
+  os << fmt::format("  {:<14} {:>24} {:>24} {:>11} {:>11}\n", "coordinate", "q guess",
+                    "q assembled", "change", "qd change");
+  for (std::size_t j = 0; j < names.size(); ++j) {
+    const auto i = static_cast<Index>(j);
+    const double dq = a.q(i) - sc.q0(i), dv = a.qd(i) - sc.qd0(i);
+    if (dq == 0.0 && dv == 0.0) continue;
+    os << fmt::format("  {:<14} {:>24.17g} {:>24.17g} {:>11.3e} {:>11.3e}{}\n", names[j], sc.q0(i),
+                      a.q(i), dq, dv, sc.held[j] ? "  (held)" : "");
+  }
+  if (!a.success) {
+    std::string rows;
+    for (Index r : a.unmet_rows) {
+      rows += (rows.empty() ? "" : ", ") +
+              sc.system->constraint_row_names()[static_cast<std::size_t>(r)];
+    }
+    std::cerr << fmt::format("ukdyn: error: {}: {}; constraints not met: {}\n", sc.path.string(),
+                             a.message, rows.empty() ? "-" : rows);
+    return false;
+  }
+  return true;
+}
+
 int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures, bool quiet) {
   ukdyn::RunOptions opt;
   opt.figures = figures;
@@ -140,8 +168,14 @@ int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures
     std::cout << fmt::format("  status              {}{}\n", ukdyn::to_string(rep.stats.status),
                              rep.stats.message.empty() ? "" : " (" + rep.stats.message + ")");
     std::cout << fmt::format(
-        "  steps               {} accepted, {} force evaluations, {} samples\n", rep.stats.steps,
-        rep.stats.rhs_evaluations, rep.stats.samples);
+        "  steps               {} accepted, {} rejected, {} force evaluations, {} samples\n",
+        rep.stats.steps, rep.stats.rejected_steps, rep.stats.rhs_evaluations, rep.stats.samples);
+    const bool adaptive = sc.sim.integrator != ukdyn::IntegratorKind::rk4 && sc.sim.adaptive;
+    std::cout << fmt::format(
+        "  integrator          {} ({}), drift control {}\n", ukdyn::to_string(sc.sim.integrator),
+        adaptive ? fmt::format("abs/rel tol {:g}/{:g}", sc.sim.abs_tol, sc.sim.rel_tol)
+                 : fmt::format("fixed step {:g} s", sc.sim.step),
+        ukdyn::to_string(sc.sim.drift.kind));
     std::cout << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
     std::cout << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n",
                              rep.rank_min, rep.rank_max, sc.system->rows(),
@@ -157,6 +191,9 @@ int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures
       std::cout << fmt::format("                      {} figures in {}\n", rep.figures.size(),
                                (std::filesystem::path(out) / "figures").string());
     }
+  }
+  for (const auto& w : rep.stats.warnings) {
+    std::cerr << fmt::format("ukdyn: warning at t = {:.6g} s: {}\n", w.t, w.message);
   }
   if (!rep.figure_error.empty()) std::cerr << "ukdyn: warning: " << rep.figure_error << "\n";
   if (rep.stats.status != ukdyn::RunStatus::completed) {
@@ -175,13 +212,20 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
 
   std::string scenario, out = "out";
-  bool no_figures = false, quiet = false;
+  bool no_figures = false, quiet = false, do_assemble = false;
   auto* sim = app.add_subcommand(
       "simulate", "Simulate a scenario; write trajectory.csv, summary.json, figures/");
   sim->add_option("scenario", scenario, "scenario file (YAML)")->required();
   sim->add_option("--out,-o", out, "output folder")->capture_default_str();
   sim->add_flag("--no-figures", no_figures, "skip the figures");
   sim->add_flag("--quiet,-q", quiet, "print nothing but errors");
+  sim->add_flag(
+      "--assemble", do_assemble,
+      "first move q0, qd0 onto the constraints (holding initial.hold), as `assemble` does");
+
+  auto* asmb = app.add_subcommand(
+      "assemble", "Find the consistent (q0, qd0) nearest to the scenario's guess and report it");
+  asmb->add_option("scenario", scenario, "scenario file (YAML)")->required();
 
   auto* ev = app.add_subcommand(
       "eval",
@@ -195,7 +239,17 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   try {
-    const ukdyn::Scenario sc = ukdyn::load_scenario(scenario);
+    const bool assembling = *asmb || (*sim && do_assemble);
+    ukdyn::LoadOptions lopt;
+    lopt.check_initial = !assembling;
+    ukdyn::Scenario sc = ukdyn::load_scenario(scenario, lopt);
+    if (assembling) {
+      const auto a = ukdyn::assemble(*sc.system, sc.sim.t0, sc.q0, sc.qd0, sc.held);
+      if (!report_assembly(sc, a, *asmb ? std::cout : std::cerr)) return 2;
+      if (*asmb) return 0;
+      sc.q0 = a.q;
+      sc.qd0 = a.qd;
+    }
     if (*sim) return cmd_simulate(sc, out, !no_figures, quiet);
     if (*ev) return cmd_eval(sc);
     if (*chk) {

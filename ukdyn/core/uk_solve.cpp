@@ -3,123 +3,337 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
+#include <utility>
 
 namespace ukdyn {
 
 UkWorkspace::UkWorkspace(const BlockLayout& block_layout, Index m)
     : layout(block_layout),
+      L(Mat::Zero(block_layout.dof(), block_layout.dof())),
+      inv_diag(Vec::Zero(block_layout.dof())),
       M_inv_Q(block_layout.dof()),
       Linv_At(block_layout.dof(), m),
       A_Minv_At(m, m),
-      ldlt(m),
+      piv(static_cast<std::size_t>(m), 0),
+      nz(static_cast<std::size_t>(m) * block_layout.blocks(), 0),
       r(m),
       lambda(m),
       tmp_m(m),
-      tmp_n(block_layout.dof()) {
-  llt.reserve(layout.blocks());
-  for (std::size_t k = 0; k < layout.blocks(); ++k) llt.emplace_back(layout.size[k]);
-}
+      tmp_n(block_layout.dof()) {}
 
-bool factor_mass(const Mat& M, UkWorkspace& ws) {
-  const auto& L = ws.layout;
-  for (std::size_t k = 0; k < L.blocks(); ++k) {
-    ws.llt[k].compute(M.block(L.start[k], L.start[k], L.size[k], L.size[k]));
-    if (ws.llt[k].info() != Eigen::Success) return false;
+namespace {
+
+// ---- Small dense kernels on raw column-major storage. N > 0: the size is known at compile time
+// (the loops unroll); N == 0: the runtime size n is used. Every routine works for any size, so the
+// solve is correct for large systems too; it is tuned for the small blocks of multibody models.
+
+// Cholesky M = L Lᵀ of one n × n block (lower triangle of M read). Writes L's lower triangle and
+// 1/L_ii. Returns false when a pivot is not > 0 (not positive definite, or NaN).
+template <int N>
+bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_diag, Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  for (Index j = 0; j < n; ++j) {
+    double d = M[j + j * ldm];
+    for (Index k = 0; k < j; ++k) d -= L[j + k * ldl] * L[j + k * ldl];
+    if (!(d > 0.0)) return false;
+    const double ljj = std::sqrt(d);
+    const double inv = 1.0 / ljj;
+    L[j + j * ldl] = ljj;
+    inv_diag[j] = inv;
+    for (Index i = j + 1; i < n; ++i) {
+      double s = M[i + j * ldm];
+      for (Index k = 0; k < j; ++k) s -= L[i + k * ldl] * L[j + k * ldl];
+      L[i + j * ldl] = s * inv;
+    }
   }
   return true;
 }
 
-namespace {
+// x ← L^{-1} x (forward substitution), x contiguous.
+template <int N>
+void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  for (Index i = 0; i < n; ++i) {
+    double s = x[i];
+    for (Index k = 0; k < i; ++k) s -= L[i + k * ldl] * x[k];
+    x[i] = s * inv_diag[i];
+  }
+}
+
+// x ← L^{-T} x (back substitution with the columns of L), x contiguous.
+template <int N>
+void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  for (Index i = n - 1; i >= 0; --i) {
+    double s = x[i];
+    for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
+    x[i] = s * inv_diag[i];
+  }
+}
+
+// x ← L^{-1} a for a strided source a (a row of A): x_i = (a_i − Σ_{k<i} L_ik x_k) / L_ii.
+template <int N>
+void l_solve_from(const double* L, Index ldl, const double* inv_diag, const double* a,
+                  Index a_stride, double* x, Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  for (Index i = 0; i < n; ++i) {
+    double s = a[i * a_stride];
+    for (Index k = 0; k < i; ++k) s -= L[i + k * ldl] * x[k];
+    x[i] = s * inv_diag[i];
+  }
+}
+
+template <int N>
+double dot(const double* x, const double* y, Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  double s = 0.0;
+  for (Index i = 0; i < n; ++i) s += x[i] * y[i];
+  return s;
+}
+
+// Calls f(std::integral_constant<int, 6>) for blocks of size 6 (the paper's arms) and
+// f(std::integral_constant<int, 0>) (runtime size) for any other size.
+template <typename F>
+void with_block_size(Index n, F&& f) {
+  if (n == 6) {
+    f(std::integral_constant<int, 6>{});
+  } else {
+    f(std::integral_constant<int, 0>{});
+  }
+}
 
 // x ← M^{-1} x, block by block.
-template <typename Derived>
-void apply_M_inv(UkWorkspace& ws, Eigen::MatrixBase<Derived>& x) {
-  const auto& L = ws.layout;
-  for (std::size_t k = 0; k < L.blocks(); ++k) {
-    auto seg = x.middleRows(L.start[k], L.size[k]);
-    ws.llt[k].solveInPlace(seg);
+void apply_M_inv(const UkWorkspace& ws, double* x) {
+  const auto& lay = ws.layout;
+  const Index ldl = ws.L.rows();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], n = lay.size[k];
+    const double* Lk = ws.L.data() + s + s * ldl;
+    const double* id = ws.inv_diag.data() + s;
+    with_block_size(n, [&](auto N) {
+      l_solve<decltype(N)::value>(Lk, ldl, id, x + s, n);
+      lt_solve<decltype(N)::value>(Lk, ldl, id, x + s, n);
+    });
   }
 }
 
-// X ← L^{-1} X, block by block (L the lower Cholesky factor of each block).
-void apply_L_inv(UkWorkspace& ws, Mat& X) {
-  const auto& L = ws.layout;
-  for (std::size_t k = 0; k < L.blocks(); ++k) {
-    auto rows = X.middleRows(L.start[k], L.size[k]);
-    ws.llt[k].matrixL().solveInPlace(rows);
-  }
+bool all_finite(const double* x, Index n) {
+  for (Index i = 0; i < n; ++i)
+    if (!std::isfinite(x[i])) return false;
+  return true;
 }
 
-bool all_finite(const Vec& v) { return v.allFinite(); }
-
+// Residual ‖A q̈ − b‖, the consistency flag and the finiteness flag (allocation-free).
 void finish(const Mat& A, const Vec& b, const Vec& qdd, const Vec& Qc, const UkSettings& s,
             Vec& scratch_m, UkResult& res) {
-  if (A.rows() > 0) {
-    scratch_m.noalias() = A * qdd;
-    scratch_m -= b;
-    res.residual = scratch_m.norm();
-    const double scale = b.norm() + A.cwiseAbs().rowwise().sum().maxCoeff() * qdd.norm() + 1.0;
+  const Index m = A.rows(), n = A.cols();
+  if (m > 0) {
+    double* rr = scratch_m.data();
+    const double* Ad = A.data();
+    for (Index i = 0; i < m; ++i) rr[i] = -b[i];
+    for (Index j = 0; j < n; ++j) {
+      const double x = qdd[j];
+      const double* col = Ad + j * m;
+      for (Index i = 0; i < m; ++i) rr[i] += col[i] * x;
+    }
+    double r2 = 0.0, b2 = 0.0, q2 = 0.0;
+    for (Index i = 0; i < m; ++i) r2 += rr[i] * rr[i];
+    for (Index i = 0; i < m; ++i) b2 += b[i] * b[i];
+    for (Index j = 0; j < n; ++j) q2 += qdd[j] * qdd[j];
+    // ‖A‖_∞: the largest absolute row sum.
+    for (Index i = 0; i < m; ++i) rr[i] = 0.0;
+    for (Index j = 0; j < n; ++j) {
+      const double* col = Ad + j * m;
+      for (Index i = 0; i < m; ++i) rr[i] += std::abs(col[i]);
+    }
+    double a_inf = 0.0;
+    for (Index i = 0; i < m; ++i) a_inf = std::max(a_inf, rr[i]);
+    res.residual = std::sqrt(r2);
+    const double scale = std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0;
     res.consistent = res.residual <= s.consistency_rel_tol * scale;
   }
-  res.finite = all_finite(qdd) && all_finite(Qc) && std::isfinite(res.residual);
+  res.finite = all_finite(qdd.data(), qdd.size()) && all_finite(Qc.data(), Qc.size()) &&
+               std::isfinite(res.residual);
 }
 
 }  // namespace
+
+bool factor_mass(const Mat& M, UkWorkspace& ws) {
+  const auto& lay = ws.layout;
+  const Index ldm = M.rows(), ldl = ws.L.rows();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], n = lay.size[k];
+    const double* Mk = M.data() + s + s * ldm;
+    double* Lk = ws.L.data() + s + s * ldl;
+    double* id = ws.inv_diag.data() + s;
+    bool ok = false;
+    with_block_size(n,
+                    [&](auto N) { ok = chol_block<decltype(N)::value>(Mk, ldm, Lk, ldl, id, n); });
+    if (!ok) return false;
+  }
+  return true;
+}
 
 UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd,
                            Vec& Qc, const UkSettings& settings) {
   UkResult res;
   const Index m = A.rows();
+  const Index n = ws.layout.dof();
+  const auto& lay = ws.layout;
+  const std::size_t nb = lay.blocks();
+  const Index ldl = ws.L.rows();
+  if (qdd.size() != n) qdd.resize(n);  // no-op (no allocation) when the caller sized them
+  if (Qc.size() != n) Qc.resize(n);
   // a = M^{-1} Q: the unconstrained acceleration, paper Eq. (1).
-  ws.M_inv_Q = Q;
-  apply_M_inv(ws, ws.M_inv_Q);
+  double* a = ws.M_inv_Q.data();
+  for (Index j = 0; j < n; ++j) a[j] = Q[j];
+  apply_M_inv(ws, a);
   if (m == 0) {
-    qdd = ws.M_inv_Q;
+    for (Index j = 0; j < n; ++j) qdd[j] = a[j];
     Qc.setZero();
-    res.finite = qdd.allFinite();
+    res.finite = all_finite(qdd.data(), n);
     return res;
   }
-  // X = L^{-1} Aᵀ, W = Xᵀ X = A M^{-1} Aᵀ.
-  ws.Linv_At = A.transpose();
-  apply_L_inv(ws, ws.Linv_At);
-  ws.A_Minv_At.noalias() = ws.Linv_At.transpose() * ws.Linv_At;
-  // r = b − A M^{-1} Q, the bracket of paper Eq. (4).
-  ws.r = b;
-  ws.r.noalias() -= A * ws.M_inv_Q;
+  const double* Ad = A.data();
 
-  // Pivoted LDLᵀ of W: P W Pᵀ = L D Lᵀ with |D| non-increasing in practice (diagonal pivoting).
-  ws.ldlt.compute(ws.A_Minv_At);
-  const auto& D = ws.ldlt.vectorD();
-  const double d_max = D.cwiseAbs().maxCoeff();
-  const double cutoff = settings.rank_rel_tol * settings.rank_rel_tol * d_max;
-  double d_min_kept = std::numeric_limits<double>::infinity();
-  int rank = 0;
-
-  // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r, dropping pivots under the cutoff.
-  ws.lambda = ws.ldlt.transpositionsP() * ws.r;
-  ws.ldlt.matrixL().solveInPlace(ws.lambda);
-  for (Index i = 0; i < m; ++i) {
-    if (d_max > 0.0 && D(i) > cutoff) {
-      ws.lambda(i) /= D(i);
-      d_min_kept = std::min(d_min_kept, D(i));
-      ++rank;
-    } else {
-      ws.lambda(i) = 0.0;
+  // X = L^{-1} Aᵀ, column i = L^{-1} (row i of A), block by block. Constraint rows are sparse in
+  // blocks (a trajectory row touches one arm): nz records which (row, block) pairs are non-zero so
+  // that the zero parts are skipped below.
+  double* X = ws.Linv_At.data();
+  const Index ldx = ws.Linv_At.rows();
+  unsigned char* nz = ws.nz.data();
+  for (std::size_t k = 0; k < nb; ++k) {
+    const Index s = lay.start[k], nk = lay.size[k];
+    const double* Lk = ws.L.data() + s + s * ldl;
+    const double* id = ws.inv_diag.data() + s;
+    for (Index i = 0; i < m; ++i) {
+      const double* arow = Ad + i + s * m;  // A(i, s), stride m
+      bool any = false;
+      for (Index j = 0; j < nk; ++j) any = any || arow[j * m] != 0.0;
+      nz[k * static_cast<std::size_t>(m) + static_cast<std::size_t>(i)] = any ? 1 : 0;
+      double* x = X + s + i * ldx;
+      if (!any) {
+        for (Index j = 0; j < nk; ++j) x[j] = 0.0;
+        continue;
+      }
+      with_block_size(
+          nk, [&](auto N) { l_solve_from<decltype(N)::value>(Lk, ldl, id, arow, m, x, nk); });
     }
   }
-  ws.ldlt.matrixU().solveInPlace(ws.lambda);
-  ws.lambda = ws.ldlt.transpositionsP().transpose() * ws.lambda;
+
+  // W = Xᵀ X = A M^{-1} Aᵀ, lower triangle only, summed over the blocks both rows touch.
+  double* W = ws.A_Minv_At.data();
+  const Index ldw = ws.A_Minv_At.rows();
+  for (Index j = 0; j < m; ++j) {
+    for (Index i = j; i < m; ++i) {
+      double w = 0.0;
+      for (std::size_t k = 0; k < nb; ++k) {
+        const std::size_t km = k * static_cast<std::size_t>(m);
+        if (!nz[km + static_cast<std::size_t>(i)] || !nz[km + static_cast<std::size_t>(j)])
+          continue;
+        const Index s = lay.start[k], nk = lay.size[k];
+        const double* xi = X + s + i * ldx;
+        const double* xj = X + s + j * ldx;
+        with_block_size(nk, [&](auto N) { w += dot<decltype(N)::value>(xi, xj, nk); });
+      }
+      W[i + j * ldw] = w;
+    }
+  }
+
+  // r = b − A a, the bracket of paper Eq. (4).
+  double* r = ws.r.data();
+  for (Index i = 0; i < m; ++i) r[i] = b[i];
+  for (Index j = 0; j < n; ++j) {
+    const double aj = a[j];
+    const double* col = Ad + j * m;
+    for (Index i = 0; i < m; ++i) r[i] -= col[i] * aj;
+  }
+
+  // Pivoted LDLᵀ of W (a pivoted Cholesky): P W Pᵀ = L D Lᵀ, at each step the largest remaining
+  // diagonal of the Schur complement is the pivot, so D is non-increasing and D_0 = max diag W.
+  // A pivot is kept while D_k > rel_tol² · D_0; the factorisation stops at the first one that is
+  // not (the remaining Schur complement is round-off of redundant rows). The kept part of L and D
+  // is the same as that of a complete pivoted LDLᵀ, so the basic solution below is too.
+  const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
+  double* t = ws.tmp_m.data();
+  Index* piv = ws.piv.data();
+  double d_max = 0.0, cutoff = 0.0, d_min_kept = std::numeric_limits<double>::infinity();
+  Index rank = 0;
+  for (Index k = 0; k < m; ++k) {
+    Index p = k;
+    double dp = W[k + k * ldw];
+    for (Index i = k + 1; i < m; ++i) {
+      if (W[i + i * ldw] > dp) {
+        dp = W[i + i * ldw];
+        p = i;
+      }
+    }
+    if (k == 0) {
+      d_max = std::max(dp, 0.0);
+      cutoff = tol2 * d_max;
+    }
+    piv[k] = p;
+    if (!(d_max > 0.0 && dp > cutoff)) break;
+    if (p != k) {
+      // Symmetric swap of rows/columns k and p in lower storage.
+      for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
+      std::swap(W[k + k * ldw], W[p + p * ldw]);
+      for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
+      for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
+    }
+    const double inv_d = 1.0 / dp;
+    double* colk = W + k * ldw;
+    for (Index i = k + 1; i < m; ++i) {
+      t[i] = colk[i];
+      colk[i] *= inv_d;  // L_ik
+    }
+    for (Index j = k + 1; j < m; ++j) {
+      const double tj = t[j];
+      double* colj = W + j * ldw;
+      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
+    }
+    d_min_kept = std::min(d_min_kept, dp);
+    ++rank;
+  }
+
+  // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r; components past the rank are 0.
+  double* lam = ws.lambda.data();
+  for (Index i = 0; i < m; ++i) lam[i] = r[i];
+  for (Index k = 0; k < rank; ++k) std::swap(lam[k], lam[piv[k]]);
+  for (Index i = 0; i < rank; ++i) {
+    double s = lam[i];
+    for (Index k = 0; k < i; ++k) s -= W[i + k * ldw] * lam[k];
+    lam[i] = s;
+  }
+  for (Index i = 0; i < rank; ++i) lam[i] /= W[i + i * ldw];
+  for (Index i = rank; i < m; ++i) lam[i] = 0.0;
+  for (Index i = rank - 1; i >= 0; --i) {
+    double s = lam[i];
+    const double* coli = W + i * ldw;
+    for (Index k = i + 1; k < rank; ++k) s -= coli[k] * lam[k];
+    lam[i] = s;
+  }
+  for (Index k = rank - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
 
   // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = a + M^{-1} Qc, paper Eq. (18).
-  Qc.noalias() = A.transpose() * ws.lambda;
-  ws.tmp_n = Qc;
-  apply_M_inv(ws, ws.tmp_n);
-  qdd = ws.M_inv_Q + ws.tmp_n;
+  double* qc = Qc.data();
+  double* w = ws.tmp_n.data();
+  for (Index j = 0; j < n; ++j) {
+    const double* col = Ad + j * m;
+    double s = 0.0;
+    for (Index i = 0; i < m; ++i) s += col[i] * lam[i];
+    qc[j] = s;
+    w[j] = s;
+  }
+  apply_M_inv(ws, w);
+  for (Index j = 0; j < n; ++j) qdd[j] = a[j] + w[j];
 
-  res.rank = rank;
-  res.sigma_max = std::sqrt(std::max(d_max, 0.0));
+  res.rank = static_cast<int>(rank);
+  res.sigma_max = std::sqrt(d_max);
   res.sigma_min_kept = rank > 0 ? std::sqrt(d_min_kept) : 0.0;
   finish(A, b, qdd, Qc, settings, ws.tmp_m, res);
   return res;

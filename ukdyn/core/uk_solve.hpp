@@ -51,21 +51,26 @@ struct BlockLayout {
   static BlockLayout single(Index n) { return BlockLayout{{0}, {n}}; }
 };
 
-/// Every buffer the U-K solve writes, allocated once for (layout, m constraint rows).
+/// Every buffer the U-K solve writes, allocated once for (layout, m constraint rows). The solve
+/// itself is hand-written loops over these buffers (no Eigen GEMM dispatch, no temporaries): for
+/// the small dense systems it is built for (blocks of 6, a dozen rows) dispatch and blocking cost
+/// more than the arithmetic. Blocks of size 6 use code specialised for that size.
 struct UkWorkspace {
   UkWorkspace() = default;
   UkWorkspace(const BlockLayout& layout, Index m);
 
   BlockLayout layout;
-  std::vector<Eigen::LLT<Mat>> llt;  ///< per-block Cholesky factor of M
-  Vec M_inv_Q;                       ///< a = M^{-1} Q
-  Mat Linv_At;                       ///< X = L^{-1} Aᵀ (n × m)
-  Mat A_Minv_At;                     ///< W = A M^{-1} Aᵀ (m × m)
-  Eigen::LDLT<Mat> ldlt;             ///< pivoted factor of W
-  Vec r;                             ///< b − A a
-  Vec lambda;                        ///< W λ = r (basic solution)
-  Vec tmp_m;                         ///< scratch (m)
-  Vec tmp_n;                         ///< scratch (n)
+  Mat L;                          ///< n × n: block k's lower Cholesky factor in its diagonal block
+  Vec inv_diag;                   ///< 1 / L_ii (n)
+  Vec M_inv_Q;                    ///< a = M^{-1} Q
+  Mat Linv_At;                    ///< X = L^{-1} Aᵀ (n × m)
+  Mat A_Minv_At;                  ///< W = A M^{-1} Aᵀ (m × m, lower), factored in place
+  std::vector<Index> piv;         ///< pivot transpositions of the LDLᵀ (m)
+  std::vector<unsigned char> nz;  ///< nz[k·m + i]: row i of A touches block k
+  Vec r;                          ///< b − A a
+  Vec lambda;                     ///< W λ = r (basic solution)
+  Vec tmp_m;                      ///< scratch (m)
+  Vec tmp_n;                      ///< scratch (n)
 };
 
 /// Factors M per block into ws.llt. Returns false if a block is not positive definite.

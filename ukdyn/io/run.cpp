@@ -25,7 +25,7 @@ std::vector<std::string> trajectory_header(const System& system) {
   for (const auto& n : names) h.push_back(n + "_ddot");
   for (const auto& n : names) h.push_back("Qc_" + n);
   for (const auto& r : system.constraint_row_names()) h.push_back("res_" + r);
-  h.insert(h.end(), {"T", "V", "E"});
+  h.insert(h.end(), {"T", "V", "E", "rank", "free_dof", "sigma_min", "acc_residual"});
   return h;
 }
 
@@ -148,7 +148,9 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["ukdyn_version"] = UKDYN_VERSION;
   summary["scenario"] = {{"name", sc.name}, {"path", sc.path.string()}, {"hash_fnv1a64", sc.hash}};
   summary["integrator"] = {
-      {"method", sc.sim.integrator == IntegratorKind::dopri5 ? "dopri5" : "rk4"},
+      {"method", to_string(sc.sim.integrator)},
+      {"adaptive", sc.sim.integrator != IntegratorKind::rk4 && sc.sim.adaptive},
+      {"drift_control", to_string(sc.sim.drift.kind)},
       {"abs_tol", sc.sim.abs_tol},
       {"rel_tol", sc.sim.rel_tol},
       {"step", sc.sim.step},
@@ -197,6 +199,17 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     row[k++] = T;
     row[k++] = V;
     row[k++] = E;
+    // Diagnostics: rank of A, free DOF n − rank, smallest kept singular value of A M^{-1/2}
+    // (exact, by SVD at the sample), ‖A q̈ − b‖.
+    row[k++] = d.result.rank;
+    row[k++] = static_cast<double>(n - d.result.rank);
+    if (m > 0) {
+      const Vec sv = singular_values_A_Minvhalf(d.M, d.A);
+      row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
+    } else {
+      row[k++] = 0.0;
+    }
+    row[k++] = d.result.residual;
     csv.row(row);
     progress.update(t);
     return true;
@@ -220,6 +233,13 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["stop_reason"] = complete ? "" : to_string(rep.stats.status) + ": " + rep.stats.message;
   summary["t_reached"] = rep.stats.t_reached;
   summary["steps"] = rep.stats.steps;
+  summary["rejected_steps"] = rep.stats.rejected_steps;
+  summary["projection_iterations"] = rep.stats.projections;
+  nlohmann::json warnings = nlohmann::json::array();
+  for (const auto& w : rep.stats.warnings) {
+    warnings.push_back({{"t", w.t}, {"kind", w.kind}, {"message", w.message}});
+  }
+  summary["warnings"] = warnings;
   summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
   summary["samples"] = rep.stats.samples;
   summary["wall_seconds"] = rep.wall_seconds;

@@ -9,6 +9,7 @@
 #include <set>
 #include <sstream>
 
+#include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
@@ -111,7 +112,8 @@ TimeFunction load_time_function(const Loader& L, const Node& n) {
 
 }  // namespace
 
-Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path) {
+Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
+                            const LoadOptions& options) {
   Loader L(path);
   Scenario sc;
   sc.path = path;
@@ -152,7 +154,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
     const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
     const Node name_node = L.child(s, "name", true);
-    const std::string name = L.string(name_node);
+    const std::string name = L.name(name_node);
     if (subsystem_names.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
     subsystem_names.insert(name);
     const Node type_node = L.child(s, "type", true);
@@ -165,10 +167,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     std::vector<std::string> names;
     for (std::size_t j = 0; j < cn.node.size(); ++j) {
       const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
-      std::string c = L.string(e);
-      if (c.empty() || c.find_first_of(", \"\n'") != std::string::npos) {
-        L.fail(e, "a coordinate name must be non-empty without commas, quotes or spaces");
-      }
+      std::string c = L.name(e);
       if (coord_index.count(c)) L.fail(e, "duplicate coordinate name '" + c + "'");
       coord_index[c] = system->dof() + static_cast<Index>(j);
       names.push_back(std::move(c));
@@ -184,8 +183,11 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
           name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
       arms[name] = {arm, system->dof()};
       sub = arm;
+    } else if (type == "definitions") {  // docs/definitions.md
+      sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
     } else {
-      L.fail(type_node, "unknown subsystem type '" + type + "' (expected mobile_manipulator)");
+      L.fail(type_node,
+             "unknown subsystem type '" + type + "' (expected mobile_manipulator or definitions)");
     }
     const Index off = system->add_subsystem(sub);
     sc.subsystems.push_back({name, type, off, sub->dof()});
@@ -195,7 +197,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
 
   // ---- initial state (needed by constraints that refer to it)
   const Node init = L.child(root, "initial", true);
-  L.only_keys(init, {"q", "qd"});
+  L.only_keys(init, {"q", "qd", "hold"});
   sc.q0 = L.vector(L.child(init, "q", true), n);
   if (Node qd = L.child(init, "qd", false); qd.node.IsDefined()) {
     if (qd.node.IsScalar() && qd.node.Scalar() == "zeros") {
@@ -205,6 +207,23 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     }
   } else {
     sc.qd0 = Vec::Zero(n);
+  }
+  sc.held.assign(static_cast<std::size_t>(n), false);
+  if (Node h = L.child(init, "hold", false); h.node.IsDefined()) {
+    if (!h.node.IsSequence())
+      L.fail(h, "expected a list of coordinate names to hold during assembly");
+    for (std::size_t i = 0; i < h.node.size(); ++i) {
+      const Node e{h.node[i], h.key + "[" + std::to_string(i) + "]"};
+      const std::string c = L.string(e);
+      auto it = coord_index.find(c);
+      if (it == coord_index.end()) L.fail(e, "no coordinate named '" + c + "'");
+      sc.held[static_cast<std::size_t>(it->second)] = true;
+    }
+  }
+  for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // M(q0) positive definite (definitions)
+    const auto& info = sc.subsystems[k];
+    io_detail::check_mass_matrix(L, Node{subs.node[k], subs.key + "[" + std::to_string(k) + "]"},
+                                 *system->subsystems()[k], sc.q0.segment(info.offset, info.dof));
   }
 
   // ---- constraints
@@ -228,11 +247,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
       const Node c{cons.node[i], cons.key + "[" + std::to_string(i) + "]"};
       const Node type_node = L.child(c, "type", true);
       const std::string type = L.string(type_node);
-      const std::string cname = L.string(L.child(c, "name", true));
-      if (cname.empty() || cname.find_first_of(", \"\n") != std::string::npos) {
-        L.fail(L.child(c, "name", true),
-               "a constraint name must be non-empty without commas, quotes or spaces");
-      }
+      const std::string cname = L.name(L.child(c, "name", true));
       try {
         if (type == "closure") {
           L.only_keys(c, {"type", "name", "left", "right", "dz", "yaw_offset", "load_pitch"});
@@ -279,9 +294,14 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
             f = load_time_function(L, vn);
           }
           add(c, std::make_shared<CoordinateConstraint>(it->second, f, cname));
+        } else if (type == "expression" || type == "nonholonomic") {  // docs/definitions.md
+          std::vector<std::string> coords(static_cast<std::size_t>(n));
+          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
+          add(c, io_detail::load_definitions_constraint(L, c, cname, type == "expression", coords));
         } else {
           L.fail(type_node, "unknown constraint type '" + type +
-                                "' (expected closure, cut_point_trajectory or coordinate)");
+                                "' (expected closure, cut_point_trajectory, coordinate, expression "
+                                "or nonholonomic)");
         }
       } catch (const ScenarioError&) {
         throw;
@@ -301,8 +321,8 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   // ---- simulation
   {
     const Node s = L.child(root, "simulation", true);
-    L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "abs_tol", "rel_tol", "step",
-                    "initial_tolerance"});
+    L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
+                    "step", "initial_tolerance", "drift"});
     auto& sim = sc.sim;
     sim.t0 = L.number_or(s, "t0", 0.0);
     const Node te = L.child(s, "t_end", true);
@@ -311,6 +331,11 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     if (sim.t_end - sim.t0 > 1e7) L.fail(te, "duration over 1e7 s: refusing an absurd horizon");
     const Node sd = L.child(s, "sample_dt", true);
     sim.sample_dt = L.positive(sd);
+    if (sim.sample_dt > sim.t_end - sim.t0) L.fail(sd, "must not exceed the duration t_end - t0");
+    const double t_scale = std::max(std::abs(sim.t0), std::abs(sim.t_end));  // t + dt == t below
+    if (sim.sample_dt < 1e-10 * t_scale) {
+      L.fail(sd, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
+    }
     if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
       L.fail(sd, "more than 1e7 output samples: increase sample_dt");
     }
@@ -320,8 +345,39 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
         sim.integrator = IntegratorKind::dopri5;
       } else if (kind == "rk4") {
         sim.integrator = IntegratorKind::rk4;
+      } else if (kind == "rkf78") {
+        sim.integrator = IntegratorKind::rkf78;
       } else {
-        L.fail(in, "unknown integrator '" + kind + "' (expected dopri5 or rk4)");
+        L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78 or rk4)");
+      }
+    }
+    if (Node ad = L.child(s, "adaptive", false); ad.node.IsDefined()) {
+      const std::string v = L.string(ad);
+      if (v != "true" && v != "false") L.fail(ad, "expected true or false");
+      sim.adaptive = v == "true";
+    }
+    if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
+      L.only_keys(dr, {"method", "alpha", "beta"});
+      const Node mn = L.child(dr, "method", true);
+      const std::string method = L.string(mn);
+      if (method == "none") {
+        sim.drift.kind = DriftControl::none;
+      } else if (method == "baumgarte") {
+        sim.drift.kind = DriftControl::baumgarte;
+      } else if (method == "projection") {
+        sim.drift.kind = DriftControl::projection;
+      } else {
+        L.fail(mn,
+               "unknown drift control '" + method + "' (expected none, baumgarte or projection)");
+      }
+      for (const char* key : {"alpha", "beta"}) {
+        const Node g = L.child(dr, key, false);
+        if (!g.node.IsDefined()) continue;
+        if (sim.drift.kind != DriftControl::baumgarte)
+          L.fail(g, "only used with method: baumgarte");
+        const double v = L.number(g);
+        if (!(v >= 0.0 && v <= 1e6)) L.fail(g, "a Baumgarte gain must lie in [0, 1e6] 1/s");
+        (std::string(key) == "alpha" ? sim.drift.alpha : sim.drift.beta) = v;
       }
     }
     auto tol = [&](const char* key, double fallback) {
@@ -335,11 +391,14 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     sim.rel_tol = tol("rel_tol", sim.rel_tol);
     if (Node st = L.child(s, "step", false); st.node.IsDefined()) {
       sim.step = L.positive(st);
-      if (sim.integrator == IntegratorKind::rk4) {
+      if (sim.step < 1e-10 * t_scale) {
+        L.fail(st, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
+      }
+      if (sim.integrator == IntegratorKind::rk4 || !sim.adaptive) {
         if ((sim.t_end - sim.t0) / sim.step > 1e9) L.fail(st, "more than 1e9 steps: increase step");
         const double ratio = sim.sample_dt / sim.step;
         if (std::abs(ratio - std::round(ratio)) > 1e-9 * ratio || std::round(ratio) < 1) {
-          L.fail(st, "the rk4 step must divide simulation.sample_dt");
+          L.fail(st, "the fixed step must divide simulation.sample_dt");
         }
       }
     }
@@ -360,7 +419,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   }
 
   // ---- the initial state must satisfy the constraints (paper, assumption 3)
-  if (system->rows() > 0) {
+  if (system->rows() > 0 && options.check_initial) {
     Vec phi(system->rows()), phid(system->rows());
     position_residuals(*system, sc.sim.t0, sc.q0, phi);
     velocity_residuals(*system, sc.sim.t0, sc.q0, sc.qd0, phid);
@@ -388,7 +447,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   return sc;
 }
 
-Scenario load_scenario(const std::filesystem::path& path) {
+Scenario load_scenario(const std::filesystem::path& path, const LoadOptions& options) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
     throw ScenarioError(path.string() + ": no such scenario file");
@@ -401,7 +460,7 @@ Scenario load_scenario(const std::filesystem::path& path) {
   if (!in) throw ScenarioError(path.string() + ": cannot open");
   std::ostringstream os;
   os << in.rdbuf();
-  return load_scenario_text(os.str(), path);
+  return load_scenario_text(os.str(), path, options);
 }
 
 }  // namespace ukdyn

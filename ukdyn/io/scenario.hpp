@@ -35,13 +35,20 @@ struct Scenario {
   Vec q0, qd0, tau;
   SimulationSettings sim;
   double initial_tolerance = 1e-9;  ///< |Φ(q0, t0)| and |Φ̇(q0, q̇0, t0)| must stay under this
+  std::vector<bool> held;           ///< coordinates kept fixed by assembly (initial.hold)
+};
+
+struct LoadOptions {
+  /// Check that (q0, q̇0) satisfies the constraints at t0. Off for `assemble`, which repairs them.
+  bool check_initial = true;
 };
 
 /// Loads and validates a scenario. Throws ScenarioError naming file, line, column and key.
 /// Also checks that (q0, q̇0) satisfies every constraint at t0 (position and velocity level).
-Scenario load_scenario(const std::filesystem::path& path);
+Scenario load_scenario(const std::filesystem::path& path, const LoadOptions& options = {});
 
 /// Same, from text (path is used in messages only).
-Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path);
+Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
+                            const LoadOptions& options = {});
 
 }  // namespace ukdyn

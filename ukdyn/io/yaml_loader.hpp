@@ -52,9 +52,12 @@ class Loader {
   // Unknown keys are errors: a mistyped key must not be silently ignored.
   void only_keys(const Node& n, std::initializer_list<const char*> allowed) const {
     if (!n.node.IsMap()) fail(n, "expected a mapping");
-    std::set<std::string> ok(allowed.begin(), allowed.end());
+    std::set<std::string> ok(allowed.begin(), allowed.end()), seen;
     for (const auto& kv : n.node) {
-      const auto k = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) fail(Node{kv.first, n.key}, "a key must be a plain string");
+      const std::string k = kv.first.Scalar();
+      if (!seen.insert(k).second)
+        fail(Node{kv.first, n.key.empty() ? k : n.key + "." + k}, "duplicate key '" + k + "'");
       if (!ok.count(k)) {
         std::string list;
         for (const auto& a : ok) list += (list.empty() ? "" : ", ") + a;
@@ -90,6 +93,32 @@ class Loader {
     return n.node.Scalar();
   }
 
+  // A name that becomes a CSV column and part of a file name (figures): 1 to 64 characters from
+  // A-Z a-z 0-9 _ . -, not starting with '.' or '-', so never a path, '..', an option or a control.
+  std::string name(const Node& n) const {
+    const std::string s = string(n);
+    bool ok = !s.empty() && s.size() <= 64 && s[0] != '.' && s[0] != '-';
+    std::string shown;  // the first 40 characters, non-printable bytes as \xNN
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const char ch = s[i];
+      const auto u = static_cast<unsigned char>(ch);
+      ok = ok && ((ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') ||
+                  (ch >= '0' && ch <= '9') || ch == '_' || ch == '.' || ch == '-');
+      if (i < 40) {
+        static const char* hex = "0123456789abcdef";
+        shown += u >= 0x20 && u < 0x7f ? std::string(1, ch)
+                                       : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
+      }
+    }
+    if (!ok) {
+      fail(n,
+           "a name must be 1 to 64 characters from A-Z a-z 0-9 _ . - and not start with '.' or "
+           "'-', got '" +
+               shown + (s.size() > 40 ? "...'" : "'"));
+    }
+    return s;
+  }
+
   Vec vector(const Node& n, Index expected) const {
     if (!n.node.IsSequence())
       fail(n, "expected a list of " + std::to_string(expected) + " numbers");
@@ -120,11 +149,12 @@ class Loader {
         out = v;
         return true;
       }
-      if (t == ".nan" || t == ".NaN" || t == "nan") {
+      if (t == ".nan" || t == ".NaN" || t == ".NAN" || t == "nan") {
         out = std::numeric_limits<double>::quiet_NaN();
         return true;
       }
-      if (t == ".inf" || t == "inf" || t == "-.inf" || t == "-inf") {
+      if (t == ".inf" || t == ".Inf" || t == ".INF" || t == "inf" || t == "-.inf" || t == "-.Inf" ||
+          t == "-.INF" || t == "-inf") {
         out = t[0] == '-' ? -std::numeric_limits<double>::infinity()
                           : std::numeric_limits<double>::infinity();
         return true;

@@ -1,7 +1,9 @@
 #include "ukdyn/simulate/simulate.hpp"
 
+#include <Eigen/QR>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 namespace ukdyn {
@@ -22,6 +24,30 @@ std::string to_string(RunStatus status) {
   return "unknown";
 }
 
+std::string to_string(IntegratorKind kind) {
+  switch (kind) {
+    case IntegratorKind::rk4:
+      return "rk4";
+    case IntegratorKind::dopri5:
+      return "dopri5";
+    case IntegratorKind::rkf78:
+      return "rkf78";
+  }
+  return "unknown";
+}
+
+std::string to_string(DriftControl kind) {
+  switch (kind) {
+    case DriftControl::none:
+      return "none";
+    case DriftControl::baumgarte:
+      return "baumgarte";
+    case DriftControl::projection:
+      return "projection";
+  }
+  return "unknown";
+}
+
 namespace {
 
 namespace odeint = boost::numeric::odeint;
@@ -32,35 +58,100 @@ using State = std::vector<double>;
 struct Rhs {
   const System& system;
   const ForceFunction& tau_fn;
-  const UkSettings& uk;
+  const SimulationSettings& s;
   ForwardData data;
-  Vec tau;
+  Vec tau, phi, phid;
   Index n;
   long evaluations = 0;
-  bool inconsistent = false;
-  double inconsistent_time = 0.0;
 
-  Rhs(const System& s, const ForceFunction& f, const UkSettings& u)
-      : system(s), tau_fn(f), uk(u), data(s), tau(Vec::Zero(s.dof())), n(s.dof()) {}
+  Rhs(const System& sys, const ForceFunction& f, const SimulationSettings& settings)
+      : system(sys),
+        tau_fn(f),
+        s(settings),
+        data(sys),
+        tau(Vec::Zero(sys.dof())),
+        phi(sys.rows()),
+        phid(sys.rows()),
+        n(sys.dof()) {}
 
-  void eval(const double* x, double t) {
-    const Eigen::Map<const Vec> q(x, n);
-    const Eigen::Map<const Vec> qd(x + n, n);
+  // forward(), with the Baumgarte terms added to b when asked for.
+  void eval(CVecRef q, CVecRef qd, double t, ForwardData& d) {
     if (tau_fn) tau_fn(t, q, qd, tau);
-    forward(system, data, t, q, qd, tau, uk);
-    ++evaluations;
-    if (!data.result.consistent && !inconsistent) {
-      inconsistent = true;
-      inconsistent_time = t;
+    if (s.drift.kind != DriftControl::baumgarte || system.rows() == 0) {
+      forward(system, d, t, q, qd, tau, s.uk);
+      return;
     }
+    evaluate_dynamics(system, d, q, qd);
+    d.Q = tau - d.Cqd - d.G;  // paper Eq. (11)
+    evaluate_constraints(system, d, t, q, qd);
+    position_residuals(system, t, q, phi);
+    velocity_residuals(system, t, q, qd, phid);
+    // Baumgarte: Φ̈ + 2α Φ̇ + β² Φ = 0  ⇒  A q̈ = b − 2α Φ̇ − β² Φ.
+    d.b -= 2.0 * s.drift.alpha * phid + s.drift.beta * s.drift.beta * phi;
+    d.result = uk_solve(d.M, d.A, d.b, d.Q, d.uk, d.qdd, d.Qc, s.uk);
   }
 
   void operator()(const State& x, State& dxdt, double t) {
-    eval(x.data(), t);
-    Eigen::Map<Vec> dq(dxdt.data(), n);
-    Eigen::Map<Vec> dqd(dxdt.data() + n, n);
-    dq = Eigen::Map<const Vec>(x.data() + n, n);
-    dqd = data.qdd;
+    const Eigen::Map<const Vec> q(x.data(), n);
+    const Eigen::Map<const Vec> qd(x.data() + n, n);
+    eval(q, qd, t, data);
+    ++evaluations;
+    Eigen::Map<Vec>(dxdt.data(), n) = qd;
+    Eigen::Map<Vec>(dxdt.data() + n, n) = data.qdd;
+  }
+};
+
+// Projection onto the constraint manifold in the metric of M: each correction is the U-K solve with
+// Q = 0 and b = −Φ (positions) or b = −Φ̇ (velocities): Δ = M^{-1}Aᵀ(A M^{-1}Aᵀ)^+ (−r), the
+// smallest change in the kinetic-energy norm that removes the residual r to first order.
+struct Projector {
+  const System& system;
+  const DriftSettings& ds;
+  const UkSettings& uk;
+  ForwardData data;
+  Vec phi, zero_Q, delta, Qc_scratch;
+  Index n;
+
+  Projector(const System& sys, const DriftSettings& d, const UkSettings& u)
+      : system(sys),
+        ds(d),
+        uk(u),
+        data(sys),
+        phi(sys.rows()),
+        zero_Q(Vec::Zero(sys.dof())),
+        delta(sys.dof()),
+        Qc_scratch(sys.dof()),
+        n(sys.dof()) {}
+
+  // Returns max|Φ| after projecting; counts Gauss–Newton iterations.
+  double project(double t, double* x, long& iterations) {
+    Eigen::Map<Vec> q(x, n);
+    Eigen::Map<Vec> qd(x + n, n);
+    position_residuals(system, t, q, phi);
+    double r = phi.cwiseAbs().maxCoeff();
+    for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
+      evaluate_dynamics(system, data, q, qd);
+      evaluate_constraints(system, data, t, q, qd);
+      phi = -phi;
+      uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+      q += delta;
+      ++iterations;
+      position_residuals(system, t, q, phi);
+      const double r_new = phi.cwiseAbs().maxCoeff();
+      if (!(r_new < 0.5 * r)) {
+        r = r_new;
+        break;  // round-off floor reached (or no progress)
+      }
+      r = r_new;
+    }
+    // Velocities onto A q̇ + Φ_t = 0 at the projected q.
+    evaluate_dynamics(system, data, q, qd);
+    evaluate_constraints(system, data, t, q, qd);
+    velocity_residuals(system, t, q, qd, phi);
+    phi = -phi;
+    uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+    qd += delta;
+    return r;
   }
 };
 
@@ -88,54 +179,109 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
   }
   if (!(s.step > 0.0) || !std::isfinite(s.step)) throw Error("simulate: step must be positive");
   const double span = s.t_end - s.t0;
+  if (span / s.sample_dt > 1e8) throw Error("simulate: more than 1e8 output samples requested");
   const auto n_samples = static_cast<long>(std::floor(span / s.sample_dt + 1e-9)) + 1;
-  if (n_samples > 100'000'000) throw Error("simulate: more than 1e8 output samples requested");
-  long substeps = 1;
-  if (s.integrator == IntegratorKind::rk4) {
+  const bool fixed = s.integrator == IntegratorKind::rk4 || !s.adaptive;
+  if (fixed) {
     const double ratio = s.sample_dt / s.step;
-    substeps = std::lround(ratio);
+    const long substeps = std::lround(ratio);
     if (substeps < 1 || std::abs(ratio - static_cast<double>(substeps)) > 1e-9 * ratio) {
-      throw Error("simulate: the rk4 step must divide sample_dt (sample_dt/step = " +
+      throw Error("simulate: the fixed step must divide sample_dt (sample_dt/step = " +
                   std::to_string(ratio) + ")");
     }
-  } else {
-    if (!(s.abs_tol > 0.0) || !(s.rel_tol >= 0.0)) {
-      throw Error("simulate: abs_tol must be > 0 and rel_tol >= 0");
-    }
+    if (span / s.step > 1e10) throw Error("simulate: more than 1e10 fixed steps requested");
+  } else if (!(s.abs_tol > 0.0) || !(s.rel_tol >= 0.0)) {
+    throw Error("simulate: abs_tol must be > 0 and rel_tol >= 0");
   }
 
   SimulationStats stats;
-  Rhs rhs(system, tau, s.uk);
+  Rhs rhs(system, tau, s);
+  Projector projector(system, s.drift, s.uk);
+  const bool project = s.drift.kind == DriftControl::projection && system.rows() > 0;
   State x(static_cast<std::size_t>(2 * n));
   Eigen::Map<Vec>(x.data(), n) = q0;
   Eigen::Map<Vec>(x.data() + n, n) = qd0;
   State x_out(x.size());
 
-  // Observer: evaluates forward() at the sample (its own ForwardData) and hands it over.
+  // ---- observer: evaluates forward() at the sample (its own ForwardData), diagnoses, hands over.
   ForwardData sample_data(system);
-  Vec tau_buf = Vec::Zero(n);
+  int last_rank = -1;
+  auto warn = [&](double t, const std::string& kind, const std::string& message) {
+    for (const auto& w : stats.warnings) {
+      if (w.kind == kind) return;
+    }
+    stats.warnings.push_back({t, kind, message});
+  };
   auto observe = [&](double t, const State& xs) -> bool {
     const Eigen::Map<const Vec> q(xs.data(), n);
     const Eigen::Map<const Vec> qd(xs.data() + n, n);
-    if (tau) tau(t, q, qd, tau_buf);
-    forward(system, sample_data, t, q, qd, tau_buf, s.uk);
+    rhs.eval(q, qd, t, sample_data);
     ++stats.samples;
     stats.t_reached = t;
+    const UkResult& r = sample_data.result;
     const bool keep_going = observer ? observer(t, q, qd, sample_data) : true;
-    if (!sample_data.result.finite || !finite_state(xs)) {
+    if (!r.finite || !finite_state(xs)) {
       stats.status = RunStatus::non_finite;
       stats.message = "non-finite state or acceleration at t = " + std::to_string(t);
       return false;
     }
-    if (!sample_data.result.consistent) {
-      stats.status = RunStatus::inconsistent_constraints;
-      stats.message = "inconsistent constraints at t = " + std::to_string(t) +
-                      " (|A qdd - b| = " + std::to_string(sample_data.result.residual) + ")";
-      return false;
+    if (system.rows() > 0) {
+      if (r.rank == n) {
+        warn(t, "fully_prescribed",
+             "the constraints have full rank " + std::to_string(n) +
+                 ": the motion is fully prescribed by kinematics; only Qc depends on the dynamics");
+      }
+      if (r.rank > 0 && r.sigma_min_kept < s.near_singular_ratio * r.sigma_max) {
+        warn(t, "near_singular",
+             "near-singular configuration: smallest kept singular value of A M^-1/2 is " +
+                 std::to_string(r.sigma_min_kept / r.sigma_max) + " of the largest");
+      }
+      if (last_rank >= 0 && r.rank != last_rank) {
+        warn(t, "rank_change",
+             "rank of A changed from " + std::to_string(last_rank) + " to " +
+                 std::to_string(r.rank));
+      }
+      last_rank = r.rank;
+      if (!r.consistent) {
+        warn(t, "inconsistent_constraints",
+             "inconsistent constraints: |A qdd - b| = " + std::to_string(r.residual));
+        stats.status = RunStatus::inconsistent_constraints;
+        stats.message = "inconsistent constraints at t = " + std::to_string(t) +
+                        " (|A qdd - b| = " + std::to_string(r.residual) + ")";
+        return false;
+      }
     }
     if (!keep_going) {
       stats.status = RunStatus::stopped;
       stats.message = "stopped by the observer at t = " + std::to_string(t);
+      return false;
+    }
+    return true;
+  };
+  auto finish = [&]() {
+    stats.rhs_evaluations = rhs.evaluations;
+    return stats;
+  };
+  // After every accepted step: projection (if chosen) and the NaN check. False ends the run.
+  auto after_step = [&](double t, State& xs) -> bool {
+    ++stats.steps;
+    if (!finite_state(xs)) {
+      stats.status = RunStatus::non_finite;
+      stats.message = "non-finite state at t = " + std::to_string(t);
+      return false;
+    }
+    if (project) {
+      const double r = projector.project(t, xs.data(), stats.projections);
+      if (!(r <= s.drift.failure_threshold)) {
+        stats.status = RunStatus::step_failure;
+        stats.message = "projection onto the constraints failed at t = " + std::to_string(t) +
+                        " (max |Phi| = " + std::to_string(r) + ")";
+        return false;
+      }
+    }
+    if (stats.steps > 1'000'000'000L) {
+      stats.status = RunStatus::step_failure;
+      stats.message = "more than 1e9 steps at t = " + std::to_string(t);
       return false;
     }
     return true;
@@ -150,42 +296,19 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
     return (extra_end && i == total_samples - 1) ? s.t_end
                                                  : s.t0 + static_cast<double>(i) * s.sample_dt;
   };
-  auto finish = [&]() {
-    stats.rhs_evaluations = rhs.evaluations;
-    return stats;
-  };
+
+  if (project) {
+    // The initial state is checked by the loader; polish it onto the manifold to round-off.
+    projector.project(s.t0, x.data(), stats.projections);
+  }
   if (!observe(s.t0, x)) return finish();
 
-  constexpr long max_steps = 100'000'000;
   try {
-    if (s.integrator == IntegratorKind::dopri5) {
-      // Controlled Dormand–Prince 5(4) with dense output (Boost.Odeint): steps are chosen by the
-      // error control, samples are interpolated at the requested times.
-      auto stepper =
-          odeint::make_dense_output(s.abs_tol, s.rel_tol, odeint::runge_kutta_dopri5<State>());
-      stepper.initialize(x, s.t0, std::min(s.step, s.sample_dt));
-      for (long i = 1; i < total_samples; ++i) {
-        const double ts = sample_time(i);
-        while (stepper.current_time() < ts) {
-          stepper.do_step(std::ref(rhs));
-          ++stats.steps;
-          if (!finite_state(stepper.current_state())) {
-            stats.status = RunStatus::non_finite;
-            stats.message = "non-finite state at t = " + std::to_string(stepper.current_time());
-            return finish();
-          }
-          if (stats.steps > max_steps) {
-            stats.status = RunStatus::step_failure;
-            stats.message = "more than 1e8 steps before t = " + std::to_string(ts);
-            return finish();
-          }
-        }
-        stepper.calc_state(ts, x_out);
-        if (!observe(ts, x_out)) return finish();
-      }
-    } else {
-      // Classical fixed-step Runge–Kutta 4 (Boost.Odeint).
-      odeint::runge_kutta4<State> stepper;
+    if (fixed) {
+      // Fixed step: rk4, or the dopri5 / rkf78 schemes with a constant step (for order studies).
+      odeint::runge_kutta4<State> rk4;
+      odeint::runge_kutta_dopri5<State> dp5;
+      odeint::runge_kutta_fehlberg78<State> f78;
       long k = 0;
       for (long i = 1; i < total_samples; ++i) {
         const double ts = sample_time(i);
@@ -193,26 +316,176 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
           const double t = s.t0 + static_cast<double>(k) * s.step;
           if (t >= ts - 1e-9 * s.step) break;
           const double h = std::min(s.step, ts - t);
-          stepper.do_step(std::ref(rhs), x, t, h);
+          switch (s.integrator) {
+            case IntegratorKind::rk4:
+              rk4.do_step(std::ref(rhs), x, t, h);
+              break;
+            case IntegratorKind::dopri5:
+              dp5.reset();  // the FSAL derivative is stale after a projection
+              dp5.do_step(std::ref(rhs), x, t, h);
+              break;
+            case IntegratorKind::rkf78:
+              f78.do_step(std::ref(rhs), x, t, h);
+              break;
+          }
           ++k;
-          ++stats.steps;
-          if (!finite_state(x)) {
-            stats.status = RunStatus::non_finite;
-            stats.message = "non-finite state at t = " + std::to_string(t + h);
+          if (!after_step(t + h, x)) return finish();
+        }
+        if (!observe(ts, x)) return finish();
+      }
+    } else if (s.integrator == IntegratorKind::dopri5) {
+      // Controlled Dormand–Prince 5(4) (FSAL) with dense output at the sample times.
+      auto ctrl =
+          odeint::make_controlled(s.abs_tol, s.rel_tol, odeint::runge_kutta_dopri5<State>());
+      State x_new(x.size()), dxdt(x.size()), dxdt_new(x.size());
+      double t = s.t0;
+      double dt = std::min(s.step, s.sample_dt);
+      rhs(x, dxdt, t);
+      long i = 1;
+      int failures_in_row = 0;
+      while (i < total_samples) {
+        const double t_old = t;
+        const auto res = ctrl.try_step(std::ref(rhs), x, dxdt, t, x_new, dxdt_new, dt);
+        if (res == odeint::fail) {
+          ++stats.rejected_steps;
+          if (++failures_in_row > 500 || !(dt > 1e-14 * std::max(1.0, std::abs(t)))) {
+            stats.status = RunStatus::step_failure;
+            stats.message = "step size control failed at t = " + std::to_string(t) + " (step " +
+                            std::to_string(dt) + ")";
             return finish();
           }
+          continue;
         }
+        failures_in_row = 0;
+        // Samples inside (t_old, t]: interpolate with the step's dense output.
+        while (i < total_samples && sample_time(i) <= t) {
+          ctrl.stepper().calc_state(sample_time(i), x_out, x, dxdt, t_old, x_new, dxdt_new, t);
+          if (project) projector.project(sample_time(i), x_out.data(), stats.projections);
+          if (!observe(sample_time(i), x_out)) return finish();
+          ++i;
+        }
+        if (!after_step(t, x_new)) return finish();
+        x.swap(x_new);
+        if (project) {
+          rhs(x, dxdt, t);  // the FSAL derivative is stale after a projection
+        } else {
+          dxdt.swap(dxdt_new);
+        }
+      }
+    } else {
+      // Controlled Runge–Kutta–Fehlberg 7(8), stepping exactly onto each sample time.
+      auto ctrl =
+          odeint::make_controlled(s.abs_tol, s.rel_tol, odeint::runge_kutta_fehlberg78<State>());
+      double t = s.t0;
+      double dt = std::min(s.step, s.sample_dt);
+      int failures_in_row = 0;
+      for (long i = 1; i < total_samples; ++i) {
+        const double ts = sample_time(i);
+        while (t < ts - 1e-12 * std::max(1.0, std::abs(ts))) {
+          double h = std::min(dt, ts - t);
+          const bool clipped = h < dt;
+          const auto res = ctrl.try_step(std::ref(rhs), x, t, h);
+          if (res == odeint::fail) {
+            ++stats.rejected_steps;
+            dt = h;
+            if (++failures_in_row > 500 || !(dt > 1e-14 * std::max(1.0, std::abs(t)))) {
+              stats.status = RunStatus::step_failure;
+              stats.message = "step size control failed at t = " + std::to_string(t);
+              return finish();
+            }
+            continue;
+          }
+          failures_in_row = 0;
+          if (!clipped || h > dt) dt = h;  // keep the controller's proposal unless clipped
+          if (!after_step(t, x)) return finish();
+        }
+        t = ts;
         if (!observe(ts, x)) return finish();
       }
     }
   } catch (const odeint::step_adjustment_error& e) {
     stats.status = RunStatus::step_failure;
     stats.message = std::string("step size control failed: ") + e.what();
-  } catch (const odeint::no_progress_error& e) {
-    stats.status = RunStatus::step_failure;
-    stats.message = std::string("integrator made no progress: ") + e.what();
   }
   return finish();
+}
+
+// ------------------------------------------------------------------------------------ assembly
+
+AssemblyResult assemble(const System& system, double t, const Vec& q_guess, const Vec& qd_guess,
+                        const std::vector<bool>& held, double tol, int max_iterations) {
+  const Index n = system.dof();
+  const Index m = system.rows();
+  if (q_guess.size() != n || qd_guess.size() != n || static_cast<Index>(held.size()) != n) {
+    throw Error("assemble: q, qd and held must have " + std::to_string(n) + " entries");
+  }
+  AssemblyResult res;
+  res.q = q_guess;
+  res.qd = qd_guess;
+  if (m == 0) {
+    res.success = true;
+    return res;
+  }
+  std::vector<Index> free;
+  for (Index j = 0; j < n; ++j) {
+    if (!held[static_cast<std::size_t>(j)]) free.push_back(j);
+  }
+  const auto nf = static_cast<Index>(free.size());
+  ForwardData d(system);
+  Vec phi(m);
+  Mat Af(m, nf);
+  auto gather = [&]() {
+    for (Index k = 0; k < nf; ++k) Af.col(k) = d.A.col(free[static_cast<std::size_t>(k)]);
+  };
+  position_residuals(system, t, res.q, phi);
+  double r = phi.cwiseAbs().maxCoeff();
+  // Gauss–Newton with minimum-norm steps over the free coordinates: Δq_f = −A_f^+ Φ.
+  double best = r;
+  int stalls = 0;
+  while (r > tol && res.iterations < max_iterations && nf > 0) {
+    evaluate_constraints(system, d, t, res.q, res.qd);
+    gather();
+    const Vec step = Af.completeOrthogonalDecomposition().solve(-phi);
+    for (Index k = 0; k < nf; ++k) res.q(free[static_cast<std::size_t>(k)]) += step(k);
+    ++res.iterations;
+    position_residuals(system, t, res.q, phi);
+    r = phi.cwiseAbs().maxCoeff();
+    if (!std::isfinite(r)) break;
+    if (r < 0.5 * best) {
+      best = r;
+      stalls = 0;
+    } else if (++stalls >= 3) {
+      break;  // no more progress: round-off floor or an unsatisfiable set
+    }
+  }
+  res.max_position_residual = r;
+  // Velocities: the nearest q̇ (free coordinates) with A q̇ + Φ_t = 0.
+  evaluate_constraints(system, d, t, res.q, res.qd);
+  gather();
+  Vec phid(m);
+  velocity_residuals(system, t, res.q, res.qd, phid);
+  if (nf > 0) {
+    const Vec dv = Af.completeOrthogonalDecomposition().solve(-phid);
+    for (Index k = 0; k < nf; ++k) res.qd(free[static_cast<std::size_t>(k)]) += dv(k);
+  }
+  velocity_residuals(system, t, res.q, res.qd, phid);
+  res.max_velocity_residual = phid.cwiseAbs().maxCoeff();
+  // Accept the round-off floor: a satisfiable set lands within a few ulps of the coordinates.
+  const double floor_tol = std::max(
+      tol, 64 * std::numeric_limits<double>::epsilon() * (1.0 + res.q.cwiseAbs().maxCoeff()));
+  res.success = std::isfinite(r) && r <= floor_tol && res.max_velocity_residual <= 1e3 * floor_tol;
+  if (!res.success) {
+    for (Index i = 0; i < m; ++i) {
+      if (!(std::abs(phi(i)) <= floor_tol)) res.unmet_rows.push_back(i);
+    }
+    if (res.unmet_rows.empty() && !(res.max_velocity_residual <= 1e3 * floor_tol)) {
+      for (Index i = 0; i < m; ++i) {
+        if (!(std::abs(phid(i)) <= 1e3 * floor_tol)) res.unmet_rows.push_back(i);
+      }
+    }
+    res.message = "the constraints cannot be met from this guess with the held coordinates fixed";
+  }
+  return res;
 }
 
 }  // namespace ukdyn

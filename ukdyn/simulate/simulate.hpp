@@ -1,36 +1,73 @@
-// Time integration of the constrained equations of motion q̈ = M^{-1}(Q + Qc), paper Eq. (18).
+// Time integration of the constrained equations of motion q̈ = M^{-1}(Q + Qc), paper Eq. (18), with
+// drift control, diagnostics and consistent initial conditions.
 #pragma once
 
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "ukdyn/model/system.hpp"
 
 namespace ukdyn {
 
-enum class IntegratorKind { dopri5, rk4 };
+/// rk4: classical Runge–Kutta 4, fixed step. dopri5: Dormand–Prince 5(4), adaptive with dense
+/// output. rkf78: Runge–Kutta–Fehlberg 7(8), adaptive, stepping exactly onto the sample times. All
+/// from Boost.Odeint. dopri5 and rkf78 can also run with a fixed step (adaptive = false).
+enum class IntegratorKind { rk4, dopri5, rkf78 };
+std::string to_string(IntegratorKind kind);
+
+/// Acceleration-level constraints drift (A q̈ = b only holds Φ̈ = 0). Choices:
+///  none:       integrate as is;
+///  baumgarte:  A q̈ = b − 2α Φ̇ − β² Φ (Baumgarte 1972), pulls Φ back with time constants 1/α, 1/β;
+///  projection: after every step, Gauss–Newton on Φ(q) = 0 in the metric of M, then q̇ onto
+///              Φ̇ = A q̇ + Φ_t = 0 in the same metric (each is one U-K solve with Q = 0).
+enum class DriftControl { none, baumgarte, projection };
+std::string to_string(DriftControl kind);
+
+struct DriftSettings {
+  DriftControl kind = DriftControl::projection;
+  double alpha = 10.0;              ///< baumgarte: velocity gain [1/s]
+  double beta = 10.0;               ///< baumgarte: position gain [1/s]
+  double position_tol = 1e-15;      ///< projection: stop iterating once max|Φ| is under this
+  int max_iterations = 4;           ///< projection: Gauss–Newton iterations per step at most
+  double failure_threshold = 1e-6;  ///< projection: max|Φ| left above this ends the run
+};
 
 struct SimulationSettings {
   double t0 = 0.0;
   double t_end = 1.0;
   double sample_dt = 0.01;  ///< output sample step
   IntegratorKind integrator = IntegratorKind::dopri5;
-  double abs_tol = 1e-12;  ///< dopri5 absolute tolerance
-  double rel_tol = 1e-12;  ///< dopri5 relative tolerance
-  double step = 1e-3;      ///< rk4 fixed step (must divide sample_dt); dopri5 initial step
+  bool adaptive = true;    ///< error-controlled steps (dopri5, rkf78); rk4 is always fixed-step
+  double abs_tol = 1e-12;  ///< adaptive: absolute tolerance
+  double rel_tol = 1e-12;  ///< adaptive: relative tolerance
+  double step = 1e-3;      ///< fixed step (must divide sample_dt); adaptive: initial step
+  DriftSettings drift;
   UkSettings uk;
+  /// A sample whose σ_min/σ_max (pivot estimate) falls under this raises a near-singular warning.
+  double near_singular_ratio = 1e-6;
 };
 
 enum class RunStatus { completed, non_finite, inconsistent_constraints, step_failure, stopped };
 std::string to_string(RunStatus status);
+
+/// A warning raised once per kind during a run, with the time it first happened.
+struct RunWarning {
+  double t = 0.0;
+  std::string kind;  ///< fully_prescribed, near_singular, rank_change, inconsistent_constraints
+  std::string message;
+};
 
 struct SimulationStats {
   RunStatus status = RunStatus::completed;
   std::string message;       ///< why the run stopped early (empty if completed)
   double t_reached = 0.0;    ///< last time written
   long steps = 0;            ///< accepted steps
+  long rejected_steps = 0;   ///< steps rejected by the error control
   long rhs_evaluations = 0;  ///< forward() calls by the integrator
   long samples = 0;          ///< observer calls
+  long projections = 0;      ///< Gauss–Newton iterations done by the projection
+  std::vector<RunWarning> warnings;
 };
 
 /// Called at every output sample with the state and a ForwardData evaluated at it (q̈, Qc, A, b, …).
@@ -41,11 +78,25 @@ using SampleObserver =
 /// Applied generalized forces τ(t, q, q̇) written into tau (size n). Must not allocate.
 using ForceFunction = std::function<void(double t, CVecRef q, CVecRef qd, VecRef tau)>;
 
-/// Integrates from (q0, qd0). Never throws for numerical trouble: a NaN/Inf state, a failed step or
-/// an inconsistent constraint set ends the run with a status, after the samples written so far.
-/// Throws ukdyn::Error for invalid settings (sizes, non-positive steps).
+/// Integrates from (q0, qd0). Never throws for numerical trouble: a NaN/Inf state, a failed step, a
+/// failed projection or an inconsistent constraint set ends the run with a status, after the
+/// samples written so far. Throws ukdyn::Error for invalid settings (sizes, non-positive steps).
 SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                          const ForceFunction& tau, const SimulationSettings& settings,
                          const SampleObserver& observer);
+
+/// Consistent initial conditions: the q nearest to q_guess (minimum-norm Gauss–Newton steps over
+/// the coordinates not held) with Φ(q, t) = 0, then the q̇ nearest to qd_guess with A q̇ + Φ_t = 0.
+struct AssemblyResult {
+  Vec q, qd;
+  bool success = false;
+  int iterations = 0;
+  double max_position_residual = 0.0;
+  double max_velocity_residual = 0.0;
+  std::vector<Index> unmet_rows;  ///< rows still violated (|Φ| > tol) if !success
+  std::string message;
+};
+AssemblyResult assemble(const System& system, double t, const Vec& q_guess, const Vec& qd_guess,
+                        const std::vector<bool>& held, double tol = 1e-14, int max_iterations = 50);
 
 }  // namespace ukdyn

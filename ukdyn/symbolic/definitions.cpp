@@ -29,7 +29,8 @@ std::string str(const ex& e) {
 // Real numeric value of an expression without symbols, or nullopt.
 std::optional<double> real_value(const ex& e) {
   const ex v = e.evalf();
-  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real()) return std::nullopt;
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real())
+    return std::nullopt;
   return GiNaC::ex_to<GiNaC::numeric>(v).to_double();
 }
 
@@ -42,7 +43,8 @@ bool has_any(const ex& e, const std::vector<symbol>& syms) {
 ex simplify_trig(const ex& e) {
   ex r = e.expand();
   if (!r.has(GiNaC::sin(GiNaC::wild()))) return r;
-  const ex rule = GiNaC::pow(GiNaC::sin(GiNaC::wild(0)), 2) == 1 - GiNaC::pow(GiNaC::cos(GiNaC::wild(0)), 2);
+  const ex rule =
+      GiNaC::pow(GiNaC::sin(GiNaC::wild(0)), 2) == 1 - GiNaC::pow(GiNaC::cos(GiNaC::wild(0)), 2);
   for (int i = 0; i < 8; ++i) {
     const ex s = r.subs(rule, GiNaC::subs_options::algebraic).expand();
     if (s.is_equal(r)) break;
@@ -55,7 +57,8 @@ ex simplify_trig(const ex& e) {
 
 ex DefinitionScope::parameter(const std::string& name, const ex& value) {
   if (!real_value(value)) {
-    throw ExpressionError("parameter '" + name + "' must be a real number, got '" + str(value) + "'", 0);
+    throw ExpressionError(
+        "parameter '" + name + "' must be a real number, got '" + str(value) + "'", 0);
   }
   symbol s = local_symbol(name);
   scope_.add(name, s);
@@ -99,10 +102,11 @@ SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinate
     const std::string& c = coords_[i];
     std::string why;
     if (!valid_name(c, &why)) throw DefinitionError(why, -1, static_cast<int>(i));
-    if (scope_.has(c)) throw DefinitionError("duplicate coordinate '" + c + "'", -1, static_cast<int>(i));
+    if (scope_.has(c))
+      throw DefinitionError("duplicate coordinate '" + c + "'", -1, static_cast<int>(i));
     if (scope_.has(c + "_dot")) {
-      throw DefinitionError("coordinate '" + c + "_dot' clashes with the velocity of '" + c + "'", -1,
-                            static_cast<int>(i));
+      throw DefinitionError("coordinate '" + c + "_dot' clashes with the velocity of '" + c + "'",
+                            -1, static_cast<int>(i));
     }
     scope_.add(c, coordinate_symbol(c));
     scope_.add(c + "_dot", velocity_symbol(c));
@@ -157,23 +161,29 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       throw DefinitionError(where + ": the mass must be a constant", bidx);
     }
     const auto mv = real_value(b.mass.subs(values));
-    if (!mv || !(*mv >= 0.0)) throw DefinitionError(where + ": the mass must be a number >= 0, got '" + str(b.mass) + "'", bidx);
+    if (!mv || !(*mv >= 0.0))
+      throw DefinitionError(where + ": the mass must be a number >= 0, got '" + str(b.mass) + "'",
+                            bidx);
     // Position of the centre of mass p(q).
     std::array<ex, 3> v;
     for (std::size_t k = 0; k < 3; ++k) {
       const ex& p = b.com[k];
-      if (has_any(p, qd)) throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
-      if (p.has(time_symbol())) throw DefinitionError(where + ": the position may not depend on time t", bidx);
+      if (has_any(p, qd))
+        throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
+      if (p.has(time_symbol()))
+        throw DefinitionError(where + ": the position may not depend on time t", bidx);
       mark_used(p);
       v[k] = 0;
       for (std::size_t j = 0; j < n; ++j) v[k] += p.diff(q[j]) * qd[j];
     }
     T += b.mass / 2 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    V -= b.mass * (def.gravity[0] * b.com[0] + def.gravity[1] * b.com[1] + def.gravity[2] * b.com[2]);
+    V -= b.mass *
+         (def.gravity[0] * b.com[0] + def.gravity[1] * b.com[1] + def.gravity[2] * b.com[2]);
     // Rotation.
     if (b.inertia_kind == BodyDef::InertiaKind::none) {
       if (b.angular_velocity || b.rotation) {
-        throw DefinitionError(where + ": an angular velocity or rotation is given but no inertia", bidx);
+        throw DefinitionError(where + ": an angular velocity or rotation is given but no inertia",
+                              bidx);
       }
       continue;
     }
@@ -181,7 +191,8 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     if (b.angular_velocity) {
       w = *b.angular_velocity;
       for (const ex& e : w) {
-        if (e.has(time_symbol())) throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
+        if (e.has(time_symbol()))
+          throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
         mark_used(e);
       }
     } else if (b.rotation) {
@@ -190,7 +201,8 @@ SubsystemDerivation derive(const SubsystemDef& def) {
         for (unsigned j = 0; j < 3; ++j) {
           const ex& r = (*b.rotation)[3 * i + j];
           if (has_any(r, qd) || r.has(time_symbol())) {
-            throw DefinitionError(where + ": the rotation may depend on the coordinates only", bidx);
+            throw DefinitionError(where + ": the rotation may depend on the coordinates only",
+                                  bidx);
           }
           mark_used(r);
           R(i, j) = r;
@@ -206,14 +218,18 @@ SubsystemDerivation derive(const SubsystemDef& def) {
           const ex e = simplify_trig((RtR(i, j) - (i == j ? 1 : 0)).subs(values));
           const auto ev = real_value(e);
           if (!(ev && std::abs(*ev) < 1e-12)) {
-            throw DefinitionError(where + ": the rotation is not orthonormal (R^T R - 1 has entry '" + str(e) + "')", bidx);
+            throw DefinitionError(
+                where + ": the rotation is not orthonormal (R^T R - 1 has entry '" + str(e) + "')",
+                bidx);
           }
         }
       }
-      const matrix S = b.inertia_frame == Frame::body ? R.transpose().mul(Rd) : Rd.mul(R.transpose());
+      const matrix S =
+          b.inertia_frame == Frame::body ? R.transpose().mul(Rd) : Rd.mul(R.transpose());
       w = {simplify_trig(S(2, 1)), simplify_trig(S(0, 2)), simplify_trig(S(1, 0))};
     } else {
-      throw DefinitionError(where + ": an inertia is given but neither angular_velocity nor rotation", bidx);
+      throw DefinitionError(
+          where + ": an inertia is given but neither angular_velocity nor rotation", bidx);
     }
     if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
       T += b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
@@ -221,7 +237,8 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       const auto& I = b.inertia_tensor;
       for (std::size_t i = 0; i < 3; ++i) {
         for (std::size_t j = 0; j < 3; ++j) {
-          if (!I[3 * i + j].is_equal(I[3 * j + i])) throw DefinitionError(where + ": the inertia tensor is not symmetric", bidx);
+          if (!I[3 * i + j].is_equal(I[3 * j + i]))
+            throw DefinitionError(where + ": the inertia tensor is not symmetric", bidx);
           T += w[i] * I[3 * i + j] * w[j] / 2;
         }
       }
@@ -229,9 +246,10 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   }
   for (std::size_t j = 0; j < n; ++j) {
     if (!used[j]) {
-      throw DefinitionError("coordinate '" + def.coordinates()[j] +
-                                "' appears in no body (in no position, rotation or angular velocity)",
-                            -1, static_cast<int>(j));
+      throw DefinitionError(
+          "coordinate '" + def.coordinates()[j] +
+              "' appears in no body (in no position, rotation or angular velocity)",
+          -1, static_cast<int>(j));
     }
   }
   V += def.extra_potential;
@@ -252,16 +270,19 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     for (unsigned j = i; j < un; ++j) {
       const ex m = simplify_trig(dTdqd[i].diff(qd[j]));
       if (has_any(m, qd)) {
-        throw DefinitionError("the kinetic energy is not quadratic in the velocities (M(" + d.coordinates[i] + ", " +
-                                  d.coordinates[j] + ") depends on a velocity): angular velocities must be linear in *_dot",
-                              -1, static_cast<int>(i));
+        throw DefinitionError(
+            "the kinetic energy is not quadratic in the velocities (M(" + d.coordinates[i] + ", " +
+                d.coordinates[j] +
+                ") depends on a velocity): angular velocities must be linear in *_dot",
+            -1, static_cast<int>(i));
       }
       d.M(i, j) = m;
       d.M(j, i) = m;
     }
     if (d.M(i, i).is_zero()) {
-      throw DefinitionError("coordinate '" + d.coordinates[i] + "' moves no mass and no inertia (M(" + d.coordinates[i] +
-                                ", " + d.coordinates[i] + ") = 0)",
+      throw DefinitionError("coordinate '" + d.coordinates[i] +
+                                "' moves no mass and no inertia (M(" + d.coordinates[i] + ", " +
+                                d.coordinates[i] + ") = 0)",
                             -1, static_cast<int>(i));
     }
   }
@@ -314,7 +335,9 @@ ex numeric_form(const ex& e, const GiNaC::exmap& values) { return e.subs(values)
 }  // namespace
 
 DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name)
-    : d_(std::move(derivation)), name_(std::move(name)), n_(static_cast<Index>(d_.coordinates.size())) {
+    : d_(std::move(derivation)),
+      name_(std::move(name)),
+      n_(static_cast<Index>(d_.coordinates.size())) {
   const auto t0 = Clock::now();
   const InputMap in = subsystem_inputs(d_.coordinates);
   const auto& pv = d_.parameter_values;
@@ -370,7 +393,9 @@ void DerivedSubsystem::coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) cons
   cqd_.eval(0.0, q.data(), qd.data(), Cqd.data());
 }
 
-void DerivedSubsystem::gravity(CVecRef q, VecRef G) const { grav_.eval(0.0, q.data(), nullptr, G.data()); }
+void DerivedSubsystem::gravity(CVecRef q, VecRef G) const {
+  grav_.eval(0.0, q.data(), nullptr, G.data());
+}
 
 double DerivedSubsystem::potential(CVecRef q) const {
   double v = 0.0;
@@ -401,7 +426,8 @@ std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
   const Vec v = es.eigenvectors().col(0);
   std::vector<Index> idx(static_cast<std::size_t>(n));
   for (Index i = 0; i < n; ++i) idx[static_cast<std::size_t>(i)] = i;
-  std::sort(idx.begin(), idx.end(), [&](Index a, Index b) { return std::abs(v(a)) > std::abs(v(b)); });
+  std::sort(idx.begin(), idx.end(),
+            [&](Index a, Index b) { return std::abs(v(a)) > std::abs(v(b)); });
   std::ostringstream os;
   os.precision(3);
   os << "the mass matrix is not positive definite (smallest eigenvalue " << lmin
@@ -417,7 +443,8 @@ std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
 
 // ------------------------------------------------------------------------------ constraints
 
-ConstraintDef::ConstraintDef(std::string name, Kind kind, std::vector<std::string> system_coordinates)
+ConstraintDef::ConstraintDef(std::string name, Kind kind,
+                             std::vector<std::string> system_coordinates)
     : name_(std::move(name)), kind_(kind), coords_(std::move(system_coordinates)) {
   for (const auto& c : coords_) {
     scope_.add(c, coordinate_symbol(c));
@@ -459,8 +486,11 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     ex vel = 0;
     if (hol) {
       if (has_any(e, qd)) {
-        throw DefinitionError("row '" + rname + "': a holonomic constraint Phi(q, t) may not use velocities (*_dot); "
-                              "use type: nonholonomic for B(q,t) qd + c(q,t) = 0", -1, -1, ri);
+        throw DefinitionError(
+            "row '" + rname +
+                "': a holonomic constraint Phi(q, t) may not use velocities (*_dot); "
+                "use type: nonholonomic for B(q,t) qd + c(q,t) = 0",
+            -1, -1, ri);
       }
       d.phi(r, 0) = e;
       for (unsigned j = 0; j < un; ++j) {
@@ -473,9 +503,11 @@ ConstraintDerivation derive(const ConstraintDef& def) {
       for (unsigned j = 0; j < un; ++j) {
         const ex a = simplify_trig(e.diff(qd[j]));
         if (has_any(a, qd)) {
-          throw DefinitionError("row '" + rname + "': a nonholonomic constraint must be linear in the velocities "
-                                "(B(q,t) qd + c(q,t)); its coefficient of " + def.system_coordinates()[j] +
-                                "_dot depends on velocities", -1, -1, ri);
+          throw DefinitionError("row '" + rname +
+                                    "': a nonholonomic constraint must be linear in the velocities "
+                                    "(B(q,t) qd + c(q,t)); its coefficient of " +
+                                    def.system_coordinates()[j] + "_dot depends on velocities",
+                                -1, -1, ri);
         }
         d.A(r, j) = a;
       }
@@ -485,7 +517,8 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     for (unsigned j = 0; j < un; ++j) any = any || !d.A(r, j).is_zero();
     if (!any) {
       throw DefinitionError("row '" + rname + "' involves no coordinate of the system (" +
-                                (hol ? std::string("dPhi/dq = 0") : std::string("no *_dot term")) + ")",
+                                (hol ? std::string("dPhi/dq = 0") : std::string("no *_dot term")) +
+                                ")",
                             -1, -1, ri);
     }
     vel = simplify_trig(vel);

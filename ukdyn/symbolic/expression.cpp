@@ -12,8 +12,8 @@ namespace {
 using GiNaC::ex;
 
 const std::set<std::string>& function_names() {
-  static const std::set<std::string> f = {"sin",  "cos",  "tan",  "asin", "acos", "atan", "atan2",
-                                          "exp",  "log",  "sqrt", "sinh", "cosh", "tanh", "abs"};
+  static const std::set<std::string> f = {"sin", "cos", "tan",  "asin", "acos", "atan", "atan2",
+                                          "exp", "log", "sqrt", "sinh", "cosh", "tanh", "abs"};
   return f;
 }
 
@@ -70,7 +70,8 @@ class Parser {
   }
   void expect(char c, const char* what) {
     skip();
-    if (pos_ >= s_.size()) fail(std::string("expected ") + what + ", got the end of the expression", pos_);
+    if (pos_ >= s_.size())
+      fail(std::string("expected ") + what + ", got the end of the expression", pos_);
     if (s_[pos_] != c) fail(std::string("expected ") + what + ", got '" + s_[pos_] + "'", pos_);
     ++pos_;
   }
@@ -91,7 +92,8 @@ class Parser {
     ex e = unary();
     for (;;) {
       skip();
-      if (pos_ + 1 < s_.size() && s_[pos_] == '*' && s_[pos_ + 1] == '*') return e;  // handled in power
+      if (pos_ + 1 < s_.size() && s_[pos_] == '*' && s_[pos_ + 1] == '*')
+        return e;  // handled in power
       if (accept('*')) {
         e = e * unary();
       } else if (accept('/')) {
@@ -121,7 +123,8 @@ class Parser {
   }
   ex primary() {
     skip();
-    if (pos_ >= s_.size()) fail("expected a number, a name or '(', got the end of the expression", pos_);
+    if (pos_ >= s_.size())
+      fail("expected a number, a name or '(', got the end of the expression", pos_);
     const char c = s_[pos_];
     if (c == '(') {
       ++pos_;
@@ -229,7 +232,8 @@ class Parser {
         }
         known += (known.empty() ? "" : ", ") + kv.first;
       }
-      fail("unknown symbol '" + name + "' (known here: " + (known.empty() ? "none" : known) + ")", start);
+      fail("unknown symbol '" + name + "' (known here: " + (known.empty() ? "none" : known) + ")",
+           start);
     }
     return it->second;
   }
@@ -241,9 +245,9 @@ class Parser {
 
 const std::set<std::string>& greek() {
   static const std::set<std::string> g = {
-      "alpha", "beta",  "gamma", "delta", "epsilon", "zeta", "eta",   "theta", "iota",  "kappa",
-      "lambda", "mu",   "nu",    "xi",    "rho",     "sigma", "tau",  "phi",   "chi",   "psi",
-      "omega", "Gamma", "Delta", "Theta", "Lambda",  "Xi",   "Sigma", "Phi",   "Psi",   "Omega"};
+      "alpha",  "beta",  "gamma", "delta", "epsilon", "zeta",  "eta",   "theta", "iota", "kappa",
+      "lambda", "mu",    "nu",    "xi",    "rho",     "sigma", "tau",   "phi",   "chi",  "psi",
+      "omega",  "Gamma", "Delta", "Theta", "Lambda",  "Xi",    "Sigma", "Phi",   "Psi",  "Omega"};
   return g;
 }
 
@@ -283,8 +287,10 @@ std::string latex_name(const std::string& name) {
       sub = base.substr(k);
     }
   }
-  if (greek().count(head)) head = "\\" + head;
-  else if (head.size() > 1) head = "\\mathrm{" + head + "}";
+  if (greek().count(head))
+    head = "\\" + head;
+  else if (head.size() > 1)
+    head = "\\mathrm{" + head + "}";
   std::string out = dot ? "\\dot{" + head + "}" : head;
   if (!sub.empty()) {
     std::string s;
@@ -304,7 +310,9 @@ GiNaC::symbol velocity_symbol(const std::string& name) {
 
 GiNaC::symbol time_symbol() { return registered("t", "t", "t"); }
 
-GiNaC::symbol local_symbol(const std::string& name) { return GiNaC::symbol(name, latex_name(name)); }
+GiNaC::symbol local_symbol(const std::string& name) {
+  return GiNaC::symbol(name, latex_name(name));
+}
 
 void Scope::add(const std::string& name, const GiNaC::ex& value) {
   std::string why;

@@ -4,9 +4,9 @@
 // is the same symbol in every subsystem and constraint, its velocity is `theta1_dot`, time is `t`.
 // Parameters are local to a definition (two subsystems may both have an `l1`).
 //
-// The parser reads  + - * / ^ (or **), parentheses, numbers (decimals are read exactly as rationals:
-// 0.855 = 171/200), the constant pi, and the functions sin cos tan asin acos atan atan2 exp log sqrt
-// sinh cosh tanh abs. Unlike GiNaC's own reader it reports the column of every error.
+// The parser reads  + - * / ^ (or **), parentheses, numbers (decimals are read exactly as
+// rationals: 0.855 = 171/200), the constant pi, and the functions sin cos tan asin acos atan atan2
+// exp log sqrt sinh cosh tanh abs. Unlike GiNaC's own reader it reports the column of every error.
 #pragma once
 
 #include <ginac/ginac.h>

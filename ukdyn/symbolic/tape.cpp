@@ -15,30 +15,54 @@ using GiNaC::is_a;
 inline double apply(Tape::Op op, double x, double y, double imm) {
   using Op = Tape::Op;
   switch (op) {
-    case Op::add: return x + y;
-    case Op::sub: return x - y;
-    case Op::mul: return x * y;
-    case Op::div: return x / y;
-    case Op::neg: return -x;
-    case Op::add_c: return x + imm;
-    case Op::mul_c: return x * imm;
-    case Op::square: return x * x;
-    case Op::pow: return std::pow(x, y);
-    case Op::sqrt: return std::sqrt(x);
-    case Op::sin: return std::sin(x);
-    case Op::cos: return std::cos(x);
-    case Op::tan: return std::tan(x);
-    case Op::asin: return std::asin(x);
-    case Op::acos: return std::acos(x);
-    case Op::atan: return std::atan(x);
-    case Op::atan2: return std::atan2(x, y);
-    case Op::exp: return std::exp(x);
-    case Op::log: return std::log(x);
-    case Op::sinh: return std::sinh(x);
-    case Op::cosh: return std::cosh(x);
-    case Op::tanh: return std::tanh(x);
-    case Op::abs: return std::abs(x);
-    default: return imm;
+    case Op::add:
+      return x + y;
+    case Op::sub:
+      return x - y;
+    case Op::mul:
+      return x * y;
+    case Op::div:
+      return x / y;
+    case Op::neg:
+      return -x;
+    case Op::add_c:
+      return x + imm;
+    case Op::mul_c:
+      return x * imm;
+    case Op::square:
+      return x * x;
+    case Op::pow:
+      return std::pow(x, y);
+    case Op::sqrt:
+      return std::sqrt(x);
+    case Op::sin:
+      return std::sin(x);
+    case Op::cos:
+      return std::cos(x);
+    case Op::tan:
+      return std::tan(x);
+    case Op::asin:
+      return std::asin(x);
+    case Op::acos:
+      return std::acos(x);
+    case Op::atan:
+      return std::atan(x);
+    case Op::atan2:
+      return std::atan2(x, y);
+    case Op::exp:
+      return std::exp(x);
+    case Op::log:
+      return std::log(x);
+    case Op::sinh:
+      return std::sinh(x);
+    case Op::cosh:
+      return std::cosh(x);
+    case Op::tanh:
+      return std::tanh(x);
+    case Op::abs:
+      return std::abs(x);
+    default:
+      return imm;
   }
 }
 
@@ -235,18 +259,42 @@ void Tape::eval(double t, const double* q, const double* qd, double* out) const 
     const Instr& I = code[i];
     double v;
     switch (I.op) {
-      case Op::constant: v = I.imm; break;
-      case Op::time: v = t; break;
-      case Op::q: v = q[I.a]; break;
-      case Op::qd: v = qd[I.a]; break;
-      case Op::add: v = w[I.a] + w[I.b]; break;
-      case Op::sub: v = w[I.a] - w[I.b]; break;
-      case Op::mul: v = w[I.a] * w[I.b]; break;
-      case Op::mul_c: v = w[I.a] * I.imm; break;
-      case Op::add_c: v = w[I.a] + I.imm; break;
-      case Op::neg: v = -w[I.a]; break;
-      case Op::square: v = w[I.a] * w[I.a]; break;
-      default: v = apply(I.op, w[I.a], w[I.b], I.imm); break;
+      case Op::constant:
+        v = I.imm;
+        break;
+      case Op::time:
+        v = t;
+        break;
+      case Op::q:
+        v = q[I.a];
+        break;
+      case Op::qd:
+        v = qd[I.a];
+        break;
+      case Op::add:
+        v = w[I.a] + w[I.b];
+        break;
+      case Op::sub:
+        v = w[I.a] - w[I.b];
+        break;
+      case Op::mul:
+        v = w[I.a] * w[I.b];
+        break;
+      case Op::mul_c:
+        v = w[I.a] * I.imm;
+        break;
+      case Op::add_c:
+        v = w[I.a] + I.imm;
+        break;
+      case Op::neg:
+        v = -w[I.a];
+        break;
+      case Op::square:
+        v = w[I.a] * w[I.a];
+        break;
+      default:
+        v = apply(I.op, w[I.a], w[I.b], I.imm);
+        break;
     }
     w[i] = v;
   }

@@ -1,7 +1,7 @@
 // A compiled, allocation-free evaluator of a list of GiNaC expressions: a flat instruction tape in
 // static single assignment form (every instruction writes its own slot). Common subexpressions are
-// shared by value numbering (hash-consing of instructions), so an identical subtree, or an identical
-// prefix of a product or sum, is computed once. Inputs are read directly from t, q and q̇.
+// shared by value numbering (hash-consing of instructions), so an identical subtree, or an
+// identical prefix of a product or sum, is computed once. Inputs are read directly from t, q and q̇.
 #pragma once
 
 #include <ginac/ginac.h>
@@ -28,9 +28,33 @@ using InputMap = std::map<GiNaC::ex, TapeInput, GiNaC::ex_is_less>;
 class Tape {
  public:
   enum class Op : std::uint8_t {
-    constant, time, q, qd,
-    add, sub, mul, div, neg, add_c, mul_c, square, pow, sqrt,
-    sin, cos, tan, asin, acos, atan, atan2, exp, log, sinh, cosh, tanh, abs
+    constant,
+    time,
+    q,
+    qd,
+    add,
+    sub,
+    mul,
+    div,
+    neg,
+    add_c,
+    mul_c,
+    square,
+    pow,
+    sqrt,
+    sin,
+    cos,
+    tan,
+    asin,
+    acos,
+    atan,
+    atan2,
+    exp,
+    log,
+    sinh,
+    cosh,
+    tanh,
+    abs
   };
   struct Instr {
     Op op;

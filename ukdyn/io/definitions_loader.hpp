@@ -1,0 +1,32 @@
+// Internal to ukdyn::io: loading subsystems (type: definitions) and constraints (type: expression,
+// nonholonomic) written as definitions; see docs/definitions.md. Every error names file:line:col
+// and the key; errors inside an expression point at the column of the offending character.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ukdyn/io/yaml_loader.hpp"
+#include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/subsystem.hpp"
+
+namespace ukdyn::io_detail {
+
+/// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
+/// [0, 0, −g]).
+std::shared_ptr<const Subsystem> load_definitions_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity);
+
+/// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
+/// all coordinates in order.
+std::shared_ptr<const Constraint> load_definitions_constraint(
+    const Loader& L, const Node& c, const std::string& name, bool holonomic,
+    const std::vector<std::string>& system_coordinates);
+
+/// Fails at `s` if the subsystem's mass matrix is not positive definite at q (names the
+/// coordinate).
+void check_mass_matrix(const Loader& L, const Node& s, const Subsystem& sub, const Vec& q);
+
+}  // namespace ukdyn::io_detail
