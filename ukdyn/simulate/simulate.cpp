@@ -439,9 +439,9 @@ AssemblyResult assemble(const System& system, double t, const Vec& q_guess, cons
   };
   position_residuals(system, t, res.q, phi);
   double r = phi.cwiseAbs().maxCoeff();
-  // Gauss–Newton with minimum-norm steps over the free coordinates: Δq_f = −A_f^+ Φ.
-  double best = r;
-  int stalls = 0;
+  // Gauss–Newton with minimum-norm steps over the free coordinates: Δq_f = −A_f^+ Φ. Rows that the
+  // free coordinates cannot reach (an unsatisfiable set) get the least-squares compromise; the
+  // iteration ends when the residual is met or the steps have shrunk to round-off.
   while (r > tol && res.iterations < max_iterations && nf > 0) {
     evaluate_constraints(system, d, t, res.q, res.qd);
     gather();
@@ -451,12 +451,7 @@ AssemblyResult assemble(const System& system, double t, const Vec& q_guess, cons
     position_residuals(system, t, res.q, phi);
     r = phi.cwiseAbs().maxCoeff();
     if (!std::isfinite(r)) break;
-    if (r < 0.5 * best) {
-      best = r;
-      stalls = 0;
-    } else if (++stalls >= 3) {
-      break;  // no more progress: round-off floor or an unsatisfiable set
-    }
+    if (step.norm() <= 1e-15 * (1.0 + res.q.norm())) break;
   }
   res.max_position_residual = r;
   // Velocities: the nearest q̇ (free coordinates) with A q̇ + Φ_t = 0.
