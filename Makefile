@@ -6,7 +6,7 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench clean format
+.PHONY: all deps configure build run test bench drift-study clean format
 
 all: build
 
@@ -30,6 +30,9 @@ bench:
 	@cmake --preset bench >/dev/null
 	@cmake --build build/bench -j $(JOBS)
 	build/bench/bench/ukdyn_bench --benchmark_min_time=0.2 $(BENCH_ARGS)
+
+drift-study: build
+	$(BUILD_DIR)/ukdyn_drift_study scenarios/paper_free.yaml 100
 
 format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')
