@@ -7,7 +7,9 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <atomic>
 #include <cmath>
+#include <csignal>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -148,10 +150,17 @@ bool report_assembly(const ukdyn::Scenario& sc, const ukdyn::AssemblyResult& a, 
   return true;
 }
 
+std::atomic<bool> g_interrupted{false};
+extern "C" void on_interrupt(int /*signal*/) { g_interrupted.store(true); }
+
 int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures, bool quiet) {
   ukdyn::RunOptions opt;
   opt.figures = figures;
   if (!quiet && isatty(STDERR_FILENO)) opt.progress = &std::cerr;
+  // Ctrl-C (or SIGTERM) ends the run at the next sample; what was computed is kept.
+  std::signal(SIGINT, on_interrupt);
+  std::signal(SIGTERM, on_interrupt);
+  opt.cancel = &g_interrupted;
   const auto rep = ukdyn::run_scenario(sc, out, opt);
   const auto& names = sc.system->constraint_row_names();
   double worst = 0.0;

@@ -39,12 +39,13 @@ fs::path scratch() {
   return dir;
 }
 
-Result run(const std::string& args, const std::string& stdin_text = "") {
+Result run(const std::string& args, const std::string& stdin_text = "",
+           const std::string& prefix = "") {
   const fs::path in = scratch() / "stdin.txt", out = scratch() / "stdout.txt",
                  err = scratch() / "stderr.txt";
   std::ofstream(in) << stdin_text;
-  const std::string cmd = std::string("'") + UKDYN_CLI + "' " + args + " < '" + in.string() +
-                          "' > '" + out.string() + "' 2> '" + err.string() + "'";
+  const std::string cmd = prefix + std::string("'") + UKDYN_CLI + "' " + args + " < '" +
+                          in.string() + "' > '" + out.string() + "' 2> '" + err.string() + "'";
   const int rc = std::system(cmd.c_str());
   Result r;
   r.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
@@ -186,6 +187,30 @@ TEST(Cli, SimulateWritesCsvSummaryAndFigures) {
   EXPECT_EQ(summary["status"], "complete");
   EXPECT_TRUE(fs::exists(out / "figures" / "residuals_closure.png"));
   EXPECT_TRUE(fs::exists(out / "figures" / "energy.png"));
+}
+
+TEST(Cli, InterruptKeepsWhatWasComputedAndSaysSo) {
+  // A long fixed-step run interrupted after 2 s: exit 1, the rows so far in
+  // trajectory.incomplete.csv, summary.json "incomplete" with the reason, no trajectory.csv.
+  const fs::path file = variant("long_run", "  t_end: 4\n", "  t_end: 100000\n");
+  std::string text = slurp(file);
+  text.replace(text.find("integrator: dopri5"), 18, "integrator: rk4\n  step: 1e-4");
+  std::ofstream(file) << text;
+  const fs::path out = scratch() / "out_interrupted";
+  fs::remove_all(out);
+  const Result r = run("simulate '" + file.string() + "' --out '" + out.string() + "' --no-figures",
+                       "", "timeout --preserve-status -s INT 2 ");
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_FALSE(fs::exists(out / "trajectory.csv"));
+  ASSERT_TRUE(fs::exists(out / "trajectory.incomplete.csv"));
+  std::ifstream in(out / "trajectory.incomplete.csv");
+  long lines = 0;
+  for (std::string l; std::getline(in, l);) ++lines;
+  EXPECT_GT(lines, 2);
+  const auto summary = nlohmann::json::parse(slurp(out / "summary.json"));
+  EXPECT_EQ(summary["status"], "incomplete");
+  EXPECT_NE(summary["stop_reason"].get<std::string>().find("interrupted"), std::string::npos);
+  EXPECT_EQ(summary["samples"].get<long>(), lines - 1);
 }
 
 }  // namespace

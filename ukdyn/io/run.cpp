@@ -212,7 +212,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     row[k++] = d.result.residual;
     csv.row(row);
     progress.update(t);
-    return true;
+    return !(options.cancel && options.cancel->load());
   };
 
   const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef out) { out = sc.tau; };
@@ -221,6 +221,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.done();
+  if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
+    rep.stats.message =
+        fmt::format("interrupted (SIGINT/SIGTERM) after t = {}", rep.stats.t_reached);
+  }
 
   const bool complete = rep.stats.status == RunStatus::completed;
   rep.csv = complete ? csv.commit() : csv.abandon();

@@ -1,6 +1,7 @@
 // Runs a scenario and writes its outputs: trajectory.csv, summary.json, figures/.
 #pragma once
 
+#include <atomic>
 #include <filesystem>
 #include <iosfwd>
 #include <string>
@@ -13,6 +14,9 @@ namespace ukdyn {
 struct RunOptions {
   bool figures = true;
   std::ostream* progress = nullptr;  ///< a progress line is drawn here if set (a terminal)
+  /// If set and it becomes true (e.g. from a SIGINT handler), the run stops at the next sample and
+  /// its results so far are kept (status `stopped`).
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 struct RunReport {
