@@ -2,6 +2,8 @@
 //   ukdyn simulate SCENARIO [--out DIR] [--no-figures] [--quiet]
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
+//   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
+//   docs/definitions.md)
 // Exit codes: 0 success, 1 run incomplete or some eval lines failed, 2 bad input.
 #include <fmt/format.h>
 #include <unistd.h>
@@ -16,6 +18,7 @@
 
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/scenario.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
 
 #ifndef UKDYN_VERSION
 #define UKDYN_VERSION "unknown"
@@ -245,6 +248,15 @@ int main(int argc, char** argv) {
       app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
   chk->add_option("scenario", scenario, "scenario file (YAML)")->required();
 
+  std::string derive_format = "latex";
+  auto* drv = app.add_subcommand(
+      "derive",
+      "Print the derived, simplified M, C, G and A, b of a scenario written by definitions");
+  drv->add_option("scenario", scenario, "scenario file (YAML)")->required();
+  drv->add_option("--format,-f", derive_format, "latex, c, matlab or text")
+      ->check(CLI::IsMember({"latex", "c", "matlab", "text"}))
+      ->capture_default_str();
+
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -261,6 +273,11 @@ int main(int argc, char** argv) {
     }
     if (*sim) return cmd_simulate(sc, out, !no_figures, quiet);
     if (*ev) return cmd_eval(sc);
+    if (*drv) {
+      std::cout << ukdyn::symbolic::format_system(*sc.system,
+                                                  ukdyn::symbolic::parse_format(derive_format));
+      return 0;
+    }
     if (*chk) {
       std::cout << fmt::format("{}: ok: '{}', {} coordinates, {} constraint rows\n", scenario,
                                sc.name, sc.system->dof(), sc.system->rows());

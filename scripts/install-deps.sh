@@ -2,13 +2,17 @@
 # Installs the Debian packages ukdyn needs (only those missing). Idempotent.
 #   scripts/install-deps.sh            build + run + test dependencies
 #   scripts/install-deps.sh --bench    also the benchmark dependencies (MuJoCo)
+#   scripts/install-deps.sh --fuzz     also clang 14 and its runtime (libFuzzer: -fsanitize=fuzzer)
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
       libginac-dev)
-if [[ "${1:-}" == "--bench" ]]; then
-  pkgs+=(libbenchmark-dev libmujoco-dev)
-fi
+for arg in "$@"; do
+  case "$arg" in
+    --bench) pkgs+=(libbenchmark-dev libmujoco-dev) ;;
+    --fuzz) pkgs+=(clang-14 libclang-rt-14-dev) ;;
+  esac
+done
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -1,5 +1,6 @@
-// ukdyn::symbolic: the expression parser, the compiled tapes, derivations of textbook systems checked
-// against hand-written formulas, and finite-difference checks that do not use the derivation code.
+// ukdyn::symbolic: the expression parser, the compiled tapes, derivations of textbook systems
+// checked against hand-written formulas, and finite-difference checks that do not use the
+// derivation code.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -12,10 +13,10 @@
 namespace {
 
 namespace sym = ukdyn::symbolic;
+using GiNaC::ex;
 using ukdyn::Index;
 using ukdyn::Mat;
 using ukdyn::Vec;
-using GiNaC::ex;
 
 double num(const ex& e) { return GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_double(); }
 
@@ -29,10 +30,11 @@ TEST(SymbolicParser, ReadsDecimalsExactlyAndRespectsPrecedence) {
   EXPECT_TRUE(s.parse("1.5e-3").is_equal(GiNaC::numeric(3, 2000)));
   EXPECT_TRUE(s.parse("2e2").is_equal(GiNaC::numeric(200)));
   EXPECT_TRUE((s.parse("-x^2") + GiNaC::pow(x, 2)).is_zero());  // −(x²), not (−x)²
-  EXPECT_TRUE((s.parse("2^3^2") - 512).is_zero());               // right-associative
+  EXPECT_TRUE((s.parse("2^3^2") - 512).is_zero());              // right-associative
   EXPECT_TRUE((s.parse("x**2 - x*x")).is_zero());
   EXPECT_TRUE((s.parse("1/2/x") - 1 / (2 * x)).is_zero());
-  EXPECT_NEAR(num(s.parse("cos(pi/3) + sqrt(4) + atan2(1, 1)")), 0.5 + 2 + std::numbers::pi / 4, 1e-15);
+  EXPECT_NEAR(num(s.parse("cos(pi/3) + sqrt(4) + atan2(1, 1)")), 0.5 + 2 + std::numbers::pi / 4,
+              1e-15);
 }
 
 TEST(SymbolicParser, ErrorsNameTheColumn) {
@@ -46,20 +48,20 @@ TEST(SymbolicParser, ErrorsNameTheColumn) {
     }
     return -1;
   };
-  EXPECT_EQ(offset_of("l1*cos(theta1)"), 0);     // unknown symbol l1
-  EXPECT_EQ(offset_of("2*cos(theta1"), 12);      // missing ')'
-  EXPECT_EQ(offset_of("theta1 + * 2"), 9);       // '*' where an operand belongs
-  EXPECT_EQ(offset_of("2theta1"), 1);            // implicit product
-  EXPECT_EQ(offset_of("foo(theta1)"), 0);        // unknown function
-  EXPECT_EQ(offset_of("sin(theta1, 2)"), 0);     // arity
-  EXPECT_EQ(offset_of("theta1 )"), 7);           // trailing garbage
+  EXPECT_EQ(offset_of("l1*cos(theta1)"), 0);  // unknown symbol l1
+  EXPECT_EQ(offset_of("2*cos(theta1"), 12);   // missing ')'
+  EXPECT_EQ(offset_of("theta1 + * 2"), 9);    // '*' where an operand belongs
+  EXPECT_EQ(offset_of("2theta1"), 1);         // implicit product
+  EXPECT_EQ(offset_of("foo(theta1)"), 0);     // unknown function
+  EXPECT_EQ(offset_of("sin(theta1, 2)"), 0);  // arity
+  EXPECT_EQ(offset_of("theta1 )"), 7);        // trailing garbage
   EXPECT_EQ(offset_of(""), 0);
   try {
     (void)s.parse("theta1 + thet");
   } catch (const sym::ExpressionError& e) {
     EXPECT_NE(std::string(e.what()).find("unknown symbol 'thet'"), std::string::npos) << e.what();
   }
-  EXPECT_THROW(s.add("t", GiNaC::symbol("t")), sym::ExpressionError);   // reserved
+  EXPECT_THROW(s.add("t", GiNaC::symbol("t")), sym::ExpressionError);    // reserved
   EXPECT_THROW(s.add("sin", GiNaC::symbol("s")), sym::ExpressionError);  // a function
   EXPECT_THROW(s.add("theta1", GiNaC::symbol("u")), sym::ExpressionError);
 }
@@ -75,8 +77,10 @@ TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
   in[v] = {sym::TapeInput::Source::qd, 0};
   in[t] = {sym::TapeInput::Source::time, 0};
   const std::vector<ex> outs = {
-      GiNaC::sin(a) * GiNaC::cos(b) - GiNaC::numeric(3, 7) * GiNaC::pow(v, 3) / (2 + GiNaC::pow(a, 2)),
-      GiNaC::sqrt(1 + GiNaC::pow(b, 2)) + GiNaC::exp(-t) * GiNaC::atan2(a, b) + GiNaC::pow(GiNaC::abs(a) + 1, GiNaC::numeric(1, 3)),
+      GiNaC::sin(a) * GiNaC::cos(b) -
+          GiNaC::numeric(3, 7) * GiNaC::pow(v, 3) / (2 + GiNaC::pow(a, 2)),
+      GiNaC::sqrt(1 + GiNaC::pow(b, 2)) + GiNaC::exp(-t) * GiNaC::atan2(a, b) +
+          GiNaC::pow(GiNaC::abs(a) + 1, GiNaC::numeric(1, 3)),
       GiNaC::sin(a) * GiNaC::cos(b) + GiNaC::Pi * GiNaC::tan(a / 3) - GiNaC::log(2 + GiNaC::cos(t)),
       ex(5) / 4};
   const sym::Tape tape(outs, in);
@@ -144,8 +148,8 @@ TEST(SymbolicSubsystem, DoublePendulumMatchesTextbook) {
 }
 
 // A slender rod yawing by psi and pitching by th, inertia from a rotation matrix and a full tensor:
-// T_rot = ½ I (th_dot² + cos² th psi_dot²) (the exact rigid body; the paper's scalar model would give
-// ½ I (th_dot² + psi_dot²)).
+// T_rot = ½ I (th_dot² + cos² th psi_dot²) (the exact rigid body; the paper's scalar model would
+// give ½ I (th_dot² + psi_dot²)).
 TEST(SymbolicSubsystem, RotationMatrixGivesExactRigidBodyInertia) {
   for (sym::Frame frame : {sym::Frame::body, sym::Frame::world}) {
     sym::SubsystemDef d("rod", {"rod_psi", "rod_th"});
@@ -158,9 +162,10 @@ TEST(SymbolicSubsystem, RotationMatrixGivesExactRigidBodyInertia) {
     b.mass = 0;
     b.com = {0, 0, 0};
     // R = Rz(psi) Ry(-th): body x along the rod, pitched up by th.
-    b.rotation = std::array<ex, 9>{d.parse("cp*ct"), d.parse("-sp"), d.parse("-cp*st"),
-                                   d.parse("sp*ct"), d.parse("cp"),  d.parse("-sp*st"),
-                                   d.parse("st"),    0,              d.parse("ct")};
+    b.rotation =
+        std::array<ex, 9>{d.parse("cp*ct"), d.parse("-sp"),    d.parse("-cp*st"), d.parse("sp*ct"),
+                          d.parse("cp"),    d.parse("-sp*st"), d.parse("st"),     0,
+                          d.parse("ct")};
     b.inertia_kind = sym::BodyDef::InertiaKind::tensor;
     b.inertia_frame = sym::Frame::body;
     b.inertia_tensor = {0, 0, 0, 0, d.parse("I"), 0, 0, 0, d.parse("I")};
@@ -183,8 +188,8 @@ TEST(SymbolicSubsystem, RotationMatrixGivesExactRigidBodyInertia) {
 }
 
 // C q̇ from the Christoffel code against the Lagrangian identity C q̇ = Ṁ q̇ − ∂T/∂q, with Ṁ and ∂T/∂q
-// by central differences of the M tape and of the separate kinetic-energy tape; G against −∂V/∂q... by
-// differences of V; and Ṁ − 2C skew-symmetric.
+// by central differences of the M tape and of the separate kinetic-energy tape; G against −∂V/∂q...
+// by differences of V; and Ṁ − 2C skew-symmetric.
 TEST(SymbolicSubsystem, ChristoffelTermsAgreeWithFiniteDifferences) {
   // A 3-DOF arm on a sliding base, with a spring potential: everything couples.
   sym::SubsystemDef d("fd_arm", {"fd_x", "fd_a", "fd_b"});
@@ -251,7 +256,8 @@ TEST(SymbolicSubsystem, DefinitionErrorsAreSpecific) {
       FAIL() << "a coordinate in no body must be an error";
     } catch (const sym::DefinitionError& e) {
       EXPECT_EQ(e.coordinate, 1);
-      EXPECT_NE(std::string(e.what()).find("'e_y' appears in no body"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("'e_y' appears in no body"), std::string::npos)
+          << e.what();
     }
   }
   {
@@ -281,7 +287,8 @@ TEST(SymbolicSubsystem, DefinitionErrorsAreSpecific) {
     b.rotation = std::array<ex, 9>{d.parse("cos(e_x)"), 0, 0, 0, 1, 0, 0, 0, 1};  // not a rotation
     EXPECT_THROW((void)sym::make_subsystem(d), sym::DefinitionError);
   }
-  // M singular at a configuration: a point mass on a circle of radius x (x = 0 leaves the angle free).
+  // M singular at a configuration: a point mass on a circle of radius x (x = 0 leaves the angle
+  // free).
   {
     sym::SubsystemDef d("s", {"e_r", "e_phi"});
     auto& b = d.add_body("b");
@@ -345,7 +352,8 @@ TEST(SymbolicConstraint, HolonomicWithTimeMatchesHandDerivation) {
     c->evaluate(t, q, qd, A, b);
     c->position_residual(t, q, phi);
     c->velocity_residual(t, q, qd, phid);
-    const double r = 1.5 + 0.1 * std::sin(2 * t), rd = 0.2 * std::cos(2 * t), rdd = -0.4 * std::sin(2 * t);
+    const double r = 1.5 + 0.1 * std::sin(2 * t), rd = 0.2 * std::cos(2 * t),
+                 rdd = -0.4 * std::sin(2 * t);
     // Φ̈ = 2(ẋ² + ẏ² + x ẍ + y ÿ) − 2(ṙ² + r r̈) = 0 ⇒ A = 2[x y], b = −2(ẋ² + ẏ²) + 2(ṙ² + r r̈).
     EXPECT_NEAR(A(0, 0), 2 * q(0), 1e-13);
     EXPECT_NEAR(A(0, 1), 2 * q(1), 1e-13);

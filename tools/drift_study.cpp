@@ -22,14 +22,17 @@ int main(int argc, char** argv) {
     const double t_end = argc > 2 ? std::stod(argv[2]) : 100.0;
     const double horizons[3] = {5.0, 20.0, t_end};
     std::cout << fmt::format("Scenario {} ({}), t = 0 .. {} s\n\n", sc.name, argv[1], t_end);
-    std::cout << "| integrator | drift control | horizon [s] | max abs(Phi) | max abs(E - E0) / max T | "
-                 "steps | wall [s] |\n|---|---|---|---|---|---|---|\n";
+    std::cout
+        << "| integrator | drift control | horizon [s] | max abs(Phi) | max abs(E - E0) / max T | "
+           "steps | wall [s] |\n|---|---|---|---|---|---|---|\n";
     struct Setup {
       IntegratorKind kind;
       double tol_or_step;
     };
-    for (const Setup setup : {Setup{IntegratorKind::dopri5, 1e-12}, Setup{IntegratorKind::rk4, 1e-3}}) {
-      for (DriftControl drift : {DriftControl::none, DriftControl::baumgarte, DriftControl::projection}) {
+    for (const Setup setup :
+         {Setup{IntegratorKind::dopri5, 1e-12}, Setup{IntegratorKind::rk4, 1e-3}}) {
+      for (DriftControl drift :
+           {DriftControl::none, DriftControl::baumgarte, DriftControl::projection}) {
         SimulationSettings s = sc.sim;
         s.t_end = t_end;
         s.sample_dt = 0.01;
@@ -80,7 +83,8 @@ int main(int argc, char** argv) {
               h == 2 ? fmt::format("{}", st.steps) : "", wall_at[h]);
         }
         if (st.status != RunStatus::completed) {
-          std::cout << fmt::format("|  | {} stopped: {} | | | | | |\n", to_string(drift), st.message);
+          std::cout << fmt::format("|  | {} stopped: {} | | | | | |\n", to_string(drift),
+                                   st.message);
         }
         (void)steps_at;
       }

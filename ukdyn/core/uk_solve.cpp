@@ -16,10 +16,9 @@ UkWorkspace::UkWorkspace(const BlockLayout& block_layout, Index m)
       L(Mat::Zero(block_layout.dof(), block_layout.dof())),
       inv_diag(Vec::Zero(block_layout.dof())),
       M_inv_Q(block_layout.dof()),
-      Linv_At(block_layout.dof(), m),
+      A_Linvt(m, block_layout.dof()),
       A_Minv_At(m, m),
       piv(static_cast<std::size_t>(m), 0),
-      nz(static_cast<std::size_t>(m) * block_layout.blocks(), 0),
       r(m),
       lambda(m),
       tmp_m(m),
@@ -73,26 +72,6 @@ void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Ind
     for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
     x[i] = s * inv_diag[i];
   }
-}
-
-// x ← L^{-1} a for a strided source a (a row of A): x_i = (a_i − Σ_{k<i} L_ik x_k) / L_ii.
-template <int N>
-void l_solve_from(const double* L, Index ldl, const double* inv_diag, const double* a,
-                  Index a_stride, double* x, Index n_rt) {
-  const Index n = N > 0 ? Index{N} : n_rt;
-  for (Index i = 0; i < n; ++i) {
-    double s = a[i * a_stride];
-    for (Index k = 0; k < i; ++k) s -= L[i + k * ldl] * x[k];
-    x[i] = s * inv_diag[i];
-  }
-}
-
-template <int N>
-double dot(const double* x, const double* y, Index n_rt) {
-  const Index n = N > 0 ? Index{N} : n_rt;
-  double s = 0.0;
-  for (Index i = 0; i < n; ++i) s += x[i] * y[i];
-  return s;
 }
 
 // Calls f(std::integral_constant<int, 6>) for blocks of size 6 (the paper's arms) and
@@ -200,47 +179,42 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
   }
   const double* Ad = A.data();
 
-  // X = L^{-1} Aᵀ, column i = L^{-1} (row i of A), block by block. Constraint rows are sparse in
-  // blocks (a trajectory row touches one arm): nz records which (row, block) pairs are non-zero so
-  // that the zero parts are skipped below.
-  double* X = ws.Linv_At.data();
-  const Index ldx = ws.Linv_At.rows();
-  unsigned char* nz = ws.nz.data();
+  // Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block, a
+  // forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
+  // L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency
+  // chain).
+  double* Xt = ws.A_Linvt.data();
   for (std::size_t k = 0; k < nb; ++k) {
     const Index s = lay.start[k], nk = lay.size[k];
     const double* Lk = ws.L.data() + s + s * ldl;
     const double* id = ws.inv_diag.data() + s;
-    for (Index i = 0; i < m; ++i) {
-      const double* arow = Ad + i + s * m;  // A(i, s), stride m
-      bool any = false;
-      for (Index j = 0; j < nk; ++j) any = any || arow[j * m] != 0.0;
-      nz[k * static_cast<std::size_t>(m) + static_cast<std::size_t>(i)] = any ? 1 : 0;
-      double* x = X + s + i * ldx;
-      if (!any) {
-        for (Index j = 0; j < nk; ++j) x[j] = 0.0;
-        continue;
+    for (Index l = 0; l < nk; ++l) {
+      double* xl = Xt + (s + l) * m;
+      const double* al = Ad + (s + l) * m;
+      for (Index i = 0; i < m; ++i) xl[i] = al[i];
+      for (Index p = 0; p < l; ++p) {
+        const double c = Lk[l + p * ldl];
+        const double* xp = Xt + (s + p) * m;
+        for (Index i = 0; i < m; ++i) xl[i] -= c * xp[i];
       }
-      with_block_size(
-          nk, [&](auto N) { l_solve_from<decltype(N)::value>(Lk, ldl, id, arow, m, x, nk); });
+      const double inv = id[l];
+      for (Index i = 0; i < m; ++i) xl[i] *= inv;
     }
   }
 
-  // W = Xᵀ X = A M^{-1} Aᵀ, lower triangle only, summed over the blocks both rows touch.
+  // W = Xᵀ X, lower triangle only: W(j:m, j) = Σ_l Xᵀ(j:m, l) Xᵀ(j, l). Constraint rows are sparse
+  // (a trajectory row touches one arm, so its entries of Xᵀ in the other block are 0): zero
+  // multipliers are skipped.
   double* W = ws.A_Minv_At.data();
   const Index ldw = ws.A_Minv_At.rows();
   for (Index j = 0; j < m; ++j) {
-    for (Index i = j; i < m; ++i) {
-      double w = 0.0;
-      for (std::size_t k = 0; k < nb; ++k) {
-        const std::size_t km = k * static_cast<std::size_t>(m);
-        if (!nz[km + static_cast<std::size_t>(i)] || !nz[km + static_cast<std::size_t>(j)])
-          continue;
-        const Index s = lay.start[k], nk = lay.size[k];
-        const double* xi = X + s + i * ldx;
-        const double* xj = X + s + j * ldx;
-        with_block_size(nk, [&](auto N) { w += dot<decltype(N)::value>(xi, xj, nk); });
-      }
-      W[i + j * ldw] = w;
+    double* wj = W + j * ldw;
+    for (Index i = j; i < m; ++i) wj[i] = 0.0;
+    for (Index l = 0; l < n; ++l) {
+      const double* xl = Xt + l * m;
+      const double c = xl[j];
+      if (c == 0.0) continue;
+      for (Index i = j; i < m; ++i) wj[i] += xl[i] * c;
     }
   }
 
@@ -253,11 +227,11 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
     for (Index i = 0; i < m; ++i) r[i] -= col[i] * aj;
   }
 
-  // Pivoted LDLᵀ of W (a pivoted Cholesky): P W Pᵀ = L D Lᵀ, at each step the largest remaining
-  // diagonal of the Schur complement is the pivot, so D is non-increasing and D_0 = max diag W.
-  // A pivot is kept while D_k > rel_tol² · D_0; the factorisation stops at the first one that is
-  // not (the remaining Schur complement is round-off of redundant rows). The kept part of L and D
-  // is the same as that of a complete pivoted LDLᵀ, so the basic solution below is too.
+  // Pivoted LDLᵀ of W, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step takes as pivot
+  // the largest remaining diagonal of the Schur complement, so D is non-increasing (up to
+  // round-off) and D_0 = max diag W = max D. A pivot is kept while D_k > rel_tol² · D_0; the
+  // factorisation stops at the first one that is not: what remains is round-off of redundant rows,
+  // and those rows get λ = 0 in the basic solution below.
   const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
   double* t = ws.tmp_m.data();
   Index* piv = ws.piv.data();
@@ -276,8 +250,8 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
       d_max = std::max(dp, 0.0);
       cutoff = tol2 * d_max;
     }
-    piv[k] = p;
     if (!(d_max > 0.0 && dp > cutoff)) break;
+    piv[k] = p;
     if (p != k) {
       // Symmetric swap of rows/columns k and p in lower storage.
       for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
@@ -291,6 +265,7 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
       t[i] = colk[i];
       colk[i] *= inv_d;  // L_ik
     }
+    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
     for (Index j = k + 1; j < m; ++j) {
       const double tj = t[j];
       double* colj = W + j * ldw;
@@ -300,7 +275,8 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
     ++rank;
   }
 
-  // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r; components past the rank are 0.
+  // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r. Only the leading rank × rank part of
+  // L and D enters (the components past the rank are 0), so stopping early changes nothing.
   double* lam = ws.lambda.data();
   for (Index i = 0; i < m; ++i) lam[i] = r[i];
   for (Index k = 0; k < rank; ++k) std::swap(lam[k], lam[piv[k]]);
@@ -393,7 +369,7 @@ UkResult uk_solve_textbook(const Mat& M, const Mat& A, const Vec& b, const Vec& 
   // Qc = M^{1/2} (A M^{-1/2})^+ (b − A M^{-1} Q), paper Eq. (4), literally.
   Qc = M_half * (B_pinv * (b - A * M_inv_Q));
   qdd = M.llt().solve(Q + Qc);
-  res.rank = rank;
+  res.rank = static_cast<int>(rank);
   res.sigma_max = s.size() > 0 ? s(0) : 0.0;
   res.sigma_min_kept = rank > 0 ? s(rank - 1) : 0.0;
   Vec scratch(A.rows());

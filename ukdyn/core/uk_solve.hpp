@@ -60,20 +60,20 @@ struct UkWorkspace {
   UkWorkspace(const BlockLayout& layout, Index m);
 
   BlockLayout layout;
-  Mat L;                          ///< n × n: block k's lower Cholesky factor in its diagonal block
-  Vec inv_diag;                   ///< 1 / L_ii (n)
-  Vec M_inv_Q;                    ///< a = M^{-1} Q
-  Mat Linv_At;                    ///< X = L^{-1} Aᵀ (n × m)
-  Mat A_Minv_At;                  ///< W = A M^{-1} Aᵀ (m × m, lower), factored in place
-  std::vector<Index> piv;         ///< pivot transpositions of the LDLᵀ (m)
-  std::vector<unsigned char> nz;  ///< nz[k·m + i]: row i of A touches block k
-  Vec r;                          ///< b − A a
-  Vec lambda;                     ///< W λ = r (basic solution)
-  Vec tmp_m;                      ///< scratch (m)
-  Vec tmp_n;                      ///< scratch (n)
+  Mat L;                   ///< n × n: block k's lower Cholesky factor in its diagonal block
+  Vec inv_diag;            ///< 1 / L_ii (n)
+  Vec M_inv_Q;             ///< a = M^{-1} Q
+  Mat A_Linvt;             ///< Xᵀ = A L^{-ᵀ} (m × n), X = L^{-1} Aᵀ
+  Mat A_Minv_At;           ///< W = A M^{-1} Aᵀ (m × m, lower), factored in place
+  std::vector<Index> piv;  ///< pivot transpositions of the LDLᵀ (m)
+  Vec r;                   ///< b − A a
+  Vec lambda;              ///< W λ = r (basic solution)
+  Vec tmp_m;               ///< scratch (m)
+  Vec tmp_n;               ///< scratch (n)
 };
 
-/// Factors M per block into ws.llt. Returns false if a block is not positive definite.
+/// Factors M per block (Cholesky, L_k L_kᵀ) into ws.L. Returns false if a block is not positive
+/// definite.
 bool factor_mass(const Mat& M, UkWorkspace& ws);
 
 /// U-K solve with M already factored by factor_mass. Writes q̈ and Qc; allocation-free.

@@ -1,5 +1,6 @@
 #include "ukdyn/io/scenario.hpp"
 
+#include <yaml-cpp/depthguard.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
@@ -125,7 +126,20 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   } catch (const YAML::Exception& e) {
     std::ostringstream os;
     os << path.string() << ":" << (e.mark.line + 1) << ":" << (e.mark.column + 1)
-       << ": YAML syntax error: " << e.msg;
+       << ": YAML syntax error: ";
+    if (dynamic_cast<const YAML::DeepRecursion*>(&e)) {
+      os << "nested too deeply (more than " << static_cast<const YAML::DeepRecursion&>(e).depth()
+         << " levels)";
+    } else {
+      for (unsigned char ch : e.msg) {  // the message may quote a byte of binary garbage
+        if (ch >= 0x20 && ch < 0x7f) {
+          os << ch;
+        } else {
+          os << "\\x"
+             << "0123456789abcdef"[ch >> 4] << "0123456789abcdef"[ch & 15];
+        }
+      }
+    }
     throw ScenarioError(os.str());
   }
   const Node root{root_node, ""};
@@ -332,12 +346,12 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     const Node sd = L.child(s, "sample_dt", true);
     sim.sample_dt = L.positive(sd);
     if (sim.sample_dt > sim.t_end - sim.t0) L.fail(sd, "must not exceed the duration t_end - t0");
+    if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
+      L.fail(sd, "more than 1e7 output samples: increase sample_dt");
+    }
     const double t_scale = std::max(std::abs(sim.t0), std::abs(sim.t_end));  // t + dt == t below
     if (sim.sample_dt < 1e-10 * t_scale) {
       L.fail(sd, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
-    }
-    if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
-      L.fail(sd, "more than 1e7 output samples: increase sample_dt");
     }
     if (Node in = L.child(s, "integrator", false); in.node.IsDefined()) {
       const std::string kind = L.string(in);
@@ -391,15 +405,15 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     sim.rel_tol = tol("rel_tol", sim.rel_tol);
     if (Node st = L.child(s, "step", false); st.node.IsDefined()) {
       sim.step = L.positive(st);
-      if (sim.step < 1e-10 * t_scale) {
-        L.fail(st, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
-      }
       if (sim.integrator == IntegratorKind::rk4 || !sim.adaptive) {
         if ((sim.t_end - sim.t0) / sim.step > 1e9) L.fail(st, "more than 1e9 steps: increase step");
         const double ratio = sim.sample_dt / sim.step;
         if (std::abs(ratio - std::round(ratio)) > 1e-9 * ratio || std::round(ratio) < 1) {
           L.fail(st, "the fixed step must divide simulation.sample_dt");
         }
+      }
+      if (sim.step < 1e-10 * t_scale) {
+        L.fail(st, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
       }
     }
     sc.initial_tolerance = tol("initial_tolerance", sc.initial_tolerance);

@@ -30,6 +30,7 @@
 
 #include "ukdyn/model/constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
+#include "ukdyn/model/system.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/tape.hpp"
 
@@ -230,5 +231,10 @@ enum class Format { latex, c, matlab, text };
 std::string format_derivation(const SubsystemDerivation& d, const std::string& name, Format f);
 /// The derivation of a constraint block (Φ, A, b) in a format.
 std::string format_derivation(const ConstraintDerivation& d, const std::string& name, Format f);
+/// "latex", "c", "matlab" or "text"; throws ukdyn::Error otherwise.
+Format parse_format(const std::string& name);
+/// Every derived subsystem (M, C, G) and constraint block (Φ, A, b) of a system; built-in blocks
+/// are named as such. In C, each subsystem becomes a function NAME_dynamics(q, qd, M, C, G).
+std::string format_system(const System& system, Format f);
 
 }  // namespace ukdyn::symbolic

@@ -9,7 +9,29 @@ namespace {
 
 using GiNaC::ex;
 
-std::string print(const ex& e, Format f) {
+// Gather the coordinate-dependent factors (functions, velocities, time) of an expanded sum, so that
+// each monomial in them carries one coefficient in the parameters: −(m1/2 + m2 + m3) l1 sin θ1 cos
+// δ1.
+ex collected(const ex& e) {
+  GiNaC::exset kernels;
+  e.find(GiNaC::sin(GiNaC::wild()), kernels);
+  e.find(GiNaC::cos(GiNaC::wild()), kernels);
+  GiNaC::lst vars;
+  for (const ex& k : kernels) vars.append(k);
+  GiNaC::exset syms;
+  for (GiNaC::const_preorder_iterator it = e.preorder_begin(); it != e.preorder_end(); ++it) {
+    if (GiNaC::is_a<GiNaC::symbol>(*it)) {
+      const std::string n = GiNaC::ex_to<GiNaC::symbol>(*it).get_name();
+      if (n == "t" || (n.size() > 4 && n.compare(n.size() - 4, 4, "_dot") == 0)) syms.insert(*it);
+    }
+  }
+  for (const ex& s : syms) vars.append(s);
+  if (vars.nops() == 0) return e;
+  return e.collect(vars, true);
+}
+
+std::string print(const ex& e0, Format f) {
+  const ex e = collected(e0);
   std::ostringstream os;
   switch (f) {
     case Format::latex:
@@ -155,6 +177,62 @@ std::string format_derivation(const ConstraintDerivation& d, const std::string& 
   if (d.holonomic) block(os, f, "Phi", d.phi, false, true);
   block(os, f, "A", d.A, false, false);
   block(os, f, "b", d.b, false, true);
+  return os.str();
+}
+
+}  // namespace ukdyn::symbolic
+
+namespace ukdyn::symbolic {
+
+Format parse_format(const std::string& name) {
+  if (name == "latex") return Format::latex;
+  if (name == "c") return Format::c;
+  if (name == "matlab") return Format::matlab;
+  if (name == "text") return Format::text;
+  throw Error("unknown format '" + name + "' (expected latex, c, matlab or text)");
+}
+
+std::string format_system(const System& system, Format f) {
+  std::ostringstream os;
+  const std::string c = f == Format::c ? "// " : f == Format::text ? "# " : "% ";
+  const auto& subs = system.subsystems();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    if (const auto* d = dynamic_cast<const DerivedSubsystem*>(subs[k].get())) {
+      if (f == Format::c)
+        os << "void " << d->name() << "_dynamics(const double* q, const double* qd, double M["
+           << d->dof() << "][" << d->dof() << "], double C[" << d->dof() << "][" << d->dof()
+           << "], double G[" << d->dof() << "]) {\n";
+      if (f == Format::c) {
+        for (Index i = 0; i < d->dof(); ++i) {
+          const auto& nm = d->coordinate_names()[static_cast<std::size_t>(i)];
+          os << "  const double " << nm << " = q[" << i << "], " << nm << "_dot = qd[" << i
+             << "];\n";
+        }
+        os << "  (void)qd;\n";
+      }
+      os << format_derivation(d->derivation(), d->name(), f);
+      if (f == Format::c) os << "}\n";
+    } else {
+      os << c << "subsystem '" << subs[k]->name() << "': built-in closed-form model, not derived\n";
+    }
+    os << "\n";
+  }
+  const auto& cons = system.constraints();
+  for (std::size_t k = 0; k < cons.size(); ++k) {
+    const auto& rn = cons[k]->row_names();
+    if (const auto* d = dynamic_cast<const DerivedConstraint*>(cons[k].get())) {
+      std::string name = rn.size() == 1 ? rn[0] : rn[0].substr(0, rn[0].rfind('_'));
+      for (const auto& r : rn) {
+        if (r.compare(0, name.size(), name) != 0) name = "constraint_" + std::to_string(k + 1);
+      }
+      os << format_derivation(d->derivation(), name, f);
+    } else {
+      os << c << "constraint rows";
+      for (const auto& r : rn) os << " " << r;
+      os << ": built-in closed form, not derived\n";
+    }
+    os << "\n";
+  }
   return os.str();
 }
 

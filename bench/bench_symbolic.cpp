@@ -1,0 +1,173 @@
+// ukdyn::symbolic benchmarks: deriving the paper's arm from definitions (GiNaC) and evaluating the
+// compiled tapes against the hand-written closed form (ukdyn/models/mobile_manipulator.cpp).
+//   Symbolic/DerivePaperArm        derive M, C, G, C q̇ of one arm and compile its tapes
+//   Symbolic/DynamicsDerived       M + C q̇ + G of one arm from the tapes
+//   Symbolic/DynamicsClosedForm    the same from the closed form
+//   Symbolic/ClosureDerived        A, b of the 6 closure rows (Eq. 12) from the tapes
+//   Symbolic/ClosureClosedForm     the same from ukdyn::ClosureConstraint
+#include <benchmark/benchmark.h>
+
+#include <memory>
+#include <random>
+#include <string>
+
+#include "ukdyn/models/cooperative_constraints.hpp"
+#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
+
+namespace {
+
+namespace sym = ukdyn::symbolic;
+using ukdyn::Mat;
+using ukdyn::Vec;
+
+// The paper's arm (Table 1) by definitions, coordinates suffixed by `s`.
+sym::SubsystemDef paper_arm(const std::string& s) {
+  const std::string dx = "bx" + s, dy = "by" + s, de = "bdelta" + s, t1 = "bth1" + s,
+                    t2 = "bth2" + s, t3 = "bth3" + s;
+  sym::SubsystemDef d("arm" + s, {dx, dy, de, t1, t2, t3});
+  for (const auto& [n, v] : std::vector<std::pair<std::string, double>>{{"mv", 50},
+                                                                        {"mr", 2},
+                                                                        {"Ir", 0.0625},
+                                                                        {"lr", 0.5},
+                                                                        {"m1", 3},
+                                                                        {"m2", 4},
+                                                                        {"m3", 1},
+                                                                        {"I1", 0.49},
+                                                                        {"I2", 0.855},
+                                                                        {"I3", 0.08},
+                                                                        {"l1", 0.7},
+                                                                        {"l2", 0.8},
+                                                                        {"l3", 0.4}}) {
+    d.parameter(n, v);
+  }
+  const std::string r[3] = {"l1/2*cos(" + t1 + ")", "l1*cos(" + t1 + ") + l2/2*cos(" + t2 + ")",
+                            "l1*cos(" + t1 + ") + l2*cos(" + t2 + ") + l3/2*cos(" + t3 + ")"};
+  const std::string h[3] = {"lr + l1/2*sin(" + t1 + ")",
+                            "lr + l1*sin(" + t1 + ") + l2/2*sin(" + t2 + ")",
+                            "lr + l1*sin(" + t1 + ") + l2*sin(" + t2 + ") + l3/2*sin(" + t3 + ")"};
+  auto& p = d.add_body("platform");
+  p.mass = d.parse("mv");
+  p.com = {d.parse(dx), d.parse(dy), 0};
+  auto& j = d.add_body("joint_r");
+  j.mass = d.parse("mr");
+  j.com = {d.parse(dx), d.parse(dy), d.parse("lr/2")};
+  j.inertia_kind = sym::BodyDef::InertiaKind::scalar;
+  j.inertia_scalar = d.parse("Ir");
+  j.angular_velocity = std::array<GiNaC::ex, 3>{0, 0, d.parse(de + "_dot")};
+  const std::string th[3] = {t1, t2, t3};
+  for (int k = 0; k < 3; ++k) {
+    auto& b = d.add_body("link" + std::to_string(k + 1));
+    b.mass = d.parse("m" + std::to_string(k + 1));
+    b.com = {d.parse(dx + " + (" + r[k] + ")*cos(" + de + ")"),
+             d.parse(dy + " + (" + r[k] + ")*sin(" + de + ")"), d.parse(h[k])};
+    b.inertia_kind = sym::BodyDef::InertiaKind::scalar;
+    b.inertia_scalar = d.parse("I" + std::to_string(k + 1));
+    b.angular_velocity = std::array<GiNaC::ex, 3>{0, d.parse(th[k] + "_dot"), d.parse(de + "_dot")};
+  }
+  d.gravity = {0, 0, d.parse("-9.8")};
+  return d;
+}
+
+std::shared_ptr<sym::DerivedConstraint> paper_closure() {
+  std::vector<std::string> coords;
+  for (const std::string s : {"L", "R"}) {
+    for (const char* c : {"bx", "by", "bdelta", "bth1", "bth2", "bth3"}) coords.push_back(c + s);
+  }
+  sym::ConstraintDef c("closure", sym::ConstraintDef::Kind::holonomic, coords);
+  c.parameter("l1", 0.7);
+  c.parameter("l2", 0.8);
+  c.parameter("l3", 0.4);
+  c.let("k1", c.parse("l1*cos(bth1L) + l2*cos(bth2L) + l3*cos(bth3L)"));
+  c.let("k2", c.parse("l1*cos(bth1R) + l2*cos(bth2R) + l3*cos(bth3R)"));
+  c.add_row("x", c.parse("bxL + k1*cos(bdeltaL) - bxR - k2*cos(bdeltaR)"));
+  c.add_row("y", c.parse("byL + k1*sin(bdeltaL) - byR - k2*sin(bdeltaR)"));
+  c.add_row("z", c.parse("l1*sin(bth1L) + l2*sin(bth2L) + l3*sin(bth3L) - l1*sin(bth1R) - "
+                         "l2*sin(bth2R) - l3*sin(bth3R)"));
+  c.add_row("yaw", c.parse("bdeltaL - bdeltaR - pi"));
+  c.add_row("load1", c.parse("bth3L"));
+  c.add_row("load2", c.parse("bth3R"));
+  return sym::make_constraint(c);
+}
+
+Vec random_state(std::mt19937_64& rng, ukdyn::Index n) {
+  std::uniform_real_distribution<double> u(-1.5, 1.5);
+  Vec v(n);
+  for (ukdyn::Index i = 0; i < n; ++i) v(i) = u(rng);
+  return v;
+}
+
+void Symbolic_DerivePaperArm(benchmark::State& state) {
+  const sym::SubsystemDef d = paper_arm("D");
+  for (auto _ : state) {
+    auto sub = sym::make_subsystem(d);
+    benchmark::DoNotOptimize(sub);
+  }
+}
+BENCHMARK(Symbolic_DerivePaperArm)->Unit(benchmark::kMillisecond);
+
+template <class Make>
+void dynamics(benchmark::State& state, Make make) {
+  const auto sub = make();
+  std::mt19937_64 rng(1);
+  const Vec q = random_state(rng, 6), qd = random_state(rng, 6);
+  Mat M(6, 6);
+  Vec c(6), g(6);
+  for (auto _ : state) {
+    sub->mass(q, M);
+    sub->coriolis_times_qd(q, qd, c);
+    sub->gravity(q, g);
+    benchmark::DoNotOptimize(M.data());
+    benchmark::DoNotOptimize(c.data());
+    benchmark::DoNotOptimize(g.data());
+  }
+}
+
+void Symbolic_DynamicsDerived(benchmark::State& state) {
+  dynamics(state, [] {
+    return std::shared_ptr<const ukdyn::Subsystem>(sym::make_subsystem(paper_arm("E")));
+  });
+}
+BENCHMARK(Symbolic_DynamicsDerived);
+
+void Symbolic_DynamicsClosedForm(benchmark::State& state) {
+  dynamics(state, [] {
+    return std::shared_ptr<const ukdyn::Subsystem>(std::make_shared<ukdyn::MobileManipulator>(
+        "arm", ukdyn::MobileManipulatorParams{},
+        std::vector<std::string>{"a", "b", "c", "d", "e", "f"}));
+  });
+}
+BENCHMARK(Symbolic_DynamicsClosedForm);
+
+void closure(benchmark::State& state, const ukdyn::Constraint& c) {
+  std::mt19937_64 rng(2);
+  const Vec q = random_state(rng, 12), qd = random_state(rng, 12);
+  Mat A(6, 12);
+  Vec b(6);
+  for (auto _ : state) {
+    A.setZero();
+    c.evaluate(0.0, q, qd, A, b);
+    benchmark::DoNotOptimize(A.data());
+    benchmark::DoNotOptimize(b.data());
+  }
+}
+
+void Symbolic_ClosureDerived(benchmark::State& state) {
+  const auto c = paper_closure();
+  closure(state, *c);
+}
+BENCHMARK(Symbolic_ClosureDerived);
+
+void Symbolic_ClosureClosedForm(benchmark::State& state) {
+  auto l = std::make_shared<ukdyn::MobileManipulator>(
+      "l", ukdyn::MobileManipulatorParams{},
+      std::vector<std::string>{"a", "b", "c", "d", "e", "f"});
+  auto r = std::make_shared<ukdyn::MobileManipulator>(
+      "r", ukdyn::MobileManipulatorParams{},
+      std::vector<std::string>{"g", "h", "i", "j", "k", "m"});
+  const ukdyn::ClosureConstraint c(l, 0, r, 6, {});
+  closure(state, c);
+}
+BENCHMARK(Symbolic_ClosureClosedForm);
+
+}  // namespace

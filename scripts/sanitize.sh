@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Builds the library, the CLI and the test suite with AddressSanitizer + UndefinedBehaviorSanitizer
+# (-fno-sanitize-recover=all, asserts on) in build/asan and runs ctest. Every process the tests start
+# (the CLI included) is instrumented and logs to build/asan/sanitizer-logs/. Exits non-zero on any
+# failing test or any sanitizer report.
+#   scripts/sanitize.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh
+
+build=build/asan
+jobs=${JOBS:-2}
+san="-fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer"
+
+# Warnings are enforced by the CI build; sanitizer instrumentation makes gcc emit spurious ones.
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS="$san -O1 -g" \
+  -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" -DUKDYN_WERROR=OFF >/dev/null
+
+# Set before building: the build runs the test binary to list its tests (gtest_discover_tests).
+logs=$PWD/$build/sanitizer-logs
+rm -rf "$logs"
+mkdir -p "$logs"
+export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=1:log_path=$logs/asan"
+export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1:abort_on_error=1:log_path=$logs/ubsan"
+export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0"
+status=0
+cmake --build "$build" -j "$jobs" || status=$?
+if ((status == 0)); then
+  (cd "$build" && ctest --output-on-failure -j "$jobs") || status=$?
+fi
+if [[ -n "$(ls -A "$logs")" ]]; then
+  echo "sanitize: sanitizer reports:" >&2
+  cat "$logs"/* >&2
+  status=1
+fi
+if ((status != 0)); then
+  echo "sanitize: FAILED" >&2
+  exit 1
+fi
+echo "sanitize: clean" >&2

@@ -1,0 +1,178 @@
+// forward() and the integrator's right-hand side allocate nothing once their workspace exists.
+//
+// This file replaces the global operator new/delete and, on glibc, malloc/calloc/realloc/free with
+// versions that count calls while a flag is set (Eigen allocates with std::malloc, not operator
+// new, so both are needed). Every test in the binary links against these; with the flag off they
+// only forward to the C library.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <new>
+#include <vector>
+
+#include "helpers.hpp"
+#include "ukdyn/model/system.hpp"
+
+namespace {
+std::atomic<bool> g_counting{false};
+std::atomic<long> g_new_calls{0};
+std::atomic<long> g_malloc_calls{0};
+
+void count_new() {
+  if (g_counting.load(std::memory_order_relaxed))
+    g_new_calls.fetch_add(1, std::memory_order_relaxed);
+}
+}  // namespace
+
+#if defined(__GLIBC__) && !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+#define UKDYN_TEST_COUNTS_MALLOC 1
+// glibc's own entry points, so that these replacements can forward without recursion.
+extern "C" {
+void* __libc_malloc(std::size_t);
+void* __libc_calloc(std::size_t, std::size_t);
+void* __libc_realloc(void*, std::size_t);
+void __libc_free(void*);
+
+void* malloc(std::size_t n) {
+  if (g_counting.load(std::memory_order_relaxed))
+    g_malloc_calls.fetch_add(1, std::memory_order_relaxed);
+  return __libc_malloc(n);
+}
+void* calloc(std::size_t k, std::size_t n) {
+  if (g_counting.load(std::memory_order_relaxed))
+    g_malloc_calls.fetch_add(1, std::memory_order_relaxed);
+  return __libc_calloc(k, n);
+}
+void* realloc(void* p, std::size_t n) {
+  if (g_counting.load(std::memory_order_relaxed))
+    g_malloc_calls.fetch_add(1, std::memory_order_relaxed);
+  return __libc_realloc(p, n);
+}
+void free(void* p) { __libc_free(p); }
+}
+#endif
+
+// Counting global operator new/delete (all replaceable forms that allocate).
+void* operator new(std::size_t n) {
+  count_new();
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) {
+  count_new();
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
+  count_new();
+  return std::malloc(n == 0 ? 1 : n);
+}
+void* operator new[](std::size_t n, const std::nothrow_t&) noexcept {
+  count_new();
+  return std::malloc(n == 0 ? 1 : n);
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
+void operator delete[](void* p, const std::nothrow_t&) noexcept { std::free(p); }
+
+namespace {
+
+using ukdyn::Vec;
+
+/// Counts the allocations made by f() (operator new and, on glibc, malloc & co.).
+template <typename F>
+long allocations_in(F&& f) {
+  g_new_calls = 0;
+  g_malloc_calls = 0;
+  g_counting = true;
+  f();
+  g_counting = false;
+  return g_new_calls.load() + g_malloc_calls.load();
+}
+
+// The detector works: a deliberately allocating line is seen, by both counters. (If this test
+// fails, the zero counts below prove nothing.)
+TEST(NoAlloc, CounterSeesAllocations) {
+  int* volatile p = nullptr;
+  const long with_new = allocations_in([&] { p = new int(42); });
+  delete p;
+  EXPECT_GE(with_new, 1);
+  EXPECT_GE(g_new_calls.load(), 1);
+#ifdef UKDYN_TEST_COUNTS_MALLOC
+  // An Eigen temporary (Eigen allocates with std::malloc).
+  Vec v = Vec::LinSpaced(64, 0.0, 1.0);
+  double s = 0.0;
+  const long with_eigen = allocations_in([&] {
+    const Vec w = v * 2.0;  // deliberately allocating
+    s = w.sum();
+  });
+  EXPECT_GE(with_eigen, 1);
+  EXPECT_GE(g_malloc_calls.load(), 1);
+  EXPECT_DOUBLE_EQ(s, 64.0);
+#endif
+  EXPECT_EQ(allocations_in([] {}), 0);
+}
+
+struct PaperSystem {
+  uktest::TwoArms two;
+  Vec q0 = uktest::paper_q0();
+  explicit PaperSystem(bool trajectory) {
+    two.add_closure();
+    if (trajectory) two.add_paper_trajectory(q0);
+  }
+};
+
+void expect_forward_allocation_free(bool trajectory) {
+  PaperSystem ps(trajectory);
+  const ukdyn::System& sys = *ps.two.system;
+  ukdyn::ForwardData data(sys);
+  const Vec qd = Vec::LinSpaced(12, -0.3, 0.4);
+  const Vec tau = Vec::LinSpaced(12, -2.0, 2.0);
+  ukdyn::forward(sys, data, 0.0, ps.q0, qd, tau);  // first call (nothing to set up, but allowed)
+  ASSERT_TRUE(data.result.finite);
+  const long n = allocations_in([&] {
+    for (int k = 0; k < 20; ++k) ukdyn::forward(sys, data, 0.01 * k, ps.q0, qd, tau);
+  });
+  EXPECT_EQ(n, 0) << "forward() allocated " << n << " times in 20 calls"
+                  << (trajectory ? " (closure + trajectory)" : " (closure)");
+  EXPECT_EQ(data.result.rank, trajectory ? 12 : 6);
+}
+
+TEST(NoAlloc, ForwardClosureAllocatesNothing) { expect_forward_allocation_free(false); }
+TEST(NoAlloc, ForwardClosureAndTrajectoryAllocatesNothing) { expect_forward_allocation_free(true); }
+
+// The integrator's right-hand side, as simulate() evaluates it: the state is a std::vector<double>
+// x = [q; q̇], mapped (not copied) into forward(), and q̈ is copied into dx/dt.
+TEST(NoAlloc, IntegratorRightHandSideAllocatesNothing) {
+  PaperSystem ps(true);
+  const ukdyn::System& sys = *ps.two.system;
+  const Eigen::Index n = sys.dof();
+  ukdyn::ForwardData data(sys);
+  Vec tau = Vec::Zero(n);
+  std::vector<double> x(static_cast<std::size_t>(2 * n), 0.0), dxdt(x.size(), 0.0);
+  for (Eigen::Index i = 0; i < n; ++i) x[static_cast<std::size_t>(i)] = ps.q0(i);
+  auto rhs = [&](const std::vector<double>& state, std::vector<double>& out, double t) {
+    const Eigen::Map<const Vec> q(state.data(), n);
+    const Eigen::Map<const Vec> qd(state.data() + n, n);
+    tau.setZero();
+    ukdyn::forward(sys, data, t, q, qd, tau);
+    Eigen::Map<Vec>(out.data(), n) = qd;
+    Eigen::Map<Vec>(out.data() + n, n) = data.qdd;
+  };
+  rhs(x, dxdt, 0.0);  // first call
+  const long count = allocations_in([&] {
+    // A few explicit Euler steps through the right-hand side (the state moves every call).
+    for (int k = 0; k < 50; ++k) {
+      rhs(x, dxdt, 1e-3 * k);
+      for (std::size_t i = 0; i < x.size(); ++i) x[i] += 1e-3 * dxdt[i];
+    }
+  });
+  EXPECT_EQ(count, 0) << "the right-hand side allocated " << count << " times in 50 calls";
+  EXPECT_TRUE(data.result.finite);
+}
+
+}  // namespace
