@@ -4,6 +4,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <cmath>
 
 #include "helpers.hpp"
 #include "reference_model.hpp"
@@ -263,6 +264,67 @@ TEST(MobileManipulator, PrintedC34C43ErratumIsCaught) {
   const Matrix6d Md = ukref::mass_dot(p, q, qd);
   const Matrix6d S = Md - 2.0 * Cp;
   EXPECT_LE((S + S.transpose()).norm(), 1e-12 * Md.norm());
+}
+
+// Subsystem::dynamics (M, C q̇, G in one call): the closed-form override shares one set of sin/cos
+// and must match the three separate calls and the AD reference; it writes every entry of its
+// outputs (stale values in the caller's storage must not survive).
+TEST(MobileManipulator, DynamicsMatchesSeparateCallsAndReference) {
+  for (const auto& p : param_sets()) {
+    const auto arm = uktest::make_arm(1, p);
+    std::mt19937_64 rng(7);
+    for (int s = 0; s < kStates; ++s) {
+      const Vector6d q = uktest::random_q(rng);
+      const Vector6d qd = uktest::random_qd(rng);
+      ukdyn::Mat M = ukdyn::Mat::Constant(6, 6, 123.0);
+      ukdyn::Vec cqd = ukdyn::Vec::Constant(6, 123.0), g = ukdyn::Vec::Constant(6, 123.0);
+      arm->dynamics(q, qd, M, cqd, g);
+      EXPECT_LE(rel_err(M, lib_mass(*arm, q)), 1e-15) << "state " << s;
+      EXPECT_LE(rel_err(cqd, lib_cqd(*arm, q, qd)), 1e-15) << "state " << s;
+      EXPECT_LE(rel_err(g, lib_gravity(*arm, q)), 1e-15) << "state " << s;
+      EXPECT_LE(rel_err(M, ukref::mass_matrix<double>(p, q)), kTol) << "state " << s;
+      EXPECT_LE(rel_err(cqd, ukref::coriolis_times_qd(p, q, qd)), kTol) << "state " << s;
+      EXPECT_LE(rel_err(g, ukref::gravity(p, q)), kTol) << "state " << s;
+    }
+  }
+}
+
+namespace {
+// A one-coordinate pendulum that does not override dynamics(): the default must call the three.
+class PlainPendulum final : public ukdyn::Subsystem {
+ public:
+  [[nodiscard]] ukdyn::Index dof() const override { return 1; }
+  [[nodiscard]] const std::string& name() const override { return name_; }
+  [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
+    return names_;
+  }
+  void mass(ukdyn::CVecRef /*q*/, ukdyn::MatRef M) const override { M(0, 0) = 2.0; }
+  void coriolis(ukdyn::CVecRef /*q*/, ukdyn::CVecRef /*qd*/, ukdyn::MatRef C) const override {
+    C(0, 0) = 0.0;
+  }
+  void coriolis_times_qd(ukdyn::CVecRef /*q*/, ukdyn::CVecRef qd,
+                         ukdyn::VecRef Cqd) const override {
+    Cqd(0) = 3.0 * qd(0);
+  }
+  void gravity(ukdyn::CVecRef q, ukdyn::VecRef G) const override { G(0) = 5.0 * std::sin(q(0)); }
+  [[nodiscard]] double potential(ukdyn::CVecRef q) const override { return -5.0 * std::cos(q(0)); }
+
+ private:
+  std::string name_ = "pendulum";
+  std::vector<std::string> names_{"phi"};
+};
+}  // namespace
+
+TEST(Subsystem, DefaultDynamicsCallsMassCoriolisGravity) {
+  const PlainPendulum pend;
+  ukdyn::Vec q(1), qd(1), cqd(1), g(1);
+  q << 0.3;
+  qd << -1.5;
+  ukdyn::Mat M(1, 1);
+  pend.dynamics(q, qd, M, cqd, g);
+  EXPECT_EQ(M(0, 0), 2.0);
+  EXPECT_EQ(cqd(0), -4.5);
+  EXPECT_EQ(g(0), 5.0 * std::sin(0.3));
 }
 
 }  // namespace

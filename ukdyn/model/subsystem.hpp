@@ -30,6 +30,14 @@ class Subsystem {
   virtual void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const = 0;
   /// Generalized gravity G(q) = ∂V/∂q, paper Eq. (8).
   virtual void gravity(CVecRef q, VecRef G) const = 0;
+  /// M(q), C(q, q̇) q̇ and G(q) in one call (what the forward evaluation needs, paper Eq. (10)).
+  /// The default calls mass(), coriolis_times_qd() and gravity(); a subsystem whose three share
+  /// work (the same sin/cos, say) overrides it. Must give the same values as the three calls.
+  virtual void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
+    mass(q, M);
+    coriolis_times_qd(q, qd, Cqd);
+    gravity(q, G);
+  }
   /// Potential energy V(q) (gravity), up to a constant.
   [[nodiscard]] virtual double potential(CVecRef q) const = 0;
 };

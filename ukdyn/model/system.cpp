@@ -52,9 +52,8 @@ void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecR
   for (std::size_t k = 0; k < subs.size(); ++k) {
     const Index s = L.start[k];
     const Index n = L.size[k];
-    subs[k]->mass(q.segment(s, n), data.M.block(s, s, n, n));
-    subs[k]->coriolis_times_qd(q.segment(s, n), qd.segment(s, n), data.Cqd.segment(s, n));
-    subs[k]->gravity(q.segment(s, n), data.G.segment(s, n));
+    subs[k]->dynamics(q.segment(s, n), qd.segment(s, n), data.M.block(s, s, n, n),
+                      data.Cqd.segment(s, n), data.G.segment(s, n));
   }
 }
 

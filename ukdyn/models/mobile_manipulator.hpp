@@ -50,6 +50,8 @@ class MobileManipulator final : public Subsystem {
   void coriolis(CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(CVecRef q, VecRef G) const override;
+  /// M, C q̇ and G from one set of sin/cos (4 angles, the differences by identities).
+  void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
 
   /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates.
@@ -63,6 +65,25 @@ class MobileManipulator final : public Subsystem {
   void cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J, Vec3& c) const;
 
  private:
+  /// The sin/cos every closed-form expression below uses, evaluated once per state: δ and θ1..θ3
+  /// directly, θi − θj by cos(a − b) = cos a cos b + sin a sin b, sin(a − b) = sin a cos b −
+  /// cos a sin b.
+  struct Trig {
+    double cd = 1, sd = 0;            ///< cos δ, sin δ
+    std::array<double, 3> ct{}, st{};  ///< cos θk, sin θk
+    std::array<double, 3> c{}, s{};    ///< ĉk = lk cos θk, ŝk = lk sin θk
+    double c12 = 1, c13 = 1, c23 = 1;  ///< cos(θ1 − θ2), cos(θ1 − θ3), cos(θ2 − θ3)
+    double s12 = 0, s13 = 0, s23 = 0;  ///< sin(θ1 − θ2), sin(θ1 − θ3), sin(θ2 − θ3)
+  };
+  /// record: also store the angles' sin/cos for the constraints' cut-point kinematics (done by
+  /// dynamics() only; see the .cpp).
+  [[nodiscard]] Trig trig(CVecRef q, bool record = false) const;
+  void mass_from(const Trig& t, MatRef M) const;
+  void coriolis_from(const Trig& t, CVecRef qd, MatRef C) const;
+  void coriolis_times_qd_from(const Trig& t, CVecRef qd, VecRef Cqd) const;
+  /// G from ĉ1..ĉ3 (the only trig G needs).
+  void gravity_from(const std::array<double, 3>& c, VecRef G) const;
+
   std::string name_;
   MobileManipulatorParams p_;
   std::vector<std::string> names_;
