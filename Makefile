@@ -6,7 +6,8 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench drift-study clean format
+.PHONY: all deps configure build run test bench drift-study sanitize fuzz clean format
+FUZZ_SECONDS ?= 60
 
 all: build
 
@@ -33,6 +34,14 @@ bench:
 
 drift-study: build
 	$(BUILD_DIR)/ukdyn_drift_study scenarios/paper_free.yaml 100
+
+# The test suite under AddressSanitizer + UndefinedBehaviorSanitizer (build/asan).
+sanitize:
+	@bash scripts/sanitize.sh
+
+# libFuzzer on the scenario loader for FUZZ_SECONDS (build/fuzz, clang-14).
+fuzz:
+	@bash scripts/fuzz.sh $(FUZZ_SECONDS)
 
 format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')

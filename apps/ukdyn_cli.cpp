@@ -209,8 +209,8 @@ int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures
   }
   if (!rep.figure_error.empty()) std::cerr << "ukdyn: warning: " << rep.figure_error << "\n";
   if (rep.stats.status != ukdyn::RunStatus::completed) {
-    std::cerr << "ukdyn: run incomplete: " << rep.stats.message << "; partial results in "
-              << rep.csv.string() << "\n";
+    std::cerr << "ukdyn: run incomplete: " << sc.path.string() << ": " << rep.stats.message
+              << "; partial results in " << rep.csv.string() << "\n";
     return 1;
   }
   return 0;

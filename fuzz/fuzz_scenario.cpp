@@ -1,6 +1,6 @@
 // libFuzzer target on the scenario loader: any input must either load or throw ukdyn::Error (a
-// ScenarioError naming file:line:col). Anything else (another exception, a crash, a sanitizer report,
-// a timeout) is a finding. Build and run: scripts/fuzz.sh.
+// ScenarioError naming file:line:col). Anything else (another exception, a crash, a sanitizer
+// report, a timeout) is a finding. Build and run: scripts/fuzz.sh.
 #include <cstddef>
 #include <cstdint>
 #include <string>

@@ -26,7 +26,10 @@ export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp:print_suppressions=0"
 status=0
 cmake --build "$build" -j "$jobs" || status=$?
 if ((status == 0)); then
-  (cd "$build" && ctest --output-on-failure -j "$jobs") || status=$?
+  # CXXFLAGS/LDFLAGS: the install test configures a downstream project that links the sanitized
+  # libraries; CMake takes its initial flags from these variables.
+  (cd "$build" && CXXFLAGS="$san" LDFLAGS="-fsanitize=address,undefined" \
+    ctest --output-on-failure -j "$jobs") || status=$?
 fi
 if [[ -n "$(ls -A "$logs")" ]]; then
   echo "sanitize: sanitizer reports:" >&2

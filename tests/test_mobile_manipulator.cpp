@@ -295,9 +295,7 @@ class PlainPendulum final : public ukdyn::Subsystem {
  public:
   [[nodiscard]] ukdyn::Index dof() const override { return 1; }
   [[nodiscard]] const std::string& name() const override { return name_; }
-  [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
-    return names_;
-  }
+  [[nodiscard]] const std::vector<std::string>& coordinate_names() const override { return names_; }
   void mass(ukdyn::CVecRef /*q*/, ukdyn::MatRef M) const override { M(0, 0) = 2.0; }
   void coriolis(ukdyn::CVecRef /*q*/, ukdyn::CVecRef /*qd*/, ukdyn::MatRef C) const override {
     C(0, 0) = 0.0;

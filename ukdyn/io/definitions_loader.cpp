@@ -1,8 +1,14 @@
 #include "ukdyn/io/definitions_loader.hpp"
 
+#include <algorithm>
+#include <filesystem>
+#include <map>
 #include <sstream>
 
+#include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/spline.hpp"
+#include "ukdyn/symbolic/urdf.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -107,6 +113,27 @@ void load_scope(const Loader& L, const Node& parent, sym::DefinitionScope& scope
   }
 }
 
+// gravity: [gx, gy, gz] expressions, or [0, 0, -g] with the scenario's g (short decimals exact).
+void load_gravity(const Loader& L, const Node& s, sym::SubsystemDef& def, double gravity) {
+  if (Node g = L.child(s, "gravity", false); g.node.IsDefined()) {
+    def.gravity = parse_list<3>(L, def, g);
+  } else {
+    def.gravity = {0, 0, GiNaC::numeric(-gravity)};
+    // Keep a short decimal such as 9.8 exact.
+    std::ostringstream os;
+    os.precision(15);
+    os << gravity;
+    try {
+      const ex e = def.parse(os.str());
+      if (std::abs(GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_double() - gravity) <=
+          1e-15 * std::abs(gravity)) {
+        def.gravity[2] = -e;
+      }
+    } catch (const sym::ExpressionError&) {
+    }
+  }
+}
+
 }  // namespace
 
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
@@ -127,23 +154,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
     L.fail(cn, e.what());
   }
   load_scope(L, s, *def);
-  if (Node g = L.child(s, "gravity", false); g.node.IsDefined()) {
-    def->gravity = parse_list<3>(L, *def, g);
-  } else {
-    def->gravity = {0, 0, GiNaC::numeric(-gravity)};
-    // Keep a short decimal such as 9.8 exact.
-    std::ostringstream os;
-    os.precision(15);
-    os << gravity;
-    try {
-      const ex e = def->parse(os.str());
-      if (std::abs(GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_double() - gravity) <=
-          1e-15 * std::abs(gravity)) {
-        def->gravity[2] = -e;
-      }
-    } catch (const sym::ExpressionError&) {
-    }
-  }
+  load_gravity(L, s, *def, gravity);
   if (Node p = L.child(s, "potential", false); p.node.IsDefined())
     def->extra_potential = parse(L, *def, p);
   const Node bodies = L.child(s, "bodies", true);
@@ -243,6 +254,360 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
   } catch (const sym::DefinitionError& e) {
     if (e.row >= 0) L.fail(row_nodes[static_cast<std::size_t>(e.row)], e.what());
     L.fail(c, e.what());
+  } catch (const Error& e) {
+    L.fail(c, e.what());
+  }
+}
+
+// ------------------------------------------------------------------------------ serial chains
+
+struct DefinitionContext {
+  std::map<std::string, sym::ChainModel> chains;
+};
+
+std::shared_ptr<DefinitionContext> make_definition_context() {
+  return std::make_shared<DefinitionContext>();
+}
+
+namespace {
+
+sym::Vec3Ex parse_vec3_or(const Loader& L, const sym::DefinitionScope& scope, const Node& parent,
+                          const std::string& key) {
+  if (Node n = L.child(parent, key, false); n.node.IsDefined()) return parse_list<3>(L, scope, n);
+  return {0, 0, 0};
+}
+
+// mass, com, inertia (3 diagonal entries or 3x3, about the CoM), inertia_rpy of a link or base.
+void load_inertial(const Loader& L, const sym::DefinitionScope& scope, const Node& n,
+                   sym::InertialDef& in) {
+  if (Node m = L.child(n, "mass", false); m.node.IsDefined()) in.mass = parse(L, scope, m);
+  in.com = parse_vec3_or(L, scope, n, "com");
+  if (Node i = L.child(n, "inertia", false); i.node.IsDefined())
+    in.inertia = parse_matrix(L, scope, i, true);
+  in.rpy = parse_vec3_or(L, scope, n, "inertia_rpy");
+}
+
+}  // namespace
+
+std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
+                                                      const std::string& name,
+                                                      const std::vector<std::string>& coordinates,
+                                                      double gravity, DefinitionContext& context) {
+  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
+                  "mount", "base", "joints", "urdf", "joint_values", "points"});
+  const Node cn = L.child(s, "coordinates", true);
+  std::unique_ptr<sym::ChainDef> def;
+  try {
+    def = std::make_unique<sym::ChainDef>(name, coordinates);
+  } catch (const sym::DefinitionError& e) {
+    if (e.coordinate >= 0) {
+      L.fail(Node{cn.node[static_cast<std::size_t>(e.coordinate)],
+                  cn.key + "[" + std::to_string(e.coordinate) + "]"},
+             e.what());
+    }
+    L.fail(cn, e.what());
+  }
+  load_scope(L, s, *def);
+  load_gravity(L, s, *def, gravity);
+  if (Node p = L.child(s, "potential", false); p.node.IsDefined())
+    def->extra_potential = parse(L, *def, p);
+  if (Node m = L.child(s, "mount", false); m.node.IsDefined()) {
+    L.only_keys(m, {"xyz", "rpy"});
+    def->mount = {parse_vec3_or(L, *def, m, "xyz"), parse_vec3_or(L, *def, m, "rpy")};
+  }
+  auto coordinate_name = [&](const Node& n) {
+    const std::string c = L.string(n);
+    if (std::find(coordinates.begin(), coordinates.end(), c) == coordinates.end())
+      L.fail(n, "'" + c + "' is not a coordinate of this subsystem");
+    return c;
+  };
+  if (Node b = L.child(s, "base", false); b.node.IsDefined()) {
+    L.only_keys(b, {"type", "link", "x", "y", "yaw", "mass", "com", "inertia", "inertia_rpy"});
+    if (Node t = L.child(b, "type", false); t.node.IsDefined() && L.string(t) != "omnidirectional")
+      L.fail(t, "unknown base type '" + L.string(t) + "' (expected omnidirectional)");
+    def->base.enabled = true;
+    if (Node k = L.child(b, "link", false); k.node.IsDefined()) def->base.link = L.string(k);
+    def->base.x = coordinate_name(L.child(b, "x", true));
+    def->base.y = coordinate_name(L.child(b, "y", true));
+    if (Node y = L.child(b, "yaw", false); y.node.IsDefined()) def->base.yaw = coordinate_name(y);
+    load_inertial(L, *def, b, def->base.inertial);
+  }
+  const Node joints = L.child(s, "joints", false);
+  const Node urdf = L.child(s, "urdf", false);
+  if (joints.node.IsDefined() == urdf.node.IsDefined())
+    L.fail(s, "give either joints (a list) or urdf (a file), not both and not neither");
+  std::vector<Node> joint_nodes;
+  if (joints.node.IsDefined()) {
+    if (!joints.node.IsSequence() || joints.node.size() == 0)
+      L.fail(joints, "expected a non-empty list of joints");
+    for (std::size_t i = 0; i < joints.node.size(); ++i) {
+      const Node j{joints.node[i], joints.key + "[" + std::to_string(i) + "]"};
+      L.only_keys(j, {"name", "type", "parent", "link", "origin", "axis", "coordinate", "value",
+                      "mass", "com", "inertia", "inertia_rpy"});
+      const std::string jname = L.string(L.child(j, "name", true));
+      const Node tn = L.child(j, "type", true);
+      const std::string type = L.string(tn);
+      sym::JointDef::Type jt = sym::JointDef::Type::revolute;
+      if (type == "revolute" || type == "continuous") {
+        jt = sym::JointDef::Type::revolute;
+      } else if (type == "prismatic") {
+        jt = sym::JointDef::Type::prismatic;
+      } else if (type == "fixed") {
+        jt = sym::JointDef::Type::fixed;
+      } else {
+        L.fail(tn, "unknown joint type '" + type + "' (expected revolute, prismatic or fixed)");
+      }
+      std::string link = jname;
+      if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.string(k);
+      sym::JointDef& jd = def->add_joint(jname, jt, link);
+      if (Node p = L.child(j, "parent", false); p.node.IsDefined()) jd.parent = L.string(p);
+      if (Node o = L.child(j, "origin", false); o.node.IsDefined()) {
+        L.only_keys(o, {"xyz", "rpy"});
+        jd.origin = {parse_vec3_or(L, *def, o, "xyz"), parse_vec3_or(L, *def, o, "rpy")};
+      }
+      if (Node a = L.child(j, "axis", false); a.node.IsDefined())
+        jd.axis = parse_list<3>(L, *def, a);
+      const Node cnode = L.child(j, "coordinate", false);
+      const Node vnode = L.child(j, "value", false);
+      if (jt == sym::JointDef::Type::fixed) {
+        if (cnode.node.IsDefined() || vnode.node.IsDefined())
+          L.fail(j, "a fixed joint has no coordinate or value");
+      } else if (cnode.node.IsDefined() && vnode.node.IsDefined()) {
+        L.fail(j, "give coordinate or value, not both");
+      } else if (vnode.node.IsDefined()) {
+        jd.value = parse(L, *def, vnode);
+      } else if (cnode.node.IsDefined()) {
+        jd.coordinate = coordinate_name(cnode);
+      } else {
+        L.fail(j,
+               "a movable joint needs a coordinate (or a value: an expression of the "
+               "coordinates)");
+      }
+      load_inertial(L, *def, j, jd.inertial);
+      joint_nodes.push_back(j);
+    }
+  } else {
+    std::filesystem::path file = L.string(urdf);
+    if (file.is_relative()) file = L.path().parent_path() / file;
+    std::map<std::string, ex> values;
+    if (Node jv = L.child(s, "joint_values", false); jv.node.IsDefined()) {
+      if (!jv.node.IsMap()) L.fail(jv, "expected a mapping joint: coordinate or expression");
+      for (const auto& kv : jv.node) {
+        const std::string k = kv.first.as<std::string>();
+        values[k] = parse(L, *def, Node{kv.second, jv.key + "." + k});
+      }
+    }
+    try {
+      sym::append_urdf(*def, file.string(), values);
+    } catch (const sym::DefinitionError& e) {
+      L.fail(urdf, e.what());
+    }
+  }
+  if (Node p = L.child(s, "points", false); p.node.IsDefined()) {
+    if (!p.node.IsMap()) L.fail(p, "expected a mapping name: {link: LINK, xyz: [x, y, z]}");
+    for (const auto& kv : p.node) {
+      const std::string k = kv.first.as<std::string>();
+      const Node v{kv.second, p.key + "." + k};
+      L.only_keys(v, {"link", "xyz"});
+      def->add_point(k, L.string(L.child(v, "link", true)), parse_vec3_or(L, *def, v, "xyz"));
+    }
+  }
+  try {
+    sym::ChainModel model = sym::build_chain(*def);
+    auto sub = sym::make_subsystem(model.def);
+    context.chains.emplace(name, std::move(model));
+    return sub;
+  } catch (const Error& e) {
+    L.fail(s, e.what());
+  }
+}
+
+// ------------------------------------------------------------------------------ constraint kinds
+
+bool is_constraint_kind(const std::string& type) {
+  return type == "points_coincide" || type == "point_trajectory" || type == "angle_relation";
+}
+
+namespace {
+
+// A point: "subsystem.point" (a serial chain's named point) or [x, y, z] expressions.
+sym::Vec3Ex load_point(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
+                       const DefinitionContext& context) {
+  if (n.node.IsSequence()) return parse_list<3>(L, scope, n);
+  const std::string ref = L.string(n);
+  const auto dot = ref.find('.');
+  if (dot == std::string::npos)
+    L.fail(n, "expected SUBSYSTEM.POINT (e.g. left.end) or a list of 3 expressions");
+  const std::string sub = ref.substr(0, dot), point = ref.substr(dot + 1);
+  auto it = context.chains.find(sub);
+  if (it == context.chains.end())
+    L.fail(n, "no serial_chain subsystem named '" + sub + "' (defined before this constraint)");
+  try {
+    return it->second.world_point(point);
+  } catch (const Error& e) {
+    L.fail(n, e.what());
+  }
+}
+
+// A time function: an expression of t (or a number), or {type: constant|cosine|polynomial, ...}
+// whose fields are expressions (omega: pi is exact).
+ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionScope& scope) {
+  if (n.node.IsScalar()) return parse(L, scope, n);
+  if (!n.node.IsMap()) {
+    L.fail(n,
+           "expected an expression of t or a time function {type: constant|cosine|polynomial|"
+           "spline, ...}");
+  }
+  const Node tn = L.child(n, "type", true);
+  const std::string type = L.string(tn);
+  auto field = [&](const char* key, bool required) -> ex {
+    const Node f = L.child(n, key, required);
+    return f.node.IsDefined() ? parse(L, scope, f) : ex(0);
+  };
+  if (type == "constant") {
+    L.only_keys(n, {"type", "value"});
+    return field("value", true);
+  }
+  if (type == "cosine") {
+    L.only_keys(n, {"type", "mean", "amplitude", "omega", "phase"});
+    return sym::cosine_expression(field("mean", false), field("amplitude", true),
+                                  field("omega", true), field("phase", false));
+  }
+  if (type == "polynomial") {
+    L.only_keys(n, {"type", "coefficients"});
+    const Node c = L.child(n, "coefficients", true);
+    if (!c.node.IsSequence() || c.node.size() == 0 || c.node.size() > 16)
+      L.fail(c, "expected a list of 1 to 16 coefficients (c0 + c1 t + c2 t^2 + ...)");
+    std::vector<ex> cs;
+    for (std::size_t i = 0; i < c.node.size(); ++i)
+      cs.push_back(parse(L, scope, Node{c.node[i], c.key + "[" + std::to_string(i) + "]"}));
+    return sym::polynomial_expression(cs);
+  }
+  if (type == "spline") {
+    L.only_keys(n, {"type", "times", "values", "end", "slopes"});
+    auto numbers = [&](const Node& list, std::size_t expected) {
+      if (!list.node.IsSequence() || list.node.size() < 2 ||
+          (expected > 0 && list.node.size() != expected)) {
+        L.fail(list, expected > 0 ? "expected a list of " + std::to_string(expected) + " numbers"
+                                  : "expected a list of at least 2 numbers");
+      }
+      std::vector<double> v;
+      for (std::size_t i = 0; i < list.node.size(); ++i) {
+        const Node e{list.node[i], list.key + "[" + std::to_string(i) + "]"};
+        const ex x = parse(L, scope, e).subs(scope.parameter_values()).evalf();
+        if (!GiNaC::is_a<GiNaC::numeric>(x) || !GiNaC::ex_to<GiNaC::numeric>(x).is_real())
+          L.fail(e, "expected a number");
+        v.push_back(GiNaC::ex_to<GiNaC::numeric>(x).to_double());
+      }
+      return v;
+    };
+    const Node tn2 = L.child(n, "times", true);
+    const std::vector<double> times = numbers(tn2, 0);
+    const std::vector<double> values = numbers(L.child(n, "values", true), times.size());
+    sym::CubicSpline::End end = sym::CubicSpline::End::natural;
+    if (Node e = L.child(n, "end", false); e.node.IsDefined()) {
+      const std::string es = L.string(e);
+      if (es == "clamped") {
+        end = sym::CubicSpline::End::clamped;
+      } else if (es != "natural") {
+        L.fail(e, "expected natural or clamped, got '" + es + "'");
+      }
+    }
+    std::vector<double> slopes{0.0, 0.0};
+    if (Node sl = L.child(n, "slopes", false); sl.node.IsDefined()) {
+      if (end != sym::CubicSpline::End::clamped) L.fail(sl, "slopes are for end: clamped");
+      slopes = numbers(sl, 2);
+    }
+    try {
+      return sym::spline_expression(sym::CubicSpline(times, values, end, slopes[0], slopes[1]));
+    } catch (const Error& e) {
+      L.fail(tn2, e.what());
+    }
+  }
+  L.fail(tn, "unknown time function type '" + type +
+                 "' (expected constant, cosine, polynomial or spline)");
+}
+
+}  // namespace
+
+std::shared_ptr<const Constraint> load_constraint_kind(
+    const Loader& L, const Node& c, const std::string& name, const std::string& type,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const Vec& q0) {
+  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates);
+  static const char* kAxis[3] = {"x", "y", "z"};
+  if (type == "points_coincide") {
+    L.only_keys(c, {"type", "name", "parameters", "let", "a", "b", "axes"});
+    load_scope(L, c, def);
+    const sym::Vec3Ex a = load_point(L, L.child(c, "a", true), def, context);
+    const sym::Vec3Ex b = load_point(L, L.child(c, "b", true), def, context);
+    std::array<bool, 3> axes{true, true, true};
+    if (Node an = L.child(c, "axes", false); an.node.IsDefined()) {
+      if (!an.node.IsSequence() || an.node.size() == 0)
+        L.fail(an, "expected a list of axes (x, y, z)");
+      axes = {false, false, false};
+      for (std::size_t i = 0; i < an.node.size(); ++i) {
+        const Node e{an.node[i], an.key + "[" + std::to_string(i) + "]"};
+        const std::string ax = L.string(e);
+        const auto k = ax == "x" ? 0 : ax == "y" ? 1 : ax == "z" ? 2 : 3;
+        if (k == 3) L.fail(e, "expected x, y or z, got '" + ax + "'");
+        if (axes[static_cast<std::size_t>(k)]) L.fail(e, "axis '" + ax + "' given twice");
+        axes[static_cast<std::size_t>(k)] = true;
+      }
+    }
+    sym::add_points_coincide(def, name, a, b, axes);
+  } else if (type == "point_trajectory") {
+    L.only_keys(c, {"type", "name", "parameters", "let", "point", "origin", "x", "y", "z"});
+    load_scope(L, c, def);
+    const sym::Vec3Ex p = load_point(L, L.child(c, "point", true), def, context);
+    sym::Vec3Ex origin{0, 0, 0};
+    if (Node o = L.child(c, "origin", false); o.node.IsDefined()) {
+      if (o.node.IsScalar() && o.node.Scalar() == "initial") {
+        GiNaC::exmap at;
+        for (std::size_t i = 0; i < system_coordinates.size(); ++i)
+          at[sym::coordinate_symbol(system_coordinates[i])] = q0(static_cast<Index>(i));
+        for (std::size_t k = 0; k < 3; ++k) {
+          const ex v = p[k].subs(def.parameter_values()).subs(at).evalf();
+          if (!GiNaC::is_a<GiNaC::numeric>(v)) L.fail(o, "the point is not a function of q only");
+          origin[k] = GiNaC::ex_to<GiNaC::numeric>(v);  // a float: q0 itself is a double
+        }
+      } else {
+        origin = parse_list<3>(L, def, o);
+      }
+    }
+    std::array<std::optional<ex>, 3> f;
+    for (std::size_t k = 0; k < 3; ++k) {
+      if (Node fn = L.child(c, kAxis[k], false); fn.node.IsDefined())
+        f[k] = load_time_expression(L, fn, def);
+    }
+    if (!f[0] && !f[1] && !f[2]) L.fail(c, "give at least one of x, y, z");
+    sym::add_point_trajectory(def, name, p, f, origin);
+  } else {  // angle_relation
+    L.only_keys(c, {"type", "name", "parameters", "let", "terms", "value"});
+    load_scope(L, c, def);
+    const Node tn = L.child(c, "terms", true);
+    if (!tn.node.IsMap() || tn.node.size() == 0)
+      L.fail(tn, "expected a mapping coordinate: coefficient (e.g. {delta1: 1, delta2: -1})");
+    std::vector<std::pair<std::string, ex>> terms;
+    for (const auto& kv : tn.node) {
+      const std::string k = kv.first.as<std::string>();
+      const Node v{kv.second, tn.key + "." + k};
+      if (std::find(system_coordinates.begin(), system_coordinates.end(), k) ==
+          system_coordinates.end())
+        L.fail(v, "no coordinate named '" + k + "'");
+      terms.emplace_back(k, parse(L, def, v));
+    }
+    ex value = 0;
+    if (Node v = L.child(c, "value", false); v.node.IsDefined())
+      value = load_time_expression(L, v, def);
+    try {
+      sym::add_angle_relation(def, name, terms, value);
+    } catch (const sym::DefinitionError& e) {
+      L.fail(tn, e.what());
+    }
+  }
+  try {
+    return sym::make_constraint(def);
   } catch (const Error& e) {
     L.fail(c, e.what());
   }

@@ -1,6 +1,7 @@
-// Internal to ukdyn::io: loading subsystems (type: definitions) and constraints (type: expression,
-// nonholonomic) written as definitions; see docs/definitions.md. Every error names file:line:col
-// and the key; errors inside an expression point at the column of the offending character.
+// Internal to ukdyn::io: loading subsystems (type: definitions, serial_chain) and constraints
+// (type: expression, nonholonomic, points_coincide, point_trajectory, angle_relation) written as
+// definitions; see docs/definitions.md. Every error names file:line:col and the key; errors inside
+// an expression point at the column of the offending character.
 #pragma once
 
 #include <memory>
@@ -24,6 +25,26 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
 std::shared_ptr<const Constraint> load_definitions_constraint(
     const Loader& L, const Node& c, const std::string& name, bool holonomic,
     const std::vector<std::string>& system_coordinates);
+
+/// What later constraints may refer to: the named points of serial chains, by subsystem name.
+struct DefinitionContext;
+std::shared_ptr<DefinitionContext> make_definition_context();
+
+/// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
+/// recorded in `context` for points_coincide and point_trajectory.
+std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
+                                                      const std::string& name,
+                                                      const std::vector<std::string>& coordinates,
+                                                      double gravity, DefinitionContext& context);
+
+/// True for points_coincide, point_trajectory and angle_relation.
+bool is_constraint_kind(const std::string& type);
+
+/// A constraint node of one of the kinds above; `q0` is the initial state (origin: initial).
+std::shared_ptr<const Constraint> load_constraint_kind(
+    const Loader& L, const Node& c, const std::string& name, const std::string& type,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const Vec& q0);
 
 /// Fails at `s` if the subsystem's mass matrix is not positive definite at q (names the
 /// coordinate).

@@ -153,7 +153,16 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     Node v = L.child(root, "ukdyn", true);
     if (L.number(v) != 1.0) L.fail(v, "unsupported format version (this ukdyn reads version 1)");
   }
-  sc.name = L.string(L.child(root, "name", true));
+  {
+    // Free text, but printed to terminals and written to JSON: no control characters.
+    const Node nn = L.child(root, "name", true);
+    sc.name = L.string(nn);
+    if (sc.name.empty() || sc.name.size() > 200)
+      L.fail(nn, "the name must have 1 to 200 characters");
+    for (unsigned char ch : sc.name) {
+      if (ch < 0x20 || ch == 0x7f) L.fail(nn, "the name must not contain control characters");
+    }
+  }
   if (Node d = L.child(root, "description", false); d.node.IsDefined())
     sc.description = L.string(d);
   const double gravity = L.number_or(root, "gravity", 9.8);
@@ -163,6 +172,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   std::map<std::string, std::pair<std::shared_ptr<const MobileManipulator>, Index>> arms;
   std::map<std::string, Index> coord_index;
   std::set<std::string> subsystem_names;
+  const auto definition_context = io_detail::make_definition_context();  // serial_chain points
   Node subs = L.child(root, "subsystems", true);
   if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
@@ -199,9 +209,11 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
       sub = arm;
     } else if (type == "definitions") {  // docs/definitions.md
       sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
+    } else if (type == "serial_chain") {  // docs/definitions.md
+      sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context);
     } else {
-      L.fail(type_node,
-             "unknown subsystem type '" + type + "' (expected mobile_manipulator or definitions)");
+      L.fail(type_node, "unknown subsystem type '" + type +
+                            "' (expected mobile_manipulator, definitions or serial_chain)");
     }
     const Index off = system->add_subsystem(sub);
     sc.subsystems.push_back({name, type, off, sub->dof()});
@@ -312,10 +324,17 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
           std::vector<std::string> coords(static_cast<std::size_t>(n));
           for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
           add(c, io_detail::load_definitions_constraint(L, c, cname, type == "expression", coords));
+        } else if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
+          std::vector<std::string> coords(static_cast<std::size_t>(n));
+          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
+          add(c, io_detail::load_constraint_kind(L, c, cname, type, coords, *definition_context,
+                                                 sc.q0));
         } else {
-          L.fail(type_node, "unknown constraint type '" + type +
-                                "' (expected closure, cut_point_trajectory, coordinate, expression "
-                                "or nonholonomic)");
+          L.fail(type_node,
+                 "unknown constraint type '" + type +
+                     "' (expected closure, cut_point_trajectory, coordinate, expression, "
+                     "nonholonomic, points_coincide, point_trajectory or "
+                     "angle_relation)");
         }
       } catch (const ScenarioError&) {
         throw;

@@ -69,7 +69,7 @@ class MobileManipulator final : public Subsystem {
   /// directly, θi − θj by cos(a − b) = cos a cos b + sin a sin b, sin(a − b) = sin a cos b −
   /// cos a sin b.
   struct Trig {
-    double cd = 1, sd = 0;            ///< cos δ, sin δ
+    double cd = 1, sd = 0;             ///< cos δ, sin δ
     std::array<double, 3> ct{}, st{};  ///< cos θk, sin θk
     std::array<double, 3> c{}, s{};    ///< ĉk = lk cos θk, ŝk = lk sin θk
     double c12 = 1, c13 = 1, c23 = 1;  ///< cos(θ1 − θ2), cos(θ1 − θ3), cos(θ2 − θ3)

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "ukdyn/symbolic/spline.hpp"
+
 namespace ukdyn::symbolic {
 
 namespace {
@@ -95,6 +97,11 @@ bool Tape::Key::operator<(const Key& o) const {
 
 std::int32_t Tape::emit(Op op, std::int32_t a, std::int32_t b, double imm) {
   const bool unary_input = op != Op::constant && op != Op::time && op != Op::q && op != Op::qd;
+  if (op == Op::spline && code_[static_cast<std::size_t>(a)].op == Op::constant) {
+    const auto k = static_cast<std::size_t>(imm);
+    return constant(
+        splines_[k / 4]->eval(code_[static_cast<std::size_t>(a)].imm, static_cast<int>(k % 4)));
+  }
   if (unary_input) {
     // Constant folding.
     const bool ca = code_[static_cast<std::size_t>(a)].op == Op::constant;
@@ -220,6 +227,16 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
         {"sinh", Op::sinh}, {"cosh", Op::cosh}, {"tanh", Op::tanh}, {"abs", Op::abs}};
     if (auto it = unary.find(name); it != unary.end() && e.nops() == 1) {
       id = emit(it->second, compile(e.op(0), inputs), 0, 0.0);
+    } else if (name == "ukdyn_spline" && e.nops() == 3) {
+      const auto sid = static_cast<std::size_t>(to_double(e.op(0)));
+      const auto order = static_cast<std::size_t>(to_double(e.op(1)));
+      const auto spline = registered_spline(sid);
+      std::size_t local = 0;
+      while (local < splines_.size() && splines_[local] != spline) ++local;
+      if (local == splines_.size()) splines_.push_back(spline);
+      const std::int32_t arg = compile(e.op(2), inputs);
+      id = order > 3 ? constant(0.0)
+                     : emit(Op::spline, arg, 0, static_cast<double>(local * 4 + order));
     } else if (name == "atan2" && e.nops() == 2) {
       id = emit(Op::atan2, compile(e.op(0), inputs), compile(e.op(1), inputs), 0.0);
     } else {
@@ -292,6 +309,11 @@ void Tape::eval(double t, const double* q, const double* qd, double* out) const 
       case Op::square:
         v = w[I.a] * w[I.a];
         break;
+      case Op::spline: {
+        const auto k = static_cast<std::size_t>(I.imm);
+        v = splines_[k / 4]->eval(w[I.a], static_cast<int>(k % 4));
+        break;
+      }
       default:
         v = apply(I.op, w[I.a], w[I.b], I.imm);
         break;

@@ -8,12 +8,15 @@
 
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "ukdyn/core/types.hpp"
 
 namespace ukdyn::symbolic {
+
+class CubicSpline;
 
 /// Where a symbol's value comes from when the tape runs.
 struct TapeInput {
@@ -54,7 +57,8 @@ class Tape {
     sinh,
     cosh,
     tanh,
-    abs
+    abs,
+    spline  ///< splines_[imm / 4]->eval(a, imm % 4) (ukdyn/symbolic/spline.hpp)
   };
   struct Instr {
     Op op;
@@ -85,6 +89,7 @@ class Tape {
 
   std::vector<Instr> code_;
   std::vector<std::int32_t> out_;
+  std::vector<std::shared_ptr<const CubicSpline>> splines_;  // the splines the tape evaluates
   struct Key {
     Op op;
     std::int32_t a, b;

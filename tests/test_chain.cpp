@@ -1,0 +1,612 @@
+// Building blocks for definition-based systems (ukdyn/symbolic/chain.hpp, constraint_kinds.hpp,
+// urdf.hpp): serial chains against closed forms and against the paper's hand-written definitions,
+// ready-made constraint kinds against hand-written Φ, URDF arms against both.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "helpers.hpp"
+#include "ukdyn/symbolic/chain.hpp"
+#include "ukdyn/symbolic/constraint_kinds.hpp"
+#include "ukdyn/symbolic/spline.hpp"
+#include "ukdyn/symbolic/urdf.hpp"
+
+#ifdef UKDYN_HAVE_IO
+#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/simulate/simulate.hpp"
+#endif
+
+namespace {
+
+using ukdyn::Index;
+using ukdyn::Mat;
+using ukdyn::Vec;
+namespace sym = ukdyn::symbolic;
+using JT = sym::JointDef::Type;
+
+double rel(const Eigen::Ref<const Mat>& a, const Eigen::Ref<const Mat>& b) {
+  const double scale = std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  return (a - b).cwiseAbs().maxCoeff() / scale;
+}
+
+Vec random_vec(std::mt19937_64& rng, Index n, double lo, double hi) {
+  Vec v(n);
+  for (Index i = 0; i < n; ++i) v(i) = uktest::uniform(rng, lo, hi);
+  return v;
+}
+
+// A planar double pendulum in the x-z plane, joints about y, point masses at the link ends;
+// q2 relative to link 1 (a standard robot's joint angle).
+TEST(Chain, DoublePendulumMatchesClosedForm) {
+  const double m1 = 1.3, m2 = 0.7, l1 = 0.9, l2 = 0.6, g = 9.81;
+  sym::ChainDef c("pendulum", {"q1", "q2"});
+  c.gravity = {0, 0, -sym::exact_number(g)};
+  auto L1 = c.parameter("l1", l1), L2 = c.parameter("l2", l2);
+  auto& j1 = c.add_joint("j1", JT::revolute, "link1");
+  j1.axis = {0, 1, 0};
+  j1.coordinate = "q1";
+  j1.inertial.mass = c.parameter("m1", m1);
+  j1.inertial.com = {0, 0, -L1};
+  auto& j2 = c.add_joint("j2", JT::revolute, "link2");
+  j2.origin.xyz = {0, 0, -L1};
+  j2.axis = {0, 1, 0};
+  j2.coordinate = "q2";
+  j2.inertial.mass = c.parameter("m2", m2);
+  j2.inertial.com = {0, 0, -L2};
+  c.add_point("tip", "link2", {0, 0, -L2});
+  const sym::ChainModel model = sym::build_chain(c);
+  const auto sub = sym::make_subsystem(model.def);
+  std::mt19937_64 rng(3);
+  double worst = 0;
+  for (int k = 0; k < 200; ++k) {
+    const Vec q = random_vec(rng, 2, -3.2, 3.2), qd = random_vec(rng, 2, -3, 3);
+    Mat M(2, 2), Mr(2, 2);
+    Vec cqd(2), G(2), cqdr(2), Gr(2);
+    sub->mass(q, M);
+    sub->coriolis_times_qd(q, qd, cqd);
+    sub->gravity(q, G);
+    const double c2 = std::cos(q(1)), s2 = std::sin(q(1)), h = -m2 * l1 * l2 * s2;
+    Mr << m1 * l1 * l1 + m2 * (l1 * l1 + l2 * l2 + 2 * l1 * l2 * c2), m2 * (l2 * l2 + l1 * l2 * c2),
+        m2 * (l2 * l2 + l1 * l2 * c2), m2 * l2 * l2;
+    cqdr << h * (2 * qd(0) * qd(1) + qd(1) * qd(1)), -h * qd(0) * qd(0);
+    Gr << (m1 + m2) * g * l1 * std::sin(q(0)) + m2 * g * l2 * std::sin(q(0) + q(1)),
+        m2 * g * l2 * std::sin(q(0) + q(1));
+    worst = std::max({worst, rel(M, Mr), rel(cqd, cqdr), rel(G, Gr)});
+  }
+  EXPECT_LE(worst, 1e-13);
+  // Named points: link frame origins, `end`, and the tip.
+  const auto tip = model.world_point("tip");
+  GiNaC::exmap at{{sym::coordinate_symbol("q1"), 0}, {sym::coordinate_symbol("q2"), 0}};
+  EXPECT_NEAR(GiNaC::ex_to<GiNaC::numeric>(tip[2].subs(at).evalf()).to_double(), -(l1 + l2), 1e-15);
+  EXPECT_TRUE(model.points.count("end"));
+  EXPECT_TRUE(model.points.count("link1"));
+  EXPECT_THROW((void)model.world_point("nowhere"), sym::DefinitionError);
+}
+
+// A physical pendulum: a slender rod with its inertia tensor, M = m l²/3, G = m g l/2 sin q.
+TEST(Chain, RodPendulumWithInertiaTensor) {
+  sym::ChainDef c("rod", {"q"});
+  c.gravity = {0, 0, -10};
+  auto& j = c.add_joint("j", JT::revolute, "rod");
+  j.axis = {0, 2, 0};  // normalized
+  j.coordinate = "q";
+  j.inertial.mass = 3;
+  j.inertial.com = {0, 0, GiNaC::numeric(-1, 2)};
+  j.inertial.inertia = {GiNaC::numeric(1, 4), 0, 0, 0, GiNaC::numeric(1, 4), 0, 0, 0, 0};
+  const auto sub = sym::make_subsystem(sym::build_chain(c).def);
+  Mat M(1, 1);
+  Vec G(1), q(1);
+  q << 0.4;
+  sub->mass(q, M);
+  sub->gravity(q, G);
+  EXPECT_NEAR(M(0, 0), 1.0, 1e-15);
+  EXPECT_NEAR(G(0), 3 * 10 * 0.5 * std::sin(0.4), 1e-14);
+}
+
+// Mobile base with yaw, then a prismatic joint along the base's x axis carrying a point mass:
+// polar coordinates on a moving platform.
+TEST(Chain, MobileBaseWithYawAndPrismaticJoint) {
+  const double M0 = 5, Izz = 0.8, m = 2;
+  sym::ChainDef c("cart", {"x", "y", "psi", "r"});
+  c.base.enabled = true;
+  c.base.x = "x";
+  c.base.y = "y";
+  c.base.yaw = "psi";
+  c.base.inertial.mass = 5;
+  c.base.inertial.inertia = {1, 0, 0, 0, 1, 0, 0, 0, sym::exact_number(Izz)};
+  auto& j = c.add_joint("slide", JT::prismatic, "slider");
+  j.axis = {1, 0, 0};
+  j.coordinate = "r";
+  j.inertial.mass = 2;
+  const auto sub = sym::make_subsystem(sym::build_chain(c).def);
+  std::mt19937_64 rng(5);
+  double worst = 0;
+  for (int k = 0; k < 100; ++k) {
+    const Vec q = random_vec(rng, 4, -2, 2), qd = random_vec(rng, 4, -2, 2);
+    Mat Ms(4, 4), Mr(4, 4);
+    sub->mass(q, Ms);
+    const double s = std::sin(q(2)), co = std::cos(q(2)), r = q(3);
+    Mr << M0 + m, 0, -m * r * s, m * co,  //
+        0, M0 + m, m * r * co, m * s,     //
+        -m * r * s, m * r * co, Izz + m * r * r, 0, m * co, m * s, 0, m;
+    worst = std::max(worst, rel(Ms, Mr));
+    // Energy check of C q̇: d/dt T along q̈ = 0 equals q̇ᵀ(½ Ṁ q̇) ... use the identity q̇ᵀ C q̇ = ½ q̇ᵀ Ṁ
+    // q̇.
+    Vec cqd(4);
+    sub->coriolis_times_qd(q, qd, cqd);
+    const double eps = 1e-6;
+    Mat Mp(4, 4), Mm(4, 4);
+    sub->mass(q + eps * qd, Mp);
+    sub->mass(q - eps * qd, Mm);
+    const double half = 0.5 * qd.dot((Mp - Mm) / (2 * eps) * qd);
+    EXPECT_NEAR(qd.dot(cqd), half, 1e-7 * (1 + std::abs(half)));
+  }
+  EXPECT_LE(worst, 1e-13);
+}
+
+// A tree: two pendulums hanging from one root (parent: root) do not couple.
+TEST(Chain, TreeBranchesAreIndependent) {
+  sym::ChainDef c("tree", {"a", "b"});
+  c.gravity = {0, 0, -10};
+  for (const char* q : {"a", "b"}) {
+    auto& j = c.add_joint(std::string("j") + q, JT::revolute, std::string("l") + q);
+    j.parent = "root";
+    j.origin.xyz = {q[0] == 'a' ? 1 : -1, 0, 0};
+    j.axis = {0, 1, 0};
+    j.coordinate = q;
+    j.inertial.mass = q[0] == 'a' ? 1 : 2;
+    j.inertial.com = {0, 0, -1};
+  }
+  const auto model = sym::build_chain(c);
+  const auto sub = sym::make_subsystem(model.def);
+  Vec q(2);
+  q << 0.3, -0.7;
+  Mat M(2, 2);
+  Vec G(2);
+  sub->mass(q, M);
+  sub->gravity(q, G);
+  EXPECT_NEAR(M(0, 1), 0.0, 1e-15);
+  EXPECT_NEAR(M(0, 0), 1.0, 1e-15);
+  EXPECT_NEAR(M(1, 1), 2.0, 1e-15);
+  EXPECT_NEAR(G(0), 10 * std::sin(0.3), 1e-14);
+  EXPECT_NEAR(G(1), 20 * std::sin(-0.7), 1e-14);
+  EXPECT_TRUE(model.points.count("la") && model.points.count("lb"));
+}
+
+TEST(Chain, DefinitionErrors) {
+  sym::ChainDef c("bad", {"a"});
+  auto& j = c.add_joint("j", JT::revolute, "l");
+  j.coordinate = "b";
+  j.inertial.mass = 1;
+  j.inertial.com = {1, 0, 0};
+  try {
+    (void)sym::build_chain(c);
+    ADD_FAILURE();
+  } catch (const sym::DefinitionError& e) {
+    EXPECT_NE(std::string(e.what()).find("joint 'j': 'b' is not a coordinate"), std::string::npos)
+        << e.what();
+  }
+  c.joints[0].coordinate = "a";
+  c.joints[0].axis = {0, 0, 0};
+  EXPECT_THROW((void)sym::build_chain(c), sym::DefinitionError);
+  c.joints[0].axis = {0, 0, 1};
+  c.joints[0].parent = "nowhere";
+  EXPECT_THROW((void)sym::build_chain(c), sym::DefinitionError);
+}
+
+// The constraint kinds in C++: a pendulum tip held on a moving point and a linear angle relation.
+TEST(ChainConstraints, KindsGiveTheHandWrittenRows) {
+  sym::ChainDef c("arm", {"a1", "a2"});
+  auto& j1 = c.add_joint("j1", JT::revolute, "l1");
+  j1.coordinate = "a1";
+  j1.inertial.mass = 1;
+  j1.inertial.com = {1, 0, 0};
+  auto& j2 = c.add_joint("j2", JT::revolute, "l2");
+  j2.origin.xyz = {1, 0, 0};
+  j2.coordinate = "a2";
+  j2.inertial.mass = 1;
+  j2.inertial.com = {1, 0, 0};
+  c.add_point("tip", "l2", {1, 0, 0});
+  const auto model = sym::build_chain(c);
+  const std::vector<std::string> coords{"a1", "a2"};
+  sym::ConstraintDef kinds("k", sym::ConstraintDef::Kind::holonomic, coords);
+  const auto tip = model.world_point("tip");
+  sym::add_point_trajectory(kinds, "p", tip,
+                            {sym::time_expression(ukdyn::TimeFunction::make_cosine(0.5, 0.25, 2.0)),
+                             std::nullopt, std::nullopt},
+                            {0.5, 0, 0});
+  sym::add_angle_relation(kinds, "rel", {{"a1", 2}, {"a2", -1}}, GiNaC::Pi / 3);
+  sym::ConstraintDef hand("h", sym::ConstraintDef::Kind::holonomic, coords);
+  hand.add_row("p_x", hand.parse("cos(a1) + cos(a1 + a2) - 0.5 - (0.5 + 0.25*cos(2*t))"));
+  hand.add_row("rel", hand.parse("2*a1 - a2 - pi/3"));
+  const auto ck = sym::make_constraint(kinds), ch = sym::make_constraint(hand);
+  EXPECT_EQ(ck->row_names(), (std::vector<std::string>{"p_x", "rel"}));
+  std::mt19937_64 rng(9);
+  double worst = 0;
+  for (int k = 0; k < 100; ++k) {
+    const Vec q = random_vec(rng, 2, -3, 3), qd = random_vec(rng, 2, -3, 3);
+    const double t = uktest::uniform(rng, 0, 5);
+    Mat A1(2, 2), A2(2, 2);
+    Vec b1(2), b2(2);
+    ck->evaluate(t, q, qd, A1, b1);
+    ch->evaluate(t, q, qd, A2, b2);
+    worst = std::max({worst, rel(A1, A2), rel(b1, b2)});
+  }
+  EXPECT_LE(worst, 1e-13);
+  sym::ConstraintDef bad("b", sym::ConstraintDef::Kind::holonomic, coords);
+  EXPECT_THROW(sym::add_angle_relation(bad, "r", {{"zz", 1}}, 0), sym::DefinitionError);
+  EXPECT_THROW(sym::add_angle_relation(bad, "r", {{"a1", 0}}, 0), sym::DefinitionError);
+}
+
+// Clamped with the exact end slopes, a cubic spline reproduces a cubic; natural ends have S'' = 0;
+// every spline is C2 at its knots.
+TEST(ChainSpline, CubicSplinesInterpolate) {
+  auto p = [](double t, int d) {
+    switch (d) {
+      case 0:
+        return t * t * t - 2 * t * t + 1;
+      case 1:
+        return 3 * t * t - 4 * t;
+      case 2:
+        return 6 * t - 4;
+      default:
+        return 6.0;
+    }
+  };
+  const std::vector<double> ts{0, 0.5, 1.5, 2, 3};
+  std::vector<double> ys;
+  for (double t : ts) ys.push_back(p(t, 0));
+  const sym::CubicSpline clamped(ts, ys, sym::CubicSpline::End::clamped, p(0, 1), p(3, 1));
+  std::mt19937_64 rng(1);
+  double worst = 0;
+  for (int k = 0; k < 200; ++k) {
+    const double t = uktest::uniform(rng, -0.5, 3.5);
+    for (int d = 0; d < 4; ++d) worst = std::max(worst, std::abs(clamped.eval(t, d) - p(t, d)));
+  }
+  EXPECT_LE(worst, 1e-12);
+  const sym::CubicSpline natural(ts, {0, 1, -1, 0.5, 2});
+  EXPECT_NEAR(natural.eval(0, 2), 0.0, 1e-14);
+  EXPECT_NEAR(natural.eval(3, 2), 0.0, 1e-13);
+  for (std::size_t i = 0; i < ts.size(); ++i) {
+    EXPECT_NEAR(natural.eval(ts[i]), (std::vector<double>{0, 1, -1, 0.5, 2})[i], 1e-14);
+    for (int d = 0; d < 3 && i > 0 && i + 1 < ts.size(); ++d) {
+      EXPECT_NEAR(natural.eval(ts[i] - 1e-12, d), natural.eval(ts[i] + 1e-12, d), 1e-9) << d;
+    }
+  }
+  EXPECT_THROW(sym::CubicSpline({0, 0}, {1, 2}), ukdyn::Error);
+  EXPECT_THROW(sym::CubicSpline({0}, {1}), ukdyn::Error);
+}
+
+// A coordinate following a spline: A = 1, Φ̇ = q̇ − S'(t), b = S''(t), exact through GiNaC and the
+// tape.
+TEST(ChainSpline, SplineTrajectoryDerivesExactly) {
+  const sym::CubicSpline s({0, 1, 2.5, 4}, {0, 0.4, 0.1, 1}, sym::CubicSpline::End::clamped, 0, 0);
+  sym::ConstraintDef def("follow", sym::ConstraintDef::Kind::holonomic, {"x", "z"});
+  sym::add_coordinate(def, "follow", "x", sym::spline_expression(s));
+  sym::add_point_trajectory(def, "pz", {0, 0, sym::coordinate_symbol("z")},
+                            {std::nullopt, std::nullopt, 2 * sym::spline_expression(s)});
+  const auto c = sym::make_constraint(def);
+  std::mt19937_64 rng(2);
+  for (int k = 0; k < 50; ++k) {
+    const Vec q = random_vec(rng, 2, -1, 1), qd = random_vec(rng, 2, -1, 1);
+    const double t = uktest::uniform(rng, -0.5, 4.5);
+    Mat A(2, 2);
+    Vec b(2), phi(2), phid(2);
+    c->evaluate(t, q, qd, A, b);
+    c->position_residual(t, q, phi);
+    c->velocity_residual(t, q, qd, phid);
+    EXPECT_NEAR(A(0, 0), 1.0, 1e-15);
+    EXPECT_NEAR(b(0), s.eval(t, 2), 1e-12);
+    EXPECT_NEAR(b(1), 2 * s.eval(t, 2), 1e-12);
+    EXPECT_NEAR(phi(0), q(0) - s.eval(t), 1e-14);
+    EXPECT_NEAR(phid(0), qd(0) - s.eval(t, 1), 1e-14);
+  }
+}
+
+#ifdef UKDYN_HAVE_IO
+
+const std::string kDir = std::string(UKDYN_SOURCE_DIR) + "/scenarios/";
+
+struct Three {
+  ukdyn::Scenario exact = ukdyn::load_scenario(kDir + "paper_generic_exact_inertia.yaml");
+  ukdyn::Scenario chain = ukdyn::load_scenario(kDir + "paper_chain.yaml");
+  ukdyn::Scenario urdf = ukdyn::load_scenario(kDir + "paper_urdf.yaml");
+};
+
+// M, C q̇, C, G (the subsystems) and A, b, Φ, Φ̇ (the constraint kinds) at random states.
+TEST(ChainPaper, ChainsAndKindsMatchHandWrittenDefinitions) {
+  Three p;
+  const auto& S0 = *p.exact.system;
+  for (const ukdyn::Scenario* sc : {&p.chain, &p.urdf}) {
+    const auto& S = *sc->system;
+    ASSERT_EQ(S.coordinate_names(), S0.coordinate_names());
+    ASSERT_EQ(S.constraint_row_names(), S0.constraint_row_names());
+    EXPECT_LT((sc->q0 - p.exact.q0).norm(), 1e-15);
+    ukdyn::ForwardData d0(S0), d(S);
+    Mat C0(12, 12), C(12, 12);
+    Vec r0(12), r(12);
+    std::mt19937_64 rng(20240602);
+    double worst[9] = {0};
+    for (int k = 0; k < 300; ++k) {
+      const Vec q = random_vec(rng, 12, -3.2, 3.2), qd = random_vec(rng, 12, -3, 3);
+      const double t = uktest::uniform(rng, 0, 4);
+      ukdyn::evaluate_dynamics(S0, d0, q, qd);
+      ukdyn::evaluate_dynamics(S, d, q, qd);
+      ukdyn::evaluate_constraints(S0, d0, t, q, qd);
+      ukdyn::evaluate_constraints(S, d, t, q, qd);
+      ukdyn::coriolis_matrix(S0, q, qd, C0);
+      ukdyn::coriolis_matrix(S, q, qd, C);
+      const double e[6] = {rel(d.M, d0.M), rel(d.Cqd, d0.Cqd), rel(C, C0),
+                           rel(d.G, d0.G), rel(d.A, d0.A),     rel(d.b, d0.b)};
+      for (int i = 0; i < 6; ++i) worst[i] = std::max(worst[i], e[i]);
+      ukdyn::position_residuals(S0, t, q, r0);
+      ukdyn::position_residuals(S, t, q, r);
+      worst[6] = std::max(worst[6],
+                          (r - r0).cwiseAbs().maxCoeff() / std::max(1.0, r0.cwiseAbs().maxCoeff()));
+      ukdyn::velocity_residuals(S0, t, q, qd, r0);
+      ukdyn::velocity_residuals(S, t, q, qd, r);
+      worst[7] = std::max(worst[7], rel(r, r0));
+      const Vec q2 = random_vec(rng, 12, -3.2, 3.2);
+      const double dv0 = ukdyn::potential_energy(S0, q) - ukdyn::potential_energy(S0, q2);
+      const double dv = ukdyn::potential_energy(S, q) - ukdyn::potential_energy(S, q2);
+      worst[8] = std::max(worst[8], std::abs(dv - dv0) / std::max(1.0, std::abs(dv0)));
+    }
+    const char* names[9] = {"M", "Cqd", "C", "G", "A", "b", "Phi", "Phid", "V"};
+    for (int i = 0; i < 9; ++i) {
+      EXPECT_LE(worst[i], 1e-12) << sc->name << " " << names[i];
+      std::printf("  %s vs hand-written: max relative difference %-4s %.2e\n", sc->name.c_str(),
+                  names[i], worst[i]);
+    }
+  }
+}
+
+// q̈ and Qc: the closure only at random states, and all rows along the paper's motion.
+TEST(ChainPaper, AccelerationsAndConstraintForcesMatch) {
+  Three p;
+  auto closure_only = [](const ukdyn::Scenario& sc, std::size_t blocks) {
+    auto s = std::make_shared<ukdyn::System>();
+    for (const auto& sub : sc.system->subsystems()) s->add_subsystem(sub);
+    for (std::size_t i = 0; i < blocks; ++i) s->add_constraint(sc.system->constraints()[i]);
+    return s;
+  };
+  const auto s0 = closure_only(p.exact, 1);
+  std::vector<std::tuple<double, Vec, Vec>> states;
+  ukdyn::SimulationSettings set = p.exact.sim;
+  set.sample_dt = 0.05;
+  ukdyn::simulate(
+      *p.exact.system, p.exact.q0, p.exact.qd0,
+      [](double, ukdyn::CVecRef, ukdyn::CVecRef, ukdyn::VecRef tau) { tau.setZero(); }, set,
+      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef qd, const ukdyn::ForwardData&) {
+        states.emplace_back(t, q, qd);
+        return true;
+      });
+  ASSERT_GE(states.size(), 60u);
+  for (const ukdyn::Scenario* sc : {&p.chain, &p.urdf}) {
+    const auto s1 = closure_only(*sc, 4);  // points_coincide, angle_relation, 2 × coordinate
+    ASSERT_EQ(s1->constraint_row_names(), s0->constraint_row_names());
+    std::mt19937_64 rng(77);
+    double wq = 0, wc = 0;
+    ukdyn::ForwardData d0(*s0), d1(*s1);
+    for (int k = 0; k < 300; ++k) {
+      const Vec q = random_vec(rng, 12, -3.2, 3.2), qd = random_vec(rng, 12, -2, 2),
+                tau = random_vec(rng, 12, -20, 20);
+      ukdyn::forward(*s0, d0, 0.0, q, qd, tau, p.exact.sim.uk);
+      ukdyn::forward(*s1, d1, 0.0, q, qd, tau, sc->sim.uk);
+      wq = std::max(wq, rel(d1.qdd, d0.qdd));
+      wc = std::max(wc, rel(d1.Qc, d0.Qc));
+    }
+    EXPECT_LE(wq, 1e-12);
+    EXPECT_LE(wc, 1e-12);
+    std::printf("  %s closure only, 300 random states: max rel. difference qdd %.2e, Qc %.2e\n",
+                sc->name.c_str(), wq, wc);
+    ukdyn::ForwardData e0(*p.exact.system), e1(*sc->system);
+    wq = wc = 0;
+    for (const auto& [t, q, qd] : states) {
+      ukdyn::forward(*p.exact.system, e0, t, q, qd, Vec::Zero(12), p.exact.sim.uk);
+      ukdyn::forward(*sc->system, e1, t, q, qd, Vec::Zero(12), sc->sim.uk);
+      wq = std::max(wq, rel(e1.qdd, e0.qdd));
+      wc = std::max(wc, rel(e1.Qc, e0.Qc));
+    }
+    EXPECT_LE(wq, 1e-12);
+    EXPECT_LE(wc, 1e-12);
+    std::printf("  %s all 12 rows along the motion (%zu states): qdd %.2e, Qc %.2e\n",
+                sc->name.c_str(), states.size(), wq, wc);
+  }
+}
+
+std::string error_of(const std::string& text, const std::string& file = "s.yaml") {
+  try {
+    (void)ukdyn::load_scenario_text(text, file);
+  } catch (const ukdyn::ScenarioError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string chain_scenario(const std::string& chain_body, const std::string& constraints = "") {
+  return "ukdyn: 1\nname: c\nsubsystems:\n"
+         "  - name: arm\n    type: serial_chain\n    coordinates: [a, b]\n" +
+         chain_body + constraints +
+         "initial: {q: [0.1, 0.2]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
+}
+
+const std::string kTwoLinks =
+    "    joints:\n"
+    "      - {name: j1, type: revolute, link: l1, axis: [0, 1, 0], coordinate: a, mass: 1, com: "
+    "[1, 0, 0]}\n"
+    "      - {name: j2, type: revolute, link: l2, origin: {xyz: [1, 0, 0]}, axis: [0, 1, 0], "
+    "coordinate: b, mass: 1, com: [1, 0, 0]}\n"
+    "    points: {tip: {link: l2, xyz: [1, 0, 0]}}\n";
+
+TEST(ChainScenario, ErrorsNameTheElement) {
+  EXPECT_EQ(error_of(chain_scenario(kTwoLinks)), "");
+  std::string e = error_of(chain_scenario(
+      kTwoLinks, "constraints:\n  - {type: points_coincide, name: c, a: arm.tip, b: arm.nope}\n"));
+  EXPECT_NE(e.find("no point 'nope'"), std::string::npos) << e;
+  EXPECT_NE(e.find("s.yaml:"), std::string::npos) << e;
+  e = error_of(chain_scenario(
+      kTwoLinks, "constraints:\n  - {type: points_coincide, name: c, a: arm.tip, b: other.end}\n"));
+  EXPECT_NE(e.find("no serial_chain subsystem named 'other'"), std::string::npos) << e;
+  e = error_of(chain_scenario(
+      kTwoLinks, "constraints:\n  - {type: angle_relation, name: c, terms: {a: 1, z: 2}}\n"));
+  EXPECT_NE(e.find("no coordinate named 'z'"), std::string::npos) << e;
+  e = error_of(chain_scenario(
+      "    joints:\n      - {name: j1, type: spherical, link: l1, coordinate: a, mass: 1}\n"));
+  EXPECT_NE(e.find("unknown joint type 'spherical'"), std::string::npos) << e;
+  e = error_of(chain_scenario(
+      "    joints:\n      - {name: j1, type: revolute, link: l1, coordinate: c, mass: 1}\n"));
+  EXPECT_NE(e.find("'c' is not a coordinate"), std::string::npos) << e;
+  // A point trajectory and a points_coincide on one chain load and have the expected rows.
+  const auto sc = ukdyn::load_scenario_text(
+      chain_scenario(
+          kTwoLinks,
+          "constraints:\n"
+          "  - {type: point_trajectory, name: p, point: arm.tip, origin: initial, "
+          "x: {type: polynomial, coefficients: [0, 0, 0.1]}}\n"
+          "  - {type: points_coincide, name: q, a: arm.l2, b: [0, 0, -sin(0.1)], axes: [z]}\n"
+          "  - {type: angle_relation, name: s, terms: {b: 1}, value: {type: spline, "
+          "times: [0, 1, 2], values: [0.2, 0.5, 0.3], end: clamped}}\n"),
+      "s.yaml");
+  EXPECT_EQ(sc.system->constraint_row_names(), (std::vector<std::string>{"p_x", "q_z", "s"}));
+  Vec phi(3);
+  ukdyn::position_residuals(*sc.system, 0.0, sc.q0, phi);
+  EXPECT_NEAR(phi(0), 0.0, 1e-15);  // origin: initial
+  EXPECT_NEAR(phi(2), 0.0, 1e-15);  // the spline starts at b = 0.2
+  e = error_of(chain_scenario(
+      kTwoLinks,
+      "constraints:\n  - {type: angle_relation, name: s, terms: {b: 1}, value: {type: "
+      "spline, times: [0, 0], values: [0.2, 0.5]}}\n"));
+  EXPECT_NE(e.find("spline times must increase strictly"), std::string::npos) << e;
+}
+
+TEST(ChainUrdf, ErrorsNameTheFileAndElement) {
+  if (!sym::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  const auto dir = std::filesystem::temp_directory_path() / "ukdyn_chain_urdf_test";
+  std::filesystem::create_directories(dir);
+  auto write = [&](const std::string& name, const std::string& joint_type,
+                   bool inertial) -> std::string {
+    const auto path = (dir / name).string();
+    std::ofstream(path) << "<robot name='r'><link name='base'/>"
+                           "<joint name='bad_joint' type='"
+                        << joint_type
+                        << "'><parent link='base'/><child link='arm'/><axis xyz='0 0 1'/>"
+                           "<limit lower='-1' upper='1' effort='1' velocity='1'/></joint>"
+                           "<link name='arm'>"
+                        << (inertial ? "<inertial><mass value='1'/><inertia ixx='0.1' ixy='0' "
+                                       "ixz='0' iyy='0.1' iyz='0' izz='0.1'/></inertial>"
+                                     : "")
+                        << "</link></robot>";
+    return path;
+  };
+  auto err = [](const std::string& urdf) {
+    try {
+      sym::ChainDef c("c", {"a"});
+      sym::append_urdf(c, urdf);
+      (void)sym::build_chain(c);
+    } catch (const sym::DefinitionError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  const std::string ok = write("ok.urdf", "revolute", true);
+  EXPECT_EQ(err(ok), "");
+  const std::string floating = write("floating.urdf", "floating", true);
+  std::string e = err(floating);
+  EXPECT_NE(e.find(floating), std::string::npos) << e;
+  EXPECT_NE(e.find("joint 'bad_joint': type floating is not supported"), std::string::npos) << e;
+  const std::string planar = write("planar.urdf", "planar", true);
+  EXPECT_NE(err(planar).find("type planar is not supported"), std::string::npos);
+  const std::string noin = write("noin.urdf", "revolute", false);
+  e = err(noin);
+  EXPECT_NE(e.find(noin + ": link 'arm' has no <inertial>"), std::string::npos) << e;
+  e = err((dir / "missing.urdf").string());
+  EXPECT_NE(e.find("no such URDF file"), std::string::npos) << e;
+  { std::ofstream(dir / "garbage.urdf") << "<robot><link"; }
+  e = err((dir / "garbage.urdf").string());
+  EXPECT_NE(e.find("garbage.urdf: urdfdom could not read"), std::string::npos) << e;
+  // Through a scenario: the error points at the urdf key.
+  e = error_of(
+      "ukdyn: 1\nname: c\nsubsystems:\n  - name: arm\n    type: serial_chain\n"
+      "    coordinates: [a]\n    urdf: " +
+      floating + "\ninitial: {q: [0]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n");
+  EXPECT_NE(e.find("s.yaml:7:"), std::string::npos) << e;
+  EXPECT_NE(e.find("type floating is not supported"), std::string::npos) << e;
+  std::filesystem::remove_all(dir);
+}
+
+// Joint origin rpy and inertial rpy in a URDF: a joint frame turned by Rx(pi/2) with axis z is a
+// joint about -y; an inertia frame turned by Rz(pi/2) swaps the x and y moments.
+TEST(ChainUrdf, OriginAndInertialRotations) {
+  if (!sym::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  const auto path = (std::filesystem::temp_directory_path() / "ukdyn_chain_rpy.urdf").string();
+  std::ofstream(path) << R"(<robot name="r"><link name="base"/>
+    <joint name="j" type="revolute"><parent link="base"/><child link="arm"/>
+      <origin xyz="0 0 0.5" rpy="1.5707963267948966 0 0"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+    <link name="arm"><inertial><origin xyz="0.6 0 0" rpy="0 0 1.5707963267948966"/>
+      <mass value="2"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.3" iyz="0" izz="0.7"/>
+    </inertial></link></robot>)";
+  sym::ChainDef u("u", {"q"});
+  u.gravity = {0, 0, -10};
+  sym::append_urdf(u, path);
+  // The same by hand: axis -y, CoM (0.6, 0, 0), moments: Rz swaps x, y: diag(0.3, 0.1, 0.7);
+  // then Rx(pi/2) swaps y, z of that: diag(0.3, 0.7, 0.1).
+  sym::ChainDef h("h", {"q"});
+  h.gravity = {0, 0, -10};
+  auto& j = h.add_joint("j", JT::revolute, "arm");
+  j.origin.xyz = {0, 0, sym::exact_number(0.5)};
+  j.axis = {0, -1, 0};
+  j.coordinate = "q";
+  j.inertial.mass = 2;
+  j.inertial.com = {sym::exact_number(0.6), 0, 0};
+  j.inertial.inertia = {sym::exact_number(0.3), 0, 0, 0, sym::exact_number(0.7), 0, 0, 0,
+                        sym::exact_number(0.1)};
+  const auto su = sym::make_subsystem(sym::build_chain(u).def);
+  const auto sh = sym::make_subsystem(sym::build_chain(h).def);
+  for (double a : {-2.0, -0.3, 0.4, 1.9}) {
+    Vec q(1), qd(1);
+    q << a;
+    qd << 0.7;
+    Mat Mu(1, 1), Mh(1, 1);
+    Vec gu(1), gh(1);
+    su->mass(q, Mu);
+    sh->mass(q, Mh);
+    su->gravity(q, gu);
+    sh->gravity(q, gh);
+    EXPECT_NEAR(Mu(0, 0), Mh(0, 0), 1e-14);
+    EXPECT_NEAR(Mu(0, 0), 2 * 0.36 + 0.7, 1e-14);  // about y: m d^2 + I_yy
+    EXPECT_NEAR(gu(0), gh(0), 1e-13);
+  }
+  std::filesystem::remove(path);
+}
+
+// The URDF arm, the YAML serial chain and the hand-written definitions: one arm, three sources.
+TEST(ChainUrdf, PaperArmFromUrdfMatchesChain) {
+  if (!sym::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  Three p;
+  const auto& a = *p.urdf.system->subsystems()[0];
+  const auto& b = *p.chain.system->subsystems()[0];
+  const auto& c = *p.exact.system->subsystems()[0];
+  std::mt19937_64 rng(11);
+  double worst = 0;
+  for (int k = 0; k < 200; ++k) {
+    const Vec q = random_vec(rng, 6, -3.2, 3.2), qd = random_vec(rng, 6, -3, 3);
+    Mat Ma(6, 6), Mb(6, 6), Mc(6, 6);
+    Vec ga(6), gb(6), gc(6), ca(6), cb(6), cc(6);
+    a.mass(q, Ma), b.mass(q, Mb), c.mass(q, Mc);
+    a.gravity(q, ga), b.gravity(q, gb), c.gravity(q, gc);
+    a.coriolis_times_qd(q, qd, ca), b.coriolis_times_qd(q, qd, cb), c.coriolis_times_qd(q, qd, cc);
+    worst = std::max(
+        {worst, rel(Ma, Mc), rel(Mb, Mc), rel(ga, gc), rel(gb, gc), rel(ca, cc), rel(cb, cc)});
+  }
+  EXPECT_LE(worst, 1e-12);
+  std::printf("  left arm: URDF, serial_chain vs hand-written: max relative difference %.2e\n",
+              worst);
+}
+
+#endif  // UKDYN_HAVE_IO
+
+}  // namespace

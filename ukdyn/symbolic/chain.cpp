@@ -1,0 +1,278 @@
+#include "ukdyn/symbolic/chain.hpp"
+
+#include <algorithm>
+#include <set>
+#include <sstream>
+
+namespace ukdyn::symbolic {
+
+namespace {
+
+using GiNaC::ex;
+
+std::string str(const ex& e) {
+  std::ostringstream os;
+  os << e;
+  return os.str();
+}
+
+Mat3Ex identity3() { return {1, 0, 0, 0, 1, 0, 0, 0, 1}; }
+
+Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
+  Mat3Ex r;
+  for (std::size_t i = 0; i < 3; ++i) {
+    for (std::size_t j = 0; j < 3; ++j) {
+      ex s = 0;
+      for (std::size_t k = 0; k < 3; ++k) s += a[3 * i + k] * b[3 * k + j];
+      r[3 * i + j] = s;
+    }
+  }
+  return r;
+}
+
+Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
+  Vec3Ex r;
+  for (std::size_t i = 0; i < 3; ++i)
+    r[i] = a[3 * i] * v[0] + a[3 * i + 1] * v[1] + a[3 * i + 2] * v[2];
+  return r;
+}
+
+Vec3Ex mul_transposed(const Mat3Ex& a, const Vec3Ex& v) {
+  Vec3Ex r;
+  for (std::size_t i = 0; i < 3; ++i) r[i] = a[i] * v[0] + a[3 + i] * v[1] + a[6 + i] * v[2];
+  return r;
+}
+
+Vec3Ex add(const Vec3Ex& a, const Vec3Ex& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+
+Vec3Ex scale(const Vec3Ex& a, const ex& s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+
+bool all_zero(const Vec3Ex& v) { return v[0].is_zero() && v[1].is_zero() && v[2].is_zero(); }
+
+Vec3Ex unit(const Vec3Ex& a, const std::string& where, const GiNaC::exmap& values) {
+  const ex n2 = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).expand();
+  const ex v = n2.subs(values).evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !(GiNaC::ex_to<GiNaC::numeric>(v).to_double() > 0.0)) {
+    throw DefinitionError(where + ": the axis must be a nonzero constant vector, got [" +
+                          str(a[0]) + ", " + str(a[1]) + ", " + str(a[2]) + "]");
+  }
+  if (n2.is_equal(1)) return a;
+  const ex n = GiNaC::sqrt(n2);
+  return {a[0] / n, a[1] / n, a[2] / n};
+}
+
+}  // namespace
+
+Mat3Ex axis_rotation(const Vec3Ex& a, const ex& q) {
+  // R = cos q · 1 + (1 − cos q) a aᵀ + sin q [a]×
+  const ex c = GiNaC::cos(q), s = GiNaC::sin(q);
+  const Mat3Ex K{0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
+  Mat3Ex R;
+  for (std::size_t i = 0; i < 3; ++i) {
+    for (std::size_t j = 0; j < 3; ++j) {
+      R[3 * i + j] = (i == j ? c : ex(0)) + (1 - c) * a[i] * a[j] + s * K[3 * i + j];
+      R[3 * i + j] = R[3 * i + j].expand();
+    }
+  }
+  return R;
+}
+
+Mat3Ex rpy_rotation(const Vec3Ex& rpy) {
+  Mat3Ex R = identity3();
+  // Rz(yaw) Ry(pitch) Rx(roll); skip zero angles to keep the expressions small.
+  if (!rpy[2].is_zero()) R = mul(R, axis_rotation({0, 0, 1}, rpy[2]));
+  if (!rpy[1].is_zero()) R = mul(R, axis_rotation({0, 1, 0}, rpy[1]));
+  if (!rpy[0].is_zero()) R = mul(R, axis_rotation({1, 0, 0}, rpy[0]));
+  return R;
+}
+
+JointDef& ChainDef::add_joint(std::string joint_name, JointDef::Type type, std::string link) {
+  joints.emplace_back();
+  joints.back().name = std::move(joint_name);
+  joints.back().type = type;
+  joints.back().link = std::move(link);
+  return joints.back();
+}
+
+void ChainDef::add_point(std::string point_name, std::string link, Vec3Ex xyz) {
+  points.push_back({std::move(point_name), std::move(link), std::move(xyz)});
+}
+
+Vec3Ex ChainModel::world_point(const std::string& name) const {
+  auto it = points.find(name);
+  if (it == points.end()) {
+    std::string known;
+    for (const auto& [k, v] : points) known += (known.empty() ? "" : ", ") + k;
+    throw DefinitionError("subsystem '" + def.name() + "' has no point '" + name +
+                          "' (known: " + known + ")");
+  }
+  const GiNaC::exmap values = def.parameter_values();
+  return {it->second[0].subs(values), it->second[1].subs(values), it->second[2].subs(values)};
+}
+
+ChainModel build_chain(const ChainDef& chain) {
+  ChainModel m{static_cast<const SubsystemDef&>(chain), {}, {}};
+  const GiNaC::exmap values = chain.parameter_values();
+  const auto& coords = chain.coordinates();
+  std::vector<GiNaC::symbol> q, qd;
+  for (const auto& c : coords) {
+    q.push_back(coordinate_symbol(c));
+    qd.push_back(velocity_symbol(c));
+  }
+  auto has_coord = [&](const std::string& c) {
+    return std::find(coords.begin(), coords.end(), c) != coords.end();
+  };
+  auto rate = [&](const ex& v) {
+    ex r = 0;
+    for (std::size_t k = 0; k < q.size(); ++k) r += v.diff(q[k]) * qd[k];
+    return r;
+  };
+  // Only the chain's coordinates and parameters may appear in a joint value.
+  auto check_value = [&](const ex& v, const std::string& where) {
+    GiNaC::exmap zero = values;
+    for (const auto& s : q) zero[s] = 0;
+    const ex z = v.subs(zero).evalf();
+    if (!GiNaC::is_a<GiNaC::numeric>(z)) {
+      throw DefinitionError(where + ": the joint value '" + str(v) +
+                            "' may use only the chain's coordinates and parameters");
+    }
+  };
+
+  struct Pose {
+    Vec3Ex p;
+    Mat3Ex R;
+    Vec3Ex w;  // angular velocity in the world
+    // R = Rpre · Rot(axis, angle) when the last rotation was about `axis` (has_axis): a child joint
+    // about the same axis adds its angle, so parallel joints give cos(q1 + q2), and the paper's
+    // absolute angles (values theta2 − theta1) give back Ry(−theta2) exactly as written by hand.
+    Mat3Ex Rpre;
+    Vec3Ex axis{0, 0, 0};
+    ex angle = 0;
+    bool has_axis = false;
+  };
+  std::map<std::string, Pose> frames;
+  const Mat3Ex Rm = rpy_rotation(chain.mount.rpy);
+  Pose root;
+  root.p = chain.mount.xyz;
+  root.R = Rm;
+  root.w = {0, 0, 0};
+  std::string last = chain.root_link;
+
+  auto add_body = [&](const std::string& name, const Pose& f, const InertialDef& in) {
+    bool has_inertia = false;
+    for (const ex& e : in.inertia) has_inertia = has_inertia || !e.is_zero();
+    if (in.mass.is_zero() && !has_inertia) return;
+    BodyDef& b = m.def.add_body(name);
+    b.mass = in.mass;
+    b.com = add(f.p, mul(f.R, in.com));
+    if (has_inertia) {
+      const Mat3Ex Rb = all_zero(in.rpy) ? f.R : mul(f.R, rpy_rotation(in.rpy));
+      b.inertia_kind = BodyDef::InertiaKind::tensor;
+      b.inertia_tensor = in.inertia;
+      b.inertia_frame = symbolic::Frame::body;
+      b.rotation = Rb;
+      Vec3Ex wb = mul_transposed(Rb, f.w);
+      for (auto& e : wb) e = simplify_trig(e);
+      b.angular_velocity = wb;
+    }
+  };
+
+  if (chain.base.enabled) {
+    const auto& B = chain.base;
+    if (!has_coord(B.x) || !has_coord(B.y)) {
+      throw DefinitionError("mobile base: x and y must be coordinates of the chain (got '" + B.x +
+                            "', '" + B.y + "')");
+    }
+    Pose f = root;
+    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(B.x), coordinate_symbol(B.y), 0}));
+    if (!B.yaw.empty()) {
+      if (!has_coord(B.yaw))
+        throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");
+      f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(B.yaw)));
+      f.Rpre = Rm;
+      f.axis = {0, 0, 1};
+      f.angle = coordinate_symbol(B.yaw);
+      f.has_axis = true;
+      f.w = scale(Vec3Ex{Rm[2], Rm[5], Rm[8]}, velocity_symbol(B.yaw));
+    }
+    frames[B.link] = f;
+    last = B.link;
+    add_body(B.link, f, B.inertial);
+  } else {
+    frames[chain.root_link] = root;
+  }
+
+  std::set<std::string> joint_names;
+  for (const JointDef& j : chain.joints) {
+    const std::string where = "joint '" + j.name + "'";
+    if (!joint_names.insert(j.name).second)
+      throw DefinitionError("duplicate joint '" + j.name + "'");
+    if (j.link.empty()) throw DefinitionError(where + ": no child link");
+    if (frames.count(j.link))
+      throw DefinitionError(where + ": link '" + j.link + "' is defined twice");
+    const std::string parent = j.parent.empty() ? last : j.parent;
+    auto pit = frames.find(parent);
+    if (pit == frames.end())
+      throw DefinitionError(where + ": no parent link '" + parent + "' defined before it");
+    const Pose& P = pit->second;
+    Pose jf = P;
+    jf.p = add(P.p, mul(P.R, j.origin.xyz));
+    if (!all_zero(j.origin.rpy)) {
+      jf.R = mul(P.R, rpy_rotation(j.origin.rpy));
+      jf.has_axis = false;
+    }
+    if (j.type != JointDef::Type::fixed) {
+      ex v;
+      if (j.value) {
+        v = *j.value;
+        check_value(v, where);
+      } else {
+        if (j.coordinate.empty()) throw DefinitionError(where + ": no coordinate and no value");
+        if (!has_coord(j.coordinate)) {
+          throw DefinitionError(where + ": '" + j.coordinate +
+                                "' is not a coordinate of the chain");
+        }
+        v = coordinate_symbol(j.coordinate);
+      }
+      const Vec3Ex a = unit(j.axis, where, values);
+      if (j.type == JointDef::Type::revolute) {
+        jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
+        const bool same_axis = jf.has_axis && jf.axis[0].is_equal(a[0]) &&
+                               jf.axis[1].is_equal(a[1]) && jf.axis[2].is_equal(a[2]);
+        if (same_axis) {
+          jf.angle = (jf.angle + v).expand();
+        } else {
+          jf.Rpre = jf.R;
+          jf.axis = a;
+          jf.angle = v;
+          jf.has_axis = true;
+        }
+        jf.R = mul(jf.Rpre, axis_rotation(a, jf.angle));
+        for (auto& e : jf.R) e = e.expand();
+      } else {
+        jf.p = add(jf.p, mul(jf.R, scale(a, v)));
+      }
+    }
+    for (auto& e : jf.p) e = e.expand();
+    frames[j.link] = jf;
+    last = j.link;
+    add_body(j.link, jf, j.inertial);
+  }
+
+  for (const auto& [name, f] : frames) {
+    m.links[name] = {f.p, f.R};
+    m.points[name] = f.p;
+  }
+  if (!chain.joints.empty()) m.points["end"] = frames[chain.joints.back().link].p;
+  for (const PointDef& p : chain.points) {
+    auto it = frames.find(p.link);
+    if (it == frames.end())
+      throw DefinitionError("point '" + p.name + "': no link '" + p.link + "'");
+    Vec3Ex w = add(it->second.p, mul(it->second.R, p.xyz));
+    for (auto& e : w) e = e.expand();
+    m.points[p.name] = w;
+  }
+  return m;
+}
+
+}  // namespace ukdyn::symbolic

@@ -1,0 +1,153 @@
+#include "ukdyn/symbolic/spline.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <mutex>
+#include <string>
+
+#include "ukdyn/core/types.hpp"
+#include "ukdyn/symbolic/expression.hpp"
+
+namespace ukdyn::symbolic {
+
+CubicSpline::CubicSpline(std::vector<double> t, std::vector<double> y, End end, double slope0,
+                         double slope1)
+    : t_(std::move(t)) {
+  const std::size_t n1 = t_.size();
+  if (n1 < 2 || y.size() != n1)
+    throw Error("a spline needs at least 2 points and as many values as times");
+  for (std::size_t i = 0; i < n1; ++i) {
+    if (!std::isfinite(t_[i]) || !std::isfinite(y[i]))
+      throw Error("spline point " + std::to_string(i + 1) + " is not finite");
+    if (i > 0 && !(t_[i] > t_[i - 1]))
+      throw Error("spline times must increase strictly (point " + std::to_string(i + 1) + ")");
+  }
+  if (!std::isfinite(slope0) || !std::isfinite(slope1)) throw Error("spline slopes must be finite");
+  const std::size_t n = n1 - 1;  // pieces
+  std::vector<double> h(n), lo(n1, 0.0), di(n1, 1.0), up(n1, 0.0), r(n1, 0.0);
+  for (std::size_t i = 0; i < n; ++i) h[i] = t_[i + 1] - t_[i];
+  auto slope = [&](std::size_t i) { return (y[i + 1] - y[i]) / h[i]; };
+  for (std::size_t i = 1; i < n; ++i) {
+    lo[i] = h[i - 1];
+    di[i] = 2 * (h[i - 1] + h[i]);
+    up[i] = h[i];
+    r[i] = 6 * (slope(i) - slope(i - 1));
+  }
+  if (end == End::clamped) {
+    di[0] = 2 * h[0];
+    up[0] = h[0];
+    r[0] = 6 * (slope(0) - slope0);
+    lo[n] = h[n - 1];
+    di[n] = 2 * h[n - 1];
+    r[n] = 6 * (slope1 - slope(n - 1));
+  }
+  // Thomas algorithm for the second derivatives m.
+  for (std::size_t i = 1; i < n1; ++i) {
+    const double w = lo[i] / di[i - 1];
+    di[i] -= w * up[i - 1];
+    r[i] -= w * r[i - 1];
+  }
+  std::vector<double> m(n1);
+  m[n] = r[n] / di[n];
+  for (std::size_t i = n; i-- > 0;) m[i] = (r[i] - up[i] * m[i + 1]) / di[i];
+  c_.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    c_[i] = {y[i], slope(i) - h[i] * (2 * m[i] + m[i + 1]) / 6, m[i] / 2,
+             (m[i + 1] - m[i]) / (6 * h[i])};
+  }
+}
+
+double CubicSpline::eval(double t, int d) const {
+  if (d > 3 || d < 0) return 0.0;
+  const auto it = std::upper_bound(t_.begin(), t_.end() - 1, t);
+  const std::size_t i = it == t_.begin() ? 0 : static_cast<std::size_t>(it - t_.begin()) - 1;
+  const std::size_t k = std::min(i, c_.size() - 1);
+  const double s = t - t_[k];
+  const auto& c = c_[k];
+  switch (d) {
+    case 0:
+      return c[0] + s * (c[1] + s * (c[2] + s * c[3]));
+    case 1:
+      return c[1] + s * (2 * c[2] + s * 3 * c[3]);
+    case 2:
+      return 2 * c[2] + 6 * c[3] * s;
+    default:
+      return 6 * c[3];
+  }
+}
+
+namespace {
+
+std::mutex& registry_mutex() {
+  static std::mutex m;
+  return m;
+}
+std::deque<std::shared_ptr<const CubicSpline>>& registry() {
+  static std::deque<std::shared_ptr<const CubicSpline>> r;
+  return r;
+}
+
+using GiNaC::ex;
+
+unsigned spline_serial();
+
+ex spline_eval(const ex& id, const ex& order, const ex& t) {
+  if (GiNaC::is_a<GiNaC::numeric>(order) && GiNaC::ex_to<GiNaC::numeric>(order).to_int() > 3)
+    return 0;
+  (void)id;
+  (void)t;
+  return GiNaC::function(spline_serial(), id, order, t).hold();
+}
+
+ex spline_evalf(const ex& id, const ex& order, const ex& t) {
+  if (!GiNaC::is_a<GiNaC::numeric>(t) || !GiNaC::ex_to<GiNaC::numeric>(t).is_real()) {
+    return GiNaC::function(spline_serial(), id, order, t).hold();
+  }
+  const auto s =
+      registered_spline(static_cast<std::size_t>(GiNaC::ex_to<GiNaC::numeric>(id).to_int()));
+  return GiNaC::numeric(s->eval(GiNaC::ex_to<GiNaC::numeric>(t).to_double(),
+                                GiNaC::ex_to<GiNaC::numeric>(order).to_int()));
+}
+
+ex spline_deriv(const ex& id, const ex& order, const ex& t, unsigned param);
+
+unsigned register_spline_function() {
+  return GiNaC::function::register_new(GiNaC::function_options("ukdyn_spline", 3)
+                                           .eval_func(spline_eval)
+                                           .evalf_func(spline_evalf)
+                                           .derivative_func(spline_deriv)
+                                           .latex_name("\\mathrm{spline}"));
+}
+
+unsigned spline_serial() {
+  static const unsigned serial = register_spline_function();
+  return serial;
+}
+
+ex spline_deriv(const ex& id, const ex& order, const ex& t, unsigned param) {
+  if (param != 2) return 0;
+  return GiNaC::function(spline_serial(), id, order + 1, t);
+}
+
+}  // namespace
+
+std::shared_ptr<const CubicSpline> registered_spline(std::size_t id) {
+  const std::lock_guard<std::mutex> lock(registry_mutex());
+  if (id >= registry().size()) throw Error("unknown spline " + std::to_string(id));
+  return registry()[id];
+}
+
+ex spline_expression(const CubicSpline& spline, const ex& arg) {
+  std::size_t id = 0;
+  {
+    const std::lock_guard<std::mutex> lock(registry_mutex());
+    id = registry().size();
+    registry().push_back(std::make_shared<const CubicSpline>(spline));
+  }
+  return GiNaC::function(spline_serial(), GiNaC::numeric(static_cast<long>(id)), 0, arg);
+}
+
+ex spline_expression(const CubicSpline& spline) { return spline_expression(spline, time_symbol()); }
+
+}  // namespace ukdyn::symbolic

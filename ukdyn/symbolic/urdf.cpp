@@ -1,0 +1,206 @@
+#include "ukdyn/symbolic/urdf.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <set>
+
+#include "ukdyn/symbolic/constraint_kinds.hpp"
+
+#ifdef UKDYN_HAVE_URDFDOM
+#include <console_bridge/console.h>
+#include <urdf_parser/urdf_parser.h>
+
+#include <mutex>
+#endif
+
+namespace ukdyn::symbolic {
+
+#ifndef UKDYN_HAVE_URDFDOM
+
+bool urdf_supported() { return false; }
+
+void append_urdf(ChainDef&, const std::string& path, const std::map<std::string, GiNaC::ex>&) {
+  throw DefinitionError(path + ": this ukdyn was built without urdfdom (install liburdfdom-dev)");
+}
+
+#else
+
+bool urdf_supported() { return true; }
+
+namespace {
+
+using GiNaC::ex;
+
+ex angle(double a) {
+  const double k = a / (std::numbers::pi / 4);
+  const double kr = std::round(k);
+  if (std::abs(a - kr * std::numbers::pi / 4) < 1e-12) {
+    return GiNaC::numeric(static_cast<long>(kr), 4) * GiNaC::Pi;
+  }
+  return exact_number(a);
+}
+
+Vec3Ex vec(const urdf::Vector3& v) {
+  return {exact_number(v.x), exact_number(v.y), exact_number(v.z)};
+}
+
+// Collects urdfdom's messages (it reports parse errors through console_bridge) instead of printing.
+class Collect : public console_bridge::OutputHandler {
+ public:
+  void log(const std::string& text, console_bridge::LogLevel level, const char*, int) override {
+    if (level >= console_bridge::CONSOLE_BRIDGE_LOG_ERROR && messages.size() < 2000)
+      messages += (messages.empty() ? "" : "; ") + text;
+  }
+  std::string messages;
+};
+
+urdf::ModelInterfaceSharedPtr parse_file(const std::string& path, std::string& messages) {
+  static std::mutex mutex;  // the output handler is global
+  const std::lock_guard<std::mutex> lock(mutex);
+  Collect collect;
+  console_bridge::useOutputHandler(&collect);
+  urdf::ModelInterfaceSharedPtr model;
+  try {
+    model = urdf::parseURDFFile(path);
+  } catch (...) {
+    console_bridge::restorePreviousOutputHandler();
+    throw;
+  }
+  console_bridge::restorePreviousOutputHandler();
+  messages = collect.messages;
+  return model;
+}
+
+OriginDef origin(const urdf::Pose& p) {
+  double r = 0, pi = 0, y = 0;
+  p.rotation.getRPY(r, pi, y);
+  return {vec(p.position), {angle(r), angle(pi), angle(y)}};
+}
+
+}  // namespace
+
+void append_urdf(ChainDef& chain, const std::string& path,
+                 const std::map<std::string, GiNaC::ex>& joint_values) {
+  if (!std::filesystem::is_regular_file(path)) throw DefinitionError(path + ": no such URDF file");
+  std::string messages;
+  const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
+  if (!model) {
+    throw DefinitionError(path + ": urdfdom could not read this URDF" +
+                          (messages.empty() ? std::string(" (malformed XML?)") : ": " + messages));
+  }
+  const urdf::LinkConstSharedPtr root = model->getRoot();
+  if (!root) throw DefinitionError(path + ": the URDF has no root link");
+  for (const auto& [jn, j] : joint_values) {
+    if (!model->getJoint(jn))
+      throw DefinitionError(path + ": joint_values names no joint '" + jn + "'");
+  }
+
+  // Coordinates free for joints without an explicit value.
+  std::set<std::string> taken;
+  if (chain.base.enabled) {
+    taken.insert(chain.base.x);
+    taken.insert(chain.base.y);
+    if (!chain.base.yaw.empty()) taken.insert(chain.base.yaw);
+  }
+  for (const auto& [jn, v] : joint_values) {
+    if (GiNaC::is_a<GiNaC::symbol>(v)) taken.insert(GiNaC::ex_to<GiNaC::symbol>(v).get_name());
+  }
+  std::vector<std::string> free;
+  for (const auto& c : chain.coordinates()) {
+    if (!taken.count(c)) free.push_back(c);
+  }
+  std::size_t next = 0;
+
+  std::string root_parent;
+  if (chain.base.enabled) {
+    JointDef& j = chain.add_joint(root->name + "_mount", JointDef::Type::fixed, root->name);
+    j.parent = chain.base.link;
+    if (root->inertial) {
+      j.inertial.mass = exact_number(root->inertial->mass);
+    }
+  } else {
+    chain.root_link = root->name;
+  }
+
+  std::map<std::string, ex> values;  // joint → its value
+  auto inertial_of = [&](const urdf::Link& link, InertialDef& in) {
+    if (!link.inertial) {
+      throw DefinitionError(path + ": link '" + link.name +
+                            "' has no <inertial> block (give mass, origin and inertia)");
+    }
+    const urdf::Inertial& I = *link.inertial;
+    in.mass = exact_number(I.mass);
+    const OriginDef o = origin(I.origin);
+    in.com = o.xyz;
+    in.rpy = o.rpy;
+    const ex xx = exact_number(I.ixx), xy = exact_number(I.ixy), xz = exact_number(I.ixz),
+             yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
+    in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
+  };
+  if (chain.base.enabled && root->inertial) inertial_of(*root, chain.joints.back().inertial);
+
+  // Depth-first from the root: parents are defined before their children.
+  std::vector<urdf::LinkConstSharedPtr> stack{root};
+  while (!stack.empty()) {
+    const urdf::LinkConstSharedPtr link = stack.back();
+    stack.pop_back();
+    const auto& cj = link->child_joints;
+    for (auto it = cj.rbegin(); it != cj.rend(); ++it) {
+      if (urdf::LinkConstSharedPtr child = model->getLink((*it)->child_link_name))
+        stack.push_back(child);
+    }
+    if (link == root) continue;
+    const urdf::Joint& uj = *link->parent_joint;
+    const std::string where = path + ": joint '" + uj.name + "'";
+    JointDef::Type type = JointDef::Type::fixed;
+    switch (uj.type) {
+      case urdf::Joint::REVOLUTE:
+      case urdf::Joint::CONTINUOUS:
+        type = JointDef::Type::revolute;
+        break;
+      case urdf::Joint::PRISMATIC:
+        type = JointDef::Type::prismatic;
+        break;
+      case urdf::Joint::FIXED:
+        type = JointDef::Type::fixed;
+        break;
+      default:
+        throw DefinitionError(where + ": type " +
+                              (uj.type == urdf::Joint::FLOATING ? std::string("floating")
+                               : uj.type == urdf::Joint::PLANAR ? std::string("planar")
+                                                                : std::string("unknown")) +
+                              " is not supported (revolute, continuous, prismatic, fixed)");
+    }
+    JointDef& j = chain.add_joint(uj.name, type, link->name);
+    j.parent =
+        uj.parent_link_name == root->name && chain.base.enabled ? root->name : uj.parent_link_name;
+    j.origin = origin(uj.parent_to_joint_origin_transform);
+    if (type != JointDef::Type::fixed) {
+      j.axis = vec(uj.axis);
+      if (auto v = joint_values.find(uj.name); v != joint_values.end()) {
+        j.value = v->second;
+      } else if (uj.mimic) {
+        auto m = values.find(uj.mimic->joint_name);
+        if (m == values.end()) {
+          throw DefinitionError(where + ": mimics joint '" + uj.mimic->joint_name +
+                                "', which is not a movable joint before it");
+        }
+        j.value = exact_number(uj.mimic->multiplier) * m->second + exact_number(uj.mimic->offset);
+      } else {
+        if (next >= free.size()) {
+          throw DefinitionError(where + ": no coordinate left for it (the chain declares " +
+                                std::to_string(chain.coordinates().size()) +
+                                " coordinates; add one or give joint_values)");
+        }
+        j.value = coordinate_symbol(free[next++]);
+      }
+      values[uj.name] = *j.value;
+    }
+    inertial_of(*link, j.inertial);
+  }
+}
+
+#endif
+
+}  // namespace ukdyn::symbolic

@@ -1,0 +1,29 @@
+// Serial chains (and trees) from URDF files, read with Debian's urdfdom (liburdfdom-dev).
+//
+// Supported joints: revolute, continuous (both turn about the axis), prismatic, fixed; mimic joints
+// (value = multiplier · other + offset). Every link except the root needs an <inertial> block
+// (mass, origin xyz/rpy of the CoM frame, inertia about the CoM). Joint limits, dynamics, visual
+// and collision elements are ignored. Numbers that are short decimals are kept exact (0.7 = 7/10);
+// angles within 1e-12 of a multiple of π/4 become that multiple exactly.
+#pragma once
+
+#include <map>
+#include <string>
+
+#include "ukdyn/symbolic/chain.hpp"
+
+namespace ukdyn::symbolic {
+
+/// True if ukdyn was built with urdfdom.
+bool urdf_supported();
+
+/// Appends the URDF's links and joints to `chain`: the URDF root link is attached to the mobile
+/// base (by a fixed joint, if chain.base.enabled) or becomes chain.root_link. A movable joint's
+/// variable is joint_values[joint name] if given, else the next coordinate of the chain that is
+/// neither a base coordinate nor the whole value of another joint, in depth-first order from the
+/// root. Throws DefinitionError naming the file and the element (joint or link) for unsupported
+/// joints, missing inertials, too few coordinates, or a file urdfdom cannot read.
+void append_urdf(ChainDef& chain, const std::string& path,
+                 const std::map<std::string, GiNaC::ex>& joint_values = {});
+
+}  // namespace ukdyn::symbolic
