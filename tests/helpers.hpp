@@ -128,4 +128,60 @@ inline Mat null_space(const Mat& A, double rel_tol = 1e-10) {
   return svd.matrixV().rightCols(A.cols() - r);
 }
 
+// max |a − b| / max(max |b|, 1e-300): the relative error of the largest entry.
+inline double rel(const Eigen::Ref<const Mat>& a, const Eigen::Ref<const Mat>& b) {
+  const double scale = std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  return (a - b).cwiseAbs().maxCoeff() / scale;
+}
+
+inline Vec random_vec(std::mt19937_64& rng, Index n, double lo, double hi) {
+  Vec v(n);
+  for (Index i = 0; i < n; ++i) v(i) = uniform(rng, lo, hi);
+  return v;
+}
+
+// Two systems with the same coordinates and constraint rows, evaluated at `samples` random states
+// (q ∈ [−3.2, 3.2], q̇ ∈ [−3, 3], t ∈ [0, 4]): the largest relative difference of each quantity.
+// Potentials may differ by a constant, so differences V(q) − V(q2) are compared.
+struct SystemDifference {
+  static constexpr const char* names[9] = {"M", "Cqd", "C", "G", "A", "b", "Phi", "Phid", "V"};
+  double worst[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+};
+
+inline SystemDifference compare_systems(const ukdyn::System& ref, const ukdyn::System& other,
+                                        int samples, std::uint64_t seed) {
+  const Index n = ref.dof(), m = ref.rows();
+  ukdyn::ForwardData d0(ref), d(other);
+  Mat C0(n, n), C(n, n);
+  Vec r0(m), r(m);
+  std::mt19937_64 rng(seed);
+  SystemDifference diff;
+  double* worst = diff.worst;
+  for (int k = 0; k < samples; ++k) {
+    const Vec q = random_vec(rng, n, -3.2, 3.2), qd = random_vec(rng, n, -3, 3);
+    const double t = uniform(rng, 0, 4);
+    ukdyn::evaluate_dynamics(ref, d0, q, qd);
+    ukdyn::evaluate_dynamics(other, d, q, qd);
+    ukdyn::evaluate_constraints(ref, d0, t, q, qd);
+    ukdyn::evaluate_constraints(other, d, t, q, qd);
+    ukdyn::coriolis_matrix(ref, q, qd, C0);
+    ukdyn::coriolis_matrix(other, q, qd, C);
+    const double e[6] = {rel(d.M, d0.M), rel(d.Cqd, d0.Cqd), rel(C, C0),
+                         rel(d.G, d0.G), rel(d.A, d0.A),     rel(d.b, d0.b)};
+    for (int i = 0; i < 6; ++i) worst[i] = std::max(worst[i], e[i]);
+    ukdyn::position_residuals(ref, t, q, r0);
+    ukdyn::position_residuals(other, t, q, r);
+    worst[6] = std::max(worst[6],
+                        (r - r0).cwiseAbs().maxCoeff() / std::max(1.0, r0.cwiseAbs().maxCoeff()));
+    ukdyn::velocity_residuals(ref, t, q, qd, r0);
+    ukdyn::velocity_residuals(other, t, q, qd, r);
+    worst[7] = std::max(worst[7], rel(r, r0));
+    const Vec q2 = random_vec(rng, n, -3.2, 3.2);
+    const double dv0 = ukdyn::potential_energy(ref, q) - ukdyn::potential_energy(ref, q2);
+    const double dv = ukdyn::potential_energy(other, q) - ukdyn::potential_energy(other, q2);
+    worst[8] = std::max(worst[8], std::abs(dv - dv0) / std::max(1.0, std::abs(dv0)));
+  }
+  return diff;
+}
+
 }  // namespace uktest

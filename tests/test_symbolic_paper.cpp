@@ -21,17 +21,8 @@ using ukdyn::Vec;
 
 const std::string kDir = std::string(UKDYN_SOURCE_DIR) + "/scenarios/";
 
-// max |a − b| / max(max |b|, 1e-300): the relative error of the largest entry.
-double rel(const Eigen::Ref<const Mat>& a, const Eigen::Ref<const Mat>& b) {
-  const double scale = std::max(b.cwiseAbs().maxCoeff(), 1e-300);
-  return (a - b).cwiseAbs().maxCoeff() / scale;
-}
-
-Vec random_vec(std::mt19937_64& rng, Index n, double lo, double hi) {
-  Vec v(n);
-  for (Index i = 0; i < n; ++i) v(i) = uktest::uniform(rng, lo, hi);
-  return v;
-}
+using uktest::random_vec;
+using uktest::rel;
 
 struct Pair {
   ukdyn::Scenario closed = ukdyn::load_scenario(kDir + "paper.yaml");
@@ -64,43 +55,10 @@ TEST(SymbolicPaper, GenericScenarioIsBuiltFromDefinitionsOnly) {
 // M, C q̇, C, G, V, A, b, Φ, Φ̇ at many random states: ≤ 1e-12 relative.
 TEST(SymbolicPaper, DerivedTermsMatchClosedFormAtRandomStates) {
   Pair p;
-  const auto& S1 = *p.closed.system;
-  const auto& S2 = *p.generic.system;
-  ukdyn::ForwardData d1(S1), d2(S2);
-  Mat C1(12, 12), C2(12, 12);
-  Vec r1(12), r2(12);
-  std::mt19937_64 rng(20240601);
-  double worst[9] = {0};
-  for (int k = 0; k < 500; ++k) {
-    const Vec q = random_vec(rng, 12, -3.2, 3.2);
-    const Vec qd = random_vec(rng, 12, -3, 3);
-    const double t = uktest::uniform(rng, 0, 4);
-    ukdyn::evaluate_dynamics(S1, d1, q, qd);
-    ukdyn::evaluate_dynamics(S2, d2, q, qd);
-    ukdyn::evaluate_constraints(S1, d1, t, q, qd);
-    ukdyn::evaluate_constraints(S2, d2, t, q, qd);
-    ukdyn::coriolis_matrix(S1, q, qd, C1);
-    ukdyn::coriolis_matrix(S2, q, qd, C2);
-    const double e[6] = {rel(d2.M, d1.M), rel(d2.Cqd, d1.Cqd), rel(C2, C1),
-                         rel(d2.G, d1.G), rel(d2.A, d1.A),     rel(d2.b, d1.b)};
-    for (int i = 0; i < 6; ++i) worst[i] = std::max(worst[i], e[i]);
-    ukdyn::position_residuals(S1, t, q, r1);
-    ukdyn::position_residuals(S2, t, q, r2);
-    worst[6] = std::max(worst[6],
-                        (r1 - r2).cwiseAbs().maxCoeff() / std::max(1.0, r1.cwiseAbs().maxCoeff()));
-    ukdyn::velocity_residuals(S1, t, q, qd, r1);
-    ukdyn::velocity_residuals(S2, t, q, qd, r2);
-    worst[7] = std::max(worst[7], rel(r2, r1));
-    // Potentials may differ by a constant only: compare differences.
-    const Vec q2 = random_vec(rng, 12, -3.2, 3.2);
-    const double dv1 = ukdyn::potential_energy(S1, q) - ukdyn::potential_energy(S1, q2);
-    const double dv2 = ukdyn::potential_energy(S2, q) - ukdyn::potential_energy(S2, q2);
-    worst[8] = std::max(worst[8], std::abs(dv1 - dv2) / std::max(1.0, std::abs(dv1)));
-  }
-  const char* names[9] = {"M", "Cqd", "C", "G", "A", "b", "Phi", "Phid", "V"};
+  const auto diff = uktest::compare_systems(*p.closed.system, *p.generic.system, 500, 20240601);
   for (int i = 0; i < 9; ++i) {
-    EXPECT_LE(worst[i], 1e-12) << names[i];
-    std::printf("  max relative difference %-4s %.2e\n", names[i], worst[i]);
+    EXPECT_LE(diff.worst[i], 1e-12) << diff.names[i];
+    std::printf("  max relative difference %-4s %.2e\n", diff.names[i], diff.worst[i]);
   }
 }
 
