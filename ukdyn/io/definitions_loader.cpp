@@ -134,17 +134,16 @@ void load_gravity(const Loader& L, const Node& s, sym::SubsystemDef& def, double
   }
 }
 
-}  // namespace
-
-std::shared_ptr<const Subsystem> load_definitions_subsystem(
-    const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity) {
-  L.only_keys(
-      s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity", "potential"});
+// Constructs a subsystem definition (SubsystemDef or ChainDef), naming the coordinate at fault if
+// the names are refused, then reads what every definition-based subsystem shares: parameters and
+// `let` (load_scope), gravity and an extra potential.
+template <typename Def>
+std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std::string& name,
+                                      const std::vector<std::string>& coordinates, double gravity) {
   const Node cn = L.child(s, "coordinates", true);
-  std::unique_ptr<sym::SubsystemDef> def;
+  std::unique_ptr<Def> def;
   try {
-    def = std::make_unique<sym::SubsystemDef>(name, coordinates);
+    def = std::make_unique<Def>(name, coordinates);
   } catch (const sym::DefinitionError& e) {
     if (e.coordinate >= 0) {
       L.fail(Node{cn.node[static_cast<std::size_t>(e.coordinate)],
@@ -155,8 +154,21 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   }
   load_scope(L, s, *def);
   load_gravity(L, s, *def, gravity);
-  if (Node p = L.child(s, "potential", false); p.node.IsDefined())
+  if (Node p = L.child(s, "potential", false); p.node.IsDefined()) {
     def->extra_potential = parse(L, *def, p);
+  }
+  return def;
+}
+
+}  // namespace
+
+std::shared_ptr<const Subsystem> load_definitions_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity) {
+  L.only_keys(
+      s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity", "potential"});
+  auto def = start_definition<sym::SubsystemDef>(L, s, name, coordinates, gravity);
+  const Node cn = L.child(s, "coordinates", true);
   const Node bodies = L.child(s, "bodies", true);
   if (!bodies.node.IsSequence() || bodies.node.size() == 0)
     L.fail(bodies, "expected a non-empty list of bodies");
@@ -295,22 +307,8 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                                                       double gravity, DefinitionContext& context) {
   L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
                   "mount", "base", "joints", "urdf", "joint_values", "points"});
+  auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity);
   const Node cn = L.child(s, "coordinates", true);
-  std::unique_ptr<sym::ChainDef> def;
-  try {
-    def = std::make_unique<sym::ChainDef>(name, coordinates);
-  } catch (const sym::DefinitionError& e) {
-    if (e.coordinate >= 0) {
-      L.fail(Node{cn.node[static_cast<std::size_t>(e.coordinate)],
-                  cn.key + "[" + std::to_string(e.coordinate) + "]"},
-             e.what());
-    }
-    L.fail(cn, e.what());
-  }
-  load_scope(L, s, *def);
-  load_gravity(L, s, *def, gravity);
-  if (Node p = L.child(s, "potential", false); p.node.IsDefined())
-    def->extra_potential = parse(L, *def, p);
   if (Node m = L.child(s, "mount", false); m.node.IsDefined()) {
     L.only_keys(m, {"xyz", "rpy"});
     def->mount = {parse_vec3_or(L, *def, m, "xyz"), parse_vec3_or(L, *def, m, "rpy")};
