@@ -157,56 +157,136 @@ bool factor_mass(const Mat& M, UkWorkspace& ws) {
   return true;
 }
 
-UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd,
-                           Vec& Qc, const UkSettings& settings) {
-  UkResult res;
-  const Index m = A.rows();
-  const Index n = ws.layout.dof();
-  const auto& lay = ws.layout;
-  const std::size_t nb = lay.blocks();
+namespace {
+
+// x ← M^{-1} x for NB blocks of size 6 starting at 0, 6, 12, … (compile-time layout).
+template <int NB>
+void apply_M_inv_fixed6(const UkWorkspace& ws, double* x) {
   const Index ldl = ws.L.rows();
-  if (qdd.size() != n) qdd.resize(n);  // no-op (no allocation) when the caller sized them
-  if (Qc.size() != n) Qc.resize(n);
+  for (int k = 0; k < NB; ++k) {
+    const Index s = Index{6} * k;
+    const double* Lk = ws.L.data() + s + s * ldl;
+    const double* id = ws.inv_diag.data() + s;
+    l_solve<6>(Lk, ldl, id, x + s, 6);
+    lt_solve<6>(Lk, ldl, id, x + s, 6);
+  }
+}
+
+// The solve. MM > 0: m == MM is known at compile time (the loops down a column of m rows unroll
+// and vectorise). NB > 0: the layout is NB blocks of size 6 at 0, 6, …, so n == 6 NB. MM == 0 /
+// NB == 0: runtime sizes, any layout. Every instantiation runs the same operations in the same
+// order, so the results are identical (to rounding where the compiler contracts a different set of
+// a·b + c into FMAs, e.g. with -march=native).
+//
+// Do not accumulate the columns of W below in a local array: g++ 12.2 at -O3 -march=native
+// (AVX-512) produced wrong results (wrong rank) with that variant of the loop.
+template <int MM, int NB>
+UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd, Vec& Qc,
+                    const UkSettings& settings) {
+  UkResult res;
+  const Index m = MM > 0 ? Index{MM} : A.rows();
+  const auto& lay = ws.layout;
+  const Index n = NB > 0 ? Index{6} * NB : lay.dof();
+  const std::size_t nb = NB > 0 ? std::size_t{NB} : lay.blocks();
+  const Index ldl = ws.L.rows();
+  static_assert((MM > 0) == (NB > 0), "fixed m comes with a fixed layout");
   // a = M^{-1} Q: the unconstrained acceleration, paper Eq. (1).
   double* a = ws.M_inv_Q.data();
+  double* Xt = ws.A_Linvt.data();
+  double* r = ws.r.data();
+  double* W = ws.A_Minv_At.data();
+  double* t = ws.tmp_m.data();
+  double* lam = ws.lambda.data();
+  double* w = ws.tmp_n.data();
+  double* rr = ws.tmp_m.data();
+  Index* piv = ws.piv.data();
   for (Index j = 0; j < n; ++j) a[j] = Q[j];
-  apply_M_inv(ws, a);
-  if (m == 0) {
-    for (Index j = 0; j < n; ++j) qdd[j] = a[j];
-    Qc.setZero();
-    res.finite = all_finite(qdd.data(), n);
-    return res;
+  if constexpr (NB > 0) {
+    apply_M_inv_fixed6<NB>(ws, a);
+  } else {
+    apply_M_inv(ws, a);
   }
   const double* Ad = A.data();
 
   // Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block, a
   // forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
   // L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency
-  // chain).
-  double* Xt = ws.A_Linvt.data();
-  for (std::size_t k = 0; k < nb; ++k) {
-    const Index s = lay.start[k], nk = lay.size[k];
-    const double* Lk = ws.L.data() + s + s * ldl;
-    const double* id = ws.inv_diag.data() + s;
-    for (Index l = 0; l < nk; ++l) {
-      double* xl = Xt + (s + l) * m;
-      const double* al = Ad + (s + l) * m;
-      for (Index i = 0; i < m; ++i) xl[i] = al[i];
-      for (Index p = 0; p < l; ++p) {
-        const double c = Lk[l + p * ldl];
-        const double* xp = Xt + (s + p) * m;
-        for (Index i = 0; i < m; ++i) xl[i] -= c * xp[i];
-      }
-      const double inv = id[l];
-      for (Index i = 0; i < m; ++i) xl[i] *= inv;
+  // chain). The same pass accumulates the absolute row sums of A (for ‖A‖_∞) and r = b − A a, the
+  // bracket of paper Eq. (4), while the column of A is at hand.
+  double* rowabs = ws.tmp_m.data();
+  double a_inf = 0.0;
+  if constexpr (MM > 0) {
+    // Fixed m: the column being built and the two row accumulators live in local arrays, which
+    // provably alias nothing, so the compiler keeps them in registers.
+    double rl[MM], absl[MM];
+    for (Index i = 0; i < MM; ++i) {
+      rl[i] = b[i];
+      absl[i] = 0.0;
     }
+    for (std::size_t k = 0; k < nb; ++k) {
+      const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
+      const Index nk = NB > 0 ? Index{6} : lay.size[k];
+      const double* Lk = ws.L.data() + s + s * ldl;
+      const double* id = ws.inv_diag.data() + s;
+      for (Index l = 0; l < nk; ++l) {
+        const double* al = Ad + (s + l) * MM;
+        const double aj = a[s + l];
+        double x[MM];
+        for (Index i = 0; i < MM; ++i) {
+          const double v = al[i];
+          x[i] = v;
+          absl[i] += std::abs(v);
+          rl[i] -= v * aj;
+        }
+        for (Index p = 0; p < l; ++p) {
+          const double c = Lk[l + p * ldl];
+          const double* xp = Xt + (s + p) * MM;
+          for (Index i = 0; i < MM; ++i) x[i] -= c * xp[i];
+        }
+        const double inv = id[l];
+        double* xl = Xt + (s + l) * MM;
+        for (Index i = 0; i < MM; ++i) xl[i] = x[i] * inv;
+      }
+    }
+    for (Index i = 0; i < MM; ++i) {
+      r[i] = rl[i];
+      a_inf = std::max(a_inf, absl[i]);
+    }
+  } else {
+    for (Index i = 0; i < m; ++i) {
+      r[i] = b[i];
+      rowabs[i] = 0.0;
+    }
+    for (std::size_t k = 0; k < nb; ++k) {
+      const Index s = lay.start[k], nk = lay.size[k];
+      const double* Lk = ws.L.data() + s + s * ldl;
+      const double* id = ws.inv_diag.data() + s;
+      for (Index l = 0; l < nk; ++l) {
+        double* xl = Xt + (s + l) * m;
+        const double* al = Ad + (s + l) * m;
+        const double aj = a[s + l];
+        for (Index i = 0; i < m; ++i) {
+          const double v = al[i];
+          xl[i] = v;
+          rowabs[i] += std::abs(v);
+          r[i] -= v * aj;
+        }
+        for (Index p = 0; p < l; ++p) {
+          const double c = Lk[l + p * ldl];
+          const double* xp = Xt + (s + p) * m;
+          for (Index i = 0; i < m; ++i) xl[i] -= c * xp[i];
+        }
+        const double inv = id[l];
+        for (Index i = 0; i < m; ++i) xl[i] *= inv;
+      }
+    }
+    for (Index i = 0; i < m; ++i) a_inf = std::max(a_inf, rowabs[i]);
   }
 
   // W = Xᵀ X, lower triangle only: W(j:m, j) = Σ_l Xᵀ(j:m, l) Xᵀ(j, l). Constraint rows are sparse
   // (a trajectory row touches one arm, so its entries of Xᵀ in the other block are 0): zero
   // multipliers are skipped.
-  double* W = ws.A_Minv_At.data();
-  const Index ldw = ws.A_Minv_At.rows();
+  const Index ldw = MM > 0 ? Index{MM} : ws.A_Minv_At.rows();
   for (Index j = 0; j < m; ++j) {
     double* wj = W + j * ldw;
     for (Index i = j; i < m; ++i) wj[i] = 0.0;
@@ -218,23 +298,12 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
     }
   }
 
-  // r = b − A a, the bracket of paper Eq. (4).
-  double* r = ws.r.data();
-  for (Index i = 0; i < m; ++i) r[i] = b[i];
-  for (Index j = 0; j < n; ++j) {
-    const double aj = a[j];
-    const double* col = Ad + j * m;
-    for (Index i = 0; i < m; ++i) r[i] -= col[i] * aj;
-  }
-
   // Pivoted LDLᵀ of W, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step takes as pivot
   // the largest remaining diagonal of the Schur complement, so D is non-increasing (up to
   // round-off) and D_0 = max diag W = max D. A pivot is kept while D_k > rel_tol² · D_0; the
   // factorisation stops at the first one that is not: what remains is round-off of redundant rows,
   // and those rows get λ = 0 in the basic solution below.
   const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
-  double* t = ws.tmp_m.data();
-  Index* piv = ws.piv.data();
   double d_max = 0.0, cutoff = 0.0, d_min_kept = std::numeric_limits<double>::infinity();
   Index rank = 0;
   for (Index k = 0; k < m; ++k) {
@@ -277,7 +346,6 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
 
   // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r. Only the leading rank × rank part of
   // L and D enters (the components past the rank are 0), so stopping early changes nothing.
-  double* lam = ws.lambda.data();
   for (Index i = 0; i < m; ++i) lam[i] = r[i];
   for (Index k = 0; k < rank; ++k) std::swap(lam[k], lam[piv[k]]);
   for (Index i = 0; i < rank; ++i) {
@@ -297,7 +365,6 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
 
   // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = a + M^{-1} Qc, paper Eq. (18).
   double* qc = Qc.data();
-  double* w = ws.tmp_n.data();
   for (Index j = 0; j < n; ++j) {
     const double* col = Ad + j * m;
     double s = 0.0;
@@ -305,14 +372,73 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
     qc[j] = s;
     w[j] = s;
   }
-  apply_M_inv(ws, w);
-  for (Index j = 0; j < n; ++j) qdd[j] = a[j] + w[j];
+  if constexpr (NB > 0) {
+    apply_M_inv_fixed6<NB>(ws, w);
+  } else {
+    apply_M_inv(ws, w);
+  }
+  double* q = qdd.data();
+  for (Index j = 0; j < n; ++j) q[j] = a[j] + w[j];
 
   res.rank = static_cast<int>(rank);
   res.sigma_max = std::sqrt(d_max);
   res.sigma_min_kept = rank > 0 ? std::sqrt(d_min_kept) : 0.0;
-  finish(A, b, qdd, Qc, settings, ws.tmp_m, res);
+
+  // The honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness flags
+  // (as finish(), with ‖A‖_∞ from the Xᵀ pass).
+  for (Index i = 0; i < m; ++i) rr[i] = -b[i];
+  for (Index j = 0; j < n; ++j) {
+    const double x = q[j];
+    const double* col = Ad + j * m;
+    for (Index i = 0; i < m; ++i) rr[i] += col[i] * x;
+  }
+  double r2 = 0.0, b2 = 0.0, q2 = 0.0;
+  for (Index i = 0; i < m; ++i) r2 += rr[i] * rr[i];
+  for (Index i = 0; i < m; ++i) b2 += b[i] * b[i];
+  for (Index j = 0; j < n; ++j) q2 += q[j] * q[j];
+  res.residual = std::sqrt(r2);
+  const double scale = std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0;
+  res.consistent = res.residual <= settings.consistency_rel_tol * scale;
+  res.finite = all_finite(q, n) && all_finite(qc, n) && std::isfinite(res.residual);
   return res;
+}
+
+// True when the layout is NB blocks of size 6 at 0, 6, 12, … (the paper's arms).
+template <int NB>
+bool is_fixed6(const BlockLayout& lay) {
+  if (lay.blocks() != std::size_t{NB}) return false;
+  for (std::size_t k = 0; k < lay.blocks(); ++k)
+    if (lay.start[k] != Index{6} * static_cast<Index>(k) || lay.size[k] != 6) return false;
+  return true;
+}
+
+}  // namespace
+
+UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd,
+                           Vec& Qc, const UkSettings& settings) {
+  const Index m = A.rows();
+  const Index n = ws.layout.dof();
+  if (qdd.size() != n) qdd.resize(n);  // no-op (no allocation) when the caller sized them
+  if (Qc.size() != n) Qc.resize(n);
+  if (m == 0) {
+    // a = M^{-1} Q: the unconstrained acceleration, paper Eq. (1).
+    UkResult res;
+    double* a = ws.M_inv_Q.data();
+    for (Index j = 0; j < n; ++j) a[j] = Q[j];
+    apply_M_inv(ws, a);
+    for (Index j = 0; j < n; ++j) qdd[j] = a[j];
+    Qc.setZero();
+    res.finite = all_finite(qdd.data(), n);
+    return res;
+  }
+  // Compile-time sizes for the paper's shapes (two arms of 6, 6 or 12 rows); the generic code
+  // otherwise.
+  const bool ws_m = ws.A_Minv_At.rows() == m && ws.A_Linvt.rows() == m;
+  if (ws_m && is_fixed6<2>(ws.layout)) {
+    if (m == 6) return solve_impl<6, 2>(A, b, Q, ws, qdd, Qc, settings);
+    if (m == 12) return solve_impl<12, 2>(A, b, Q, ws, qdd, Qc, settings);
+  }
+  return solve_impl<0, 0>(A, b, Q, ws, qdd, Qc, settings);
 }
 
 UkResult uk_solve(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd,
