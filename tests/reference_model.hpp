@@ -220,11 +220,11 @@ inline Eigen::Matrix<double, 3, 6> cut_point_jacobian(const Params& p, const Vec
   return J;
 }
 
-/// J̇ q̇ of every CoM: the second derivative d²/ds² p_i(q + s q̇) at s = 0, by nested AD.
-inline std::array<Eigen::Vector3d, kBodies> com_jdot_qd(const Params& p, const Vector6d& q,
-                                                        const Vector6d& qd) {
-  using AD1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
-  using AD2 = Eigen::AutoDiffScalar<Eigen::Matrix<AD1, 1, 1>>;
+/// Nested AD scalars seeded along q(s) = q + s q̇: the second derivative of any function of them
+/// is d²/ds² at s = 0, i.e. J̇ q̇ for a position.
+using AD1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+using AD2 = Eigen::AutoDiffScalar<Eigen::Matrix<AD1, 1, 1>>;
+inline V6<AD2> seed_along_qd(const Vector6d& q, const Vector6d& qd) {
   V6<AD2> qa;
   for (int i = 0; i < 6; ++i) {
     const AD1 val(q(i), Eigen::Matrix<double, 1, 1>(qd(i)));
@@ -232,6 +232,13 @@ inline std::array<Eigen::Vector3d, kBodies> com_jdot_qd(const Params& p, const V
     der(0) = AD1(qd(i), Eigen::Matrix<double, 1, 1>(0.0));
     qa(i) = AD2(val, der);
   }
+  return qa;
+}
+
+/// J̇ q̇ of every CoM: the second derivative d²/ds² p_i(q + s q̇) at s = 0, by nested AD.
+inline std::array<Eigen::Vector3d, kBodies> com_jdot_qd(const Params& p, const Vector6d& q,
+                                                        const Vector6d& qd) {
+  const V6<AD2> qa = seed_along_qd(q, qd);
   const auto pos = com_positions<AD2>(p, qa);
   std::array<Eigen::Vector3d, kBodies> out;
   for (std::size_t b = 0; b < static_cast<std::size_t>(kBodies); ++b)
@@ -245,15 +252,7 @@ namespace ukref {
 
 /// d²/ds² of the cut point along q(s) = q + s q̇ (= J̇ q̇ of the cut point), by nested AD.
 inline Eigen::Vector3d cut_point_jdot_qd(const Params& p, const Vector6d& q, const Vector6d& qd) {
-  using AD1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
-  using AD2 = Eigen::AutoDiffScalar<Eigen::Matrix<AD1, 1, 1>>;
-  V6<AD2> qa;
-  for (int i = 0; i < 6; ++i) {
-    const AD1 val(q(i), Eigen::Matrix<double, 1, 1>(qd(i)));
-    Eigen::Matrix<AD1, 1, 1> der;
-    der(0) = AD1(qd(i), Eigen::Matrix<double, 1, 1>(0.0));
-    qa(i) = AD2(val, der);
-  }
+  const V6<AD2> qa = seed_along_qd(q, qd);
   const V3<AD2> c = cut_point<AD2>(p, qa);
   Eigen::Vector3d out;
   for (int r = 0; r < 3; ++r) out(r) = c(r).derivatives()(0).derivatives()(0);
