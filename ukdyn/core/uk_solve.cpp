@@ -15,14 +15,13 @@ UkWorkspace::UkWorkspace(const BlockLayout& block_layout, Index m)
     : layout(block_layout),
       L(Mat::Zero(block_layout.dof(), block_layout.dof())),
       inv_diag(Vec::Zero(block_layout.dof())),
-      M_inv_Q(block_layout.dof()),
+      Linv_Q(block_layout.dof()),
       A_Linvt(m, block_layout.dof()),
       A_Minv_At(m, m),
       piv(static_cast<std::size_t>(m), 0),
       r(m),
       lambda(m),
-      tmp_m(m),
-      tmp_n(block_layout.dof()) {}
+      tmp_m(m) {}
 
 namespace {
 
@@ -159,19 +158,6 @@ bool factor_mass(const Mat& M, UkWorkspace& ws) {
 
 namespace {
 
-// x ← M^{-1} x for NB blocks of size 6 starting at 0, 6, 12, … (compile-time layout).
-template <int NB>
-void apply_M_inv_fixed6(const UkWorkspace& ws, double* x) {
-  const Index ldl = ws.L.rows();
-  for (int k = 0; k < NB; ++k) {
-    const Index s = Index{6} * k;
-    const double* Lk = ws.L.data() + s + s * ldl;
-    const double* id = ws.inv_diag.data() + s;
-    l_solve<6>(Lk, ldl, id, x + s, 6);
-    lt_solve<6>(Lk, ldl, id, x + s, 6);
-  }
-}
-
 // The solve. MM > 0: m == MM is known at compile time (the loops down a column of m rows unroll
 // and vectorise). NB > 0: the layout is NB blocks of size 6 at 0, 6, …, so n == 6 NB. MM == 0 /
 // NB == 0: runtime sizes, any layout. Every instantiation runs the same operations in the same
@@ -187,29 +173,37 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   const std::size_t nb = NB > 0 ? std::size_t{NB} : lay.blocks();
   const Index ldl = ws.L.rows();
   static_assert((MM > 0) == (NB > 0), "fixed m comes with a fixed layout");
-  // a = M^{-1} Q: the unconstrained acceleration, paper Eq. (1).
-  double* a = ws.M_inv_Q.data();
+  // y = L^{-1} Q. The unconstrained acceleration of paper Eq. (1) is a = M^{-1} Q = L^{-ᵀ} y; it is
+  // never formed: A a = Xᵀ y below, and q̈ = L^{-ᵀ}(y + X λ) at the end, so each block is
+  // substituted forward once and backward once.
+  double* y = ws.Linv_Q.data();
   double* Xt = ws.A_Linvt.data();
   double* r = ws.r.data();
   double* W = ws.A_Minv_At.data();
   double* t = ws.tmp_m.data();
   double* lam = ws.lambda.data();
-  double* w = ws.tmp_n.data();
   double* rr = ws.tmp_m.data();
   Index* piv = ws.piv.data();
-  for (Index j = 0; j < n; ++j) a[j] = Q[j];
-  if constexpr (NB > 0) {
-    apply_M_inv_fixed6<NB>(ws, a);
-  } else {
-    apply_M_inv(ws, a);
+  for (Index j = 0; j < n; ++j) y[j] = Q[j];
+  for (std::size_t k = 0; k < nb; ++k) {
+    const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
+    const Index nk = NB > 0 ? Index{6} : lay.size[k];
+    const double* Lk = ws.L.data() + s + s * ldl;
+    const double* id = ws.inv_diag.data() + s;
+    if constexpr (NB > 0) {
+      l_solve<6>(Lk, ldl, id, y + s, 6);
+    } else {
+      with_block_size(nk, [&](auto N) { l_solve<decltype(N)::value>(Lk, ldl, id, y + s, nk); });
+    }
   }
   const double* Ad = A.data();
 
   // Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block, a
   // forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
   // L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency
-  // chain). The same pass accumulates the absolute row sums of A (for ‖A‖_∞) and r = b − A a, the
-  // bracket of paper Eq. (4), while the column of A is at hand.
+  // chain). The same pass accumulates the absolute row sums of A (for ‖A‖_∞) while the column of A
+  // is at hand, and r = b − A a = b − Xᵀ y, the bracket of paper Eq. (4), once a column of Xᵀ is
+  // done.
   double* rowabs = ws.tmp_m.data();
   double a_inf = 0.0;
   if constexpr (MM > 0) {
@@ -227,13 +221,12 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       const double* id = ws.inv_diag.data() + s;
       for (Index l = 0; l < nk; ++l) {
         const double* al = Ad + (s + l) * MM;
-        const double aj = a[s + l];
+        const double yl = y[s + l];
         double x[MM];
         for (Index i = 0; i < MM; ++i) {
           const double v = al[i];
           x[i] = v;
           absl[i] += std::abs(v);
-          rl[i] -= v * aj;
         }
         for (Index p = 0; p < l; ++p) {
           const double c = Lk[l + p * ldl];
@@ -242,7 +235,11 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
         }
         const double inv = id[l];
         double* xl = Xt + (s + l) * MM;
-        for (Index i = 0; i < MM; ++i) xl[i] = x[i] * inv;
+        for (Index i = 0; i < MM; ++i) {
+          const double v = x[i] * inv;
+          xl[i] = v;
+          rl[i] -= v * yl;
+        }
       }
     }
     for (Index i = 0; i < MM; ++i) {
@@ -261,12 +258,11 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       for (Index l = 0; l < nk; ++l) {
         double* xl = Xt + (s + l) * m;
         const double* al = Ad + (s + l) * m;
-        const double aj = a[s + l];
+        const double yl = y[s + l];
         for (Index i = 0; i < m; ++i) {
           const double v = al[i];
           xl[i] = v;
           rowabs[i] += std::abs(v);
-          r[i] -= v * aj;
         }
         for (Index p = 0; p < l; ++p) {
           const double c = Lk[l + p * ldl];
@@ -274,7 +270,11 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
           for (Index i = 0; i < m; ++i) xl[i] -= c * xp[i];
         }
         const double inv = id[l];
-        for (Index i = 0; i < m; ++i) xl[i] *= inv;
+        for (Index i = 0; i < m; ++i) {
+          const double v = xl[i] * inv;
+          xl[i] = v;
+          r[i] -= v * yl;
+        }
       }
     }
     for (Index i = 0; i < m; ++i) a_inf = std::max(a_inf, rowabs[i]);
@@ -299,13 +299,16 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       for (Index i = 0; i < MM; ++i) wj[i] = acc[i];
     }
   } else {
-    for (Index j = 0; j < m; ++j) {
-      double* wj = W + j * ldw;
-      for (Index i = j; i < m; ++i) wj[i] = 0.0;
-      for (Index l = 0; l < n; ++l) {
-        const double* xl = Xt + l * m;
+    // Runtime m: one rank-1 update of the lower triangle per column of Xᵀ, so that consecutive
+    // updates of one entry of W are a whole triangle apart (no store-to-load chain).
+    for (Index j = 0; j < m; ++j)
+      for (Index i = j; i < m; ++i) W[i + j * ldw] = 0.0;
+    for (Index l = 0; l < n; ++l) {
+      const double* xl = Xt + l * m;
+      for (Index j = 0; j < m; ++j) {
         const double c = xl[j];
         if (c == 0.0) continue;
+        double* wj = W + j * ldw;
         for (Index i = j; i < m; ++i) wj[i] += xl[i] * c;
       }
     }
@@ -376,22 +379,32 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   }
   for (Index k = rank - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
 
-  // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = a + M^{-1} Qc, paper Eq. (18).
+  // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = M^{-1}(Q + Qc), paper Eq. (18),
+  // as q̈ = L^{-ᵀ}(L^{-1} Q + L^{-1} Aᵀ λ) = L^{-ᵀ}(y + X λ).
   double* qc = Qc.data();
+  double* q = qdd.data();
   for (Index j = 0; j < n; ++j) {
     const double* col = Ad + j * m;
-    double s = 0.0;
-    for (Index i = 0; i < m; ++i) s += col[i] * lam[i];
+    const double* xcol = Xt + j * m;
+    double s = 0.0, sx = 0.0;
+    for (Index i = 0; i < m; ++i) {
+      s += col[i] * lam[i];
+      sx += xcol[i] * lam[i];
+    }
     qc[j] = s;
-    w[j] = s;
+    q[j] = y[j] + sx;
   }
-  if constexpr (NB > 0) {
-    apply_M_inv_fixed6<NB>(ws, w);
-  } else {
-    apply_M_inv(ws, w);
+  for (std::size_t k = 0; k < nb; ++k) {
+    const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
+    const Index nk = NB > 0 ? Index{6} : lay.size[k];
+    const double* Lk = ws.L.data() + s + s * ldl;
+    const double* id = ws.inv_diag.data() + s;
+    if constexpr (NB > 0) {
+      lt_solve<6>(Lk, ldl, id, q + s, 6);
+    } else {
+      with_block_size(nk, [&](auto N) { lt_solve<decltype(N)::value>(Lk, ldl, id, q + s, nk); });
+    }
   }
-  double* q = qdd.data();
-  for (Index j = 0; j < n; ++j) q[j] = a[j] + w[j];
 
   res.rank = static_cast<int>(rank);
   res.sigma_max = std::sqrt(d_max);
@@ -436,7 +449,7 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
   if (m == 0) {
     // a = M^{-1} Q: the unconstrained acceleration, paper Eq. (1).
     UkResult res;
-    double* a = ws.M_inv_Q.data();
+    double* a = ws.Linv_Q.data();
     for (Index j = 0; j < n; ++j) a[j] = Q[j];
     apply_M_inv(ws, a);
     for (Index j = 0; j < n; ++j) qdd[j] = a[j];

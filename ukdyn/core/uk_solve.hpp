@@ -2,8 +2,9 @@
 //   Qc = M^{1/2} (A M^{-1/2})^+ (b − A M^{-1} Q),   q̈ = M^{-1}(Q + Qc).
 //
 // Production form (Cholesky, block-diagonal M = diag(L_k L_kᵀ)):
-//   a = M^{-1} Q,  X = L^{-1} Aᵀ,  W = Xᵀ X = A M^{-1} Aᵀ,  r = b − A a,
-//   λ solves W λ = r (rank-revealing, see below),  Qc = Aᵀ λ,  q̈ = a + M^{-1} Qc.
+//   y = L^{-1} Q,  X = L^{-1} Aᵀ,  W = Xᵀ X = A M^{-1} Aᵀ,  r = b − A M^{-1} Q = b − Xᵀ y,
+//   λ solves W λ = r (rank-revealing, see below),  Qc = Aᵀ λ,  q̈ = M^{-1}(Q + Qc) = L^{-ᵀ}(y + X
+//   λ).
 // This is the same force as Eq. (4): with M = L Lᵀ, M^{1/2}(A M^{-1/2})^+ = Aᵀ (A M^{-1} Aᵀ)^+ on
 // the range of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
 //
@@ -62,14 +63,13 @@ struct UkWorkspace {
   BlockLayout layout;
   Mat L;                   ///< n × n: block k's lower Cholesky factor in its diagonal block
   Vec inv_diag;            ///< 1 / L_ii (n)
-  Vec M_inv_Q;             ///< a = M^{-1} Q
+  Vec Linv_Q;              ///< y = L^{-1} Q (M^{-1} Q when there are no rows)
   Mat A_Linvt;             ///< Xᵀ = A L^{-ᵀ} (m × n), X = L^{-1} Aᵀ
   Mat A_Minv_At;           ///< W = A M^{-1} Aᵀ (m × m, lower), factored in place
   std::vector<Index> piv;  ///< pivot transpositions of the LDLᵀ (m)
   Vec r;                   ///< b − A a
   Vec lambda;              ///< W λ = r (basic solution)
   Vec tmp_m;               ///< scratch (m)
-  Vec tmp_n;               ///< scratch (n)
 };
 
 /// Factors M per block (Cholesky, L_k L_kᵀ) into ws.L. Returns false if a block is not positive
