@@ -33,7 +33,7 @@ void ClosureConstraint::evaluate(double /*t*/, CVecRef q, CVecRef qd, MatRef A, 
   left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1);
   right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2);
   // Rows 1–3 of Eq. (15): the two cut points coincide; b from Eq. (16): b = −(J̇1 q̇1 − J̇2 q̇2).
-  A.setZero();
+  zero_rows(A);
   A.block(0, lo_, 3, 6) = J1;
   A.block(0, ro_, 3, 6) = -J2;
   b.head<3>() = c2 - c1;
@@ -89,7 +89,7 @@ void CutPointTrajectory::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, Vec
   Jac36 J;
   Vec3 c;
   arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c);
-  A.setZero();
+  zero_rows(A);
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const auto r = static_cast<Index>(i);
     // p̈_axis = J q̈ + c = f''(t)  ⇒  A = J_axis, b = f''(t) − c_axis  (Eq. (20)).
@@ -125,7 +125,7 @@ CoordinateConstraint::CoordinateConstraint(Index coordinate, TimeFunction f, std
 
 void CoordinateConstraint::evaluate(double t, CVecRef /*q*/, CVecRef /*qd*/, MatRef A,
                                     VecRef b) const {
-  A.setZero();
+  zero_rows(A);
   A(0, j_) = 1.0;
   b(0) = f_.eval(t, 2);
 }

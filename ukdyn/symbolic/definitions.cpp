@@ -569,7 +569,7 @@ void DerivedConstraint::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecR
     out = big.data();
   }
   ab_.eval(t, q.data(), qd.data(), out);
-  A.setZero();
+  zero_rows(A);
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) A(r, c) = out[k++];
   for (Index r = 0; r < m_; ++r) b(r) = out[k++];
