@@ -1,16 +1,22 @@
 // ukdyn::symbolic benchmarks: deriving the paper's arm from definitions (GiNaC) and evaluating the
 // compiled tapes against the hand-written closed form (ukdyn/models/mobile_manipulator.cpp).
 //   Symbolic/DerivePaperArm        derive M, C, G, C q̇ of one arm and compile its tapes
-//   Symbolic/DynamicsDerived       M + C q̇ + G of one arm from the tapes
-//   Symbolic/DynamicsClosedForm    the same from the closed form
+//   Symbolic/DynamicsDerived       M + C q̇ + G of one arm from the tapes (dynamics(): one tape)
+//   Symbolic/DynamicsClosedForm    the same from the closed form (dynamics(): shared trig)
 //   Symbolic/ClosureDerived        A, b of the 6 closure rows (Eq. 12) from the tapes
 //   Symbolic/ClosureClosedForm     the same from ukdyn::ClosureConstraint
+//   forward/closure_definitions    forward() of the whole paper system built from definitions (two
+//                                  derived arms + the derived closure), at the state of
+//                                  forward/closure (bench_ukdyn.cpp): the ratio of the two is the
+//                                  cost of forward dynamics from definitions
 #include <benchmark/benchmark.h>
 
 #include <memory>
 #include <random>
 #include <string>
 
+#include "paper_model.hpp"
+#include "ukdyn/model/system.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
@@ -114,9 +120,7 @@ void dynamics(benchmark::State& state, Make make) {
   Mat M(6, 6);
   Vec c(6), g(6);
   for (auto _ : state) {
-    sub->mass(q, M);
-    sub->coriolis_times_qd(q, qd, c);
-    sub->gravity(q, g);
+    sub->dynamics(q, qd, M, c, g);  // what forward() calls
     benchmark::DoNotOptimize(M.data());
     benchmark::DoNotOptimize(c.data());
     benchmark::DoNotOptimize(g.data());
@@ -169,5 +173,40 @@ void Symbolic_ClosureClosedForm(benchmark::State& state) {
   closure(state, c);
 }
 BENCHMARK(Symbolic_ClosureClosedForm);
+
+// The paper's closure system from definitions only; the same equations as ukbench::paper_model()
+// (scalar inertias, Table 1), so forward() must give the same q̈ (checked before timing).
+const ukdyn::System& definitions_closure_system() {
+  static const ukdyn::System sys = [] {
+    ukdyn::System s;
+    s.add_subsystem(sym::make_subsystem(paper_arm("L")));
+    s.add_subsystem(sym::make_subsystem(paper_arm("R")));
+    s.add_constraint(paper_closure());
+    return s;
+  }();
+  return sys;
+}
+
+void Forward_ClosureDefinitions(benchmark::State& state) {
+  const ukdyn::System& sys = definitions_closure_system();
+  const ukbench::PaperModel& pm = ukbench::paper_model();
+  ukdyn::ForwardData data(sys), ref(pm.closure);
+  const Vec tau = Vec::Zero(12);
+  ukdyn::forward(pm.closure, ref, 0.0, pm.q0, pm.qd0_spatial, tau);
+  ukdyn::forward(sys, data, 0.0, pm.q0, pm.qd0_spatial, tau);
+  const double diff = (data.qdd - ref.qdd).cwiseAbs().maxCoeff();
+  if (!(diff <= 1e-10 * (1.0 + ref.qdd.cwiseAbs().maxCoeff()))) {
+    state.SkipWithError("definitions and closed form disagree on q̈");
+    return;
+  }
+  for (auto _ : state) {
+    ukdyn::forward(sys, data, 0.0, pm.q0, pm.qd0_spatial, tau);
+    benchmark::DoNotOptimize(data.qdd.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["rank"] = data.result.rank;
+  state.counters["qdd_diff"] = diff;
+}
+BENCHMARK(Forward_ClosureDefinitions)->Name("forward/closure_definitions");
 
 }  // namespace

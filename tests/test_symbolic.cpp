@@ -104,6 +104,34 @@ TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
   EXPECT_THROW(sym::Tape({GiNaC::symbol("stranger")}, in), ukdyn::Error);
 }
 
+// sin and cos of one argument are computed by one sincos (the first of the two in the tape writes
+// both); either order, a pair sharing nothing, and a lone sin or cos must all give exactly
+// std::sin / std::cos.
+TEST(SymbolicTape, SinCosPairsGiveTheSeparateCallsValues) {
+  const GiNaC::symbol a = sym::coordinate_symbol("sc_a"), b = sym::coordinate_symbol("sc_b");
+  sym::InputMap in;
+  in[a] = {sym::TapeInput::Source::q, 0};
+  in[b] = {sym::TapeInput::Source::q, 1};
+  const std::vector<ex> outs = {GiNaC::cos(a + b), GiNaC::sin(a) * 2, GiNaC::sin(a + b),
+                                GiNaC::cos(a) + GiNaC::sin(b), GiNaC::cos(a)};
+  const sym::Tape tape(outs, in);
+  // a + b; sin, cos of a + b; sin, cos of a; sin b; ·2; +  — counted as before fusing.
+  EXPECT_EQ(tape.operations(), 8u);
+  EXPECT_EQ(tape.sincos_pairs(), 2u);  // (a + b) and a; sin b stays alone
+  std::mt19937_64 rng(4);
+  for (int k = 0; k < 1000; ++k) {
+    const double q[2] = {uktest::uniform(rng, -50, 50), uktest::uniform(rng, -50, 50)};
+    double out[5];
+    tape.eval(0.0, q, nullptr, out);
+    const double ab = q[0] + q[1];
+    EXPECT_EQ(out[0], std::cos(ab));
+    EXPECT_EQ(out[1], std::sin(q[0]) * 2);
+    EXPECT_EQ(out[2], std::sin(ab));
+    EXPECT_EQ(out[3], std::cos(q[0]) + std::sin(q[1]));
+    EXPECT_EQ(out[4], std::cos(q[0]));
+  }
+}
+
 // ------------------------------------------------------------------------------------ subsystems
 
 // Double pendulum (point masses): textbook M, C q̇ and G, written by hand here.
@@ -144,6 +172,16 @@ TEST(SymbolicSubsystem, DoublePendulumMatchesTextbook) {
     EXPECT_LT((c - cref).norm(), 1e-13);
     EXPECT_LT((G - gref).norm(), 1e-13);
     EXPECT_NEAR(sub->kinetic(q, qd), 0.5 * qd.dot(Mref * qd), 1e-13);
+    // dynamics() (one combined tape, used by forward()) writes every entry and agrees with the
+    // three separate tapes and with the textbook.
+    Mat M3 = Mat::Constant(2, 2, 123.0);
+    Vec c3 = Vec::Constant(2, 123.0), G3 = Vec::Constant(2, 123.0);
+    sub->dynamics(q, qd, M3, c3, G3);
+    EXPECT_LE((M3 - M).norm(), 1e-15 * (1.0 + M.norm()));
+    EXPECT_LE((c3 - c).norm(), 1e-15 * (1.0 + c.norm()));
+    EXPECT_LE((G3 - G).norm(), 1e-15 * (1.0 + G.norm()));
+    EXPECT_LT((M3 - Mref).norm(), 1e-13);
+    EXPECT_LT((c3 - cref).norm(), 1e-13);
   }
 }
 

@@ -352,6 +352,12 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   mass_ = Tape(m, in);
   cqd_ = Tape(cqd, in);
   grav_ = Tape(g, in);
+  // One tape for forward(): M's upper triangle, C q̇ and G together, so that the subexpressions
+  // they share (the sin/cos of the angles, above all) are computed once per evaluation.
+  std::vector<ex> all = m;
+  all.insert(all.end(), cqd.begin(), cqd.end());
+  all.insert(all.end(), g.begin(), g.end());
+  dyn_ = Tape(all, in);
   cor_ = Tape(c, in);
   pot_ = Tape({numeric_form(d_.V, pv)}, in);
   kin_ = Tape({numeric_form(d_.T, pv)}, in);
@@ -375,6 +381,28 @@ void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
       ++k;
     }
   }
+}
+
+void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
+  constexpr std::size_t kStack = 32 * 33 / 2 + 2 * 32;
+  double buf[kStack];
+  std::vector<double> big;
+  double* out = buf;
+  if (dyn_.outputs() > kStack) {
+    big.resize(dyn_.outputs());  // only for subsystems of more than 32 coordinates
+    out = big.data();
+  }
+  dyn_.eval(0.0, q.data(), qd.data(), out);
+  std::size_t k = 0;
+  for (Index i = 0; i < n_; ++i) {
+    for (Index j = i; j < n_; ++j) {
+      M(i, j) = out[k];
+      M(j, i) = out[k];
+      ++k;
+    }
+  }
+  for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
+  for (Index i = 0; i < n_; ++i) G(i) = out[k++];
 }
 
 void DerivedSubsystem::coriolis(CVecRef q, CVecRef qd, MatRef C) const {

@@ -142,6 +142,8 @@ class DerivedSubsystem final : public Subsystem {
   void coriolis(CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(CVecRef q, VecRef G) const override;
+  /// M, C q̇ and G from one tape (shared subexpressions computed once), for forward().
+  void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(CVecRef q, CVecRef qd) const;
@@ -156,7 +158,7 @@ class DerivedSubsystem final : public Subsystem {
   SubsystemDerivation d_;
   std::string name_;
   Index n_;
-  Tape mass_, cqd_, grav_, cor_, pot_, kin_;
+  Tape mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
 };
 
 /// derive + compile.

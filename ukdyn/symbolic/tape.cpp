@@ -1,7 +1,9 @@
 #include "ukdyn/symbolic/tape.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 #include "ukdyn/symbolic/spline.hpp"
@@ -256,14 +258,50 @@ Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {
   for (const ex& e : outputs) out_.push_back(compile(e, inputs));
   numbering_.clear();
   memo_.clear();
+  fuse_sin_cos();
+}
+
+// Kinematics gives sin and cos of the same angle everywhere; one sincos costs about as much as one
+// of the two calls. Each pair sin(x), cos(x) of the tape (common subexpressions are already
+// shared, so there is at most one of each per x) becomes: the first of the two computes both and
+// writes the other's slot, the second is skipped. Both slots get exactly the values the separate
+// calls give (std::sin/std::cos and the sincos g++ emits for them are the same libm routines).
+void Tape::fuse_sin_cos() {
+  std::map<std::int32_t, std::pair<std::int32_t, std::int32_t>> by_arg;  // x → (sin, cos)
+  for (std::size_t i = 0; i < code_.size(); ++i) {
+    const Instr& I = code_[i];
+    if (I.op != Op::sin && I.op != Op::cos) continue;
+    auto [it, fresh] = by_arg.try_emplace(I.a, -1, -1);
+    (I.op == Op::sin ? it->second.first : it->second.second) = static_cast<std::int32_t>(i);
+  }
+  for (const auto& [x, sc] : by_arg) {
+    const auto [si, ci] = sc;
+    if (si < 0 || ci < 0) continue;
+    const std::int32_t first = std::min(si, ci), second = std::max(si, ci);
+    Instr& F = code_[static_cast<std::size_t>(first)];
+    F.op = first == si ? Op::sin_cos : Op::cos_sin;
+    F.b = second;
+    code_[static_cast<std::size_t>(second)].op = Op::fused;
+  }
 }
 
 std::size_t Tape::operations() const {
   std::size_t k = 0;
   for (const Instr& I : code_) {
-    if (I.op != Op::constant && I.op != Op::time && I.op != Op::q && I.op != Op::qd) ++k;
+    if (I.op == Op::sin_cos || I.op == Op::cos_sin) {
+      k += 2;  // still two functions, as before fusing
+    } else if (I.op != Op::constant && I.op != Op::time && I.op != Op::q && I.op != Op::qd &&
+               I.op != Op::fused) {
+      ++k;
+    }
   }
   return k;
+}
+
+std::size_t Tape::sincos_pairs() const {
+  return static_cast<std::size_t>(std::count_if(code_.begin(), code_.end(), [](const Instr& I) {
+    return I.op == Op::sin_cos || I.op == Op::cos_sin;
+  }));
 }
 
 void Tape::eval(double t, const double* q, const double* qd, double* out) const {
@@ -314,6 +352,16 @@ void Tape::eval(double t, const double* q, const double* qd, double* out) const 
         v = splines_[k / 4]->eval(w[I.a], static_cast<int>(k % 4));
         break;
       }
+      case Op::sin_cos:
+      case Op::cos_sin: {
+        const double x = w[I.a];
+        const double s = std::sin(x), c = std::cos(x);  // one sincos call
+        v = I.op == Op::sin_cos ? s : c;
+        w[I.b] = I.op == Op::sin_cos ? c : s;
+        break;
+      }
+      case Op::fused:
+        continue;  // written by the first of the pair
       default:
         v = apply(I.op, w[I.a], w[I.b], I.imm);
         break;

@@ -58,7 +58,10 @@ class Tape {
     cosh,
     tanh,
     abs,
-    spline  ///< splines_[imm / 4]->eval(a, imm % 4) (ukdyn/symbolic/spline.hpp)
+    spline,   ///< splines_[imm / 4]->eval(a, imm % 4) (ukdyn/symbolic/spline.hpp)
+    sin_cos,  ///< a sin whose argument also has a cos: w = sin(a), and w[b] = cos(a)
+    cos_sin,  ///< a cos whose argument also has a sin: w = cos(a), and w[b] = sin(a)
+    fused     ///< the second of such a pair: already written by the first, nothing to do
   };
   struct Instr {
     Op op;
@@ -76,6 +79,8 @@ class Tape {
   [[nodiscard]] std::size_t instructions() const { return code_.size(); }
   /// Number of arithmetic/function instructions (not loads or constants).
   [[nodiscard]] std::size_t operations() const;
+  /// Number of sin/cos pairs of one argument evaluated by one sincos.
+  [[nodiscard]] std::size_t sincos_pairs() const;
 
   /// Evaluates every output into out[0..outputs()). q and qd may be null if the tape reads none.
   /// Allocation-free after the first call on a thread (the work buffer is thread-local).
@@ -86,6 +91,7 @@ class Tape {
   std::int32_t compile(const GiNaC::ex& e, const InputMap& inputs);
   std::int32_t constant(double v) { return emit(Op::constant, 0, 0, v); }
   std::int32_t power(std::int32_t base, long n);
+  void fuse_sin_cos();
 
   std::vector<Instr> code_;
   std::vector<std::int32_t> out_;
