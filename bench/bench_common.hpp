@@ -5,6 +5,7 @@
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
+#include <array>
 #include <map>
 #include <string>
 #include <vector>
@@ -32,7 +33,7 @@ using Timings = std::map<std::string, Timing>;
 
 /// One row of the "constraint violation held over the same 4 s" table.
 struct ViolationRow {
-  std::string engine;  ///< "ukdyn" / "MuJoCo 2.2.2"
+  std::string engine;  ///< "ukdyn" / "MuJoCo 2.2.2" / "Simbody 3.7"
   std::string setup;   ///< integrator, step, tolerance
   std::string start;   ///< "qd0 = 0" or "spatial qd0"
   double wall_ms = 0;  ///< wall time of the 4 s run (median of a few runs, no measuring)
@@ -51,6 +52,43 @@ std::vector<ViolationRow> ukdyn_violation_rows(bool spatial, std::vector<double>
 bool register_mujoco_benchmarks();
 /// The same 4 s runs in MuJoCo (Euler and RK4, default and stiff solref).
 std::vector<ViolationRow> mujoco_violation_rows(bool spatial, const std::vector<double>& q_ref_05);
+#endif
+
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+/// The paper's mechanism and the few ukdyn results the Simbody part compares with, in plain types:
+/// bench_simbody.cpp is compiled as C++17 (Simbody 3.7's headers do not compile as C++20), so it
+/// cannot include paper_model.hpp. Filled from ukdyn's model by paper_mechanism() (bench_main.cpp).
+struct PaperMechanism {
+  struct Arm {  ///< ukdyn::MobileManipulatorParams of one robot (Table 1)
+    double platform_mass = 0, base_mass = 0, base_inertia = 0, base_length = 0;
+    std::array<double, 3> link_mass{}, link_inertia{}, link_length{};
+  };
+  std::array<Arm, 2> arm;
+  double gravity = 0;           ///< along −z
+  std::array<double, 12> q0{};  ///< paper coordinates (absolute pitch angles)
+  std::array<double, 12> qd0_spatial{};
+  std::array<double, 12> qdd_spatial{};  ///< ukdyn forward() q̈ at (q0, qd0_spatial), τ = 0
+  /// max |Φ| over ukdyn's 6 closure position residuals at (t, q), q in paper coordinates.
+  double (*max_closure_residual)(double t, const std::array<double, 12>& q) = nullptr;
+};
+const PaperMechanism& paper_mechanism();
+
+/// Simbody benchmarks (bench_simbody.cpp). Returns false if the Simbody model cannot be built.
+bool register_simbody_benchmarks();
+/// The same 4 s runs with Simbody's Runge-Kutta-Merson integrator (its default projection).
+std::vector<ViolationRow> simbody_violation_rows(bool spatial, const std::vector<double>& q_ref_05);
+
+/// Simbody's state at (q0, spatial q̇0) realized to Stage::Acceleration, against ukdyn's forward().
+struct SimbodyModelCheck {
+  std::string error;     ///< empty if the check ran
+  int rows = 0;          ///< Simbody's constraint equations (multipliers)
+  double q_err = -1;     ///< max |position constraint error| (Simbody's own rows)
+  double u_err = -1;     ///< max |velocity constraint error|
+  double udot_err = -1;  ///< max |acceleration constraint error|
+  double qdd_diff = -1;  ///< max |q̈_Simbody − q̈_ukdyn| in the paper's coordinates
+  double qdd_max = -1;   ///< max |q̈_ukdyn| (scale of the difference)
+};
+SimbodyModelCheck simbody_model_check();
 #endif
 
 }  // namespace ukbench

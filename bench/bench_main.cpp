@@ -1,6 +1,6 @@
 // ukdyn_bench: Google Benchmark runner with a reporter that also collects the results, so that the
-// ratios (textbook / Cholesky, MuJoCo / ukdyn) and the constraint-violation table are computed from
-// the SAME run and printed at the end.
+// ratios (textbook / Cholesky, MuJoCo / ukdyn, Simbody / ukdyn) and the constraint-violation table
+// are computed from the SAME run and printed at the end.
 //
 //   build/bench/bench/ukdyn_bench --benchmark_min_time=0.2
 //   build/bench/bench/ukdyn_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
@@ -13,8 +13,57 @@
 #include <vector>
 
 #include "bench_common.hpp"
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+#include "paper_model.hpp"
+#endif
 
 namespace ukbench {
+
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+namespace {
+
+PaperMechanism::Arm arm_of(const ukdyn::MobileManipulator& m) {
+  const ukdyn::MobileManipulatorParams& p = m.params();
+  return {p.platform_mass, p.base_mass,    p.base_inertia, p.base_length,
+          p.link_mass,     p.link_inertia, p.link_length};
+}
+
+std::array<double, 12> to_array(const ukdyn::Vec& v) {
+  std::array<double, 12> a{};
+  for (std::size_t i = 0; i < a.size(); ++i) a[i] = v[static_cast<ukdyn::Index>(i)];
+  return a;
+}
+
+double max_closure_residual(double t, const std::array<double, 12>& q) {
+  const PaperModel& pm = paper_model();
+  thread_local ukdyn::Vec phi(pm.closure.rows());
+  ukdyn::position_residuals(pm.closure, t, Eigen::Map<const ukdyn::Vec>(q.data(), 12), phi);
+  return max_abs(phi);
+}
+
+PaperMechanism make_paper_mechanism() {
+  const PaperModel& pm = paper_model();
+  PaperMechanism m;
+  m.arm = {arm_of(*pm.left), arm_of(*pm.right)};
+  m.gravity = pm.left->params().gravity;
+  m.q0 = to_array(pm.q0);
+  m.qd0_spatial = to_array(pm.qd0_spatial);
+  ukdyn::ForwardData data(pm.closure);
+  const ukdyn::Vec tau = ukdyn::Vec::Zero(pm.closure.dof());
+  ukdyn::forward(pm.closure, data, 0.0, pm.q0, pm.qd0_spatial, tau);
+  m.qdd_spatial = to_array(data.qdd);
+  m.max_closure_residual = &max_closure_residual;
+  return m;
+}
+
+}  // namespace
+
+const PaperMechanism& paper_mechanism() {
+  static const PaperMechanism m = make_paper_mechanism();
+  return m;
+}
+#endif
+
 namespace {
 
 double to_ns(double value, benchmark::TimeUnit unit) {
@@ -102,11 +151,11 @@ void print_ratio(const Timings& ts, const std::string& label, const std::string&
   const Timing* a = find(ts, slow);
   const Timing* b = find(ts, fast);
   if (a == nullptr || b == nullptr) {
-    std::printf("  %-58s n/a (not run)\n", label.c_str());
+    std::printf("  %-64s n/a (not run)\n", label.c_str());
     return;
   }
   const double r = a->median / b->median;
-  std::printf("  %-58s %8.1fx", label.c_str(), r);
+  std::printf("  %-64s %8.1fx", label.c_str(), r);
   if (target > 0) std::printf("   (target >= %.0fx: %s)", target, r >= target ? "met" : "NOT met");
   std::printf("\n");
 }
@@ -129,33 +178,46 @@ void print_summary(const Timings& ts) {
   }
   print_ratio(ts, "forward: mj_forward / ukdyn forward (closure)", "mujoco/mj_forward",
               "forward/closure", 5.0);
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+  print_ratio(ts, "forward: Simbody realize(Acceleration) / ukdyn forward (closure)",
+              "simbody/realize_acceleration", "forward/closure");
+#endif
   print_ratio(ts, "forward: closure+trajectory / closure", "forward/closure+trajectory",
               "forward/closure");
+  print_ratio(ts, "forward: from definitions / closed form (closure)",
+              "forward/closure_definitions", "forward/closure");
+  if (const Timing* d = find(ts, "forward/closure_definitions"))
+    if (const Timing* f = find(ts, "forward/closure"))
+      std::printf("  %-64s %8.2fx (target <= 3x: %s)\n",
+                  "forward from definitions, cost relative to the closed form",
+                  d->median / f->median, d->median <= 3.0 * f->median ? "met" : "NOT met");
+  print_ratio(ts, "model only, one arm: M, C qd, G from definitions / closed form",
+              "Symbolic_DynamicsDerived", "Symbolic_DynamicsClosedForm");
+  print_ratio(ts, "model only: closure A, b from definitions / closed form",
+              "Symbolic_ClosureDerived", "Symbolic_ClosureClosedForm");
 
   if (const Timing* f = find(ts, "forward/closure"))
-    std::printf("  %-58s %s (target <= 1 us: %s)\n", "ukdyn forward (closure), absolute",
+    std::printf("  %-64s %s (target <= 1 us: %s)\n", "ukdyn forward (closure), absolute",
                 fmt_time(f->median).c_str(), f->median <= 1e3 ? "met" : "NOT met");
   if (const Timing* p = find(ts, "simulate/paper_4s_dopri5_1e-12"))
-    std::printf("  %-58s %s (target <= 20 ms: %s)\n", "paper 4 s scenario, dopri5 1e-12, absolute",
+    std::printf("  %-64s %s (target <= 20 ms: %s)\n", "paper 4 s scenario, dopri5 1e-12, absolute",
                 fmt_time(p->median).c_str(), p->median <= 20e6 ? "met" : "NOT met");
   if (const Timing* r = find(ts, "simulate/free_10s_rk4_1kHz")) {
     const double per_step = r->median / 10000.0;
-    std::printf("  %-58s %s\n", "ukdyn RK4 step (10 s run / 10000 steps, incl. output)",
+    std::printf("  %-64s %s\n", "ukdyn RK4 step (10 s run / 10000 steps, incl. output)",
                 fmt_time(per_step).c_str());
     if (const Timing* m = find(ts, "mujoco/mj_step_rk4"))
-      std::printf("  %-58s %8.1fx\n", "step: mj_step (RK4) / ukdyn RK4 step", m->median / per_step);
+      std::printf("  %-64s %8.1fx\n", "step: mj_step (RK4) / ukdyn RK4 step", m->median / per_step);
   }
 }
 
 void print_violation_table() {
   std::printf(
-      "\nConstraint violation held over the same 4 s of free motion (closure only, tau = 0, from "
-      "the\n"
-      "paper's q0; MuJoCo measured every step, ukdyn every 1 ms). gap = max |cut point 1 - cut "
-      "point 2|;\n"
-      "|Phi| = max over the 6 closure rows of ukdyn's position residuals (MuJoCo's state mapped to "
-      "the\n"
-      "paper's coordinates); dq(0.5 s) = max |q - q_ref| at t = 0.5 s against ukdyn dopri5 1e-12;\n"
+      "\nConstraint violation held over the same 4 s of free motion (closure only, tau = 0, from\n"
+      "the paper's q0; MuJoCo measured every step, ukdyn and Simbody every 1 ms).\n"
+      "gap = max |cut point 1 - cut point 2|; |Phi| = max over the 6 closure rows of ukdyn's\n"
+      "position residuals (MuJoCo's and Simbody's states mapped to the paper's coordinates);\n"
+      "dq(0.5 s) = max |q - q_ref| at t = 0.5 s against ukdyn dopri5 1e-12;\n"
       "wall = median of 3 runs of the 4 s, without measuring.\n");
   std::printf("  %-12s %-44s %-11s %10s %11s %11s %11s\n", "engine", "setup", "start", "wall",
               "max gap [m]", "max |Phi|", "dq(0.5 s)");
@@ -166,9 +228,14 @@ void print_violation_table() {
     std::vector<ViolationRow> mj = mujoco_violation_rows(spatial, q_ref);
     rows.insert(rows.end(), mj.begin(), mj.end());
 #endif
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+    std::vector<ViolationRow> sb = simbody_violation_rows(spatial, q_ref);
+    rows.insert(rows.end(), sb.begin(), sb.end());
+#endif
     for (const ViolationRow& r : rows) {
       char dq[32] = "ref";
       if (r.q_diff > 0) std::snprintf(dq, sizeof dq, "%.2e", r.q_diff);
+      if (r.q_diff < 0) std::snprintf(dq, sizeof dq, "n/a");
       std::printf("  %-12s %-44s %-11s %7.2f ms %11.2e %11.2e %11s\n", r.engine.c_str(),
                   r.setup.c_str(), r.start.c_str(), r.wall_ms, r.max_gap, r.max_phi, dq);
     }
@@ -176,7 +243,29 @@ void print_violation_table() {
 #ifndef UKDYN_BENCH_HAVE_MUJOCO
   std::printf("  (MuJoCo not found at configure time: no MuJoCo rows)\n");
 #endif
+#ifndef UKDYN_BENCH_HAVE_SIMBODY
+  std::printf("  (Simbody not found at configure time: no Simbody rows)\n");
+#endif
 }
+
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+/// Simbody's u̇ at the benchmarked state against ukdyn's q̈ (same model, same state): not timed.
+void print_simbody_model_check() {
+  const SimbodyModelCheck c = simbody_model_check();
+  std::printf(
+      "\nSimbody model check at (q0, spatial qd0), realize(Acceleration) vs ukdyn forward():\n");
+  if (!c.error.empty()) {
+    std::printf("  failed: %s\n", c.error.c_str());
+    return;
+  }
+  std::printf("  max |qdd_Simbody - qdd_ukdyn| = %.2e (max |qdd_ukdyn| = %.2e)\n", c.qdd_diff,
+              c.qdd_max);
+  std::printf(
+      "  Simbody's %d constraint rows: max |position err| = %.1e, |velocity err| = %.1e, "
+      "|acceleration err| = %.1e\n",
+      c.rows, c.q_err, c.u_err, c.udot_err);
+}
+#endif
 
 }  // namespace
 }  // namespace ukbench
@@ -189,11 +278,17 @@ int main(int argc, char** argv) {
 #ifdef UKDYN_BENCH_HAVE_MUJOCO
   ukbench::register_mujoco_benchmarks();
 #endif
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+  ukbench::register_simbody_benchmarks();
+#endif
 
   ukbench::CollectingReporter reporter;
   const std::size_t ran = benchmark::RunSpecifiedBenchmarks(&reporter);
   if (ran > 0) {
     ukbench::print_summary(reporter.results());
+#ifdef UKDYN_BENCH_HAVE_SIMBODY
+    ukbench::print_simbody_model_check();
+#endif
     ukbench::print_violation_table();
   }
   std::fflush(stdout);

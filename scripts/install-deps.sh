@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian packages ukdyn needs (only those missing). Idempotent.
 #   scripts/install-deps.sh            build + run + test dependencies
-#   scripts/install-deps.sh --bench    also the benchmark dependencies (MuJoCo)
+#   scripts/install-deps.sh --bench    also the benchmark dependencies (MuJoCo, Simbody)
 #   scripts/install-deps.sh --fuzz     also clang 14 and its runtime (libFuzzer: -fsanitize=fuzzer)
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
@@ -9,7 +9,7 @@ pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcl
       libginac-dev liburdfdom-dev)
 for arg in "$@"; do
   case "$arg" in
-    --bench) pkgs+=(libbenchmark-dev libmujoco-dev) ;;
+    --bench) pkgs+=(libbenchmark-dev libmujoco-dev libsimbody-dev) ;;
     --fuzz) pkgs+=(clang-14 libclang-rt-14-dev) ;;
   esac
 done
