@@ -22,6 +22,9 @@ inline benchmark::internal::Benchmark* with_min_max(benchmark::internal::Benchma
       });
 }
 
+/// with_min_max for BENCHMARK(...)->Apply(add_min_max).
+inline void add_min_max(benchmark::internal::Benchmark* b) { with_min_max(b); }
+
 /// CPU time per iteration of one benchmark, in nanoseconds.
 struct Timing {
   std::vector<double> repetitions;  ///< per-repetition times, when the reporter saw them

@@ -15,6 +15,7 @@
 #include <random>
 #include <string>
 
+#include "bench_common.hpp"
 #include "paper_model.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
@@ -110,7 +111,7 @@ void Symbolic_DerivePaperArm(benchmark::State& state) {
     benchmark::DoNotOptimize(sub);
   }
 }
-BENCHMARK(Symbolic_DerivePaperArm)->Unit(benchmark::kMillisecond);
+BENCHMARK(Symbolic_DerivePaperArm)->Unit(benchmark::kMillisecond)->Apply(ukbench::add_min_max);
 
 template <class Make>
 void dynamics(benchmark::State& state, Make make) {
@@ -132,7 +133,7 @@ void Symbolic_DynamicsDerived(benchmark::State& state) {
     return std::shared_ptr<const ukdyn::Subsystem>(sym::make_subsystem(paper_arm("E")));
   });
 }
-BENCHMARK(Symbolic_DynamicsDerived);
+BENCHMARK(Symbolic_DynamicsDerived)->Apply(ukbench::add_min_max);
 
 void Symbolic_DynamicsClosedForm(benchmark::State& state) {
   dynamics(state, [] {
@@ -141,7 +142,7 @@ void Symbolic_DynamicsClosedForm(benchmark::State& state) {
         std::vector<std::string>{"a", "b", "c", "d", "e", "f"}));
   });
 }
-BENCHMARK(Symbolic_DynamicsClosedForm);
+BENCHMARK(Symbolic_DynamicsClosedForm)->Apply(ukbench::add_min_max);
 
 void closure(benchmark::State& state, const ukdyn::Constraint& c) {
   std::mt19937_64 rng(2);
@@ -160,7 +161,7 @@ void Symbolic_ClosureDerived(benchmark::State& state) {
   const auto c = paper_closure();
   closure(state, *c);
 }
-BENCHMARK(Symbolic_ClosureDerived);
+BENCHMARK(Symbolic_ClosureDerived)->Apply(ukbench::add_min_max);
 
 void Symbolic_ClosureClosedForm(benchmark::State& state) {
   auto l = std::make_shared<ukdyn::MobileManipulator>(
@@ -172,7 +173,7 @@ void Symbolic_ClosureClosedForm(benchmark::State& state) {
   const ukdyn::ClosureConstraint c(l, 0, r, 6, {});
   closure(state, c);
 }
-BENCHMARK(Symbolic_ClosureClosedForm);
+BENCHMARK(Symbolic_ClosureClosedForm)->Apply(ukbench::add_min_max);
 
 // The paper's closure system from definitions only; the same equations as ukbench::paper_model()
 // (scalar inertias, Table 1), so forward() must give the same q̈ (checked before timing).
@@ -207,6 +208,8 @@ void Forward_ClosureDefinitions(benchmark::State& state) {
   state.counters["rank"] = data.result.rank;
   state.counters["qdd_diff"] = diff;
 }
-BENCHMARK(Forward_ClosureDefinitions)->Name("forward/closure_definitions");
+BENCHMARK(Forward_ClosureDefinitions)
+    ->Name("forward/closure_definitions")
+    ->Apply(ukbench::add_min_max);
 
 }  // namespace
