@@ -4,6 +4,7 @@
 #include <Eigen/LU>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <type_traits>
@@ -71,6 +72,76 @@ void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Ind
     for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
     x[i] = s * inv_diag[i];
   }
+}
+
+// The same three kernels for P blocks of one compile-time size N at once, in lockstep. One block's
+// Cholesky or substitution is a chain of dependent steps (sqrt, division, multiply-adds); the
+// blocks are independent, so running them side by side overlaps their latencies. Each block gets
+// exactly the operations of chol_block<N> / l_solve<N> / lt_solve<N>.
+template <int N, int P>
+bool chol_lockstep(const std::array<const double*, P>& M, Index ldm,
+                   const std::array<double*, P>& L, Index ldl,
+                   const std::array<double*, P>& inv_diag) {
+  for (Index j = 0; j < N; ++j) {
+    double d[P], inv[P];
+    bool ok = true;
+    for (int p = 0; p < P; ++p) {
+      double v = M[p][j + j * ldm];
+      for (Index k = 0; k < j; ++k) v -= L[p][j + k * ldl] * L[p][j + k * ldl];
+      d[p] = v;
+      ok = ok && d[p] > 0.0;
+    }
+    if (!ok) return false;
+    for (int p = 0; p < P; ++p) {
+      const double ljj = std::sqrt(d[p]);
+      inv[p] = 1.0 / ljj;
+      L[p][j + j * ldl] = ljj;
+      inv_diag[p][j] = inv[p];
+    }
+    for (Index i = j + 1; i < N; ++i) {
+      for (int p = 0; p < P; ++p) {
+        double v = M[p][i + j * ldm];
+        for (Index k = 0; k < j; ++k) v -= L[p][i + k * ldl] * L[p][j + k * ldl];
+        L[p][i + j * ldl] = v * inv[p];
+      }
+    }
+  }
+  return true;
+}
+
+template <int N, int P>
+void l_solve_lockstep(const std::array<const double*, P>& L, Index ldl,
+                      const std::array<const double*, P>& inv_diag,
+                      const std::array<double*, P>& x) {
+  for (Index i = 0; i < N; ++i) {
+    for (int p = 0; p < P; ++p) {
+      double v = x[p][i];
+      for (Index k = 0; k < i; ++k) v -= L[p][i + k * ldl] * x[p][k];
+      x[p][i] = v * inv_diag[p][i];
+    }
+  }
+}
+
+template <int N, int P>
+void lt_solve_lockstep(const std::array<const double*, P>& L, Index ldl,
+                       const std::array<const double*, P>& inv_diag,
+                       const std::array<double*, P>& x) {
+  for (Index i = N - 1; i >= 0; --i) {
+    for (int p = 0; p < P; ++p) {
+      double v = x[p][i];
+      for (Index k = i + 1; k < N; ++k) v -= L[p][k + i * ldl] * x[p][k];
+      x[p][i] = v * inv_diag[p][i];
+    }
+  }
+}
+
+// True when the layout is NB blocks of size 6 at 0, 6, 12, … (the paper's arms).
+template <int NB>
+bool is_fixed6(const BlockLayout& lay) {
+  if (lay.blocks() != std::size_t{NB}) return false;
+  for (std::size_t k = 0; k < lay.blocks(); ++k)
+    if (lay.start[k] != Index{6} * static_cast<Index>(k) || lay.size[k] != 6) return false;
+  return true;
 }
 
 // Calls f(std::integral_constant<int, 6>) for blocks of size 6 (the paper's arms) and
@@ -143,6 +214,13 @@ void finish(const Mat& A, const Vec& b, const Vec& qdd, const Vec& Qc, const UkS
 bool factor_mass(const Mat& M, UkWorkspace& ws) {
   const auto& lay = ws.layout;
   const Index ldm = M.rows(), ldl = ws.L.rows();
+  if (is_fixed6<2>(lay)) {  // the paper's two arms: both blocks in lockstep
+    const double* Md = M.data();
+    double* Ld = ws.L.data();
+    double* id = ws.inv_diag.data();
+    return chol_lockstep<6, 2>({Md, Md + 6 + 6 * ldm}, ldm, {Ld, Ld + 6 + 6 * ldl}, ldl,
+                               {id, id + 6});
+  }
   for (std::size_t k = 0; k < lay.blocks(); ++k) {
     const Index s = lay.start[k], n = lay.size[k];
     const double* Mk = M.data() + s + s * ldm;
@@ -185,14 +263,16 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   double* rr = ws.tmp_m.data();
   Index* piv = ws.piv.data();
   for (Index j = 0; j < n; ++j) y[j] = Q[j];
-  for (std::size_t k = 0; k < nb; ++k) {
-    const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
-    const Index nk = NB > 0 ? Index{6} : lay.size[k];
-    const double* Lk = ws.L.data() + s + s * ldl;
-    const double* id = ws.inv_diag.data() + s;
-    if constexpr (NB > 0) {
-      l_solve<6>(Lk, ldl, id, y + s, 6);
-    } else {
+  if constexpr (NB == 2) {
+    const double* Ld = ws.L.data();
+    const double* id = ws.inv_diag.data();
+    l_solve_lockstep<6, 2>({Ld, Ld + 6 + 6 * ldl}, ldl, {id, id + 6}, {y, y + 6});
+  } else {
+    for (std::size_t k = 0; k < nb; ++k) {
+      const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
+      const Index nk = NB > 0 ? Index{6} : lay.size[k];
+      const double* Lk = ws.L.data() + s + s * ldl;
+      const double* id = ws.inv_diag.data() + s;
       with_block_size(nk, [&](auto N) { l_solve<decltype(N)::value>(Lk, ldl, id, y + s, nk); });
     }
   }
@@ -394,14 +474,16 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     qc[j] = s;
     q[j] = y[j] + sx;
   }
-  for (std::size_t k = 0; k < nb; ++k) {
-    const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
-    const Index nk = NB > 0 ? Index{6} : lay.size[k];
-    const double* Lk = ws.L.data() + s + s * ldl;
-    const double* id = ws.inv_diag.data() + s;
-    if constexpr (NB > 0) {
-      lt_solve<6>(Lk, ldl, id, q + s, 6);
-    } else {
+  if constexpr (NB == 2) {
+    const double* Ld = ws.L.data();
+    const double* id = ws.inv_diag.data();
+    lt_solve_lockstep<6, 2>({Ld, Ld + 6 + 6 * ldl}, ldl, {id, id + 6}, {q, q + 6});
+  } else {
+    for (std::size_t k = 0; k < nb; ++k) {
+      const Index s = NB > 0 ? Index{6} * static_cast<Index>(k) : lay.start[k];
+      const Index nk = NB > 0 ? Index{6} : lay.size[k];
+      const double* Lk = ws.L.data() + s + s * ldl;
+      const double* id = ws.inv_diag.data() + s;
       with_block_size(nk, [&](auto N) { lt_solve<decltype(N)::value>(Lk, ldl, id, q + s, nk); });
     }
   }
@@ -427,15 +509,6 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   res.consistent = res.residual <= settings.consistency_rel_tol * scale;
   res.finite = all_finite(q, n) && all_finite(qc, n) && std::isfinite(res.residual);
   return res;
-}
-
-// True when the layout is NB blocks of size 6 at 0, 6, 12, … (the paper's arms).
-template <int NB>
-bool is_fixed6(const BlockLayout& lay) {
-  if (lay.blocks() != std::size_t{NB}) return false;
-  for (std::size_t k = 0; k < lay.blocks(); ++k)
-    if (lay.start[k] != Index{6} * static_cast<Index>(k) || lay.size[k] != 6) return false;
-  return true;
 }
 
 }  // namespace
