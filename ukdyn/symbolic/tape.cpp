@@ -123,7 +123,7 @@ std::int32_t Tape::emit(Op op, std::int32_t a, std::int32_t b, double imm) {
   const Key key{op, a, b, std::bit_cast<std::uint64_t>(imm)};
   if (auto it = numbering_.find(key); it != numbering_.end()) return it->second;
   const auto id = static_cast<std::int32_t>(code_.size());
-  code_.push_back(Instr{op, a, b, imm});
+  code_.push_back(Instr{op, a, b, 0, imm});
   numbering_.emplace(key, id);
   return id;
 }
@@ -259,6 +259,7 @@ Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {
   numbering_.clear();
   memo_.clear();
   fuse_sin_cos();
+  fuse_products();
 }
 
 // Kinematics gives sin and cos of the same angle everywhere; one sincos costs about as much as one
@@ -288,14 +289,83 @@ void Tape::fuse_sin_cos() {
 std::size_t Tape::operations() const {
   std::size_t k = 0;
   for (const Instr& I : code_) {
-    if (I.op == Op::sin_cos || I.op == Op::cos_sin) {
-      k += 2;  // still two functions, as before fusing
+    if (I.op == Op::sin_cos || I.op == Op::cos_sin || I.op == Op::add_mul || I.op == Op::sub_mul ||
+        I.op == Op::add_mul_c || I.op == Op::sub_mul_c || I.op == Op::mul_c_mul ||
+        I.op == Op::mul_mul_c) {
+      k += 2;  // still two operations, as before fusing
     } else if (I.op != Op::constant && I.op != Op::time && I.op != Op::q && I.op != Op::qd &&
                I.op != Op::fused) {
       ++k;
     }
   }
   return k;
+}
+
+// An interpreted tape pays a dispatch per instruction, about as much as the arithmetic; sums of
+// products are most of a derived model. A product (mul or mul_c) whose only use is an add, sub or
+// mul becomes part of that instruction and is skipped. The fused instruction evaluates the same
+// operations in the same order (the product first), so the values do not change.
+void Tape::fuse_products() {
+  std::vector<int> uses(code_.size(), 0);
+  for (const Instr& I : code_) {
+    switch (I.op) {
+      case Op::constant:
+      case Op::time:
+      case Op::q:
+      case Op::qd:
+      case Op::fused:
+        break;
+      case Op::sin_cos:
+      case Op::cos_sin:  // b is the slot it writes, not an operand
+        ++uses[static_cast<std::size_t>(I.a)];
+        break;
+      default:
+        ++uses[static_cast<std::size_t>(I.a)];
+        if (is_binary(I.op)) ++uses[static_cast<std::size_t>(I.b)];
+        break;
+    }
+  }
+  for (const std::int32_t o : out_) ++uses[static_cast<std::size_t>(o)];
+  auto single = [&](std::int32_t k, Op op) {
+    return code_[static_cast<std::size_t>(k)].op == op && uses[static_cast<std::size_t>(k)] == 1;
+  };
+  for (Instr& I : code_) {
+    const std::int32_t x = I.a, y = I.b;
+    if (I.op == Op::add || I.op == Op::sub) {
+      const bool add = I.op == Op::add;
+      // The product as the second operand (or, for add, the first: add is commutative).
+      std::int32_t prod = -1, other = x;
+      if (single(y, Op::mul) || single(y, Op::mul_c)) {
+        prod = y;
+      } else if (add && (single(x, Op::mul) || single(x, Op::mul_c))) {
+        prod = x;
+        other = y;
+      }
+      if (prod < 0) continue;
+      Instr& P = code_[static_cast<std::size_t>(prod)];
+      if (P.op == Op::mul) {
+        I = Instr{add ? Op::add_mul : Op::sub_mul, other, P.a, P.b, 0.0};
+      } else {
+        I = Instr{add ? Op::add_mul_c : Op::sub_mul_c, other, P.a, 0, P.imm};
+      }
+      P.op = Op::fused;
+    } else if (I.op == Op::mul && (single(x, Op::mul_c) || single(y, Op::mul_c))) {
+      const bool first = single(x, Op::mul_c);
+      Instr& P = code_[static_cast<std::size_t>(first ? x : y)];
+      I = Instr{Op::mul_c_mul, P.a, first ? y : x, 0, P.imm};
+      P.op = Op::fused;
+    } else if (I.op == Op::mul_c && single(x, Op::mul)) {
+      Instr& P = code_[static_cast<std::size_t>(x)];
+      I = Instr{Op::mul_mul_c, P.a, P.b, 0, I.imm};
+      P.op = Op::fused;
+    }
+  }
+}
+
+std::size_t Tape::executed_instructions() const {
+  return code_.size() -
+         static_cast<std::size_t>(std::count_if(code_.begin(), code_.end(),
+                                                [](const Instr& I) { return I.op == Op::fused; }));
 }
 
 std::size_t Tape::sincos_pairs() const {
@@ -361,7 +431,25 @@ void Tape::eval(double t, const double* q, const double* qd, double* out) const 
         break;
       }
       case Op::fused:
-        continue;  // written by the first of the pair
+        continue;  // written by its pair, or folded into its only user
+      case Op::add_mul:
+        v = w[I.a] + w[I.b] * w[I.c];
+        break;
+      case Op::sub_mul:
+        v = w[I.a] - w[I.b] * w[I.c];
+        break;
+      case Op::add_mul_c:
+        v = w[I.a] + w[I.b] * I.imm;
+        break;
+      case Op::sub_mul_c:
+        v = w[I.a] - w[I.b] * I.imm;
+        break;
+      case Op::mul_c_mul:
+        v = (w[I.a] * I.imm) * w[I.b];
+        break;
+      case Op::mul_mul_c:
+        v = (w[I.a] * w[I.b]) * I.imm;
+        break;
       default:
         v = apply(I.op, w[I.a], w[I.b], I.imm);
         break;

@@ -61,12 +61,21 @@ class Tape {
     spline,   ///< splines_[imm / 4]->eval(a, imm % 4) (ukdyn/symbolic/spline.hpp)
     sin_cos,  ///< a sin whose argument also has a cos: w = sin(a), and w[b] = cos(a)
     cos_sin,  ///< a cos whose argument also has a sin: w = cos(a), and w[b] = sin(a)
-    fused     ///< the second of such a pair: already written by the first, nothing to do
+    fused,    ///< nothing to do: written by its sin_cos/cos_sin pair, or folded into its one user
+    // Superinstructions: an add, sub or mul together with the product its operand held (that
+    // product had no other use). Same operations in the same order as the two instructions.
+    add_mul,    ///< w[a] + w[b]·w[c]
+    sub_mul,    ///< w[a] − w[b]·w[c]
+    add_mul_c,  ///< w[a] + w[b]·imm
+    sub_mul_c,  ///< w[a] − w[b]·imm
+    mul_c_mul,  ///< (w[a]·imm)·w[b]
+    mul_mul_c   ///< (w[a]·w[b])·imm
   };
   struct Instr {
     Op op;
     std::int32_t a;
     std::int32_t b;
+    std::int32_t c = 0;  ///< third operand of add_mul / sub_mul
     double imm;
   };
 
@@ -81,6 +90,8 @@ class Tape {
   [[nodiscard]] std::size_t operations() const;
   /// Number of sin/cos pairs of one argument evaluated by one sincos.
   [[nodiscard]] std::size_t sincos_pairs() const;
+  /// Instructions eval() executes (instructions() less those folded into a pair or a user).
+  [[nodiscard]] std::size_t executed_instructions() const;
 
   /// Evaluates every output into out[0..outputs()). q and qd may be null if the tape reads none.
   /// Allocation-free after the first call on a thread (the work buffer is thread-local).
@@ -92,6 +103,7 @@ class Tape {
   std::int32_t constant(double v) { return emit(Op::constant, 0, 0, v); }
   std::int32_t power(std::int32_t base, long n);
   void fuse_sin_cos();
+  void fuse_products();
 
   std::vector<Instr> code_;
   std::vector<std::int32_t> out_;
