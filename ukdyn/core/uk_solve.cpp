@@ -238,9 +238,10 @@ namespace {
 
 // The solve. MM > 0: m == MM is known at compile time (the loops down a column of m rows unroll
 // and vectorise). NB > 0: the layout is NB blocks of size 6 at 0, 6, …, so n == 6 NB. MM == 0 /
-// NB == 0: runtime sizes, any layout. Every instantiation runs the same operations in the same
-// order, so the results are identical (to rounding where the compiler contracts a different set of
-// a·b + c into FMAs, e.g. with -march=native).
+// NB == 0: runtime sizes, any layout. Every instantiation forms the same sums in the same order
+// (the fixed path also adds W's zero products and upper triangle, which change no value), so the
+// results agree to rounding where the compiler contracts a different set of a·b + c into FMAs,
+// e.g. with -march=native (UkSolve.FixedSizePathAgreesWithGenericPath).
 template <int MM, int NB>
 UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd, Vec& Qc,
                     const UkSettings& settings) {
