@@ -106,6 +106,21 @@ class Tape {
   void fuse_products();
 
   std::vector<Instr> code_;
+  /// Inputs and constants, written by plain loops before the instructions run.
+  struct Load {
+    std::int32_t dst;
+    std::int32_t index;  ///< q / q̇ index (unused for constants and time)
+    double value;        ///< the constant (unused for the others)
+  };
+  std::vector<Load> constants_, q_loads_, qd_loads_, time_loads_;
+  /// What eval() runs: the instructions of code_ that are neither `fused` nor a load, with slots.
+  struct Exec {
+    Op op;
+    std::int32_t a, b, c;
+    std::int32_t dst;
+    double imm;
+  };
+  std::vector<Exec> exec_;
   std::vector<std::int32_t> out_;
   std::vector<std::shared_ptr<const CubicSpline>> splines_;  // the splines the tape evaluates
   struct Key {
