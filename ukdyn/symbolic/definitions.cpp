@@ -364,6 +364,22 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   d_.compile_seconds = seconds_since(t0);
 }
 
+namespace {
+// M from its upper triangle, row by row (the order of the mass tapes' outputs); returns the number
+// of values read.
+std::size_t symmetric_from_upper(const double* out, Index n, MatRef M) {
+  std::size_t k = 0;
+  for (Index i = 0; i < n; ++i) {
+    for (Index j = i; j < n; ++j) {
+      M(i, j) = out[k];
+      M(j, i) = out[k];
+      ++k;
+    }
+  }
+  return k;
+}
+}  // namespace
+
 void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
   double buf[64 * 65 / 2];
   std::vector<double> big;
@@ -373,14 +389,7 @@ void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
     out = big.data();
   }
   mass_.eval(0.0, q.data(), nullptr, out);
-  std::size_t k = 0;
-  for (Index i = 0; i < n_; ++i) {
-    for (Index j = i; j < n_; ++j) {
-      M(i, j) = out[k];
-      M(j, i) = out[k];
-      ++k;
-    }
-  }
+  symmetric_from_upper(out, n_, M);
 }
 
 void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
@@ -393,14 +402,7 @@ void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, Vec
     out = big.data();
   }
   dyn_.eval(0.0, q.data(), qd.data(), out);
-  std::size_t k = 0;
-  for (Index i = 0; i < n_; ++i) {
-    for (Index j = i; j < n_; ++j) {
-      M(i, j) = out[k];
-      M(j, i) = out[k];
-      ++k;
-    }
-  }
+  std::size_t k = symmetric_from_upper(out, n_, M);
   for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
   for (Index i = 0; i < n_; ++i) G(i) = out[k++];
 }
