@@ -6,8 +6,7 @@
 
 namespace ukdyn {
 
-CsvWriter::CsvWriter(const OutputDir& dir, std::string name,
-                     const std::vector<std::string>& header)
+CsvWriter::CsvWriter(const OutputDir& dir, std::string name, const std::vector<std::string>& header)
     : file_(dir, dir.fd(), "", std::move(name)), columns_(header.size()) {
   std::string line;
   for (std::size_t i = 0; i < header.size(); ++i) {

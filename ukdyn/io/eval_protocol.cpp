@@ -114,9 +114,9 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
         rc));
   }
   coriolis_matrix(sys, q, qd, C);
-  if (!data.result.finite || !all_finite(data.qdd) || !all_finite(data.Qc) ||
-      !all_finite(data.A) || !all_finite(data.b) || !all_finite(data.G) || !all_finite(data.Q) ||
-      !all_finite(data.Cqd) || !all_finite(C)) {
+  if (!data.result.finite || !all_finite(data.qdd) || !all_finite(data.Qc) || !all_finite(data.A) ||
+      !all_finite(data.b) || !all_finite(data.G) || !all_finite(data.Q) || !all_finite(data.Cqd) ||
+      !all_finite(C)) {
     throw Error("non-finite result at this state (M, A, b, forces or accelerations)");
   }
   json out;

@@ -14,7 +14,7 @@
 namespace ukdyn {
 
 struct EvalOptions {
-  std::string source = "stdin";               ///< named in the error messages
+  std::string source = "stdin";                       ///< named in the error messages
   std::size_t max_line_bytes = std::size_t{1} << 20;  ///< longer lines are an error
   /// M with a reciprocal condition estimate (LLT) under this counts as singular.
   double min_rcond = 1e-13;

@@ -86,8 +86,8 @@ OutputDir::OutputDir(const fs::path& dir, WriteFailureHook hook)
     if (is_root_like(canon, why) || ::fstat(fd_, &a) != 0 || ::stat(canon.c_str(), &b) != 0 ||
         a.st_dev != b.st_dev || a.st_ino != b.st_ino) {
       throw OutputRefused(dir.string() + ": refusing to write into " +
-                          (why.empty() ? "a folder that changed while it was opened" : why) +
-                          " (" + canon.string() + ")");
+                          (why.empty() ? "a folder that changed while it was opened" : why) + " (" +
+                          canon.string() + ")");
     }
     lock();
   } catch (...) {
@@ -100,8 +100,8 @@ void OutputDir::lock() {
   for (int attempt = 0; attempt < 20; ++attempt) {
     const int lfd = ::openat(fd_, kLockFileName, O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC, 0644);
     if (lfd < 0) {
-      throw OutputRefused(display(kLockFileName) + ": cannot open the lock file: " +
-                          errno_text(errno) +
+      throw OutputRefused(display(kLockFileName) +
+                          ": cannot open the lock file: " + errno_text(errno) +
                           (errno == ELOOP ? " (it is a symbolic link: remove it)" : ""));
     }
     if (::flock(lfd, LOCK_EX | LOCK_NB) != 0) {
@@ -188,10 +188,9 @@ int OutputDir::open_subdir(const std::string& name, bool create) const {
   if (d < 0) {
     struct stat st {};
     const bool known = ::fstatat(fd_, name.c_str(), &st, AT_SYMLINK_NOFOLLOW) == 0;
-    throw OutputRefused(display(name) +
-                        (known ? std::string(" is ") + kind_of(st.st_mode) +
-                                     ", not a folder ukdyn made: refusing to use it"
-                               : ": cannot open: " + errno_text(errno)));
+    throw OutputRefused(display(name) + (known ? std::string(" is ") + kind_of(st.st_mode) +
+                                                     ", not a folder ukdyn made: refusing to use it"
+                                               : ": cannot open: " + errno_text(errno)));
   }
   return d;
 }

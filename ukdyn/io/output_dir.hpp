@@ -24,7 +24,8 @@
 
 namespace ukdyn {
 
-/// An output folder ukdyn refuses to use (a root, a busy folder, a planted link): bad input, exit 2.
+/// An output folder ukdyn refuses to use (a root, a busy folder, a planted link): bad input,
+/// exit 2.
 class OutputRefused : public Error {
  public:
   using Error::Error;

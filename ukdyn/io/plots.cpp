@@ -1,6 +1,7 @@
 #include "ukdyn/io/plots.hpp"
 
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <spawn.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -8,13 +9,11 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <csignal>
 #include <chrono>
+#include <csignal>
 #include <cstring>
 #include <set>
 #include <thread>
-
-#include <fmt/format.h>
 
 #include "ukdyn/io/safe_text.hpp"
 
@@ -115,8 +114,7 @@ std::string run_gnuplot(int dir_fd, const std::atomic<bool>* cancel) {
       ::kill(pid, SIGKILL);
       while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
       }
-      return cancelled ? "gnuplot stopped: the run was interrupted"
-                       : "gnuplot stopped after 300 s";
+      return cancelled ? "gnuplot stopped: the run was interrupted" : "gnuplot stopped after 300 s";
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -178,8 +176,7 @@ void remove_previous_figures(const OutputDir& out) {
 
 FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
                             const std::vector<std::string>& header,
-                            const std::vector<Figure>& figures,
-                            const std::atomic<bool>* cancel) {
+                            const std::vector<Figure>& figures, const std::atomic<bool>* cancel) {
   FigureResult res;
   const std::vector<std::string> files = file_names(figures);
   std::vector<std::string> drawn;

@@ -1,6 +1,7 @@
 #include "ukdyn/io/run.hpp"
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
@@ -244,8 +245,11 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   // one; only regular files under ukdyn's own names are removed.
   const std::string incomplete = CsvWriter::incomplete_name(kCsv);
   for (const std::string& f : {std::string(kSummary), std::string(kSummary) + ".part",
-                              std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
+                               std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
     out.require_file_or_absent(out.fd(), "", f);
+  }
+  if (const int figures = out.open_subdir("figures", false); figures >= 0) {
+    ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
   }
   for (const std::string& f : {std::string(kSummary), std::string(kCsv), incomplete}) {
     out.remove_file(out.fd(), f);
@@ -285,8 +289,9 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   Progress progress(options.progress, sc.sim.t0, sc.sim.t_end);
   const auto start = std::chrono::steady_clock::now();
   if (csv) {
-    Observer observer{sys, rep, &*csv, progress, options.cancel, std::vector<double>(header.size()),
-                      Vec(m), Vec(m)};
+    Observer observer{
+        sys,    rep,   &*csv, progress, options.cancel, std::vector<double>(header.size()),
+        Vec(m), Vec(m)};
     const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
     SimulationSettings settings = sc.sim;
     settings.cancel = options.cancel;
@@ -363,8 +368,8 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
   summary["samples"] = rep.stats.samples;
   summary["wall_seconds"] = rep.wall_seconds;
-  summary["trajectory_csv"] = rep.csv.empty() ? nlohmann::json(nullptr)
-                                              : nlohmann::json(rep.csv.filename().string());
+  summary["trajectory_csv"] =
+      rep.csv.empty() ? nlohmann::json(nullptr) : nlohmann::json(rep.csv.filename().string());
   summary["trajectory_rows"] = rep.csv_rows;
   nlohmann::json res = nlohmann::json::object();
   nlohmann::json vres = nlohmann::json::object();
@@ -408,9 +413,8 @@ bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& 
     const auto i = static_cast<Index>(j);
     const double dq = a.q(i) - sc.q0(i), dv = a.qd(i) - sc.qd0(i);
     if (dq == 0.0 && dv == 0.0) continue;
-    os << fmt::format("  {:<14} {:>24.17g} {:>24.17g} {:>11.3e} {:>11.3e}{}\n",
-                      printable(names[j]), sc.q0(i), a.q(i), dq, dv,
-                      sc.held[j] ? "  (held)" : "");
+    os << fmt::format("  {:<14} {:>24.17g} {:>24.17g} {:>11.3e} {:>11.3e}{}\n", printable(names[j]),
+                      sc.q0(i), a.q(i), dq, dv, sc.held[j] ? "  (held)" : "");
   }
   if (!a.success) {
     std::string rows;
@@ -433,18 +437,17 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
                     p(sc.path.string()), sc.sim.t0, rep.stats.t_reached);
   os << fmt::format("  status              {}{}\n",
                     rep.write_error.empty() ? to_string(rep.stats.status) : "write_failed",
-                    !rep.write_error.empty()     ? " (" + p(rep.write_error) + ")"
+                    !rep.write_error.empty()    ? " (" + p(rep.write_error) + ")"
                     : rep.stats.message.empty() ? ""
                                                 : " (" + p(rep.stats.message) + ")");
   os << fmt::format(
       "  steps               {} accepted, {} rejected, {} force evaluations, {} samples\n",
       rep.stats.steps, rep.stats.rejected_steps, rep.stats.rhs_evaluations, rep.stats.samples);
-  os << fmt::format("  integrator          {} ({}), drift control {}\n",
-                    to_string(sc.sim.integrator),
-                    adaptive_steps(sc.sim)
-                        ? fmt::format("abs/rel tol {:g}/{:g}", sc.sim.abs_tol, sc.sim.rel_tol)
-                        : fmt::format("fixed step {:g} s", sc.sim.step),
-                    to_string(sc.sim.drift.kind));
+  os << fmt::format(
+      "  integrator          {} ({}), drift control {}\n", to_string(sc.sim.integrator),
+      adaptive_steps(sc.sim) ? fmt::format("abs/rel tol {:g}/{:g}", sc.sim.abs_tol, sc.sim.rel_tol)
+                             : fmt::format("fixed step {:g} s", sc.sim.step),
+      to_string(sc.sim.drift.kind));
   os << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
   os << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n", rep.rank_min,
                     rep.rank_max, sc.system->rows(), sc.system->dof() - rep.rank_max);
@@ -455,7 +458,8 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
       rep.max_energy_drift, rep.max_T);
   os << fmt::format("  outputs             {}\n",
                     rep.csv.empty() ? std::string("(no trajectory written)") : p(rep.csv.string()));
-  if (!rep.summary.empty()) os << fmt::format("                      {}\n", p(rep.summary.string()));
+  if (!rep.summary.empty())
+    os << fmt::format("                      {}\n", p(rep.summary.string()));
   if (!rep.figures.empty()) {
     os << fmt::format("                      {} figures in {}\n", rep.figures.size(),
                       p((rep.out_dir / "figures").string()));
@@ -471,8 +475,8 @@ void print_run_warnings(std::ostream& os, const Scenario& sc, const RunReport& r
   }
   if (!rep.figure_error.empty()) os << "ukdyn: warning: " << printable(rep.figure_error) << "\n";
   if (!rep.complete()) {
-    const std::string why = rep.write_error.empty() ? rep.stats.message
-                                                    : "write failed: " + rep.write_error;
+    const std::string why =
+        rep.write_error.empty() ? rep.stats.message : "write failed: " + rep.write_error;
     os << "ukdyn: run incomplete: " << printable(sc.path.string()) << ": " << printable(why)
        << "; partial results in "
        << (rep.csv.empty() ? std::string("(none)") : printable(rep.csv.string())) << "\n";

@@ -74,18 +74,19 @@ std::string printable(std::string_view s, bool keep_newlines) {
 }
 
 std::string gnuplot_string(std::string_view s) {
-  std::string out = "'";
+  std::string out = "\"";
   for (char ch : s) {
     const auto c = static_cast<unsigned char>(ch);
-    if (ch == '\'') {
-      out += "''";
-    } else if (c < 0x20 || c == 0x7F) {
-      out += fmt::format("\\x{:02x}", c);
+    if (ch == '"' || ch == '\\') {
+      out += '\\';
+      out += ch;
+    } else if (c < 0x20 || c == 0x7F || ch == '`' || ch == '@' || ch == '\'') {
+      out += fmt::format("\\{:03o}", c);
     } else {
       out += ch;
     }
   }
-  return out + "'";
+  return out + "\"";
 }
 
 std::string file_stem(std::string_view name) {

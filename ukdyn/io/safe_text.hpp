@@ -11,9 +11,11 @@ namespace ukdyn {
 /// '\n' stays (multi-line messages); otherwise it is escaped too.
 std::string printable(std::string_view text, bool keep_newlines = false);
 
-/// A gnuplot single-quoted string literal: a quote is doubled, and control bytes, which could end
-/// the command line (a newline, a carriage return), are written as the text \xNN. In single quotes
-/// gnuplot expands neither backslash escapes, nor `backquotes`, nor @macros.
+/// A gnuplot string literal that holds exactly `text` and nothing else: double-quoted, with '"' and
+/// '\' backslash-escaped and every control byte, backquote, '@' and single quote written as an
+/// octal escape \ooo. So the literal holds no raw byte that could end the command line (a newline,
+/// a carriage return), start a command substitution (`...`) or a macro (@name). (Single quotes are
+/// not used: gnuplot 5.4 misparses a doubled quote at the start of a single-quoted string.)
 std::string gnuplot_string(std::string_view text);
 
 /// A file-name stem from a name: letters, digits, '_', '-' and '.' kept, every other byte '_',

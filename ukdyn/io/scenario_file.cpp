@@ -45,9 +45,9 @@ Scenario load_scenario_file(const std::filesystem::path& path, const LoadOptions
     throw ScenarioError(name + ": cannot read the scenario file: " + std::strerror(errno));
   }
   if (!S_ISREG(st.st_mode)) {
-    const char* what = S_ISDIR(st.st_mode)                          ? "is a folder"
-                       : S_ISFIFO(st.st_mode)                       ? "is a FIFO (named pipe)"
-                       : S_ISSOCK(st.st_mode)                       ? "is a socket"
+    const char* what = S_ISDIR(st.st_mode)                            ? "is a folder"
+                       : S_ISFIFO(st.st_mode)                         ? "is a FIFO (named pipe)"
+                       : S_ISSOCK(st.st_mode)                         ? "is a socket"
                        : (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode)) ? "is a device"
                                                                       : "is not a regular file";
     throw ScenarioError(name + ": " + what + ", not a scenario file (give a YAML file)");
