@@ -218,6 +218,86 @@ struct Observer {
   }
 };
 
+// Every name used must be free or a regular file. The previous run's outputs go first, the
+// summary before anything else, so that nothing on disk describes a run that is not this one;
+// only regular files under ukdyn's own names are removed.
+void clear_previous_outputs(const OutputDir& out) {
+  const std::string incomplete = CsvWriter::incomplete_name(kCsv);
+  for (const std::string& f : {std::string(kSummary), std::string(kSummary) + ".part",
+                               std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
+    out.require_file_or_absent(out.fd(), "", f);
+  }
+  if (const int figures = out.open_subdir("figures", false); figures >= 0) {
+    ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
+  }
+  for (const std::string& f : {std::string(kSummary), std::string(kCsv), incomplete}) {
+    out.remove_file(out.fd(), f);
+  }
+  remove_previous_figures(out);
+}
+
+nlohmann::json summary_start(const Scenario& sc) {
+  nlohmann::json summary;
+  summary["ukdyn_version"] = version();
+  summary["scenario"] = {{"name", sc.name}, {"path", sc.path.string()}, {"hash_fnv1a64", sc.hash}};
+  summary["integrator"] = {{"method", to_string(sc.sim.integrator)},
+                           {"adaptive", adaptive_steps(sc.sim)},
+                           {"drift_control", to_string(sc.sim.drift.kind)},
+                           {"abs_tol", sc.sim.abs_tol},
+                           {"rel_tol", sc.sim.rel_tol},
+                           {"step", sc.sim.step},
+                           {"sample_dt", sc.sim.sample_dt},
+                           {"t0", sc.sim.t0},
+                           {"t_end", sc.sim.t_end}};
+  return summary;
+}
+
+// The results of a run, into its summary.
+void summary_results(nlohmann::json& summary, const System& sys, const RunReport& rep) {
+  const Index n = sys.dof();
+  const Index m = sys.rows();
+  summary["t_reached"] = rep.stats.t_reached;
+  summary["steps"] = rep.stats.steps;
+  summary["rejected_steps"] = rep.stats.rejected_steps;
+  summary["projection_iterations"] = rep.stats.projections;
+  nlohmann::json warnings = nlohmann::json::array();
+  for (const auto& w : rep.stats.warnings) {
+    warnings.push_back({{"t", w.t}, {"kind", w.kind}, {"message", w.message}});
+  }
+  summary["warnings"] = warnings;
+  summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
+  summary["samples"] = rep.stats.samples;
+  summary["wall_seconds"] = rep.wall_seconds;
+  summary["trajectory_csv"] =
+      rep.csv.empty() ? nlohmann::json(nullptr) : nlohmann::json(rep.csv.filename().string());
+  summary["trajectory_rows"] = rep.csv_rows;
+  nlohmann::json res = nlohmann::json::object();
+  nlohmann::json vres = nlohmann::json::object();
+  for (Index i = 0; i < m; ++i) {
+    const auto u = static_cast<std::size_t>(i);
+    res[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_residual[u]);
+    vres[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_velocity_residual[u]);
+  }
+  summary["max_abs_position_residual"] = res;
+  summary["max_abs_velocity_residual"] = vres;
+  summary["max_abs_position_residual_all"] =
+      finite_or_null(worst_position_residual(sys, rep).value);
+  summary["max_acceleration_residual"] = finite_or_null(rep.max_acc_residual);
+  summary["energy"] = {{"E0", finite_or_null(rep.E0)},
+                       {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
+                       {"max_T", finite_or_null(rep.max_T)}};
+  summary["rank"] = {{"min", rep.rank_min},
+                     {"max", rep.rank_max},
+                     {"rows", m},
+                     {"free_dof_min", n - rep.rank_max},
+                     {"smallest_kept_sigma_estimate", finite_or_null(rep.sigma_min)}};
+  nlohmann::json figs = nlohmann::json::array();
+  for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(rep.out_dir).string());
+  summary["figures"] = figs;
+  if (!rep.figure_notes.empty()) summary["figures_left_out"] = rep.figure_notes;
+  if (!rep.figure_error.empty()) summary["figure_error"] = rep.figure_error;
+}
+
 }  // namespace
 
 WorstResidual worst_position_residual(const System& system, const RunReport& rep) {
@@ -237,24 +317,9 @@ WorstResidual worst_position_residual(const System& system, const RunReport& rep
 RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                        const RunOptions& options) {
   const System& sys = *sc.system;
-  const Index n = sys.dof();
   const Index m = sys.rows();
   OutputDir out(out_dir, options.write_failure);
-  // Every name used here must be free or a regular file. The previous run's outputs go first,
-  // the summary before anything else, so that nothing on disk describes a run that is not this
-  // one; only regular files under ukdyn's own names are removed.
-  const std::string incomplete = CsvWriter::incomplete_name(kCsv);
-  for (const std::string& f : {std::string(kSummary), std::string(kSummary) + ".part",
-                               std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
-    out.require_file_or_absent(out.fd(), "", f);
-  }
-  if (const int figures = out.open_subdir("figures", false); figures >= 0) {
-    ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
-  }
-  for (const std::string& f : {std::string(kSummary), std::string(kCsv), incomplete}) {
-    out.remove_file(out.fd(), f);
-  }
-  remove_previous_figures(out);
+  clear_previous_outputs(out);
 
   RunReport rep;
   rep.out_dir = out_dir;
@@ -264,18 +329,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   rep.rank_min = static_cast<int>(m);
   rep.sigma_min = std::numeric_limits<double>::infinity();
 
-  nlohmann::json summary;
-  summary["ukdyn_version"] = version();
-  summary["scenario"] = {{"name", sc.name}, {"path", sc.path.string()}, {"hash_fnv1a64", sc.hash}};
-  summary["integrator"] = {{"method", to_string(sc.sim.integrator)},
-                           {"adaptive", adaptive_steps(sc.sim)},
-                           {"drift_control", to_string(sc.sim.drift.kind)},
-                           {"abs_tol", sc.sim.abs_tol},
-                           {"rel_tol", sc.sim.rel_tol},
-                           {"step", sc.sim.step},
-                           {"sample_dt", sc.sim.sample_dt},
-                           {"t0", sc.sim.t0},
-                           {"t_end", sc.sim.t_end}};
+  nlohmann::json summary = summary_start(sc);
   summary["status"] = "running";
   write_json(out, kSummary, summary);  // throws: then there is no summary at all
 
@@ -356,46 +410,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   }
   summary["status"] = complete ? "complete" : "incomplete";
   summary["stop_reason"] = reason;
-  summary["t_reached"] = rep.stats.t_reached;
-  summary["steps"] = rep.stats.steps;
-  summary["rejected_steps"] = rep.stats.rejected_steps;
-  summary["projection_iterations"] = rep.stats.projections;
-  nlohmann::json warnings = nlohmann::json::array();
-  for (const auto& w : rep.stats.warnings) {
-    warnings.push_back({{"t", w.t}, {"kind", w.kind}, {"message", w.message}});
-  }
-  summary["warnings"] = warnings;
-  summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
-  summary["samples"] = rep.stats.samples;
-  summary["wall_seconds"] = rep.wall_seconds;
-  summary["trajectory_csv"] =
-      rep.csv.empty() ? nlohmann::json(nullptr) : nlohmann::json(rep.csv.filename().string());
-  summary["trajectory_rows"] = rep.csv_rows;
-  nlohmann::json res = nlohmann::json::object();
-  nlohmann::json vres = nlohmann::json::object();
-  for (Index i = 0; i < m; ++i) {
-    const auto u = static_cast<std::size_t>(i);
-    res[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_residual[u]);
-    vres[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_velocity_residual[u]);
-  }
-  summary["max_abs_position_residual"] = res;
-  summary["max_abs_velocity_residual"] = vres;
-  summary["max_abs_position_residual_all"] =
-      finite_or_null(worst_position_residual(sys, rep).value);
-  summary["max_acceleration_residual"] = finite_or_null(rep.max_acc_residual);
-  summary["energy"] = {{"E0", finite_or_null(rep.E0)},
-                       {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
-                       {"max_T", finite_or_null(rep.max_T)}};
-  summary["rank"] = {{"min", rep.rank_min},
-                     {"max", rep.rank_max},
-                     {"rows", m},
-                     {"free_dof_min", n - rep.rank_max},
-                     {"smallest_kept_sigma_estimate", finite_or_null(rep.sigma_min)}};
-  nlohmann::json figs = nlohmann::json::array();
-  for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(out_dir).string());
-  summary["figures"] = figs;
-  if (!rep.figure_notes.empty()) summary["figures_left_out"] = rep.figure_notes;
-  if (!rep.figure_error.empty()) summary["figure_error"] = rep.figure_error;
+  summary_results(summary, sys, rep);
   write_final_summary(out, summary, rep);
   out.sync();
   return rep;
