@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp) with libFuzzer, AddressSanitizer and
-# UndefinedBehaviorSanitizer for a bounded time. Builds with clang 14 in build/fuzz (asserts on).
+# Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp) and the eval protocol (fuzz/fuzz_eval.cpp)
+# with libFuzzer, AddressSanitizer and UndefinedBehaviorSanitizer for a bounded time each. Builds with clang 14 in build/fuzz (asserts on).
 # Seeds: scenarios/*.yaml and tests/hostile/*.yaml; new inputs go to build/fuzz/corpus.
 # Exits non-zero on any finding (crash, sanitizer report, exception other than ukdyn::Error, timeout,
 # out of memory); the reproducer is written to build/fuzz/artifacts/.
-#   scripts/fuzz.sh [SECONDS]          (default: FUZZ_SECONDS or 60)
+#   scripts/fuzz.sh [SECONDS]          (scenario loader; default: FUZZ_SECONDS or 60)
+#   EVAL_FUZZ_SECONDS=N                (eval lines; default 20; seeds fuzz/eval_seeds)
 #   build/fuzz/fuzz/fuzz_scenario build/fuzz/artifacts/crash-...    replays one finding
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,7 +21,7 @@ san="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-
 cmake -S . -B "$build" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=Debug \
   -DCMAKE_CXX_FLAGS="$san -O1 -g" -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" \
   -DUKDYN_BUILD_FUZZ=ON -DUKDYN_BUILD_TESTS=OFF -DUKDYN_WERROR=OFF >/dev/null
-cmake --build "$build" --target fuzz_scenario -j "$jobs"
+cmake --build "$build" --target fuzz_scenario fuzz_eval -j "$jobs"
 
 rm -rf "$build/artifacts"
 mkdir -p "$build/corpus" "$build/artifacts"
@@ -36,4 +37,17 @@ if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts")" ]]; then
   ls -l "$build/artifacts" >&2
   exit 1
 fi
-echo "fuzz: no finding in ${seconds} s" >&2
+echo "fuzz: scenario loader: no finding in ${seconds} s" >&2
+
+eval_seconds=${EVAL_FUZZ_SECONDS:-20}
+mkdir -p "$build/corpus_eval"
+status=0
+"$build/fuzz/fuzz_eval" "$build/corpus_eval" fuzz/eval_seeds \
+  -dict=fuzz/eval.dict -max_total_time="$eval_seconds" -timeout=10 -rss_limit_mb=2048 \
+  -max_len=8192 -artifact_prefix="$build/artifacts/" -print_final_stats=1 || status=$?
+if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts")" ]]; then
+  echo "fuzz: eval: FINDING (libFuzzer exit $status); reproducers in $build/artifacts:" >&2
+  ls -l "$build/artifacts" >&2
+  exit 1
+fi
+echo "fuzz: eval protocol: no finding in ${eval_seconds} s" >&2

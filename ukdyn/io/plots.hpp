@@ -1,26 +1,48 @@
 // Figures (PNG) from a run's CSV, drawn by gnuplot (Debian gnuplot-nox, pngcairo terminal).
+// gnuplot is started directly (no shell), in a fresh private folder, from a script in which every
+// string is a quoted literal (gnuplot_string); the PNGs it draws are then renamed into
+// OUT/figures. ukdyn touches in OUT/figures only the files it lists in OUT/figures/.ukdyn-figures
+// (the PNGs, figures.gp, gnuplot.log of its last run), never anything else there.
 #pragma once
 
-#include <filesystem>
+#include <atomic>
 #include <string>
 #include <vector>
+
+#include "ukdyn/io/output_dir.hpp"
 
 namespace ukdyn {
 
 struct Figure {
-  std::string file;  ///< e.g. "residuals_closure.png"
+  std::string file;  ///< e.g. "residuals_closure.png" (made a safe, unique file name on drawing)
   std::string title;
   std::string ylabel;
   std::vector<std::string> columns;  ///< CSV column names, plotted against t
 };
 
-/// Writes each figure into fig_dir (with the gnuplot script beside it, figures.gp, so a user can
-/// restyle them). Returns the PNGs written. On failure (no gnuplot), returns what was written and
-/// sets `error`; the run's data is not affected.
-std::vector<std::filesystem::path> render_figures(const std::filesystem::path& csv,
-                                                  const std::vector<std::string>& header,
-                                                  const std::vector<Figure>& figures,
-                                                  const std::filesystem::path& fig_dir,
-                                                  std::string& error);
+/// At most this many figures per run, and this many curves per figure.
+inline constexpr std::size_t kMaxFigures = 40;
+inline constexpr std::size_t kMaxSeriesPerFigure = 12;
+
+/// Cuts `figures` to the limits above; says what was left out in `notes` (one line each).
+void cap_figures(std::vector<Figure>& figures, std::vector<std::string>& notes);
+
+struct FigureResult {
+  std::vector<std::string> written;  ///< relative to OUT, e.g. "figures/energy.png"
+  std::string error;                 ///< empty if gnuplot drew everything
+};
+
+/// Draws the figures from OUT/<csv_name> into OUT/figures, with the gnuplot script beside them
+/// (figures.gp: `cd OUT/figures && gnuplot figures.gp` redraws them). gnuplot is stopped if
+/// `cancel` becomes true or after 300 s. Failures go to FigureResult.error (the run's data is not
+/// affected); throws OutputRefused only if OUT/figures or one of its names is not ukdyn's.
+FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
+                            const std::vector<std::string>& header,
+                            const std::vector<Figure>& figures,
+                            const std::atomic<bool>* cancel = nullptr);
+
+/// Removes the figures (and script, log) that the last run listed in OUT/figures/.ukdyn-figures,
+/// and that list. Only regular files under names ukdyn makes are removed; nothing else is touched.
+void remove_previous_figures(const OutputDir& out);
 
 }  // namespace ukdyn

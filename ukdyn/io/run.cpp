@@ -1,21 +1,25 @@
 #include "ukdyn/io/run.hpp"
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <ostream>
 
 #include "ukdyn/io/csv_writer.hpp"
 #include "ukdyn/io/plots.hpp"
+#include "ukdyn/io/safe_text.hpp"
 
 #ifndef UKDYN_VERSION
 #define UKDYN_VERSION "unknown"
 #endif
 
 namespace ukdyn {
+
+const char* version() { return UKDYN_VERSION; }
 
 std::vector<std::string> trajectory_header(const System& system) {
   std::vector<std::string> h{"t"};
@@ -108,66 +112,59 @@ class Progress {
   std::chrono::steady_clock::time_point last_{};
 };
 
-void write_json_atomically(const std::filesystem::path& path, const nlohmann::json& j) {
-  auto tmp = path;
-  tmp += ".part";
-  {
-    std::ofstream out(tmp);
-    if (!out) throw Error(tmp.string() + ": cannot open for writing");
-    out << j.dump(2) << "\n";
-    if (!out) throw Error(tmp.string() + ": write failed");
-  }
-  std::filesystem::rename(tmp, path);
+constexpr const char* kSummary = "summary.json";
+constexpr const char* kCsv = "trajectory.csv";
+
+// JSON text; invalid UTF-8 (in a path, say) is replaced, never a reason to throw.
+std::string json_text(const nlohmann::json& j) {
+  return j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+}
+
+void write_json(const OutputDir& out, const std::string& name, const nlohmann::json& j) {
+  AtomicFile f(out, out.fd(), "", name);
+  f.write(json_text(j));
+  f.commit();
 }
 
 double finite_or_null(double v) { return std::isfinite(v) ? v : std::nan(""); }
 
-}  // namespace
-
-RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
-                       const RunOptions& options) {
-  const System& sys = *sc.system;
-  const Index n = sys.dof();
-  const Index m = sys.rows();
-  std::filesystem::create_directories(out_dir);
-  // Remove what an earlier run left, so that nothing stale looks like this run's output.
-  for (const char* f :
-       {"trajectory.csv", "trajectory.incomplete.csv", "trajectory.csv.part", "summary.json"}) {
-    std::filesystem::remove(out_dir / f);
+// The final summary; if it cannot be written, a minimal one saying so; if not even that, no
+// summary at all (never the "running" one of a run that ended).
+void write_final_summary(const OutputDir& out, const nlohmann::json& summary, RunReport& rep) {
+  try {
+    write_json(out, kSummary, summary);
+    return;
+  } catch (const Error& e) {
+    if (rep.write_error.empty()) rep.write_error = e.what();
   }
-  std::filesystem::remove_all(out_dir / "figures");
+  try {
+    write_json(out, kSummary,
+               {{"ukdyn_version", version()},
+                {"status", "incomplete"},
+                {"stop_reason", "write failed: " + rep.write_error}});
+    return;
+  } catch (const Error&) {
+  }
+  try {
+    out.remove_file(out.fd(), kSummary);
+  } catch (const Error&) {
+  }
+  rep.summary.clear();
+}
 
-  RunReport rep;
-  rep.summary = out_dir / "summary.json";
-  rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
-  rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
-  rep.rank_min = static_cast<int>(m);
-  rep.sigma_min = std::numeric_limits<double>::infinity();
-
-  nlohmann::json summary;
-  summary["ukdyn_version"] = UKDYN_VERSION;
-  summary["scenario"] = {{"name", sc.name}, {"path", sc.path.string()}, {"hash_fnv1a64", sc.hash}};
-  summary["integrator"] = {
-      {"method", to_string(sc.sim.integrator)},
-      {"adaptive", sc.sim.integrator != IntegratorKind::rk4 && sc.sim.adaptive},
-      {"drift_control", to_string(sc.sim.drift.kind)},
-      {"abs_tol", sc.sim.abs_tol},
-      {"rel_tol", sc.sim.rel_tol},
-      {"step", sc.sim.step},
-      {"sample_dt", sc.sim.sample_dt},
-      {"t0", sc.sim.t0},
-      {"t_end", sc.sim.t_end}};
-  summary["status"] = "running";
-  write_json_atomically(rep.summary, summary);
-
-  const auto header = trajectory_header(sys);
-  CsvWriter csv(out_dir / "trajectory.csv", header);
-  std::vector<double> row(header.size());
-  Vec phi(m), phid(m);
-  Progress progress(options.progress, sc.sim.t0, sc.sim.t_end);
+struct Observer {
+  const System& sys;
+  RunReport& rep;
+  CsvWriter* csv;
+  Progress& progress;
+  const std::atomic<bool>* cancel;
+  std::vector<double> row;
+  Vec phi, phid;
   bool first = true;
 
-  auto observer = [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) -> bool {
+  bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+    const Index n = sys.dof();
+    const Index m = sys.rows();
     position_residuals(sys, t, q, phi);
     velocity_residuals(sys, t, q, qd, phid);
     const double T = kinetic_energy(d, qd);
@@ -210,31 +207,55 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
       row[k++] = 0.0;
     }
     row[k++] = d.result.residual;
-    csv.row(row);
+    try {
+      csv->row(row);
+    } catch (const Error& e) {
+      rep.write_error = e.what();
+      return false;
+    }
     progress.update(t);
-    return !(options.cancel && options.cancel->load());
-  };
-
-  const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef out) { out = sc.tau; };
-  const auto start = std::chrono::steady_clock::now();
-  rep.stats = simulate(sys, sc.q0, sc.qd0, tau, sc.sim, observer);
-  rep.wall_seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  progress.done();
-  if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
-    rep.stats.message =
-        fmt::format("interrupted (SIGINT/SIGTERM) after t = {}", rep.stats.t_reached);
+    return !(cancel && cancel->load());
   }
+};
 
-  const bool complete = rep.stats.status == RunStatus::completed;
-  rep.csv = complete ? csv.commit() : csv.abandon();
-  if (complete && options.figures) {
-    rep.figures =
-        render_figures(rep.csv, header, default_figures(sc), out_dir / "figures", rep.figure_error);
+// Every name used must be free or a regular file. The previous run's outputs go first, the
+// summary before anything else, so that nothing on disk describes a run that is not this one;
+// only regular files under ukdyn's own names are removed.
+void clear_previous_outputs(const OutputDir& out) {
+  const std::string incomplete = CsvWriter::incomplete_name(kCsv);
+  for (const std::string& f : {std::string(kSummary), std::string(kSummary) + ".part",
+                               std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
+    out.require_file_or_absent(out.fd(), "", f);
   }
+  if (const int figures = out.open_subdir("figures", false); figures >= 0) {
+    ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
+  }
+  for (const std::string& f : {std::string(kSummary), std::string(kCsv), incomplete}) {
+    out.remove_file(out.fd(), f);
+  }
+  remove_previous_figures(out);
+}
 
-  summary["status"] = complete ? "complete" : "incomplete";
-  summary["stop_reason"] = complete ? "" : to_string(rep.stats.status) + ": " + rep.stats.message;
+nlohmann::json summary_start(const Scenario& sc) {
+  nlohmann::json summary;
+  summary["ukdyn_version"] = version();
+  summary["scenario"] = {{"name", sc.name}, {"path", sc.path.string()}, {"hash_fnv1a64", sc.hash}};
+  summary["integrator"] = {{"method", to_string(sc.sim.integrator)},
+                           {"adaptive", adaptive_steps(sc.sim)},
+                           {"drift_control", to_string(sc.sim.drift.kind)},
+                           {"abs_tol", sc.sim.abs_tol},
+                           {"rel_tol", sc.sim.rel_tol},
+                           {"step", sc.sim.step},
+                           {"sample_dt", sc.sim.sample_dt},
+                           {"t0", sc.sim.t0},
+                           {"t_end", sc.sim.t_end}};
+  return summary;
+}
+
+// The results of a run, into its summary.
+void summary_results(nlohmann::json& summary, const System& sys, const RunReport& rep) {
+  const Index n = sys.dof();
+  const Index m = sys.rows();
   summary["t_reached"] = rep.stats.t_reached;
   summary["steps"] = rep.stats.steps;
   summary["rejected_steps"] = rep.stats.rejected_steps;
@@ -247,19 +268,20 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
   summary["samples"] = rep.stats.samples;
   summary["wall_seconds"] = rep.wall_seconds;
-  summary["trajectory_csv"] = rep.csv.filename().string();
+  summary["trajectory_csv"] =
+      rep.csv.empty() ? nlohmann::json(nullptr) : nlohmann::json(rep.csv.filename().string());
+  summary["trajectory_rows"] = rep.csv_rows;
   nlohmann::json res = nlohmann::json::object();
   nlohmann::json vres = nlohmann::json::object();
-  double worst = 0.0;
   for (Index i = 0; i < m; ++i) {
     const auto u = static_cast<std::size_t>(i);
     res[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_residual[u]);
     vres[sys.constraint_row_names()[u]] = finite_or_null(rep.max_abs_velocity_residual[u]);
-    worst = std::max(worst, rep.max_abs_residual[u]);
   }
   summary["max_abs_position_residual"] = res;
   summary["max_abs_velocity_residual"] = vres;
-  summary["max_abs_position_residual_all"] = finite_or_null(worst);
+  summary["max_abs_position_residual_all"] =
+      finite_or_null(worst_position_residual(sys, rep).value);
   summary["max_acceleration_residual"] = finite_or_null(rep.max_acc_residual);
   summary["energy"] = {{"E0", finite_or_null(rep.E0)},
                        {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
@@ -270,11 +292,210 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                      {"free_dof_min", n - rep.rank_max},
                      {"smallest_kept_sigma_estimate", finite_or_null(rep.sigma_min)}};
   nlohmann::json figs = nlohmann::json::array();
-  for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(out_dir).string());
+  for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(rep.out_dir).string());
   summary["figures"] = figs;
+  if (!rep.figure_notes.empty()) summary["figures_left_out"] = rep.figure_notes;
   if (!rep.figure_error.empty()) summary["figure_error"] = rep.figure_error;
-  write_json_atomically(rep.summary, summary);
+}
+
+}  // namespace
+
+WorstResidual worst_position_residual(const System& system, const RunReport& rep) {
+  WorstResidual w;
+  const auto& names = system.constraint_row_names();
+  for (std::size_t i = 0; i < rep.max_abs_residual.size() && i < names.size(); ++i) {
+    // NaN counts as the worst (it is the least trustworthy).
+    const double v = rep.max_abs_residual[i];
+    if (w.row == "-" || v > w.value || (std::isnan(v) && !std::isnan(w.value))) {
+      w.value = v;
+      w.row = names[i];
+    }
+  }
+  return w;
+}
+
+RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
+                       const RunOptions& options) {
+  const System& sys = *sc.system;
+  const Index m = sys.rows();
+  OutputDir out(out_dir, options.write_failure);
+  clear_previous_outputs(out);
+
+  RunReport rep;
+  rep.out_dir = out_dir;
+  rep.summary = out_dir / kSummary;
+  rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.rank_min = static_cast<int>(m);
+  rep.sigma_min = std::numeric_limits<double>::infinity();
+
+  nlohmann::json summary = summary_start(sc);
+  summary["status"] = "running";
+  write_json(out, kSummary, summary);  // throws: then there is no summary at all
+
+  const auto header = trajectory_header(sys);
+  std::optional<CsvWriter> csv;
+  try {
+    csv.emplace(out, kCsv, header);
+  } catch (const WriteFailed& e) {
+    rep.write_error = e.what();
+  }
+  Progress progress(options.progress, sc.sim.t0, sc.sim.t_end);
+  const auto start = std::chrono::steady_clock::now();
+  if (csv) {
+    Observer observer{
+        sys,    rep,   &*csv, progress, options.cancel, std::vector<double>(header.size()),
+        Vec(m), Vec(m)};
+    const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
+    SimulationSettings settings = sc.sim;
+    settings.cancel = options.cancel;
+    try {
+      rep.stats = simulate(sys, sc.q0, sc.qd0, tau, settings,
+                           [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+                             return observer(t, q, qd, d);
+                           });
+    } catch (const std::exception& e) {
+      // Invalid settings: the summary must not be left saying "running".
+      progress.done();
+      csv->abandon();
+      summary["status"] = "incomplete";
+      summary["stop_reason"] = std::string("error: ") + e.what();
+      write_final_summary(out, summary, rep);
+      throw;
+    }
+  }
+  rep.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  progress.done();
+  if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
+    rep.stats.message =
+        fmt::format("interrupted (SIGINT/SIGTERM) after t = {}", rep.stats.t_reached);
+  }
+
+  bool committed = false;
+  if (csv && rep.complete()) {
+    try {
+      csv->commit();
+      committed = true;
+      rep.csv = out_dir / kCsv;
+    } catch (const Error& e) {
+      rep.write_error = e.what();
+    }
+  }
+  if (csv && !committed) {
+    const std::string name = csv->abandon();
+    if (!name.empty()) rep.csv = out_dir / name;
+  }
+  if (csv) rep.csv_rows = csv->rows_written();
+  out.sync();
+
+  if (rep.complete() && options.figures) {
+    std::vector<Figure> figs = default_figures(sc);
+    cap_figures(figs, rep.figure_notes);
+    try {
+      const FigureResult fr = render_figures(out, kCsv, header, figs, options.cancel);
+      for (const auto& f : fr.written) rep.figures.push_back(out_dir / f);
+      rep.figure_error = fr.error;
+    } catch (const Error& e) {
+      rep.figure_error = e.what();
+    }
+  }
+
+  const bool complete = rep.complete();
+  std::string reason;
+  if (!rep.write_error.empty()) {
+    reason = "write failed: " + rep.write_error;
+  } else if (!complete) {
+    reason = to_string(rep.stats.status) + ": " + rep.stats.message;
+  }
+  summary["status"] = complete ? "complete" : "incomplete";
+  summary["stop_reason"] = reason;
+  summary_results(summary, sys, rep);
+  write_final_summary(out, summary, rep);
+  out.sync();
   return rep;
+}
+
+bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& sc,
+                           const AssemblyResult& a) {
+  const auto& names = sc.system->coordinate_names();
+  os << fmt::format(
+      "assembly: {} Gauss-Newton iterations, max |Phi| = {:.3e}, max |Phi_dot| = {:.3e}\n",
+      a.iterations, a.max_position_residual, a.max_velocity_residual);
+  os << fmt::format("  {:<14} {:>24} {:>24} {:>11} {:>11}\n", "coordinate", "q guess",
+                    "q assembled", "change", "qd change");
+  for (std::size_t j = 0; j < names.size(); ++j) {
+    const auto i = static_cast<Index>(j);
+    const double dq = a.q(i) - sc.q0(i), dv = a.qd(i) - sc.qd0(i);
+    if (dq == 0.0 && dv == 0.0) continue;
+    os << fmt::format("  {:<14} {:>24.17g} {:>24.17g} {:>11.3e} {:>11.3e}{}\n", printable(names[j]),
+                      sc.q0(i), a.q(i), dq, dv, sc.held[j] ? "  (held)" : "");
+  }
+  if (!a.success) {
+    std::string rows;
+    for (Index r : a.unmet_rows) {
+      rows += (rows.empty() ? "" : ", ") +
+              printable(sc.system->constraint_row_names()[static_cast<std::size_t>(r)]);
+    }
+    err << fmt::format("ukdyn: error: {}: {}; constraints not met: {}\n",
+                       printable(sc.path.string()), printable(a.message),
+                       rows.empty() ? "-" : rows);
+    return false;
+  }
+  return true;
+}
+
+void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep) {
+  const auto p = [](const std::string& s) { return printable(s); };
+  const WorstResidual worst = worst_position_residual(*sc.system, rep);
+  os << fmt::format("ukdyn {}: scenario '{}' ({}), t = {} .. {} s\n", version(), p(sc.name),
+                    p(sc.path.string()), sc.sim.t0, rep.stats.t_reached);
+  os << fmt::format("  status              {}{}\n",
+                    rep.write_error.empty() ? to_string(rep.stats.status) : "write_failed",
+                    !rep.write_error.empty()    ? " (" + p(rep.write_error) + ")"
+                    : rep.stats.message.empty() ? ""
+                                                : " (" + p(rep.stats.message) + ")");
+  os << fmt::format(
+      "  steps               {} accepted, {} rejected, {} force evaluations, {} samples\n",
+      rep.stats.steps, rep.stats.rejected_steps, rep.stats.rhs_evaluations, rep.stats.samples);
+  os << fmt::format(
+      "  integrator          {} ({}), drift control {}\n", to_string(sc.sim.integrator),
+      adaptive_steps(sc.sim) ? fmt::format("abs/rel tol {:g}/{:g}", sc.sim.abs_tol, sc.sim.rel_tol)
+                             : fmt::format("fixed step {:g} s", sc.sim.step),
+      to_string(sc.sim.drift.kind));
+  os << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
+  os << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n", rep.rank_min,
+                    rep.rank_max, sc.system->rows(), sc.system->dof() - rep.rank_max);
+  os << fmt::format("  max |residual|      {:.3e} ({})\n", worst.value, p(worst.row));
+  os << fmt::format("  max |A qdd - b|     {:.3e}\n", rep.max_acc_residual);
+  os << fmt::format(
+      "  energy              E0 = {:.9g} J, max |E - E0| = {:.3e} J, max T = {:.6g} J\n", rep.E0,
+      rep.max_energy_drift, rep.max_T);
+  os << fmt::format("  outputs             {}\n",
+                    rep.csv.empty() ? std::string("(no trajectory written)") : p(rep.csv.string()));
+  if (!rep.summary.empty())
+    os << fmt::format("                      {}\n", p(rep.summary.string()));
+  if (!rep.figures.empty()) {
+    os << fmt::format("                      {} figures in {}\n", rep.figures.size(),
+                      p((rep.out_dir / "figures").string()));
+  }
+}
+
+void print_run_warnings(std::ostream& os, const Scenario& sc, const RunReport& rep) {
+  for (const auto& w : rep.stats.warnings) {
+    os << fmt::format("ukdyn: warning at t = {:.6g} s: {}\n", w.t, printable(w.message));
+  }
+  for (const auto& note : rep.figure_notes) {
+    os << "ukdyn: note: figures: " << printable(note) << "\n";
+  }
+  if (!rep.figure_error.empty()) os << "ukdyn: warning: " << printable(rep.figure_error) << "\n";
+  if (!rep.complete()) {
+    const std::string why =
+        rep.write_error.empty() ? rep.stats.message : "write failed: " + rep.write_error;
+    os << "ukdyn: run incomplete: " << printable(sc.path.string()) << ": " << printable(why)
+       << "; partial results in "
+       << (rep.csv.empty() ? std::string("(none)") : printable(rep.csv.string())) << "\n";
+  }
 }
 
 }  // namespace ukdyn

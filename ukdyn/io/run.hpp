@@ -1,4 +1,5 @@
-// Runs a scenario and writes its outputs: trajectory.csv, summary.json, figures/.
+// Runs a scenario and writes its outputs into an output folder: trajectory.csv, summary.json,
+// figures/ (docs/scenario-format.md, "Outputs" and "Output safety"), and reports the run.
 #pragma once
 
 #include <atomic>
@@ -7,24 +8,34 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/io/output_dir.hpp"
 #include "ukdyn/io/scenario.hpp"
 
 namespace ukdyn {
 
+/// The ukdyn version ("0.1.0"): written into summary.json and printed by the CLI.
+const char* version();
+
 struct RunOptions {
   bool figures = true;
   std::ostream* progress = nullptr;  ///< a progress line is drawn here if set (a terminal)
-  /// If set and it becomes true (e.g. from a SIGINT handler), the run stops at the next sample and
-  /// its results so far are kept (status `stopped`).
+  /// If set and it becomes true (e.g. from a SIGINT handler), the run stops after the current
+  /// integration step and its results so far are kept (status `stopped`).
   const std::atomic<bool>* cancel = nullptr;
+  /// Test hook: makes chosen writes into the output folder fail as on a full disk.
+  WriteFailureHook write_failure;
 };
 
 struct RunReport {
   SimulationStats stats;
-  std::filesystem::path csv;      ///< trajectory.csv, or trajectory.incomplete.csv
-  std::filesystem::path summary;  ///< summary.json
+  std::filesystem::path out_dir;
+  std::filesystem::path csv;      ///< trajectory.csv, trajectory.incomplete.csv, or empty (none)
+  std::filesystem::path summary;  ///< summary.json (empty if it could not be written at all)
+  long csv_rows = 0;              ///< data rows in the CSV
   std::vector<std::filesystem::path> figures;
   std::string figure_error;
+  std::vector<std::string> figure_notes;  ///< figures or curves left out (caps)
+  std::string write_error;                ///< a failed write: the run is incomplete
   double wall_seconds = 0.0;
   std::vector<double> max_abs_residual;  ///< per constraint row, position level
   std::vector<double> max_abs_velocity_residual;
@@ -32,14 +43,40 @@ struct RunReport {
   double E0 = 0.0, max_energy_drift = 0.0, max_T = 0.0;
   int rank_min = 0, rank_max = 0;
   double sigma_min = 0.0;  ///< smallest kept singular value seen (pivot estimate)
+
+  /// The integration reached t_end and every output was written.
+  [[nodiscard]] bool complete() const {
+    return stats.status == RunStatus::completed && write_error.empty();
+  }
 };
+
+/// The largest position-level residual of a run and the constraint row it belongs to ("-" if the
+/// system has no constraint rows).
+struct WorstResidual {
+  double value = 0.0;
+  std::string row = "-";
+};
+WorstResidual worst_position_residual(const System& system, const RunReport& report);
 
 /// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E.
 std::vector<std::string> trajectory_header(const System& system);
 
-/// Simulates the scenario into out_dir (created if needed). Old outputs there are removed first.
-/// Never throws for numerical trouble (see RunReport.stats.status); throws ukdyn::Error for I/O.
+/// Simulates the scenario into out_dir (created if needed; see output_dir.hpp for what ukdyn
+/// refuses and touches there). Throws OutputRefused for an output folder it will not use (nothing
+/// is written then) and WriteFailed if not even the first summary could be written; any later
+/// write failure ends the run as incomplete (RunReport.write_error, summary.json says so). Never
+/// throws for numerical trouble (see RunReport.stats.status).
 RunReport run_scenario(const Scenario& scenario, const std::filesystem::path& out_dir,
                        const RunOptions& options);
+
+/// What assembly changed, on `os`; if it failed, also an error naming the unmet constraints on
+/// `err`. Returns a.success.
+bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& scenario,
+                           const AssemblyResult& a);
+
+/// The console report of a run (what `ukdyn simulate` prints on stdout).
+void print_run_report(std::ostream& os, const Scenario& scenario, const RunReport& report);
+/// Its warnings and, for an incomplete run, why (what `ukdyn simulate` prints on stderr).
+void print_run_warnings(std::ostream& os, const Scenario& scenario, const RunReport& report);
 
 }  // namespace ukdyn

@@ -181,7 +181,7 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
   const double span = s.t_end - s.t0;
   if (span / s.sample_dt > 1e8) throw Error("simulate: more than 1e8 output samples requested");
   const auto n_samples = static_cast<long>(std::floor(span / s.sample_dt + 1e-9)) + 1;
-  const bool fixed = s.integrator == IntegratorKind::rk4 || !s.adaptive;
+  const bool fixed = !adaptive_steps(s);
   if (fixed) {
     const double ratio = s.sample_dt / s.step;
     const long substeps = std::lround(ratio);
@@ -265,6 +265,11 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
   // After every accepted step: projection (if chosen) and the NaN check. False ends the run.
   auto after_step = [&](double t, State& xs) -> bool {
     ++stats.steps;
+    if (s.cancel && s.cancel->load(std::memory_order_relaxed)) {
+      stats.status = RunStatus::stopped;
+      stats.message = "cancelled at t = " + std::to_string(t);
+      return false;
+    }
     if (!finite_state(xs)) {
       stats.status = RunStatus::non_finite;
       stats.message = "non-finite state at t = " + std::to_string(t);

@@ -2,6 +2,7 @@
 // drift control, diagnostics and consistent initial conditions.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <string>
 #include <vector>
@@ -46,7 +47,15 @@ struct SimulationSettings {
   UkSettings uk;
   /// A sample whose σ_min/σ_max (pivot estimate) falls under this raises a near-singular warning.
   double near_singular_ratio = 1e-6;
+  /// If set and it becomes true (a SIGINT/SIGTERM handler), the run stops after the current step
+  /// (status `stopped`), whatever the sample step.
+  const std::atomic<bool>* cancel = nullptr;
 };
+
+/// True if the steps are error-controlled (dopri5 / rkf78 with adaptive), false for a fixed step.
+inline bool adaptive_steps(const SimulationSettings& s) {
+  return s.integrator != IntegratorKind::rk4 && s.adaptive;
+}
 
 enum class RunStatus { completed, non_finite, inconsistent_constraints, step_failure, stopped };
 std::string to_string(RunStatus status);

@@ -1,0 +1,81 @@
+// Running the ukdyn executable from a test: exit code, stdout, stderr; scratch folders; snapshots
+// of a folder tree (bytes of every file, targets of links) to show that a run left them untouched.
+#pragma once
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+namespace ukdyn_test {
+
+namespace fs = std::filesystem;
+
+struct CliResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+inline std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream os;
+  os << in.rdbuf();
+  return os.str();
+}
+
+/// A fresh folder for this test process, under the system's temporary folder.
+inline fs::path scratch_dir(const std::string& tag) {
+  const auto d = fs::temp_directory_path() / (tag + "_" + std::to_string(::getpid()));
+  fs::create_directories(d);
+  return d;
+}
+
+/// Single-quoted for the POSIX shell.
+inline std::string sh(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+/// Runs `prefix ukdyn args` through /bin/sh with stdin_text on stdin.
+inline CliResult run_cli(const fs::path& cli, const fs::path& scratch, const std::string& args,
+                         const std::string& stdin_text = "", const std::string& prefix = "") {
+  const fs::path in = scratch / "stdin.txt", out = scratch / "stdout.txt",
+                 err = scratch / "stderr.txt";
+  std::ofstream(in, std::ios::binary) << stdin_text;
+  const std::string cmd = prefix + sh(cli.string()) + " " + args + " < " + sh(in.string()) + " > " +
+                          sh(out.string()) + " 2> " + sh(err.string());
+  const int rc = std::system(cmd.c_str());
+  CliResult r;
+  r.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  r.out = slurp(out);
+  r.err = slurp(err);
+  return r;
+}
+
+/// Every entry under root (not following links): files by content, links by target, folders.
+inline std::map<std::string, std::string> snapshot(const fs::path& root) {
+  std::map<std::string, std::string> snap;
+  std::error_code ec;
+  if (!fs::exists(fs::symlink_status(root, ec))) return snap;
+  for (auto it = fs::recursive_directory_iterator(root, ec);
+       it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const auto rel = fs::relative(it->path(), root).string();
+    const auto st = it->symlink_status();
+    if (fs::is_symlink(st)) {
+      snap[rel] = "link -> " + fs::read_symlink(it->path()).string();
+    } else if (fs::is_directory(st)) {
+      snap[rel] = "folder";
+    } else {
+      snap[rel] = "file: " + slurp(it->path());
+    }
+  }
+  return snap;
+}
+
+}  // namespace ukdyn_test
