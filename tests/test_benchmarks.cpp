@@ -27,7 +27,8 @@ using ukdyn::Index;
 using ukdyn::Vec;
 using ukdyn_bench::ExactPendulum;
 
-const std::filesystem::path kBench = std::filesystem::path(UKDYN_SOURCE_DIR) / "scenarios/benchmarks";
+const std::filesystem::path kBench =
+    std::filesystem::path(UKDYN_SOURCE_DIR) / "scenarios/benchmarks";
 
 std::string read_file(const std::filesystem::path& p) {
   std::ifstream in(p);
@@ -82,8 +83,9 @@ double agm_K(double k) {
 // ---- the reference itself ---------------------------------------------------------------------
 
 // The closed form satisfies θ̈ = −ω² sin θ (central differences at h = 1e-4: truncation h²/12 |θ⁗|
-// and rounding 1e-14/h² both ≈ 1e-6 here; bound 1e-5 ω²), its energy ½θ̇² − ω² cos θ is constant (θ̇ from the closed form, ≤ 1e-12),
-// it starts at (θ0, θ̇0), and the libration period is 4K/ω with K from an independent AGM.
+// and rounding 1e-14/h² both ≈ 1e-6 here; bound 1e-5 ω²), its energy ½θ̇² − ω² cos θ is constant (θ̇
+// from the closed form, ≤ 1e-12), it starts at (θ0, θ̇0), and the libration period is 4K/ω with K
+// from an independent AGM.
 TEST(BenchmarkReference, ExactPendulumSolvesItsEquation) {
   const double w = 3.0;
   struct Start {
@@ -117,8 +119,8 @@ TEST(BenchmarkReference, ExactPendulumSolvesItsEquation) {
   EXPECT_NEAR(c.theta(c.period()), -std::numbers::pi, 1e-11);
 }
 
-// The N-four-bar reference: J, G of the parallelogram branch and its initial state (cranks vertical,
-// ẋ_B0 = 1 m/s): B0(0) = (0, 1), and B0 moves along +x at 1 m/s.
+// The N-four-bar reference: J, G of the parallelogram branch and its initial state (cranks
+// vertical, ẋ_B0 = 1 m/s): B0(0) = (0, 1), and B0 moves along +x at 1 m/s.
 TEST(BenchmarkReference, NFourBarBranchStartsAsSpecified) {
   for (const int N : {2, 40}) {
     const ukdyn_bench::NFourBarReference ref(N);
@@ -221,9 +223,9 @@ TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
 
 // ---- A02 N-four-bar (scenarios written on another branch; skipped if absent) ------------------
 
-// Coordinate-free: on the parallelogram branch V = G sin φ and T = ½ J φ̇², so the scenario's initial
-// energy must be the reference's, and V(t)/G = sin φ(t) = y_B0(t) over a short run (2 s, one flat
-// crossing for N = 2: φ passes 0 near t ≈ 1.2 s).
+// Coordinate-free: on the parallelogram branch V = G sin φ and T = ½ J φ̇², so the scenario's
+// initial energy must be the reference's, and V(t)/G = sin φ(t) = y_B0(t) over a short run (2 s,
+// one flat crossing for N = 2: φ passes 0 near t ≈ 1.2 s).
 TEST(Benchmarks, NFourBarFollowsTheParallelogramBranch) {
   const auto file = kBench / "n_four_bar_N2.yaml";
   if (!std::filesystem::exists(file)) GTEST_SKIP() << file << " is not in this tree";
@@ -233,15 +235,15 @@ TEST(Benchmarks, NFourBarFollowsTheParallelogramBranch) {
   s.t_end = 2.0;
   s.sample_dt = 0.01;
   double err = 0, E0 = std::nan("");
-  const auto st = ukdyn::simulate(
-      *sc.system, sc.q0, sc.qd0, {}, s, [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
-        const double V = ukdyn::potential_energy(*sc.system, q);
-        if (std::isnan(E0)) E0 = ukdyn::kinetic_energy(d, qd) + V;
-        double x = 0, y = 0;
-        ref.point_B0(t, x, y);
-        err = std::max(err, std::abs(V / ref.G - y));
-        return true;
-      });
+  const auto st = ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
+                                  [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+                                    const double V = ukdyn::potential_energy(*sc.system, q);
+                                    if (std::isnan(E0)) E0 = ukdyn::kinetic_energy(d, qd) + V;
+                                    double x = 0, y = 0;
+                                    ref.point_B0(t, x, y);
+                                    err = std::max(err, std::abs(V / ref.G - y));
+                                    return true;
+                                  });
   EXPECT_NEAR(E0, ref.energy(), 1e-9 * ref.G);
   ASSERT_EQ(st.status, ukdyn::RunStatus::completed) << st.message;
   EXPECT_LT(err, 1e-6);

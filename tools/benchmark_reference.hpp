@@ -9,9 +9,10 @@
 //  - circulation, e > 1: θ/2 = am(±(ω/k) t + u0, k),       k = 1/√e              (DLMF 22.19.3)
 // with u0 from the incomplete elliptic integral of the first kind F(φ, k) (DLMF 19.2.4) so that
 // θ(0) = θ0 and θ̇(0) has the sign of θ̇0; the libration period is 4K(k)/ω (DLMF 22.19.2 with
-// K = F(π/2, k), 19.2.8). Jacobi's sn, cn, dn and F, K are Boost.Math's (DLMF 22.2, 22.20 AGM).
-// DLMF: NIST Digital Library of Mathematical Functions, https://dlmf.nist.gov (F. W. J. Olver et
-// al., eds.); also Abramowitz & Stegun, Handbook of Mathematical Functions (1964), 16.1 and 17.2.
+// K = F(π/2, k), 19.2.8). Jacobi's sn, cn and F, K are Boost.Math's (DLMF 22.2, 22.20 AGM); dn =
+// √(1 − k² sn²). DLMF: NIST Digital Library of Mathematical Functions, https://dlmf.nist.gov (F. W.
+// J. Olver et al., eds.); also Abramowitz & Stegun, Handbook of Mathematical Functions (1964), 16.1
+// and 17.2.
 #pragma once
 
 #include <algorithm>
@@ -63,17 +64,18 @@ class ExactPendulum {
     return 2 * am(sign_ * omega_ / k_ * t + u0_);
   }
 
-  /// θ̇(t): libration θ̇ = 2kω cn / cos(θ/2) · dn, circulation θ̇ = ±(2ω/k) dn.
+  /// θ̇(t): libration θ̇ = 2kω cn (as cos(θ/2) = dn), circulation θ̇ = ±(2ω/k) dn. dn is taken as
+  /// √(1 − k² sn²) (dn > 0 for real u, k < 1), not from Boost 1.74's jacobi_elliptic, whose dn is
+  /// off by up to 1e-2 near u = K (dn(K, 0.5) = 0.86399 instead of k' = 0.86603; sn, cn are right).
   [[nodiscard]] double theta_dot(double t) const {
     double cn = 0, dn = 0;
     if (!circulating_) {
       if (k_ == 0.0) return 0.0;
-      const double sn = boost::math::jacobi_elliptic(k_, omega_ * t + u0_, &cn, &dn);
-      const double c = std::sqrt(std::max(0.0, 1.0 - k_ * k_ * sn * sn));  // cos(θ/2) ≥ 0
-      return 2 * k_ * omega_ * cn * dn / c;
+      boost::math::jacobi_elliptic(k_, omega_ * t + u0_, &cn, &dn);
+      return 2 * k_ * omega_ * cn;
     }
-    boost::math::jacobi_elliptic(k_, sign_ * omega_ / k_ * t + u0_, &cn, &dn);
-    return 2 * sign_ * omega_ / k_ * dn;
+    const double sn = boost::math::jacobi_elliptic(k_, sign_ * omega_ / k_ * t + u0_, &cn, &dn);
+    return 2 * sign_ * omega_ / k_ * std::sqrt(std::max(0.0, 1.0 - k_ * k_ * sn * sn));
   }
 
   [[nodiscard]] bool circulating() const { return circulating_; }
@@ -98,8 +100,9 @@ class ExactPendulum {
   bool circulating_ = false;
 };
 
-/// IFToMM A01: a point mass on a massless rod of length L pivoted at the origin, gravity g along −y,
-/// released at rest from the horizontal with P1 = (+L, 0) (θ0 = π/2). P1(t) = L (sin θ, −cos θ).
+/// IFToMM A01: a point mass on a massless rod of length L pivoted at the origin, gravity g along
+/// −y, released at rest from the horizontal with P1 = (+L, 0) (θ0 = π/2). P1(t) = L (sin θ, −cos
+/// θ).
 struct SimplePendulumReference {
   double L = 1.0, g = 9.81;
   ExactPendulum pendulum{std::sqrt(g / L), std::numbers::pi / 2, 0.0};
@@ -110,17 +113,17 @@ struct SimplePendulumReference {
   }
 };
 
-/// IFToMM A02, the N-four-bar mechanism on its parallelogram branch: N + 1 cranks of length L pivoted
-/// at (i L, 0), i = 0..N, and N couplers of length L joining their tips, every link a uniform rod of
-/// mass m. While every window stays a parallelogram, all cranks have the same angle φ from the +x
-/// axis and the couplers translate, so the mechanism is one pendulum:
+/// IFToMM A02, the N-four-bar mechanism on its parallelogram branch: N + 1 cranks of length L
+/// pivoted at (i L, 0), i = 0..N, and N couplers of length L joining their tips, every link a
+/// uniform rod of mass m. While every window stays a parallelogram, all cranks have the same angle
+/// φ from the +x axis and the couplers translate, so the mechanism is one pendulum:
 ///   T = ½ J φ̇²,  J = ((N+1)/3 + N) m L²;   V = G sin φ,  G = ((N+1)/2 + N) m g L;
 /// i.e. θ = φ + π/2 obeys θ̈ = −(G/J) sin θ. The specification starts with the cranks vertical
 /// (φ0 = π/2) and ẋ of B0 (the tip of crank 0) equal to 1 m/s: φ̇0 = −ẋ_B0 / (L sin φ0).
 /// B0(t) = L (cos φ, sin φ).
 struct NFourBarReference {
-  NFourBarReference(int N_, double xdot_B0 = 1.0, double phi0 = std::numbers::pi / 2, double L_ = 1.0,
-                    double m_ = 1.0, double g_ = 9.81)
+  NFourBarReference(int N_, double xdot_B0 = 1.0, double phi0 = std::numbers::pi / 2,
+                    double L_ = 1.0, double m_ = 1.0, double g_ = 9.81)
       : N(N_),
         L(L_),
         m(m_),

@@ -1,10 +1,10 @@
-// `make benchmarks`: the IFToMM library of computational benchmark problems (M. González, D. Dopico,
-// U. Lugrís, J. Cuadrado, Multibody Syst. Dyn. 16 (2006) 179–190), each run over its FULL duration
-// from its scenario in scenarios/benchmarks/, against its reference. Prints one markdown table row
-// per problem: the quantity compared with the reference and the largest error over the samples
-// (and the time it happens), the error at the end, the largest constraint residual max|Φ|, the
-// energy drift max|E − E0| (conservative problems), the rank of A, the CPU time of the run and its
-// steps. docs/benchmarks.md describes the problems and keeps the table of one run.
+// `make benchmarks`: the IFToMM library of computational benchmark problems (M. González, D.
+// Dopico, U. Lugrís, J. Cuadrado, Multibody Syst. Dyn. 16 (2006) 179–190), each run over its FULL
+// duration from its scenario in scenarios/benchmarks/, against its reference. Prints one markdown
+// table row per problem: the quantity compared with the reference and the largest error over the
+// samples (and the time it happens), the error at the end, the largest constraint residual max|Φ|,
+// the energy drift max|E − E0| (conservative problems), the rank of A, the CPU time of the run and
+// its steps. docs/benchmarks.md describes the problems and keeps the table of one run.
 //
 // To add a problem: one entry in problems() below: its scenario, duration and output step, the
 // quantity observed (a function of the state) and the reference (a closed form of t, or a second
@@ -219,20 +219,21 @@ std::vector<Problem> problems() {
     const NFourBarReference ref(N);
     // Without such coordinates, coordinate-free: on the branch V = G sin φ = (G / L) y_B0 (pivots
     // at height 0), so y_B0 = L V / G is compared (x taken from the reference, contributing 0).
-    auto observe = [by_name = point_of(b0_names), ref](const Scenario& sc, std::string& why)
-        -> std::optional<Observer> {
+    auto observe = [by_name = point_of(b0_names), ref](
+                       const Scenario& sc, std::string& why) -> std::optional<Observer> {
       if (auto o = by_name(sc, why)) return o;
       why = "y_B0 = L V/G (no B0 coordinates)";
-      return Observer([&system = *sc.system, ref](double t, CVecRef q, CVecRef, const ForwardData&) {
-        Point p{0, 0, 0};
-        ref.point_B0(t, p[0], p[1]);
-        p[1] = ref.L * potential_energy(system, q) / ref.G;
-        return p;
-      });
+      return Observer(
+          [&system = *sc.system, ref](double t, CVecRef q, CVecRef, const ForwardData&) {
+            Point p{0, 0, 0};
+            ref.point_B0(t, p[0], p[1]);
+            p[1] = ref.L * potential_energy(system, q) / ref.G;
+            return p;
+          });
     };
     list.push_back({"A02", fmt::format("N-four-bar, N = {}", N),
-                    fmt::format("scenarios/benchmarks/n_four_bar_N{}.yaml", N), t_end,
-                    t_end / 400, "B0 (x, y)", true, observe,
+                    fmt::format("scenarios/benchmarks/n_four_bar_N{}.yaml", N), t_end, t_end / 400,
+                    "B0 (x, y)", true, observe,
                     [ref](double t) {
                       Point p{0, 0, 0};
                       ref.point_B0(t, p[0], p[1]);
@@ -243,15 +244,43 @@ std::vector<Problem> problems() {
 
   // A03: Andrews' squeezer (a constant drive torque and a spring); no independent reference here
   // (the library's published values are not in this tree): invariants only.
-  list.push_back({"A03", "Andrews' squeezer", "scenarios/benchmarks/andrews_squeezer.yaml", 0, 0, "-", false, {}, {}, "", "none (invariants only)"});
+  list.push_back({"A03",
+                  "Andrews' squeezer",
+                  "scenarios/benchmarks/andrews_squeezer.yaml",
+                  0,
+                  0,
+                  "-",
+                  false,
+                  {},
+                  {},
+                  "",
+                  "none (invariants only)"});
 
   // A04: Bricard's mechanism against a second formulation (two chains closed at J4).
-  list.push_back({"A04", "Bricard's mechanism", "scenarios/benchmarks/bricard.yaml", 10, 0.01,
-                  "P3 (x, y, z)", true, bricard_p3({{"q1", "q2"}, {"a1", "a2"}}), {},
-                  "scenarios/benchmarks/bricard_cut_at_j4.yaml", "2nd formulation (cut at J4)"});
+  list.push_back({"A04",
+                  "Bricard's mechanism",
+                  "scenarios/benchmarks/bricard.yaml",
+                  10,
+                  0.01,
+                  "P3 (x, y, z)",
+                  true,
+                  bricard_p3({{"q1", "q2"}, {"a1", "a2"}}),
+                  {},
+                  "scenarios/benchmarks/bricard_cut_at_j4.yaml",
+                  "2nd formulation (cut at J4)"});
 
   // A05: the flyball governor (stiff spring-dampers, prescribed shaft speed): invariants only.
-  list.push_back({"A05", "flyball governor", "scenarios/benchmarks/flyball_governor.yaml", 0, 0, "-", false, {}, {}, "", "none (invariants only)"});
+  list.push_back({"A05",
+                  "flyball governor",
+                  "scenarios/benchmarks/flyball_governor.yaml",
+                  0,
+                  0,
+                  "-",
+                  false,
+                  {},
+                  {},
+                  "",
+                  "none (invariants only)"});
   return list;
 }
 
@@ -290,8 +319,8 @@ int main(int argc, char** argv) {
     const double t_end = short_run ? (p.t_end > 0 ? std::min(p.t_end, 2.0) : 2.0) : p.t_end;
     const auto file = root / p.scenario;
     if (!std::filesystem::exists(file)) {
-      std::cout << fmt::format("| {} | {} | {} | | | | | | | | | | skipped: {} not found |\n",
-                               p.id, p.title, p.t_end > 0 ? fmt::format("{:g}", p.t_end) : "-",
+      std::cout << fmt::format("| {} | {} | {} | | | | | | | | | | skipped: {} not found |\n", p.id,
+                               p.title, p.t_end > 0 ? fmt::format("{:g}", p.t_end) : "-",
                                p.scenario);
       continue;
     }
@@ -318,9 +347,9 @@ int main(int argc, char** argv) {
     if (ref_ok && p.observe) {
       max_err = 0;
       for (std::size_t i = 0; i < r.samples.size(); ++i) {
-        const Point ref = p.reference ? p.reference(r.samples[i].t)
-                                      : (i < ref_samples.size() ? ref_samples[i].p
-                                                                : Point{NAN, NAN, NAN});
+        const Point ref = p.reference
+                              ? p.reference(r.samples[i].t)
+                              : (i < ref_samples.size() ? ref_samples[i].p : Point{NAN, NAN, NAN});
         const double e = distance(r.samples[i].p, ref);
         if (!(e <= max_err)) {  // NaN propagates
           max_err = e;
@@ -337,8 +366,7 @@ int main(int argc, char** argv) {
     std::cout << fmt::format(
         "| {} | {} | {:g}{} | {} | {} | {} | {} | {} | {} | {} | {:.3f} | {} | {} |\n", p.id,
         p.title, r.stats.t_reached, complete ? "" : fmt::format(" of {:g}", t_end),
-        r.note.empty() ? p.quantity : p.quantity + ": " + r.note,
-        ref_note,
+        r.note.empty() ? p.quantity : p.quantity + ": " + r.note, ref_note,
         std::isfinite(max_err) ? fmt::format("{} (t = {:g})", sci(max_err), t_max) : "-",
         sci(err_end), sci(r.max_residual), p.conservative ? sci(r.max_dE) : "n/a",
         r.rows == 0 ? "-"
