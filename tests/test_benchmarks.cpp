@@ -221,6 +221,24 @@ TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
   EXPECT_NEAR(tb.E0, -3 * 9.81, 1e-12);
 }
 
+// The mobility is Bricard's geometry, not an artefact of the formulation: tilt one joint axis (J5
+// about z → (0, 0.6, 0.8), the start position still closes the loop) and the same 5 rows have rank
+// 5, no free DOF, and the loop stays where it is.
+TEST(Benchmarks, BricardWithATiltedAxisIsLocked) {
+  std::string text = read_file(kBench / "bricard.yaml");
+  const std::string j5 = "axis: [0, 0, 1],\n         coordinate: q5";
+  const auto pos = text.find(j5);
+  ASSERT_NE(pos, std::string::npos);
+  text.replace(pos, j5.size(), "axis: [0, 3, 4],\n         coordinate: q5");
+  const auto sc = ukdyn::load_scenario_text(text, "bricard_tilted.yaml");
+  const Trace tr = run(sc, 1.0, 0.01);
+  ASSERT_EQ(tr.stats.status, ukdyn::RunStatus::completed) << tr.stats.message;
+  EXPECT_EQ(tr.rank_min, 5);
+  double travel = 0;
+  for (const Vec& q : tr.q) travel = std::max(travel, q.cwiseAbs().maxCoeff());
+  EXPECT_LT(travel, 1e-9);
+}
+
 // ---- A02 N-four-bar (scenarios written on another branch; skipped if absent) ------------------
 
 // Coordinate-free: on the parallelogram branch V = G sin φ and T = ½ J φ̇², so the scenario's
