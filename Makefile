@@ -6,7 +6,7 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench drift-study sanitize fuzz clean format
+.PHONY: all deps configure build run test bench benchmarks drift-study sanitize fuzz clean format
 FUZZ_SECONDS ?= 60
 
 all: build
@@ -31,6 +31,12 @@ bench:
 	@cmake --preset bench >/dev/null
 	@cmake --build build/bench -j $(JOBS)
 	build/bench/bench/ukdyn_bench --benchmark_min_time=0.2 $(BENCH_ARGS)
+
+# The IFToMM benchmark problems over their full durations (docs/benchmarks.md), release build.
+benchmarks: deps
+	@cmake --preset release >/dev/null
+	@cmake --build build/release -j $(JOBS) --target ukdyn_benchmarks
+	build/release/ukdyn_benchmarks $(BENCHMARKS_ARGS)
 
 drift-study: build
 	$(BUILD_DIR)/ukdyn_drift_study scenarios/paper_free.yaml 100

@@ -1,0 +1,333 @@
+// Short horizons of the IFToMM benchmark problems in scenarios/benchmarks/ (the full durations are
+// `make benchmarks`, tools/benchmarks.cpp, docs/benchmarks.md), against references that do not
+// come from ukdyn: the exact pendulum (tools/benchmark_reference.hpp, itself checked here against
+// its differential equation, its energy and an AGM value of K), a second formulation of Bricard's
+// mechanism, and the invariants (energy, constraint residuals, the rank of A).
+#ifdef UKDYN_HAVE_IO
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tools/benchmark_reference.hpp"
+#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/simulate/simulate.hpp"
+
+namespace {
+
+using ukdyn::CVecRef;
+using ukdyn::ForwardData;
+using ukdyn::Index;
+using ukdyn::Vec;
+using ukdyn_bench::ExactPendulum;
+
+const std::filesystem::path kBench =
+    std::filesystem::path(UKDYN_SOURCE_DIR) / "scenarios/benchmarks";
+
+std::string read_file(const std::filesystem::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+/// Samples of a run: t, q, and the invariants.
+struct Trace {
+  ukdyn::SimulationStats stats;
+  std::vector<double> t;
+  std::vector<Vec> q;
+  double max_residual = 0, max_dE = 0, E0 = std::nan("");
+  int rank_min = 1 << 30, rank_max = -1;
+};
+
+Trace run(const ukdyn::Scenario& sc, double t_end, double sample_dt) {
+  Trace tr;
+  ukdyn::SimulationSettings s = sc.sim;
+  s.t_end = t_end;
+  s.sample_dt = sample_dt;
+  Vec phi(sc.system->rows());
+  tr.stats = ukdyn::simulate(
+      *sc.system, sc.q0, sc.qd0, {}, s, [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+        const double E = ukdyn::kinetic_energy(d, qd) + ukdyn::potential_energy(*sc.system, q);
+        if (std::isnan(tr.E0)) tr.E0 = E;
+        tr.max_dE = std::max(tr.max_dE, std::abs(E - tr.E0));
+        ukdyn::position_residuals(*sc.system, t, q, phi);
+        tr.max_residual = std::max(tr.max_residual, phi.cwiseAbs().maxCoeff());
+        tr.rank_min = std::min(tr.rank_min, d.result.rank);
+        tr.rank_max = std::max(tr.rank_max, d.result.rank);
+        tr.t.push_back(t);
+        tr.q.emplace_back(q);
+        return true;
+      });
+  return tr;
+}
+
+/// K(k) by the arithmetic-geometric mean, K = π / (2 AGM(1, √(1 − k²))) (DLMF 19.8.5): independent
+/// of Boost's ellint_1.
+double agm_K(double k) {
+  double a = 1, b = std::sqrt(1 - k * k);
+  for (int i = 0; i < 40 && std::abs(a - b) > 1e-17; ++i) {
+    const double an = (a + b) / 2;
+    b = std::sqrt(a * b);
+    a = an;
+  }
+  return std::numbers::pi / (2 * a);
+}
+
+// ---- the reference itself ---------------------------------------------------------------------
+
+// The closed form satisfies θ̈ = −ω² sin θ (central differences at h = 1e-4: truncation h²/12 |θ⁗|
+// and rounding 1e-14/h² both ≈ 1e-6 here; bound 1e-5 ω²), its energy ½θ̇² − ω² cos θ is constant (θ̇
+// from the closed form, ≤ 1e-12), it starts at (θ0, θ̇0), and the libration period is 4K/ω with K
+// from an independent AGM.
+TEST(BenchmarkReference, ExactPendulumSolvesItsEquation) {
+  const double w = 3.0;
+  struct Start {
+    double th0, thd0;
+  };
+  for (const Start s : {Start{std::numbers::pi / 2, 0.0}, Start{0.3, -1.2}, Start{-2.0, 0.7},
+                        Start{std::numbers::pi, -1.0}, Start{0.5, 9.0}, Start{1.0, -8.0}}) {
+    const ExactPendulum p(w, s.th0, s.thd0);
+    EXPECT_NEAR(p.theta(0.0), s.th0, 1e-13);
+    EXPECT_NEAR(p.theta_dot(0.0), s.thd0, 1e-12 * (1 + std::abs(s.thd0)));
+    const double e0 = 0.5 * s.thd0 * s.thd0 - w * w * std::cos(s.th0);
+    const double h = 1e-4;
+    for (double t = 0.05; t < 5.0; t += 0.173) {
+      const double th = p.theta(t), thd = p.theta_dot(t);
+      const double acc = (p.theta(t + h) - 2 * th + p.theta(t - h)) / (h * h);
+      EXPECT_NEAR(acc, -w * w * std::sin(th), 1e-5 * w * w) << "t = " << t;
+      EXPECT_NEAR((p.theta(t + h) - p.theta(t - h)) / (2 * h), thd, 1e-5 * (1 + std::abs(thd)));
+      EXPECT_NEAR(0.5 * thd * thd - w * w * std::cos(th), e0, 1e-11 * (1 + std::abs(e0)));
+    }
+  }
+  // Released at rest from the horizontal: k = sin(π/4), period 4K/ω, back at θ0 after one period.
+  const ExactPendulum p(w, std::numbers::pi / 2, 0.0);
+  EXPECT_FALSE(p.circulating());
+  EXPECT_NEAR(p.period(), 4 * agm_K(std::sin(std::numbers::pi / 4)) / w, 1e-14);
+  EXPECT_NEAR(p.theta(p.period()), std::numbers::pi / 2, 1e-12);
+  EXPECT_NEAR(p.theta(p.period() / 2), -std::numbers::pi / 2, 1e-12);
+  EXPECT_NEAR(p.theta(p.period() / 4), 0.0, 1e-12);
+  // Circulating: one turn (θ − 2π) after period().
+  const ExactPendulum c(w, std::numbers::pi, -1.0);
+  EXPECT_TRUE(c.circulating());
+  EXPECT_NEAR(c.theta(c.period()), -std::numbers::pi, 1e-11);
+}
+
+// The N-four-bar reference: J, G of the parallelogram branch and its initial state (cranks
+// vertical, ẋ_B0 = 1 m/s): B0(0) = (0, 1), and B0 moves along +x at 1 m/s.
+TEST(BenchmarkReference, NFourBarBranchStartsAsSpecified) {
+  for (const int N : {2, 40}) {
+    const ukdyn_bench::NFourBarReference ref(N);
+    EXPECT_DOUBLE_EQ(ref.J, (N + 1) / 3.0 + N);
+    EXPECT_DOUBLE_EQ(ref.G, ((N + 1) / 2.0 + N) * 9.81);
+    double x = 0, y = 0, x1 = 0, y1 = 0;
+    ref.point_B0(0.0, x, y);
+    EXPECT_NEAR(x, 0.0, 1e-15);
+    EXPECT_NEAR(y, 1.0, 1e-15);
+    const double h = 1e-6;
+    ref.point_B0(h, x1, y1);
+    EXPECT_NEAR((x1 - x) / h, 1.0, 1e-5);
+    EXPECT_NEAR(ref.energy(), 0.5 * ref.J + ref.G, 1e-12 * ref.G);
+  }
+}
+
+// ---- A01 simple pendulum ----------------------------------------------------------------------
+
+double pendulum_max_error(const Trace& tr, const ukdyn_bench::SimplePendulumReference& ref) {
+  double e = 0;
+  for (std::size_t i = 0; i < tr.t.size(); ++i) {
+    double x = 0, y = 0;
+    ref.point(tr.t[i], x, y);
+    e = std::max(e, std::hypot(tr.q[i](0) - x, tr.q[i](1) - y));
+  }
+  return e;
+}
+
+// 3 s (more than one period, 2.37 s) at the scenario's settings (dopri5, tolerances 1e-12, drift
+// projection to 1e-15). Bounds: ~1000 accepted steps of local error ≤ 1e-12 give a global error of
+// at most about 1e-9, so the position error must stay under 1e-8 (a change of g in the 4th digit
+// shifts P1 by 1e-3, checked below: the test fails on a wrong model); max|Φ| under 1e-12 (the
+// projection's tolerance, with margin); energy drift under 1e-8 J of the 9.81 J exchanged.
+TEST(Benchmarks, SimplePendulumAgainstTheExactSolution) {
+  const auto sc = ukdyn::load_scenario(kBench / "simple_pendulum.yaml");
+  ASSERT_EQ(sc.system->coordinate_names(), (std::vector<std::string>{"x", "y"}));
+  const Trace tr = run(sc, 3.0, 0.01);
+  ASSERT_EQ(tr.stats.status, ukdyn::RunStatus::completed) << tr.stats.message;
+  const ukdyn_bench::SimplePendulumReference ref;
+  const double err = pendulum_max_error(tr, ref);
+  EXPECT_LT(err, 1e-8);
+  EXPECT_LT(tr.max_residual, 1e-12);
+  EXPECT_LT(tr.max_dE, 1e-8);
+  EXPECT_EQ(tr.rank_min, 1);
+  EXPECT_EQ(tr.rank_max, 1);
+
+  // The same measure on a wrong model (g = 9.80 instead of 9.81) is far over the bound.
+  std::string text = read_file(kBench / "simple_pendulum.yaml");
+  const auto pos = text.find("gravity: [0, -9.81, 0]");
+  ASSERT_NE(pos, std::string::npos);
+  text.replace(pos, 22, "gravity: [0, -9.80, 0]");
+  const auto wrong = ukdyn::load_scenario_text(text, "wrong_g.yaml");
+  const Trace tw = run(wrong, 3.0, 0.01);
+  EXPECT_GT(pendulum_max_error(tw, ref), 1e-3);
+}
+
+// ---- A04 Bricard's mechanism ------------------------------------------------------------------
+
+std::array<double, 3> bricard_p3(double a, double b) {  // as tools/benchmarks.cpp
+  const double u = 1 + std::sin(b), v = -std::cos(b);
+  return {std::cos(a) * u, v, -std::sin(a) * u};
+}
+
+// 2 s of both formulations (serial chain O1..O2 closed at O2; two chains closed at J4). They share
+// no constraint equation and only the first two joint angles, so P3 must agree to the integration
+// error (bound 1e-8 as above). Both: 5 coordinates, 5 rows, rank 4 at every sample (one redundant
+// row, 1 DOF where Grübler counts 0); max|Φ| ≤ 1e-12; energy drift ≤ 1e-8 J.
+TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
+  const auto a = ukdyn::load_scenario(kBench / "bricard.yaml");
+  const auto b = ukdyn::load_scenario(kBench / "bricard_cut_at_j4.yaml");
+  for (const auto* sc : {&a, &b}) {
+    EXPECT_EQ(sc->system->dof(), 5);
+    EXPECT_EQ(sc->system->rows(), 5);  // Grübler: 5 − 5 = 0 degrees of freedom
+  }
+  const Trace ta = run(a, 2.0, 0.01), tb = run(b, 2.0, 0.01);
+  ASSERT_EQ(ta.stats.status, ukdyn::RunStatus::completed) << ta.stats.message;
+  ASSERT_EQ(tb.stats.status, ukdyn::RunStatus::completed) << tb.stats.message;
+  ASSERT_EQ(ta.t.size(), tb.t.size());
+  double err = 0, travel = 0;
+  const auto p0 = bricard_p3(0, 0);
+  for (std::size_t i = 0; i < ta.t.size(); ++i) {
+    const auto pa = bricard_p3(ta.q[i](0), ta.q[i](1));
+    const auto pb = bricard_p3(tb.q[i](0), tb.q[i](1));
+    err = std::max(err, std::hypot(pa[0] - pb[0], pa[1] - pb[1], pa[2] - pb[2]));
+    travel = std::max(travel, std::hypot(pa[0] - p0[0], pa[1] - p0[1], pa[2] - p0[2]));
+  }
+  EXPECT_LT(err, 1e-8);
+  EXPECT_GT(travel, 0.5);  // the mechanism does move (it is not locked by the 5 rows)
+  for (const Trace* tr : {&ta, &tb}) {
+    EXPECT_EQ(tr->rank_min, 4);
+    EXPECT_EQ(tr->rank_max, 4);
+    EXPECT_LT(tr->max_residual, 1e-12);
+    EXPECT_LT(tr->max_dE, 1e-8);
+    EXPECT_TRUE(tr->stats.warnings.empty());
+  }
+  // Released at rest: E0 = V0 = −g Σ m y_CoM = −9.81 (0 + 0.5 + 1 + 1 + 0.5) J.
+  EXPECT_NEAR(ta.E0, -3 * 9.81, 1e-12);
+  EXPECT_NEAR(tb.E0, -3 * 9.81, 1e-12);
+}
+
+// The mobility is Bricard's geometry, not an artefact of the formulation: tilt one joint axis (J5
+// about z → (0, 0.6, 0.8), the start position still closes the loop) and the same 5 rows have rank
+// 5, no free DOF, and the loop stays where it is.
+TEST(Benchmarks, BricardWithATiltedAxisIsLocked) {
+  std::string text = read_file(kBench / "bricard.yaml");
+  const std::string j5 = "axis: [0, 0, 1],\n         coordinate: q5";
+  const auto pos = text.find(j5);
+  ASSERT_NE(pos, std::string::npos);
+  text.replace(pos, j5.size(), "axis: [0, 3, 4],\n         coordinate: q5");
+  const auto sc = ukdyn::load_scenario_text(text, "bricard_tilted.yaml");
+  const Trace tr = run(sc, 1.0, 0.01);
+  ASSERT_EQ(tr.stats.status, ukdyn::RunStatus::completed) << tr.stats.message;
+  EXPECT_EQ(tr.rank_min, 5);
+  double travel = 0;
+  for (const Vec& q : tr.q) travel = std::max(travel, q.cwiseAbs().maxCoeff());
+  EXPECT_LT(travel, 1e-9);
+}
+
+// ---- A02 N-four-bar ---------------------------------------------------------------------------
+
+// The reference against an independent model of N = 2 written here (absolute crank angles p0..p2,
+// coupler angles s1, s2, 4 closure rows; every link a uniform 1 m / 1 kg rod), over 0.6 s: before
+// the first flat position (t = 0.714 s), where the mechanism is singular. B0 = (cos p0, sin p0)
+// within 1e-8 (dopri5 at 1e-12, as above) and the model's initial energy equal to the branch's.
+TEST(Benchmarks, NFourBarReferenceAgainstAnIndependentModel) {
+  const std::string text = R"(ukdyn: 1
+name: n_four_bar_2_check
+gravity: 9.81
+subsystems:
+  - name: m
+    type: definitions
+    coordinates: [p0, p1, p2, s1, s2]
+    parameters: {L: 1, m: 1, I: 1/12}
+    gravity: [0, -9.81, 0]
+    bodies:
+      - {name: c0, mass: m, com: [L/2*cos(p0), L/2*sin(p0), 0], inertia: I,
+         angular_velocity: [0, 0, p0_dot]}
+      - {name: c1, mass: m, com: [L + L/2*cos(p1), L/2*sin(p1), 0], inertia: I,
+         angular_velocity: [0, 0, p1_dot]}
+      - {name: c2, mass: m, com: [2*L + L/2*cos(p2), L/2*sin(p2), 0], inertia: I,
+         angular_velocity: [0, 0, p2_dot]}
+      - {name: k1, mass: m, com: [L*cos(p0) + L/2*cos(s1), L*sin(p0) + L/2*sin(s1), 0],
+         inertia: I, angular_velocity: [0, 0, s1_dot]}
+      - {name: k2, mass: m, com: [L + L*cos(p1) + L/2*cos(s2), L*sin(p1) + L/2*sin(s2), 0],
+         inertia: I, angular_velocity: [0, 0, s2_dot]}
+constraints:
+  - type: expression
+    name: w
+    parameters: {L: 1}
+    rows:
+      x1: L*cos(p0) + L*cos(s1) - (L + L*cos(p1))
+      y1: L*sin(p0) + L*sin(s1) - L*sin(p1)
+      x2: L + L*cos(p1) + L*cos(s2) - (2*L + L*cos(p2))
+      y2: L*sin(p1) + L*sin(s2) - L*sin(p2)
+initial:
+  q: [pi/2, pi/2, pi/2, 0, 0]
+  qd: [-1, -1, -1, 0, 0]
+simulation:
+  t_end: 1
+  sample_dt: 0.01
+  abs_tol: 1e-12
+  rel_tol: 1e-12
+)";
+  const auto sc = ukdyn::load_scenario_text(text, "n_four_bar_2_check.yaml");
+  const ukdyn_bench::NFourBarReference ref(2);
+  const Trace tr = run(sc, 0.6, 0.01);
+  ASSERT_EQ(tr.stats.status, ukdyn::RunStatus::completed) << tr.stats.message;
+  EXPECT_NEAR(tr.E0, ref.energy(), 1e-12 * ref.G);
+  double err = 0, travel = 0;
+  for (std::size_t i = 0; i < tr.t.size(); ++i) {
+    double x = 0, y = 0;
+    ref.point_B0(tr.t[i], x, y);
+    err = std::max(err, std::hypot(std::cos(tr.q[i](0)) - x, std::sin(tr.q[i](0)) - y));
+    travel = std::max(travel, std::hypot(x, y - 1));
+  }
+  EXPECT_LT(err, 1e-8);
+  EXPECT_GT(travel, 1.0);  // B0 has turned most of the quarter to the flat position
+  EXPECT_EQ(tr.rank_min, 4);
+}
+
+// The N-four-bar scenarios of the library (written on another branch; skipped if absent).
+
+// Coordinate-free: on the parallelogram branch V = G sin φ and T = ½ J φ̇², so the scenario's
+// initial energy must be the reference's, and V(t)/G = sin φ(t) = y_B0(t) over a short run (2 s,
+// one flat crossing for N = 2: φ passes 0 near t ≈ 1.2 s).
+TEST(Benchmarks, NFourBarFollowsTheParallelogramBranch) {
+  const auto file = kBench / "n_four_bar_N2.yaml";
+  if (!std::filesystem::exists(file)) GTEST_SKIP() << file << " is not in this tree";
+  const auto sc = ukdyn::load_scenario(file);
+  const ukdyn_bench::NFourBarReference ref(2);
+  ukdyn::SimulationSettings s = sc.sim;
+  s.t_end = 2.0;
+  s.sample_dt = 0.01;
+  double err = 0, E0 = std::nan("");
+  const auto st = ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
+                                  [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+                                    const double V = ukdyn::potential_energy(*sc.system, q);
+                                    if (std::isnan(E0)) E0 = ukdyn::kinetic_energy(d, qd) + V;
+                                    double x = 0, y = 0;
+                                    ref.point_B0(t, x, y);
+                                    err = std::max(err, std::abs(V / ref.G - y));
+                                    return true;
+                                  });
+  EXPECT_NEAR(E0, ref.energy(), 1e-9 * ref.G);
+  ASSERT_EQ(st.status, ukdyn::RunStatus::completed) << st.message;
+  EXPECT_LT(err, 1e-6);
+}
+
+}  // namespace
+#endif  // UKDYN_HAVE_IO
