@@ -586,6 +586,30 @@ TEST(Figures, ThousandsOfRowsDrawABoundedNumberOfFigures) {
   EXPECT_NE(notes.back().find("of 3000 figures"), std::string::npos) << notes.back();
 }
 
+TEST(Eval, HostileLinesEachGetTheirOwnError) {
+  const ukdyn::Scenario sc = ukdyn::load_scenario(kSource / "scenarios" / "paper_free.yaml");
+  std::istringstream cases(slurp(kSource / "tests" / "hostile_eval" / "cases.txt"));
+  int n = 0;
+  for (std::string head; std::getline(cases, head);) {
+    if (head.empty() || head[0] == '#') continue;
+    ASSERT_EQ(head.rfind("expect: ", 0), 0u) << head;
+    std::string line;
+    ASSERT_TRUE(std::getline(cases, line));
+    ++n;
+    std::istringstream in("\n" + line + "\n");  // on line 2
+    std::ostringstream out;
+    const auto counts = ukdyn::run_eval_protocol(sc, in, out, nullptr);
+    EXPECT_EQ(counts.failures, 1) << head;
+    const auto j = nlohmann::json::parse(out.str());
+    ASSERT_TRUE(j.contains("error")) << head << ": " << out.str().substr(0, 200);
+    EXPECT_EQ(j["line"], 2);
+    const std::string msg = j["error"].get<std::string>();
+    EXPECT_EQ(msg.rfind("stdin:2: ", 0), 0u) << msg;
+    EXPECT_NE(msg.find(head.substr(8)), std::string::npos) << head << "\n  got: " << msg;
+  }
+  EXPECT_GE(n, 30);
+}
+
 TEST(Eval, SingularMassMatrixIsAnErrorOnItsLine) {
   // Any M has a reciprocal condition <= 1: a threshold above that makes every M "singular", which
   // shows the path a singular M takes (an error object, never a result).

@@ -51,6 +51,7 @@ bool is_root_like(const fs::path& canonical, std::string& why) {
 }  // namespace
 
 void check_output_folder(const fs::path& dir) {
+  if (dir.empty()) throw OutputRefused("--out: the output folder name is empty");
   std::error_code ec;
   const fs::path abs = fs::absolute(dir, ec);
   if (ec) throw OutputRefused(dir.string() + ": cannot resolve the output folder: " + ec.message());
