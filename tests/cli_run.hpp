@@ -28,12 +28,21 @@ inline std::string slurp(const fs::path& p) {
   return os.str();
 }
 
-/// A fresh folder for this test process, under the system's temporary folder.
-inline fs::path scratch_dir(const std::string& tag) {
-  const auto d = fs::temp_directory_path() / (tag + "_" + std::to_string(::getpid()));
-  fs::create_directories(d);
-  return d;
-}
+/// A fresh folder for this test process, under the system's temporary folder, removed at exit
+/// (std::filesystem::remove_all removes links, never what they point to).
+struct ScratchDir {
+  fs::path path;
+  explicit ScratchDir(const std::string& tag)
+      : path(fs::temp_directory_path() / (tag + "_" + std::to_string(::getpid()))) {
+    fs::create_directories(path);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+};
 
 /// Single-quoted for the POSIX shell.
 inline std::string sh(const std::string& s) {

@@ -30,8 +30,8 @@ using namespace ukdyn_test;
 const fs::path kSource = UKDYN_SOURCE_DIR;
 
 fs::path scratch() {
-  static const fs::path d = scratch_dir("ukdyn_safety_test");
-  return d;
+  static const ScratchDir d("ukdyn_safety_test");
+  return d.path;
 }
 
 // The paper's free-base scenario with textual substitutions (each must apply), written to scratch.
