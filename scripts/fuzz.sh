@@ -37,3 +37,21 @@ if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts")" ]]; then
   exit 1
 fi
 echo "fuzz: no finding in ${seconds} s" >&2
+
+# The expression parser + derivation (fuzz/fuzz_expression.cpp): seeds fuzz/expression_seeds, new
+# inputs in build/fuzz/corpus_expression, reproducers in build/fuzz/artifacts_expression/.
+#   build/fuzz/fuzz/fuzz_expression build/fuzz/artifacts_expression/crash-...   replays one finding
+cmake --build "$build" --target fuzz_expression -j "$jobs"
+rm -rf "$build/artifacts_expression"
+mkdir -p "$build/corpus_expression" "$build/artifacts_expression"
+status=0
+"$build/fuzz/fuzz_expression" "$build/corpus_expression" fuzz/expression_seeds \
+  -dict=fuzz/expression.dict -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
+  -max_len=4096 -artifact_prefix="$build/artifacts_expression/" -print_final_stats=1 || status=$?
+if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts_expression")" ]]; then
+  echo "fuzz: FINDING in fuzz_expression (libFuzzer exit $status); reproducers in" \
+    "$build/artifacts_expression:" >&2
+  ls -l "$build/artifacts_expression" >&2
+  exit 1
+fi
+echo "fuzz: fuzz_expression: no finding in ${seconds} s" >&2
