@@ -16,7 +16,7 @@
 namespace {
 
 // The line as a YAML double-quoted scalar (every byte survives: control bytes as \xNN).
-std::string quoted(const std::string& s) {
+std::string yaml_quoted(const std::string& s) {
   static const char* hex = "0123456789abcdef";
   std::string out = "\"";
   for (char ch : s) {
@@ -50,11 +50,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string text =
       "ukdyn: 1\nname: fuzz\nsubsystems:\n  - name: s\n    type: definitions\n"
       "    coordinates: [x, y]\n    parameters: {a: 2, b: 0.5}\n    let: {u: " +
-      quoted(lines[0]) + "}\n    bodies:\n      - {name: p, mass: 1, com: [" + quoted(lines[1]) +
-      ", 0, " + quoted(lines[2]) +
+      yaml_quoted(lines[0]) + "}\n    bodies:\n      - {name: p, mass: 1, com: [" + yaml_quoted(lines[1]) +
+      ", 0, " + yaml_quoted(lines[2]) +
       "]}\n      - {name: r, mass: 1, com: [x, y, 0]}\n"
       "constraints:\n  - {type: expression, name: c, rows: [" +
-      quoted(lines[3]) + "]}\ninitial: {q: [0.1, 0.2]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
+      yaml_quoted(lines[3]) + "]}\ninitial: {q: [0.1, 0.2]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
   try {
     ukdyn::LoadOptions options;
     options.check_initial = false;
