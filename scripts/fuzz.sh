@@ -6,6 +6,7 @@
 # out of memory); the reproducer is written to build/fuzz/artifacts/.
 #   scripts/fuzz.sh [SECONDS]          (scenario loader; default: FUZZ_SECONDS or 60)
 #   EVAL_FUZZ_SECONDS=N                (eval lines; default 20; seeds fuzz/eval_seeds)
+#   EXPRESSION_FUZZ_SECONDS=N          (expression parser + derivation; default 30)
 #   build/fuzz/fuzz/fuzz_scenario build/fuzz/artifacts/crash-...    replays one finding
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -51,3 +52,22 @@ if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts")" ]]; then
   exit 1
 fi
 echo "fuzz: eval protocol: no finding in ${eval_seconds} s" >&2
+
+expr_seconds=${EXPRESSION_FUZZ_SECONDS:-30}
+# The expression parser + derivation (fuzz/fuzz_expression.cpp): seeds fuzz/expression_seeds, new
+# inputs in build/fuzz/corpus_expression, reproducers in build/fuzz/artifacts_expression/.
+#   build/fuzz/fuzz/fuzz_expression build/fuzz/artifacts_expression/crash-...   replays one finding
+cmake --build "$build" --target fuzz_expression -j "$jobs"
+rm -rf "$build/artifacts_expression"
+mkdir -p "$build/corpus_expression" "$build/artifacts_expression"
+status=0
+"$build/fuzz/fuzz_expression" "$build/corpus_expression" fuzz/expression_seeds \
+  -dict=fuzz/expression.dict -max_total_time="$expr_seconds" -timeout=10 -rss_limit_mb=2048 \
+  -max_len=4096 -artifact_prefix="$build/artifacts_expression/" -print_final_stats=1 || status=$?
+if ((status != 0)) || [[ -n "$(ls -A "$build/artifacts_expression")" ]]; then
+  echo "fuzz: FINDING in fuzz_expression (libFuzzer exit $status); reproducers in" \
+    "$build/artifacts_expression:" >&2
+  ls -l "$build/artifacts_expression" >&2
+  exit 1
+fi
+echo "fuzz: fuzz_expression: no finding in ${expr_seconds} s" >&2

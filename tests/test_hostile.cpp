@@ -7,6 +7,7 @@
 // A corpus file starts with "# expect: <substring of the error message>", optionally followed by
 // "# exit: 1" for a run that starts and must stop cleanly (default: exit 2, rejected on loading).
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -266,6 +267,54 @@ TEST(HostileCorpus, PathLikeNamesWriteNothingOutsideTheOutputFolder) {
   }
   EXPECT_TRUE(found.empty()) << found.front();
   fs::remove_all(root);
+}
+
+// Injection payloads (issue 15, class 1): corpus files that try to run `touch canary` through a
+// name (gnuplot system(), a CR ending a C comment, ...) are refused by every command that writes a
+// generated file, and no canary appears in the working directory or the output folder.
+TEST(HostileCorpus, InjectionPayloadsRunNothing) {
+  const fs::path work = scratch() / "injection";
+  fs::remove_all(work);
+  fs::create_directories(work);
+  int payloads = 0;
+  for (const auto& c : corpus_cases()) {
+    const std::string text = slurp(c.file);
+    if (text.find("canary") == std::string::npos && text.find("system(") == std::string::npos)
+      continue;
+    ++payloads;
+    const std::string cd = "cd " + sh_quote(work.string()) + " && ";
+    for (const std::string& cmd :
+         std::vector<std::string>{"simulate " + sh_quote(c.file.string()) + " --out out",
+                                  "derive " + sh_quote(c.file.string()) + " --format c",
+                                  "derive " + sh_quote(c.file.string()) + " --format latex",
+                                  "derive " + sh_quote(c.file.string()) + " --format matlab"}) {
+      const int rc = std::system((cd + "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " +
+                                  sh_quote(UKDYN_CLI) + " " + cmd + " > /dev/null 2>&1")
+                                     .c_str());
+      EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << c.name << ": " << cmd;
+    }
+    for (const auto& e : fs::recursive_directory_iterator(work))
+      EXPECT_EQ(e.path().filename().string().find("canary"), std::string::npos) << e.path();
+    EXPECT_FALSE(fs::exists(fs::current_path() / "canary"));
+  }
+  EXPECT_GE(payloads, 5);
+  fs::remove_all(work);
+}
+
+// A FIFO (or a directory) given as the scenario is named as what it is, never opened (a FIFO
+// would block), never reported as missing.
+TEST(HostileCorpus, FifoScenarioIsNamedNotOpened) {
+  const fs::path fifo = scratch() / "scenario_fifo.yaml";
+  fs::remove(fifo);
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const Outcome r = simulate(fifo, scratch() / "out_fifo");
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("not a regular file (a directory, FIFO or device)"), std::string::npos)
+      << r.err;
+  fs::remove(fifo);
+  const Outcome d = simulate(scratch(), scratch() / "out_dir");
+  EXPECT_EQ(d.exit_code, 2) << d.err;
+  EXPECT_NE(d.err.find("not a regular file"), std::string::npos) << d.err;
 }
 
 }  // namespace

@@ -31,7 +31,7 @@ namespace sym = ukdyn::symbolic;
       static_cast<std::size_t>(mark.column) + 1 + (one_line ? offset + (quoted ? 1 : 0) : 0);
   os << L.path().string() << ":" << (mark.line + 1) << ":" << col << ": key '" << n.key
      << "': " << message;
-  throw ScenarioError(os.str());
+  throw ScenarioError(Loader::printable(os.str()));
 }
 
 // The text of an expression node: a string or a plain number.
@@ -47,6 +47,8 @@ ex parse(const Loader& L, const sym::DefinitionScope& scope, const Node& n) {
     return scope.parse(text);
   } catch (const sym::ExpressionError& e) {
     fail_at(L, n, e.offset, e.what());
+  } catch (const std::exception& e) {
+    L.fail(n, std::string("cannot evaluate: ") + e.what());
   }
 }
 
@@ -87,7 +89,7 @@ void load_scope(const Loader& L, const Node& parent, sym::DefinitionScope& scope
   if (Node p = L.child(parent, "parameters", false); p.node.IsDefined()) {
     if (!p.node.IsMap()) L.fail(p, "expected a mapping name: value");
     for (const auto& kv : p.node) {
-      const std::string k = kv.first.as<std::string>();
+      const std::string k = L.key(p, kv.first);
       const Node key_node{kv.first, p.key + "." + k};
       const Node v{kv.second, p.key + "." + k};
       const ex value = parse(L, scope, v);  // may use earlier parameters
@@ -95,13 +97,15 @@ void load_scope(const Loader& L, const Node& parent, sym::DefinitionScope& scope
         scope.parameter(k, value.subs(scope.parameter_values()));
       } catch (const sym::ExpressionError& e) {
         L.fail(key_node, e.what());
+      } catch (const std::exception& e) {  // GiNaC: 1/p with p: 0, log(p) with p: 0
+        L.fail(v, std::string("cannot evaluate: ") + e.what());
       }
     }
   }
   if (Node l = L.child(parent, "let", false); l.node.IsDefined()) {
     if (!l.node.IsMap()) L.fail(l, "expected a mapping name: expression (evaluated in order)");
     for (const auto& kv : l.node) {
-      const std::string k = kv.first.as<std::string>();
+      const std::string k = L.key(l, kv.first);
       const Node v{kv.second, l.key + "." + k};
       const ex value = parse(L, scope, v);
       try {
@@ -176,7 +180,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Node b{bodies.node[i], bodies.key + "[" + std::to_string(i) + "]"};
     L.only_keys(
         b, {"name", "mass", "com", "inertia", "inertia_frame", "angular_velocity", "rotation"});
-    sym::BodyDef& body = def->add_body(L.string(L.child(b, "name", true)));
+    sym::BodyDef& body = def->add_body(L.label(L.child(b, "name", true)));
     body.mass = parse(L, *def, L.child(b, "mass", true));
     body.com = parse_list<3>(L, *def, L.child(b, "com", true));
     if (Node in = L.child(b, "inertia", false); in.node.IsDefined()) {
@@ -219,6 +223,8 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
     L.fail(s, e.what());
   } catch (const Error& e) {
     L.fail(s, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(s, std::string("cannot evaluate: ") + e.what());
   }
 }
 
@@ -236,10 +242,11 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
   if (rows.node.IsMap()) {
     // rows: {x: "expr", y: "expr"} → row names <name>_x, <name>_y
     for (const auto& kv : rows.node) {
-      const std::string k = kv.first.as<std::string>();
+      const std::string k = L.key(rows, kv.first);
       const Node v{kv.second, rows.key + "." + k};
-      if (k.empty() || k.find_first_of(", \"\n'") != std::string::npos)
-        L.fail(v, "invalid row name '" + k + "'");
+      (void)L.name(Node{kv.first, rows.key + "." + k});  // <name>_<k> is a CSV column
+      if ((name + "_" + k).size() > 64)
+        L.fail(v, "the row name '" + name + "_" + k + "' is longer than 64 characters");
       def.add_row(name + "_" + k, parse(L, def, v));
       row_nodes.push_back(v);
     }
@@ -268,6 +275,8 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
     L.fail(c, e.what());
   } catch (const Error& e) {
     L.fail(c, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(c, std::string("cannot evaluate: ") + e.what());
   }
 }
 
@@ -342,7 +351,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       const Node j{joints.node[i], joints.key + "[" + std::to_string(i) + "]"};
       L.only_keys(j, {"name", "type", "parent", "link", "origin", "axis", "coordinate", "value",
                       "mass", "com", "inertia", "inertia_rpy"});
-      const std::string jname = L.string(L.child(j, "name", true));
+      const std::string jname = L.label(L.child(j, "name", true));
       const Node tn = L.child(j, "type", true);
       const std::string type = L.string(tn);
       sym::JointDef::Type jt = sym::JointDef::Type::revolute;
@@ -356,7 +365,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
         L.fail(tn, "unknown joint type '" + type + "' (expected revolute, prismatic or fixed)");
       }
       std::string link = jname;
-      if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.string(k);
+      if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.label(k);
       sym::JointDef& jd = def->add_joint(jname, jt, link);
       if (Node p = L.child(j, "parent", false); p.node.IsDefined()) jd.parent = L.string(p);
       if (Node o = L.child(j, "origin", false); o.node.IsDefined()) {
@@ -391,7 +400,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     if (Node jv = L.child(s, "joint_values", false); jv.node.IsDefined()) {
       if (!jv.node.IsMap()) L.fail(jv, "expected a mapping joint: coordinate or expression");
       for (const auto& kv : jv.node) {
-        const std::string k = kv.first.as<std::string>();
+        const std::string k = L.key(jv, kv.first);
         values[k] = parse(L, *def, Node{kv.second, jv.key + "." + k});
       }
     }
@@ -404,8 +413,11 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   if (Node p = L.child(s, "points", false); p.node.IsDefined()) {
     if (!p.node.IsMap()) L.fail(p, "expected a mapping name: {link: LINK, xyz: [x, y, z]}");
     for (const auto& kv : p.node) {
-      const std::string k = kv.first.as<std::string>();
+      const std::string k = L.key(p, kv.first);
       const Node v{kv.second, p.key + "." + k};
+      (void)L.name(Node{kv.first, p.key + "." + k});
+      if (k.find('.') != std::string::npos)
+        L.fail(Node{kv.first, p.key + "." + k}, "a point name may not hold '.' (SUBSYSTEM.POINT)");
       L.only_keys(v, {"link", "xyz"});
       def->add_point(k, L.string(L.child(v, "link", true)), parse_vec3_or(L, *def, v, "xyz"));
     }
@@ -417,6 +429,8 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(s, std::string("cannot evaluate: ") + e.what());
   }
 }
 
@@ -444,6 +458,8 @@ sym::Vec3Ex load_point(const Loader& L, const Node& n, const sym::DefinitionScop
     return it->second.world_point(point);
   } catch (const Error& e) {
     L.fail(n, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(n, std::string("cannot evaluate: ") + e.what());
   }
 }
 
@@ -520,6 +536,8 @@ ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionSco
       return sym::spline_expression(sym::CubicSpline(times, values, end, slopes[0], slopes[1]));
     } catch (const Error& e) {
       L.fail(tn2, e.what());
+    } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+      L.fail(tn2, std::string("cannot evaluate: ") + e.what());
     }
   }
   L.fail(tn, "unknown time function type '" + type +
@@ -588,7 +606,7 @@ std::shared_ptr<const Constraint> load_constraint_kind(
       L.fail(tn, "expected a mapping coordinate: coefficient (e.g. {delta1: 1, delta2: -1})");
     std::vector<std::pair<std::string, ex>> terms;
     for (const auto& kv : tn.node) {
-      const std::string k = kv.first.as<std::string>();
+      const std::string k = L.key(tn, kv.first);
       const Node v{kv.second, tn.key + "." + k};
       if (std::find(system_coordinates.begin(), system_coordinates.end(), k) ==
           system_coordinates.end())
@@ -608,6 +626,8 @@ std::shared_ptr<const Constraint> load_constraint_kind(
     return sym::make_constraint(def);
   } catch (const Error& e) {
     L.fail(c, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(c, std::string("cannot evaluate: ") + e.what());
   }
 }
 

@@ -111,18 +111,10 @@ TimeFunction load_time_function(const Loader& L, const Node& n) {
          "unknown time function type '" + type + "' (expected constant, cosine or polynomial)");
 }
 
-}  // namespace
-
-Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
-                            const LoadOptions& options) {
-  Loader L(path);
-  Scenario sc;
-  sc.path = path;
-  sc.hash = hash_hex(text);
-
-  YAML::Node root_node;
+// YAML syntax: the document, or a ScenarioError at the line and column of the problem.
+YAML::Node parse_yaml(const std::string& text, const std::filesystem::path& path) {
   try {
-    root_node = YAML::Load(text);
+    return YAML::Load(text);
   } catch (const YAML::Exception& e) {
     std::ostringstream os;
     os << path.string() << ":" << (e.mark.line + 1) << ":" << (e.mark.column + 1)
@@ -142,11 +134,10 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     }
     throw ScenarioError(os.str());
   }
-  const Node root{root_node, ""};
-  if (!root_node.IsMap()) {
-    throw ScenarioError(path.string() +
-                        ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
-  }
+}
+
+// The format version, name and description; returns the scenario's gravity g.
+double load_header(const Loader& L, const Node& root, Scenario& sc) {
   L.only_keys(root, {"ukdyn", "name", "description", "gravity", "subsystems", "constraints",
                      "initial", "forces", "simulation", "solver"});
   {
@@ -165,15 +156,29 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   }
   if (Node d = L.child(root, "description", false); d.node.IsDefined())
     sc.description = L.string(d);
-  const double gravity = L.number_or(root, "gravity", 9.8);
+  return L.number_or(root, "gravity", 9.8);
+}
 
-  // ---- subsystems
-  auto system = std::make_shared<System>();
+// What the loading steps share: the system as it is built and the names it holds so far.
+struct Loading {
+  std::shared_ptr<System> system = std::make_shared<System>();
   std::map<std::string, std::pair<std::shared_ptr<const MobileManipulator>, Index>> arms;
   std::map<std::string, Index> coord_index;
+  std::shared_ptr<io_detail::DefinitionContext> definition_context =
+      io_detail::make_definition_context();  // serial_chain points
+  Node subs;                                 // the subsystems list
+  Node init;                                 // the initial block
+};
+
+// subsystems: each one built and added to the system; coordinate names unique.
+void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario& sc, Loading& st) {
+  const std::shared_ptr<System>& system = st.system;
+  auto& arms = st.arms;
+  auto& coord_index = st.coord_index;
   std::set<std::string> subsystem_names;
-  const auto definition_context = io_detail::make_definition_context();  // serial_chain points
-  Node subs = L.child(root, "subsystems", true);
+  const auto& definition_context = st.definition_context;
+  st.subs = L.child(root, "subsystems", true);
+  const Node& subs = st.subs;
   if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
     const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
@@ -197,32 +202,44 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
       names.push_back(std::move(c));
     }
     std::shared_ptr<const Subsystem> sub;
-    if (type == "mobile_manipulator") {
-      L.only_keys(s, {"name", "type", "coordinates", "params"});
-      if (names.size() != 6) {
-        L.fail(cn,
-               "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
+    try {
+      if (type == "mobile_manipulator") {
+        L.only_keys(s, {"name", "type", "coordinates", "params"});
+        if (names.size() != 6) {
+          L.fail(cn,
+                 "a mobile_manipulator has 6 coordinates [dx, dy, delta, theta1, theta2, theta3]");
+        }
+        auto arm = std::make_shared<MobileManipulator>(
+            name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
+        arms[name] = {arm, system->dof()};
+        sub = arm;
+      } else if (type == "definitions") {  // docs/definitions.md
+        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
+      } else if (type == "serial_chain") {  // docs/definitions.md
+        sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context);
+      } else {
+        L.fail(type_node, "unknown subsystem type '" + type +
+                              "' (expected mobile_manipulator, definitions or serial_chain)");
       }
-      auto arm = std::make_shared<MobileManipulator>(
-          name, load_mm_params(L, L.child(s, "params", false), gravity), std::move(names));
-      arms[name] = {arm, system->dof()};
-      sub = arm;
-    } else if (type == "definitions") {  // docs/definitions.md
-      sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
-    } else if (type == "serial_chain") {  // docs/definitions.md
-      sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context);
-    } else {
-      L.fail(type_node, "unknown subsystem type '" + type +
-                            "' (expected mobile_manipulator, definitions or serial_chain)");
+    } catch (const ScenarioError&) {
+      throw;
+    } catch (const std::exception& e) {  // GiNaC's evaluation errors, a bound exceeded, ...
+      L.fail(s, e.what());
     }
     const Index off = system->add_subsystem(sub);
     sc.subsystems.push_back({name, type, off, sub->dof()});
   }
-  const Index n = system->dof();
-  if (n > kMaxDof) L.fail(subs, "too many coordinates");
+  if (system->dof() > kMaxDof) L.fail(subs, "too many coordinates");
+}
 
-  // ---- initial state (needed by constraints that refer to it)
-  const Node init = L.child(root, "initial", true);
+// initial: q, qd, hold; then M(q0) positive definite for the definition-based subsystems.
+void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
+  const std::shared_ptr<System>& system = st.system;
+  const auto& coord_index = st.coord_index;
+  const Node& subs = st.subs;
+  const Index n = system->dof();
+  st.init = L.child(root, "initial", true);
+  const Node& init = st.init;
   L.only_keys(init, {"q", "qd", "hold"});
   sc.q0 = L.vector(L.child(init, "q", true), n);
   if (Node qd = L.child(init, "qd", false); qd.node.IsDefined()) {
@@ -251,8 +268,15 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     io_detail::check_mass_matrix(L, Node{subs.node[k], subs.key + "[" + std::to_string(k) + "]"},
                                  *system->subsystems()[k], sc.q0.segment(info.offset, info.dof));
   }
+}
 
-  // ---- constraints
+// constraints: each one built and added to the system; row names unique.
+void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
+  const std::shared_ptr<System>& system = st.system;
+  const auto& coord_index = st.coord_index;
+  const auto& arms = st.arms;
+  const auto& definition_context = st.definition_context;
+  const Index n = system->dof();
   std::set<std::string> row_names;
   auto add = [&](const Node& at, std::shared_ptr<const Constraint> c) {
     for (const auto& r : c->row_names()) {
@@ -340,103 +364,109 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
         throw;
       } catch (const Error& e) {
         L.fail(c, e.what());
+      } catch (const std::exception& e) {  // GiNaC's evaluation errors
+        L.fail(c, std::string("cannot evaluate: ") + e.what());
       }
     }
   }
+}
 
-  // ---- forces
+// forces: tau.
+void load_forces(const Loader& L, const Node& root, Scenario& sc, Index n) {
   sc.tau = Vec::Zero(n);
   if (Node f = L.child(root, "forces", false); f.node.IsDefined()) {
     L.only_keys(f, {"tau"});
     if (Node t = L.child(f, "tau", false); t.node.IsDefined()) sc.tau = L.vector(t, n);
   }
+}
 
-  // ---- simulation
-  {
-    const Node s = L.child(root, "simulation", true);
-    L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                    "step", "initial_tolerance", "drift"});
-    auto& sim = sc.sim;
-    sim.t0 = L.number_or(s, "t0", 0.0);
-    const Node te = L.child(s, "t_end", true);
-    sim.t_end = L.number(te);
-    if (!(sim.t_end > sim.t0)) L.fail(te, "t_end must be greater than t0");
-    if (sim.t_end - sim.t0 > 1e7) L.fail(te, "duration over 1e7 s: refusing an absurd horizon");
-    const Node sd = L.child(s, "sample_dt", true);
-    sim.sample_dt = L.positive(sd);
-    if (sim.sample_dt > sim.t_end - sim.t0) L.fail(sd, "must not exceed the duration t_end - t0");
-    if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
-      L.fail(sd, "more than 1e7 output samples: increase sample_dt");
-    }
-    const double t_scale = std::max(std::abs(sim.t0), std::abs(sim.t_end));  // t + dt == t below
-    if (sim.sample_dt < 1e-10 * t_scale) {
-      L.fail(sd, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
-    }
-    if (Node in = L.child(s, "integrator", false); in.node.IsDefined()) {
-      const std::string kind = L.string(in);
-      if (kind == "dopri5") {
-        sim.integrator = IntegratorKind::dopri5;
-      } else if (kind == "rk4") {
-        sim.integrator = IntegratorKind::rk4;
-      } else if (kind == "rkf78") {
-        sim.integrator = IntegratorKind::rkf78;
-      } else {
-        L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78 or rk4)");
-      }
-    }
-    if (Node ad = L.child(s, "adaptive", false); ad.node.IsDefined()) {
-      const std::string v = L.string(ad);
-      if (v != "true" && v != "false") L.fail(ad, "expected true or false");
-      sim.adaptive = v == "true";
-    }
-    if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
-      L.only_keys(dr, {"method", "alpha", "beta"});
-      const Node mn = L.child(dr, "method", true);
-      const std::string method = L.string(mn);
-      if (method == "none") {
-        sim.drift.kind = DriftControl::none;
-      } else if (method == "baumgarte") {
-        sim.drift.kind = DriftControl::baumgarte;
-      } else if (method == "projection") {
-        sim.drift.kind = DriftControl::projection;
-      } else {
-        L.fail(mn,
-               "unknown drift control '" + method + "' (expected none, baumgarte or projection)");
-      }
-      for (const char* key : {"alpha", "beta"}) {
-        const Node g = L.child(dr, key, false);
-        if (!g.node.IsDefined()) continue;
-        if (sim.drift.kind != DriftControl::baumgarte)
-          L.fail(g, "only used with method: baumgarte");
-        const double v = L.number(g);
-        if (!(v >= 0.0 && v <= 1e6)) L.fail(g, "a Baumgarte gain must lie in [0, 1e6] 1/s");
-        (std::string(key) == "alpha" ? sim.drift.alpha : sim.drift.beta) = v;
-      }
-    }
-    auto tol = [&](const char* key, double fallback) {
-      const Node t = L.child(s, key, false);
-      if (!t.node.IsDefined()) return fallback;
-      const double v = L.number(t);
-      if (!(v >= 1e-16 && v <= 1.0)) L.fail(t, "a tolerance must lie in [1e-16, 1]");
-      return v;
-    };
-    sim.abs_tol = tol("abs_tol", sim.abs_tol);
-    sim.rel_tol = tol("rel_tol", sim.rel_tol);
-    if (Node st = L.child(s, "step", false); st.node.IsDefined()) {
-      sim.step = L.positive(st);
-      if (sim.integrator == IntegratorKind::rk4 || !sim.adaptive) {
-        if ((sim.t_end - sim.t0) / sim.step > 1e9) L.fail(st, "more than 1e9 steps: increase step");
-        const double ratio = sim.sample_dt / sim.step;
-        if (std::abs(ratio - std::round(ratio)) > 1e-9 * ratio || std::round(ratio) < 1) {
-          L.fail(st, "the fixed step must divide simulation.sample_dt");
-        }
-      }
-      if (sim.step < 1e-10 * t_scale) {
-        L.fail(st, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
-      }
-    }
-    sc.initial_tolerance = tol("initial_tolerance", sc.initial_tolerance);
+// simulation: the time span, sampling, integrator, tolerances and drift control.
+void load_simulation(const Loader& L, const Node& root, Scenario& sc) {
+  const Node s = L.child(root, "simulation", true);
+  L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
+                  "step", "initial_tolerance", "drift"});
+  auto& sim = sc.sim;
+  sim.t0 = L.number_or(s, "t0", 0.0);
+  const Node te = L.child(s, "t_end", true);
+  sim.t_end = L.number(te);
+  if (!(sim.t_end > sim.t0)) L.fail(te, "t_end must be greater than t0");
+  if (sim.t_end - sim.t0 > 1e7) L.fail(te, "duration over 1e7 s: refusing an absurd horizon");
+  const Node sd = L.child(s, "sample_dt", true);
+  sim.sample_dt = L.positive(sd);
+  if (sim.sample_dt > sim.t_end - sim.t0) L.fail(sd, "must not exceed the duration t_end - t0");
+  if ((sim.t_end - sim.t0) / sim.sample_dt > 1e7) {
+    L.fail(sd, "more than 1e7 output samples: increase sample_dt");
   }
+  const double t_scale = std::max(std::abs(sim.t0), std::abs(sim.t_end));  // t + dt == t below
+  if (sim.sample_dt < 1e-10 * t_scale) {
+    L.fail(sd, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
+  }
+  if (Node in = L.child(s, "integrator", false); in.node.IsDefined()) {
+    const std::string kind = L.string(in);
+    if (kind == "dopri5") {
+      sim.integrator = IntegratorKind::dopri5;
+    } else if (kind == "rk4") {
+      sim.integrator = IntegratorKind::rk4;
+    } else if (kind == "rkf78") {
+      sim.integrator = IntegratorKind::rkf78;
+    } else {
+      L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78 or rk4)");
+    }
+  }
+  if (Node ad = L.child(s, "adaptive", false); ad.node.IsDefined()) {
+    const std::string v = L.string(ad);
+    if (v != "true" && v != "false") L.fail(ad, "expected true or false");
+    sim.adaptive = v == "true";
+  }
+  if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
+    L.only_keys(dr, {"method", "alpha", "beta"});
+    const Node mn = L.child(dr, "method", true);
+    const std::string method = L.string(mn);
+    if (method == "none") {
+      sim.drift.kind = DriftControl::none;
+    } else if (method == "baumgarte") {
+      sim.drift.kind = DriftControl::baumgarte;
+    } else if (method == "projection") {
+      sim.drift.kind = DriftControl::projection;
+    } else {
+      L.fail(mn, "unknown drift control '" + method + "' (expected none, baumgarte or projection)");
+    }
+    for (const char* key : {"alpha", "beta"}) {
+      const Node g = L.child(dr, key, false);
+      if (!g.node.IsDefined()) continue;
+      if (sim.drift.kind != DriftControl::baumgarte) L.fail(g, "only used with method: baumgarte");
+      const double v = L.number(g);
+      if (!(v >= 0.0 && v <= 1e6)) L.fail(g, "a Baumgarte gain must lie in [0, 1e6] 1/s");
+      (std::string(key) == "alpha" ? sim.drift.alpha : sim.drift.beta) = v;
+    }
+  }
+  auto tol = [&](const char* key, double fallback) {
+    const Node t = L.child(s, key, false);
+    if (!t.node.IsDefined()) return fallback;
+    const double v = L.number(t);
+    if (!(v >= 1e-16 && v <= 1.0)) L.fail(t, "a tolerance must lie in [1e-16, 1]");
+    return v;
+  };
+  sim.abs_tol = tol("abs_tol", sim.abs_tol);
+  sim.rel_tol = tol("rel_tol", sim.rel_tol);
+  if (Node st = L.child(s, "step", false); st.node.IsDefined()) {
+    sim.step = L.positive(st);
+    if (sim.integrator == IntegratorKind::rk4 || !sim.adaptive) {
+      if ((sim.t_end - sim.t0) / sim.step > 1e9) L.fail(st, "more than 1e9 steps: increase step");
+      const double ratio = sim.sample_dt / sim.step;
+      if (std::abs(ratio - std::round(ratio)) > 1e-9 * ratio || std::round(ratio) < 1) {
+        L.fail(st, "the fixed step must divide simulation.sample_dt");
+      }
+    }
+    if (sim.step < 1e-10 * t_scale) {
+      L.fail(st, "below the time resolution at t0 (1e-10 |t0|): move t0 nearer 0");
+    }
+  }
+  sc.initial_tolerance = tol("initial_tolerance", sc.initial_tolerance);
+}
+
+// solver: the rank and consistency tolerances of the Udwadia-Kalaba solve.
+void load_solver(const Loader& L, const Node& root, Scenario& sc) {
   if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
     L.only_keys(s, {"rank_tol", "consistency_tol"});
     if (Node r = L.child(s, "rank_tol", false); r.node.IsDefined()) {
@@ -450,9 +480,13 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
         L.fail(r, "must lie in (0, 1)");
     }
   }
+}
 
-  // ---- the initial state must satisfy the constraints (paper, assumption 3)
-  if (system->rows() > 0 && options.check_initial) {
+// The initial state must satisfy the constraints (paper, assumption 3).
+void check_initial_state(const Loader& L, const Loading& st, Scenario& sc) {
+  const std::shared_ptr<System>& system = st.system;
+  const Node& init = st.init;
+  if (system->rows() > 0) {
     Vec phi(system->rows()), phid(system->rows());
     position_residuals(*system, sc.sim.t0, sc.q0, phi);
     velocity_residuals(*system, sc.sim.t0, sc.q0, sc.qd0, phid);
@@ -476,21 +510,67 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
       L.fail(init, os.str());
     }
   }
-  sc.system = system;
+}
+
+}  // namespace
+
+namespace {
+
+Scenario load_scenario_unguarded(const std::string& text, const std::filesystem::path& path,
+                                 const LoadOptions& options) {
+  Loader L(path);
+  Scenario sc;
+  sc.path = path;
+  sc.hash = hash_hex(text);
+  const YAML::Node root_node = parse_yaml(text, path);
+  const Node root{root_node, ""};
+  if (!root_node.IsMap()) {
+    throw ScenarioError(Loader::printable(path.string()) +
+                        ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
+  }
+  const double gravity = load_header(L, root, sc);
+  Loading st;
+  load_subsystems(L, root, gravity, sc, st);
+  load_initial(L, root, sc, st);
+  load_constraints(L, root, sc, st);
+  load_forces(L, root, sc, st.system->dof());
+  load_simulation(L, root, sc);
+  load_solver(L, root, sc);
+  if (options.check_initial) check_initial_state(L, st, sc);
+  sc.system = st.system;
   return sc;
+}
+
+}  // namespace
+
+Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
+                            const LoadOptions& options) {
+  try {
+    return load_scenario_unguarded(text, path, options);
+  } catch (const ScenarioError&) {
+    throw;
+  } catch (const std::exception& e) {  // a last resort: yaml-cpp or GiNaC errors not caught where
+                                       // they arose still name the file and exit as bad input
+    throw ScenarioError(Loader::printable(path.string() + ": " + e.what()));
+  }
 }
 
 Scenario load_scenario(const std::filesystem::path& path, const LoadOptions& options) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
-    throw ScenarioError(path.string() + ": no such scenario file");
+    // A FIFO, a directory or a device is not "missing": say what it is (never open a FIFO).
+    const bool exists = std::filesystem::exists(path, ec);
+    throw ScenarioError(Loader::printable(path.string()) +
+                        (exists ? ": not a regular file (a directory, FIFO or device)"
+                                : ": no such scenario file"));
   }
   const auto size = std::filesystem::file_size(path, ec);
   if (ec || size > kMaxFileBytes) {
-    throw ScenarioError(path.string() + ": not a readable scenario (larger than 4 MiB?)");
+    throw ScenarioError(Loader::printable(path.string()) +
+                        ": not a readable scenario (larger than 4 MiB?)");
   }
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw ScenarioError(path.string() + ": cannot open");
+  if (!in) throw ScenarioError(Loader::printable(path.string()) + ": cannot open");
   std::ostringstream os;
   os << in.rdbuf();
   return load_scenario_text(os.str(), path, options);

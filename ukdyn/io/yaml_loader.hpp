@@ -35,7 +35,25 @@ class Loader {
     const YAML::Mark mark = at.node.IsDefined() ? at.node.Mark() : YAML::Mark::null_mark();
     if (mark.line >= 0) os << ":" << (mark.line + 1) << ":" << (mark.column + 1);
     os << ": key '" << at.key << "': " << message;
-    throw ScenarioError(os.str());
+    throw ScenarioError(printable(os.str()));
+  }
+
+  // The text with every control byte (and DEL) shown as \xNN: a key or a name quoted in a message
+  // never reaches the terminal raw.
+  static std::string printable(const std::string& s) {
+    static const char* hex = "0123456789abcdef";
+    std::string out;
+    for (char ch : s) {
+      const auto u = static_cast<unsigned char>(ch);
+      if (u < 0x20 || u == 0x7f) {
+        out += "\\x";
+        out += hex[u >> 4];
+        out += hex[u & 15];
+      } else {
+        out += ch;
+      }
+    }
+    return out;
   }
 
   Node child(const Node& parent, const std::string& key, bool required) const {
@@ -116,6 +134,22 @@ class Loader {
            "'-', got '" +
                shown + (s.size() > 40 ? "...'" : "'"));
     }
+    return s;
+  }
+
+  // The key of a mapping entry as text (yaml-cpp's as<std::string>() throws without a place).
+  std::string key(const Node& parent, const YAML::Node& k) const {
+    if (!k.IsScalar()) fail(Node{k, parent.key}, "a key must be a plain string");
+    return k.Scalar();
+  }
+
+  // A label that only appears in messages (a body, joint or link name): 1 to 64 printable
+  // characters, so never a control byte on the user's terminal.
+  std::string label(const Node& n) const {
+    const std::string s = string(n);
+    bool ok = !s.empty() && s.size() <= 64;
+    for (char ch : s) ok = ok && static_cast<unsigned char>(ch) >= 0x20 && ch != 0x7f;
+    if (!ok) fail(n, "a name here must be 1 to 64 printable characters (no control characters)");
     return s;
   }
 

@@ -65,7 +65,15 @@ Vec3Ex unit(const Vec3Ex& a, const std::string& where, const GiNaC::exmap& value
 
 Mat3Ex axis_rotation(const Vec3Ex& a, const ex& q) {
   // R = cos q · 1 + (1 − cos q) a aᵀ + sin q [a]×
-  const ex c = GiNaC::cos(q), s = GiNaC::sin(q);
+  // A constant angle that is not a multiple of pi/4 (rpy: [0.3, 0.2, 0.1]) gives cos(3/10), which
+  // GiNaC keeps exact: a chain of such rotations multiplied out into polynomials of growing degree
+  // in these constants (15 fixed joints: minutes). Their cosines and sines are taken as floats
+  // instead.
+  ex c = GiNaC::cos(q), s = GiNaC::sin(q);
+  if (GiNaC::is_a<GiNaC::numeric>(q)) {
+    c = c.evalf();
+    s = s.evalf();
+  }
   const Mat3Ex K{0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
   Mat3Ex R;
   for (std::size_t i = 0; i < 3; ++i) {
@@ -203,8 +211,10 @@ ChainModel build_chain(const ChainDef& chain) {
   }
 
   std::set<std::string> joint_names;
+  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
   for (const JointDef& j : chain.joints) {
     const std::string where = "joint '" + j.name + "'";
+    deadline.check(where);
     if (!joint_names.insert(j.name).second)
       throw DefinitionError("duplicate joint '" + j.name + "'");
     if (j.link.empty()) throw DefinitionError(where + ": no child link");
@@ -218,7 +228,11 @@ ChainModel build_chain(const ChainDef& chain) {
     Pose jf = P;
     jf.p = add(P.p, mul(P.R, j.origin.xyz));
     if (!all_zero(j.origin.rpy)) {
+      // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
+      // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
+      // the positions below took minutes.
       jf.R = mul(P.R, rpy_rotation(j.origin.rpy));
+      for (auto& e : jf.R) e = e.expand();
       jf.has_axis = false;
     }
     if (j.type != JointDef::Type::fixed) {
@@ -254,6 +268,8 @@ ChainModel build_chain(const ChainDef& chain) {
       }
     }
     for (auto& e : jf.p) e = e.expand();
+    for (std::size_t k = 0; k < 3; ++k) check_expression_size(jf.p[k], where + ": its position");
+    for (std::size_t k = 0; k < 9; ++k) check_expression_size(jf.R[k], where + ": its rotation");
     frames[j.link] = jf;
     last = j.link;
     add_body(j.link, jf, j.inertial);

@@ -144,6 +144,12 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   const std::vector<symbol> time{time_symbol()};
   const GiNaC::exmap values = def.parameter_values();
   if (def.bodies.empty()) throw DefinitionError("subsystem '" + def.name() + "' has no bodies");
+  if (n > limits::kDerivedCoordinates) {  // bounded work (docs/definitions.md, Limits)
+    throw DefinitionError("subsystem '" + def.name() + "' has " + std::to_string(n) +
+                          " coordinates; a derived subsystem may have at most " +
+                          std::to_string(limits::kDerivedCoordinates));
+  }
+  const Deadline deadline;
 
   ex T = 0, V = 0;
   std::vector<bool> used(n, false);
@@ -151,6 +157,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     const BodyDef& b = def.bodies[bi];
     const int bidx = static_cast<int>(bi);
     const std::string where = "body '" + b.name + "'";
+    deadline.check(where);
     auto mark_used = [&](const ex& e) {
       for (std::size_t j = 0; j < n; ++j) {
         if (e.has(q[j]) || e.has(qd[j])) used[j] = true;
@@ -256,6 +263,9 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   if (has_any(V, qd) || V.has(time_symbol())) {
     throw DefinitionError("the potential may depend on the coordinates only");
   }
+  check_expression_size(T, "the kinetic energy T");
+  check_expression_size(V, "the potential energy V");
+  deadline.check("the kinetic energy T");
 
   SubsystemDerivation d;
   d.coordinates = def.coordinates();
@@ -268,7 +278,10 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   for (unsigned i = 0; i < un; ++i) dTdqd[i] = d.T.diff(qd[i]);
   for (unsigned i = 0; i < un; ++i) {
     for (unsigned j = i; j < un; ++j) {
+      const std::string at = "M(" + d.coordinates[i] + ", " + d.coordinates[j] + ")";
+      deadline.check(at);
       const ex m = simplify_trig(dTdqd[i].diff(qd[j]));
+      check_expression_size(m, at);
       if (has_any(m, qd)) {
         throw DefinitionError(
             "the kinetic energy is not quadratic in the velocities (M(" + d.coordinates[i] + ", " +
@@ -289,6 +302,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   // Christoffel symbols of the first kind: C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k.
   std::vector<matrix> dM(n, matrix(un, un));
   for (unsigned k = 0; k < un; ++k) {
+    deadline.check("dM/d" + d.coordinates[k]);
     for (unsigned i = 0; i < un; ++i) {
       for (unsigned j = i; j < un; ++j) {
         const ex e = d.M(i, j).diff(q[k]);
@@ -303,8 +317,11 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   for (unsigned i = 0; i < un; ++i) {
     ex row = 0;
     for (unsigned j = 0; j < un; ++j) {
+      const std::string at = "C(" + d.coordinates[i] + ", " + d.coordinates[j] + ")";
+      deadline.check(at);
       ex c = 0;
       for (unsigned k = 0; k < un; ++k) c += (dM[k](i, j) + dM[j](i, k) - dM[i](j, k)) * qd[k] / 2;
+      check_expression_size(c, at);
       c = simplify_trig(c);
       d.C(i, j) = c;
       row += c * qd[j];
@@ -500,6 +517,7 @@ ConstraintDerivation derive(const ConstraintDef& def) {
   const symbol t = time_symbol();
   const bool hol = def.kind() == ConstraintDef::Kind::holonomic;
   const auto un = static_cast<unsigned>(n), um = static_cast<unsigned>(m);
+  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
   ConstraintDerivation d;
   d.holonomic = hol;
   d.coordinates = def.system_coordinates();
@@ -512,6 +530,12 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     const auto& [rname, expr] = def.rows()[r];
     const int ri = static_cast<int>(r);
     d.row_names.push_back(rname);
+    try {
+      deadline.check("row '" + rname + "'");
+      check_expression_size(expr, "row '" + rname + "'");
+    } catch (const Error& x) {
+      throw DefinitionError(x.what(), -1, -1, ri);
+    }
     const ex e = simplify_trig(expr);
     ex vel = 0;
     if (hol) {
@@ -550,6 +574,12 @@ ConstraintDerivation derive(const ConstraintDef& def) {
                                 (hol ? std::string("dPhi/dq = 0") : std::string("no *_dot term")) +
                                 ")",
                             -1, -1, ri);
+    }
+    try {
+      check_expression_size(vel, "row '" + rname + "': its velocity form");
+      deadline.check("row '" + rname + "': its velocity form");
+    } catch (const Error& x) {
+      throw DefinitionError(x.what(), -1, -1, ri);
     }
     vel = simplify_trig(vel);
     d.phid(r, 0) = vel;

@@ -1,8 +1,12 @@
 #include "ukdyn/symbolic/expression.hpp"
 
 #include <cctype>
+#include <chrono>
+#include <cmath>
 #include <mutex>
 #include <set>
+#include <sstream>
+#include <unordered_map>
 #include <vector>
 
 namespace ukdyn::symbolic {
@@ -35,6 +39,14 @@ GiNaC::symbol registered(const std::string& key, const std::string& print, const
   return it->second;
 }
 
+// A character for a message: itself if printable ASCII, else \xNN.
+std::string shown_char(char c) {
+  const auto u = static_cast<unsigned char>(c);
+  static const char* hex = "0123456789abcdef";
+  return u >= 0x20 && u < 0x7f ? std::string(1, c)
+                               : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
+}
+
 bool is_ident_start(char c) { return std::isalpha(static_cast<unsigned char>(c)) || c == '_'; }
 bool is_ident_char(char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_'; }
 
@@ -45,17 +57,91 @@ class Parser {
       : s_(text), names_(names) {}
 
   ex parse() {
+    if (s_.size() > limits::kExpressionChars) {
+      fail("the expression is longer than " + std::to_string(limits::kExpressionChars) +
+               " characters",
+           limits::kExpressionChars);
+    }
     skip();
     if (pos_ >= s_.size()) fail("empty expression", 0);
-    ex e = expression();
+    ex e;
+    try {
+      e = expression();
+    } catch (const ExpressionError&) {
+      throw;
+    } catch (const std::exception& x) {  // GiNaC's evaluation errors: log(0), 0^-1, ...
+      fail(std::string("cannot evaluate: ") + x.what(), last_start_);
+    }
     skip();
-    if (pos_ < s_.size()) fail(std::string("unexpected '") + s_[pos_] + "'", pos_);
+    if (pos_ < s_.size()) fail("unexpected '" + shown_char(s_[pos_]) + "'", pos_);
+    try {
+      check_expression_size(e, "the expression");
+    } catch (const ExpressionError& x) {
+      fail(x.what(), 0);
+    }
     return e;
   }
 
  private:
   [[noreturn]] void fail(const std::string& msg, std::size_t at) const {
-    throw ExpressionError(msg + " at column " + std::to_string(at + 1) + " of '" + s_ + "'", at);
+    // Quote at most 80 characters of the text (it may be 10000 long), control bytes as \xNN.
+    std::string shown;
+    for (std::size_t i = 0; i < s_.size() && i < 80; ++i) {
+      const auto u = static_cast<unsigned char>(s_[i]);
+      static const char* hex = "0123456789abcdef";
+      shown += u >= 0x20 && u < 0x7f ? std::string(1, s_[i])
+                                     : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
+    }
+    if (s_.size() > 80) shown += "...";
+    throw ExpressionError(msg + " at column " + std::to_string(at + 1) + " of '" + shown + "'", at);
+  }
+  // Counts the nesting (parentheses, calls, signs, powers all pass through unary()).
+  struct Nest {
+    explicit Nest(Parser& p) : p_(p) {
+      if (++p_.depth_ > limits::kNesting) {
+        p_.fail("nested more than " + std::to_string(limits::kNesting) +
+                    " levels deep (parentheses, function calls, signs or powers)",
+                p_.pos_);
+      }
+    }
+    ~Nest() { --p_.depth_; }
+    Nest(const Nest&) = delete;
+    Nest& operator=(const Nest&) = delete;
+    Parser& p_;
+  };
+  // base^expo, refusing exponents that would make a huge number or a huge expansion.
+  ex checked_pow(const ex& base, const ex& expo, std::size_t at) {
+    last_start_ = at;
+    if (GiNaC::is_a<GiNaC::numeric>(expo)) {
+      const GiNaC::numeric& n = GiNaC::ex_to<GiNaC::numeric>(expo);
+      if (!n.is_real()) fail("the exponent must be real", at);
+      const GiNaC::numeric mag = GiNaC::abs(n);
+      if (GiNaC::is_a<GiNaC::numeric>(base)) {
+        const GiNaC::numeric& b = GiNaC::ex_to<GiNaC::numeric>(base);
+        if (b.is_zero() && n.is_negative()) fail("division by zero (0 to a negative power)", at);
+        if (b.is_rational()) {
+          // |b|^|n| has about |n|·(log2|numer| + log2|denom|) bits (0, 1 and -1 stay small).
+          auto lg = [](const GiNaC::numeric& m) {
+            const double d = GiNaC::abs(m).to_double();
+            return std::isfinite(d) ? std::log2(d) : static_cast<double>(m.int_length());
+          };
+          const double bits = lg(b.numer()) + lg(b.denom());
+          const bool small_base = GiNaC::abs(b) == 1 || b.is_zero();
+          if (!small_base && (mag > limits::kNumberBits ||
+                              mag.to_double() * bits > static_cast<double>(limits::kNumberBits))) {
+            fail("the number is too large (more than " + std::to_string(limits::kNumberBits) +
+                     " bits)",
+                 at);
+          }
+        } else if (mag > limits::kExponent) {
+          fail("exponent out of range (|exponent| <= " + std::to_string(limits::kExponent) + ")",
+               at);
+        }
+      } else if (mag > limits::kExponent) {
+        fail("exponent out of range (|exponent| <= " + std::to_string(limits::kExponent) + ")", at);
+      }
+    }
+    return GiNaC::pow(base, expo);
   }
   void skip() {
     while (pos_ < s_.size() && std::isspace(static_cast<unsigned char>(s_[pos_]))) ++pos_;
@@ -72,7 +158,8 @@ class Parser {
     skip();
     if (pos_ >= s_.size())
       fail(std::string("expected ") + what + ", got the end of the expression", pos_);
-    if (s_[pos_] != c) fail(std::string("expected ") + what + ", got '" + s_[pos_] + "'", pos_);
+    if (s_[pos_] != c)
+      fail(std::string("expected ") + what + ", got '" + shown_char(s_[pos_]) + "'", pos_);
     ++pos_;
   }
 
@@ -100,6 +187,7 @@ class Parser {
         const std::size_t at = pos_;
         ex d = unary();
         if (d.is_zero()) fail("division by zero", at);
+        last_start_ = at;
         e = e / d;
       } else {
         return e;
@@ -107,17 +195,23 @@ class Parser {
     }
   }
   ex unary() {
+    const Nest nest(*this);
     if (accept('-')) return -unary();
     if (accept('+')) return unary();
     return power();
   }
   ex power() {
+    const std::size_t start = pos_;
     ex base = primary();
     skip();
-    if (accept('^')) return GiNaC::pow(base, unary());
+    if (accept('^')) {
+      const ex e = unary();
+      return checked_pow(base, e, start);
+    }
     if (pos_ + 1 < s_.size() && s_[pos_] == '*' && s_[pos_ + 1] == '*') {
       pos_ += 2;
-      return GiNaC::pow(base, unary());
+      const ex e = unary();
+      return checked_pow(base, e, start);
     }
     return base;
   }
@@ -134,16 +228,20 @@ class Parser {
     }
     if (std::isdigit(static_cast<unsigned char>(c)) || c == '.') return number();
     if (is_ident_start(c)) return identifier();
-    fail(std::string("unexpected '") + c + "'", pos_);
+    fail("unexpected '" + shown_char(c) + "'", pos_);
   }
   ex number() {
     const std::size_t start = pos_;
     GiNaC::numeric mant = 0;
     long frac_digits = 0;
     bool digits = false, dot = false;
+    std::size_t ndigits = 0;
     while (pos_ < s_.size()) {
       const char c = s_[pos_];
       if (std::isdigit(static_cast<unsigned char>(c))) {
+        if (++ndigits > limits::kNumberDigits) {
+          fail("a number of more than " + std::to_string(limits::kNumberDigits) + " digits", start);
+        }
         mant = mant * 10 + (c - '0');
         if (dot) ++frac_digits;
         digits = true;
@@ -183,6 +281,7 @@ class Parser {
   }
   ex identifier() {
     const std::size_t start = pos_;
+    last_start_ = start;
     while (pos_ < s_.size() && is_ident_char(s_[pos_])) ++pos_;
     const std::string name = s_.substr(start, pos_ - start);
     skip();
@@ -204,6 +303,7 @@ class Parser {
              start);
       }
       const ex& a = args[0];
+      last_start_ = start;
       if (name == "sin") return GiNaC::sin(a);
       if (name == "cos") return GiNaC::cos(a);
       if (name == "tan") return GiNaC::tan(a);
@@ -211,6 +311,14 @@ class Parser {
       if (name == "acos") return GiNaC::acos(a);
       if (name == "atan") return GiNaC::atan(a);
       if (name == "atan2") return GiNaC::atan2(a, args[1]);
+      if (name == "exp" || name == "sinh" || name == "cosh") {
+        // CLN evaluates exp of a huge number to a wrong finite value; a double overflows past 709.
+        const ex v = a.evalf();
+        if (GiNaC::is_a<GiNaC::numeric>(v) && GiNaC::ex_to<GiNaC::numeric>(v).is_real() &&
+            GiNaC::abs(GiNaC::ex_to<GiNaC::numeric>(v)) > 709) {
+          fail("'" + name + "' of a number beyond 709 overflows a double", start);
+        }
+      }
       if (name == "exp") return GiNaC::exp(a);
       if (name == "log") return GiNaC::log(a);
       if (name == "sqrt") return GiNaC::sqrt(a);
@@ -241,6 +349,8 @@ class Parser {
   const std::string& s_;
   const std::map<std::string, ex>& names_;
   std::size_t pos_ = 0;
+  std::size_t depth_ = 0;
+  std::size_t last_start_ = 0;  // where the last function call or power began (for GiNaC errors)
 };
 
 const std::set<std::string>& greek() {
@@ -249,6 +359,29 @@ const std::set<std::string>& greek() {
       "lambda", "mu",    "nu",    "xi",    "rho",     "sigma", "tau",   "phi",   "chi",  "psi",
       "omega",  "Gamma", "Delta", "Theta", "Lambda",  "Xi",    "Sigma", "Phi",   "Psi",  "Omega"};
   return g;
+}
+
+// Words a name may not be: they would print as something else in a generated file (GiNaC's
+// constants, MATLAB's constants) or make it invalid (keywords of C and MATLAB, C's math functions
+// that GiNaC's C output calls).
+const std::set<std::string>& reserved_words() {
+  static const std::set<std::string> r = {
+      // GiNaC constants and printer names ("I", GiNaC's imaginary unit, stays allowed: a common
+      // name
+      // for an inertia, and a derivation's output never holds an imaginary number)
+      "Pi", "E", "Euler", "Catalan", "M_PI",
+      // C (C11) keywords and common macros
+      "auto", "break", "case", "char", "const", "continue", "default", "do", "double", "else",
+      "enum", "extern", "float", "for", "goto", "if", "inline", "int", "long", "register",
+      "restrict", "return", "short", "signed", "sizeof", "static", "struct", "switch", "typedef",
+      "union", "unsigned", "void", "volatile", "while", "bool", "true", "false", "NULL", "_Bool",
+      "_Complex", "_Imaginary", "main",
+      // C math functions GiNaC's C printer emits, or a user's C code needs
+      "pow", "fabs", "floor", "ceil", "fmod", "hypot", "exp2", "log10", "log2",
+      // MATLAB keywords and constants
+      "classdef", "elseif", "end", "function", "global", "otherwise", "parfor", "persistent",
+      "spmd", "try", "catch", "i", "j", "eps", "Inf", "inf", "NaN", "nan", "zeros", "ans"};
+  return r;
 }
 
 }  // namespace
@@ -261,11 +394,125 @@ bool valid_name(const std::string& name, std::string* why) {
   if (name.empty()) return no("a name must not be empty");
   if (!is_ident_start(name[0])) return no("'" + name + "' must start with a letter or '_'");
   for (char c : name) {
-    if (!is_ident_char(c)) return no("'" + name + "' may hold only letters, digits and '_'");
+    if (!is_ident_char(c)) {
+      std::string shown;  // never print a control byte of the name raw
+      for (char ch : name.substr(0, 40)) {
+        const auto u = static_cast<unsigned char>(ch);
+        static const char* hex = "0123456789abcdef";
+        shown += u >= 0x20 && u < 0x7f ? std::string(1, ch)
+                                       : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
+      }
+      return no("'" + shown + "' may hold only letters, digits and '_'");
+    }
   }
+  if (name.size() > 64) return no("'" + name.substr(0, 40) + "...' is longer than 64 characters");
   if (name == "t" || name == "pi") return no("'" + name + "' is reserved (time, the constant pi)");
   if (function_names().count(name)) return no("'" + name + "' is the name of a function");
+  if (reserved_words().count(name)) {
+    return no("'" + name +
+              "' is reserved (a constant or keyword of GiNaC, C or MATLAB output; see "
+              "docs/definitions.md, Limits)");
+  }
+  if (name.rfind("__", 0) == 0 ||
+      (name[0] == '_' &&
+       std::isupper(static_cast<unsigned char>(name.size() > 1 ? name[1] : 'a'))) ||
+      name.rfind("ukdyn_", 0) == 0) {
+    return no("'" + name +
+              "' is reserved (names starting with __, _ and a capital letter, or "
+              "ukdyn_)");
+  }
   return true;
+}
+
+namespace {
+
+// Memoised over the DAG (shared subexpressions are visited once): tree nodes and an upper bound on
+// the number of terms of the expansion, both saturating.
+struct SizeInfo {
+  double nodes = 0;
+  double terms = 0;
+};
+
+class Sizer {
+ public:
+  explicit Sizer(const std::string& what) : what_(what) {}
+  SizeInfo visit(const ex& e) {
+    const GiNaC::basic* key = &GiNaC::ex_to<GiNaC::basic>(e);
+    if (auto it = memo_.find(key); it != memo_.end()) return it->second.second;
+    SizeInfo r;
+    if (GiNaC::is_a<GiNaC::numeric>(e)) {
+      const GiNaC::numeric& n = GiNaC::ex_to<GiNaC::numeric>(e);
+      if (n.is_rational() &&
+          n.numer().int_length() + n.denom().int_length() > limits::kNumberBits) {
+        throw ExpressionError(
+            what_ + " holds a number of more than " + std::to_string(limits::kNumberBits) + " bits",
+            0);
+      }
+      r = {1, 1};
+    } else if (e.nops() == 0) {
+      r = {1, 1};
+    } else {
+      r.nodes = 1;
+      const bool sum = GiNaC::is_a<GiNaC::add>(e), product = GiNaC::is_a<GiNaC::mul>(e);
+      r.terms = product ? 1 : 0;
+      for (std::size_t k = 0; k < e.nops(); ++k) {
+        const SizeInfo c = visit(e.op(k));
+        r.nodes += c.nodes;
+        if (sum) r.terms += c.terms;
+        if (product) r.terms *= c.terms;
+      }
+      if (GiNaC::is_a<GiNaC::power>(e)) {
+        const ex expo = e.op(1);
+        const double b = visit(e.op(0)).terms;
+        r.terms = 1;
+        if (GiNaC::is_a<GiNaC::numeric>(expo) && GiNaC::ex_to<GiNaC::numeric>(expo).is_integer())
+          r.terms = std::pow(b, std::abs(GiNaC::ex_to<GiNaC::numeric>(expo).to_double()));
+      } else if (!sum && !product) {
+        r.terms = 1;  // a function: its arguments expand on their own
+      }
+      if (!(r.nodes <= static_cast<double>(limits::kTreeNodes))) {
+        throw ExpressionError(what_ + " is too large (more than " +
+                                  std::to_string(limits::kTreeNodes) + " nodes written out)",
+                              0);
+      }
+      if (!(r.terms <= limits::kExpandedTerms)) {
+        std::ostringstream os;
+        os << what_ << " would expand to more than " << limits::kExpandedTerms << " terms";
+        throw ExpressionError(os.str(), 0);
+      }
+    }
+    memo_.emplace(key, std::make_pair(e, r));  // keeps e alive: op() of a sum may be a temporary
+    return r;
+  }
+
+ private:
+  std::string what_;
+  std::unordered_map<const GiNaC::basic*, std::pair<ex, SizeInfo>> memo_;
+};
+
+std::int64_t now_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+void check_expression_size(const GiNaC::ex& e, const std::string& what) {
+  Sizer sizer(what);
+  (void)sizer.visit(e);
+}
+
+Deadline::Deadline(double seconds)
+    : seconds_(seconds), end_ns_(now_ns() + static_cast<std::int64_t>(seconds * 1e9)) {}
+
+void Deadline::check(const std::string& where) const {
+  if (now_ns() > end_ns_) {
+    std::ostringstream os;
+    os << "the derivation took longer than " << seconds_ << " s (stopped at " << where
+       << "): simplify the definitions or split the subsystem";
+    throw Error(os.str());
+  }
 }
 
 std::string latex_name(const std::string& name) {

@@ -11,6 +11,7 @@
 
 #include <ginac/ginac.h>
 
+#include <cstdint>
 #include <map>
 #include <string>
 
@@ -51,7 +52,48 @@ class Scope {
   std::map<std::string, GiNaC::ex> names_;
 };
 
-/// True if `name` is a valid identifier that is not reserved (t, pi, a function name).
+/// True if `name` is a valid identifier that is not reserved: [A-Za-z_][A-Za-z0-9_]{0,63}, not t,
+/// pi or a function name, not a GiNaC constant (Pi, E, I, Euler, Catalan), not a keyword of C or
+/// MATLAB nor a MATLAB constant (i, j, eps, Inf, NaN, ...), not starting with "__", "_" + a capital
+/// letter (reserved in C) or "ukdyn_" (names of generated code). See docs/definitions.md, "Limits".
 bool valid_name(const std::string& name, std::string* why = nullptr);
+
+/// The bounds on the work one input may cause (docs/definitions.md, "Limits"). Constants: raise one
+/// here and rebuild.
+namespace limits {
+/// Characters in one expression.
+inline constexpr std::size_t kExpressionChars = 10000;
+/// Nesting of parentheses, function calls, unary signs and powers in one expression.
+inline constexpr std::size_t kNesting = 100;
+/// Digits in one number literal.
+inline constexpr std::size_t kNumberDigits = 100;
+/// Bits of an exact number (numerator plus denominator) made by the parser or a derivation.
+inline constexpr long kNumberBits = 4096;
+/// |exponent| of a power whose base is not a number (x^65 is fine, x^(2^65) is refused).
+inline constexpr long kExponent = 1000;
+/// Nodes of an expression written out as a tree (let-names count once per use).
+inline constexpr std::size_t kTreeNodes = 200000;
+/// Terms an expression may expand to (an upper bound: (a+b)^2 * (c+d) counts 8).
+inline constexpr double kExpandedTerms = 200000;
+/// Seconds for the derivation of one subsystem or constraint (M, C, G or A, b) from its text.
+inline constexpr double kDeriveSeconds = 3.0;
+/// Coordinates of one derived subsystem (the derivation is cubic in them).
+inline constexpr std::size_t kDerivedCoordinates = 120;
+}  // namespace limits
+
+/// Throws ExpressionError (offset 0) naming `what` if `e` exceeds limits::kTreeNodes,
+/// limits::kExpandedTerms or limits::kNumberBits. Linear in the size of e as a DAG.
+void check_expression_size(const GiNaC::ex& e, const std::string& what);
+
+/// A time budget for one derivation; check() throws Error naming `where` once it is spent.
+class Deadline {
+ public:
+  explicit Deadline(double seconds = limits::kDeriveSeconds);
+  void check(const std::string& where) const;
+
+ private:
+  double seconds_;
+  std::int64_t end_ns_;
+};
 
 }  // namespace ukdyn::symbolic

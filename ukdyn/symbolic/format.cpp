@@ -1,4 +1,11 @@
 // Printing derivations as LaTeX, C or MATLAB (ukdyn derive).
+//
+// Names are checked when a scenario is loaded (expression.hpp, valid_name), and printed here as
+// safely as if they were not: comment text is reduced to printable ASCII (a CR or LF can never end
+// a comment; C comments are /* */ with "*/" broken up), a C function name is made an identifier, a
+// symbol whose name is one of the generated names (q, qd, t, M, C, G, Phi, A, b) is renamed with a
+// trailing '_' in C and MATLAB, and the constant pi prints as M_PI in C and pi in MATLAB.
+#include <set>
 #include <sstream>
 
 #include "ukdyn/symbolic/definitions.hpp"
@@ -30,15 +37,60 @@ ex collected(const ex& e) {
   return e.collect(vars, true);
 }
 
-std::string print(const ex& e0, Format f) {
-  const ex e = collected(e0);
+// Printable ASCII only: a control byte (CR, LF, ...) is shown as '?'.
+std::string printable(const std::string& s) {
+  std::string out;
+  for (char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    out += u >= 0x20 && u < 0x7f ? ch : '?';
+  }
+  return out;
+}
+
+// A C identifier made from `name` (invalid characters become '_').
+std::string c_identifier(const std::string& name) {
+  std::string out;
+  for (char ch : name) out += std::isalnum(static_cast<unsigned char>(ch)) ? ch : '_';
+  if (out.empty() || std::isdigit(static_cast<unsigned char>(out[0]))) out = "_" + out;
+  return out;
+}
+
+const std::set<std::string>& generated_names() {
+  static const std::set<std::string> g = {"q", "qd", "t", "M", "C", "G", "Phi", "A", "b"};
+  return g;
+}
+
+// Renames, for C and MATLAB, the symbols whose names the generated code uses itself.
+GiNaC::exmap renames(const ex& e, Format f) {
+  GiNaC::exmap m;
+  if (f != Format::c && f != Format::matlab) return m;
+  std::set<std::string> taken;
+  std::vector<GiNaC::symbol> clash;
+  for (GiNaC::const_preorder_iterator it = e.preorder_begin(); it != e.preorder_end(); ++it) {
+    if (!GiNaC::is_a<GiNaC::symbol>(*it)) continue;
+    const auto& sy = GiNaC::ex_to<GiNaC::symbol>(*it);
+    taken.insert(sy.get_name());
+    if (sy.get_name() != "t" && generated_names().count(sy.get_name())) clash.push_back(sy);
+  }
+  for (const auto& sy : clash) {
+    std::string n = sy.get_name() + "_";
+    while (taken.count(n) || generated_names().count(n)) n += "_";
+    taken.insert(n);
+    m[sy] = GiNaC::symbol(n);
+  }
+  return m;
+}
+
+std::string print(const ex& e0, Format f, const GiNaC::exmap& rename = {}) {
+  ex e = collected(e0);
+  if (!rename.empty()) e = e.subs(rename);
   std::ostringstream os;
   switch (f) {
     case Format::latex:
       os << GiNaC::latex << e;
       break;
     case Format::c:
-      os << GiNaC::csrc_double << e;
+      os << GiNaC::csrc_double << e.subs(GiNaC::Pi == GiNaC::symbol("M_PI"));
       break;
     default:
       os << GiNaC::dflt << e;
@@ -66,23 +118,31 @@ std::string print(const ex& e0, Format f) {
   return s;
 }
 
-std::string comment(Format f) {
+// One comment line holding `text` (printable ASCII; in C a /* */ comment that "*/" cannot end).
+std::string comment_line(Format f, const std::string& text) {
+  std::string t = printable(text);
   switch (f) {
     case Format::latex:
-      return "% ";
-    case Format::c:
-      return "// ";
     case Format::matlab:
-      return "% ";
+      return "% " + t + "\n";
+    case Format::c: {
+      std::string out;
+      for (std::size_t i = 0; i < t.size(); ++i) {
+        out += t[i];
+        if (t[i] == '*' && i + 1 < t.size() && t[i + 1] == '/') out += ' ';
+        if (t[i] == '/' && i + 1 < t.size() && t[i + 1] == '*') out += ' ';
+      }
+      return "/* " + out + " */\n";
+    }
     default:
-      return "# ";
+      return "# " + t + "\n";
   }
 }
 
 // One entry; indices 1-based in LaTeX/MATLAB/text, 0-based in C.
 void entry(std::ostream& os, Format f, const std::string& name, unsigned i, unsigned j, bool vector,
-           const ex& e) {
-  const std::string v = print(e, f);
+           const ex& e, const GiNaC::exmap& rename) {
+  const std::string v = print(e, f, rename);
   switch (f) {
     case Format::latex:
       os << name << "_{" << (i + 1);
@@ -103,29 +163,31 @@ void entry(std::ostream& os, Format f, const std::string& name, unsigned i, unsi
 }
 
 void header(std::ostream& os, Format f, const std::vector<std::string>& coords,
-            const GiNaC::exmap& params, bool time) {
-  const std::string c = comment(f);
-  os << c << "coordinates q = [";
-  for (std::size_t i = 0; i < coords.size(); ++i) os << (i ? ", " : "") << coords[i];
-  os << "], velocities <name>_dot" << (time ? ", time t" : "") << "\n";
+            const GiNaC::exmap& params, bool time, const GiNaC::exmap& rename) {
+  std::string line = "coordinates q = [";
+  for (std::size_t i = 0; i < coords.size(); ++i) line += (i ? ", " : "") + coords[i];
+  line += std::string("], velocities <name>_dot") + (time ? ", time t" : "");
+  os << comment_line(f, line);
   if (params.empty()) return;
   if (f == Format::latex) {
-    os << c << "parameters:";
+    line = "parameters:";
     for (const auto& [s, v] : params)
-      os << " " << print(s, Format::text) << " = " << print(v, Format::text) << ";";
-    os << "\n";
+      line += " " + print(s, Format::text) + " = " + print(v, Format::text) + ";";
+    os << comment_line(f, line);
   } else if (f == Format::c) {
-    for (const auto& [s, v] : params)
-      os << "  const double " << print(s, f) << " = " << print(v, f) << ";\n";
+    for (const auto& [s, v] : params) {
+      const std::string n = print(s, f, rename);
+      os << "  const double " << n << " = " << print(v, f) << ";\n  (void)" << n << ";\n";
+    }
   } else {
-    for (const auto& [s, v] : params) os << print(s, f) << " = " << print(v, f) << ";\n";
+    for (const auto& [s, v] : params) os << print(s, f, rename) << " = " << print(v, f) << ";\n";
   }
 }
 
 void block(std::ostream& os, Format f, const std::string& name, const GiNaC::matrix& m,
-           bool symmetric, bool vector) {
-  const std::string c = comment(f);
-  os << c << name << (symmetric ? " (symmetric: upper triangle)" : "") << ", nonzero entries\n";
+           bool symmetric, bool vector, const GiNaC::exmap& rename) {
+  os << comment_line(
+      f, name + (symmetric ? " (symmetric: upper triangle)" : "") + ", nonzero entries");
   if (f == Format::latex) os << "\\begin{align*}\n";
   if (f == Format::matlab) {
     os << name << " = zeros(" << m.rows() << (vector ? ", 1" : ", " + std::to_string(m.cols()))
@@ -136,7 +198,7 @@ void block(std::ostream& os, Format f, const std::string& name, const GiNaC::mat
     for (unsigned j = symmetric ? i : 0; j < m.cols(); ++j) {
       if (m(i, j).is_zero()) continue;
       any = true;
-      entry(os, f, name, i, j, vector, m(i, j));
+      entry(os, f, name, i, j, vector, m(i, j), rename);
       if (symmetric && j != i && f != Format::latex && f != Format::text) {
         if (f == Format::c) {
           os << "  " << name << "[" << j << "][" << i << "] = " << name << "[" << i << "][" << j
@@ -154,31 +216,80 @@ void block(std::ostream& os, Format f, const std::string& name, const GiNaC::mat
 
 }  // namespace
 
+namespace {
+
+// Every symbol the derivation's output holds (for renames()).
+ex all_symbols(const std::vector<std::string>& coords, const GiNaC::exmap& params) {
+  GiNaC::lst l;
+  for (const auto& c : coords) {
+    l.append(coordinate_symbol(c));
+    l.append(velocity_symbol(c));
+  }
+  for (const auto& [s, v] : params) l.append(s);
+  return l;
+}
+
+// The name a coordinate (or its velocity) prints as.
+std::string printed_name(const GiNaC::symbol& s, Format f, const GiNaC::exmap& rename) {
+  return print(s, f, rename);
+}
+
+}  // namespace
+
 std::string format_derivation(const SubsystemDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const std::string c = comment(f);
-  os << c << "subsystem '" << name
-     << "': M (Eq. 5), C from Christoffel symbols (Eq. 9), G (Eq. 8)\n";
-  header(os, f, d.coordinates, d.parameter_values, false);
-  block(os, f, "M", d.M, true, false);
-  block(os, f, "C", d.C, false, false);
-  block(os, f, "G", d.G, false, true);
+  const GiNaC::exmap rename = renames(all_symbols(d.coordinates, d.parameter_values), f);
+  os << comment_line(
+      f, "subsystem '" + name + "': M (Eq. 5), C from Christoffel symbols (Eq. 9), G (Eq. 8)");
+  header(os, f, d.coordinates, d.parameter_values, false, rename);
+  block(os, f, "M", d.M, true, false, rename);
+  block(os, f, "C", d.C, false, false, rename);
+  block(os, f, "G", d.G, false, true, rename);
   return os.str();
 }
 
 std::string format_derivation(const ConstraintDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const std::string c = comment(f);
-  os << c << "constraint '" << name << "' (" << (d.holonomic ? "holonomic" : "nonholonomic")
-     << "), rows:";
-  for (const auto& r : d.row_names) os << " " << r;
-  os << "\n" << c << "A qdd = b\n";
-  header(os, f, d.coordinates, d.parameter_values, true);
-  if (d.holonomic) block(os, f, "Phi", d.phi, false, true);
-  block(os, f, "A", d.A, false, false);
-  block(os, f, "b", d.b, false, true);
+  const GiNaC::exmap rename = renames(all_symbols(d.coordinates, d.parameter_values), f);
+  std::string line =
+      "constraint '" + name + "' (" + (d.holonomic ? "holonomic" : "nonholonomic") + "), rows:";
+  for (const auto& r : d.row_names) line += " " + r;
+  os << comment_line(f, line) << comment_line(f, "A qdd = b");
+  header(os, f, d.coordinates, d.parameter_values, true, rename);
+  if (d.holonomic) block(os, f, "Phi", d.phi, false, true, rename);
+  block(os, f, "A", d.A, false, false, rename);
+  block(os, f, "b", d.b, false, true, rename);
   return os.str();
 }
+
+namespace {
+
+// The C function around a derivation: the coordinate and velocity variables, the outputs zeroed.
+void c_variables(std::ostream& os, const std::vector<std::string>& coords,
+                 const GiNaC::exmap& rename) {
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    const std::string qn = printed_name(coordinate_symbol(coords[i]), Format::c, rename);
+    const std::string vn = printed_name(velocity_symbol(coords[i]), Format::c, rename);
+    os << "  const double " << qn << " = q[" << i << "], " << vn << " = qd[" << i << "];\n";
+    os << "  (void)" << qn << ";\n  (void)" << vn << ";\n";
+  }
+  os << "  (void)q;\n  (void)qd;\n";
+}
+
+void c_zero(std::ostream& os, const std::string& array, std::size_t count) {
+  os << "  for (int k = 0; k < " << count << "; ++k) (&" << array << ")[k] = 0.0;\n";
+}
+
+// A unique C function name made from `name` and `suffix`.
+std::string c_function_name(const std::string& name, const std::string& suffix,
+                            std::set<std::string>& used) {
+  std::string base = c_identifier(name) + suffix, n = base;
+  for (int k = 2; used.count(n); ++k) n = base + "_" + std::to_string(k);
+  used.insert(n);
+  return n;
+}
+
+}  // namespace
 
 }  // namespace ukdyn::symbolic
 
@@ -194,26 +305,31 @@ Format parse_format(const std::string& name) {
 
 std::string format_system(const System& system, Format f) {
   std::ostringstream os;
-  const std::string c = f == Format::c ? "// " : f == Format::text ? "# " : "% ";
+  std::set<std::string> functions;  // C function names used so far
+  if (f == Format::c) {
+    os << comment_line(f, "generated by ukdyn derive: C99, link with -lm") << "#include <math.h>\n"
+       << "#ifndef M_PI\n#define M_PI 3.14159265358979323846\n#endif\n\n";
+  }
   const auto& subs = system.subsystems();
   for (std::size_t k = 0; k < subs.size(); ++k) {
     if (const auto* d = dynamic_cast<const DerivedSubsystem*>(subs[k].get())) {
-      if (f == Format::c)
-        os << "void " << d->name() << "_dynamics(const double* q, const double* qd, double M["
-           << d->dof() << "][" << d->dof() << "], double C[" << d->dof() << "][" << d->dof()
-           << "], double G[" << d->dof() << "]) {\n";
+      const auto& dv = d->derivation();
       if (f == Format::c) {
-        for (Index i = 0; i < d->dof(); ++i) {
-          const auto& nm = d->coordinate_names()[static_cast<std::size_t>(i)];
-          os << "  const double " << nm << " = q[" << i << "], " << nm << "_dot = qd[" << i
-             << "];\n";
-        }
-        os << "  (void)qd;\n";
+        const auto n = static_cast<std::size_t>(d->dof());
+        os << "void " << c_function_name(d->name(), "_dynamics", functions)
+           << "(const double* q, const double* qd, double M[" << n << "][" << n << "], double C["
+           << n << "][" << n << "], double G[" << n << "]) {\n";
+        c_variables(os, dv.coordinates,
+                    renames(all_symbols(dv.coordinates, dv.parameter_values), f));
+        c_zero(os, "M[0][0]", n * n);
+        c_zero(os, "C[0][0]", n * n);
+        c_zero(os, "G[0]", n);
       }
-      os << format_derivation(d->derivation(), d->name(), f);
+      os << format_derivation(dv, d->name(), f);
       if (f == Format::c) os << "}\n";
     } else {
-      os << c << "subsystem '" << subs[k]->name() << "': built-in closed-form model, not derived\n";
+      os << comment_line(
+          f, "subsystem '" + subs[k]->name() + "': built-in closed-form model, not derived");
     }
     os << "\n";
   }
@@ -225,11 +341,26 @@ std::string format_system(const System& system, Format f) {
       for (const auto& r : rn) {
         if (r.compare(0, name.size(), name) != 0) name = "constraint_" + std::to_string(k + 1);
       }
-      os << format_derivation(d->derivation(), name, f);
+      const auto& dv = d->derivation();
+      if (f == Format::c) {
+        const std::size_t m = dv.row_names.size(), n = dv.coordinates.size();
+        os << "void " << c_function_name(name, "_constraint", functions)
+           << "(const double* q, const double* qd, double t, ";
+        if (dv.holonomic) os << "double Phi[" << m << "], ";
+        os << "double A[" << m << "][" << n << "], double b[" << m << "]) {\n";
+        c_variables(os, dv.coordinates,
+                    renames(all_symbols(dv.coordinates, dv.parameter_values), f));
+        os << "  (void)t;\n";
+        if (dv.holonomic) c_zero(os, "Phi[0]", m);
+        c_zero(os, "A[0][0]", m * n);
+        c_zero(os, "b[0]", m);
+      }
+      os << format_derivation(dv, name, f);
+      if (f == Format::c) os << "}\n";
     } else {
-      os << c << "constraint rows";
-      for (const auto& r : rn) os << " " << r;
-      os << ": built-in closed form, not derived\n";
+      std::string line = "constraint rows";
+      for (const auto& r : rn) line += " " + r;
+      os << comment_line(f, line + ": built-in closed form, not derived");
     }
     os << "\n";
   }

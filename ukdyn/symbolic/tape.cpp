@@ -211,8 +211,9 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
   } else if (is_a<GiNaC::power>(e)) {
     const ex base = e.op(0), expo = e.op(1);
     const std::int32_t b = compile(base, inputs);
+    // Compare as a numeric before to_long(): to_long() wraps exponents beyond 2^63 (2^65 + 1 → 1).
     if (is_a<GiNaC::numeric>(expo) && ex_to<GiNaC::numeric>(expo).is_integer() &&
-        std::abs(ex_to<GiNaC::numeric>(expo).to_long()) <= 64) {
+        GiNaC::abs(ex_to<GiNaC::numeric>(expo)) <= 64) {
       id = power(b, ex_to<GiNaC::numeric>(expo).to_long());
     } else if (expo.is_equal(GiNaC::numeric(1, 2))) {
       id = emit(Op::sqrt, b, 0, 0.0);

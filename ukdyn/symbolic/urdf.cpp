@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <numbers>
 #include <set>
+#include <sstream>
 
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 
@@ -49,8 +50,12 @@ Vec3Ex vec(const urdf::Vector3& v) {
 class Collect : public console_bridge::OutputHandler {
  public:
   void log(const std::string& text, console_bridge::LogLevel level, const char*, int) override {
-    if (level >= console_bridge::CONSOLE_BRIDGE_LOG_ERROR && messages.size() < 2000)
-      messages += (messages.empty() ? "" : "; ") + text;
+    if (level < console_bridge::CONSOLE_BRIDGE_LOG_ERROR || messages.size() >= 2000) return;
+    messages += (messages.empty() ? "" : "; ");
+    for (char ch : text) {  // the text may quote a name from the XML: no control bytes
+      const auto u = static_cast<unsigned char>(ch);
+      messages += u >= 0x20 && u < 0x7f ? ch : '?';
+    }
   }
   std::string messages;
 };
@@ -72,6 +77,25 @@ urdf::ModelInterfaceSharedPtr parse_file(const std::string& path, std::string& m
   return model;
 }
 
+// A name from the XML, for a message: printable ASCII only, at most 64 characters.
+std::string shown(const std::string& s) {
+  std::string out;
+  for (std::size_t i = 0; i < s.size() && i < 64; ++i) {
+    const auto u = static_cast<unsigned char>(s[i]);
+    out += u >= 0x20 && u < 0x7f ? s[i] : '?';
+  }
+  return s.size() > 64 ? out + "..." : out;
+}
+
+// Fails unless every number of the pose is finite.
+void check_pose(const urdf::Pose& p, const std::string& where) {
+  const double v[7] = {p.position.x, p.position.y, p.position.z, p.rotation.x,
+                       p.rotation.y, p.rotation.z, p.rotation.w};
+  for (double x : v) {
+    if (!std::isfinite(x)) throw DefinitionError(where + ": the <origin> has a non-finite number");
+  }
+}
+
 OriginDef origin(const urdf::Pose& p) {
   double r = 0, pi = 0, y = 0;
   p.rotation.getRPY(r, pi, y);
@@ -82,13 +106,24 @@ OriginDef origin(const urdf::Pose& p) {
 
 void append_urdf(ChainDef& chain, const std::string& path,
                  const std::map<std::string, GiNaC::ex>& joint_values) {
-  if (!std::filesystem::is_regular_file(path)) throw DefinitionError(path + ": no such URDF file");
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    // A directory, FIFO or device is not "missing" (and a FIFO is never opened).
+    throw DefinitionError(path + (std::filesystem::exists(path, ec)
+                                      ? ": not a regular file (a directory, FIFO or device)"
+                                      : ": no such URDF file"));
+  }
+  if (std::filesystem::file_size(path, ec) > (16u << 20) || ec)
+    throw DefinitionError(path + ": larger than 16 MiB (a URDF is a small text file)");
   std::string messages;
   const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
   if (!model) {
     throw DefinitionError(path + ": urdfdom could not read this URDF" +
                           (messages.empty() ? std::string(" (malformed XML?)") : ": " + messages));
   }
+  // urdfdom reports some errors and carries on (a <mass value="heavy"/> drops the link's inertial
+  // block, "inf" in an <inertia> likewise): any error it reported refuses the file.
+  if (!messages.empty()) throw DefinitionError(path + ": urdfdom reported: " + messages);
   const urdf::LinkConstSharedPtr root = model->getRoot();
   if (!root) throw DefinitionError(path + ": the URDF has no root link");
   for (const auto& [jn, j] : joint_values) {
@@ -130,6 +165,18 @@ void append_urdf(ChainDef& chain, const std::string& path,
                             "' has no <inertial> block (give mass, origin and inertia)");
     }
     const urdf::Inertial& I = *link.inertial;
+    const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
+    if (!std::isfinite(I.mass) || I.mass < 0.0) {
+      std::ostringstream os;
+      os << where << ": <mass value> must be a finite number >= 0, got " << I.mass;
+      throw DefinitionError(os.str());
+    }
+    for (double x : {I.ixx, I.ixy, I.ixz, I.iyy, I.iyz, I.izz}) {
+      if (!std::isfinite(x)) throw DefinitionError(where + ": <inertia> has a non-finite entry");
+    }
+    if (I.ixx < 0.0 || I.iyy < 0.0 || I.izz < 0.0)
+      throw DefinitionError(where + ": <inertia> has a negative diagonal entry (ixx, iyy, izz)");
+    check_pose(I.origin, where);
     in.mass = exact_number(I.mass);
     const OriginDef o = origin(I.origin);
     in.com = o.xyz;
@@ -140,19 +187,29 @@ void append_urdf(ChainDef& chain, const std::string& path,
   };
   if (chain.base.enabled && root->inertial) inertial_of(*root, chain.joints.back().inertial);
 
-  // Depth-first from the root: parents are defined before their children.
+  // Depth-first from the root: parents are defined before their children. A link reached twice (a
+  // cycle, or a link that is the child of two joints: urdfdom keeps the last parent) is refused.
+  std::set<std::string> visited{root->name};
   std::vector<urdf::LinkConstSharedPtr> stack{root};
   while (!stack.empty()) {
     const urdf::LinkConstSharedPtr link = stack.back();
     stack.pop_back();
     const auto& cj = link->child_joints;
     for (auto it = cj.rbegin(); it != cj.rend(); ++it) {
-      if (urdf::LinkConstSharedPtr child = model->getLink((*it)->child_link_name))
-        stack.push_back(child);
+      urdf::LinkConstSharedPtr child = model->getLink((*it)->child_link_name);
+      if (!child) continue;
+      if (!visited.insert(child->name).second || child->parent_joint != *it) {
+        throw DefinitionError(path + ": joint '" + shown((*it)->name) + "': link '" +
+                              shown(child->name) +
+                              "' is reached twice (a cycle, or a link with two parent joints): "
+                              "a URDF must be a tree");
+      }
+      stack.push_back(child);
     }
     if (link == root) continue;
     const urdf::Joint& uj = *link->parent_joint;
-    const std::string where = path + ": joint '" + uj.name + "'";
+    const std::string where = path + ": joint '" + shown(uj.name) + "'";
+    check_pose(uj.parent_to_joint_origin_transform, where);
     JointDef::Type type = JointDef::Type::fixed;
     switch (uj.type) {
       case urdf::Joint::REVOLUTE:

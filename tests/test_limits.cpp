@@ -1,0 +1,174 @@
+// Bounded work and the identifier rule (issue 15, classes 1 and 4; docs/definitions.md, "Names and
+// limits"): each limit refuses the input just past it and accepts the input at it, so that every
+// test can fail both ways; the tape evaluates huge integer exponents as powers, not wrapped around.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/tape.hpp"
+
+namespace {
+
+namespace sym = ukdyn::symbolic;
+namespace lim = sym::limits;
+
+sym::Scope xy() {
+  sym::Scope s;
+  s.add("x", sym::coordinate_symbol("x"));
+  s.add("y", sym::coordinate_symbol("y"));
+  return s;
+}
+
+std::string error_of(const std::string& text) {
+  try {
+    (void)xy().parse(text);
+  } catch (const sym::ExpressionError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Limits, NestingIsCappedNotAStackOverflow) {
+  const std::size_t n = lim::kNesting;
+  // n - 1 parentheses: the nesting of unary() is the parentheses plus the outermost level.
+  EXPECT_EQ(error_of(std::string(n - 1, '(') + "x" + std::string(n - 1, ')')), "");
+  EXPECT_NE(error_of(std::string(n, '(') + "x" + std::string(n, ')')).find("nested more than"),
+            std::string::npos);
+  EXPECT_NE(error_of(std::string(3000, '-') + "x").find("nested more than"), std::string::npos);
+  std::string tower;
+  for (int i = 0; i < 1000; ++i) tower += "x^";
+  EXPECT_NE(error_of(tower + "x").find("nested more than"), std::string::npos);
+}
+
+TEST(Limits, LengthDigitsAndExponents) {
+  EXPECT_NE(error_of("x" + std::string(lim::kExpressionChars, ' ')).find("longer than"),
+            std::string::npos);
+  EXPECT_EQ(error_of(std::string(lim::kNumberDigits, '9') + "*x"), "");
+  EXPECT_NE(error_of(std::string(lim::kNumberDigits + 1, '9') + "*x").find("digits"),
+            std::string::npos);
+  EXPECT_EQ(error_of("x^" + std::to_string(lim::kExponent)), "");
+  EXPECT_NE(error_of("x^" + std::to_string(lim::kExponent + 1)).find("exponent out of range"),
+            std::string::npos);
+  EXPECT_NE(error_of("x^(2^65+1)").find("exponent out of range"), std::string::npos);
+  EXPECT_NE(error_of("x^(-(2^65))").find("exponent out of range"), std::string::npos);
+}
+
+TEST(Limits, ExactNumbersAreBoundedInBits) {
+  // 2^4000 has 4001 bits (< 4096); 2^5000 and the tower 2^2^2^2^2^2 do not fit.
+  EXPECT_EQ(error_of("2^4000*x"), "");
+  EXPECT_NE(error_of("2^5000*x").find("too large"), std::string::npos);
+  EXPECT_NE(error_of("2^2^2^2^2^2").find("too large"), std::string::npos);
+  EXPECT_NE(error_of("10^100000").find("too large"), std::string::npos);
+  EXPECT_EQ(error_of("1^100000000 + (-1)^100000001 + 0^100000000"), "");  // small bases stay small
+  // Products of numbers below the cap are caught when the expression is checked.
+  EXPECT_NE(error_of("2^4000*2^4000*x").find("bits"), std::string::npos);
+}
+
+TEST(Limits, ExpOfAHugeNumberIsRefusedNotWrong) {
+  // CLN evaluated exp(exp(exp(exp(10)))) to 2.718...: a wrong finite number.
+  EXPECT_EQ(error_of("exp(709)"), "");
+  EXPECT_NE(error_of("exp(710)").find("overflows a double"), std::string::npos);
+  EXPECT_NE(error_of("exp(exp(exp(exp(10))))").find("overflows a double"), std::string::npos);
+  EXPECT_NE(error_of("cosh(-800)").find("overflows a double"), std::string::npos);
+  EXPECT_EQ(error_of("exp(exp(x))"), "");  // symbolic arguments are evaluated later, in doubles
+}
+
+TEST(Limits, EvaluationErrorsAreExpressionErrorsWithAColumn) {
+  EXPECT_NE(error_of("x + log(0)").find("cannot evaluate: log_eval(): log(0)"), std::string::npos);
+  EXPECT_NE(error_of("x + 0^(-1)").find("division by zero"), std::string::npos);
+  EXPECT_NE(error_of("x/(y - y)").find("division by zero"), std::string::npos);
+  try {
+    (void)xy().parse("x + log(0)");
+    FAIL();
+  } catch (const sym::ExpressionError& e) {
+    EXPECT_EQ(e.offset, 4u);  // the column of log
+  }
+}
+
+TEST(Limits, ExpandedSizeIsBoundedBeforeExpanding) {
+  const GiNaC::ex x = sym::coordinate_symbol("x"), y = sym::coordinate_symbol("y");
+  EXPECT_NO_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 10), "e"));
+  // (x + y + 1)^500 has an expansion bound of 3^500 terms.
+  EXPECT_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 500), "e"), sym::ExpressionError);
+  // A DAG that doubles: a_{k+1} = sin(a_k) + cos(a_k), 2^30 nodes written out, checked in linear
+  // time thanks to the memo (this test would not end otherwise).
+  GiNaC::ex a = x + y;
+  for (int k = 0; k < 30; ++k) a = GiNaC::sin(a) + GiNaC::cos(a);
+  try {
+    sym::check_expression_size(a, "the tower");
+    FAIL();
+  } catch (const sym::ExpressionError& e) {
+    EXPECT_NE(std::string(e.what()).find("the tower is too large"), std::string::npos);
+  }
+}
+
+TEST(Limits, DeadlineNamesThePlace) {
+  EXPECT_NO_THROW(sym::Deadline(60.0).check("M(x, x)"));
+  try {
+    sym::Deadline(-1.0).check("M(x, y)");
+    FAIL();
+  } catch (const ukdyn::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("stopped at M(x, y)"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Limits, DerivedSubsystemCoordinatesAreCapped) {
+  auto make = [](std::size_t n) {
+    std::vector<std::string> names;
+    for (std::size_t i = 0; i < n; ++i) names.push_back("c" + std::to_string(i));
+    sym::SubsystemDef d("big", names);
+    for (const auto& c : names) {
+      auto& b = d.add_body("b" + c);
+      b.mass = 1;
+      b.com = {sym::coordinate_symbol(c), 0, 0};
+    }
+    return sym::derive(d);
+  };
+  EXPECT_NO_THROW(make(3));
+  try {
+    make(lim::kDerivedCoordinates + 1);
+    FAIL();
+  } catch (const sym::DefinitionError& e) {
+    EXPECT_NE(std::string(e.what()).find("at most " + std::to_string(lim::kDerivedCoordinates)),
+              std::string::npos);
+  }
+}
+
+TEST(Names, IdentifierRuleRefusesWhatPrintsAsSomethingElse) {
+  for (const char* ok : {"x", "theta1", "l_r", "M", "b", "q", "I", "_x", "Pi2", "Ee"}) {
+    std::string why;
+    EXPECT_TRUE(sym::valid_name(ok, &why)) << ok << ": " << why;
+  }
+  for (const char* bad :
+       {"Pi",       "E", "Euler", "Catalan", "M_PI", "int", "double", "return", "end",
+        "function", "i", "j",     "eps",     "Inf",  "NaN", "pow",    "__x",    "_X",
+        "ukdyn_m",  "t", "pi",    "sin",     "a.b",  "a-b", "1x",     "",       "x\ry"}) {
+    EXPECT_FALSE(sym::valid_name(bad)) << bad;
+  }
+  EXPECT_TRUE(sym::valid_name(std::string(64, 'a')));
+  EXPECT_FALSE(sym::valid_name(std::string(65, 'a')));
+  std::string why;
+  EXPECT_FALSE(sym::valid_name("x\x1b[2J", &why));
+  EXPECT_EQ(why.find('\x1b'), std::string::npos) << "a control byte in the message";
+}
+
+// x^(2^65 + 1): to_long() wrapped the exponent to 1 and the tape evaluated x. It is a power now:
+// 0.5^(2^65+1) underflows to 0, 1.25^(2^65+1) overflows to inf.
+TEST(Limits, TapeDoesNotWrapHugeIntegerExponents) {
+  const GiNaC::symbol x = sym::coordinate_symbol("x");
+  const GiNaC::ex big = GiNaC::pow(GiNaC::numeric(2), 65) + 1;
+  sym::InputMap in;
+  in[x] = {sym::TapeInput::Source::q, 0};
+  const sym::Tape tape({GiNaC::pow(x, big), GiNaC::pow(x, 64), GiNaC::pow(x, 65)}, in);
+  for (double v : {0.5, 1.25}) {
+    double out[3];
+    tape.eval(0.0, &v, nullptr, out);
+    EXPECT_EQ(out[0], v < 1 ? 0.0 : HUGE_VAL) << v;
+    EXPECT_DOUBLE_EQ(out[1], std::pow(v, 64));
+    EXPECT_DOUBLE_EQ(out[2], std::pow(v, 65));
+  }
+}
+
+}  // namespace
