@@ -17,7 +17,7 @@
 
 namespace ukdyn {
 
-std::vector<std::string> trajectory_header(const System& system) {
+std::vector<std::string> trajectory_header(const System& system, bool energy_balance) {
   std::vector<std::string> h{"t"};
   const auto& names = system.coordinate_names();
   for (const auto& n : names) h.push_back(n);
@@ -26,6 +26,7 @@ std::vector<std::string> trajectory_header(const System& system) {
   for (const auto& n : names) h.push_back("Qc_" + n);
   for (const auto& r : system.constraint_row_names()) h.push_back("res_" + r);
   h.insert(h.end(), {"T", "V", "E", "rank", "free_dof", "sigma_min", "acc_residual"});
+  if (energy_balance) h.insert(h.end(), {"W", "E_balance"});  // W = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt
   return h;
 }
 
@@ -160,7 +161,9 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["status"] = "running";
   write_json_atomically(rep.summary, summary);
 
-  const auto header = trajectory_header(sys);
+  const bool balance = sc.sim.energy_balance;
+  const auto header = trajectory_header(sys, balance);
+  double balance0 = 0.0;
   CsvWriter csv(out_dir / "trajectory.csv", header);
   std::vector<double> row(header.size());
   Vec phi(m), phid(m);
@@ -175,7 +178,13 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     const double E = T + V;
     if (first) {
       rep.E0 = E;
+      balance0 = E - d.work;
       first = false;
+    }
+    if (balance) {
+      rep.energy_balance_drift =
+          std::max(rep.energy_balance_drift, std::abs(E - d.work - balance0));
+      rep.work_final = d.work;
     }
     rep.max_energy_drift = std::max(rep.max_energy_drift, std::abs(E - rep.E0));
     rep.max_T = std::max(rep.max_T, T);
@@ -210,6 +219,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
       row[k++] = 0.0;
     }
     row[k++] = d.result.residual;
+    if (balance) {
+      row[k++] = d.work;
+      row[k++] = E - d.work;
+    }
     csv.row(row);
     progress.update(t);
     return !(options.cancel && options.cancel->load());
@@ -264,6 +277,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["energy"] = {{"E0", finite_or_null(rep.E0)},
                        {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
                        {"max_T", finite_or_null(rep.max_T)}};
+  if (balance) {
+    summary["energy_balance_drift"] = finite_or_null(rep.energy_balance_drift);
+    summary["energy"]["work_nonconservative_final"] = finite_or_null(rep.work_final);
+  }
   summary["rank"] = {{"min", rep.rank_min},
                      {"max", rep.rank_max},
                      {"rows", m},

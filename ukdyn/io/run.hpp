@@ -30,12 +30,15 @@ struct RunReport {
   std::vector<double> max_abs_velocity_residual;
   double max_acc_residual = 0.0;  ///< max ‖A q̈ − b‖ over samples
   double E0 = 0.0, max_energy_drift = 0.0, max_T = 0.0;
+  /// With SimulationSettings::energy_balance: max |(E − W) − (E − W)(t0)| and the final W.
+  double energy_balance_drift = 0.0, work_final = 0.0;
   int rank_min = 0, rank_max = 0;
   double sigma_min = 0.0;  ///< smallest kept singular value seen (pivot estimate)
 };
 
-/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E.
-std::vector<std::string> trajectory_header(const System& system);
+/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E,
+/// diagnostics, and with `energy_balance` W and E_balance = E − W at the end.
+std::vector<std::string> trajectory_header(const System& system, bool energy_balance = false);
 
 /// Simulates the scenario into out_dir (created if needed). Old outputs there are removed first.
 /// Never throws for numerical trouble (see RunReport.stats.status); throws ukdyn::Error for I/O.

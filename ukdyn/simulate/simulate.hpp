@@ -13,7 +13,10 @@ namespace ukdyn {
 /// rk4: classical Runge–Kutta 4, fixed step. dopri5: Dormand–Prince 5(4), adaptive with dense
 /// output. rkf78: Runge–Kutta–Fehlberg 7(8), adaptive, stepping exactly onto the sample times. All
 /// from Boost.Odeint. dopri5 and rkf78 can also run with a fixed step (adaptive = false).
-enum class IntegratorKind { rk4, dopri5, rkf78 };
+/// bdf: SUNDIALS CVODE's variable-order BDF (implicit, for stiff problems; always adaptive),
+/// available when ukdyn was built with SUNDIALS (bdf_available()).
+enum class IntegratorKind { rk4, dopri5, rkf78, bdf };
+bool bdf_available();
 std::string to_string(IntegratorKind kind);
 
 /// Acceleration-level constraints drift (A q̈ = b only holds Φ̈ = 0). Choices:
@@ -46,6 +49,10 @@ struct SimulationSettings {
   UkSettings uk;
   /// A sample whose σ_min/σ_max (pivot estimate) falls under this raises a near-singular warning.
   double near_singular_ratio = 1e-6;
+  /// Integrate the work W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt of τ, of the non-conservative applied
+  /// forces and of the constraint forces as one more state of the same stepper (same order and
+  /// error control); samples get it in ForwardData::work, and E − W stays constant.
+  bool energy_balance = false;
 };
 
 enum class RunStatus { completed, non_finite, inconsistent_constraints, step_failure, stopped };
