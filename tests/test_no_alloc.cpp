@@ -13,6 +13,9 @@
 
 #include "helpers.hpp"
 #include "ukdyn/model/system.hpp"
+#ifdef UKDYN_HAVE_IO
+#include "ukdyn/symbolic/forces.hpp"
+#endif
 
 namespace {
 std::atomic<bool> g_counting{false};
@@ -174,5 +177,32 @@ TEST(NoAlloc, IntegratorRightHandSideAllocatesNothing) {
   EXPECT_EQ(count, 0) << "the right-hand side allocated " << count << " times in 50 calls";
   EXPECT_TRUE(data.result.finite);
 }
+
+#ifdef UKDYN_HAVE_IO
+// forward() with state-dependent applied forces (a spring-damper, joint friction, a torque of t):
+// the compiled force tapes allocate nothing either.
+TEST(NoAlloc, ForwardWithAppliedForcesAllocatesNothing) {
+  PaperSystem ps(false);
+  auto& sys = *ps.two.system;
+  const auto& c = sys.coordinate_names();
+  namespace sym = ukdyn::symbolic;
+  sym::ForceDef f(c);
+  f.add_spring_damper("s", {f.parse(c[0]), f.parse(c[1]), 0}, {0, 0, f.parse("0.5")},
+                      f.parameter("k", 100), f.parameter("c", 2), 0.3);
+  f.add_joint_friction("f", c[3], 0.1, 0.2, 1e-3);
+  f.add_torque("drive", c[4], f.parse("0.5*sin(2*t)"));
+  sys.add_applied_force(sym::make_applied_force(f));
+  ukdyn::ForwardData data(sys);
+  const Vec qd = Vec::LinSpaced(12, -0.3, 0.4);
+  const Vec tau = Vec::Zero(12);
+  ukdyn::forward(sys, data, 0.0, ps.q0, qd, tau);  // first call
+  ASSERT_TRUE(data.result.finite);
+  const long n = allocations_in([&] {
+    for (int k = 0; k < 20; ++k) ukdyn::forward(sys, data, 0.01 * k, ps.q0, qd, tau);
+  });
+  EXPECT_EQ(n, 0) << "forward() with applied forces allocated " << n << " times in 20 calls";
+  EXPECT_NE(data.applied_power, 0.0);
+}
+#endif
 
 }  // namespace

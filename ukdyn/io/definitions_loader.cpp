@@ -1,10 +1,12 @@
 #include "ukdyn/io/definitions_loader.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <map>
 #include <sstream>
 
+#include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/spline.hpp"
@@ -122,7 +124,7 @@ void load_gravity(const Loader& L, const Node& s, sym::SubsystemDef& def, double
   if (Node g = L.child(s, "gravity", false); g.node.IsDefined()) {
     def.gravity = parse_list<3>(L, def, g);
   } else {
-    def.gravity = {0, 0, GiNaC::numeric(-gravity)};
+    def.gravity = {0, 0, sym::exact_rational(-gravity)};  // exact (canonical.hpp)
     // Keep a short decimal such as 9.8 exact.
     std::ostringstream os;
     os.precision(15);
@@ -579,13 +581,23 @@ std::shared_ptr<const Constraint> load_constraint_kind(
     sym::Vec3Ex origin{0, 0, 0};
     if (Node o = L.child(c, "origin", false); o.node.IsDefined()) {
       if (o.node.IsScalar() && o.node.Scalar() == "initial") {
-        GiNaC::exmap at;
-        for (std::size_t i = 0; i < system_coordinates.size(); ++i)
-          at[sym::coordinate_symbol(system_coordinates[i])] = q0(static_cast<Index>(i));
+        // p(q0) by a compiled tape (GiNaC's float evaluation would sum in its process-dependent
+        // term order), kept as the exact value of that double.
+        sym::InputMap in;
+        for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
+          in[sym::coordinate_symbol(system_coordinates[i])] = {sym::TapeInput::Source::q,
+                                                               static_cast<std::int32_t>(i)};
+        }
         for (std::size_t k = 0; k < 3; ++k) {
-          const ex v = p[k].subs(def.parameter_values()).subs(at).evalf();
-          if (!GiNaC::is_a<GiNaC::numeric>(v)) L.fail(o, "the point is not a function of q only");
-          origin[k] = GiNaC::ex_to<GiNaC::numeric>(v);  // a float: q0 itself is a double
+          double v = 0.0;
+          try {
+            const sym::Tape tape({p[k].subs(def.parameter_values()).expand()}, in);
+            tape.eval(0.0, q0.data(), nullptr, &v);
+          } catch (const Error&) {
+            L.fail(o, "the point is not a function of q only");
+          }
+          if (!std::isfinite(v)) L.fail(o, "the point is not finite at initial.q");
+          origin[k] = sym::exact_rational(v);
         }
       } else {
         origin = parse_list<3>(L, def, o);
@@ -634,6 +646,24 @@ std::shared_ptr<const Constraint> load_constraint_kind(
 void check_mass_matrix(const Loader& L, const Node& s, const Subsystem& sub, const Vec& q) {
   const std::string problem = sym::mass_matrix_problem(sub, q);
   if (!problem.empty()) L.fail(s, "at initial.q, " + problem);
+}
+
+ex parse_expression(const Loader& L, const sym::DefinitionScope& scope, const Node& n) {
+  return parse(L, scope, n);
+}
+
+void load_parameters(const Loader& L, const Node& parent, sym::DefinitionScope& scope) {
+  load_scope(L, parent, scope);
+}
+
+sym::Vec3Ex load_point_expression(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
+                                  const DefinitionContext& context) {
+  return load_point(L, n, scope, context);
+}
+
+ex load_time_function_expression(const Loader& L, const Node& n,
+                                 const sym::DefinitionScope& scope) {
+  return load_time_expression(L, n, scope);
 }
 
 }  // namespace ukdyn::io_detail

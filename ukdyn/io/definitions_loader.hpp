@@ -11,6 +11,8 @@
 #include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/model/constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
+#include "ukdyn/symbolic/chain.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -49,5 +51,15 @@ std::shared_ptr<const Constraint> load_constraint_kind(
 /// Fails at `s` if the subsystem's mass matrix is not positive definite at q (names the
 /// coordinate).
 void check_mass_matrix(const Loader& L, const Node& s, const Subsystem& sub, const Vec& q);
+
+// The pieces other loaders share (forces_loader.cpp): an expression (errors at its column), the
+// parameters: and let: of a node, a point (SUBSYSTEM.POINT or [x, y, z]), a time function.
+GiNaC::ex parse_expression(const Loader& L, const symbolic::DefinitionScope& scope, const Node& n);
+void load_parameters(const Loader& L, const Node& parent, symbolic::DefinitionScope& scope);
+symbolic::Vec3Ex load_point_expression(const Loader& L, const Node& n,
+                                       const symbolic::DefinitionScope& scope,
+                                       const DefinitionContext& context);
+GiNaC::ex load_time_function_expression(const Loader& L, const Node& n,
+                                        const symbolic::DefinitionScope& scope);
 
 }  // namespace ukdyn::io_detail

@@ -21,7 +21,7 @@ namespace ukdyn {
 
 const char* version() { return UKDYN_VERSION; }
 
-std::vector<std::string> trajectory_header(const System& system) {
+std::vector<std::string> trajectory_header(const System& system, bool energy_balance) {
   std::vector<std::string> h{"t"};
   const auto& names = system.coordinate_names();
   for (const auto& n : names) h.push_back(n);
@@ -30,6 +30,7 @@ std::vector<std::string> trajectory_header(const System& system) {
   for (const auto& n : names) h.push_back("Qc_" + n);
   for (const auto& r : system.constraint_row_names()) h.push_back("res_" + r);
   h.insert(h.end(), {"T", "V", "E", "rank", "free_dof", "sigma_min", "acc_residual"});
+  if (energy_balance) h.insert(h.end(), {"W", "E_balance"});  // W = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt
   return h;
 }
 
@@ -160,6 +161,8 @@ struct Observer {
   const std::atomic<bool>* cancel;
   std::vector<double> row;
   Vec phi, phid;
+  bool balance = false;
+  double balance0 = 0.0;
   bool first = true;
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
@@ -172,7 +175,13 @@ struct Observer {
     const double E = T + V;
     if (first) {
       rep.E0 = E;
+      balance0 = E - d.work;
       first = false;
+    }
+    if (balance) {
+      rep.energy_balance_drift =
+          std::max(rep.energy_balance_drift, std::abs(E - d.work - balance0));
+      rep.work_final = d.work;
     }
     rep.max_energy_drift = std::max(rep.max_energy_drift, std::abs(E - rep.E0));
     rep.max_T = std::max(rep.max_T, T);
@@ -207,6 +216,10 @@ struct Observer {
       row[k++] = 0.0;
     }
     row[k++] = d.result.residual;
+    if (balance) {
+      row[k++] = d.work;
+      row[k++] = E - d.work;
+    }
     try {
       csv->row(row);
     } catch (const Error& e) {
@@ -286,6 +299,10 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
   summary["energy"] = {{"E0", finite_or_null(rep.E0)},
                        {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
                        {"max_T", finite_or_null(rep.max_T)}};
+  if (rep.energy_balance) {
+    summary["energy_balance_drift"] = finite_or_null(rep.energy_balance_drift);
+    summary["energy"]["work_nonconservative_final"] = finite_or_null(rep.work_final);
+  }
   summary["rank"] = {{"min", rep.rank_min},
                      {"max", rep.rank_max},
                      {"rows", m},
@@ -333,7 +350,9 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   summary["status"] = "running";
   write_json(out, kSummary, summary);  // throws: then there is no summary at all
 
-  const auto header = trajectory_header(sys);
+  const bool balance = sc.sim.energy_balance;
+  rep.energy_balance = balance;
+  const auto header = trajectory_header(sys, balance);
   std::optional<CsvWriter> csv;
   try {
     csv.emplace(out, kCsv, header);
@@ -345,7 +364,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   if (csv) {
     Observer observer{
         sys,    rep,   &*csv, progress, options.cancel, std::vector<double>(header.size()),
-        Vec(m), Vec(m)};
+        Vec(m), Vec(m), balance};
     const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
     SimulationSettings settings = sc.sim;
     settings.cancel = options.cancel;

@@ -41,6 +41,9 @@ struct RunReport {
   std::vector<double> max_abs_velocity_residual;
   double max_acc_residual = 0.0;  ///< max ‖A q̈ − b‖ over samples
   double E0 = 0.0, max_energy_drift = 0.0, max_T = 0.0;
+  /// With SimulationSettings::energy_balance: max |(E − W) − (E − W)(t0)| and the final W.
+  double energy_balance_drift = 0.0, work_final = 0.0;
+  bool energy_balance = false;  ///< the run integrated W (SimulationSettings::energy_balance)
   int rank_min = 0, rank_max = 0;
   double sigma_min = 0.0;  ///< smallest kept singular value seen (pivot estimate)
 
@@ -58,8 +61,9 @@ struct WorstResidual {
 };
 WorstResidual worst_position_residual(const System& system, const RunReport& report);
 
-/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E.
-std::vector<std::string> trajectory_header(const System& system);
+/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E,
+/// diagnostics, and with `energy_balance` W and E_balance = E − W at the end.
+std::vector<std::string> trajectory_header(const System& system, bool energy_balance = false);
 
 /// Simulates the scenario into out_dir (created if needed; see output_dir.hpp for what ukdyn
 /// refuses and touches there). Throws OutputRefused for an output folder it will not use (nothing

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "ukdyn/io/definitions_loader.hpp"
+#include "ukdyn/io/forces_loader.hpp"
 #include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
@@ -371,20 +372,29 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
   }
 }
 
-// forces: tau.
-void load_forces(const Loader& L, const Node& root, Scenario& sc, Index n) {
-  sc.tau = Vec::Zero(n);
-  if (Node f = L.child(root, "forces", false); f.node.IsDefined()) {
-    L.only_keys(f, {"tau"});
-    if (Node t = L.child(f, "tau", false); t.node.IsDefined()) sc.tau = L.vector(t, n);
-  }
+// forces: tau (constant), and the state-dependent parameters / generalized / elements
+// (forces_loader.cpp), added to the system as one applied force. True if there is one.
+bool load_forces(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
+  System& system = *st.system;
+  sc.tau = Vec::Zero(system.dof());
+  const Node f = L.child(root, "forces", false);
+  if (!f.node.IsDefined()) return false;
+  L.only_keys(f, {"tau", "parameters", "generalized", "elements"});
+  if (Node t = L.child(f, "tau", false); t.node.IsDefined()) sc.tau = L.vector(t, system.dof());
+  std::vector<std::string> coords(static_cast<std::size_t>(system.dof()));
+  for (const auto& [cn, ci] : st.coord_index) coords[static_cast<std::size_t>(ci)] = cn;
+  auto force = io_detail::load_applied_forces(L, f, coords, *st.definition_context);
+  if (!force) return false;
+  system.add_applied_force(std::move(force));
+  return true;
 }
 
 // simulation: the time span, sampling, integrator, tolerances and drift control.
-void load_simulation(const Loader& L, const Node& root, Scenario& sc) {
+// applied: the system has state-dependent applied forces (energy balance on by default).
+void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
   const Node s = L.child(root, "simulation", true);
   L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                  "step", "initial_tolerance", "drift"});
+                  "step", "initial_tolerance", "drift", "energy_balance"});
   auto& sim = sc.sim;
   sim.t0 = L.number_or(s, "t0", 0.0);
   const Node te = L.child(s, "t_end", true);
@@ -409,14 +419,26 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc) {
       sim.integrator = IntegratorKind::rk4;
     } else if (kind == "rkf78") {
       sim.integrator = IntegratorKind::rkf78;
+    } else if (kind == "bdf") {
+      if (!bdf_available()) L.fail(in, "this ukdyn was built without SUNDIALS CVODE (bdf)");
+      sim.integrator = IntegratorKind::bdf;
     } else {
-      L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78 or rk4)");
+      L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78, rk4 or bdf)");
     }
   }
   if (Node ad = L.child(s, "adaptive", false); ad.node.IsDefined()) {
     const std::string v = L.string(ad);
     if (v != "true" && v != "false") L.fail(ad, "expected true or false");
     sim.adaptive = v == "true";
+    if (!sim.adaptive && sim.integrator == IntegratorKind::bdf)
+      L.fail(ad, "the bdf integrator is always adaptive");
+  }
+  // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
+  sim.energy_balance = applied;
+  if (Node eb = L.child(s, "energy_balance", false); eb.node.IsDefined()) {
+    const std::string v = L.string(eb);
+    if (v != "true" && v != "false") L.fail(eb, "expected true or false");
+    sim.energy_balance = v == "true";
   }
   if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
     L.only_keys(dr, {"method", "alpha", "beta"});
@@ -533,8 +555,8 @@ Scenario load_scenario_unguarded(const std::string& text, const std::filesystem:
   load_subsystems(L, root, gravity, sc, st);
   load_initial(L, root, sc, st);
   load_constraints(L, root, sc, st);
-  load_forces(L, root, sc, st.system->dof());
-  load_simulation(L, root, sc);
+  const bool applied = load_forces(L, root, sc, st);
+  load_simulation(L, root, sc, applied);
   load_solver(L, root, sc);
   if (options.check_initial) check_initial_state(L, st, sc);
   sc.system = st.system;

@@ -35,6 +35,11 @@ Index System::add_constraint(std::shared_ptr<const Constraint> constraint) {
   return first;
 }
 
+void System::add_applied_force(std::shared_ptr<const AppliedForce> force) {
+  if (!force) throw Error("System::add_applied_force: null force");
+  applied_.push_back(std::move(force));
+}
+
 ForwardData::ForwardData(const System& system)
     : M(Mat::Zero(system.dof(), system.dof())),
       Cqd(Vec::Zero(system.dof())),
@@ -71,10 +76,18 @@ void evaluate_constraints(const System& system, ForwardData& data, double t, CVe
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings) {
   evaluate_dynamics(system, data, q, qd);
-  // Q = τ − C q̇ − G, paper Eq. (11).
-  data.Q = tau - data.Cqd - data.G;
+  generalized_forces(system, data, t, q, qd, tau);
   evaluate_constraints(system, data, t, q, qd);
   data.result = uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc, settings);
+}
+
+void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                        CVecRef tau) {
+  // Q = τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces.
+  data.Q = tau - data.Cqd - data.G;
+  double power = tau.dot(qd);
+  for (const auto& f : system.applied_forces()) power += f->add_to(t, q, qd, data.Q);
+  data.applied_power = power;
 }
 
 void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C) {
@@ -112,6 +125,7 @@ double potential_energy(const System& system, CVecRef q) {
   double V = 0.0;
   for (std::size_t k = 0; k < subs.size(); ++k)
     V += subs[k]->potential(q.segment(L.start[k], L.size[k]));
+  for (const auto& f : system.applied_forces()) V += f->potential(q);
   return V;
 }
 

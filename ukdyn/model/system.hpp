@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "ukdyn/core/uk_solve.hpp"
+#include "ukdyn/model/applied_force.hpp"
 #include "ukdyn/model/constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
 
@@ -19,6 +20,8 @@ class System {
   Index add_subsystem(std::shared_ptr<const Subsystem> subsystem);
   /// Appends a block of constraint rows. Returns its first row.
   Index add_constraint(std::shared_ptr<const Constraint> constraint);
+  /// Adds an applied force Q_a(t, q, q̇) over all coordinates (applied_force.hpp).
+  void add_applied_force(std::shared_ptr<const AppliedForce> force);
 
   [[nodiscard]] Index dof() const { return dof_; }
   [[nodiscard]] Index rows() const { return rows_; }
@@ -30,12 +33,16 @@ class System {
     return constraints_;
   }
   [[nodiscard]] const std::vector<Index>& constraint_row_offsets() const { return row_offsets_; }
+  [[nodiscard]] const std::vector<std::shared_ptr<const AppliedForce>>& applied_forces() const {
+    return applied_;
+  }
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const { return coord_names_; }
   [[nodiscard]] const std::vector<std::string>& constraint_row_names() const { return row_names_; }
 
  private:
   std::vector<std::shared_ptr<const Subsystem>> subsystems_;
   std::vector<std::shared_ptr<const Constraint>> constraints_;
+  std::vector<std::shared_ptr<const AppliedForce>> applied_;
   std::vector<Index> row_offsets_;
   std::vector<std::string> coord_names_;
   std::vector<std::string> row_names_;
@@ -51,20 +58,28 @@ struct ForwardData {
   Mat M;    ///< n × n, block-diagonal
   Vec Cqd;  ///< C(q, q̇) q̇
   Vec G;    ///< gravity
-  Vec Q;    ///< τ − C q̇ − G, paper Eq. (11)
+  Vec Q;    ///< τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces Q_a
   Mat A;    ///< m × n, constraint rows stacked
   Vec b;    ///< m
   Vec Qc;   ///< constraint force, paper Eq. (4)
   Vec qdd;  ///< q̈ = M^{-1}(Q + Qc), paper Eq. (18)
   UkWorkspace uk;
   UkResult result;
+  /// (τ + Q_nc)ᵀ q̇: the power of τ and of the non-conservative part of the applied forces.
+  double applied_power = 0.0;
+  /// W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt, set by simulate() at samples when energy_balance is on.
+  double work = 0.0;
 };
 
 /// Forward dynamics of the constrained system at (t, q, q̇) with applied forces τ:
-///   mass blocks → Q = τ − C q̇ − G → A, b → U-K solve → q̈, Qc.   Allocation-free.
+///   mass blocks → Q = τ + Q_a − C q̇ − G → A, b → U-K solve → q̈, Qc.   Allocation-free.
 /// If M is not positive definite, data.result.finite is false and q̈ is NaN.
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings = {});
+
+/// data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and data.applied_power.
+void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                        CVecRef tau);
 
 /// Only M, C q̇, G (no constraints), into data.
 void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);
@@ -80,7 +95,7 @@ void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, V
 
 /// Kinetic energy ½ q̇ᵀ M q̇ (M from data.M, already evaluated at q).
 double kinetic_energy(const ForwardData& data, CVecRef qd);
-/// Potential energy Σ V_k(q).
+/// Potential energy Σ V_k(q) of the subsystems plus the potentials of the applied forces.
 double potential_energy(const System& system, CVecRef q);
 
 }  // namespace ukdyn

@@ -6,6 +6,8 @@
 #include <limits>
 #include <vector>
 
+#include "ukdyn/simulate/implicit.hpp"
+
 namespace ukdyn {
 
 std::string to_string(RunStatus status) {
@@ -32,9 +34,13 @@ std::string to_string(IntegratorKind kind) {
       return "dopri5";
     case IntegratorKind::rkf78:
       return "rkf78";
+    case IntegratorKind::bdf:
+      return "bdf";
   }
   return "unknown";
 }
+
+bool bdf_available() { return detail::cvode_available(); }
 
 std::string to_string(DriftControl kind) {
   switch (kind) {
@@ -82,7 +88,7 @@ struct Rhs {
       return;
     }
     evaluate_dynamics(system, d, q, qd);
-    d.Q = tau - d.Cqd - d.G;  // paper Eq. (11)
+    generalized_forces(system, d, t, q, qd, tau);  // paper Eq. (11), with the applied forces
     evaluate_constraints(system, d, t, q, qd);
     position_residuals(system, t, q, phi);
     velocity_residuals(system, t, q, qd, phid);
@@ -91,13 +97,17 @@ struct Rhs {
     d.result = uk_solve(d.M, d.A, d.b, d.Q, d.uk, d.qdd, d.Qc, s.uk);
   }
 
-  void operator()(const State& x, State& dxdt, double t) {
-    const Eigen::Map<const Vec> q(x.data(), n);
-    const Eigen::Map<const Vec> qd(x.data() + n, n);
+  void operator()(const State& x, State& dxdt, double t) { eval_raw(x.data(), dxdt.data(), t); }
+
+  void eval_raw(const double* x, double* dxdt, double t) {
+    const Eigen::Map<const Vec> q(x, n);
+    const Eigen::Map<const Vec> qd(x + n, n);
     eval(q, qd, t, data);
     ++evaluations;
-    Eigen::Map<Vec>(dxdt.data(), n) = qd;
-    Eigen::Map<Vec>(dxdt.data() + n, n) = data.qdd;
+    Eigen::Map<Vec>(dxdt, n) = qd;
+    Eigen::Map<Vec>(dxdt + n, n) = data.qdd;
+    // Energy balance: Ẇ = (τ + Q_nc + Qc)ᵀ q̇ as state 2n.
+    if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd);
   }
 };
 
@@ -198,7 +208,7 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
   Rhs rhs(system, tau, s);
   Projector projector(system, s.drift, s.uk);
   const bool project = s.drift.kind == DriftControl::projection && system.rows() > 0;
-  State x(static_cast<std::size_t>(2 * n));
+  State x(static_cast<std::size_t>(2 * n + (s.energy_balance ? 1 : 0)), 0.0);  // [q; q̇; W]
   Eigen::Map<Vec>(x.data(), n) = q0;
   Eigen::Map<Vec>(x.data() + n, n) = qd0;
   State x_out(x.size());
@@ -216,6 +226,7 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
     const Eigen::Map<const Vec> q(xs.data(), n);
     const Eigen::Map<const Vec> qd(xs.data() + n, n);
     rhs.eval(q, qd, t, sample_data);
+    sample_data.work = s.energy_balance ? xs[static_cast<std::size_t>(2 * n)] : 0.0;
     ++stats.samples;
     stats.t_reached = t;
     const UkResult& r = sample_data.result;
@@ -309,6 +320,26 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
   if (!observe(s.t0, x)) return finish();
 
   try {
+    if (s.integrator == IntegratorKind::bdf) {
+      // Implicit BDF (SUNDIALS CVODE, implicit.hpp): same right-hand side, projection and samples.
+      detail::ImplicitProblem p;
+      p.size = x.size();
+      p.rhs = [&](double t, const double* xs, double* dx) { rhs.eval_raw(xs, dx, t); };
+      if (project) {
+        p.project = [&](double t, double* xs) { projector.project(t, xs, stats.projections); };
+      }
+      p.observe = [&](double t, State& xs) { return observe(t, xs); };
+      p.sample_time = sample_time;
+      p.total_samples = total_samples;
+      const auto r = detail::integrate_bdf(p, x, s.t0, s);
+      stats.steps = r.steps;
+      stats.rejected_steps = r.error_test_failures + r.nonlinear_failures;
+      if (r.failed && stats.status == RunStatus::completed) {
+        stats.status = RunStatus::step_failure;
+        stats.message = r.message;
+      }
+      return finish();
+    }
     if (fixed) {
       // Fixed step: rk4, or the dopri5 / rkf78 schemes with a constant step (for order studies).
       odeint::runge_kutta4<State> rk4;
@@ -331,6 +362,8 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
               break;
             case IntegratorKind::rkf78:
               f78.do_step(std::ref(rhs), x, t, h);
+              break;
+            case IntegratorKind::bdf:  // handled above (always adaptive)
               break;
           }
           ++k;

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "ukdyn/symbolic/canonical.hpp"
+
 namespace ukdyn::symbolic {
 
 using GiNaC::ex;
@@ -22,7 +24,7 @@ ex exact_number(double v) {
     }
   } catch (const ExpressionError&) {
   }
-  return GiNaC::numeric(v);
+  return exact_rational(v);  // exact, never a float (canonical.hpp)
 }
 
 ex cosine_expression(const ex& mean, const ex& amplitude, const ex& omega, const ex& phase) {

@@ -7,6 +7,8 @@
 #include <set>
 #include <sstream>
 
+#include "ukdyn/symbolic/canonical.hpp"
+
 namespace ukdyn::symbolic {
 
 namespace {
@@ -75,9 +77,9 @@ ex DefinitionScope::parameter(const std::string& name, double value) {
   ex v;
   try {
     v = Scope().parse(os.str());
-    if (std::abs(*real_value(v) - value) > 1e-15 * std::abs(value)) v = GiNaC::numeric(value);
+    if (std::abs(*real_value(v) - value) > 1e-15 * std::abs(value)) v = exact_rational(value);
   } catch (const ExpressionError&) {
-    v = GiNaC::numeric(value);
+    v = exact_rational(value);  // exact, never a float (canonical.hpp)
   }
   return parameter(name, v);
 }

@@ -6,6 +6,7 @@
 #include <map>
 #include <sstream>
 
+#include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 
 namespace ukdyn::symbolic {
@@ -157,10 +158,11 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
     id = emit(op, in.index, 0, 0.0);
   } else if (is_a<GiNaC::add>(e)) {
     // Σ terms: numeric coefficients become mul_c, a coefficient −1 a subtraction.
+    // The terms in a structural order, not GiNaC's (address-seeded) one: the sum's rounding is the
+    // same in every process.
     std::int32_t acc = -1;
     double offset = 0.0;
-    for (std::size_t i = 0; i < e.nops(); ++i) {
-      const ex term = e.op(i);
+    for (const ex& term : order_->sorted_operands(e)) {
       if (is_a<GiNaC::numeric>(term)) {
         offset += to_double(term);
         continue;
@@ -187,8 +189,7 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
   } else if (is_a<GiNaC::mul>(e)) {
     double c = 1.0;
     std::int32_t num = -1, den = -1;
-    for (std::size_t i = 0; i < e.nops(); ++i) {
-      const ex f = e.op(i);
+    for (const ex& f : order_->sorted_operands(e)) {  // structural order, as for sums
       if (is_a<GiNaC::numeric>(f)) {
         c *= to_double(f);
         continue;
@@ -256,9 +257,11 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
 
 Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {
   out_.reserve(outputs.size());
+  order_ = std::make_shared<StructuralOrder>();
   for (const ex& e : outputs) out_.push_back(compile(e, inputs));
   numbering_.clear();
   memo_.clear();
+  order_.reset();
   fuse_sin_cos();
   fuse_products();
   // What eval() runs: loads and constants by plain loops first (no dispatch), then the

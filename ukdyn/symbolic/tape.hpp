@@ -17,6 +17,7 @@
 namespace ukdyn::symbolic {
 
 class CubicSpline;
+class StructuralOrder;
 
 /// Where a symbol's value comes from when the tape runs.
 struct TapeInput {
@@ -131,6 +132,8 @@ class Tape {
   };
   std::map<Key, std::int32_t> numbering_;  // only used while compiling
   std::map<GiNaC::ex, std::int32_t, GiNaC::ex_is_less> memo_;
+  // Operands of sums and products in a process-independent order (canonical.hpp); compiling only.
+  std::shared_ptr<StructuralOrder> order_;
 };
 
 }  // namespace ukdyn::symbolic

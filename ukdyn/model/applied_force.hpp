@@ -1,0 +1,26 @@
+// Applied generalized forces Q_a(t, q, q̇) that depend on the state: dampers, springs between
+// points, joint friction, drive torques, feedback laws. The System adds them in forward():
+//   Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G   (paper Eq. (11) with the applied forces).
+// A force may have a conservative part Q = −∂V_a/∂q with a potential V_a(q) (a spring between
+// points fixed in time); V_a is then counted in the potential energy, and only the rest does work
+// in the energy balance E − W_nc (simulate.hpp, SimulationSettings::energy_balance).
+#pragma once
+
+#include <string>
+
+#include "ukdyn/model/subsystem.hpp"
+
+namespace ukdyn {
+
+class AppliedForce {
+ public:
+  virtual ~AppliedForce() = default;
+  [[nodiscard]] virtual const std::string& name() const = 0;
+  /// Adds Q_a(t, q, q̇) (all n system coordinates) to Q. Returns the power of its
+  /// non-conservative part, Q_ncᵀ q̇ (everything but −∂V_a/∂q). Allocation-free.
+  virtual double add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const = 0;
+  /// The potential V_a(q) of the conservative part (0 if it has none).
+  [[nodiscard]] virtual double potential(CVecRef q) const = 0;
+};
+
+}  // namespace ukdyn
