@@ -121,6 +121,25 @@ TEST(NFourBar, RegularizedSolveStaysOnBranchAndIsReported) {
   EXPECT_GT(r.stats.max_correction_ratio, 1.0);
 }
 
+// The provoked wrong-branch run (issue 9): exact solve with a tiny rank_tol. Whether it turns onto
+// another branch depends on round-off (docs/singular-positions.md), but it must never do so
+// silently: off the branch, a branch_switch or step_collapse warning must be there.
+TEST(NFourBar, WrongBranchIsNeverSilent) {
+  ukdyn::UkSettings uk;
+  uk.rank_rel_tol = 1e-14;
+  const RunResult r = run("scenarios/benchmarks/n_four_bar_N2.yaml", 10.0, &uk);
+  bool warned = false;
+  for (const auto& w : r.stats.warnings) {
+    warned = warned || w.kind == "branch_switch" || w.kind == "step_collapse";
+  }
+  if (r.max_branch > 1e-6) {
+    EXPECT_TRUE(warned || r.stats.status != ukdyn::RunStatus::completed)
+        << "silent branch switch, max |phi_i - phi_0| = " << r.max_branch;
+  } else if (r.stats.status == ukdyn::RunStatus::completed) {
+    EXPECT_LT(r.max_b0_error, 1e-6);
+  }
+}
+
 // on_branch_switch: stop ends the run with status branch_switch at the first such correction.
 TEST(NFourBar, BranchSwitchCanStopTheRun) {
   using namespace ukdyn;

@@ -5,6 +5,7 @@
 #include <Eigen/SVD>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <vector>
 
@@ -170,6 +171,12 @@ bool finite_state(const State& x) {
   return true;
 }
 
+std::string sci(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", v);
+  return buf;
+}
+
 // Why a step failed (issue 15 class 5): evaluated at the state where the step control gave up, on
 // the failure path only (allocates). Names the cause and the coordinates / constraint rows
 // involved, or returns "" when neither M nor A is singular there.
@@ -199,9 +206,8 @@ std::string diagnose_singularity(const System& system, double t, const State& x,
   const double ev_min = es.eigenvalues()(0), ev_max = es.eigenvalues()(n - 1);
   if (!(ev_min > 1e-8 * std::max(ev_max, 0.0))) {
     return "the mass matrix is (nearly) singular at t = " + std::to_string(t) +
-           ": smallest eigenvalue " + std::to_string(ev_min) + " of largest " +
-           std::to_string(ev_max) + ", in coordinates [" + names(cn, es.eigenvectors().col(0)) +
-           "]";
+           ": smallest eigenvalue " + sci(ev_min) + " of largest " + sci(ev_max) +
+           ", in coordinates [" + names(cn, es.eigenvectors().col(0)) + "]";
   }
   if (system.rows() == 0) return "";
   evaluate_constraints(system, d, t, q, qd);
@@ -216,9 +222,8 @@ std::string diagnose_singularity(const System& system, double t, const State& x,
   const double ratio = sv(k) / sv(0);
   if (ratio > 1e3 * uk.rank_rel_tol) return "";
   return "the constraints are near a singular position at t = " + std::to_string(t) +
-         ": a singular value of A M^-1/2 is " + std::to_string(ratio) +
-         " of the largest (rank_tol " + std::to_string(uk.rank_rel_tol) + "), in rows [" +
-         names(rn, svd.matrixU().col(k)) + "]";
+         ": a singular value of A M^-1/2 is " + sci(ratio) + " of the largest (rank_tol " +
+         sci(uk.rank_rel_tol) + "), in rows [" + names(rn, svd.matrixU().col(k)) + "]";
 }
 
 }  // namespace
@@ -454,6 +459,15 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
         if (stats.min_step == 0.0 || t - t_old < stats.min_step) {
           stats.min_step = t - t_old;
           stats.min_step_t = t;
+        }
+        // An accepted step this short means the error control resolved a violent change of the
+        // motion; at a singular position that is how a run turns onto another assembly branch
+        // while every residual stays at round-off (docs/singular-positions.md).
+        if (t - t_old < 1e-10 * std::max(1.0, std::abs(t))) {
+          warn(t, "step_collapse",
+               "an accepted step of " + sci(t - t_old) + " s at t = " + std::to_string(t) +
+                   ": the motion changed violently there (near a singular position this is how "
+                   "a run switches assembly branch); check the result");
         }
         // Samples inside (t_old, t]: interpolate with the step's dense output.
         while (i < total_samples && sample_time(i) <= t) {
