@@ -22,7 +22,8 @@ UkWorkspace::UkWorkspace(const BlockLayout& block_layout, Index m)
       piv(static_cast<std::size_t>(m), 0),
       r(m),
       lambda(m),
-      tmp_m(m) {}
+      tmp_m(m),
+      row_scale(m) {}
 
 namespace {
 
@@ -410,9 +411,37 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   // round-off) and D_0 = max diag W = max D. A pivot is kept while D_k > rel_tol² · D_0; the
   // factorisation stops at the first one that is not: what remains is round-off of redundant rows,
   // and those rows get λ = 0 in the basic solution below.
+  //
+  // Regularized method: the same factorisation of W + μ I, μ = ε² max diag W (ε =
+  // settings.regularization). Every pivot is then ≥ μ in exact arithmetic, so none is dropped
+  // (the cut-off is μ/2, against round-off) and λ = (W + μ I)^{-1} r is continuous in W. The
+  // reported rank counts the pivots with D_k − μ > rank_tol² (D_0 − μ), as the exact method would.
   const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
+  double mu = 0.0;
+  double* dsc = ws.row_scale.data();
+  const bool equilibrate = settings.method == UkMethod::equilibrated;
+  if (equilibrate) {
+    // Ŵ = D W D with D_ii = W_ii^{-1/2}: unit diagonal; r̂ = D r; λ = D λ̂ below.
+    double w_max = 0.0;
+    for (Index i = 0; i < m; ++i) w_max = std::max(w_max, W[i + i * ldw]);
+    const double floor2 = settings.row_floor * settings.row_floor * w_max;
+    for (Index i = 0; i < m; ++i) {
+      const double wi = W[i + i * ldw];
+      dsc[i] = wi > floor2 && wi > 0.0 ? 1.0 / std::sqrt(wi) : 0.0;
+    }
+    for (Index j = 0; j < m; ++j) {
+      const double dj = dsc[j];
+      double* wj = W + j * ldw;
+      for (Index i = j; i < m; ++i) wj[i] *= dsc[i] * dj;
+    }
+  } else if (settings.method == UkMethod::regularized) {
+    double w_max = 0.0;
+    for (Index i = 0; i < m; ++i) w_max = std::max(w_max, W[i + i * ldw]);
+    mu = settings.regularization * settings.regularization * w_max;
+    for (Index i = 0; i < m; ++i) W[i + i * ldw] += mu;
+  }
   double d_max = 0.0, cutoff = 0.0, d_min_kept = std::numeric_limits<double>::infinity();
-  Index rank = 0;
+  Index rank = 0, kept = 0;
   for (Index k = 0; k < m; ++k) {
     Index p = k;
     double dp = W[k + k * ldw];
@@ -424,7 +453,7 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     }
     if (k == 0) {
       d_max = std::max(dp, 0.0);
-      cutoff = tol2 * d_max;
+      cutoff = mu > 0.0 ? 0.5 * mu : tol2 * d_max;
     }
     if (!(d_max > 0.0 && dp > cutoff)) break;
     piv[k] = p;
@@ -447,28 +476,38 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       double* colj = W + j * ldw;
       for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
     }
-    d_min_kept = std::min(d_min_kept, dp);
-    ++rank;
+    if (dp - mu > tol2 * (d_max - mu)) {
+      d_min_kept = std::min(d_min_kept, dp - mu);
+      ++rank;
+    }
+    ++kept;
   }
 
   // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r. Only the leading rank × rank part of
   // L and D enters (the components past the rank are 0), so stopping early changes nothing.
-  for (Index i = 0; i < m; ++i) lam[i] = r[i];
-  for (Index k = 0; k < rank; ++k) std::swap(lam[k], lam[piv[k]]);
-  for (Index i = 0; i < rank; ++i) {
+  if (equilibrate) {
+    for (Index i = 0; i < m; ++i) lam[i] = dsc[i] * r[i];
+  } else {
+    for (Index i = 0; i < m; ++i) lam[i] = r[i];
+  }
+  for (Index k = 0; k < kept; ++k) std::swap(lam[k], lam[piv[k]]);
+  for (Index i = 0; i < kept; ++i) {
     double s = lam[i];
     for (Index k = 0; k < i; ++k) s -= W[i + k * ldw] * lam[k];
     lam[i] = s;
   }
-  for (Index i = 0; i < rank; ++i) lam[i] /= W[i + i * ldw];
-  for (Index i = rank; i < m; ++i) lam[i] = 0.0;
-  for (Index i = rank - 1; i >= 0; --i) {
+  for (Index i = 0; i < kept; ++i) lam[i] /= W[i + i * ldw];
+  for (Index i = kept; i < m; ++i) lam[i] = 0.0;
+  for (Index i = kept - 1; i >= 0; --i) {
     double s = lam[i];
     const double* coli = W + i * ldw;
-    for (Index k = i + 1; k < rank; ++k) s -= coli[k] * lam[k];
+    for (Index k = i + 1; k < kept; ++k) s -= coli[k] * lam[k];
     lam[i] = s;
   }
-  for (Index k = rank - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
+  for (Index k = kept - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
+  if (equilibrate) {
+    for (Index i = 0; i < m; ++i) lam[i] *= dsc[i];
+  }
 
   // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = M^{-1}(Q + Qc), paper Eq. (18),
   // as q̈ = L^{-ᵀ}(L^{-1} Q + L^{-1} Aᵀ λ) = L^{-ᵀ}(y + X λ).
@@ -488,7 +527,7 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   substitute_blocks<false, NB>(ws, q);
 
   res.rank = static_cast<int>(rank);
-  res.sigma_max = std::sqrt(d_max);
+  res.sigma_max = std::sqrt(std::max(d_max - mu, 0.0));
   res.sigma_min_kept = rank > 0 ? std::sqrt(d_min_kept) : 0.0;
 
   // The honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness flags
@@ -505,7 +544,15 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   for (Index j = 0; j < n; ++j) q2 += q[j] * q[j];
   res.residual = std::sqrt(r2);
   const double scale = std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0;
-  res.consistent = res.residual <= settings.consistency_rel_tol * scale;
+  // Regularized: A q̈ − b = −μ λ exactly; a consistent direction with σ ~ √μ leaves at most
+  // ~ ε/2 ‖r‖ of it, a contradiction (σ = 0) all of its part of r. Tolerated: 1e3 ε ‖r‖.
+  double band = 0.0;
+  if (mu > 0.0) {
+    double rn2 = 0.0;
+    for (Index i = 0; i < m; ++i) rn2 += r[i] * r[i];
+    band = 1e3 * settings.regularization * std::sqrt(rn2);
+  }
+  res.consistent = res.residual <= settings.consistency_rel_tol * scale + band;
   res.finite = all_finite(q, n) && all_finite(qc, n) && std::isfinite(res.residual);
   return res;
 }

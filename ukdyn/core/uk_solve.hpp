@@ -24,8 +24,32 @@
 
 namespace ukdyn {
 
+/// How λ is found from W λ = r (W = A M^{-1}Aᵀ, docs/singular-positions.md):
+///  equilibrated: the pseudo-inverse of Eq. (4) for the rows scaled to unit length in
+///    the metric of M^{-1} (Ŵ = D W D, D = diag(W_ii^{-1/2}), λ = D Ŵ⁺ D r). Scaling rows does not
+///    change the constraint set, so for a consistent set Qc is the same as exact's; but a row whose
+///    gradient shrinks towards a singular position (the N-four-bar's x rows at the flat positions)
+///    keeps its full weight in the rank decision instead of being cut off once its norm falls under
+///    rank_tol of the others, so q̈ stays continuous through the rank change. Rows shorter than
+///    row_floor of the longest (round-off of a vanishing gradient) are dropped.
+///  exact (default): the pseudo-inverse with the rank cut-off rank_rel_tol on W itself.
+///  regularized: (W + μ I) λ = r, μ = regularization² · max diag W (damped, Tikhonov; continuous,
+///    but the force of a direction with σ < √μ is lost). The drift projection uses it.
+enum class UkMethod { equilibrated, exact, regularized };
+inline const char* to_string(UkMethod m) {
+  return m == UkMethod::equilibrated ? "equilibrated"
+         : m == UkMethod::exact      ? "exact"
+                                     : "regularized";
+}
+
 struct UkSettings {
-  /// Relative tolerance on the singular values of A M^{-1/2} below which a direction is dropped.
+  UkMethod method = UkMethod::exact;
+  /// regularized: √μ relative to the largest singular value of A M^{-1/2}.
+  double regularization = 1e-4;
+  /// equilibrated: rows with ‖A_i M^{-1/2}‖ under row_floor · max_j ‖A_j M^{-1/2}‖ are dropped.
+  double row_floor = 1e-13;
+  /// Relative tolerance on the singular values of A M^{-1/2} below which a direction is dropped
+  /// (exact), or not counted in the reported rank (regularized).
   double rank_rel_tol = 1e-7;
   /// ‖A q̈ − b‖ above consistency_rel_tol · (‖b‖ + ‖A‖_∞ ‖q̈‖ + 1) flags the set as inconsistent.
   double consistency_rel_tol = 1e-8;
@@ -70,6 +94,7 @@ struct UkWorkspace {
   Vec r;                   ///< b − A a
   Vec lambda;              ///< W λ = r (basic solution)
   Vec tmp_m;               ///< scratch (m)
+  Vec row_scale;           ///< equilibrated: D_ii = W_ii^{-1/2} (0 for a dropped row)
 };
 
 /// Factors M per block (Cholesky, L_k L_kᵀ) into ws.L. Returns false if a block is not positive

@@ -273,6 +273,11 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
   summary["steps"] = rep.stats.steps;
   summary["rejected_steps"] = rep.stats.rejected_steps;
   summary["projection_iterations"] = rep.stats.projections;
+  // Branch check (docs/singular-positions.md): the drift projection's largest corrections, and
+  // the largest ratio of a position correction to what the integration error explains.
+  summary["max_projection_correction"] = {{"position", rep.stats.max_position_correction},
+                                          {"velocity", rep.stats.max_velocity_correction},
+                                          {"ratio_to_bound", rep.stats.max_correction_ratio}};
   nlohmann::json warnings = nlohmann::json::array();
   for (const auto& w : rep.stats.warnings) {
     warnings.push_back({{"t", w.t}, {"kind", w.kind}, {"message", w.message}});

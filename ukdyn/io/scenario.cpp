@@ -441,7 +441,18 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     sim.energy_balance = v == "true";
   }
   if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
-    L.only_keys(dr, {"method", "alpha", "beta"});
+    L.only_keys(dr, {"method", "alpha", "beta", "branch_factor", "on_branch_switch"});
+    // The branch check of the projection (docs/singular-positions.md).
+    if (Node bf = L.child(dr, "branch_factor", false); bf.node.IsDefined()) {
+      sim.drift.branch_factor = L.number(bf);
+      if (!(sim.drift.branch_factor >= 1.0 && sim.drift.branch_factor <= 1e12))
+        L.fail(bf, "must lie in [1, 1e12]");
+    }
+    if (Node ob = L.child(dr, "on_branch_switch", false); ob.node.IsDefined()) {
+      const std::string v = L.string(ob);
+      if (v != "warn" && v != "stop") L.fail(ob, "expected warn or stop");
+      sim.drift.stop_on_branch_switch = v == "stop";
+    }
     const Node mn = L.child(dr, "method", true);
     const std::string method = L.string(mn);
     if (method == "none") {
@@ -490,7 +501,25 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
 // solver: the rank and consistency tolerances of the Udwadia-Kalaba solve.
 void load_solver(const Loader& L, const Node& root, Scenario& sc) {
   if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
-    L.only_keys(s, {"rank_tol", "consistency_tol"});
+    L.only_keys(s, {"rank_tol", "consistency_tol", "method", "regularization"});
+    // solver.method / solver.regularization: docs/singular-positions.md (added by H4).
+    if (Node mt = L.child(s, "method", false); mt.node.IsDefined()) {
+      const std::string method = L.string(mt);
+      if (method == "regularized") {
+        sc.sim.uk.method = UkMethod::regularized;
+      } else if (method == "exact") {
+        sc.sim.uk.method = UkMethod::exact;
+      } else {
+        L.fail(mt, "unknown solver method '" + method + "' (expected exact or regularized)");
+      }
+    }
+    if (Node rg = L.child(s, "regularization", false); rg.node.IsDefined()) {
+      sc.sim.uk.regularization = L.number(rg);
+      if (!(sc.sim.uk.regularization >= 1e-14 && sc.sim.uk.regularization <= 1e-2))
+        L.fail(rg, "must lie in [1e-14, 1e-2]");
+      if (sc.sim.uk.method != UkMethod::regularized)
+        L.fail(rg, "only used with method: regularized");
+    }
     if (Node r = L.child(s, "rank_tol", false); r.node.IsDefined()) {
       sc.sim.uk.rank_rel_tol = L.number(r);
       if (!(sc.sim.uk.rank_rel_tol > 0 && sc.sim.uk.rank_rel_tol < 1))

@@ -1,8 +1,11 @@
 #include "ukdyn/simulate/simulate.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/QR>
+#include <Eigen/SVD>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <vector>
 
@@ -22,6 +25,8 @@ std::string to_string(RunStatus status) {
       return "step_failure";
     case RunStatus::stopped:
       return "stopped";
+    case RunStatus::branch_switch:
+      return "branch_switch";
   }
   return "unknown";
 }
@@ -121,6 +126,7 @@ struct Projector {
   ForwardData data;
   Vec phi, zero_Q, delta, Qc_scratch;
   Index n;
+  double last_dq = 0.0, last_dqd = 0.0;  ///< Σ max|Δq| and max|Δq̇| of the last project()
 
   Projector(const System& sys, const DriftSettings& d, const UkSettings& u)
       : system(sys),
@@ -139,12 +145,14 @@ struct Projector {
     Eigen::Map<Vec> qd(x + n, n);
     position_residuals(system, t, q, phi);
     double r = phi.cwiseAbs().maxCoeff();
+    last_dq = 0.0;
     for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
       evaluate_dynamics(system, data, q, qd);
       evaluate_constraints(system, data, t, q, qd);
       phi = -phi;
       uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
       q += delta;
+      last_dq += delta.cwiseAbs().maxCoeff();
       ++iterations;
       position_residuals(system, t, q, phi);
       const double r_new = phi.cwiseAbs().maxCoeff();
@@ -161,6 +169,7 @@ struct Projector {
     phi = -phi;
     uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
     qd += delta;
+    last_dqd = delta.cwiseAbs().maxCoeff();
     return r;
   }
 };
@@ -170,6 +179,61 @@ bool finite_state(const State& x) {
     if (!std::isfinite(v)) return false;
   }
   return true;
+}
+
+std::string sci(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", v);
+  return buf;
+}
+
+// Why a step failed (issue 15 class 5): evaluated at the state where the step control gave up, on
+// the failure path only (allocates). Names the cause and the coordinates / constraint rows
+// involved, or returns "" when neither M nor A is singular there.
+std::string diagnose_singularity(const System& system, double t, const State& x,
+                                 const UkSettings& uk) {
+  const Index n = system.dof();
+  const Eigen::Map<const Vec> q(x.data(), n);
+  const Eigen::Map<const Vec> qd(x.data() + n, n);
+  ForwardData d(system);
+  evaluate_dynamics(system, d, q, qd);
+  const auto& cn = system.coordinate_names();
+  const auto& rn = system.constraint_row_names();
+  auto names = [](const std::vector<std::string>& all, const Vec& v) {
+    std::string out;
+    const double vmax = v.cwiseAbs().maxCoeff();
+    for (Index i = 0; i < v.size(); ++i) {
+      if (std::abs(v(i)) >= 0.3 * vmax && static_cast<std::size_t>(i) < all.size()) {
+        out += (out.empty() ? "" : ", ") + all[static_cast<std::size_t>(i)];
+      }
+    }
+    return out;
+  };
+  Eigen::SelfAdjointEigenSolver<Mat> es(0.5 * (d.M + d.M.transpose()));
+  if (es.info() != Eigen::Success || !d.M.allFinite()) {
+    return "the mass matrix is not finite at t = " + std::to_string(t);
+  }
+  const double ev_min = es.eigenvalues()(0), ev_max = es.eigenvalues()(n - 1);
+  if (!(ev_min > 1e-8 * std::max(ev_max, 0.0))) {
+    return "the mass matrix is (nearly) singular at t = " + std::to_string(t) +
+           ": smallest eigenvalue " + sci(ev_min) + " of largest " + sci(ev_max) +
+           ", in coordinates [" + names(cn, es.eigenvectors().col(0)) + "]";
+  }
+  if (system.rows() == 0) return "";
+  evaluate_constraints(system, d, t, q, qd);
+  const Mat Mih = es.eigenvectors() * es.eigenvalues().cwiseSqrt().cwiseInverse().asDiagonal() *
+                  es.eigenvectors().transpose();
+  Eigen::JacobiSVD<Mat> svd(d.A * Mih, Eigen::ComputeFullU);
+  const Vec& sv = svd.singularValues();
+  if (sv.size() == 0 || !(sv(0) > 0.0)) return "";
+  // The smallest singular value above round-off of redundant rows, and the rows of its direction.
+  Index k = sv.size() - 1;
+  while (k > 0 && sv(k) <= 1e-14 * sv(0)) --k;
+  const double ratio = sv(k) / sv(0);
+  if (ratio > 1e3 * uk.rank_rel_tol) return "";
+  return "the constraints are near a singular position at t = " + std::to_string(t) +
+         ": a singular value of A M^-1/2 is " + sci(ratio) + " of the largest (rank_tol " +
+         sci(uk.rank_rel_tol) + "), in rows [" + names(rn, svd.matrixU().col(k)) + "]";
 }
 
 }  // namespace
@@ -234,6 +298,10 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
     if (!r.finite || !finite_state(xs)) {
       stats.status = RunStatus::non_finite;
       stats.message = "non-finite state or acceleration at t = " + std::to_string(t);
+      if (finite_state(xs)) {
+        const std::string cause = diagnose_singularity(system, t, xs, s.uk);
+        if (!cause.empty()) stats.message += ": " + cause;
+      }
       return false;
     }
     if (system.rows() > 0) {
@@ -273,6 +341,34 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
     stats.rhs_evaluations = rhs.evaluations;
     return stats;
   };
+  // Branch check (issue 9 item 2): the projection only removes integration error, so its position
+  // correction must stay within what the error control allows per step (× branch_factor); a larger
+  // one means the state was carried somewhere else, e.g. onto another assembly branch near a
+  // singular position. Warned (branch_switch, with its time) or, by setting, the run stops.
+  auto check_branch = [&](double t, const State& xs) -> bool {
+    double xmax = 0.0;
+    for (double v : xs) xmax = std::max(xmax, std::abs(v));
+    const double bound =
+        s.drift.branch_factor * (fixed ? 1e-9 * (1.0 + xmax) : s.abs_tol + s.rel_tol * xmax);
+    const double dq = projector.last_dq, dqd = projector.last_dqd;
+    stats.max_position_correction = std::max(stats.max_position_correction, dq);
+    stats.max_velocity_correction = std::max(stats.max_velocity_correction, dqd);
+    const double ratio = std::max(dq, dqd) / bound;
+    stats.max_correction_ratio = std::max(stats.max_correction_ratio, ratio);
+    if (ratio > 1.0) {
+      const std::string what =
+          "the drift projection moved q by " + std::to_string(dq) + " and qd by " +
+          std::to_string(dqd) + " at t = " + std::to_string(t) +
+          ", more than the integration error explains (" + std::to_string(bound) + ")";
+      warn(t, "branch_switch", what + ": the state may have left its assembly branch");
+      if (s.drift.stop_on_branch_switch) {
+        stats.status = RunStatus::branch_switch;
+        stats.message = "branch switch: " + what;
+        return false;
+      }
+    }
+    return true;
+  };
   // After every accepted step: projection (if chosen) and the NaN check. False ends the run.
   auto after_step = [&](double t, State& xs) -> bool {
     ++stats.steps;
@@ -294,6 +390,7 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                         " (max |Phi| = " + std::to_string(r) + ")";
         return false;
       }
+      if (!check_branch(t, xs)) return false;
     }
     if (stats.steps > 1'000'000'000L) {
       stats.status = RunStatus::step_failure;
@@ -390,11 +487,26 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
             stats.status = RunStatus::step_failure;
             stats.message = "step size control failed at t = " + std::to_string(t) + " (step " +
                             std::to_string(dt) + ")";
+            const std::string cause = diagnose_singularity(system, t, x, s.uk);
+            if (!cause.empty()) stats.message += ": " + cause;
             return finish();
           }
           continue;
         }
         failures_in_row = 0;
+        if (stats.min_step == 0.0 || t - t_old < stats.min_step) {
+          stats.min_step = t - t_old;
+          stats.min_step_t = t;
+        }
+        // An accepted step this short means the error control resolved a violent change of the
+        // motion; at a singular position that is how a run turns onto another assembly branch
+        // while every residual stays at round-off (docs/singular-positions.md).
+        if (t - t_old < 1e-10 * std::max(1.0, std::abs(t))) {
+          warn(t, "step_collapse",
+               "an accepted step of " + sci(t - t_old) + " s at t = " + std::to_string(t) +
+                   ": the motion changed violently there (near a singular position this is how "
+                   "a run switches assembly branch); check the result");
+        }
         // Samples inside (t_old, t]: interpolate with the step's dense output.
         while (i < total_samples && sample_time(i) <= t) {
           ctrl.stepper().calc_state(sample_time(i), x_out, x, dxdt, t_old, x_new, dxdt_new, t);
@@ -429,6 +541,8 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
             if (++failures_in_row > 500 || !(dt > 1e-14 * std::max(1.0, std::abs(t)))) {
               stats.status = RunStatus::step_failure;
               stats.message = "step size control failed at t = " + std::to_string(t);
+              const std::string cause = diagnose_singularity(system, t, x, s.uk);
+              if (!cause.empty()) stats.message += ": " + cause;
               return finish();
             }
             continue;
@@ -507,6 +621,21 @@ AssemblyResult assemble(const System& system, double t, const Vec& q_guess, cons
   const double floor_tol = std::max(
       tol, 64 * std::numeric_limits<double>::epsilon() * (1.0 + res.q.cwiseAbs().maxCoeff()));
   res.success = std::isfinite(r) && r <= floor_tol && res.max_velocity_residual <= 1e3 * floor_tol;
+  // A bounded move (issue 15 class 5): Gauss–Newton may "converge" by sending a coordinate to
+  // 1e14, where the constraints hold to their (absolute) round-off. A move beyond
+  // 1e6 (1 + max|q_guess|) is no assembly near the guess: reported as a failure, naming it.
+  const double move_bound = 1e6 * (1.0 + q_guess.cwiseAbs().maxCoeff());
+  Index far = 0;
+  const double move = (res.q - q_guess).cwiseAbs().maxCoeff(&far);
+  if (!(move <= move_bound)) {
+    res.success = false;
+    res.message = "assembly moved coordinate '" +
+                  system.coordinate_names()[static_cast<std::size_t>(far)] + "' by " +
+                  std::to_string(move) + ", beyond the bound " + std::to_string(move_bound) +
+                  " for a move near the guess: no consistent state found near initial.q";
+    for (Index i = 0; i < m; ++i) res.unmet_rows.push_back(i);
+    return res;
+  }
   if (!res.success) {
     for (Index i = 0; i < m; ++i) {
       if (!(std::abs(phi(i)) <= floor_tol)) res.unmet_rows.push_back(i);

@@ -35,6 +35,11 @@ struct DriftSettings {
   double position_tol = 1e-15;      ///< projection: stop iterating once max|Φ| is under this
   int max_iterations = 4;           ///< projection: Gauss–Newton iterations per step at most
   double failure_threshold = 1e-6;  ///< projection: max|Φ| left above this ends the run
+  /// projection: a position correction max|Δq| above branch_factor · (abs_tol + rel_tol · max|x|)
+  /// (adaptive runs; fixed steps: branch_factor · 1e-9 · (1 + max|q|)) is more than the integration
+  /// error explains: warning branch_switch (or the run stops, with stop_on_branch_switch).
+  double branch_factor = 1e3;
+  bool stop_on_branch_switch = false;
 };
 
 struct SimulationSettings {
@@ -65,7 +70,14 @@ inline bool adaptive_steps(const SimulationSettings& s) {
          (s.integrator != IntegratorKind::rk4 && s.adaptive);
 }
 
-enum class RunStatus { completed, non_finite, inconsistent_constraints, step_failure, stopped };
+enum class RunStatus {
+  completed,
+  non_finite,
+  inconsistent_constraints,
+  step_failure,
+  stopped,
+  branch_switch
+};
 std::string to_string(RunStatus status);
 
 /// A warning raised once per kind during a run, with the time it first happened.
@@ -84,6 +96,11 @@ struct SimulationStats {
   long rhs_evaluations = 0;  ///< forward() calls by the integrator
   long samples = 0;          ///< observer calls
   long projections = 0;      ///< Gauss–Newton iterations done by the projection
+  double max_position_correction = 0.0;  ///< largest max|Δq| of one step's projection
+  double max_velocity_correction = 0.0;  ///< largest max|Δq̇| of one step's projection
+  double max_correction_ratio = 0.0;     ///< largest max|Δq| / the branch bound (≥ 1: warned)
+  double min_step = 0.0;                 ///< adaptive dopri5: smallest accepted step (0: none)
+  double min_step_t = 0.0;               ///< the time it ended
   std::vector<RunWarning> warnings;
 };
 
