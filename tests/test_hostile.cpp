@@ -309,12 +309,12 @@ TEST(HostileCorpus, FifoScenarioIsNamedNotOpened) {
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   const Outcome r = simulate(fifo, scratch() / "out_fifo");
   EXPECT_EQ(r.exit_code, 2) << r.err;
-  EXPECT_NE(r.err.find("not a regular file (a directory, FIFO or device)"), std::string::npos)
+  EXPECT_NE(r.err.find("is a FIFO (named pipe), not a scenario file"), std::string::npos)
       << r.err;
   fs::remove(fifo);
   const Outcome d = simulate(scratch(), scratch() / "out_dir");
   EXPECT_EQ(d.exit_code, 2) << d.err;
-  EXPECT_NE(d.err.find("not a regular file"), std::string::npos) << d.err;
+  EXPECT_NE(d.err.find("is a folder, not a scenario file"), std::string::npos) << d.err;
 }
 
 }  // namespace

@@ -51,11 +51,6 @@ std::string printable(std::string_view s, bool keep_newlines) {
       ++i;
       continue;
     }
-    if (c == '\\') {
-      out += "\\\\";
-      ++i;
-      continue;
-    }
     if (c < 0x20 || c == 0x7F) {
       out += fmt::format("\\x{:02x}", c);
       ++i;

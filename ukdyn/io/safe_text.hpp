@@ -7,8 +7,10 @@
 namespace ukdyn {
 
 /// For a terminal or a log: control bytes (C0, DEL, the UTF-8 encoded C1 controls U+0080–U+009F)
-/// and bytes that are not valid UTF-8 are written as \xNN, a backslash as \\. With keep_newlines,
-/// '\n' stays (multi-line messages); otherwise it is escaped too.
+/// and bytes that are not valid UTF-8 are written as \xNN. A backslash stays as it is: the loader's
+/// messages already show the control bytes of a name as \xNN, and escaping again would print
+/// \\xNN (names never hold a backslash: the identifier rule). With keep_newlines, '\n' stays
+/// (multi-line messages); otherwise it is escaped too.
 std::string printable(std::string_view text, bool keep_newlines = false);
 
 /// A gnuplot string literal that holds exactly `text` and nothing else: double-quoted, with '"' and
