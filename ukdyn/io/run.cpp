@@ -392,8 +392,13 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.done();
   if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
-    rep.stats.message =
-        fmt::format("interrupted (SIGINT/SIGTERM) after t = {}", rep.stats.t_reached);
+    // simulate() says "cancelled at t = <time of the step>" when it stopped between samples.
+    const std::string tag = "cancelled at t = ";
+    const auto at = rep.stats.message.rfind(tag, 0) == 0
+                        ? " at t = " + rep.stats.message.substr(tag.size())
+                        : std::string();
+    rep.stats.message = fmt::format("interrupted (SIGINT/SIGTERM){}; last sample at t = {}", at,
+                                    rep.stats.t_reached);
   }
 
   bool committed = false;
