@@ -53,9 +53,10 @@ class Scope {
 };
 
 /// True if `name` is a valid identifier that is not reserved: [A-Za-z_][A-Za-z0-9_]{0,63}, not t,
-/// pi or a function name, not a GiNaC constant (Pi, E, I, Euler, Catalan), not a keyword of C or
-/// MATLAB nor a MATLAB constant (i, j, eps, Inf, NaN, ...), not starting with "__", "_" + a capital
-/// letter (reserved in C) or "ukdyn_" (names of generated code). See docs/definitions.md, "Limits".
+/// pi or a function name, not a GiNaC constant (Pi, E, Euler, Catalan; I is allowed), not a keyword
+/// of C or MATLAB nor a MATLAB constant (i, j, eps, Inf, NaN, ...), not starting with "__", "_" + a
+/// capital letter (reserved in C) or "ukdyn_" (names of generated code). See docs/definitions.md,
+/// "Names and limits".
 bool valid_name(const std::string& name, std::string* why = nullptr);
 
 /// The bounds on the work one input may cause (docs/definitions.md, "Limits"). Constants: raise one

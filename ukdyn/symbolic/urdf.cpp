@@ -117,6 +117,20 @@ void append_urdf(ChainDef& chain, const std::string& path,
     throw DefinitionError(path + ": larger than 16 MiB (a URDF is a small text file)");
   std::string messages;
   const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
+  // urdfdom's links own their children (shared_ptr): a cyclic file makes a reference cycle that
+  // would never be freed. Cut every link's references on the way out, whatever the outcome.
+  struct Unlink {
+    const urdf::ModelInterfaceSharedPtr& m;
+    ~Unlink() {
+      if (!m) return;
+      for (auto& [name, link] : m->links_) {
+        if (!link) continue;
+        link->child_links.clear();
+        link->child_joints.clear();
+        link->parent_joint.reset();
+      }
+    }
+  } unlink{model};
   if (!model) {
     throw DefinitionError(path + ": urdfdom could not read this URDF" +
                           (messages.empty() ? std::string(" (malformed XML?)") : ": " + messages));
