@@ -6,7 +6,7 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench benchmarks drift-study sanitize fuzz clean format
+.PHONY: all deps configure build run test bench benchmarks drift-study sanitize tsan check-state fuzz clean format
 FUZZ_SECONDS ?= 60
 
 all: build
@@ -44,6 +44,14 @@ drift-study: build
 # The test suite under AddressSanitizer + UndefinedBehaviorSanitizer (build/asan).
 sanitize:
 	@bash scripts/sanitize.sh
+
+# The threaded tests under ThreadSanitizer (build/tsan).
+tsan:
+	@bash scripts/tsan.sh
+
+# No thread_local and no mutable static in ukdyn/ (also a ctest entry: Lint.NoHiddenState).
+check-state:
+	@bash scripts/check-no-hidden-state.sh
 
 # libFuzzer on the scenario loader for FUZZ_SECONDS (build/fuzz, clang-14).
 fuzz:

@@ -1,4 +1,5 @@
-// forward() and the integrator's right-hand side allocate nothing once their workspace exists.
+// forward() and the integrator's right-hand side (the real one, ukdyn::IntegratorRhs) allocate
+// nothing once their workspace exists, for the paper's closed-form system and a definitions system.
 //
 // This file replaces the global operator new/delete and, on glibc, malloc/calloc/realloc/free with
 // versions that count calls while a flag is set (Eigen allocates with std::malloc, not operator
@@ -12,7 +13,9 @@
 #include <vector>
 
 #include "helpers.hpp"
+#include "symbolic_systems.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/simulate/simulate.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "ukdyn/symbolic/forces.hpp"
 #endif
@@ -148,34 +151,76 @@ void expect_forward_allocation_free(bool trajectory) {
 TEST(NoAlloc, ForwardClosureAllocatesNothing) { expect_forward_allocation_free(false); }
 TEST(NoAlloc, ForwardClosureAndTrajectoryAllocatesNothing) { expect_forward_allocation_free(true); }
 
-// The integrator's right-hand side, as simulate() evaluates it: the state is a std::vector<double>
-// x = [q; q̇], mapped (not copied) into forward(), and q̈ is copied into dx/dt.
-TEST(NoAlloc, IntegratorRightHandSideAllocatesNothing) {
-  PaperSystem ps(true);
-  const ukdyn::System& sys = *ps.two.system;
+// The integrator's right-hand side itself (ukdyn::IntegratorRhs: the object simulate() hands to
+// Boost.Odeint), called on a moving state: x = [q; q̇] in a std::vector<double> as odeint keeps it.
+long rhs_allocations(const ukdyn::System& sys, const Vec& q0, const ukdyn::SimulationSettings& s,
+                     const ukdyn::ForceFunction& tau, int calls, ukdyn::UkResult* last) {
   const Eigen::Index n = sys.dof();
-  ukdyn::ForwardData data(sys);
-  Vec tau = Vec::Zero(n);
+  ukdyn::IntegratorRhs rhs(sys, tau, s);
   std::vector<double> x(static_cast<std::size_t>(2 * n), 0.0), dxdt(x.size(), 0.0);
-  for (Eigen::Index i = 0; i < n; ++i) x[static_cast<std::size_t>(i)] = ps.q0(i);
-  auto rhs = [&](const std::vector<double>& state, std::vector<double>& out, double t) {
-    const Eigen::Map<const Vec> q(state.data(), n);
-    const Eigen::Map<const Vec> qd(state.data() + n, n);
-    tau.setZero();
-    ukdyn::forward(sys, data, t, q, qd, tau);
-    Eigen::Map<Vec>(out.data(), n) = qd;
-    Eigen::Map<Vec>(out.data() + n, n) = data.qdd;
-  };
+  for (Eigen::Index i = 0; i < n; ++i) x[static_cast<std::size_t>(i)] = q0(i);
   rhs(x, dxdt, 0.0);  // first call
   const long count = allocations_in([&] {
-    // A few explicit Euler steps through the right-hand side (the state moves every call).
-    for (int k = 0; k < 50; ++k) {
+    // Explicit Euler steps through the right-hand side (the state moves every call).
+    for (int k = 0; k < calls; ++k) {
       rhs(x, dxdt, 1e-3 * k);
       for (std::size_t i = 0; i < x.size(); ++i) x[i] += 1e-3 * dxdt[i];
     }
   });
+  if (last) *last = rhs.data().result;
+  return count;
+}
+
+TEST(NoAlloc, IntegratorRightHandSideAllocatesNothing) {
+  PaperSystem ps(true);
+  ukdyn::SimulationSettings s;  // projection: the right-hand side is forward()
+  ukdyn::UkResult r;
+  const long count = rhs_allocations(*ps.two.system, ps.q0, s, {}, 50, &r);
   EXPECT_EQ(count, 0) << "the right-hand side allocated " << count << " times in 50 calls";
-  EXPECT_TRUE(data.result.finite);
+  EXPECT_TRUE(r.finite);
+  EXPECT_EQ(r.rank, 12);
+}
+
+// Baumgarte's right-hand side also evaluates Φ and Φ̇ (with the ForwardData's slots), and applied
+// forces go through the ForceFunction.
+TEST(NoAlloc, IntegratorRightHandSideWithBaumgarteAndForcesAllocatesNothing) {
+  PaperSystem ps(false);
+  ukdyn::SimulationSettings s;
+  s.drift.kind = ukdyn::DriftControl::baumgarte;
+  const ukdyn::ForceFunction tau = [](double t, ukdyn::CVecRef, ukdyn::CVecRef, ukdyn::VecRef f) {
+    f.setZero();
+    f(3) = 0.5 * t;
+  };
+  ukdyn::UkResult r;
+  const long count = rhs_allocations(*ps.two.system, ps.q0, s, tau, 50, &r);
+  EXPECT_EQ(count, 0) << "the Baumgarte right-hand side allocated " << count << " times";
+  EXPECT_TRUE(r.finite);
+  EXPECT_EQ(r.rank, 6);
+}
+
+// A system built from definitions: tapes run in the ForwardData's slots (no thread-local or
+// per-call buffers), the constraint evaluates a spline.
+TEST(NoAlloc, DefinitionsSystemRightHandSideAllocatesNothing) {
+  const auto sys = uktest::spline_cart_system("na_");
+  Vec q0 = Vec::Zero(2);
+  q0(1) = 0.3;
+  for (const auto kind : {ukdyn::DriftControl::projection, ukdyn::DriftControl::baumgarte}) {
+    ukdyn::SimulationSettings s;
+    s.drift.kind = kind;
+    ukdyn::UkResult r;
+    const long count = rhs_allocations(*sys, q0, s, {}, 50, &r);
+    EXPECT_EQ(count, 0) << "allocated " << count << " times (" << ukdyn::to_string(kind) << ")";
+    EXPECT_TRUE(r.finite);
+    EXPECT_EQ(r.rank, 1);
+  }
+  // forward() alone, too.
+  ukdyn::ForwardData data(*sys);
+  const Vec qd = Vec::Constant(2, 0.2), tau = Vec::Zero(2);
+  ukdyn::forward(*sys, data, 0.1, q0, qd, tau);
+  const long n = allocations_in([&] {
+    for (int k = 0; k < 20; ++k) ukdyn::forward(*sys, data, 0.05 * k, q0, qd, tau);
+  });
+  EXPECT_EQ(n, 0) << "forward() on the definitions system allocated " << n << " times";
 }
 
 #ifdef UKDYN_HAVE_IO

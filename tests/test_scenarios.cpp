@@ -125,15 +125,17 @@ TEST(PaperScenario, TrajectoryFollowsTheCosineProfile) {
   EXPECT_NEAR(p0(2), 1.2 - 0.4 * std::sqrt(3.0), 1e-15);  // paper notes: (0.8, 0, 1.2 − 0.4√3)
   double worst = 0;
   const ForceFunction tau;
-  simulate(*sc.system, sc.q0, sc.qd0, tau, sc.sim,
-           [&](double t, CVecRef q, CVecRef, const ForwardData&) {
-             const Vec3 p = arm->cut_point(q.head(6));
-             const double f = 0.5 - 0.5 * std::cos(M_PI * t);
-             worst = std::max({worst, std::abs(p(0) - p0(0)), std::abs(p(1) - p0(1) - f),
-                               std::abs(p(2) - p0(2) - f), std::abs(q(0)), std::abs(q(6) - 1.6),
-                               std::abs(q(2))});
-             return true;
-           });
+  const auto sim_run =
+      simulate(*sc.system, sc.q0, sc.qd0, tau, sc.sim,
+               [&](double t, CVecRef q, CVecRef, const ForwardData&) {
+                 const Vec3 p = arm->cut_point(q.head(6));
+                 const double f = 0.5 - 0.5 * std::cos(M_PI * t);
+                 worst = std::max({worst, std::abs(p(0) - p0(0)), std::abs(p(1) - p0(1) - f),
+                                   std::abs(p(2) - p0(2) - f), std::abs(q(0)), std::abs(q(6) - 1.6),
+                                   std::abs(q(2))});
+                 return true;
+               });
+  ASSERT_EQ(sim_run.status, RunStatus::completed) << sim_run.message;
   EXPECT_LE(worst, 1e-12);
 }
 
@@ -166,11 +168,12 @@ TEST(PaperFreeSpatial, YawReallySwings) {
   const Scenario sc = load_scenario(kSource / "scenarios" / "paper_free_spatial.yaml");
   double dmax = 0;
   const ForceFunction tau;
-  simulate(*sc.system, sc.q0, sc.qd0, tau, sc.sim,
-           [&](double, CVecRef q, CVecRef, const ForwardData&) {
-             dmax = std::max(dmax, std::abs(q(2) - sc.q0(2)));
-             return true;
-           });
+  const auto sim_run = simulate(*sc.system, sc.q0, sc.qd0, tau, sc.sim,
+                                [&](double, CVecRef q, CVecRef, const ForwardData&) {
+                                  dmax = std::max(dmax, std::abs(q(2) - sc.q0(2)));
+                                  return true;
+                                });
+  ASSERT_EQ(sim_run.status, RunStatus::completed) << sim_run.message;
   EXPECT_GT(dmax, 2.0);
 }
 

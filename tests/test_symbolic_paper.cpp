@@ -97,13 +97,14 @@ TEST(SymbolicPaper, AccelerationsAndConstraintForcesMatch) {
     std::vector<std::tuple<double, Vec, Vec>> states;
     ukdyn::SimulationSettings set = p.closed.sim;
     set.sample_dt = 0.02;
-    ukdyn::simulate(
+    const auto sim_run = ukdyn::simulate(
         *p.closed.system, p.closed.q0, p.closed.qd0,
         [](double, ukdyn::CVecRef, ukdyn::CVecRef, ukdyn::VecRef tau) { tau.setZero(); }, set,
         [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef qd, const ukdyn::ForwardData&) {
           states.emplace_back(t, q, qd);
           return true;
         });
+    ASSERT_EQ(sim_run.status, ukdyn::RunStatus::completed) << sim_run.message;
     ASSERT_GE(states.size(), 150u);
     double wq = 0, wc = 0;
     for (const auto& [t, q, qd] : states) {

@@ -7,6 +7,8 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 #include <type_traits>
 #include <utility>
 
@@ -234,7 +236,23 @@ void finish(const Mat& A, const Vec& b, const Vec& qdd, const Vec& Qc, const UkS
 
 }  // namespace
 
+namespace {
+// ---- argument checks at the public edge (a few compares per call, outside every loop).
+[[noreturn]] void shape_error(const char* where, const char* what, Index er, Index ec, Index r,
+                              Index c) {
+  throw std::invalid_argument(std::string(where) + ": " + what + " is " + std::to_string(r) +
+                              " x " + std::to_string(c) + ", expected " + std::to_string(er) +
+                              " x " + std::to_string(ec) + " (the workspace's layout and rows)");
+}
+void check_shape(const char* where, const char* what, Index er, Index ec, Index r, Index c) {
+  if (r != er || c != ec) shape_error(where, what, er, ec, r, c);
+}
+}  // namespace
+
 bool factor_mass(const Mat& M, UkWorkspace& ws) {
+  const Index n_ws = ws.layout.dof();
+  check_shape("factor_mass", "M", n_ws, n_ws, M.rows(), M.cols());
+  check_shape("factor_mass", "the workspace's L", n_ws, n_ws, ws.L.rows(), ws.L.cols());
   const auto& lay = ws.layout;
   const Index ldm = M.rows(), ldl = ws.L.rows();
   if (is_fixed6<2>(lay)) {  // the paper's two arms: both blocks in lockstep
@@ -563,6 +581,10 @@ UkResult uk_solve_factored(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace
                            Vec& Qc, const UkSettings& settings) {
   const Index m = A.rows();
   const Index n = ws.layout.dof();
+  const char* where = "uk_solve";
+  check_shape(where, "A (rows)", ws.A_Minv_At.rows(), m == 0 ? A.cols() : n, m, A.cols());
+  check_shape(where, "b", m, 1, b.size(), 1);
+  check_shape(where, "Q", n, 1, Q.size(), 1);
   if (qdd.size() != n) qdd.resize(n);  // no-op (no allocation) when the caller sized them
   if (Qc.size() != n) Qc.resize(n);
   if (m == 0) {

@@ -1,4 +1,5 @@
-// The Udwadia–Kalaba solve, paper Eq. (4):
+// The Udwadia–Kalaba solve, paper Eq. (4) [Dong2022], the fundamental equation of [Udwadia1992]
+// (references: docs/references.md):
 //   Qc = M^{1/2} (A M^{-1/2})^+ (b − A M^{-1} Q),   q̈ = M^{-1}(Q + Qc).
 //
 // Production form (Cholesky, block-diagonal M = diag(L_k L_kᵀ)):
@@ -8,7 +9,8 @@
 // This is the same force as Eq. (4): with M = L Lᵀ, M^{1/2}(A M^{-1/2})^+ = Aᵀ (A M^{-1} Aᵀ)^+ on
 // the range of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
 //
-// Rank: W is factored by an LDLᵀ with symmetric (diagonal) pivoting, i.e. a pivoted Cholesky. A
+// Rank: W is factored by an LDLᵀ with symmetric (diagonal) pivoting, i.e. a pivoted Cholesky
+// ([Higham2002] ch. 10, [Golub2013]). A
 // pivot D_k is kept when D_k > rel_tol² · max_j D_j; the pivots approximate σ_k² of A M^{-1/2}, so
 // rel_tol is a relative tolerance on its singular values (default 1e-7: pivots under 1e-14 of the
 // largest are round-off of a redundant row). Redundant but consistent rows are normal; an

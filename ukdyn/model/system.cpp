@@ -1,6 +1,8 @@
 #include "ukdyn/model/system.hpp"
 
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace ukdyn {
 
@@ -40,6 +42,42 @@ void System::add_applied_force(std::shared_ptr<const AppliedForce> force) {
   applied_.push_back(std::move(force));
 }
 
+
+namespace {
+Index index_of(const std::vector<std::string>& names, const std::string& name, const char* what) {
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (names[i] == name) return static_cast<Index>(i);
+  }
+  throw std::invalid_argument(std::string("System: no ") + what + " named '" + name + "'");
+}
+}  // namespace
+
+Index System::coordinate_index(const std::string& name) const {
+  return index_of(coord_names_, name, "coordinate");
+}
+
+Index System::constraint_row_index(const std::string& name) const {
+  return index_of(row_names_, name, "constraint row");
+}
+
+namespace {
+std::vector<Index> slot_starts(const System& system) {
+  std::vector<Index> start{0};
+  for (const auto& sub : system.subsystems()) start.push_back(start.back() + sub->slot_size());
+  for (const auto& con : system.constraints()) start.push_back(start.back() + con->slot_size());
+  return start;
+}
+
+[[noreturn]] void size_error(const char* where, const char* what, Index expected, Index actual) {
+  throw std::invalid_argument(std::string(where) + ": " + what + " has " + std::to_string(actual) +
+                              " entries, expected " + std::to_string(expected));
+}
+
+void check_size(const char* where, const char* what, Index expected, Index actual) {
+  if (expected != actual) size_error(where, what, expected, actual);
+}
+}  // namespace
+
 ForwardData::ForwardData(const System& system)
     : M(Mat::Zero(system.dof(), system.dof())),
       Cqd(Vec::Zero(system.dof())),
@@ -49,7 +87,40 @@ ForwardData::ForwardData(const System& system)
       b(Vec::Zero(system.rows())),
       Qc(Vec::Zero(system.dof())),
       qdd(Vec::Zero(system.dof())),
-      uk(system.layout(), system.rows()) {}
+      uk(system.layout(), system.rows()),
+      slot_start(slot_starts(system)),
+      system_(&system) {
+  slots = Vec::Zero(slot_start.back());
+}
+
+Slot ForwardData::subsystem_slot(std::size_t k) {
+  return {slots.data() + slot_start[k],
+          static_cast<std::size_t>(slot_start[k + 1] - slot_start[k])};
+}
+
+ConstraintSlots ForwardData::constraint_slots(std::size_t c) {
+  const std::size_t subs = system_->subsystems().size();
+  const std::size_t i = subs + c;
+  const Slot own{slots.data() + slot_start[i],
+                 static_cast<std::size_t>(slot_start[i + 1] - slot_start[i])};
+  const auto& starts = system_->layout().start;
+  return {own, slots.data(), std::span<const Index>(starts.data(), starts.size()),
+          std::span<const Index>(slot_start.data(), subs + 1)};
+}
+
+void check_data_for(const System& system, const ForwardData& data, const char* where) {
+  if (data.built_for() != &system) {
+    throw std::invalid_argument(std::string(where) +
+                                ": the ForwardData was built for another System (build one with "
+                                "ForwardData(system) for each system)");
+  }
+  // The system may have grown after the data was built.
+  check_size(where, "ForwardData (M columns)", system.dof(), data.M.cols());
+  check_size(where, "ForwardData (A rows)", system.rows(), data.A.rows());
+  check_size(where, "ForwardData (slots)",
+             static_cast<Index>(system.subsystems().size() + system.constraints().size() + 1),
+             static_cast<Index>(data.slot_start.size()));
+}
 
 void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd) {
   const auto& L = system.layout();
@@ -57,8 +128,8 @@ void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecR
   for (std::size_t k = 0; k < subs.size(); ++k) {
     const Index s = L.start[k];
     const Index n = L.size[k];
-    subs[k]->dynamics(q.segment(s, n), qd.segment(s, n), data.M.block(s, s, n, n),
-                      data.Cqd.segment(s, n), data.G.segment(s, n));
+    subs[k]->dynamics_with(data.subsystem_slot(k), q.segment(s, n), qd.segment(s, n),
+                           data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n));
   }
 }
 
@@ -69,12 +140,18 @@ void evaluate_constraints(const System& system, ForwardData& data, double t, CVe
   const Index n = system.dof();
   for (std::size_t c = 0; c < cons.size(); ++c) {
     const Index r = cons[c]->rows();
-    cons[c]->evaluate(t, q, qd, data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
+    cons[c]->evaluate_with(data.constraint_slots(c), t, q, qd, data.A.block(offs[c], 0, r, n),
+                           data.b.segment(offs[c], r));
   }
 }
 
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings) {
+  // The public edge: a few compares, outside the stages' loops.
+  check_data_for(system, data, "forward");
+  check_size("forward", "q", system.dof(), q.size());
+  check_size("forward", "qd", system.dof(), qd.size());
+  check_size("forward", "tau", system.dof(), tau.size());
   evaluate_dynamics(system, data, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
   evaluate_constraints(system, data, t, q, qd);
@@ -88,6 +165,25 @@ void generalized_forces(const System& system, ForwardData& data, double t, CVecR
   double power = tau.dot(qd);
   for (const auto& f : system.applied_forces()) power += f->add_to(t, q, qd, data.Q);
   data.applied_power = power;
+}
+
+void position_residuals(const System& system, ForwardData& data, double t, CVecRef q, VecRef phi) {
+  const auto& cons = system.constraints();
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < cons.size(); ++c) {
+    cons[c]->position_residual_with(data.constraint_slots(c), t, q,
+                                    phi.segment(offs[c], cons[c]->rows()));
+  }
+}
+
+void velocity_residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                        VecRef phid) {
+  const auto& cons = system.constraints();
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < cons.size(); ++c) {
+    cons[c]->velocity_residual_with(data.constraint_slots(c), t, q, qd,
+                                    phid.segment(offs[c], cons[c]->rows()));
+  }
 }
 
 void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C) {

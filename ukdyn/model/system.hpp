@@ -38,6 +38,10 @@ class System {
   }
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const { return coord_names_; }
   [[nodiscard]] const std::vector<std::string>& constraint_row_names() const { return row_names_; }
+  /// Named lookups (instead of raw offsets): the index in q of coordinate `name`, the row of A / b
+  /// of constraint row `name`. Throw std::invalid_argument for an unknown name.
+  [[nodiscard]] Index coordinate_index(const std::string& name) const;
+  [[nodiscard]] Index constraint_row_index(const std::string& name) const;
 
  private:
   std::vector<std::shared_ptr<const Subsystem>> subsystems_;
@@ -51,46 +55,80 @@ class System {
   Index rows_ = 0;
 };
 
-/// Every buffer forward() writes, allocated once for a system. Read the results from here.
+/// Every buffer forward() writes, allocated once for a system (n = system.dof(), m =
+/// system.rows()). Read the results from here. All mutable state of an evaluation lives here, none
+/// in the System: one System can be shared by threads that each own a ForwardData.
 struct ForwardData {
   explicit ForwardData(const System& system);
 
-  Mat M;    ///< n × n, block-diagonal
-  Vec Cqd;  ///< C(q, q̇) q̇
-  Vec G;    ///< gravity
-  Vec Q;    ///< τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces Q_a
-  Mat A;    ///< m × n, constraint rows stacked
+  Mat M;    ///< n × n, block-diagonal (block k: subsystem k's M at its coordinates)
+  Vec Cqd;  ///< n: C(q, q̇) q̇
+  Vec G;    ///< n: gravity G(q)
+  Vec Q;    ///< n: τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces Q_a
+  Mat A;    ///< m × n, constraint rows stacked (system.constraint_row_offsets())
   Vec b;    ///< m
-  Vec Qc;   ///< constraint force, paper Eq. (4)
-  Vec qdd;  ///< q̈ = M^{-1}(Q + Qc), paper Eq. (18)
-  UkWorkspace uk;
-  UkResult result;
+  Vec Qc;   ///< n: constraint force, paper Eq. (4)
+  Vec qdd;  ///< n: q̈ = M^{-1}(Q + Qc), paper Eq. (18)
+  UkWorkspace uk;   ///< the U-K solve's buffers for (system.layout(), m)
+  UkResult result;  ///< diagnostics of the last solve
   /// (τ + Q_nc)ᵀ q̇: the power of τ and of the non-conservative part of the applied forces.
   double applied_power = 0.0;
   /// W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt, set by simulate() at samples when energy_balance is on.
   double work = 0.0;
+
+  /// Data slots (Subsystem::slot_size(), Constraint::slot_size()) back to back, zero-filled on
+  /// construction: subsystem k's is [slot_start[k], slot_start[k + 1]), constraint c's is block
+  /// subsystems + c. Written and read only within one evaluation (forward(), the residuals); what a
+  /// stage leaves there for a later one carries the state it belongs to (see ConstraintSlots).
+  Vec slots;
+  std::vector<Index> slot_start;  ///< subsystems + constraints + 1 entries
+
+  /// Subsystem k's slot / constraint c's view of the slots.
+  [[nodiscard]] Slot subsystem_slot(std::size_t k);
+  [[nodiscard]] ConstraintSlots constraint_slots(std::size_t c);
+  /// The system this data was built for (the entry points check it: check_data_for()).
+  [[nodiscard]] const System* built_for() const { return system_; }
+
+ private:
+  const System* system_ = nullptr;
 };
 
-/// Forward dynamics of the constrained system at (t, q, q̇) with applied forces τ:
-///   mass blocks → Q = τ + Q_a − C q̇ − G → A, b → U-K solve → q̈, Qc.   Allocation-free.
+/// Throws std::invalid_argument unless `data` was built for `system` (same object, same n and m).
+void check_data_for(const System& system, const ForwardData& data, const char* where);
+
+/// Forward dynamics of the constrained system at (t, q, q̇) with applied forces τ as named stages:
+///   evaluate_dynamics (M, C q̇, G per subsystem) → generalized_forces (Q = τ + Q_a − C q̇ − G)
+///   → evaluate_constraints (A, b)
+///   → uk_solve (q̈, Qc).   Allocation-free.
+/// q, qd, tau must have n entries and data must be built for this system: otherwise throws
+/// std::invalid_argument naming the expected and actual sizes.
 /// If M is not positive definite, data.result.finite is false and q̈ is NaN.
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings = {});
 
-/// data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and data.applied_power.
+/// Stage: data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and
+/// data.applied_power.
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau);
 
-/// Only M, C q̇, G (no constraints), into data.
+/// Stage 1 only: M, C q̇, G (no constraints), into data (and the subsystems' data slots).
 void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);
-/// Only A and b, into data.
+/// Stage 2 only: A and b, into data (reading what stage 1 left in the slots, if it was run at the
+/// same q).
 void evaluate_constraints(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd);
+
+/// Position residuals Φ(q, t) of every row (m), with data's slots as scratch (allocation-free).
+void position_residuals(const System& system, ForwardData& data, double t, CVecRef q, VecRef phi);
+/// Velocity residuals Φ̇ = A q̇ + Φ_t of every row (m), with data's slots as scratch.
+void velocity_residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                        VecRef phid);
 
 /// The full C matrix (n × n, block-diagonal). Allocates nothing if C has the right size.
 void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C);
-/// Position residuals Φ(q, t) of every row (m).
+/// Position residuals Φ(q, t) of every row (m), without a ForwardData (a block that needs scratch
+/// makes its own: may allocate).
 void position_residuals(const System& system, double t, CVecRef q, VecRef phi);
-/// Velocity residuals Φ̇ = A q̇ + Φ_t of every row (m).
+/// Velocity residuals Φ̇ = A q̇ + Φ_t of every row (m), without a ForwardData (may allocate).
 void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, VecRef phid);
 
 /// Kinetic energy ½ q̇ᵀ M q̇ (M from data.M, already evaluated at q).

@@ -27,11 +27,16 @@ ClosureConstraint::ClosureConstraint(std::shared_ptr<const MobileManipulator> le
     names_.push_back(opt_.prefix + s);
 }
 
-void ClosureConstraint::evaluate(double /*t*/, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+void ClosureConstraint::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+  evaluate_with({}, t, q, qd, A, b);
+}
+
+void ClosureConstraint::evaluate_with(const ConstraintSlots& slots, double /*t*/, CVecRef q,
+                                      CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J1, J2;
   Vec3 c1, c2;
-  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1);
-  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2);
+  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, slots.subsystem(lo_));
+  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, slots.subsystem(ro_));
   // Rows 1–3 of Eq. (15): the two cut points coincide; b from Eq. (16): b = −(J̇1 q̇1 − J̇2 q̇2).
   zero_rows(A);
   A.block(0, lo_, 3, 6) = J1;
@@ -45,9 +50,14 @@ void ClosureConstraint::evaluate(double /*t*/, CVecRef q, CVecRef qd, MatRef A, 
   b.tail<3>().setZero();
 }
 
-void ClosureConstraint::position_residual(double /*t*/, CVecRef q, VecRef phi) const {
-  const Vec3 p1 = left_->cut_point(q.segment(lo_, 6));
-  const Vec3 p2 = right_->cut_point(q.segment(ro_, 6));
+void ClosureConstraint::position_residual(double t, CVecRef q, VecRef phi) const {
+  position_residual_with({}, t, q, phi);
+}
+
+void ClosureConstraint::position_residual_with(const ConstraintSlots& slots, double /*t*/,
+                                               CVecRef q, VecRef phi) const {
+  const Vec3 p1 = left_->cut_point(q.segment(lo_, 6), slots.subsystem(lo_));
+  const Vec3 p2 = right_->cut_point(q.segment(ro_, 6), slots.subsystem(ro_));
   phi(0) = p1(0) - p2(0);
   phi(1) = p1(1) - p2(1);
   // l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz  (Eq. (12) row 3)
@@ -57,11 +67,16 @@ void ClosureConstraint::position_residual(double /*t*/, CVecRef q, VecRef phi) c
   phi(5) = q(ro_ + 5) - opt_.load_pitch2;
 }
 
-void ClosureConstraint::velocity_residual(double /*t*/, CVecRef q, CVecRef qd, VecRef phid) const {
+void ClosureConstraint::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
+  velocity_residual_with({}, t, q, qd, phid);
+}
+
+void ClosureConstraint::velocity_residual_with(const ConstraintSlots& slots, double /*t*/,
+                                               CVecRef q, CVecRef qd, VecRef phid) const {
   Jac36 J1, J2;
   Vec3 c1, c2;
-  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1);
-  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2);
+  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, slots.subsystem(lo_));
+  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, slots.subsystem(ro_));
   phid.head<3>() = J1 * qd.segment(lo_, 6) - J2 * qd.segment(ro_, 6);
   phid(3) = qd(lo_ + 2) - qd(ro_ + 2);
   phid(4) = qd(lo_ + 5);
@@ -86,9 +101,15 @@ CutPointTrajectory::CutPointTrajectory(std::shared_ptr<const MobileManipulator> 
 }
 
 void CutPointTrajectory::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+  evaluate_with({}, t, q, qd, A, b);
+}
+
+void CutPointTrajectory::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                       CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J;
   Vec3 c;
-  arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c);
+  arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c,
+                           slots.subsystem(offset_));
   zero_rows(A);
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const auto r = static_cast<Index>(i);
@@ -99,7 +120,12 @@ void CutPointTrajectory::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, Vec
 }
 
 void CutPointTrajectory::position_residual(double t, CVecRef q, VecRef phi) const {
-  const Vec3 p = arm_->cut_point(q.segment(offset_, 6));
+  position_residual_with({}, t, q, phi);
+}
+
+void CutPointTrajectory::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                                VecRef phi) const {
+  const Vec3 p = arm_->cut_point(q.segment(offset_, 6), slots.subsystem(offset_));
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const int a = axis_[i];
     phi(static_cast<Index>(i)) = p(a) - origin_(a) - f_[i].eval(t, 0);
@@ -107,9 +133,15 @@ void CutPointTrajectory::position_residual(double t, CVecRef q, VecRef phi) cons
 }
 
 void CutPointTrajectory::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
+  velocity_residual_with({}, t, q, qd, phid);
+}
+
+void CutPointTrajectory::velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                                CVecRef qd, VecRef phid) const {
   Jac36 J;
   Vec3 c;
-  arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c);
+  arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c,
+                           slots.subsystem(offset_));
   const Vec3 v = J * qd.segment(offset_, 6);
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     phid(static_cast<Index>(i)) = v(axis_[i]) - f_[i].eval(t, 1);

@@ -35,6 +35,13 @@ class ClosureConstraint final : public Constraint {
   void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
   void position_residual(double t, CVecRef q, VecRef phi) const override;
   void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize).
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override;
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override;
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> left_, right_;
@@ -56,6 +63,13 @@ class CutPointTrajectory final : public Constraint {
   void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
   void position_residual(double t, CVecRef q, VecRef phi) const override;
   void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize).
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override;
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override;
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> arm_;

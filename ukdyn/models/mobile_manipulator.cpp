@@ -10,35 +10,22 @@ namespace ukdyn {
 namespace {
 
 // ---- sin/cos of the four angles (δ, θ1, θ2, θ3), shared between dynamics() and the cut-point
-// kinematics of the constraints.
+// kinematics of the constraints through this arm's data slot in ForwardData.
 //
-// forward() evaluates every arm's M, C q̇, G (dynamics()) and then the constraints, whose cut-point
-// Jacobians need the sin/cos of the same four angles of the same arms. dynamics() always computes
-// them and records them in a small per-thread table keyed by the exact bit patterns of the angles;
-// kinematics() and cut_point() look the angles up there and call sin/cos only on a miss. The
-// values are a pure function of the four angles (not of the arm's parameters), so a hit returns
-// bit-identical results to a recomputation: the table changes the cost, never a value. Only
-// dynamics() fills it, so a loop that repeats forward() at one state still pays the sin/cos once
-// per arm and call (benchmarks measure what a simulation step costs). Thread-local: no sharing, no
-// locking, and zero-initialised (no allocation, no dynamic initialisation).
+// forward() evaluates every arm's M, C q̇, G (dynamics_with()) and then the constraints, whose
+// cut-point Jacobians need the sin/cos of the same four angles of the same arms. dynamics_with()
+// computes them and records them in the arm's slot, next to the exact bit patterns of the angles;
+// kinematics() and cut_point() given that slot use it when the angles match and call sin/cos
+// otherwise. A hit returns bit-identical results to a recomputation: the slot changes the cost,
+// never a value, and a slot left from another state (or none) is only slower. The slot is
+// caller-owned (one per ForwardData): no sharing between threads, no hidden order of calls.
 struct AngleSinCos {
   std::array<double, 4> cos{}, sin{};  // [δ, θ1, θ2, θ3]
 };
 
-struct AngleTable {
-  static constexpr int kSlots = 4;  // two arms, with room for a second system on the thread
-  std::array<std::array<std::uint64_t, 4>, kSlots> key{};
-  std::array<AngleSinCos, kSlots> value{};
-  std::array<bool, kSlots> used{};
-  int next = 0;
-};
-
-thread_local AngleTable t_angles;
-
-std::array<std::uint64_t, 4> angle_key(CVecRef q) {
-  return {std::bit_cast<std::uint64_t>(q(2)), std::bit_cast<std::uint64_t>(q(3)),
-          std::bit_cast<std::uint64_t>(q(4)), std::bit_cast<std::uint64_t>(q(5))};
-}
+// Slot layout (MobileManipulator::kSlotSize = 13): [0] 1 when filled, [1..4] the angles,
+// [5..8] their cos, [9..12] their sin.
+constexpr std::size_t kFilled = 0, kAngles = 1, kCos = 5, kSin = 9;
 
 AngleSinCos compute_angles(CVecRef q) {
   AngleSinCos a;
@@ -50,24 +37,33 @@ AngleSinCos compute_angles(CVecRef q) {
   return a;
 }
 
-// Always computes; records the result for the lookups below.
-AngleSinCos compute_and_record_angles(CVecRef q) {
-  const AngleSinCos a = compute_angles(q);
-  AngleTable& t = t_angles;
-  const auto slot = static_cast<std::size_t>(t.next);
-  t.next = (t.next + 1) % AngleTable::kSlots;
-  t.key[slot] = angle_key(q);
-  t.value[slot] = a;
-  t.used[slot] = true;
-  return a;
+void record_angles(Slot slot, CVecRef q, const AngleSinCos& a) {
+  if (slot.size() != static_cast<std::size_t>(MobileManipulator::kSlotSize)) return;
+  for (std::size_t j = 0; j < 4; ++j) {
+    slot[kAngles + j] = q(2 + static_cast<Index>(j));
+    slot[kCos + j] = a.cos[j];
+    slot[kSin + j] = a.sin[j];
+  }
+  slot[kFilled] = 1.0;
 }
 
-// The recorded values when dynamics() saw these exact angles on this thread, else computes them.
-AngleSinCos lookup_angles(CVecRef q) {
-  const auto k = angle_key(q);
-  const AngleTable& t = t_angles;
-  for (std::size_t s = 0; s < AngleTable::kSlots; ++s) {
-    if (t.used[s] && t.key[s] == k) return t.value[s];
+// The recorded values when the slot holds these exact angles (bit for bit), else computes them.
+AngleSinCos lookup_angles(CVecRef q, ConstSlot slot) {
+  if (slot.size() == static_cast<std::size_t>(MobileManipulator::kSlotSize) &&
+      slot[kFilled] == 1.0) {
+    bool same = true;
+    for (std::size_t j = 0; j < 4; ++j) {
+      same = same && std::bit_cast<std::uint64_t>(slot[kAngles + j]) ==
+                         std::bit_cast<std::uint64_t>(q(2 + static_cast<Index>(j)));
+    }
+    if (same) {
+      AngleSinCos a;
+      for (std::size_t j = 0; j < 4; ++j) {
+        a.cos[j] = slot[kCos + j];
+        a.sin[j] = slot[kSin + j];
+      }
+      return a;
+    }
   }
   return compute_angles(q);
 }
@@ -111,8 +107,9 @@ MobileManipulator::MobileManipulator(std::string name, MobileManipulatorParams p
   a_ = {m[0] / 2 + m[1] + m[2], m[1] / 2 + m[2], m[2] / 2};
 }
 
-MobileManipulator::Trig MobileManipulator::trig(CVecRef q, bool record) const {
-  const AngleSinCos a = record ? compute_and_record_angles(q) : compute_angles(q);
+MobileManipulator::Trig MobileManipulator::trig(CVecRef q, Slot record) const {
+  const AngleSinCos a = compute_angles(q);
+  record_angles(record, q, a);
   Trig t;
   t.cd = a.cos[0];
   t.sd = a.sin[0];
@@ -134,8 +131,8 @@ MobileManipulator::Trig MobileManipulator::trig(CVecRef q, bool record) const {
   return t;
 }
 
-ArmKinematics MobileManipulator::kinematics(CVecRef q, CVecRef qd) const {
-  const AngleSinCos a = lookup_angles(q);
+ArmKinematics MobileManipulator::kinematics(CVecRef q, CVecRef qd, ConstSlot slot) const {
+  const AngleSinCos a = lookup_angles(q, slot);
   ArmKinematics k;
   k.cos_delta = a.cos[0];
   k.sin_delta = a.sin[0];
@@ -156,8 +153,8 @@ ArmKinematics MobileManipulator::kinematics(CVecRef q, CVecRef qd) const {
   return k;
 }
 
-Vec3 MobileManipulator::cut_point(CVecRef q) const {
-  const AngleSinCos a = lookup_angles(q);
+Vec3 MobileManipulator::cut_point(CVecRef q, ConstSlot slot) const {
+  const AngleSinCos a = lookup_angles(q, slot);
   double kappa = 0.0, rho = 0.0;
   for (int j = 0; j < 3; ++j) {
     const auto u = static_cast<std::size_t>(j);
@@ -168,8 +165,8 @@ Vec3 MobileManipulator::cut_point(CVecRef q) const {
 }
 
 void MobileManipulator::cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J,
-                                           Vec3& c) const {
-  const ArmKinematics k = kinematics(q, qd);
+                                           Vec3& c, ConstSlot slot) const {
+  const ArmKinematics k = kinematics(q, qd, slot);
   const double dd = qd(2);
   // Rows of paper Eq. (15) for one arm: ∂(Δx + κ̂ cos δ, Δy + κ̂ sin δ, l_r + ρ̂)/∂q. Every entry
   // is written (no setZero pass).
@@ -340,7 +337,12 @@ void MobileManipulator::gravity(CVecRef q, VecRef G) const {
 }
 
 void MobileManipulator::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
-  const Trig t = trig(q, /*record=*/true);
+  dynamics_with({}, q, qd, M, Cqd, G);
+}
+
+void MobileManipulator::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                                      VecRef G) const {
+  const Trig t = trig(q, slot);
   mass_from(t, M);
   coriolis_times_qd_from(t, qd, Cqd);
   gravity_from(t.c, G);

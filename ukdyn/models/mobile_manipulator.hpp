@@ -52,17 +52,28 @@ class MobileManipulator final : public Subsystem {
   void gravity(CVecRef q, VecRef G) const override;
   /// M, C q̇ and G from one set of sin/cos (4 angles, the differences by identities).
   void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
+  /// Data slot (kSlotSize doubles): [filled, δ, θ1, θ2, θ3, cos ×4, sin ×4] — the sin/cos of the
+  /// four angles, next to the angles they belong to. dynamics_with() writes it; the constraints'
+  /// cut-point kinematics (below, given the slot) read it when the angles match bit for bit and
+  /// compute the sin/cos otherwise. The values are a pure function of the angles, so the slot
+  /// changes the cost (one sin/cos per arm and forward()), never a value.
+  static constexpr Index kSlotSize = 13;
+  [[nodiscard]] Index slot_size() const override { return kSlotSize; }
+  void dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                     VecRef G) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
 
-  /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates.
-  [[nodiscard]] ArmKinematics kinematics(CVecRef q, CVecRef qd) const;
+  /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates. `slot`: this
+  /// arm's data slot from the same ForwardData (optional; see kSlotSize).
+  [[nodiscard]] ArmKinematics kinematics(CVecRef q, CVecRef qd, ConstSlot slot = {}) const;
   /// The cut point (end of link 3, the load's centre) relative to the world origin, with the
   /// platform at height 0: (Δx + κ̂ cos δ, Δy + κ̂ sin δ, l_r + ρ̂).
-  [[nodiscard]] Vec3 cut_point(CVecRef q) const;
+  [[nodiscard]] Vec3 cut_point(CVecRef q, ConstSlot slot = {}) const;
   /// Jacobian J (3 × 6) of the cut point and its acceleration bias c = J̇ q̇, so that the cut point's
   /// acceleration is J q̈ + c. These are the per-arm halves of paper Eqs. (13), (15), (16), (20):
   ///   c_x = −(ψ̂ + κ̂ δ̇²) cos δ + 2 ζ̂ sin δ,  c_y = −(ψ̂ + κ̂ δ̇²) sin δ − 2 ζ̂ cos δ,  c_z = −γ̂.
-  void cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J, Vec3& c) const;
+  void cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J, Vec3& c,
+                          ConstSlot slot = {}) const;
 
  private:
   /// The sin/cos every closed-form expression below uses, evaluated once per state: δ and θ1..θ3
@@ -75,9 +86,9 @@ class MobileManipulator final : public Subsystem {
     double c12 = 1, c13 = 1, c23 = 1;  ///< cos(θ1 − θ2), cos(θ1 − θ3), cos(θ2 − θ3)
     double s12 = 0, s13 = 0, s23 = 0;  ///< sin(θ1 − θ2), sin(θ1 − θ3), sin(θ2 − θ3)
   };
-  /// record: also store the angles' sin/cos for the constraints' cut-point kinematics (done by
-  /// dynamics() only; see the .cpp).
-  [[nodiscard]] Trig trig(CVecRef q, bool record = false) const;
+  /// record: also store the angles' sin/cos in this slot for the constraints' cut-point kinematics
+  /// (done by dynamics_with() only).
+  [[nodiscard]] Trig trig(CVecRef q, Slot record = {}) const;
   void mass_from(const Trig& t, MatRef M) const;
   void coriolis_from(const Trig& t, CVecRef qd, MatRef C) const;
   void coriolis_times_qd_from(const Trig& t, CVecRef qd, VecRef Cqd) const;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <stdexcept>
 #include <vector>
 
 #include "ukdyn/simulate/implicit.hpp"
@@ -95,8 +96,8 @@ struct Rhs {
     evaluate_dynamics(system, d, q, qd);
     generalized_forces(system, d, t, q, qd, tau);  // paper Eq. (11), with the applied forces
     evaluate_constraints(system, d, t, q, qd);
-    position_residuals(system, t, q, phi);
-    velocity_residuals(system, t, q, qd, phid);
+    position_residuals(system, d, t, q, phi);
+    velocity_residuals(system, d, t, q, qd, phid);
     // Baumgarte: Φ̈ + 2α Φ̇ + β² Φ = 0  ⇒  A q̈ = b − 2α Φ̇ − β² Φ.
     d.b -= 2.0 * s.drift.alpha * phid + s.drift.beta * s.drift.beta * phi;
     d.result = uk_solve(d.M, d.A, d.b, d.Q, d.uk, d.qdd, d.Qc, s.uk);
@@ -115,6 +116,23 @@ struct Rhs {
     if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd);
   }
 };
+
+}  // namespace
+
+struct IntegratorRhs::Impl {
+  Rhs rhs;
+};
+
+IntegratorRhs::IntegratorRhs(const System& system, const ForceFunction& tau,
+                             const SimulationSettings& settings)
+    : impl_(std::make_unique<Impl>(Impl{Rhs(system, tau, settings)})) {}
+IntegratorRhs::~IntegratorRhs() = default;
+void IntegratorRhs::operator()(const std::vector<double>& x, std::vector<double>& dxdt, double t) {
+  impl_->rhs(x, dxdt, t);
+}
+const ForwardData& IntegratorRhs::data() const { return impl_->rhs.data; }
+
+namespace {
 
 // Projection onto the constraint manifold in the metric of M: each correction is the U-K solve with
 // Q = 0 and b = −Φ (positions) or b = −Φ̇ (velocities): Δ = M^{-1}Aᵀ(A M^{-1}Aᵀ)^+ (−r), the
@@ -143,7 +161,7 @@ struct Projector {
   double project(double t, double* x, long& iterations) {
     Eigen::Map<Vec> q(x, n);
     Eigen::Map<Vec> qd(x + n, n);
-    position_residuals(system, t, q, phi);
+    position_residuals(system, data, t, q, phi);
     double r = phi.cwiseAbs().maxCoeff();
     last_dq = 0.0;
     for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
@@ -154,7 +172,7 @@ struct Projector {
       q += delta;
       last_dq += delta.cwiseAbs().maxCoeff();
       ++iterations;
-      position_residuals(system, t, q, phi);
+      position_residuals(system, data, t, q, phi);
       const double r_new = phi.cwiseAbs().maxCoeff();
       if (!(r_new < 0.5 * r)) {
         r = r_new;
@@ -165,7 +183,7 @@ struct Projector {
     // Velocities onto A q̇ + Φ_t = 0 at the projected q.
     evaluate_dynamics(system, data, q, qd);
     evaluate_constraints(system, data, t, q, qd);
-    velocity_residuals(system, t, q, qd, phi);
+    velocity_residuals(system, data, t, q, qd, phi);
     phi = -phi;
     uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
     qd += delta;
@@ -242,8 +260,10 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                          const ForceFunction& tau, const SimulationSettings& s,
                          const SampleObserver& observer) {
   const Index n = system.dof();
-  if (q0.size() != n || qd0.size() != n) {
-    throw Error("simulate: q0 and qd0 must have " + std::to_string(n) + " entries");
+  if (q0.size() != n || qd0.size() != n) {  // the public edge: sizes, expected and actual
+    throw std::invalid_argument("simulate: q0 has " + std::to_string(q0.size()) + " and qd0 " +
+                                std::to_string(qd0.size()) + " entries, expected " +
+                                std::to_string(n) + " (system.dof())");
   }
   if (!(s.t_end > s.t0) || !std::isfinite(s.t_end) || !std::isfinite(s.t0)) {
     throw Error("simulate: t_end must be finite and greater than t0");

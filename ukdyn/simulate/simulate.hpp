@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -11,11 +12,11 @@
 
 namespace ukdyn {
 
-/// rk4: classical Runge–Kutta 4, fixed step. dopri5: Dormand–Prince 5(4), adaptive with dense
-/// output. rkf78: Runge–Kutta–Fehlberg 7(8), adaptive, stepping exactly onto the sample times. All
-/// from Boost.Odeint. dopri5 and rkf78 can also run with a fixed step (adaptive = false).
-/// bdf: SUNDIALS CVODE's variable-order BDF (implicit, for stiff problems; always adaptive),
-/// available when ukdyn was built with SUNDIALS (bdf_available()).
+/// rk4: classical Runge–Kutta 4, fixed step. dopri5: Dormand–Prince 5(4) [Dormand1980], adaptive
+/// with dense output. rkf78: Runge–Kutta–Fehlberg 7(8) [Fehlberg1968], adaptive, stepping exactly
+/// onto the sample times. All from Boost.Odeint. dopri5 and rkf78 can also run with a fixed step
+/// (adaptive = false). bdf: SUNDIALS CVODE's variable-order BDF (implicit, for stiff problems;
+/// always adaptive), available when ukdyn was built with SUNDIALS (bdf_available()).
 enum class IntegratorKind { rk4, dopri5, rkf78, bdf };
 bool bdf_available();
 std::string to_string(IntegratorKind kind);
@@ -23,7 +24,8 @@ std::string to_string(IntegratorKind kind);
 /// Acceleration-level constraints drift (A q̈ = b only holds Φ̈ = 0). Choices:
 ///  none:       integrate as is;
 ///  baumgarte:  A q̈ = b − 2α Φ̇ − β² Φ (Baumgarte 1972), pulls Φ back with time constants 1/α, 1/β;
-///  projection: after every step, Gauss–Newton on Φ(q) = 0 in the metric of M, then q̇ onto
+///  projection: after every step (coordinate projection, [Eich1993], [Ascher1995] in
+///              docs/references.md), Gauss–Newton on Φ(q) = 0 in the metric of M, then q̇ onto
 ///              Φ̇ = A q̇ + Φ_t = 0 in the same metric (each is one U-K solve with Q = 0).
 enum class DriftControl { none, baumgarte, projection };
 std::string to_string(DriftControl kind);
@@ -112,6 +114,27 @@ using SampleObserver =
 /// Applied generalized forces τ(t, q, q̇) written into tau (size n). Must not allocate.
 using ForceFunction = std::function<void(double t, CVecRef q, CVecRef qd, VecRef tau)>;
 
+/// The integrator's right-hand side exactly as simulate() hands it to Boost.Odeint (the same
+/// internal type, built the same way): x = [q; q̇] ↦ ẋ = [q̇; q̈], with q̈ from forward() (and the
+/// Baumgarte terms in b when settings.drift says so), every buffer owned by this object. Exposed so
+/// that tests check the real thing (tests/test_no_alloc.cpp: no allocation per call).
+class IntegratorRhs {
+ public:
+  /// system, tau and settings are referenced, not copied: they must outlive this object.
+  IntegratorRhs(const System& system, const ForceFunction& tau, const SimulationSettings& settings);
+  ~IntegratorRhs();
+  IntegratorRhs(const IntegratorRhs&) = delete;
+  IntegratorRhs& operator=(const IntegratorRhs&) = delete;
+  /// x and dxdt have 2n entries.
+  void operator()(const std::vector<double>& x, std::vector<double>& dxdt, double t);
+  /// The ForwardData of the last call (q̈, Qc, A, b, diagnostics).
+  [[nodiscard]] const ForwardData& data() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 /// Integrates from (q0, qd0). Never throws for numerical trouble: a NaN/Inf state, a failed step, a
 /// failed projection or an inconsistent constraint set ends the run with a status, after the
 /// samples written so far. Throws ukdyn::Error for invalid settings (sizes, non-positive steps).
@@ -119,14 +142,15 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                          const ForceFunction& tau, const SimulationSettings& settings,
                          const SampleObserver& observer);
 
-/// Consistent initial conditions: the q nearest to q_guess (minimum-norm Gauss–Newton steps over
-/// the coordinates not held) with Φ(q, t) = 0, then the q̇ nearest to qd_guess with A q̇ + Φ_t = 0.
+/// Consistent initial conditions (assembly, [Nikravesh1988]): the q nearest to q_guess
+/// (minimum-norm Gauss–Newton steps over the coordinates not held) with Φ(q, t) = 0, then the q̇
+/// nearest to qd_guess with A q̇ + Φ_t = 0.
 struct AssemblyResult {
-  Vec q, qd;
+  Vec q, qd;  ///< n each (system.dof()): the assembled state
   bool success = false;
   int iterations = 0;
-  double max_position_residual = 0.0;
-  double max_velocity_residual = 0.0;
+  double max_position_residual = 0.0;  ///< max |Φ(q, t)| over the m rows
+  double max_velocity_residual = 0.0;  ///< max |Φ̇(q, q̇, t)| over the m rows
   std::vector<Index> unmet_rows;  ///< rows still violated (|Φ| > tol) if !success
   std::string message;
 };

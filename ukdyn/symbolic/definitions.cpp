@@ -426,6 +426,23 @@ void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, Vec
   for (Index i = 0; i < n_; ++i) G(i) = out[k++];
 }
 
+Index DerivedSubsystem::slot_size() const {
+  return static_cast<Index>(dyn_.outputs() + dyn_.work_size());
+}
+
+void DerivedSubsystem::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                                     VecRef G) const {
+  if (slot.size() != static_cast<std::size_t>(slot_size())) {
+    dynamics(q, qd, M, Cqd, G);
+    return;
+  }
+  double* out = slot.data();
+  dyn_.eval(0.0, q.data(), qd.data(), out, out + dyn_.outputs());
+  std::size_t k = symmetric_from_upper(out, n_, M);
+  for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
+  for (Index i = 0; i < n_; ++i) G(i) = out[k++];
+}
+
 void DerivedSubsystem::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
   // Row-major tape output into a column-major block: go through a transposed map.
   if (C.innerStride() == 1 && C.outerStride() == C.rows() && C.rows() == n_ && C.cols() == n_) {
@@ -643,6 +660,46 @@ void DerivedConstraint::position_residual(double t, CVecRef q, VecRef phi) const
 
 void DerivedConstraint::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
   phid_.eval(t, q.data(), qd.data(), phid.data());
+}
+
+Index DerivedConstraint::slot_size() const {
+  return static_cast<Index>(
+      std::max({ab_.outputs() + ab_.work_size(), phi_.work_size(), phid_.work_size()}));
+}
+
+void DerivedConstraint::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                                      MatRef A, VecRef b) const {
+  const Slot own = slots.own();
+  if (own.size() != static_cast<std::size_t>(slot_size())) {
+    evaluate(t, q, qd, A, b);
+    return;
+  }
+  double* out = own.data();
+  ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
+  zero_rows(A);
+  std::size_t k = 0;
+  for (const auto& [r, c] : nz_) A(r, c) = out[k++];
+  for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+}
+
+void DerivedConstraint::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                               VecRef phi) const {
+  const Slot own = slots.own();
+  if (own.size() != static_cast<std::size_t>(slot_size())) {
+    position_residual(t, q, phi);
+    return;
+  }
+  phi_.eval(t, q.data(), nullptr, phi.data(), own.data());
+}
+
+void DerivedConstraint::velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                               CVecRef qd, VecRef phid) const {
+  const Slot own = slots.own();
+  if (own.size() != static_cast<std::size_t>(slot_size())) {
+    velocity_residual(t, q, qd, phid);
+    return;
+  }
+  phid_.eval(t, q.data(), qd.data(), phid.data(), own.data());
 }
 
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def) {

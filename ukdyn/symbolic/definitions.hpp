@@ -144,6 +144,10 @@ class DerivedSubsystem final : public Subsystem {
   void gravity(CVecRef q, VecRef G) const override;
   /// M, C q̇ and G from one tape (shared subexpressions computed once), for forward().
   void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
+  /// Data slot: the dynamics tape's outputs and its work buffer (allocation-free at any size).
+  [[nodiscard]] Index slot_size() const override;
+  void dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                     VecRef G) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(CVecRef q, CVecRef qd) const;
@@ -214,6 +218,14 @@ class DerivedConstraint final : public Constraint {
   void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
   void position_residual(double t, CVecRef q, VecRef phi) const override;
   void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+  /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes.
+  [[nodiscard]] Index slot_size() const override;
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override;
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override;
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override;
   [[nodiscard]] const ConstraintDerivation& derivation() const { return d_; }
   [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
 

@@ -1,9 +1,10 @@
 #include "ukdyn/symbolic/spline.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
-#include <deque>
-#include <mutex>
+#include <cstdint>
+#include <cstdio>
 #include <string>
 
 #include "ukdyn/core/types.hpp"
@@ -42,7 +43,7 @@ CubicSpline::CubicSpline(std::vector<double> t, std::vector<double> y, End end, 
     di[n] = 2 * h[n - 1];
     r[n] = 6 * (slope1 - slope(n - 1));
   }
-  // Thomas algorithm for the second derivatives m.
+  // Thomas algorithm for the second derivatives m (the tridiagonal system of [deBoor1978]).
   for (std::size_t i = 1; i < n1; ++i) {
     const double w = lo[i] / di[i - 1];
     di[i] -= w * up[i - 1];
@@ -77,17 +78,80 @@ double CubicSpline::eval(double t, int d) const {
   }
 }
 
+int CubicSpline::compare(const CubicSpline& o) const {
+  auto cmp_bits = [](double x, double y) {
+    const auto a = std::bit_cast<std::uint64_t>(x), b = std::bit_cast<std::uint64_t>(y);
+    return a < b ? -1 : (a > b ? 1 : 0);
+  };
+  if (t_.size() != o.t_.size()) return t_.size() < o.t_.size() ? -1 : 1;
+  for (std::size_t i = 0; i < t_.size(); ++i) {
+    if (const int c = cmp_bits(t_[i], o.t_[i])) return c;
+  }
+  for (std::size_t i = 0; i < c_.size(); ++i) {
+    for (std::size_t k = 0; k < 4; ++k) {
+      if (const int c = cmp_bits(c_[i][k], o.c_[i][k])) return c;
+    }
+  }
+  return 0;
+}
+
+std::uint64_t CubicSpline::fingerprint() const {
+  std::uint64_t h = 14695981039346656037ULL;  // FNV-1a, 64 bit
+  auto mix = [&](double v) {
+    auto b = std::bit_cast<std::uint64_t>(v);
+    for (int i = 0; i < 8; ++i) {
+      h ^= b & 0xffU;
+      h *= 1099511628211ULL;
+      b >>= 8;
+    }
+  };
+  for (double v : t_) mix(v);
+  for (const auto& c : c_) {
+    for (double v : c) mix(v);
+  }
+  return h;
+}
+
+}  // namespace ukdyn::symbolic
+
+// ---- S: the spline as a GiNaC object (GiNaC's structure<> wrapper around a shared_ptr), compared
+// by content so that the canonical order of terms, and the printed output, are the same in every
+// process (a pointer order would not be).
+namespace ukdyn::symbolic::detail {
+struct SplineRef {
+  std::shared_ptr<const CubicSpline> spline;
+};
+template <class T>
+class CompareSplineContent {
+ protected:
+  static bool struct_is_equal(const T* a, const T* b) { return struct_compare(a, b) == 0; }
+  static int struct_compare(const T* a, const T* b) {
+    if (a->spline == b->spline) return 0;
+    if (!a->spline || !b->spline) return a->spline ? 1 : -1;
+    return a->spline->compare(*b->spline);
+  }
+  ~CompareSplineContent() = default;
+};
+using SplineHandle = GiNaC::structure<SplineRef, CompareSplineContent>;
+}  // namespace ukdyn::symbolic::detail
+
+namespace GiNaC {
+template <>
+void ukdyn::symbolic::detail::SplineHandle::print(const print_context& c,
+                                                  unsigned /*level*/) const {
+  const auto& s = get_struct().spline;
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "S_%08llx",
+                static_cast<unsigned long long>(s ? (s->fingerprint() & 0xffffffffULL) : 0ULL));
+  c.s << buf;
+}
+}  // namespace GiNaC
+
+namespace ukdyn::symbolic {
+
 namespace {
 
-std::mutex& registry_mutex() {
-  static std::mutex m;
-  return m;
-}
-std::deque<std::shared_ptr<const CubicSpline>>& registry() {
-  static std::deque<std::shared_ptr<const CubicSpline>> r;
-  return r;
-}
-
+using detail::SplineHandle;
 using GiNaC::ex;
 
 unsigned spline_serial();
@@ -95,7 +159,6 @@ unsigned spline_serial();
 ex spline_eval(const ex& id, const ex& order, const ex& t) {
   if (GiNaC::is_a<GiNaC::numeric>(order) && GiNaC::ex_to<GiNaC::numeric>(order).to_int() > 3)
     return 0;
-  (void)id;
   (void)t;
   return GiNaC::function(spline_serial(), id, order, t).hold();
 }
@@ -104,8 +167,7 @@ ex spline_evalf(const ex& id, const ex& order, const ex& t) {
   if (!GiNaC::is_a<GiNaC::numeric>(t) || !GiNaC::ex_to<GiNaC::numeric>(t).is_real()) {
     return GiNaC::function(spline_serial(), id, order, t).hold();
   }
-  const auto s =
-      registered_spline(static_cast<std::size_t>(GiNaC::ex_to<GiNaC::numeric>(id).to_int()));
+  const auto s = spline_of(id);
   return GiNaC::numeric(s->eval(GiNaC::ex_to<GiNaC::numeric>(t).to_double(),
                                 GiNaC::ex_to<GiNaC::numeric>(order).to_int()));
 }
@@ -120,6 +182,7 @@ unsigned register_spline_function() {
                                            .latex_name("\\mathrm{spline}"));
 }
 
+// GiNaC's function serial, registered once (constant afterwards).
 unsigned spline_serial() {
   static const unsigned serial = register_spline_function();
   return serial;
@@ -132,20 +195,17 @@ ex spline_deriv(const ex& id, const ex& order, const ex& t, unsigned param) {
 
 }  // namespace
 
-std::shared_ptr<const CubicSpline> registered_spline(std::size_t id) {
-  const std::lock_guard<std::mutex> lock(registry_mutex());
-  if (id >= registry().size()) throw Error("unknown spline " + std::to_string(id));
-  return registry()[id];
+std::shared_ptr<const CubicSpline> spline_of(const ex& handle) {
+  if (!GiNaC::is_a<SplineHandle>(handle))
+    throw Error("ukdyn_spline: the first argument is no spline");
+  const auto& s = GiNaC::ex_to<SplineHandle>(handle).get_struct().spline;
+  if (!s) throw Error("ukdyn_spline: empty spline");
+  return s;
 }
 
 ex spline_expression(const CubicSpline& spline, const ex& arg) {
-  std::size_t id = 0;
-  {
-    const std::lock_guard<std::mutex> lock(registry_mutex());
-    id = registry().size();
-    registry().push_back(std::make_shared<const CubicSpline>(spline));
-  }
-  return GiNaC::function(spline_serial(), GiNaC::numeric(static_cast<long>(id)), 0, arg);
+  const ex handle = SplineHandle(detail::SplineRef{std::make_shared<const CubicSpline>(spline)});
+  return GiNaC::function(spline_serial(), handle, 0, arg);
 }
 
 ex spline_expression(const CubicSpline& spline) { return spline_expression(spline, time_symbol()); }

@@ -1,15 +1,19 @@
 // Cubic splines through points as time functions of definition-based constraints.
 //
-// spline_expression(s) is a GiNaC function ukdyn_spline(id, k, t) (the k-th derivative of spline
-// `id`): GiNaC differentiates it exactly (d/dt raises k; k ≥ 4 is 0), and the compiled tapes
-// evaluate it with a binary search over the knots (allocation-free). Outside [t_0, t_n] the first
-// or last cubic piece continues. In printed derivations it appears as ukdyn_spline(id, k, t).
+// spline_expression(s) is a GiNaC function ukdyn_spline(S, k, t) (the k-th derivative of spline S):
+// GiNaC differentiates it exactly (d/dt raises k; k ≥ 4 is 0), and the compiled tapes evaluate it
+// with a binary search over the knots (allocation-free). Outside [t_0, t_n] the first or last cubic
+// piece continues. S is a GiNaC object that holds the spline by shared_ptr: the spline lives as
+// long as an expression or a tape that uses it, and no more (there is no registry). Two splines
+// with the same knots and coefficients are the same S. In printed derivations S appears as
+// S_<hex digits of a hash of its content> (the same in every process).
 #pragma once
 
 #include <ginac/ginac.h>
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -25,17 +29,23 @@ class CubicSpline {
   /// d-th derivative (0..3; higher is 0) at t.
   [[nodiscard]] double eval(double t, int d = 0) const;
   [[nodiscard]] const std::vector<double>& knots() const { return t_; }
+  /// Total order by content (knots, then coefficients, bit patterns): < 0, 0, > 0.
+  [[nodiscard]] int compare(const CubicSpline& other) const;
+  /// FNV-1a hash of the content (for printing; equal splines have equal fingerprints).
+  [[nodiscard]] std::uint64_t fingerprint() const;
 
  private:
   std::vector<double> t_;
   std::vector<std::array<double, 4>> c_;  // per piece: a + b s + c s^2 + d s^3, s = t - t_i
 };
 
-/// Registers the spline (for the lifetime of the program) and returns f(arg) as an expression.
+/// f(arg) as an expression holding a copy of the spline (freed with the last expression or tape
+/// that uses it).
 GiNaC::ex spline_expression(const CubicSpline& spline, const GiNaC::ex& arg);
-/// spline_expression(spline, t) with the global time symbol.
+/// spline_expression(spline, t) with the time symbol.
 GiNaC::ex spline_expression(const CubicSpline& spline);
-/// The registered spline `id` (for the tape compiler); throws ukdyn::Error if unknown.
-std::shared_ptr<const CubicSpline> registered_spline(std::size_t id);
+/// The spline held by S, the first argument of ukdyn_spline(S, k, t) (for the tape compiler);
+/// throws ukdyn::Error if `handle` is not such an argument.
+std::shared_ptr<const CubicSpline> spline_of(const GiNaC::ex& handle);
 
 }  // namespace ukdyn::symbolic

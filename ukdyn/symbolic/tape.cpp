@@ -232,9 +232,8 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
     if (auto it = unary.find(name); it != unary.end() && e.nops() == 1) {
       id = emit(it->second, compile(e.op(0), inputs), 0, 0.0);
     } else if (name == "ukdyn_spline" && e.nops() == 3) {
-      const auto sid = static_cast<std::size_t>(to_double(e.op(0)));
       const auto order = static_cast<std::size_t>(to_double(e.op(1)));
-      const auto spline = registered_spline(sid);
+      const auto spline = spline_of(e.op(0));  // the tape shares ownership of the spline
       std::size_t local = 0;
       while (local < splines_.size() && splines_[local] != spline) ++local;
       if (local == splines_.size()) splines_.push_back(spline);
@@ -405,9 +404,17 @@ std::size_t Tape::sincos_pairs() const {
 }
 
 void Tape::eval(double t, const double* q, const double* qd, double* out) const {
-  thread_local std::vector<double> work;
-  if (work.size() < code_.size()) work.resize(code_.size());
-  double* w = work.data();
+  if (code_.size() <= kStackWork) {
+    double work[kStackWork];
+    eval(t, q, qd, out, work);
+    return;
+  }
+  std::vector<double> work(code_.size());
+  eval(t, q, qd, out, work.data());
+}
+
+void Tape::eval(double t, const double* q, const double* qd, double* out, double* work) const {
+  double* w = work;
   for (const Load& L : constants_) w[L.dst] = L.value;
   for (const Load& L : time_loads_) w[L.dst] = t;
   for (const Load& L : q_loads_) w[L.dst] = q[L.index];

@@ -94,9 +94,17 @@ class Tape {
   /// Instructions eval() executes (instructions() less those folded into a pair or a user).
   [[nodiscard]] std::size_t executed_instructions() const;
 
-  /// Evaluates every output into out[0..outputs()). q and qd may be null if the tape reads none.
-  /// Allocation-free after the first call on a thread (the work buffer is thread-local).
+  /// Doubles of work buffer eval() needs (one per instruction slot).
+  [[nodiscard]] std::size_t work_size() const { return code_.size(); }
+  /// Evaluates every output into out[0..outputs()), with the caller's work buffer `work` of
+  /// work_size() doubles (a ForwardData slot, say). Allocation-free. q and qd may be null if the
+  /// tape reads none. The tape itself is constant: one tape may run on many threads, each with its
+  /// own work buffer.
+  void eval(double t, const double* q, const double* qd, double* out, double* work) const;
+  /// The same with a work buffer of its own: on the stack up to kStackWork doubles, else on the
+  /// heap (allocates: not for the integration hot path of a large model).
   void eval(double t, const double* q, const double* qd, double* out) const;
+  static constexpr std::size_t kStackWork = 2048;
 
  private:
   std::int32_t emit(Op op, std::int32_t a, std::int32_t b, double imm);

@@ -1,6 +1,5 @@
-// ukdyn::symbolic: the expression parser, the compiled tapes, derivations of textbook systems
-// checked against hand-written formulas, and finite-difference checks that do not use the
-// derivation code.
+// Derivations (ukdyn/symbolic/definitions.cpp) of textbook subsystems and constraints, checked
+// against hand-written formulas and finite differences that do not use the derivation code.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -17,150 +16,6 @@ using GiNaC::ex;
 using ukdyn::Index;
 using ukdyn::Mat;
 using ukdyn::Vec;
-
-double num(const ex& e) { return GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_double(); }
-
-// ------------------------------------------------------------------------------------ parser
-
-TEST(SymbolicParser, ReadsDecimalsExactlyAndRespectsPrecedence) {
-  sym::Scope s;
-  const GiNaC::symbol x("x");
-  s.add("x", x);
-  EXPECT_TRUE(s.parse("0.855").is_equal(GiNaC::numeric(171, 200)));
-  EXPECT_TRUE(s.parse("1.5e-3").is_equal(GiNaC::numeric(3, 2000)));
-  EXPECT_TRUE(s.parse("2e2").is_equal(GiNaC::numeric(200)));
-  EXPECT_TRUE((s.parse("-x^2") + GiNaC::pow(x, 2)).is_zero());  // −(x²), not (−x)²
-  EXPECT_TRUE((s.parse("2^3^2") - 512).is_zero());              // right-associative
-  EXPECT_TRUE((s.parse("x**2 - x*x")).is_zero());
-  EXPECT_TRUE((s.parse("1/2/x") - 1 / (2 * x)).is_zero());
-  EXPECT_NEAR(num(s.parse("cos(pi/3) + sqrt(4) + atan2(1, 1)")), 0.5 + 2 + std::numbers::pi / 4,
-              1e-15);
-}
-
-TEST(SymbolicParser, ErrorsNameTheColumn) {
-  sym::Scope s;
-  s.add("theta1", GiNaC::symbol("theta1"));
-  auto offset_of = [&](const std::string& text) -> long {
-    try {
-      (void)s.parse(text);
-    } catch (const sym::ExpressionError& e) {
-      return static_cast<long>(e.offset);
-    }
-    return -1;
-  };
-  EXPECT_EQ(offset_of("l1*cos(theta1)"), 0);  // unknown symbol l1
-  EXPECT_EQ(offset_of("2*cos(theta1"), 12);   // missing ')'
-  EXPECT_EQ(offset_of("theta1 + * 2"), 9);    // '*' where an operand belongs
-  EXPECT_EQ(offset_of("2theta1"), 1);         // implicit product
-  EXPECT_EQ(offset_of("foo(theta1)"), 0);     // unknown function
-  EXPECT_EQ(offset_of("sin(theta1, 2)"), 0);  // arity
-  EXPECT_EQ(offset_of("theta1 )"), 7);        // trailing garbage
-  EXPECT_EQ(offset_of(""), 0);
-  try {
-    (void)s.parse("theta1 + thet");
-  } catch (const sym::ExpressionError& e) {
-    EXPECT_NE(std::string(e.what()).find("unknown symbol 'thet'"), std::string::npos) << e.what();
-  }
-  EXPECT_THROW(s.add("t", GiNaC::symbol("t")), sym::ExpressionError);    // reserved
-  EXPECT_THROW(s.add("sin", GiNaC::symbol("s")), sym::ExpressionError);  // a function
-  EXPECT_THROW(s.add("theta1", GiNaC::symbol("u")), sym::ExpressionError);
-}
-
-// ------------------------------------------------------------------------------------ tape
-
-TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
-  const GiNaC::symbol a = sym::coordinate_symbol("tape_a"), b = sym::coordinate_symbol("tape_b");
-  const GiNaC::symbol v = sym::velocity_symbol("tape_a"), t = sym::time_symbol();
-  sym::InputMap in;
-  in[a] = {sym::TapeInput::Source::q, 0};
-  in[b] = {sym::TapeInput::Source::q, 1};
-  in[v] = {sym::TapeInput::Source::qd, 0};
-  in[t] = {sym::TapeInput::Source::time, 0};
-  const std::vector<ex> outs = {
-      GiNaC::sin(a) * GiNaC::cos(b) -
-          GiNaC::numeric(3, 7) * GiNaC::pow(v, 3) / (2 + GiNaC::pow(a, 2)),
-      GiNaC::sqrt(1 + GiNaC::pow(b, 2)) + GiNaC::exp(-t) * GiNaC::atan2(a, b) +
-          GiNaC::pow(GiNaC::abs(a) + 1, GiNaC::numeric(1, 3)),
-      GiNaC::sin(a) * GiNaC::cos(b) + GiNaC::Pi * GiNaC::tan(a / 3) - GiNaC::log(2 + GiNaC::cos(t)),
-      ex(5) / 4};
-  const sym::Tape tape(outs, in);
-  std::mt19937_64 rng(3);
-  for (int k = 0; k < 50; ++k) {
-    const double q[2] = {uktest::uniform(rng, -2, 2), uktest::uniform(rng, -2, 2)};
-    const double qd[1] = {uktest::uniform(rng, -2, 2)};
-    const double tt = uktest::uniform(rng, 0, 3);
-    double out[4];
-    tape.eval(tt, q, qd, out);
-    const GiNaC::exmap at = {{a, q[0]}, {b, q[1]}, {v, qd[0]}, {t, tt}};
-    for (std::size_t i = 0; i < outs.size(); ++i) {
-      EXPECT_NEAR(out[i], num(outs[i].subs(at)), 1e-13 * (1 + std::abs(out[i])));
-    }
-  }
-  // sin(a) cos(b) appears twice: with value numbering, one sin, one cos, one product.
-  std::size_t sins = 0;
-  const sym::Tape twice({GiNaC::sin(a) * GiNaC::cos(b), 2 * GiNaC::sin(a) * GiNaC::cos(b) + 1}, in);
-  EXPECT_LE(twice.operations(), 5u);  // sin, cos, mul, mul_c, add_c
-  (void)sins;
-  EXPECT_THROW(sym::Tape({GiNaC::symbol("stranger")}, in), ukdyn::Error);
-}
-
-// Products used once are folded into their user (add, sub, mul): fewer instructions executed, the
-// same values (same operations in the same order; only FMA contraction, with -march=native, can
-// differ by an ulp). A product used twice, or a tape output, is kept.
-TEST(SymbolicTape, ProductsFoldIntoTheirOnlyUser) {
-  const GiNaC::symbol a = sym::coordinate_symbol("pf_a"), b = sym::coordinate_symbol("pf_b"),
-                      c = sym::coordinate_symbol("pf_c");
-  sym::InputMap in;
-  in[a] = {sym::TapeInput::Source::q, 0};
-  in[b] = {sym::TapeInput::Source::q, 1};
-  in[c] = {sym::TapeInput::Source::q, 2};
-  const ex ab = a * b;
-  const std::vector<ex> outs = {c + 3 * ab * c - GiNaC::sin(a) * b, 2 * a - c * b * 5,
-                                ab,  // an output: not folded away
-                                GiNaC::pow(c, 2) + ab};
-  const sym::Tape tape(outs, in);
-  EXPECT_LT(tape.executed_instructions(), tape.instructions());
-  std::mt19937_64 rng(6);
-  for (int k = 0; k < 1000; ++k) {
-    const double q[3] = {uktest::uniform(rng, -5, 5), uktest::uniform(rng, -5, 5),
-                         uktest::uniform(rng, -5, 5)};
-    double out[4];
-    tape.eval(0.0, q, nullptr, out);
-    const double x = q[0], y = q[1], z = q[2];
-    const double ref[4] = {z + 3 * x * y * z - std::sin(x) * y, 2 * x - z * y * 5, x * y,
-                           z * z + x * y};
-    for (int i = 0; i < 4; ++i) EXPECT_NEAR(out[i], ref[i], 1e-14 * (1 + std::abs(ref[i])));
-    EXPECT_EQ(out[2], x * y);
-  }
-}
-
-// sin and cos of one argument are computed by one sincos (the first of the two in the tape writes
-// both); either order, a pair sharing nothing, and a lone sin or cos must all give exactly
-// std::sin / std::cos.
-TEST(SymbolicTape, SinCosPairsGiveTheSeparateCallsValues) {
-  const GiNaC::symbol a = sym::coordinate_symbol("sc_a"), b = sym::coordinate_symbol("sc_b");
-  sym::InputMap in;
-  in[a] = {sym::TapeInput::Source::q, 0};
-  in[b] = {sym::TapeInput::Source::q, 1};
-  const std::vector<ex> outs = {GiNaC::cos(a + b), GiNaC::sin(a) * 2, GiNaC::sin(a + b),
-                                GiNaC::cos(a) + GiNaC::sin(b), GiNaC::cos(a)};
-  const sym::Tape tape(outs, in);
-  // a + b; sin, cos of a + b; sin, cos of a; sin b; ·2; +  — counted as before fusing.
-  EXPECT_EQ(tape.operations(), 8u);
-  EXPECT_EQ(tape.sincos_pairs(), 2u);  // (a + b) and a; sin b stays alone
-  std::mt19937_64 rng(4);
-  for (int k = 0; k < 1000; ++k) {
-    const double q[2] = {uktest::uniform(rng, -50, 50), uktest::uniform(rng, -50, 50)};
-    double out[5];
-    tape.eval(0.0, q, nullptr, out);
-    const double ab = q[0] + q[1];
-    EXPECT_EQ(out[0], std::cos(ab));
-    EXPECT_EQ(out[1], std::sin(q[0]) * 2);
-    EXPECT_EQ(out[2], std::sin(ab));
-    EXPECT_EQ(out[3], std::cos(q[0]) + std::sin(q[1]));
-    EXPECT_EQ(out[4], std::cos(q[0]));
-  }
-}
 
 // ------------------------------------------------------------------------------------ subsystems
 
@@ -482,28 +337,6 @@ TEST(SymbolicConstraint, DefinitionErrors) {
     sym::ConstraintDef d("c", sym::ConstraintDef::Kind::holonomic, coords);
     EXPECT_THROW((void)sym::make_constraint(d), sym::DefinitionError);  // no rows
   }
-}
-
-TEST(SymbolicFormat, PrintsLatexCAndMatlab) {
-  sym::SubsystemDef d("pend", {"fm_phi"});
-  d.parameter("m", 2);
-  d.parameter("l", 0.5);
-  auto& b = d.add_body("bob");
-  b.mass = d.parse("m");
-  b.com = {d.parse("l*sin(fm_phi)"), 0, d.parse("-l*cos(fm_phi)")};
-  d.gravity = {0, 0, -9.8};
-  const auto der = sym::derive(d);
-  const std::string latex = sym::format_derivation(der, "pend", sym::Format::latex);
-  EXPECT_NE(latex.find("\\begin{align*}"), std::string::npos);
-  EXPECT_NE(latex.find("\\sin(\\mathrm{fm}_{phi})"), std::string::npos) << latex;
-  const std::string c = sym::format_derivation(der, "pend", sym::Format::c);
-  EXPECT_NE(c.find("M[0][0] = "), std::string::npos) << c;
-  EXPECT_NE(c.find("const double m = "), std::string::npos) << c;
-  const std::string mat = sym::format_derivation(der, "pend", sym::Format::matlab);
-  EXPECT_NE(mat.find("M(1,1) = "), std::string::npos) << mat;
-  EXPECT_NE(mat.find("G(1) = "), std::string::npos) << mat;
-  // M = m l², G = m g l sin φ, exactly.
-  EXPECT_TRUE((der.M(0, 0) - GiNaC::pow(d.parse("l"), 2) * d.parse("m")).is_zero());
 }
 
 }  // namespace

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# No hidden mutable state in the library (docs/architecture.md, "Model and data"): every
+# `thread_local` and every `static` that is not `static const` / `static constexpr` / a static_cast
+# under ukdyn/ must be on the allow-list below, with its reason. Models are constant; what an
+# evaluation changes lives in caller-owned data (ForwardData and its slots).
+#
+#   scripts/check-no-hidden-state.sh [SOURCE_DIR]     exit 0: clean, 1: a hit not allowed
+# Run by ctest (hidden_state) and so by `make test`.
+set -euo pipefail
+root="${1:-$(cd "$(dirname "$0")/.." && pwd)}"
+cd "$root"
+
+# file:text-of-the-line (a fixed substring of the line) | reason. Static member *functions* are
+# stateless; a mutex that only serialises calls into a third-party global holds no state of ours.
+allow=(
+  "ukdyn/model/time_function.hpp:static TimeFunction make_|static member functions (named constructors), no state"
+  "ukdyn/core/uk_solve.hpp:static BlockLayout single|static member function (a named constructor), no state"
+  "ukdyn/io/yaml_loader.hpp:static bool parse_number|static member function, no state"
+  "ukdyn/symbolic/spline.cpp:static bool struct_is_equal|static member function (GiNaC comparison policy), no state"
+  "ukdyn/symbolic/spline.cpp:static int struct_compare|static member function (GiNaC comparison policy), no state"
+  "ukdyn/symbolic/expression.cpp:static std::mutex m;|OPEN (issue 10, item 1, not done): guards the interned symbol table below"
+  "ukdyn/symbolic/expression.cpp:static std::map<std::string, GiNaC::symbol> r;|OPEN (issue 10, item 1, not done): coordinate / velocity / time symbols interned by name so that a coordinate is one GiNaC symbol in every definition; grows with distinct names only (not with systems); to move into DefinitionScope"
+  "ukdyn/symbolic/urdf.cpp:static std::mutex mutex;|serialises urdfdom's parser, whose console_bridge output handler is a global of that library; holds no value"
+)
+
+status=0
+while IFS= read -r hit; do
+  [[ -z "$hit" ]] && continue
+  file="${hit%%:*}"
+  rest="${hit#*:}"
+  line="${rest#*:}"
+  trimmed="${line#"${line%%[![:space:]]*}"}"
+  [[ "$trimmed" == //* ]] && continue  # a comment
+  ok=0
+  for entry in "${allow[@]}"; do
+    spec="${entry%%|*}"
+    afile="${spec%%:*}"
+    atext="${spec#*:}"
+    if [[ "$file" == "$afile" && "$line" == *"$atext"* ]]; then ok=1; break; fi
+  done
+  if ((ok == 0)); then
+    echo "hidden state: $hit" >&2
+    status=1
+  fi
+done < <(grep -rn 'thread_local\|static [^c]' ukdyn/ | grep -v 'static_cast' || true)
+
+if ((status == 0)); then
+  echo "check-no-hidden-state: no thread_local and no mutable static in ukdyn/ (${#allow[@]} allowed entries)"
+else
+  echo "check-no-hidden-state: move the state above into caller-owned data, or allow-list it with a reason" >&2
+fi
+exit $status
