@@ -16,6 +16,8 @@ allow=(
   "ukdyn/model/time_function.hpp:static TimeFunction make_|static member functions (named constructors), no state"
   "ukdyn/core/uk_solve.hpp:static BlockLayout single|static member function (a named constructor), no state"
   "ukdyn/io/yaml_loader.hpp:static bool parse_number|static member function, no state"
+  "ukdyn/io/yaml_loader.hpp:static std::string printable|static member function, no state"
+  "ukdyn/io/csv_writer.hpp:static std::string incomplete_name|static member function, no state"
   "ukdyn/symbolic/spline.cpp:static bool struct_is_equal|static member function (GiNaC comparison policy), no state"
   "ukdyn/symbolic/spline.cpp:static int struct_compare|static member function (GiNaC comparison policy), no state"
   "ukdyn/symbolic/expression.cpp:static std::mutex m;|OPEN (issue 10, item 1, not done): guards the interned symbol table below"

@@ -301,7 +301,7 @@ simulation:
   EXPECT_EQ(tr.rank_min, 4);
 }
 
-// The N-four-bar scenarios of the library (written on another branch; skipped if absent).
+// The N-four-bar scenarios of the library (tools/n_four_bar.py; skipped if absent).
 
 // Coordinate-free: on the parallelogram branch V = G sin φ and T = ½ J φ̇², so the scenario's
 // initial energy must be the reference's, and V(t)/G = sin φ(t) = y_B0(t) over a short run (2 s,
@@ -314,6 +314,11 @@ TEST(Benchmarks, NFourBarFollowsTheParallelogramBranch) {
   ukdyn::SimulationSettings s = sc.sim;
   s.t_end = 2.0;
   s.sample_dt = 0.01;
+  // The exact (default) solve stops at the first flat position, saying why (issue 9 item 1 is open:
+  // tests/test_n_four_bar.cpp, docs/singular-positions.md); the regularized solve with the measured
+  // best damping crosses it on the branch.
+  s.uk.method = ukdyn::UkMethod::regularized;
+  s.uk.regularization = 1e-5;
   double err = 0, E0 = std::nan("");
   const auto st = ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
                                   [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {

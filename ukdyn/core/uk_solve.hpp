@@ -47,7 +47,7 @@ inline const char* to_string(UkMethod m) {
 struct UkSettings {
   UkMethod method = UkMethod::exact;
   /// regularized: √μ relative to the largest singular value of A M^{-1/2}.
-  double regularization = 1e-4;
+  double regularization = 1e-5;  // measured best on the N-four-bar (docs/singular-positions.md)
   /// equilibrated: rows with ‖A_i M^{-1/2}‖ under row_floor · max_j ‖A_j M^{-1/2}‖ are dropped.
   double row_floor = 1e-13;
   /// Relative tolerance on the singular values of A M^{-1/2} below which a direction is dropped
