@@ -50,11 +50,12 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string text =
       "ukdyn: 1\nname: fuzz\nsubsystems:\n  - name: s\n    type: definitions\n"
       "    coordinates: [x, y]\n    parameters: {a: 2, b: 0.5}\n    let: {u: " +
-      yaml_quoted(lines[0]) + "}\n    bodies:\n      - {name: p, mass: 1, com: [" + yaml_quoted(lines[1]) +
-      ", 0, " + yaml_quoted(lines[2]) +
+      yaml_quoted(lines[0]) + "}\n    bodies:\n      - {name: p, mass: 1, com: [" +
+      yaml_quoted(lines[1]) + ", 0, " + yaml_quoted(lines[2]) +
       "]}\n      - {name: r, mass: 1, com: [x, y, 0]}\n"
       "constraints:\n  - {type: expression, name: c, rows: [" +
-      yaml_quoted(lines[3]) + "]}\ninitial: {q: [0.1, 0.2]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
+      yaml_quoted(lines[3]) +
+      "]}\ninitial: {q: [0.1, 0.2]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
   try {
     ukdyn::LoadOptions options;
     options.check_initial = false;

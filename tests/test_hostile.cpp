@@ -309,8 +309,7 @@ TEST(HostileCorpus, FifoScenarioIsNamedNotOpened) {
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   const Outcome r = simulate(fifo, scratch() / "out_fifo");
   EXPECT_EQ(r.exit_code, 2) << r.err;
-  EXPECT_NE(r.err.find("is a FIFO (named pipe), not a scenario file"), std::string::npos)
-      << r.err;
+  EXPECT_NE(r.err.find("is a FIFO (named pipe), not a scenario file"), std::string::npos) << r.err;
   fs::remove(fifo);
   const Outcome d = simulate(scratch(), scratch() / "out_dir");
   EXPECT_EQ(d.exit_code, 2) << d.err;

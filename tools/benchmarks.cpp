@@ -391,18 +391,21 @@ int main(int argc, char** argv) {
     std::string status = complete ? "complete" : to_string(r.stats.status) + ": " + r.stats.message;
     for (const auto& w : r.stats.warnings)
       status += fmt::format("; warning {} at t = {:g}", w.kind, w.t);
-    std::cout << fmt::format(
-        "| {} | {} | {:g}{} | {} | {} | {} | {} | {} | {} | {} | {:.3f} | {} | {} |\n", p.id,
-        p.title, r.stats.t_reached, complete ? "" : fmt::format(" of {:g}", t_end),
-        r.note.empty() ? p.quantity : p.quantity + ": " + r.note, ref_note,
-        std::isfinite(max_err) ? fmt::format("{} (t = {:g})", sci(max_err), t_max) : "-",
-        sci(err_end), sci(r.max_residual),
-        p.conservative || has_work<ForwardData> ? sci(r.max_dE) : "n/a (no energy balance)",
-        r.rows == 0 ? "-"
-                    : fmt::format("{}{} of {} rows, {} coords", r.rank_min,
-                                  r.rank_max != r.rank_min ? fmt::format("..{}", r.rank_max) : "",
-                                  r.rows, r.dof),
-        r.cpu, r.stats.steps, status) << std::flush;
+    std::cout
+        << fmt::format(
+               "| {} | {} | {:g}{} | {} | {} | {} | {} | {} | {} | {} | {:.3f} | {} | {} |\n", p.id,
+               p.title, r.stats.t_reached, complete ? "" : fmt::format(" of {:g}", t_end),
+               r.note.empty() ? p.quantity : p.quantity + ": " + r.note, ref_note,
+               std::isfinite(max_err) ? fmt::format("{} (t = {:g})", sci(max_err), t_max) : "-",
+               sci(err_end), sci(r.max_residual),
+               p.conservative || has_work<ForwardData> ? sci(r.max_dE) : "n/a (no energy balance)",
+               r.rows == 0
+                   ? "-"
+                   : fmt::format("{}{} of {} rows, {} coords", r.rank_min,
+                                 r.rank_max != r.rank_min ? fmt::format("..{}", r.rank_max) : "",
+                                 r.rows, r.dof),
+               r.cpu, r.stats.steps, status)
+        << std::flush;
   }
   std::cout << "\nErrors: Euclidean distance between the observed point and the reference at every "
                "output sample. Energy (balance) drift: max abs((E - W) - (E0 - W0)) over the "

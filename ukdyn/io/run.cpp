@@ -368,7 +368,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   const auto start = std::chrono::steady_clock::now();
   if (csv) {
     Observer observer{
-        sys,    rep,   &*csv, progress, options.cancel, std::vector<double>(header.size()),
+        sys,    rep,    &*csv,  progress, options.cancel, std::vector<double>(header.size()),
         Vec(m), Vec(m), balance};
     const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
     SimulationSettings settings = sc.sim;

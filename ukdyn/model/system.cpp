@@ -42,7 +42,6 @@ void System::add_applied_force(std::shared_ptr<const AppliedForce> force) {
   applied_.push_back(std::move(force));
 }
 
-
 namespace {
 Index index_of(const std::vector<std::string>& names, const std::string& name, const char* what) {
   for (std::size_t i = 0; i < names.size(); ++i) {

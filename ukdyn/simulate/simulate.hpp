@@ -66,7 +66,8 @@ struct SimulationSettings {
   bool energy_balance = false;
 };
 
-/// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed step.
+/// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed
+/// step.
 inline bool adaptive_steps(const SimulationSettings& s) {
   return s.integrator == IntegratorKind::bdf ||  // bdf: always adaptive
          (s.integrator != IntegratorKind::rk4 && s.adaptive);
