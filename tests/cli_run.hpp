@@ -51,6 +51,18 @@ inline std::string sh(const std::string& s) {
   return out + "'";
 }
 
+/// Runs a shell command; its exit status (-1 if it did not exit normally).
+inline int shell(const std::string& cmd) {
+  const int rc = std::system(cmd.c_str());
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+/// One scratch folder per test process and tag, made on first use, removed at exit.
+inline const fs::path& process_scratch(const std::string& tag) {
+  static const ScratchDir dir(tag);  // tests only: one folder for the whole process
+  return dir.path;
+}
+
 /// Runs `prefix ukdyn args` through /bin/sh with stdin_text on stdin.
 inline CliResult run_cli(const fs::path& cli, const fs::path& scratch, const std::string& args,
                          const std::string& stdin_text = "", const std::string& prefix = "") {

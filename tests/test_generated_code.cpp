@@ -14,6 +14,7 @@
 #include <sstream>
 #include <string>
 
+#include "cli_run.hpp"
 #include "ukdyn/io/scenario.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
@@ -22,30 +23,13 @@
 namespace {
 
 namespace fs = std::filesystem;
+using ukdyn_test::shell;
+using ukdyn_test::slurp;
 const fs::path kSource = UKDYN_SOURCE_DIR;
 
-fs::path scratch() {
-  static const fs::path dir = [] {
-    auto d = fs::temp_directory_path() / ("ukdyn_generated_code_" + std::to_string(::getpid()));
-    fs::create_directories(d);
-    return d;
-  }();
-  return dir;
-}
+const fs::path& scratch() { return ukdyn_test::process_scratch("ukdyn_generated_code"); }
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
-
-int sh(const std::string& cmd) {
-  const int rc = std::system(cmd.c_str());
-  return WIFEXITED(rc) ? WEXITSTATUS(rc) : 128;
-}
-
-bool have_cc() { return sh("command -v cc > /dev/null 2>&1") == 0; }
+bool have_cc() { return shell("command -v cc > /dev/null 2>&1") == 0; }
 
 // A definitions scenario whose names collide with the generated C (M, C, G, q, b, A, Phi, qd).
 const char* kCollidingNames = R"(ukdyn: 1
@@ -73,7 +57,7 @@ std::vector<double> compiled_dynamics(const fs::path& scenario, const std::strin
   const std::string stem = scenario.stem().string();
   const fs::path c = scratch() / (stem + ".c"), exe = scratch() / stem,
                  err = scratch() / (stem + ".err");
-  if (sh(std::string("'") + UKDYN_CLI + "' derive '" + scenario.string() + "' --format c > '" +
+  if (shell(std::string("'") + UKDYN_CLI + "' derive '" + scenario.string() + "' --format c > '" +
          c.string() + "' 2> '" + err.string() + "'") != 0) {
     why = "derive failed: " + slurp(err);
     return {};
@@ -92,13 +76,13 @@ std::vector<double> compiled_dynamics(const fs::path& scenario, const std::strin
        << "; ++j) printf(\"%.17g\\n\", C[i][j]);\n"
        << "  for (int i = 0; i < " << n << "; ++i) printf(\"%.17g\\n\", G[i]);\n  return 0;\n}\n";
   std::ofstream(c, std::ios::app) << main.str();
-  if (sh("cc -std=c99 -Wall -Wextra -Werror -O1 -o '" + exe.string() + "' '" + c.string() +
+  if (shell("cc -std=c99 -Wall -Wextra -Werror -O1 -o '" + exe.string() + "' '" + c.string() +
          "' -lm 2> '" + err.string() + "'") != 0) {
     why = "cc failed:\n" + slurp(err) + "\n" + slurp(c).substr(0, 4000);
     return {};
   }
   const fs::path out = scratch() / (stem + ".out");
-  if (sh("'" + exe.string() + "' > '" + out.string() + "'") != 0) {
+  if (shell("'" + exe.string() + "' > '" + out.string() + "'") != 0) {
     why = "the compiled program failed";
     return {};
   }
@@ -157,7 +141,7 @@ TEST(GeneratedCode, NamesThatCollideWithTheGeneratedCodeAreRenamed) {
   expect_agrees(file, "cart_dynamics");
   // MATLAB: the parameter M must not be the matrix M.
   const fs::path m = scratch() / "colliding.m";
-  ASSERT_EQ(sh(std::string("'") + UKDYN_CLI + "' derive '" + file.string() +
+  ASSERT_EQ(shell(std::string("'") + UKDYN_CLI + "' derive '" + file.string() +
                "' --format matlab > '" + m.string() + "'"),
             0);
   const std::string text = slurp(m);

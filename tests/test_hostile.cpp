@@ -22,35 +22,19 @@
 #include <string>
 #include <vector>
 
+#include "cli_run.hpp"
+
 #ifdef UKDYN_CLI
 
 namespace {
 
 namespace fs = std::filesystem;
+using ukdyn_test::sh;
+using ukdyn_test::slurp;
 const fs::path kSource = UKDYN_SOURCE_DIR;
 constexpr int kTimeoutSeconds = 20;
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
-
-fs::path scratch() {
-  static const fs::path dir = [] {
-    auto d = fs::temp_directory_path() / ("ukdyn_hostile_test_" + std::to_string(::getpid()));
-    fs::create_directories(d);
-    return d;
-  }();
-  return dir;
-}
-
-std::string sh_quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
+const fs::path& scratch() { return ukdyn_test::process_scratch("ukdyn_hostile_test"); }
 
 struct Outcome {
   int exit_code = -1;  // 124: timed out (hang); > 128: killed by a signal (crash)
@@ -60,9 +44,9 @@ struct Outcome {
 Outcome simulate(const fs::path& scenario, const fs::path& out_dir) {
   const fs::path err = scratch() / "stderr.txt";
   const std::string cmd =
-      "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh_quote(UKDYN_CLI) + " simulate " +
-      sh_quote(scenario.string()) + " --out " + sh_quote(out_dir.string()) +
-      " --no-figures --quiet < /dev/null > /dev/null 2> " + sh_quote(err.string());
+      "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI) + " simulate " +
+      sh(scenario.string()) + " --out " + sh(out_dir.string()) +
+      " --no-figures --quiet < /dev/null > /dev/null 2> " + sh(err.string());
   const int rc = std::system(cmd.c_str());
   Outcome o;
   o.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + (WIFSIGNALED(rc) ? WTERMSIG(rc) : 0);
@@ -282,14 +266,14 @@ TEST(HostileCorpus, InjectionPayloadsRunNothing) {
     if (text.find("canary") == std::string::npos && text.find("system(") == std::string::npos)
       continue;
     ++payloads;
-    const std::string cd = "cd " + sh_quote(work.string()) + " && ";
+    const std::string cd = "cd " + sh(work.string()) + " && ";
     for (const std::string& cmd :
-         std::vector<std::string>{"simulate " + sh_quote(c.file.string()) + " --out out",
-                                  "derive " + sh_quote(c.file.string()) + " --format c",
-                                  "derive " + sh_quote(c.file.string()) + " --format latex",
-                                  "derive " + sh_quote(c.file.string()) + " --format matlab"}) {
+         std::vector<std::string>{"simulate " + sh(c.file.string()) + " --out out",
+                                  "derive " + sh(c.file.string()) + " --format c",
+                                  "derive " + sh(c.file.string()) + " --format latex",
+                                  "derive " + sh(c.file.string()) + " --format matlab"}) {
       const int rc = std::system((cd + "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " +
-                                  sh_quote(UKDYN_CLI) + " " + cmd + " > /dev/null 2>&1")
+                                  sh(UKDYN_CLI) + " " + cmd + " > /dev/null 2>&1")
                                      .c_str());
       EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << c.name << ": " << cmd;
     }

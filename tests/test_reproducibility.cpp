@@ -13,6 +13,7 @@
 #include <regex>
 #include <sstream>
 
+#include "cli_run.hpp"
 #include "ukdyn/io/scenario.hpp"
 
 #ifdef UKDYN_CLI
@@ -20,19 +21,9 @@
 namespace {
 
 namespace fs = std::filesystem;
+using ukdyn_test::shell;
+using ukdyn_test::slurp;
 const fs::path kSource = UKDYN_SOURCE_DIR;
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
-
-int sh(const std::string& cmd) {
-  const int rc = std::system(cmd.c_str());
-  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-}
 
 // The scenario tree copied (URDF files and all) with every t_end shortened.
 fs::path short_copy() {
@@ -86,7 +77,7 @@ TEST(Reproducibility, EveryScenarioGivesTheSameBytesInTwoProcesses) {
     std::string csv[2], eval[2];
     for (int k = 0; k < 2; ++k) {
       const fs::path out = dir / "out" / (stem + "_" + std::to_string(k));
-      const int rc = sh("'" + std::string(UKDYN_CLI) + "' simulate --quiet --no-figures '" +
+      const int rc = shell("'" + std::string(UKDYN_CLI) + "' simulate --quiet --no-figures '" +
                         e.path().string() + "' --out '" + out.string() + "' > /dev/null 2>&1");
       ASSERT_EQ(rc, 0) << stem << ": simulate failed";
       csv[k] = slurp(out / "trajectory.csv");
@@ -101,7 +92,7 @@ TEST(Reproducibility, EveryScenarioGivesTheSameBytesInTwoProcesses) {
     }
     for (int k = 0; k < 2; ++k) {
       const fs::path out = dir / "out" / (stem + "_eval_" + std::to_string(k) + ".jsonl");
-      const int rc = sh("'" + std::string(UKDYN_CLI) + "' eval '" + e.path().string() + "' < '" +
+      const int rc = shell("'" + std::string(UKDYN_CLI) + "' eval '" + e.path().string() + "' < '" +
                         in.string() + "' > '" + out.string() + "' 2>/dev/null");
       ASSERT_EQ(rc, 0) << stem << ": eval failed";
       eval[k] = slurp(out);
