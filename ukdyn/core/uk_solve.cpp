@@ -287,8 +287,8 @@ namespace {
 // is at hand, and r = b − A a = b − Xᵀ y, the bracket of paper Eq. (4), once a column of Xᵀ is
 // done.
 template <int MM, int NB>
-[[gnu::always_inline]] inline double build_Xt_and_r(const double* Ad, const Vec& b,
-                                                    UkWorkspace& ws, Index m) {
+[[gnu::always_inline]] inline double build_Xt_and_r(const double* Ad, const Vec& b, UkWorkspace& ws,
+                                                    Index m) {
   const auto& lay = ws.layout;
   const std::size_t nb = NB > 0 ? std::size_t{NB} : lay.blocks();
   const Index ldl = ws.L.rows();
@@ -457,9 +457,9 @@ double damping_weight(double rho, const UkSettings& s) {
 // Step 4: pivoted LDLᵀ of W in place, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step
 // takes as pivot the largest remaining diagonal of the Schur complement, so D is non-increasing (up
 // to round-off) and D_0 = max diag W = max D ([Higham2002] ch. 10). The factorisation stops at the
-// first pivot not above the cut-off: what remains is round-off of redundant rows, and those rows get
-// λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with
-// D_k − μ > rank_tol² (D_0 − μ), as the exact method would.
+// first pivot not above the cut-off: what remains is round-off of redundant rows, and those rows
+// get λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with D_k − μ >
+// rank_tol² (D_0 − μ), as the exact method would.
 struct Pivots {
   Index kept = 0, rank = 0;
   double d_max = 0.0;
@@ -467,14 +467,13 @@ struct Pivots {
 };
 
 enum class Cutoff {
-  relative,      ///< exact, equilibrated: rank_tol² D_0
-  half_shift,    ///< regularized: μ/2 (every pivot is ≥ μ in exact arithmetic)
-  max_of_both,   ///< adaptive: max(μ/2, rank_tol² D_0), continuous as μ → 0
+  relative,     ///< exact, equilibrated: rank_tol² D_0
+  half_shift,   ///< regularized: μ/2 (every pivot is ≥ μ in exact arithmetic)
+  max_of_both,  ///< adaptive: max(μ/2, rank_tol² D_0), continuous as μ → 0
 };
 
 [[gnu::always_inline]] inline Pivots pivoted_ldlt(double* W, Index ldw, Index m, Index* piv,
-                                                  double* t, double mu, double tol2,
-                                                  Cutoff rule) {
+                                                  double* t, double mu, double tol2, Cutoff rule) {
   Pivots pv;
   double cutoff = 0.0;
   for (Index k = 0; k < m; ++k) {
@@ -526,8 +525,8 @@ enum class Cutoff {
 // when equilibrated). Only the leading kept × kept part of L and D enters (the components past it
 // are 0), so stopping the factorisation early changes nothing.
 [[gnu::always_inline]] inline void basic_solve(const double* W, Index ldw, Index m, Index kept,
-                                               const Index* piv, const double* r,
-                                               const double* dsc, double* lam) {
+                                               const Index* piv, const double* r, const double* dsc,
+                                               double* lam) {
   if (dsc != nullptr) {
     for (Index i = 0; i < m; ++i) lam[i] = dsc[i] * r[i];
   } else {
@@ -641,41 +640,52 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   } else if (settings.method == UkMethod::regularized) {
     mu = shift_W(W, ldw, m, settings.regularization, 1.0);
   }
-  Pivots pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2,
-                           settings.method == UkMethod::regularized ? Cutoff::half_shift
-                                                                    : Cutoff::relative);
+  Pivots pv = pivoted_ldlt(
+      W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2,
+      settings.method == UkMethod::regularized ? Cutoff::half_shift : Cutoff::relative);
   // Adaptive: the exact factorisation above decides. When its smallest kept singular value is
   // within adaptive_band · ε of the largest, W is rebuilt and refactored with the damping
   // μ = weight(ρ) ε² max diag W (damping_weight): exact to round-off away from singular positions,
   // damped (as regularized) inside the band, and continuous in between.
-  if (settings.method == UkMethod::adaptive && pv.rank > 0 && pv.d_max > 0.0) {
+  const bool adaptive = settings.method == UkMethod::adaptive;
+  auto damp = [&](double weight) {
+    build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
+    mu = shift_W(W, ldw, m, settings.regularization, weight);
+    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2, Cutoff::max_of_both);
+    res.damping = weight * settings.regularization;
+  };
+  if (adaptive && pv.rank > 0 && pv.d_max > 0.0) {
     const double weight = damping_weight(pv.d_min_kept / pv.d_max, settings);
-    if (weight > 0.0) {
-      build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
-      mu = shift_W(W, ldw, m, settings.regularization, weight);
-      pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2, Cutoff::max_of_both);
-      res.damping = weight * settings.regularization;
-    }
+    if (weight > 0.0) damp(weight);
   }
-
-  basic_solve(W, ldw, m, pv.kept, ws.piv.data(), ws.r.data(),
-              equilibrate ? ws.row_scale.data() : nullptr, ws.lambda.data());
   double* qc = Qc.data();
   double* q = qdd.data();
-  constraint_force_and_qdd<NB>(Ad, ws, m, n, qc, q);
-
-  res.rank = static_cast<int>(pv.rank);
-  res.sigma_max = std::sqrt(std::max(pv.d_max - mu, 0.0));
-  res.sigma_min_kept = pv.rank > 0 ? std::sqrt(pv.d_min_kept) : 0.0;
-  residual_and_flags(Ad, b, m, n, q, qc, ws.r.data(), a_inf, mu, settings, ws.tmp_m.data(), res);
+  auto solve_and_check = [&]() {
+    basic_solve(W, ldw, m, pv.kept, ws.piv.data(), ws.r.data(),
+                equilibrate ? ws.row_scale.data() : nullptr, ws.lambda.data());
+    constraint_force_and_qdd<NB>(Ad, ws, m, n, qc, q);
+    res.rank = static_cast<int>(pv.rank);
+    res.sigma_max = std::sqrt(std::max(pv.d_max - mu, 0.0));
+    res.sigma_min_kept = pv.rank > 0 ? std::sqrt(pv.d_min_kept) : 0.0;
+    residual_and_flags(Ad, b, m, n, q, qc, ws.r.data(), a_inf, mu, settings, ws.tmp_m.data(), res);
+  };
+  solve_and_check();
+  // Adaptive, past the exact cut-off: a row whose singular value fell under rank_tol was dropped
+  // by the exact factorisation, and if that leaves a residual that is not round-off, the row still
+  // asks for a force (the 0/0 limit at a singular position; a redundant consistent row leaves
+  // round-off and keeps the exact answer). Then the fully damped solve, which is what the band's
+  // inside gives just above the cut-off: continuous across it.
+  if (adaptive && mu == 0.0 && pv.kept < m && !res.consistent && pv.d_max > 0.0) {
+    damp(1.0);
+    solve_and_check();
+  }
   if (mu > 0.0) {
     // What the damping took away: A q̈ − b = −μ λ is the constraint acceleration not applied; in
     // the coordinates it is at most ‖L^{-ᵀ}‖ ‖μ λ‖ / σ for the directions with σ ≥ √μ (the
     // estimate below; inside the core σ < √μ it underestimates, docs/singular-positions.md).
     double inv_l = 0.0;
     for (Index j = 0; j < n; ++j) inv_l = std::max(inv_l, std::abs(ws.inv_diag[j]));
-    res.damped_acceleration =
-        res.residual / std::max(res.sigma_min_kept, std::sqrt(mu)) * inv_l;
+    res.damped_acceleration = res.residual / std::max(res.sigma_min_kept, std::sqrt(mu)) * inv_l;
     if (settings.method == UkMethod::regularized) res.damping = settings.regularization;
   }
   return res;

@@ -515,8 +515,8 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
       } else if (method == "adaptive") {
         sc.sim.uk.method = UkMethod::adaptive;
       } else {
-        L.fail(mt, "unknown solver method '" + method +
-                       "' (expected adaptive, exact or regularized)");
+        L.fail(mt,
+               "unknown solver method '" + method + "' (expected adaptive, exact or regularized)");
       }
     }
     if (Node rg = L.child(s, "regularization", false); rg.node.IsDefined()) {

@@ -1,7 +1,7 @@
 // Drift control (docs/drift-control.md): the Baumgarte stabilisation of the acceleration-level
-// constraints and the projection onto the constraint manifold, with the branch check that bounds the
-// projection's correction (docs/singular-positions.md). Internal to simulate(): the public settings
-// are DriftSettings in simulate.hpp.
+// constraints and the projection onto the constraint manifold, with the branch check that bounds
+// the projection's correction (docs/singular-positions.md). Internal to simulate(): the public
+// settings are DriftSettings in simulate.hpp.
 #pragma once
 
 #include <string>
@@ -16,8 +16,8 @@ namespace ukdyn::detail {
 void baumgarte_adjust_b(const System& system, ForwardData& data, const DriftSettings& ds, double t,
                         CVecRef q, CVecRef qd, Vec& phi, Vec& phid);
 
-/// Projection onto the constraint manifold in the metric of M: each correction is the U-K solve with
-/// Q = 0 and b = −Φ (positions) or b = −Φ̇ (velocities): Δ = M^{-1}Aᵀ(A M^{-1}Aᵀ)^+ (−r), the
+/// Projection onto the constraint manifold in the metric of M: each correction is the U-K solve
+/// with Q = 0 and b = −Φ (positions) or b = −Φ̇ (velocities): Δ = M^{-1}Aᵀ(A M^{-1}Aᵀ)^+ (−r), the
 /// smallest change in the kinetic-energy norm that removes the residual r to first order. Owns its
 /// buffers (allocated once); project() allocates nothing.
 struct Projector {

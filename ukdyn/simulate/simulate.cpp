@@ -287,9 +287,9 @@ class Run {
     }
     if (r.damping > 0.0) warn_damped(t);
     if (last_rank_ >= 0 && r.rank != last_rank_) {
-      warn(t, "rank_change",
-           "rank of A changed from " + std::to_string(last_rank_) + " to " +
-               std::to_string(r.rank));
+      warn(
+          t, "rank_change",
+          "rank of A changed from " + std::to_string(last_rank_) + " to " + std::to_string(r.rank));
     }
     last_rank_ = r.rank;
     if (!r.consistent) {
@@ -320,17 +320,18 @@ class Run {
     double xmax = 0.0;
     for (double v : xs) xmax = std::max(xmax, std::abs(v));
     const double dq = projector_.last_dq, dqd = projector_.last_dqd;
-    const detail::BranchCheck c = detail::check_branch(s_, fixed_, xmax, h, rhs_.max_damped, dq, dqd);
+    const detail::BranchCheck c =
+        detail::check_branch(s_, fixed_, xmax, h, rhs_.max_damped, dq, dqd);
     rhs_.max_damped = 0.0;
     stats_.max_position_correction = std::max(stats_.max_position_correction, dq);
     stats_.max_velocity_correction = std::max(stats_.max_velocity_correction, dqd);
     stats_.max_correction_ratio = std::max(stats_.max_correction_ratio, c.ratio);
     if (c.ratio > 1.0) {
-      const std::string what =
-          "the drift projection moved q by " + std::to_string(dq) + " and qd by " +
-          std::to_string(dqd) + " at t = " + std::to_string(t) +
-          ", more than the integration error explains (" + std::to_string(c.bound_q) + ", " +
-          std::to_string(c.bound_qd) + ")";
+      const std::string what = "the drift projection moved q by " + std::to_string(dq) +
+                               " and qd by " + std::to_string(dqd) +
+                               " at t = " + std::to_string(t) +
+                               ", more than the integration error explains (" +
+                               std::to_string(c.bound_q) + ", " + std::to_string(c.bound_qd) + ")";
       warn(t, "branch_switch", what + ": the state may have left its assembly branch");
       if (s_.drift.stop_on_branch_switch) {
         stats_.status = RunStatus::branch_switch;
