@@ -314,11 +314,8 @@ TEST(Benchmarks, NFourBarFollowsTheParallelogramBranch) {
   ukdyn::SimulationSettings s = sc.sim;
   s.t_end = 2.0;
   s.sample_dt = 0.01;
-  // The exact (default) solve stops at the first flat position, saying why (issue 9 item 1 is open:
-  // tests/test_n_four_bar.cpp, docs/singular-positions.md); the regularized solve with the measured
-  // best damping crosses it on the branch.
-  s.uk.method = ukdyn::UkMethod::regularized;
-  s.uk.regularization = 1e-5;
+  // Default solver settings (the adaptive solve, docs/singular-positions.md): it crosses the flat
+  // position on the branch.
   double err = 0, E0 = std::nan("");
   const auto st = ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
                                   [&](double t, CVecRef q, CVecRef qd, const ForwardData& d) {

@@ -91,10 +91,30 @@ TEST(NFourBar, MatchesExactSolutionBeforeTheFirstSingularPosition) {
   }
 }
 
-// Across the flat positions (issue 9 item 1): the default (exact) solve may fail there, but never
-// silently: a run that completes must be on the parallelogram branch and near the closed form.
-TEST(NFourBar, DefaultSolveIsRightOrSaysSo) {
-  const RunResult r = run("scenarios/benchmarks/n_four_bar_N2.yaml", 2.0);
+// Across the flat positions (issue 9 item 1), default settings (the adaptive solve): the run
+// completes over the benchmark's 10 s on the parallelogram branch, within 1e-6 m of the closed form
+// and 1e-6 J of the initial energy, with no branch_switch false alarm; that the solve was damped
+// near the flat positions is said (damped_solve).
+TEST(NFourBar, DefaultSolvePassesTheFlatPositions) {
+  const RunResult r = run("scenarios/benchmarks/n_four_bar_N2.yaml", 10.0);
+  ASSERT_EQ(r.stats.status, ukdyn::RunStatus::completed) << r.stats.message;
+  EXPECT_LT(r.max_b0_error, 1e-6);
+  EXPECT_LT(r.max_energy_drift, 1e-6);
+  EXPECT_LT(r.max_branch, 1e-9);
+  bool damped = false;
+  for (const auto& w : r.stats.warnings) {
+    EXPECT_NE(w.kind, "branch_switch") << w.message;
+    damped = damped || w.kind == "damped_solve";
+  }
+  EXPECT_TRUE(damped);
+  EXPECT_LT(r.stats.max_correction_ratio, 1.0);
+}
+
+// The exact solve (the old default) still fails loudly at the first flat position.
+TEST(NFourBar, ExactSolveFailsLoudlyAtTheFlatPosition) {
+  ukdyn::UkSettings uk;
+  uk.method = ukdyn::UkMethod::exact;
+  const RunResult r = run("scenarios/benchmarks/n_four_bar_N2.yaml", 2.0, &uk);
   if (r.stats.status == ukdyn::RunStatus::completed) {
     EXPECT_LT(r.max_b0_error, 1e-6);
     EXPECT_LT(r.max_branch, 1e-6);
@@ -104,9 +124,9 @@ TEST(NFourBar, DefaultSolveIsRightOrSaysSo) {
 }
 
 // The damped (regularized) solve stays on the parallelogram branch through the flat positions;
-// its constraint error is removed by the projection, and since that correction is more than the
-// integration error explains, the branch check reports it (branch_switch) instead of keeping quiet.
-TEST(NFourBar, RegularizedSolveStaysOnBranchAndIsReported) {
+// its constraint error is removed by the projection, and the branch check allows for it (the
+// damping's acceleration error over the step): no branch_switch false alarm on a correct run.
+TEST(NFourBar, RegularizedSolveStaysOnBranchWithoutFalseAlarm) {
   ukdyn::UkSettings uk;
   uk.method = ukdyn::UkMethod::regularized;
   uk.regularization = 1e-4;
@@ -115,10 +135,9 @@ TEST(NFourBar, RegularizedSolveStaysOnBranchAndIsReported) {
   EXPECT_LT(r.max_branch, 1e-9);
   EXPECT_LT(r.max_b0_error, 1e-5);
   EXPECT_LT(r.max_energy_drift, 1e-5);
-  bool warned = false;
-  for (const auto& w : r.stats.warnings) warned = warned || w.kind == "branch_switch";
-  EXPECT_TRUE(warned);
-  EXPECT_GT(r.stats.max_correction_ratio, 1.0);
+  for (const auto& w : r.stats.warnings) EXPECT_NE(w.kind, "branch_switch") << w.message;
+  EXPECT_LT(r.stats.max_correction_ratio, 1.0);
+  EXPECT_GT(r.stats.max_position_correction, 0.0);  // the projection did work
 }
 
 // The provoked wrong-branch run (issue 9): exact solve with a tiny rank_tol. Whether it turns onto
@@ -126,6 +145,7 @@ TEST(NFourBar, RegularizedSolveStaysOnBranchAndIsReported) {
 // silently: off the branch, a branch_switch or step_collapse warning must be there.
 TEST(NFourBar, WrongBranchIsNeverSilent) {
   ukdyn::UkSettings uk;
+  uk.method = ukdyn::UkMethod::exact;
   uk.rank_rel_tol = 1e-14;
   const RunResult r = run("scenarios/benchmarks/n_four_bar_N2.yaml", 10.0, &uk);
   bool warned = false;
@@ -140,7 +160,9 @@ TEST(NFourBar, WrongBranchIsNeverSilent) {
   }
 }
 
-// on_branch_switch: stop ends the run with status branch_switch at the first such correction.
+// on_branch_switch: stop ends the run with status branch_switch at the first correction beyond
+// the allowance (here made tiny, branch_factor 1e-9, so that the projection's ordinary work
+// exceeds it: the stop path, not the detection, is under test; detection: test_adaptive_solve).
 TEST(NFourBar, BranchSwitchCanStopTheRun) {
   using namespace ukdyn;
   const Scenario sc =
@@ -149,6 +171,7 @@ TEST(NFourBar, BranchSwitchCanStopTheRun) {
   s.t_end = 2.0;
   s.uk.method = UkMethod::regularized;
   s.uk.regularization = 1e-4;
+  s.drift.branch_factor = 1e-9;
   s.drift.stop_on_branch_switch = true;
   const auto st = simulate(*sc.system, sc.q0, sc.qd0, ForceFunction{}, s, nullptr);
   EXPECT_EQ(st.status, RunStatus::branch_switch);

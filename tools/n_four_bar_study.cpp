@@ -41,7 +41,10 @@ int main(int argc, char** argv) {
         const std::string mth = argv[i + 1];
         s.uk.method = mth == "exact"         ? UkMethod::exact
                       : mth == "regularized" ? UkMethod::regularized
+                      : mth == "adaptive"    ? UkMethod::adaptive
                                              : UkMethod::equilibrated;
+      } else if (key == "--band") {
+        s.uk.adaptive_band = v;
       } else if (key == "--t-end") {
         s.t_end = v;
       } else {

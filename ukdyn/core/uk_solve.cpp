@@ -277,43 +277,24 @@ bool factor_mass(const Mat& M, UkWorkspace& ws) {
 
 namespace {
 
-// The solve. MM > 0: m == MM is known at compile time (the loops down a column of m rows unroll
-// and vectorise). NB > 0: the layout is NB blocks of size 6 at 0, 6, …, so n == 6 NB. MM == 0 /
-// NB == 0: runtime sizes, any layout. Every instantiation forms the same sums in the same order
-// (the fixed path also adds W's zero products and upper triangle, which change no value), so the
-// results agree to rounding where the compiler contracts a different set of a·b + c into FMAs,
-// e.g. with -march=native (UkSolve.FixedSizePathAgreesWithGenericPath).
+// ---- The steps of the solve (solve_impl below composes them). Each is always inlined: they are
+// one function's loops, split only to be named; the generated code and every sum are as before.
+
+// Step 1: Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block,
+// a forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
+// L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency chain).
+// The same pass accumulates the absolute row sums of A (for ‖A‖_∞, returned) while the column of A
+// is at hand, and r = b − A a = b − Xᵀ y, the bracket of paper Eq. (4), once a column of Xᵀ is
+// done.
 template <int MM, int NB>
-UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd, Vec& Qc,
-                    const UkSettings& settings) {
-  UkResult res;
-  const Index m = MM > 0 ? Index{MM} : A.rows();
+[[gnu::always_inline]] inline double build_Xt_and_r(const double* Ad, const Vec& b, UkWorkspace& ws,
+                                                    Index m) {
   const auto& lay = ws.layout;
-  const Index n = NB > 0 ? Index{6} * NB : lay.dof();
   const std::size_t nb = NB > 0 ? std::size_t{NB} : lay.blocks();
   const Index ldl = ws.L.rows();
-  static_assert((MM > 0) == (NB > 0), "fixed m comes with a fixed layout");
-  // y = L^{-1} Q. The unconstrained acceleration of paper Eq. (1) is a = M^{-1} Q = L^{-ᵀ} y; it is
-  // never formed: A a = Xᵀ y below, and q̈ = L^{-ᵀ}(y + X λ) at the end, so each block is
-  // substituted forward once and backward once.
-  double* y = ws.Linv_Q.data();
+  const double* y = ws.Linv_Q.data();
   double* Xt = ws.A_Linvt.data();
   double* r = ws.r.data();
-  double* W = ws.A_Minv_At.data();
-  double* t = ws.tmp_m.data();
-  double* lam = ws.lambda.data();
-  double* rr = ws.tmp_m.data();
-  Index* piv = ws.piv.data();
-  for (Index j = 0; j < n; ++j) y[j] = Q[j];
-  substitute_blocks<true, NB>(ws, y);
-  const double* Ad = A.data();
-
-  // Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block, a
-  // forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
-  // L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency
-  // chain). The same pass accumulates the absolute row sums of A (for ‖A‖_∞) while the column of A
-  // is at hand, and r = b − A a = b − Xᵀ y, the bracket of paper Eq. (4), once a column of Xᵀ is
-  // done.
   double* rowabs = ws.tmp_m.data();
   double a_inf = 0.0;
   if constexpr (MM > 0) {
@@ -389,11 +370,15 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     }
     for (Index i = 0; i < m; ++i) a_inf = std::max(a_inf, rowabs[i]);
   }
+  return a_inf;
+}
 
-  // W = Xᵀ X, lower triangle only: W(j:m, j) = Σ_l Xᵀ(j:m, l) Xᵀ(j, l). Constraint rows are sparse
-  // (a trajectory row touches one arm, so its entries of Xᵀ in the other block are 0): zero
-  // multipliers are skipped.
-  const Index ldw = MM > 0 ? Index{MM} : ws.A_Minv_At.rows();
+// Step 2: W = Xᵀ X, lower triangle only: W(j:m, j) = Σ_l Xᵀ(j:m, l) Xᵀ(j, l). Constraint rows are
+// sparse (a trajectory row touches one arm, so its entries of Xᵀ in the other block are 0): zero
+// multipliers are skipped.
+template <int MM>
+[[gnu::always_inline]] inline void build_W(const double* Xt, Index n, Index m, double* W,
+                                           Index ldw) {
   if constexpr (MM > 0) {
     // Fixed m: each whole column of W is summed in a local array (registers) and stored once.
     // Summing into W's memory instead chains a store and a reload per term (store forwarding), and
@@ -423,43 +408,74 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       }
     }
   }
+}
 
-  // Pivoted LDLᵀ of W, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step takes as pivot
-  // the largest remaining diagonal of the Schur complement, so D is non-increasing (up to
-  // round-off) and D_0 = max diag W = max D. A pivot is kept while D_k > rel_tol² · D_0; the
-  // factorisation stops at the first one that is not: what remains is round-off of redundant rows,
-  // and those rows get λ = 0 in the basic solution below.
-  //
-  // Regularized method: the same factorisation of W + μ I, μ = ε² max diag W (ε =
-  // settings.regularization). Every pivot is then ≥ μ in exact arithmetic, so none is dropped
-  // (the cut-off is μ/2, against round-off) and λ = (W + μ I)^{-1} r is continuous in W. The
-  // reported rank counts the pivots with D_k − μ > rank_tol² (D_0 − μ), as the exact method would.
-  const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
-  double mu = 0.0;
-  double* dsc = ws.row_scale.data();
-  const bool equilibrate = settings.method == UkMethod::equilibrated;
-  if (equilibrate) {
-    // Ŵ = D W D with D_ii = W_ii^{-1/2}: unit diagonal; r̂ = D r; λ = D λ̂ below.
-    double w_max = 0.0;
-    for (Index i = 0; i < m; ++i) w_max = std::max(w_max, W[i + i * ldw]);
-    const double floor2 = settings.row_floor * settings.row_floor * w_max;
-    for (Index i = 0; i < m; ++i) {
-      const double wi = W[i + i * ldw];
-      dsc[i] = wi > floor2 && wi > 0.0 ? 1.0 / std::sqrt(wi) : 0.0;
-    }
-    for (Index j = 0; j < m; ++j) {
-      const double dj = dsc[j];
-      double* wj = W + j * ldw;
-      for (Index i = j; i < m; ++i) wj[i] *= dsc[i] * dj;
-    }
-  } else if (settings.method == UkMethod::regularized) {
-    double w_max = 0.0;
-    for (Index i = 0; i < m; ++i) w_max = std::max(w_max, W[i + i * ldw]);
-    mu = settings.regularization * settings.regularization * w_max;
-    for (Index i = 0; i < m; ++i) W[i + i * ldw] += mu;
+double max_diagonal(const double* W, Index ldw, Index m) {
+  double w_max = 0.0;
+  for (Index i = 0; i < m; ++i) w_max = std::max(w_max, W[i + i * ldw]);
+  return w_max;
+}
+
+// Step 3a (equilibrated): Ŵ = D W D with D_ii = W_ii^{-1/2}: unit diagonal; r̂ = D r; λ = D λ̂ in
+// step 4. Rows under row_floor of the longest get D_ii = 0 (dropped).
+void equilibrate_W(double* W, Index ldw, Index m, double row_floor, double* dsc) {
+  const double w_max = max_diagonal(W, ldw, m);
+  const double floor2 = row_floor * row_floor * w_max;
+  for (Index i = 0; i < m; ++i) {
+    const double wi = W[i + i * ldw];
+    dsc[i] = wi > floor2 && wi > 0.0 ? 1.0 / std::sqrt(wi) : 0.0;
   }
-  double d_max = 0.0, cutoff = 0.0, d_min_kept = std::numeric_limits<double>::infinity();
-  Index rank = 0, kept = 0;
+  for (Index j = 0; j < m; ++j) {
+    const double dj = dsc[j];
+    double* wj = W + j * ldw;
+    for (Index i = j; i < m; ++i) wj[i] *= dsc[i] * dj;
+  }
+}
+
+// Step 3b (regularized, adaptive): W ← W + μ I with μ = ε² max diag W · weight; returns μ.
+double shift_W(double* W, Index ldw, Index m, double eps, double weight) {
+  const double w_max = max_diagonal(W, ldw, m);
+  const double mu = weight == 1.0 ? eps * eps * w_max : weight * (eps * eps * w_max);
+  for (Index i = 0; i < m; ++i) W[i + i * ldw] += mu;
+  return mu;
+}
+
+// Adaptive method: the weight of the damping as a function of ρ = σ_min² / σ_max² (the smallest
+// kept pivot of the exact factorisation over the largest). 1 for ρ ≤ ε² (σ_min ≤ ε σ_max: inside
+// the band where the exact solve's force is a round-off-sensitive 0/0), 0 for ρ ≥ (band ε)², and
+// in between the smoothstep 3x² − 2x³ of x = log(ρ_off/ρ) / log(ρ_off/ρ_on): C¹ in ρ, so q̈ is
+// continuous (and its derivative bounded) as a singular value passes into the band.
+double damping_weight(double rho, const UkSettings& s) {
+  const double e = s.regularization;
+  const double rho_on = e * e, rho_off = (s.adaptive_band * e) * (s.adaptive_band * e);
+  if (!(rho < rho_off)) return 0.0;
+  if (!(rho > rho_on)) return 1.0;
+  const double x = std::log(rho_off / rho) / std::log(rho_off / rho_on);
+  return x * x * (3.0 - 2.0 * x);
+}
+
+// Step 4: pivoted LDLᵀ of W in place, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step
+// takes as pivot the largest remaining diagonal of the Schur complement, so D is non-increasing (up
+// to round-off) and D_0 = max diag W = max D ([Higham2002] ch. 10). The factorisation stops at the
+// first pivot not above the cut-off: what remains is round-off of redundant rows, and those rows
+// get λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with D_k − μ >
+// rank_tol² (D_0 − μ), as the exact method would.
+struct Pivots {
+  Index kept = 0, rank = 0;
+  double d_max = 0.0;
+  double d_min_kept = std::numeric_limits<double>::infinity();  ///< smallest D_k − μ counted
+};
+
+enum class Cutoff {
+  relative,     ///< exact, equilibrated: rank_tol² D_0
+  half_shift,   ///< regularized: μ/2 (every pivot is ≥ μ in exact arithmetic)
+  max_of_both,  ///< adaptive: max(μ/2, rank_tol² D_0), continuous as μ → 0
+};
+
+[[gnu::always_inline]] inline Pivots pivoted_ldlt(double* W, Index ldw, Index m, Index* piv,
+                                                  double* t, double mu, double tol2, Cutoff rule) {
+  Pivots pv;
+  double cutoff = 0.0;
   for (Index k = 0; k < m; ++k) {
     Index p = k;
     double dp = W[k + k * ldw];
@@ -470,10 +486,12 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       }
     }
     if (k == 0) {
-      d_max = std::max(dp, 0.0);
-      cutoff = mu > 0.0 ? 0.5 * mu : tol2 * d_max;
+      pv.d_max = std::max(dp, 0.0);
+      cutoff = rule == Cutoff::relative     ? tol2 * pv.d_max
+               : rule == Cutoff::half_shift ? (mu > 0.0 ? 0.5 * mu : tol2 * pv.d_max)
+                                            : std::max(0.5 * mu, tol2 * pv.d_max);
     }
-    if (!(d_max > 0.0 && dp > cutoff)) break;
+    if (!(pv.d_max > 0.0 && dp > cutoff)) break;
     piv[k] = p;
     if (p != k) {
       // Symmetric swap of rows/columns k and p in lower storage.
@@ -494,16 +512,22 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
       double* colj = W + j * ldw;
       for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
     }
-    if (dp - mu > tol2 * (d_max - mu)) {
-      d_min_kept = std::min(d_min_kept, dp - mu);
-      ++rank;
+    if (dp - mu > tol2 * (pv.d_max - mu)) {
+      pv.d_min_kept = std::min(pv.d_min_kept, dp - mu);
+      ++pv.rank;
     }
-    ++kept;
+    ++pv.kept;
   }
+  return pv;
+}
 
-  // Basic solution of W λ = r: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r. Only the leading rank × rank part of
-  // L and D enters (the components past the rank are 0), so stopping early changes nothing.
-  if (equilibrate) {
+// Step 5: basic solution of W λ = r from step 4: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r (times D on both sides
+// when equilibrated). Only the leading kept × kept part of L and D enters (the components past it
+// are 0), so stopping the factorisation early changes nothing.
+[[gnu::always_inline]] inline void basic_solve(const double* W, Index ldw, Index m, Index kept,
+                                               const Index* piv, const double* r, const double* dsc,
+                                               double* lam) {
+  if (dsc != nullptr) {
     for (Index i = 0; i < m; ++i) lam[i] = dsc[i] * r[i];
   } else {
     for (Index i = 0; i < m; ++i) lam[i] = r[i];
@@ -523,14 +547,20 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     lam[i] = s;
   }
   for (Index k = kept - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
-  if (equilibrate) {
+  if (dsc != nullptr) {
     for (Index i = 0; i < m; ++i) lam[i] *= dsc[i];
   }
+}
 
-  // Qc = Aᵀ λ  (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4));  q̈ = M^{-1}(Q + Qc), paper Eq. (18),
-  // as q̈ = L^{-ᵀ}(L^{-1} Q + L^{-1} Aᵀ λ) = L^{-ᵀ}(y + X λ).
-  double* qc = Qc.data();
-  double* q = qdd.data();
+// Step 6: Qc = Aᵀ λ (= M^{1/2}(A M^{-1/2})^+ r, paper Eq. (4)); q̈ = M^{-1}(Q + Qc), paper Eq.
+// (18), as q̈ = L^{-ᵀ}(L^{-1} Q + L^{-1} Aᵀ λ) = L^{-ᵀ}(y + X λ).
+template <int NB>
+[[gnu::always_inline]] inline void constraint_force_and_qdd(const double* Ad, const UkWorkspace& ws,
+                                                            Index m, Index n, double* qc,
+                                                            double* q) {
+  const double* Xt = ws.A_Linvt.data();
+  const double* y = ws.Linv_Q.data();
+  const double* lam = ws.lambda.data();
   for (Index j = 0; j < n; ++j) {
     const double* col = Ad + j * m;
     const double* xcol = Xt + j * m;
@@ -543,13 +573,13 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     q[j] = y[j] + sx;
   }
   substitute_blocks<false, NB>(ws, q);
+}
 
-  res.rank = static_cast<int>(rank);
-  res.sigma_max = std::sqrt(std::max(d_max - mu, 0.0));
-  res.sigma_min_kept = rank > 0 ? std::sqrt(d_min_kept) : 0.0;
-
-  // The honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness flags
-  // (as finish(), with ‖A‖_∞ from the Xᵀ pass).
+// Step 7: the honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness
+// flags (as finish(), with ‖A‖_∞ from step 1).
+void residual_and_flags(const double* Ad, const Vec& b, Index m, Index n, const double* q,
+                        const double* qc, const double* r, double a_inf, double mu,
+                        const UkSettings& settings, double* rr, UkResult& res) {
   for (Index i = 0; i < m; ++i) rr[i] = -b[i];
   for (Index j = 0; j < n; ++j) {
     const double x = q[j];
@@ -572,6 +602,92 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   }
   res.consistent = res.residual <= settings.consistency_rel_tol * scale + band;
   res.finite = all_finite(q, n) && all_finite(qc, n) && std::isfinite(res.residual);
+}
+
+// The solve, composed of the steps above. MM > 0 / NB > 0: compile-time m and NB blocks of 6;
+// MM == NB == 0: runtime sizes, any layout. Every instantiation forms the same sums in the same
+// order (the fixed path also adds W's zero products and upper triangle, which change no value), so
+// the results agree to rounding where the compiler contracts a different set of a·b + c into FMAs,
+// e.g. with -march=native (UkSolve.FixedSizePathAgreesWithGenericPath).
+template <int MM, int NB>
+UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, Vec& qdd, Vec& Qc,
+                    const UkSettings& settings) {
+  static_assert((MM > 0) == (NB > 0), "fixed m comes with a fixed layout");
+  UkResult res;
+  const Index m = MM > 0 ? Index{MM} : A.rows();
+  const Index n = NB > 0 ? Index{6} * NB : ws.layout.dof();
+  const Index ldw = MM > 0 ? Index{MM} : ws.A_Minv_At.rows();
+  double* W = ws.A_Minv_At.data();
+  const double* Ad = A.data();
+  // y = L^{-1} Q. The unconstrained acceleration of paper Eq. (1) is a = M^{-1} Q = L^{-ᵀ} y; it is
+  // never formed: A a = Xᵀ y in step 1, and q̈ = L^{-ᵀ}(y + X λ) in step 6, so each block is
+  // substituted forward once and backward once.
+  double* y = ws.Linv_Q.data();
+  for (Index j = 0; j < n; ++j) y[j] = Q[j];
+  substitute_blocks<true, NB>(ws, y);
+
+  const double a_inf = build_Xt_and_r<MM, NB>(Ad, b, ws, m);
+  build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
+
+  // Regularized: the factorisation of W + μ I, μ = ε² max diag W (ε = settings.regularization).
+  // Every pivot is then ≥ μ in exact arithmetic, so none is dropped (the cut-off is μ/2, against
+  // round-off) and λ = (W + μ I)^{-1} r is continuous in W.
+  const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
+  double mu = 0.0;
+  const bool equilibrate = settings.method == UkMethod::equilibrated;
+  if (equilibrate) {
+    equilibrate_W(W, ldw, m, settings.row_floor, ws.row_scale.data());
+  } else if (settings.method == UkMethod::regularized) {
+    mu = shift_W(W, ldw, m, settings.regularization, 1.0);
+  }
+  Pivots pv = pivoted_ldlt(
+      W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2,
+      settings.method == UkMethod::regularized ? Cutoff::half_shift : Cutoff::relative);
+  // Adaptive: the exact factorisation above decides. When its smallest kept singular value is
+  // within adaptive_band · ε of the largest, W is rebuilt and refactored with the damping
+  // μ = weight(ρ) ε² max diag W (damping_weight): exact to round-off away from singular positions,
+  // damped (as regularized) inside the band, and continuous in between.
+  const bool adaptive = settings.method == UkMethod::adaptive;
+  auto damp = [&](double weight) {
+    build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
+    mu = shift_W(W, ldw, m, settings.regularization, weight);
+    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2, Cutoff::max_of_both);
+    res.damping = weight * settings.regularization;
+  };
+  if (adaptive && pv.rank > 0 && pv.d_max > 0.0) {
+    const double weight = damping_weight(pv.d_min_kept / pv.d_max, settings);
+    if (weight > 0.0) damp(weight);
+  }
+  double* qc = Qc.data();
+  double* q = qdd.data();
+  auto solve_and_check = [&]() {
+    basic_solve(W, ldw, m, pv.kept, ws.piv.data(), ws.r.data(),
+                equilibrate ? ws.row_scale.data() : nullptr, ws.lambda.data());
+    constraint_force_and_qdd<NB>(Ad, ws, m, n, qc, q);
+    res.rank = static_cast<int>(pv.rank);
+    res.sigma_max = std::sqrt(std::max(pv.d_max - mu, 0.0));
+    res.sigma_min_kept = pv.rank > 0 ? std::sqrt(pv.d_min_kept) : 0.0;
+    residual_and_flags(Ad, b, m, n, q, qc, ws.r.data(), a_inf, mu, settings, ws.tmp_m.data(), res);
+  };
+  solve_and_check();
+  // Adaptive, past the exact cut-off: a row whose singular value fell under rank_tol was dropped
+  // by the exact factorisation, and if that leaves a residual that is not round-off, the row still
+  // asks for a force (the 0/0 limit at a singular position; a redundant consistent row leaves
+  // round-off and keeps the exact answer). Then the fully damped solve, which is what the band's
+  // inside gives just above the cut-off: continuous across it.
+  if (adaptive && mu == 0.0 && pv.kept < m && !res.consistent && pv.d_max > 0.0) {
+    damp(1.0);
+    solve_and_check();
+  }
+  if (mu > 0.0) {
+    // What the damping took away: A q̈ − b = −μ λ is the constraint acceleration not applied; in
+    // the coordinates it is at most ‖L^{-ᵀ}‖ ‖μ λ‖ / σ for the directions with σ ≥ √μ (the
+    // estimate below; inside the core σ < √μ it underestimates, docs/singular-positions.md).
+    double inv_l = 0.0;
+    for (Index j = 0; j < n; ++j) inv_l = std::max(inv_l, std::abs(ws.inv_diag[j]));
+    res.damped_acceleration = res.residual / std::max(res.sigma_min_kept, std::sqrt(mu)) * inv_l;
+    if (settings.method == UkMethod::regularized) res.damping = settings.regularization;
+  }
   return res;
 }
 

@@ -37,10 +37,15 @@ namespace ukdyn {
 ///  exact (default): the pseudo-inverse with the rank cut-off rank_rel_tol on W itself.
 ///  regularized: (W + μ I) λ = r, μ = regularization² · max diag W (damped, Tikhonov; continuous,
 ///    but the force of a direction with σ < √μ is lost). The drift projection uses it.
-enum class UkMethod { equilibrated, exact, regularized };
+///  adaptive: exact, unless the smallest kept singular value σ_min of A M^{-1/2} is under
+///    adaptive_band · regularization · σ_max; then regularized with μ scaled by a smooth weight of
+///    σ_min/σ_max (0 at the band's edge, 1 at σ_min ≤ regularization · σ_max), so q̈ is continuous
+///    through a rank change and exact to round-off on well-conditioned constraints.
+enum class UkMethod { equilibrated, exact, regularized, adaptive };
 inline const char* to_string(UkMethod m) {
   return m == UkMethod::equilibrated ? "equilibrated"
          : m == UkMethod::exact      ? "exact"
+         : m == UkMethod::adaptive   ? "adaptive"
                                      : "regularized";
 }
 
@@ -48,6 +53,8 @@ struct UkSettings {
   UkMethod method = UkMethod::exact;
   /// regularized: √μ relative to the largest singular value of A M^{-1/2}.
   double regularization = 1e-5;  // measured best on the N-four-bar (docs/singular-positions.md)
+  /// adaptive: damping starts when σ_min < adaptive_band · regularization · σ_max.
+  double adaptive_band = 100.0;
   /// equilibrated: rows with ‖A_i M^{-1/2}‖ under row_floor · max_j ‖A_j M^{-1/2}‖ are dropped.
   double row_floor = 1e-13;
   /// Relative tolerance on the singular values of A M^{-1/2} below which a direction is dropped
@@ -65,6 +72,11 @@ struct UkResult {
   double residual = 0.0;   ///< ‖A q̈ − b‖_2
   bool consistent = true;  ///< residual is at round-off level
   bool finite = true;      ///< every output is finite
+  /// adaptive: the damping applied (weight · regularization; 0 = the exact solve was used).
+  double damping = 0.0;
+  /// regularized / adaptive with damping: an estimate of max|q̈ − q̈_exact|, the acceleration the
+  /// damping did not apply (its constraint error, which the drift projection removes); 0 otherwise.
+  double damped_acceleration = 0.0;
 };
 
 /// Block layout of a block-diagonal mass matrix: block k covers rows/cols [start[k],

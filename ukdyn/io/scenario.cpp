@@ -500,6 +500,9 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
 
 // solver: the rank and consistency tolerances of the Udwadia-Kalaba solve.
 void load_solver(const Loader& L, const Node& root, Scenario& sc) {
+  // A scenario's default solve is the adaptive one (exact away from singular positions, damped
+  // only near them: docs/singular-positions.md); the C++ default UkSettings{} stays exact.
+  sc.sim.uk.method = UkMethod::adaptive;
   if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
     L.only_keys(s, {"rank_tol", "consistency_tol", "method", "regularization"});
     // solver.method / solver.regularization: docs/singular-positions.md (added by H4).
@@ -509,16 +512,19 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
         sc.sim.uk.method = UkMethod::regularized;
       } else if (method == "exact") {
         sc.sim.uk.method = UkMethod::exact;
+      } else if (method == "adaptive") {
+        sc.sim.uk.method = UkMethod::adaptive;
       } else {
-        L.fail(mt, "unknown solver method '" + method + "' (expected exact or regularized)");
+        L.fail(mt,
+               "unknown solver method '" + method + "' (expected adaptive, exact or regularized)");
       }
     }
     if (Node rg = L.child(s, "regularization", false); rg.node.IsDefined()) {
       sc.sim.uk.regularization = L.number(rg);
       if (!(sc.sim.uk.regularization >= 1e-14 && sc.sim.uk.regularization <= 1e-2))
         L.fail(rg, "must lie in [1e-14, 1e-2]");
-      if (sc.sim.uk.method != UkMethod::regularized)
-        L.fail(rg, "only used with method: regularized");
+      if (sc.sim.uk.method != UkMethod::regularized && sc.sim.uk.method != UkMethod::adaptive)
+        L.fail(rg, "only used with method: regularized or adaptive");
     }
     if (Node r = L.child(s, "rank_tol", false); r.node.IsDefined()) {
       sc.sim.uk.rank_rel_tol = L.number(r);

@@ -154,6 +154,10 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
   evaluate_dynamics(system, data, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
   evaluate_constraints(system, data, t, q, qd);
+  solve_stage(system, data, settings);
+}
+
+void solve_stage(const System&, ForwardData& data, const UkSettings& settings) {
   data.result = uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc, settings);
 }
 

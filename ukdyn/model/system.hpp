@@ -111,6 +111,10 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau);
 
+/// Last stage: q̈, Qc and data.result from data.M, Q, A, b (the U-K solve, uk_solve.hpp). forward()
+/// ends with it; drift control (Baumgarte) calls the stages itself with b adjusted before this one.
+void solve_stage(const System& system, ForwardData& data, const UkSettings& settings);
+
 /// Stage 1 only: M, C q̇, G (no constraints), into data (and the subsystems' data slots).
 void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);
 /// Stage 2 only: A and b, into data (reading what stage 1 left in the slots, if it was run at the

@@ -1,0 +1,67 @@
+// Diagnostics of a failed run: why the step control gave up (docs/singular-positions.md).
+#include "ukdyn/simulate/diagnostics.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+namespace ukdyn::detail {
+
+std::string sci(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", v);
+  return buf;
+}
+
+// Why a step failed (issue 15 class 5): evaluated at the state where the step control gave up, on
+// the failure path only (allocates). Names the cause and the coordinates / constraint rows
+// involved, or returns "" when neither M nor A is singular there.
+std::string diagnose_singularity(const System& system, double t, const std::vector<double>& x,
+                                 const UkSettings& uk) {
+  const Index n = system.dof();
+  const Eigen::Map<const Vec> q(x.data(), n);
+  const Eigen::Map<const Vec> qd(x.data() + n, n);
+  ForwardData d(system);
+  evaluate_dynamics(system, d, q, qd);
+  const auto& cn = system.coordinate_names();
+  const auto& rn = system.constraint_row_names();
+  auto names = [](const std::vector<std::string>& all, const Vec& v) {
+    std::string out;
+    const double vmax = v.cwiseAbs().maxCoeff();
+    for (Index i = 0; i < v.size(); ++i) {
+      if (std::abs(v(i)) >= 0.3 * vmax && static_cast<std::size_t>(i) < all.size()) {
+        out += (out.empty() ? "" : ", ") + all[static_cast<std::size_t>(i)];
+      }
+    }
+    return out;
+  };
+  Eigen::SelfAdjointEigenSolver<Mat> es(0.5 * (d.M + d.M.transpose()));
+  if (es.info() != Eigen::Success || !d.M.allFinite()) {
+    return "the mass matrix is not finite at t = " + std::to_string(t);
+  }
+  const double ev_min = es.eigenvalues()(0), ev_max = es.eigenvalues()(n - 1);
+  if (!(ev_min > 1e-8 * std::max(ev_max, 0.0))) {
+    return "the mass matrix is (nearly) singular at t = " + std::to_string(t) +
+           ": smallest eigenvalue " + sci(ev_min) + " of largest " + sci(ev_max) +
+           ", in coordinates [" + names(cn, es.eigenvectors().col(0)) + "]";
+  }
+  if (system.rows() == 0) return "";
+  evaluate_constraints(system, d, t, q, qd);
+  const Mat Mih = es.eigenvectors() * es.eigenvalues().cwiseSqrt().cwiseInverse().asDiagonal() *
+                  es.eigenvectors().transpose();
+  Eigen::JacobiSVD<Mat> svd(d.A * Mih, Eigen::ComputeFullU);
+  const Vec& sv = svd.singularValues();
+  if (sv.size() == 0 || !(sv(0) > 0.0)) return "";
+  // The smallest singular value above round-off of redundant rows, and the rows of its direction.
+  Index k = sv.size() - 1;
+  while (k > 0 && sv(k) <= 1e-14 * sv(0)) --k;
+  const double ratio = sv(k) / sv(0);
+  if (ratio > 1e3 * uk.rank_rel_tol) return "";
+  return "the constraints are near a singular position at t = " + std::to_string(t) +
+         ": a singular value of A M^-1/2 is " + sci(ratio) + " of the largest (rank_tol " +
+         sci(uk.rank_rel_tol) + "), in rows [" + names(rn, svd.matrixU().col(k)) + "]";
+}
+
+}  // namespace ukdyn::detail
