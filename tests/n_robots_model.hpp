@@ -2,9 +2,9 @@
 // tests/test_no_alloc.cpp, bench/bench_arrow.cpp): the block-arrow structure of cooperative
 // transport. Robot k is a 3R arm in the vertical x–z plane (coordinates r<k>_t1..t3, link lengths
 // 0.5, 0.4, 0.3, masses 2, 1.5, 1, slender-rod inertias) mounted at radius 1.2 around the origin at
-// angle α_k = 2πk/N; the load (L_x, L_z, L_phi: mass 3, inertia 0.2) is grasped by each arm's tip at
-// the load point 0.3 from its centre at angle α_k (2 rows per robot: tip = grasp point). With
-// N ≥ 2 the grasps are redundant (2N rows on 3 load coordinates). tools/n_robots.py writes the same
+// angle α_k = 2πk/N; the load (L_x, L_z, L_phi: mass 3, inertia 0.2) is grasped by each arm's tip
+// at the load point 0.3 from its centre at angle α_k (2 rows per robot: tip = grasp point). With N
+// ≥ 2 the grasps are redundant (2N rows on 3 load coordinates). tools/n_robots.py writes the same
 // model as a scenario with `instances:` (tests/test_uk_arrow.cpp compares the two).
 #pragma once
 
@@ -54,7 +54,8 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
   for (int k = 0; k < arms; ++k) {
     const std::string p = "r" + std::to_string(k) + "_";
     std::vector<std::string> q;
-    for (int i = 0; i < links[static_cast<std::size_t>(k)]; ++i) q.push_back(p + "t" + std::to_string(i + 1));
+    for (int i = 0; i < links[static_cast<std::size_t>(k)]; ++i)
+      q.push_back(p + "t" + std::to_string(i + 1));
     sym::SubsystemDef d("robot" + std::to_string(k), q);
     const double bx = 1.2 * std::cos(alpha(k)), bz = 1.2 * std::sin(alpha(k));
     std::string ax = n_robots_num(bx), az = n_robots_num(bz), angle;
@@ -94,8 +95,10 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
   auto grasp = [&](int k, const std::string& name) {
     sym::ConstraintDef c(name, sym::ConstraintDef::Kind::holonomic, all);
     const std::string a = n_robots_num(alpha(k));
-    c.add_row(name + "_x", c.parse(tip_x[static_cast<std::size_t>(k)] + "-(L_x+0.3*cos(L_phi+" + a + "))"));
-    c.add_row(name + "_z", c.parse(tip_z[static_cast<std::size_t>(k)] + "-(L_z+0.3*sin(L_phi+" + a + "))"));
+    c.add_row(name + "_x",
+              c.parse(tip_x[static_cast<std::size_t>(k)] + "-(L_x+0.3*cos(L_phi+" + a + "))"));
+    c.add_row(name + "_z",
+              c.parse(tip_z[static_cast<std::size_t>(k)] + "-(L_z+0.3*sin(L_phi+" + a + "))"));
     system->add_constraint(sym::make_constraint(c));
   };
   for (int k = 0; k < o.robots; ++k) grasp(k, "grasp" + std::to_string(k));

@@ -80,8 +80,8 @@ void expect_arrow_agrees_with_dense(const Case& c, int states) {
     // Relative agreement (infinity norm).
     const double dq = (data.qdd - qdd_d).lpNorm<Eigen::Infinity>() /
                       std::max(1.0, qdd_d.lpNorm<Eigen::Infinity>());
-    const double dc = (data.Qc - Qc_d).lpNorm<Eigen::Infinity>() /
-                      std::max(1.0, Qc_d.lpNorm<Eigen::Infinity>());
+    const double dc =
+        (data.Qc - Qc_d).lpNorm<Eigen::Infinity>() / std::max(1.0, Qc_d.lpNorm<Eigen::Infinity>());
     worst_q = std::max(worst_q, dq);
     worst_c = std::max(worst_c, dc);
     // The multipliers reproduce Qc: Aᵀλ = Qc, and M q̈ = Q + Qc.
@@ -140,7 +140,8 @@ TEST(UkArrow, OtherMethodsUseTheDenseSolve) {
 // system as the one built directly in C++ (tests/n_robots_model.hpp): names, M, A, b and q̈ at
 // random states.
 TEST(Instances, GeneratedScenarioMatchesTheDirectModel) {
-  const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3.yaml");
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3.yaml");
   uktest::NRobotsOptions o;
   o.robots = 3;
   const auto direct = uktest::n_robots_system(o);
@@ -174,15 +175,15 @@ TEST(Instances, GeneratedScenarioMatchesTheDirectModel) {
   ukdyn::SimulationSettings s = sc.sim;
   s.t_end = 0.2;
   double worst = 0.0;
-  const auto stats = ukdyn::simulate(
-      *sc.system, sc.q0, sc.qd0, {}, s,
-      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData& d) {
-        EXPECT_TRUE(d.used_arrow);
-        Vec phi(sc.system->rows());
-        ukdyn::position_residuals(*sc.system, t, q, phi);
-        worst = std::max(worst, phi.lpNorm<Eigen::Infinity>());
-        return true;
-      });
+  const auto stats =
+      ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
+                      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData& d) {
+                        EXPECT_TRUE(d.used_arrow);
+                        Vec phi(sc.system->rows());
+                        ukdyn::position_residuals(*sc.system, t, q, phi);
+                        worst = std::max(worst, phi.lpNorm<Eigen::Infinity>());
+                        return true;
+                      });
   EXPECT_EQ(stats.status, ukdyn::RunStatus::completed) << stats.message;
   EXPECT_LE(worst, 1e-9);
 }
@@ -212,15 +213,16 @@ simulation:
     }
     return std::string("no error");
   };
-  const std::string unknown =
-      error_of("    instances:\n      - {name: a0, parameters: {bx: 1}}\n      - {name: a1, "
-               "parameters: {by: 2}}\n");
+  const std::string unknown = error_of(
+      "    instances:\n      - {name: a0, parameters: {bx: 1}}\n      - {name: a1, "
+      "parameters: {by: 2}}\n");
   EXPECT_NE(unknown.find("bad.yaml:12:"), std::string::npos) << unknown;
   EXPECT_NE(unknown.find("'by' is not a parameter"), std::string::npos) << unknown;
-  const std::string dup = error_of(
-      "    instances:\n      - {name: a0, prefix: p_}\n      - {name: a1, prefix: p_}\n");
+  const std::string dup =
+      error_of("    instances:\n      - {name: a0, prefix: p_}\n      - {name: a1, prefix: p_}\n");
   EXPECT_NE(dup.find("duplicate coordinate name 'p_t1'"), std::string::npos) << dup;
-  const std::string key = error_of("    instances:\n      - {name: a0, pose: 1}\n      - {name: a1}\n");
+  const std::string key =
+      error_of("    instances:\n      - {name: a0, pose: 1}\n      - {name: a1}\n");
   EXPECT_NE(key.find("pose"), std::string::npos) << key;
 }
 #endif

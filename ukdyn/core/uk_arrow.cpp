@@ -176,8 +176,8 @@ void swap_rows(Mat& X, Index k, Index p) {
 
 }  // namespace
 
-bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b, const Vec& Q,
-                    const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
+bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b,
+                    const Vec& Q, const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
                     const UkSettings& settings, UkResult& res) {
   const Index n = dws.layout.dof();
   const Index sL = st.load_start, nL = st.load_size;
@@ -232,8 +232,8 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
         gb.S(i, j) = v;
       }
     double dmax = 0.0, dmin = 0.0;
-    gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, tol2, gb.piv.data(), ws.tmp.data(), dmax,
-                           dmin);
+    gb.kept =
+        pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, tol2, gb.piv.data(), ws.tmp.data(), dmax, dmin);
     const Index kp = gb.kept;
     rank += kp;
     if (kp > 0) {
@@ -402,7 +402,8 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
       for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
       gb.lam[p] = v;
     }
-    for (Index k = kp - 1; k >= 0; --k) std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+    for (Index k = kp - 1; k >= 0; --k)
+      std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
     // Qc = Aᵀ λ on the robot and the load.
     const Index s = grp.start, nk = grp.size;
     for (Index i = 0; i < mk; ++i) {

@@ -341,9 +341,9 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                                                       const std::vector<std::string>& coordinates,
                                                       double gravity, DefinitionContext& context,
                                                       const InstanceSpec* instance) {
-  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
-                  "mount", "base", "joints", "urdf", "mjcf", "joint_values", "points",
-                  "instances"});
+  L.only_keys(s,
+              {"name", "type", "coordinates", "parameters", "let", "gravity", "potential", "mount",
+               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances"});
   auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
   const Node cn = L.child(s, "coordinates", true);
   Node m = L.child(s, "mount", false);

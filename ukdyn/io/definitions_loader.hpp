@@ -22,9 +22,9 @@ namespace ukdyn::io_detail {
 /// expressions (as aliases of the prefixed coordinates and velocities); `parameters` replace the
 /// template's values of the same name; `mount` (serial_chain) replaces the template's mount.
 struct InstanceSpec {
-  std::vector<std::string> local;        ///< the template's coordinate names
+  std::vector<std::string> local;          ///< the template's coordinate names
   std::map<std::string, Node> parameters;  ///< name → the instance's value node
-  Node mount;                            ///< undefined: the template's
+  Node mount;                              ///< undefined: the template's
 };
 
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector

@@ -168,7 +168,7 @@ struct Loading {
   std::shared_ptr<io_detail::DefinitionContext> definition_context =
       io_detail::make_definition_context();  // serial_chain points
   Node subs;                                 // the subsystems list
-  std::vector<Node> sub_nodes;               // the node of each subsystem (an instance: its template)
+  std::vector<Node> sub_nodes;  // the node of each subsystem (an instance: its template)
   Node init;                                 // the initial block
 };
 
@@ -211,8 +211,9 @@ std::vector<InstanceEntry> instance_entries(const Loader& L, const Node& s, cons
     }
     if (Node mt = L.child(e, "mount", false); mt.node.IsDefined()) {
       if (type != "serial_chain")
-        L.fail(mt, "mount is a serial_chain key (a definitions subsystem takes its pose from "
-                   "parameters)");
+        L.fail(mt,
+               "mount is a serial_chain key (a definitions subsystem takes its pose from "
+               "parameters)");
       ie.spec.mount = mt;
     }
     out.push_back(std::move(ie));
@@ -230,17 +231,23 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
   st.subs = L.child(root, "subsystems", true);
   const Node& subs = st.subs;
   if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
+  // Each entry, or each of its instances (instance_entries).
+  std::vector<std::pair<Node, InstanceEntry>> entries;
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
     const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
-    const Node template_name_node = L.child(s, "name", true);
-    const std::string template_name = L.name(template_name_node);
-    const Node type_node = L.child(s, "type", true);
-    const std::string type = L.string(type_node);
-    for (const InstanceEntry& inst : instance_entries(L, s, template_name, type)) {
-    const std::string& name = inst.name;
-    const Node name_node = inst.is_instance ? L.child(inst.at, "name", true) : template_name_node;
+    const std::string tname = L.name(L.child(s, "name", true));
+    for (auto& e : instance_entries(L, s, tname, L.string(L.child(s, "type", true))))
+      entries.emplace_back(s, std::move(e));
+  }
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    const Node& s = entries[i].first;
+    const InstanceEntry& inst = entries[i].second;
+    const Node name_node = L.child(inst.at, "name", true);
+    const std::string name = inst.name;
     if (subsystem_names.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
     subsystem_names.insert(name);
+    const Node type_node = L.child(s, "type", true);
+    const std::string type = L.string(type_node);
     // Coordinate names: unique across the system, usable as CSV column names.
     const Node cn = L.child(s, "coordinates", true);
     if (!cn.node.IsSequence() || cn.node.size() == 0)
@@ -250,7 +257,7 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     for (std::size_t j = 0; j < cn.node.size(); ++j) {
       const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
       local.push_back(L.name(e));
-      std::string c = inst.prefix + local.back();
+      std::string c = inst.prefix + local.back();  // an instance: its prefix (else none)
       if (inst.is_instance) (void)L.name(Node{YAML::Node(c), inst.at.key + ".prefix"});
       if (coord_index.count(c))
         L.fail(inst.is_instance ? inst.at : e, "duplicate coordinate name '" + c + "'");
@@ -275,8 +282,8 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
       } else if (type == "definitions") {  // docs/definitions.md
         sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity, ispec);
       } else if (type == "serial_chain") {  // docs/definitions.md
-        sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context,
-                                              ispec);
+        sub =
+            io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context, ispec);
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
                               "' (expected mobile_manipulator, definitions or serial_chain)");
@@ -289,7 +296,6 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     const Index off = system->add_subsystem(sub);
     sc.subsystems.push_back({name, type, off, sub->dof()});
     st.sub_nodes.push_back(s);
-    }
   }
   if (system->dof() > kMaxDof) L.fail(subs, "too many coordinates");
 }

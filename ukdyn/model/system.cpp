@@ -38,8 +38,9 @@ Index System::add_constraint(std::shared_ptr<const Constraint> constraint) {
     for (const auto& rc : cols) {
       std::vector<Index> blocks;
       for (const Index c : rc) {
-        if (c < 0 || c >= dof_) throw Error("System::add_constraint: a row names column " +
-                                            std::to_string(c) + " of " + std::to_string(dof_));
+        if (c < 0 || c >= dof_)
+          throw Error("System::add_constraint: a row names column " + std::to_string(c) + " of " +
+                      std::to_string(dof_));
         const auto it = std::upper_bound(layout_.start.begin(), layout_.start.end(), c);
         const Index blk = static_cast<Index>(it - layout_.start.begin()) - 1;
         if (blocks.empty() || blocks.back() != blk) blocks.push_back(blk);

@@ -55,7 +55,9 @@ Vec3Ex rpy_of(const double* quat) {
   return {exact_number(roll), exact_number(pitch), exact_number(yaw)};
 }
 
-Vec3Ex vec_of(const double* v) { return {exact_number(v[0]), exact_number(v[1]), exact_number(v[2])}; }
+Vec3Ex vec_of(const double* v) {
+  return {exact_number(v[0]), exact_number(v[1]), exact_number(v[2])};
+}
 
 struct ModelGuard {
   mjModel* m = nullptr;
@@ -125,8 +127,9 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
       const std::string jname = name_of(mjOBJ_JOINT, j, bname + "_joint" + std::to_string(i));
       const bool hinge = m.jnt_type[j] == mjJNT_HINGE;
       // The joint frame sits at the anchor, oriented as the body frame.
-      JointDef& jd = chain.add_joint(jname, hinge ? JointDef::Type::revolute : JointDef::Type::prismatic,
-                                     bname + "__" + jname);
+      JointDef& jd =
+          chain.add_joint(jname, hinge ? JointDef::Type::revolute : JointDef::Type::prismatic,
+                          bname + "__" + jname);
       jd.parent = prev;
       if (i == 0) {
         const double p[3] = {bpos[0] + R[0] * a[0] + R[1] * a[1] + R[2] * a[2],

@@ -23,9 +23,9 @@ bool mjcf_supported();
 /// Appends the MJCF model's bodies and joints to `chain` (bodies on the world attach to
 /// chain.root_link, or to the mobile base if chain.base.enabled). Movable joints take the chain's
 /// coordinates that are not base coordinates, in MuJoCo's joint order (= its qpos order). If
-/// `gravity` is set, chain.gravity becomes the model's option/gravity. Throws DefinitionError naming
-/// the file (and the joint) for a file MuJoCo cannot read, an unsupported joint, or a wrong number
-/// of coordinates; also when ukdyn was built without MuJoCo.
+/// `gravity` is set, chain.gravity becomes the model's option/gravity. Throws DefinitionError
+/// naming the file (and the joint) for a file MuJoCo cannot read, an unsupported joint, or a wrong
+/// number of coordinates; also when ukdyn was built without MuJoCo.
 void append_mjcf(ChainDef& chain, const std::string& path, bool gravity = false);
 
 }  // namespace ukdyn::symbolic
