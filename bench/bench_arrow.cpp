@@ -58,6 +58,72 @@ BENCHMARK(Forward_NRobotsArrow)
     ->Unit(benchmark::kMicrosecond)
     ->Apply(add_min_max);
 
+// The solve alone (factor_mass + uk_solve_arrow) on the A, b, Q of one forward().
+void Solve_NRobotsArrow(benchmark::State& state) {
+  const auto& c = n_robots_case(static_cast<int>(state.range(0)));
+  const auto* arrow = c.system->arrow();
+  ukdyn::ForwardData data(*c.system);
+  ukdyn::forward(*c.system, data, 0.0, c.q, c.qd, c.tau);
+  const ukdyn::UkSettings settings;
+  for (auto _ : state) {
+    ukdyn::factor_mass(data.M, data.uk);
+    ukdyn::uk_solve_arrow(*arrow, data.M, data.A, data.b, data.Q, data.uk, data.arrow, data.qdd,
+                          data.Qc, settings, data.result);
+    benchmark::DoNotOptimize(data.qdd.data());
+  }
+}
+BENCHMARK(Solve_NRobotsArrow)
+    ->Arg(2)
+    ->Arg(4)
+    ->Arg(8)
+    ->Arg(16)
+    ->Arg(32)
+    ->Arg(64)
+    ->Unit(benchmark::kMicrosecond)
+    ->Apply(add_min_max);
+
+// The model stages alone (M, C q̇, G, Q; A, b with the structural writes): what forward() adds.
+void Stages_NRobots(benchmark::State& state) {
+  const auto& c = n_robots_case(static_cast<int>(state.range(0)));
+  const auto& sys = *c.system;
+  ukdyn::ForwardData data(sys);
+  for (auto _ : state) {
+    ukdyn::evaluate_dynamics(sys, data, c.q, c.qd);
+    ukdyn::generalized_forces(sys, data, 0.0, c.q, c.qd, c.tau);
+    benchmark::DoNotOptimize(data.Q.data());
+  }
+}
+BENCHMARK(Stages_NRobots)
+    ->Arg(2)
+    ->Arg(8)
+    ->Arg(64)
+    ->Unit(benchmark::kMicrosecond)
+    ->Apply(add_min_max);
+
+// The constraint stage alone (A, b with the structural writes, as forward() does them).
+void Constraints_NRobots(benchmark::State& state) {
+  const auto& c = n_robots_case(static_cast<int>(state.range(0)));
+  const auto& sys = *c.system;
+  ukdyn::ForwardData data(sys);
+  const auto& cons = sys.constraints();
+  const auto& offs = sys.constraint_row_offsets();
+  const Index n = sys.dof();
+  for (auto _ : state) {
+    for (std::size_t k = 0; k < cons.size(); ++k) {
+      const Index r = cons[k]->rows();
+      cons[k]->evaluate_structural_with(data.constraint_slots(k), 0.0, c.q, c.qd,
+                                        data.A.block(offs[k], 0, r, n), data.b.segment(offs[k], r));
+    }
+    benchmark::DoNotOptimize(data.b.data());
+  }
+}
+BENCHMARK(Constraints_NRobots)
+    ->Arg(2)
+    ->Arg(8)
+    ->Arg(64)
+    ->Unit(benchmark::kMicrosecond)
+    ->Apply(add_min_max);
+
 // The same stages as forward(), then the dense solve.
 void Forward_NRobotsDense(benchmark::State& state) {
   const auto& c = n_robots_case(static_cast<int>(state.range(0)));
