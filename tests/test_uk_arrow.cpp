@@ -47,6 +47,10 @@ struct Case {
   const char* name;
   uktest::NRobotsOptions o;
   int expected_rank;  // at a generic state
+  /// Relative agreement in q̈ and Qc. Full-rank rows: 1e-12. With redundant rows (rank decisions)
+  /// both solves are accurate to cond · ε only, and their different elimination orders were
+  /// measured to differ by up to 1.7e-11 (q̈) and 4.5e-11 (Qc) over these 300 states: 1e-10.
+  double tol = 1e-12;
 };
 
 void expect_arrow_agrees_with_dense(const Case& c, int states) {
@@ -89,9 +93,9 @@ void expect_arrow_agrees_with_dense(const Case& c, int states) {
     EXPECT_LE((Atl - data.Qc).lpNorm<Eigen::Infinity>(),
               1e-12 * std::max(1.0, data.Qc.lpNorm<Eigen::Infinity>()));
   }
-  EXPECT_LE(worst_q, 1e-12);
-  EXPECT_LE(worst_c, 1e-12);
-  RecordProperty("worst_qdd_rel", std::to_string(worst_q));
+  EXPECT_LE(worst_q, c.tol);
+  EXPECT_LE(worst_c, c.tol);
+  ::testing::Test::RecordProperty("worst_qdd_rel", std::to_string(worst_q));
 }
 
 TEST(UkArrow, AgreesWithDenseSolveRedundantGrasps) {
@@ -108,17 +112,17 @@ TEST(UkArrow, AgreesWithDenseSolveRankDecisions) {
   o.duplicate_grasp = true;  // 2 exactly redundant rows in robot 0's block
   o.load_row = true;
   o.free_robot = true;
-  expect_arrow_agrees_with_dense({"duplicate + load row + free robot", o, 9}, 100);
+  expect_arrow_agrees_with_dense({"duplicate + load row + free robot", o, 9, 1e-10}, 100);
   uktest::NRobotsOptions p;
   p.robots = 3;
   p.one_link_robot = true;  // robot 0: 1 joint, 2 grasp rows: one row moves to the load
   p.load_row = true;
-  expect_arrow_agrees_with_dense({"one-link robot + load row", p, 7}, 100);
+  expect_arrow_agrees_with_dense({"one-link robot + load row", p, 7, 1e-10}, 100);
   uktest::NRobotsOptions r;
   r.robots = 3;
   r.robot_row = true;
   r.duplicate_grasp = true;
-  expect_arrow_agrees_with_dense({"robot row + duplicate", r, 7}, 100);
+  expect_arrow_agrees_with_dense({"robot row + duplicate", r, 7, 1e-10}, 100);
 }
 
 TEST(UkArrow, OtherMethodsUseTheDenseSolve) {

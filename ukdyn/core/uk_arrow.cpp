@@ -108,8 +108,8 @@ namespace {
 // lower triangle of the m × m matrix W (leading dimension ldw), in place, as in uk_solve.cpp: each
 // step takes the largest remaining diagonal; it stops at the first pivot ≤ tol2 · (largest pivot).
 // Returns the number kept; piv holds the transpositions, L below the diagonal, D on it.
-Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, Index* piv, double* t, double& d_max,
-                   double& d_min_kept) {
+Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, double ref, Index* piv, double* t,
+                   double& d_max, double& d_min_kept) {
   d_max = 0.0;
   d_min_kept = std::numeric_limits<double>::infinity();
   double cutoff = 0.0;
@@ -125,7 +125,7 @@ Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, Index* piv, doubl
     }
     if (k == 0) {
       d_max = std::max(dp, 0.0);
-      cutoff = tol2 * d_max;
+      cutoff = tol2 * std::max(d_max, ref);
     }
     if (!(d_max > 0.0 && dp > cutoff)) break;
     piv[k] = p;
@@ -195,6 +195,7 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
   }
 
   Index mD = 0;
+  double w_ref = 0.0;  // max diag W
   for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
     const auto& grp = st.groups[gi];
     auto& gb = ws.g[gi];
@@ -224,16 +225,39 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
       for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
       gb.r[i] = v;
     }
-    // S = Xᵀ X (lower), pivoted LDLᵀ.
+    // S = Xᵀ X (lower), and the diagonal of W = A M⁻¹Aᵀ, W_ii = S_ii + C_i M_L⁻¹ C_iᵀ: the scale of
+    // every rank decision below, as the dense solve's (max diag W).
     for (Index j = 0; j < mk; ++j)
       for (Index i = j; i < mk; ++i) {
         double v = 0.0;
         for (Index l = 0; l < nk; ++l) v += gb.Xt(i, l) * gb.Xt(j, l);
         gb.S(i, j) = v;
       }
+    for (Index i = 0; i < mk; ++i) {
+      for (Index j = 0; j < nL; ++j) ws.tmp[j] = gb.C(i, j);
+      double c2 = 0.0;
+      if (nL > 0) {
+        l_solve(Ld + sL + sL * ldl, ldl, idg + sL, ws.tmp.data(), nL);
+        for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+      }
+      w_ref = std::max(w_ref, gb.S(i, i) + c2);
+    }
+  }
+  for (const Index row : st.load_rows) {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = A(row, sL + j);
+    l_solve(Ld + sL + sL * ldl, ldl, idg + sL, ws.tmp.data(), nL);
+    double c2 = 0.0;
+    for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    w_ref = std::max(w_ref, c2);
+  }
+  for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
+    const auto& grp = st.groups[gi];
+    auto& gb = ws.g[gi];
+    const Index mk = static_cast<Index>(grp.rows.size());
+    // Pivoted LDLᵀ of S, pivots under rank_rel_tol² · max diag W dropped.
     double dmax = 0.0, dmin = 0.0;
-    gb.kept =
-        pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, tol2, gb.piv.data(), ws.tmp.data(), dmax, dmin);
+    gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, tol2, w_ref, gb.piv.data(), ws.tmp.data(),
+                           dmax, dmin);
     const Index kp = gb.kept;
     rank += kp;
     if (kp > 0) {
@@ -336,7 +360,7 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
       ws.WD(i, j) = v;
     }
   double dmaxD = 0.0, dminD = 0.0;
-  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, tol2, ws.pivD.data(),
+  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, tol2, w_ref, ws.pivD.data(),
                                    ws.tmp.data(), dmaxD, dminD);
   rank += keptD;
   if (keptD > 0) {
