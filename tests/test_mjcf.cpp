@@ -79,8 +79,8 @@ TEST(Mjcf, MassMatrixAndBiasForcesMatchMuJoCo) {
   mj_deleteModel(m);
   EXPECT_LE(worst_M, 1e-10);
   EXPECT_LE(worst_b, 1e-10);
-  RecordProperty("worst_M_rel", std::to_string(worst_M));
-  RecordProperty("worst_bias_rel", std::to_string(worst_b));
+  RecordProperty("worst_M_rel", ::testing::PrintToString(worst_M));
+  RecordProperty("worst_bias_rel", ::testing::PrintToString(worst_b));
 }
 
 TEST(Mjcf, UnsupportedJointsAndCountsAreNamed) {

@@ -95,7 +95,7 @@ void expect_arrow_agrees_with_dense(const Case& c, int states) {
   }
   EXPECT_LE(worst_q, c.tol);
   EXPECT_LE(worst_c, c.tol);
-  ::testing::Test::RecordProperty("worst_qdd_rel", std::to_string(worst_q));
+  ::testing::Test::RecordProperty("worst_qdd_rel", ::testing::PrintToString(worst_q));
 }
 
 TEST(UkArrow, AgreesWithDenseSolveRedundantGrasps) {
