@@ -6,10 +6,11 @@
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
-      libginac-dev liburdfdom-dev libsundials-dev)
+      libginac-dev liburdfdom-dev libsundials-dev
+      libmujoco-dev)  # MJCF files (optional at build time: ukdyn/symbolic/mjcf.hpp)
 for arg in "$@"; do
   case "$arg" in
-    --bench) pkgs+=(libbenchmark-dev libmujoco-dev libsimbody-dev) ;;
+    --bench) pkgs+=(libbenchmark-dev libsimbody-dev) ;;
     --fuzz) pkgs+=(clang-14 libclang-rt-14-dev) ;;
   esac
 done

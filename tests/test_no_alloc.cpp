@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "helpers.hpp"
+#include "n_robots_model.hpp"
 #include "symbolic_systems.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -221,6 +222,32 @@ TEST(NoAlloc, DefinitionsSystemRightHandSideAllocatesNothing) {
     for (int k = 0; k < 20; ++k) ukdyn::forward(*sys, data, 0.05 * k, q0, qd, tau);
   });
   EXPECT_EQ(n, 0) << "forward() on the definitions system allocated " << n << " times";
+}
+
+// The block-arrow solve (ukdyn/core/uk_arrow.hpp) at several N, with every rank decision taken
+// (a duplicated grasp, a row on the load alone, a free robot): nothing allocated either.
+TEST(NoAlloc, ArrowForwardAllocatesNothing) {
+  for (const int robots : {2, 4, 9}) {
+    uktest::NRobotsOptions o;
+    o.robots = robots;
+    o.duplicate_grasp = true;
+    o.load_row = true;
+    o.free_robot = true;
+    const auto sys = uktest::n_robots_system(o);
+    ukdyn::ForwardData data(*sys);
+    const Eigen::Index n = sys->dof();
+    const Vec q = Vec::LinSpaced(n, -0.8, 0.9), qd = Vec::LinSpaced(n, 0.4, -0.3);
+    const Vec tau = Vec::Zero(n);
+    ukdyn::forward(*sys, data, 0.0, q, qd, tau);
+    ASSERT_TRUE(data.used_arrow);
+    const long count = allocations_in([&] {
+      for (int k = 0; k < 20; ++k) ukdyn::forward(*sys, data, 0.01 * k, q, qd, tau);
+    });
+    EXPECT_EQ(count, 0) << "the arrow forward() allocated " << count << " times (N = " << robots
+                        << ")";
+    EXPECT_TRUE(data.used_arrow);
+    EXPECT_EQ(data.result.rank, 2 * robots + 1);
+  }
 }
 
 #ifdef UKDYN_HAVE_IO

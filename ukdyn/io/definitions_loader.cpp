@@ -9,6 +9,7 @@
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/mjcf.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/urdf.hpp"
 
@@ -87,13 +88,18 @@ std::array<ex, 9> parse_matrix(const Loader& L, const sym::DefinitionScope& scop
 }
 
 // parameters: {name: value}, then let: {name: expression} (in order).
-void load_scope(const Loader& L, const Node& parent, sym::DefinitionScope& scope) {
+// `overrides` (an instance's parameters) replace the values of the parameters of the same name.
+void load_scope(const Loader& L, const Node& parent, sym::DefinitionScope& scope,
+                const std::map<std::string, Node>* overrides = nullptr) {
   if (Node p = L.child(parent, "parameters", false); p.node.IsDefined()) {
     if (!p.node.IsMap()) L.fail(p, "expected a mapping name: value");
     for (const auto& kv : p.node) {
       const std::string k = L.key(p, kv.first);
       const Node key_node{kv.first, p.key + "." + k};
-      const Node v{kv.second, p.key + "." + k};
+      Node v{kv.second, p.key + "." + k};
+      if (overrides) {
+        if (auto it = overrides->find(k); it != overrides->end()) v = it->second;
+      }
       const ex value = parse(L, scope, v);  // may use earlier parameters
       try {
         scope.parameter(k, value.subs(scope.parameter_values()));
@@ -145,7 +151,8 @@ void load_gravity(const Loader& L, const Node& s, sym::SubsystemDef& def, double
 // `let` (load_scope), gravity and an extra potential.
 template <typename Def>
 std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std::string& name,
-                                      const std::vector<std::string>& coordinates, double gravity) {
+                                      const std::vector<std::string>& coordinates, double gravity,
+                                      const InstanceSpec* instance) {
   const Node cn = L.child(s, "coordinates", true);
   std::unique_ptr<Def> def;
   try {
@@ -158,7 +165,24 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
     }
     L.fail(cn, e.what());
   }
-  load_scope(L, s, *def);
+  if (instance) {
+    // An instance: the template's coordinate names stand for the prefixed ones in its expressions.
+    for (std::size_t i = 0; i < coordinates.size() && i < instance->local.size(); ++i) {
+      try {
+        def->let(instance->local[i], def->q(coordinates[i]));
+        def->let(instance->local[i] + "_dot", def->qd(coordinates[i]));
+      } catch (const std::exception& e) {
+        L.fail(Node{cn.node[i], cn.key + "[" + std::to_string(i) + "]"}, e.what());
+      }
+    }
+    // Every override names a parameter of the template.
+    const Node p = L.child(s, "parameters", false);
+    for (const auto& [k, v] : instance->parameters) {
+      if (!p.node.IsDefined() || !p.node.IsMap() || !p.node[k].IsDefined())
+        L.fail(v, "'" + k + "' is not a parameter of the subsystem it is an instance of");
+    }
+  }
+  load_scope(L, s, *def, instance ? &instance->parameters : nullptr);
   load_gravity(L, s, *def, gravity);
   if (Node p = L.child(s, "potential", false); p.node.IsDefined()) {
     def->extra_potential = parse(L, *def, p);
@@ -170,10 +194,10 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
 
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity) {
-  L.only_keys(
-      s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity", "potential"});
-  auto def = start_definition<sym::SubsystemDef>(L, s, name, coordinates, gravity);
+    const std::vector<std::string>& coordinates, double gravity, const InstanceSpec* instance) {
+  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity",
+                  "potential", "instances"});
+  auto def = start_definition<sym::SubsystemDef>(L, s, name, coordinates, gravity, instance);
   const Node cn = L.child(s, "coordinates", true);
   const Node bodies = L.child(s, "bodies", true);
   if (!bodies.node.IsSequence() || bodies.node.size() == 0)
@@ -315,17 +339,27 @@ void load_inertial(const Loader& L, const sym::DefinitionScope& scope, const Nod
 std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
                                                       const std::string& name,
                                                       const std::vector<std::string>& coordinates,
-                                                      double gravity, DefinitionContext& context) {
-  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
-                  "mount", "base", "joints", "urdf", "joint_values", "points"});
-  auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity);
+                                                      double gravity, DefinitionContext& context,
+                                                      const InstanceSpec* instance) {
+  L.only_keys(s,
+              {"name", "type", "coordinates", "parameters", "let", "gravity", "potential", "mount",
+               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances"});
+  auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
   const Node cn = L.child(s, "coordinates", true);
-  if (Node m = L.child(s, "mount", false); m.node.IsDefined()) {
+  Node m = L.child(s, "mount", false);
+  if (instance && instance->mount.node.IsDefined()) m = instance->mount;
+  if (m.node.IsDefined()) {
     L.only_keys(m, {"xyz", "rpy"});
     def->mount = {parse_vec3_or(L, *def, m, "xyz"), parse_vec3_or(L, *def, m, "rpy")};
   }
   auto coordinate_name = [&](const Node& n) {
     const std::string c = L.string(n);
+    if (instance) {  // the template's name → the instance's (prefixed) coordinate
+      const auto& loc = instance->local;
+      const auto it = std::find(loc.begin(), loc.end(), c);
+      if (it != loc.end() && static_cast<std::size_t>(it - loc.begin()) < coordinates.size())
+        return coordinates[static_cast<std::size_t>(it - loc.begin())];
+    }
     if (std::find(coordinates.begin(), coordinates.end(), c) == coordinates.end())
       L.fail(n, "'" + c + "' is not a coordinate of this subsystem");
     return c;
@@ -343,8 +377,9 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   }
   const Node joints = L.child(s, "joints", false);
   const Node urdf = L.child(s, "urdf", false);
-  if (joints.node.IsDefined() == urdf.node.IsDefined())
-    L.fail(s, "give either joints (a list) or urdf (a file), not both and not neither");
+  const Node mjcf = L.child(s, "mjcf", false);
+  if (int(joints.node.IsDefined()) + int(urdf.node.IsDefined()) + int(mjcf.node.IsDefined()) != 1)
+    L.fail(s, "give one of joints (a list), urdf (a file) or mjcf (a file)");
   std::vector<Node> joint_nodes;
   if (joints.node.IsDefined()) {
     if (!joints.node.IsSequence() || joints.node.size() == 0)
@@ -394,6 +429,14 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       }
       load_inertial(L, *def, j, jd.inertial);
       joint_nodes.push_back(j);
+    }
+  } else if (mjcf.node.IsDefined()) {  // MuJoCo's parser (ukdyn/symbolic/mjcf.hpp)
+    std::filesystem::path file = L.string(mjcf);
+    if (file.is_relative()) file = L.path().parent_path() / file;
+    try {
+      sym::append_mjcf(*def, file.string());
+    } catch (const sym::DefinitionError& e) {
+      L.fail(mjcf, e.what());
     }
   } else {
     std::filesystem::path file = L.string(urdf);

@@ -4,6 +4,7 @@
 // an expression point at the column of the offending character.
 #pragma once
 
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -16,11 +17,22 @@
 
 namespace ukdyn::io_detail {
 
+/// One copy of a subsystem written once (`instances:`, docs/scenario-format.md): its coordinates
+/// are the template's with a prefix; the template's own names (`local`) stay usable inside its
+/// expressions (as aliases of the prefixed coordinates and velocities); `parameters` replace the
+/// template's values of the same name; `mount` (serial_chain) replaces the template's mount.
+struct InstanceSpec {
+  std::vector<std::string> local;          ///< the template's coordinate names
+  std::map<std::string, Node> parameters;  ///< name → the instance's value node
+  Node mount;                              ///< undefined: the template's
+};
+
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity);
+    const std::vector<std::string>& coordinates, double gravity,
+    const InstanceSpec* instance = nullptr);
 
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
 /// all coordinates in order.
@@ -37,7 +49,8 @@ std::shared_ptr<DefinitionContext> make_definition_context();
 std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
                                                       const std::string& name,
                                                       const std::vector<std::string>& coordinates,
-                                                      double gravity, DefinitionContext& context);
+                                                      double gravity, DefinitionContext& context,
+                                                      const InstanceSpec* instance = nullptr);
 
 /// True for points_coincide, point_trajectory and angle_relation.
 bool is_constraint_kind(const std::string& type);

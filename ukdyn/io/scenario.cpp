@@ -168,8 +168,58 @@ struct Loading {
   std::shared_ptr<io_detail::DefinitionContext> definition_context =
       io_detail::make_definition_context();  // serial_chain points
   Node subs;                                 // the subsystems list
+  std::vector<Node> sub_nodes;  // the node of each subsystem (an instance: its template)
   Node init;                                 // the initial block
 };
+
+// A subsystem entry's `instances:` (docs/scenario-format.md, "One robot, many copies"): for each,
+// its name, its coordinate prefix (default NAME_), its parameter overrides and mount. No
+// `instances:`: one entry, the subsystem itself.
+struct InstanceEntry {
+  std::string name;
+  std::string prefix;
+  bool is_instance = false;
+  io_detail::InstanceSpec spec;
+  Node at;  // the instance's node (or the subsystem's)
+};
+
+std::vector<InstanceEntry> instance_entries(const Loader& L, const Node& s, const std::string& name,
+                                            const std::string& type) {
+  const Node in = L.child(s, "instances", false);
+  if (!in.node.IsDefined()) return {InstanceEntry{name, "", false, {}, s}};
+  if (type != "definitions" && type != "serial_chain")
+    L.fail(in, "instances are available for definitions and serial_chain subsystems");
+  if (!in.node.IsSequence() || in.node.size() == 0)
+    L.fail(in, "expected a non-empty list of {name, prefix, parameters, mount}");
+  if (in.node.size() > 4096) L.fail(in, "too many instances (at most 4096)");
+  std::vector<InstanceEntry> out;
+  for (std::size_t j = 0; j < in.node.size(); ++j) {
+    const Node e{in.node[j], in.key + "[" + std::to_string(j) + "]"};
+    L.only_keys(e, {"name", "prefix", "parameters", "mount"});
+    InstanceEntry ie;
+    ie.is_instance = true;
+    ie.at = e;
+    ie.name = L.name(L.child(e, "name", true));
+    ie.prefix = ie.name + "_";
+    if (Node p = L.child(e, "prefix", false); p.node.IsDefined()) ie.prefix = L.string(p);
+    if (Node p = L.child(e, "parameters", false); p.node.IsDefined()) {
+      if (!p.node.IsMap()) L.fail(p, "expected a mapping name: value");
+      for (const auto& kv : p.node) {
+        const std::string k = L.key(p, kv.first);
+        ie.spec.parameters[k] = Node{kv.second, p.key + "." + k};
+      }
+    }
+    if (Node mt = L.child(e, "mount", false); mt.node.IsDefined()) {
+      if (type != "serial_chain")
+        L.fail(mt,
+               "mount is a serial_chain key (a definitions subsystem takes its pose from "
+               "parameters)");
+      ie.spec.mount = mt;
+    }
+    out.push_back(std::move(ie));
+  }
+  return out;
+}
 
 // subsystems: each one built and added to the system; coordinate names unique.
 void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario& sc, Loading& st) {
@@ -181,10 +231,19 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
   st.subs = L.child(root, "subsystems", true);
   const Node& subs = st.subs;
   if (!subs.node.IsSequence() || subs.node.size() == 0) L.fail(subs, "expected a non-empty list");
+  // Each entry, or each of its instances (instance_entries).
+  std::vector<std::pair<Node, InstanceEntry>> entries;
   for (std::size_t i = 0; i < subs.node.size(); ++i) {
     const Node s{subs.node[i], subs.key + "[" + std::to_string(i) + "]"};
-    const Node name_node = L.child(s, "name", true);
-    const std::string name = L.name(name_node);
+    const std::string tname = L.name(L.child(s, "name", true));
+    for (auto& e : instance_entries(L, s, tname, L.string(L.child(s, "type", true))))
+      entries.emplace_back(s, std::move(e));
+  }
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    const Node& s = entries[i].first;
+    const InstanceEntry& inst = entries[i].second;
+    const Node name_node = L.child(inst.at, "name", true);
+    const std::string name = inst.name;
     if (subsystem_names.count(name)) L.fail(name_node, "duplicate subsystem name '" + name + "'");
     subsystem_names.insert(name);
     const Node type_node = L.child(s, "type", true);
@@ -194,14 +253,20 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     if (!cn.node.IsSequence() || cn.node.size() == 0)
       L.fail(cn, "expected a list of coordinate names");
     if (cn.node.size() > static_cast<std::size_t>(kMaxDof)) L.fail(cn, "too many coordinates");
-    std::vector<std::string> names;
+    std::vector<std::string> names, local;
     for (std::size_t j = 0; j < cn.node.size(); ++j) {
       const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
-      std::string c = L.name(e);
-      if (coord_index.count(c)) L.fail(e, "duplicate coordinate name '" + c + "'");
+      local.push_back(L.name(e));
+      std::string c = inst.prefix + local.back();  // an instance: its prefix (else none)
+      if (inst.is_instance) (void)L.name(Node{YAML::Node(c), inst.at.key + ".prefix"});
+      if (coord_index.count(c))
+        L.fail(inst.is_instance ? inst.at : e, "duplicate coordinate name '" + c + "'");
       coord_index[c] = system->dof() + static_cast<Index>(j);
       names.push_back(std::move(c));
     }
+    io_detail::InstanceSpec spec = inst.spec;
+    spec.local = local;
+    const io_detail::InstanceSpec* ispec = inst.is_instance ? &spec : nullptr;
     std::shared_ptr<const Subsystem> sub;
     try {
       if (type == "mobile_manipulator") {
@@ -215,9 +280,10 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
         arms[name] = {arm, system->dof()};
         sub = arm;
       } else if (type == "definitions") {  // docs/definitions.md
-        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
+        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity, ispec);
       } else if (type == "serial_chain") {  // docs/definitions.md
-        sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context);
+        sub =
+            io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context, ispec);
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
                               "' (expected mobile_manipulator, definitions or serial_chain)");
@@ -229,6 +295,7 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     }
     const Index off = system->add_subsystem(sub);
     sc.subsystems.push_back({name, type, off, sub->dof()});
+    st.sub_nodes.push_back(s);
   }
   if (system->dof() > kMaxDof) L.fail(subs, "too many coordinates");
 }
@@ -237,7 +304,6 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
 void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   const std::shared_ptr<System>& system = st.system;
   const auto& coord_index = st.coord_index;
-  const Node& subs = st.subs;
   const Index n = system->dof();
   st.init = L.child(root, "initial", true);
   const Node& init = st.init;
@@ -266,8 +332,8 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
   }
   for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // M(q0) positive definite (definitions)
     const auto& info = sc.subsystems[k];
-    io_detail::check_mass_matrix(L, Node{subs.node[k], subs.key + "[" + std::to_string(k) + "]"},
-                                 *system->subsystems()[k], sc.q0.segment(info.offset, info.dof));
+    io_detail::check_mass_matrix(L, st.sub_nodes[k], *system->subsystems()[k],
+                                 sc.q0.segment(info.offset, info.dof));
   }
 }
 

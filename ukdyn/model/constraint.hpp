@@ -83,6 +83,18 @@ class Constraint {
     (void)slots;
     velocity_residual(t, q, qd, phid);
   }
+
+  /// Structural sparsity of A: for each row, the columns (coordinates of q, ascending) whose
+  /// entries may be non-zero. Empty (the default): not known, every column may be. System uses it
+  /// once, when the constraint is added, to find a block-arrow structure (ukdyn/core/uk_arrow.hpp).
+  [[nodiscard]] virtual std::vector<std::vector<Index>> row_columns() const { return {}; }
+  /// As evaluate_with(), but writes only the entries of A listed by row_columns() (and b); the
+  /// other entries of its rows are left untouched (they are 0 when only this constraint writes
+  /// them). O(non-zeros) instead of O(rows × n). Default: evaluate_with().
+  virtual void evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                        CVecRef qd, MatRef A, VecRef b) const {
+    evaluate_with(slots, t, q, qd, A, b);
+  }
 };
 
 /// Sets every entry of a block of constraint rows to 0 (for evaluate(), before writing the

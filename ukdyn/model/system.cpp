@@ -1,5 +1,6 @@
 #include "ukdyn/model/system.hpp"
 
+#include <algorithm>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -30,6 +31,26 @@ Index System::add_subsystem(std::shared_ptr<const Subsystem> subsystem) {
 Index System::add_constraint(std::shared_ptr<const Constraint> constraint) {
   if (!constraint) throw Error("System::add_constraint: null constraint");
   const Index first = rows_;
+  // Structural sparsity → the blocks each row touches → the arrow structure (uk_arrow.hpp).
+  const auto cols = constraint->row_columns();
+  if (static_cast<Index>(cols.size()) != constraint->rows()) structure_known_ = false;
+  if (structure_known_) {
+    for (const auto& rc : cols) {
+      std::vector<Index> blocks;
+      for (const Index c : rc) {
+        if (c < 0 || c >= dof_)
+          throw Error("System::add_constraint: a row names column " + std::to_string(c) + " of " +
+                      std::to_string(dof_));
+        const auto it = std::upper_bound(layout_.start.begin(), layout_.start.end(), c);
+        const Index blk = static_cast<Index>(it - layout_.start.begin()) - 1;
+        if (blocks.empty() || blocks.back() != blk) blocks.push_back(blk);
+      }
+      if (blocks.empty()) structure_known_ = false;
+      row_blocks_.push_back(std::move(blocks));
+    }
+  }
+  arrow_.reset();
+  if (structure_known_) arrow_ = detect_arrow(layout_, row_blocks_);
   row_offsets_.push_back(first);
   for (const auto& nm : constraint->row_names()) row_names_.push_back(nm);
   rows_ += constraint->rows();
@@ -87,6 +108,7 @@ ForwardData::ForwardData(const System& system)
       Qc(Vec::Zero(system.dof())),
       qdd(Vec::Zero(system.dof())),
       uk(system.layout(), system.rows()),
+      arrow(system.arrow() ? ArrowWorkspace(*system.arrow(), system.rows()) : ArrowWorkspace()),
       slot_start(slot_starts(system)),
       system_(&system) {
   slots = Vec::Zero(slot_start.back());
@@ -153,11 +175,45 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
   check_size("forward", "tau", system.dof(), tau.size());
   evaluate_dynamics(system, data, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
-  evaluate_constraints(system, data, t, q, qd);
+  if (arrow_applies(system, data, settings)) {
+    // Only A's structural non-zeros are written (the rest of data.A stays 0): O(N) for N robots.
+    const auto& cons = system.constraints();
+    const auto& offs = system.constraint_row_offsets();
+    const Index n = system.dof();
+    for (std::size_t c = 0; c < cons.size(); ++c) {
+      const Index r = cons[c]->rows();
+      cons[c]->evaluate_structural_with(data.constraint_slots(c), t, q, qd,
+                                        data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
+    }
+  } else {
+    evaluate_constraints(system, data, t, q, qd);
+  }
   solve_stage(system, data, settings);
 }
 
-void solve_stage(const System&, ForwardData& data, const UkSettings& settings) {
+bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings) {
+  return system.arrow() && data.arrow.built() &&
+         (settings.method == UkMethod::exact || settings.method == UkMethod::adaptive);
+}
+
+void solve_stage(const System& system, ForwardData& data, const UkSettings& settings) {
+  // The block-arrow path (ukdyn/core/uk_arrow.hpp): O(N) for N robots on one load; the dense
+  // solve stays the fallback (other methods, H or M not positive definite). The adaptive method's
+  // damping lives in the dense solve: an arrow result whose smallest kept pivot falls inside the
+  // adaptive band is redone densely (the pivots of the pieces stand for the singular values).
+  data.used_arrow = false;
+  if (arrow_applies(system, data, settings) && factor_mass(data.M, data.uk) &&
+      uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow,
+                     data.qdd, data.Qc, settings, data.result)) {
+    const bool in_band = settings.method == UkMethod::adaptive &&
+                         data.result.sigma_min_kept < settings.adaptive_band *
+                                                          settings.regularization *
+                                                          data.result.sigma_max;
+    if (!in_band) {
+      data.used_arrow = true;
+      return;
+    }
+  }
   data.result = uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc, settings);
 }
 

@@ -3,9 +3,11 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "ukdyn/core/uk_arrow.hpp"
 #include "ukdyn/core/uk_solve.hpp"
 #include "ukdyn/model/applied_force.hpp"
 #include "ukdyn/model/constraint.hpp"
@@ -42,6 +44,11 @@ class System {
   /// of constraint row `name`. Throw std::invalid_argument for an unknown name.
   [[nodiscard]] Index coordinate_index(const std::string& name) const;
   [[nodiscard]] Index constraint_row_index(const std::string& name) const;
+  /// The block-arrow structure of A (robot subsystems each coupled to one shared load subsystem,
+  /// ukdyn/core/uk_arrow.hpp), found from the constraints' structural sparsity
+  /// (Constraint::row_columns()) as they are added; nullptr when A does not have one (or a
+  /// constraint does not declare its sparsity). forward() then solves in O(N).
+  [[nodiscard]] const ArrowStructure* arrow() const { return arrow_ ? &*arrow_ : nullptr; }
 
  private:
   std::vector<std::shared_ptr<const Subsystem>> subsystems_;
@@ -51,6 +58,9 @@ class System {
   std::vector<std::string> coord_names_;
   std::vector<std::string> row_names_;
   BlockLayout layout_;
+  std::vector<std::vector<Index>> row_blocks_;  // blocks touched by each row (structural)
+  bool structure_known_ = true;                 // every constraint declared row_columns()
+  std::optional<ArrowStructure> arrow_;
   Index dof_ = 0;
   Index rows_ = 0;
 };
@@ -71,6 +81,10 @@ struct ForwardData {
   Vec qdd;  ///< n: q̈ = M^{-1}(Q + Qc), paper Eq. (18)
   UkWorkspace uk;   ///< the U-K solve's buffers for (system.layout(), m)
   UkResult result;  ///< diagnostics of the last solve
+  /// The arrow solve's buffers (built when system.arrow() is set) and whether the last forward()
+  /// used it (true) or the dense solve (false).
+  ArrowWorkspace arrow;
+  bool used_arrow = false;
   /// (τ + Q_nc)ᵀ q̇: the power of τ and of the non-conservative part of the applied forces.
   double applied_power = 0.0;
   /// W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt, set by simulate() at samples when energy_balance is on.
@@ -113,7 +127,11 @@ void generalized_forces(const System& system, ForwardData& data, double t, CVecR
 
 /// Last stage: q̈, Qc and data.result from data.M, Q, A, b (the U-K solve, uk_solve.hpp). forward()
 /// ends with it; drift control (Baumgarte) calls the stages itself with b adjusted before this one.
+/// The block-arrow path is used when the system has the structure, data was built with its
+/// buffers, and the method is exact or adaptive.
 void solve_stage(const System& system, ForwardData& data, const UkSettings& settings);
+/// Whether solve_stage tries the block-arrow solve (ukdyn/core/uk_arrow.hpp) first.
+bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings);
 
 /// Stage 1 only: M, C q̇, G (no constraints), into data (and the subsystems' data slots).
 void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);

@@ -682,6 +682,27 @@ void DerivedConstraint::evaluate_with(const ConstraintSlots& slots, double t, CV
   for (Index r = 0; r < m_; ++r) b(r) = out[k++];
 }
 
+std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
+  std::vector<std::vector<Index>> cols(static_cast<std::size_t>(m_));
+  for (const auto& [r, c] : nz_) cols[static_cast<std::size_t>(r)].push_back(c);
+  for (auto& v : cols) std::sort(v.begin(), v.end());
+  return cols;
+}
+
+void DerivedConstraint::evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q,
+                                                 CVecRef qd, MatRef A, VecRef b) const {
+  const Slot own = slots.own();
+  if (own.size() != static_cast<std::size_t>(slot_size())) {
+    evaluate(t, q, qd, A, b);
+    return;
+  }
+  double* out = own.data();
+  ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
+  std::size_t k = 0;
+  for (const auto& [r, c] : nz_) A(r, c) = out[k++];
+  for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+}
+
 void DerivedConstraint::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
                                                VecRef phi) const {
   const Slot own = slots.own();

@@ -226,6 +226,11 @@ class DerivedConstraint final : public Constraint {
                               VecRef phi) const override;
   void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
                               VecRef phid) const override;
+  /// The structurally non-zero entries of the derived A (GiNaC zeros excluded), per row.
+  [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override;
+  /// Writes only those entries of A (and b): no O(n) zeroing of every row.
+  void evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                                MatRef A, VecRef b) const override;
   [[nodiscard]] const ConstraintDerivation& derivation() const { return d_; }
   [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
 

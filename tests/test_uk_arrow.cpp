@@ -1,0 +1,234 @@
+// The block-arrow U-K solve (ukdyn/core/uk_arrow.hpp) against the dense one (uk_solve.hpp) on the
+// same states: N arms carrying a load (tests/n_robots_model.hpp), with redundant grasps, a
+// rank-deficient robot block, duplicated rows, rows on the load alone and on a robot alone.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "helpers.hpp"
+#include "n_robots_model.hpp"
+#include "ukdyn/core/uk_arrow.hpp"
+#include "ukdyn/model/system.hpp"
+#ifdef UKDYN_HAVE_IO
+#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/simulate/simulate.hpp"
+#endif
+
+namespace {
+
+using ukdyn::Index;
+using ukdyn::Mat;
+using ukdyn::Vec;
+
+TEST(UkArrow, DetectsTheArrowStructure) {
+  const ukdyn::BlockLayout lay{{0, 3, 6, 9}, {3, 3, 3, 3}};
+  // Rows on (0, 3), (1, 3), (2, 3), (3), (1): an arrow with load 3.
+  const auto s = ukdyn::detect_arrow(lay, {{0, 3}, {1, 3}, {1, 3}, {2, 3}, {3}, {1}});
+  ASSERT_TRUE(s.has_value());
+  EXPECT_EQ(s->load_block, 3);
+  ASSERT_EQ(s->groups.size(), 3u);
+  EXPECT_EQ(s->groups[1].block, 1);
+  EXPECT_EQ(s->groups[1].rows, (std::vector<Index>{1, 2, 5}));
+  EXPECT_EQ(s->load_rows, (std::vector<Index>{4}));
+  // A row coupling two robots breaks it, so does a row on three blocks.
+  EXPECT_FALSE(ukdyn::detect_arrow(lay, {{0, 3}, {1, 3}, {0, 1}}).has_value());
+  EXPECT_FALSE(ukdyn::detect_arrow(lay, {{0, 3}, {1, 2, 3}}).has_value());
+  // A single coupled pair: the dense solve is kept (min_groups = 2).
+  EXPECT_FALSE(ukdyn::detect_arrow(lay, {{0, 3}, {3}}).has_value());
+}
+
+TEST(UkArrow, SystemsWithoutDeclaredSparsityStayDense) {
+  uktest::TwoArms two;  // the paper's closed-form arms and closure constraint
+  two.add_closure();
+  EXPECT_EQ(two.system->arrow(), nullptr);
+}
+
+struct Case {
+  const char* name;
+  uktest::NRobotsOptions o;
+  int expected_rank;  // at a generic state
+  /// Relative agreement in q̈ and Qc. Full-rank rows: 1e-12. With redundant rows (rank decisions)
+  /// both solves are accurate to cond · ε only, and their different elimination orders were
+  /// measured to differ by up to 1.7e-11 (q̈) and 4.5e-11 (Qc) over these 300 states: 1e-10.
+  double tol = 1e-12;
+};
+
+void expect_arrow_agrees_with_dense(const Case& c, int states) {
+  SCOPED_TRACE(c.name);
+  const auto sys = uktest::n_robots_system(c.o);
+  ASSERT_NE(sys->arrow(), nullptr);
+  const Index n = sys->dof(), m = sys->rows();
+  ukdyn::ForwardData data(*sys);
+  ukdyn::UkWorkspace dense_ws(sys->layout(), m);
+  Vec qdd_d(n), Qc_d(n);
+  std::mt19937 rng(20261201u);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  double worst_q = 0.0, worst_c = 0.0;
+  for (int k = 0; k < states; ++k) {
+    Vec q(n), qd(n), tau(n);
+    for (Index i = 0; i < n; ++i) {
+      q[i] = 1.5 * u(rng);
+      qd[i] = u(rng);
+      tau[i] = 2.0 * u(rng);
+    }
+    const double t = u(rng);
+    ukdyn::forward(*sys, data, t, q, qd, tau);
+    ASSERT_TRUE(data.used_arrow);
+    ASSERT_TRUE(data.result.finite);
+    EXPECT_TRUE(data.result.consistent);
+    const ukdyn::UkResult rd =
+        ukdyn::uk_solve(data.M, data.A, data.b, data.Q, dense_ws, qdd_d, Qc_d);
+    ASSERT_TRUE(rd.finite);
+    EXPECT_EQ(data.result.rank, rd.rank) << "state " << k;
+    EXPECT_EQ(data.result.rank, c.expected_rank) << "state " << k;
+    // Relative agreement (infinity norm).
+    const double dq = (data.qdd - qdd_d).lpNorm<Eigen::Infinity>() /
+                      std::max(1.0, qdd_d.lpNorm<Eigen::Infinity>());
+    const double dc =
+        (data.Qc - Qc_d).lpNorm<Eigen::Infinity>() / std::max(1.0, Qc_d.lpNorm<Eigen::Infinity>());
+    worst_q = std::max(worst_q, dq);
+    worst_c = std::max(worst_c, dc);
+    // The multipliers reproduce Qc: Aᵀλ = Qc, and M q̈ = Q + Qc.
+    const Vec Atl = data.A.transpose() * data.arrow.lambda;
+    EXPECT_LE((Atl - data.Qc).lpNorm<Eigen::Infinity>(),
+              1e-12 * std::max(1.0, data.Qc.lpNorm<Eigen::Infinity>()));
+  }
+  EXPECT_LE(worst_q, c.tol);
+  EXPECT_LE(worst_c, c.tol);
+  ::testing::Test::RecordProperty("worst_qdd_rel", ::testing::PrintToString(worst_q));
+}
+
+TEST(UkArrow, AgreesWithDenseSolveRedundantGrasps) {
+  for (int robots : {2, 3, 5, 8}) {
+    uktest::NRobotsOptions o;
+    o.robots = robots;
+    expect_arrow_agrees_with_dense({"grasps", o, 2 * robots}, 100);
+  }
+}
+
+TEST(UkArrow, AgreesWithDenseSolveRankDecisions) {
+  uktest::NRobotsOptions o;
+  o.robots = 4;
+  o.duplicate_grasp = true;  // 2 exactly redundant rows in robot 0's block
+  o.load_row = true;
+  o.free_robot = true;
+  expect_arrow_agrees_with_dense({"duplicate + load row + free robot", o, 9, 1e-10}, 100);
+  uktest::NRobotsOptions p;
+  p.robots = 3;
+  p.one_link_robot = true;  // robot 0: 1 joint, 2 grasp rows: one row moves to the load
+  p.load_row = true;
+  expect_arrow_agrees_with_dense({"one-link robot + load row", p, 7, 1e-10}, 100);
+  uktest::NRobotsOptions r;
+  r.robots = 3;
+  r.robot_row = true;
+  r.duplicate_grasp = true;
+  expect_arrow_agrees_with_dense({"robot row + duplicate", r, 7, 1e-10}, 100);
+}
+
+TEST(UkArrow, OtherMethodsUseTheDenseSolve) {
+  uktest::NRobotsOptions o;
+  const auto sys = uktest::n_robots_system(o);
+  ukdyn::ForwardData data(*sys);
+  const Vec q = Vec::Constant(sys->dof(), 0.3), qd = Vec::Constant(sys->dof(), 0.1);
+  const Vec tau = Vec::Zero(sys->dof());
+  ukdyn::UkSettings s;
+  s.method = ukdyn::UkMethod::regularized;
+  ukdyn::forward(*sys, data, 0.0, q, qd, tau, s);
+  EXPECT_FALSE(data.used_arrow);
+  ukdyn::forward(*sys, data, 0.0, q, qd, tau);
+  EXPECT_TRUE(data.used_arrow);
+}
+
+#ifdef UKDYN_HAVE_IO
+// The arm written once and instantiated N times (`instances:`, tools/n_robots.py) is the same
+// system as the one built directly in C++ (tests/n_robots_model.hpp): names, M, A, b and q̈ at
+// random states.
+TEST(Instances, GeneratedScenarioMatchesTheDirectModel) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3.yaml");
+  uktest::NRobotsOptions o;
+  o.robots = 3;
+  const auto direct = uktest::n_robots_system(o);
+  ASSERT_EQ(sc.system->coordinate_names(), direct->coordinate_names());
+  EXPECT_EQ(sc.system->coordinate_names()[3], "r1_t1");
+  EXPECT_EQ(sc.system->constraint_row_names(), direct->constraint_row_names());
+  ASSERT_NE(sc.system->arrow(), nullptr);
+  EXPECT_EQ(sc.system->arrow()->groups.size(), 3u);
+  EXPECT_EQ(sc.subsystems[1].name, "robot1");
+  const Index n = direct->dof();
+  ukdyn::ForwardData a(*sc.system), b(*direct);
+  std::mt19937 rng(7u);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int k = 0; k < 20; ++k) {
+    Vec q(n), qd(n);
+    for (Index i = 0; i < n; ++i) {
+      q[i] = 1.5 * u(rng);
+      qd[i] = u(rng);
+    }
+    const Vec tau = Vec::Zero(n);
+    ukdyn::forward(*sc.system, a, 0.0, q, qd, tau);
+    ukdyn::forward(*direct, b, 0.0, q, qd, tau);
+    EXPECT_LE((a.M - b.M).lpNorm<Eigen::Infinity>(), 1e-12);
+    EXPECT_LE((a.A - b.A).lpNorm<Eigen::Infinity>(), 1e-12);
+    EXPECT_LE((a.b - b.b).lpNorm<Eigen::Infinity>(), 1e-12 * (1 + b.b.lpNorm<Eigen::Infinity>()));
+    EXPECT_LE((a.qdd - b.qdd).lpNorm<Eigen::Infinity>(),
+              1e-10 * (1 + b.qdd.lpNorm<Eigen::Infinity>()));
+  }
+  // The initial state satisfies the grasps (load_scenario checked it) and a short run completes
+  // with the arrow solve, holding the grasps.
+  ukdyn::SimulationSettings s = sc.sim;
+  s.t_end = 0.2;
+  double worst = 0.0;
+  const auto stats =
+      ukdyn::simulate(*sc.system, sc.q0, sc.qd0, {}, s,
+                      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData& d) {
+                        EXPECT_TRUE(d.used_arrow);
+                        Vec phi(sc.system->rows());
+                        ukdyn::position_residuals(*sc.system, t, q, phi);
+                        worst = std::max(worst, phi.lpNorm<Eigen::Infinity>());
+                        return true;
+                      });
+  EXPECT_EQ(stats.status, ukdyn::RunStatus::completed) << stats.message;
+  EXPECT_LE(worst, 1e-9);
+}
+
+TEST(Instances, BadInstancesAreReportedWithTheirPosition) {
+  const std::string head = R"(ukdyn: 1
+name: bad
+subsystems:
+  - name: arm
+    type: definitions
+    coordinates: [t1]
+    parameters: {bx: 0}
+    bodies:
+      - {name: b, mass: 1, com: [bx + cos(t1), 0, sin(t1)]}
+)";
+  const std::string tail = R"(initial:
+  q: [0, 0]
+simulation:
+  t_end: 1
+  sample_dt: 0.1
+)";
+  auto error_of = [&](const std::string& instances) {
+    try {
+      (void)ukdyn::load_scenario_text(head + instances + tail, "bad.yaml");
+    } catch (const ukdyn::ScenarioError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string unknown = error_of(
+      "    instances:\n      - {name: a0, parameters: {bx: 1}}\n      - {name: a1, "
+      "parameters: {by: 2}}\n");
+  EXPECT_NE(unknown.find("bad.yaml:12:"), std::string::npos) << unknown;
+  EXPECT_NE(unknown.find("'by' is not a parameter"), std::string::npos) << unknown;
+  const std::string dup =
+      error_of("    instances:\n      - {name: a0, prefix: p_}\n      - {name: a1, prefix: p_}\n");
+  EXPECT_NE(dup.find("duplicate coordinate name 'p_t1'"), std::string::npos) << dup;
+  const std::string key =
+      error_of("    instances:\n      - {name: a0, pose: 1}\n      - {name: a1}\n");
+  EXPECT_NE(key.find("pose"), std::string::npos) << key;
+}
+#endif
+
+}  // namespace

@@ -1,0 +1,172 @@
+#include "ukdyn/symbolic/mjcf.hpp"
+
+#include <cmath>
+#include <numbers>
+#include <set>
+#include <vector>
+
+#include "ukdyn/symbolic/constraint_kinds.hpp"
+
+#ifdef UKDYN_HAVE_MUJOCO
+#include <mujoco/mujoco.h>
+#endif
+
+namespace ukdyn::symbolic {
+
+#ifndef UKDYN_HAVE_MUJOCO
+
+bool mjcf_supported() { return false; }
+
+void append_mjcf(ChainDef&, const std::string& path, bool) {
+  throw DefinitionError(path +
+                        ": this ukdyn was built without MuJoCo, so it cannot read MJCF files "
+                        "(install libmujoco-dev, scripts/install-deps.sh, and rebuild)");
+}
+
+#else
+
+namespace {
+
+using GiNaC::ex;
+
+// Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
+std::array<double, 9> quat_matrix(const double* q) {
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  const double n = w * w + x * x + y * y + z * z;
+  const double s = n > 0.0 ? 2.0 / n : 0.0;
+  return {1 - s * (y * y + z * z), s * (x * y - w * z),     s * (x * z + w * y),
+          s * (x * y + w * z),     1 - s * (x * x + z * z), s * (y * z - w * x),
+          s * (x * z - w * y),     s * (y * z + w * x),     1 - s * (x * x + y * y)};
+}
+
+// Roll, pitch, yaw with R = Rz(yaw) Ry(pitch) Rx(roll) (chain.hpp's convention).
+Vec3Ex rpy_of(const double* quat) {
+  const auto R = quat_matrix(quat);
+  double roll = 0.0, pitch = 0.0, yaw = 0.0;
+  const double s = -R[6];
+  if (std::abs(s) < 1.0 - 1e-12) {
+    pitch = std::asin(s);
+    roll = std::atan2(R[7], R[8]);
+    yaw = std::atan2(R[3], R[0]);
+  } else {  // pitch = ±π/2: only roll ∓ yaw is defined; take roll = 0
+    pitch = s > 0 ? std::numbers::pi / 2 : -std::numbers::pi / 2;
+    yaw = std::atan2(-R[1], R[4]);
+  }
+  return {exact_number(roll), exact_number(pitch), exact_number(yaw)};
+}
+
+Vec3Ex vec_of(const double* v) {
+  return {exact_number(v[0]), exact_number(v[1]), exact_number(v[2])};
+}
+
+struct ModelGuard {
+  mjModel* m = nullptr;
+  ~ModelGuard() {
+    if (m) mj_deleteModel(m);
+  }
+};
+
+}  // namespace
+
+bool mjcf_supported() { return true; }
+
+void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
+  char err[1000] = "";
+  ModelGuard g;
+  g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  if (!g.m) throw DefinitionError(path + ": MuJoCo could not load it: " + err);
+  const mjModel& m = *g.m;
+  auto name_of = [&](int type, int id, const std::string& fallback) {
+    const char* n = mj_id2name(g.m, type, id);
+    return n && *n ? std::string(n) : fallback;
+  };
+  // Coordinates for the joints, in MuJoCo's order.
+  std::set<std::string> taken;
+  if (chain.base.enabled) {
+    taken.insert(chain.base.x);
+    taken.insert(chain.base.y);
+    if (!chain.base.yaw.empty()) taken.insert(chain.base.yaw);
+  }
+  std::vector<std::string> free;
+  for (const auto& c : chain.coordinates())
+    if (!taken.count(c)) free.push_back(c);
+  for (int j = 0; j < m.njnt; ++j) {
+    const int t = m.jnt_type[j];
+    if (t != mjJNT_HINGE && t != mjJNT_SLIDE) {
+      throw DefinitionError(path + ": joint '" + name_of(mjOBJ_JOINT, j, std::to_string(j)) +
+                            "': type " + (t == mjJNT_BALL ? "ball" : "free") +
+                            " is not supported yet (hinge and slide joints)");
+    }
+  }
+  if (static_cast<int>(free.size()) != m.njnt) {
+    throw DefinitionError(path + ": the model has " + std::to_string(m.njnt) +
+                          " hinge/slide joints but the chain declares " +
+                          std::to_string(free.size()) + " joint coordinates");
+  }
+  if (m.neq > 0) {
+    throw DefinitionError(path + ": equality constraints are not read yet (" +
+                          std::to_string(m.neq) + " in the model): write them as constraints");
+  }
+  if (gravity) chain.gravity = vec_of(m.opt.gravity);
+  const std::string root = chain.base.enabled ? chain.base.link : chain.root_link;
+  std::vector<std::string> link(static_cast<std::size_t>(m.nbody));
+  link[0] = root;
+  for (int b = 1; b < m.nbody; ++b) {
+    const std::string bname = name_of(mjOBJ_BODY, b, "body" + std::to_string(b));
+    link[static_cast<std::size_t>(b)] = bname;
+    const std::string parent = link[static_cast<std::size_t>(m.body_parentid[b])];
+    const double* bpos = m.body_pos + 3 * b;
+    const double* bquat = m.body_quat + 4 * b;
+    const auto R = quat_matrix(bquat);
+    const int nj = m.body_jntnum[b], j0 = m.body_jntadr[b];
+    std::string prev = parent;
+    const double* prev_anchor = nullptr;
+    for (int i = 0; i < nj; ++i) {
+      const int j = j0 + i;
+      const double* a = m.jnt_pos + 3 * j;
+      const std::string jname = name_of(mjOBJ_JOINT, j, bname + "_joint" + std::to_string(i));
+      const bool hinge = m.jnt_type[j] == mjJNT_HINGE;
+      // The joint frame sits at the anchor, oriented as the body frame.
+      JointDef& jd =
+          chain.add_joint(jname, hinge ? JointDef::Type::revolute : JointDef::Type::prismatic,
+                          bname + "__" + jname);
+      jd.parent = prev;
+      if (i == 0) {
+        const double p[3] = {bpos[0] + R[0] * a[0] + R[1] * a[1] + R[2] * a[2],
+                             bpos[1] + R[3] * a[0] + R[4] * a[1] + R[5] * a[2],
+                             bpos[2] + R[6] * a[0] + R[7] * a[1] + R[8] * a[2]};
+        jd.origin.xyz = vec_of(p);
+        jd.origin.rpy = rpy_of(bquat);
+      } else {
+        const double d[3] = {a[0] - prev_anchor[0], a[1] - prev_anchor[1], a[2] - prev_anchor[2]};
+        jd.origin.xyz = vec_of(d);
+      }
+      jd.axis = vec_of(m.jnt_axis + 3 * j);
+      const ex q = coordinate_symbol(free[static_cast<std::size_t>(j)]);
+      const double q0 = m.qpos0[m.jnt_qposadr[j]];
+      jd.value = q0 == 0.0 ? q : q - exact_number(q0);
+      prev = jd.link;
+      prev_anchor = a;
+    }
+    // The body frame (fixed to the last joint frame, or to the parent) with the body's inertia.
+    JointDef& fd = chain.add_joint(bname + "__frame", JointDef::Type::fixed, bname);
+    fd.parent = prev;
+    if (nj == 0) {
+      fd.origin.xyz = vec_of(bpos);
+      fd.origin.rpy = rpy_of(bquat);
+    } else {
+      const double d[3] = {-prev_anchor[0], -prev_anchor[1], -prev_anchor[2]};
+      fd.origin.xyz = vec_of(d);
+    }
+    fd.inertial.mass = exact_number(m.body_mass[b]);
+    fd.inertial.com = vec_of(m.body_ipos + 3 * b);
+    fd.inertial.rpy = rpy_of(m.body_iquat + 4 * b);
+    const double* I = m.body_inertia + 3 * b;
+    fd.inertial.inertia = {exact_number(I[0]), 0, 0, 0, exact_number(I[1]), 0, 0, 0,
+                           exact_number(I[2])};
+  }
+}
+
+#endif
+
+}  // namespace ukdyn::symbolic
