@@ -1,5 +1,7 @@
 #include "ukdyn/model/system.hpp"
 
+#include <Eigen/Eigenvalues>
+#include <cstdint>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -87,9 +89,35 @@ ForwardData::ForwardData(const System& system)
       Qc(Vec::Zero(system.dof())),
       qdd(Vec::Zero(system.dof())),
       uk(system.layout(), system.rows()),
+      singular(system.layout(), system.rows()),
       slot_start(slot_starts(system)),
       system_(&system) {
   slots = Vec::Zero(slot_start.back());
+  // Blocks whose M is singular at every state (core/uk_singular.hpp): M_k at three fixed
+  // pseudo-random states (components in [-1, 1]), smallest eigenvalue under 1e-10 of the largest.
+  const auto& subs = system.subsystems();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    const Index nk = subs[k]->dof();
+    Mat Mk(nk, nk);
+    bool singular_everywhere = true;
+    std::uint64_t state = 0x9e3779b97f4a7c15ULL + k;
+    for (int trial = 0; trial < 3 && singular_everywhere; ++trial) {
+      Vec q(nk);
+      for (Index i = 0; i < nk; ++i) {
+        state = state * 6364136223846793005ULL + 1442695040888963407ULL;  // LCG, Knuth MMIX
+        q(i) = static_cast<double>(state >> 11) * 0x1.0p-52 - 1.0;
+      }
+      subs[k]->mass(q, Mk);
+      if (!Mk.allFinite()) {
+        singular_everywhere = false;
+        break;
+      }
+      const Vec ev = Eigen::SelfAdjointEigenSolver<Mat>(Mk, Eigen::EigenvaluesOnly).eigenvalues();
+      singular_everywhere = !(ev(0) > 1e-10 * std::max(ev(nk - 1), 0.0));
+    }
+    singular.structural[k] = singular_everywhere ? 1 : 0;
+    singular.any_structural = singular.any_structural || singular_everywhere;
+  }
 }
 
 Slot ForwardData::subsystem_slot(std::size_t k) {
@@ -154,7 +182,28 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
   evaluate_dynamics(system, data, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
   evaluate_constraints(system, data, t, q, qd);
-  data.result = uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc, settings);
+  data.result = uk_solve_dispatch(data, data.b, data.Q, data.qdd, data.Qc, settings);
+}
+
+UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,
+                           const UkSettings& settings) {
+  // The positive-definite fast path (uk_solve() = factor_mass + uk_solve_factored), unless a block
+  // is singular: then the augmented form of core/uk_singular.hpp.
+  if (!data.singular.any_structural && factor_mass(data.M, data.uk) &&
+      mass_factor_regular(data.M, data.uk)) {
+    data.singular.active = false;
+    return uk_solve_factored(data.A, b, Q, data.uk, qdd, Qc, settings);
+  }
+  return uk_solve_singular(data.M, data.A, b, Q, data.uk, data.singular, qdd, Qc, settings);
+}
+
+double mass_condition(const ForwardData& data, std::size_t* block) {
+  if (data.singular.active) {
+    if (block) *block = data.singular.cond_block;
+    return data.singular.rank_deficient ? std::numeric_limits<double>::infinity()
+                                        : data.singular.cond_estimate;
+  }
+  return mass_condition_estimate(data.M, data.uk, block);
 }
 
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,

@@ -100,7 +100,7 @@ struct Rhs {
     velocity_residuals(system, d, t, q, qd, phid);
     // Baumgarte: Φ̈ + 2α Φ̇ + β² Φ = 0  ⇒  A q̈ = b − 2α Φ̇ − β² Φ.
     d.b -= 2.0 * s.drift.alpha * phid + s.drift.beta * s.drift.beta * phi;
-    d.result = uk_solve(d.M, d.A, d.b, d.Q, d.uk, d.qdd, d.Qc, s.uk);
+    d.result = uk_solve_dispatch(d, d.b, d.Q, d.qdd, d.Qc, s.uk);
   }
 
   void operator()(const State& x, State& dxdt, double t) { eval_raw(x.data(), dxdt.data(), t); }
@@ -168,7 +168,7 @@ struct Projector {
       evaluate_dynamics(system, data, q, qd);
       evaluate_constraints(system, data, t, q, qd);
       phi = -phi;
-      uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+      uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
       q += delta;
       last_dq += delta.cwiseAbs().maxCoeff();
       ++iterations;
@@ -185,7 +185,7 @@ struct Projector {
     evaluate_constraints(system, data, t, q, qd);
     velocity_residuals(system, data, t, q, qd, phi);
     phi = -phi;
-    uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+    uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
     qd += delta;
     last_dqd = delta.cwiseAbs().maxCoeff();
     return r;
@@ -233,6 +233,11 @@ std::string diagnose_singularity(const System& system, double t, const State& x,
   }
   const double ev_min = es.eigenvalues()(0), ev_max = es.eigenvalues()(n - 1);
   if (!(ev_min > 1e-8 * std::max(ev_max, 0.0))) {
+    // A singular M is fine when [M; A] has full column rank (core/uk_singular.hpp).
+    evaluate_constraints(system, d, t, q, qd);
+    const std::string why = undetermined_direction(d.M, d.A, cn);
+    if (!why.empty()) return "at t = " + std::to_string(t) + ": " + why;
+    if (system.rows() > 0) return "";
     return "the mass matrix is (nearly) singular at t = " + std::to_string(t) +
            ": smallest eigenvalue " + sci(ev_min) + " of largest " + sci(ev_max) +
            ", in coordinates [" + names(cn, es.eigenvectors().col(0)) + "]";
@@ -314,6 +319,21 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
     ++stats.samples;
     stats.t_reached = t;
     const UkResult& r = sample_data.result;
+    if (r.finite) {  // M near singular (gimbal lock): warned before the solve gives up
+      std::size_t blk = 0;
+      const double cond = mass_condition(sample_data, &blk);
+      if (cond > kMassConditionWarning) {
+        const bool dense = sample_data.singular.active && sample_data.singular.dense_used;
+        warn(t, "ill_conditioned_mass",
+             "the mass matrix" +
+                 (dense ? std::string(" (augmented with the constraints)")
+                        : " of subsystem '" + system.subsystems()[blk]->name() + "'") +
+                 " is ill-conditioned (cond >= " + sci(cond) +
+                 ", Cholesky pivot estimate): a singular configuration of its coordinates is near "
+                 "(the gimbal lock of Euler angles?); digits are lost, and the run stops at cond " +
+                 sci(1.0 / kSingularPivot) + " (use type: free_body for a rigid body in space)");
+      }
+    }
     const bool keep_going = observer ? observer(t, q, qd, sample_data) : true;
     if (!r.finite || !finite_state(xs)) {
       stats.status = RunStatus::non_finite;
