@@ -10,6 +10,7 @@
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/mjcf.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/urdf.hpp"
 
@@ -247,6 +248,49 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
              e.what());
     }
     L.fail(s, e.what());
+  } catch (const Error& e) {
+    L.fail(s, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(s, std::string("cannot evaluate: ") + e.what());
+  }
+}
+
+std::shared_ptr<const Subsystem> load_free_body_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity) {
+  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "mass", "inertia", "gravity",
+                  "potential"});
+  if (coordinates.size() != 7) {
+    L.fail(
+        L.child(s, "coordinates", true),
+        "a free_body has 7 coordinates [x, y, z, qw, qx, qy, qz] (default NAME_x, ..., NAME_qz)");
+  }
+  std::unique_ptr<sym::SubsystemDef> def;
+  try {
+    def = std::make_unique<sym::SubsystemDef>(name, coordinates);
+  } catch (const sym::DefinitionError& e) {
+    L.fail(L.child(s, "coordinates", false).node.IsDefined() ? L.child(s, "coordinates", true) : s,
+           e.what());
+  }
+  load_scope(L, s, *def);
+  load_gravity(L, s, *def, gravity);
+  if (Node p = L.child(s, "potential", false); p.node.IsDefined()) {
+    def->extra_potential = parse(L, *def, p);
+  }
+  const ex mass = parse(L, *def, L.child(s, "mass", true));
+  const Node in = L.child(s, "inertia", true);
+  std::array<ex, 9> J{0, 0, 0, 0, 0, 0, 0, 0, 0};
+  if (in.node.IsScalar()) {
+    const ex j = parse(L, *def, in);
+    J = {j, 0, 0, 0, j, 0, 0, 0, j};
+  } else {
+    J = parse_matrix(L, *def, in, true);
+  }
+  try {
+    sym::add_free_body(*def, mass, J);
+    return sym::make_subsystem(*def);
+  } catch (const sym::DefinitionError& e) {
+    L.fail(e.body >= 0 ? in : s, e.what());
   } catch (const Error& e) {
     L.fail(s, e.what());
   } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)

@@ -34,6 +34,12 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const std::vector<std::string>& coordinates, double gravity,
     const InstanceSpec* instance = nullptr);
 
+/// A subsystem node with type: free_body (docs/free-bodies.md): 7 coordinates (x, y, z, qw, qx,
+/// qy, qz), mass, inertia (body frame). Its unit-norm row is added by the scenario loader.
+std::shared_ptr<const Subsystem> load_free_body_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity);
+
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
 /// all coordinates in order.
 std::shared_ptr<const Constraint> load_definitions_constraint(

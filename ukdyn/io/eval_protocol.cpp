@@ -104,7 +104,12 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   const Vec tau = read_vec(in, "tau", n, false);
   forward(sys, data, t, q, qd, tau, sc.sim.uk);
   if (!all_finite(data.M)) throw Error("the mass matrix M is not finite at this state");
-  const Eigen::LLT<Mat> llt(data.M);
+  // A singular M is fine when [M; A] has full column rank (core/uk_singular.hpp): then the
+  // checks below apply to the augmented M_a the solve used.
+  if (data.singular.rank_deficient) {
+    throw Error(undetermined_direction(data.M, data.A, sys.coordinate_names()));
+  }
+  const Eigen::LLT<Mat> llt(data.singular.active ? data.singular.Ma : data.M);
   if (llt.info() != Eigen::Success) {
     throw Error("the mass matrix M is singular (not positive definite) at this state");
   }
@@ -134,7 +139,8 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   out["residual"] = data.result.residual;
   out["consistent"] = data.result.consistent;
   if (sys.rows() > 0) {
-    const Vec sv = singular_values_A_Minvhalf(data.M, data.A);
+    const Vec sv =  // of M_a = M + A^T alpha A when M is singular (core/uk_singular.hpp)
+        singular_values_A_Minvhalf(data.singular.active ? data.singular.Ma : data.M, data.A);
     if (!all_finite(sv)) throw Error("non-finite singular values of A M^-1/2 at this state");
     out["singular_values"] = vec_of(sv);
   }

@@ -210,7 +210,8 @@ struct Observer {
     row[k++] = d.result.rank;
     row[k++] = static_cast<double>(n - d.result.rank);
     if (m > 0) {
-      const Vec sv = singular_values_A_Minvhalf(d.M, d.A);
+      // M singular (core/uk_singular.hpp): of the augmented M_a = M + A^T alpha A it solved with.
+      const Vec sv = singular_values_A_Minvhalf(d.singular.active ? d.singular.Ma : d.M, d.A);
       row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
     } else {
       row[k++] = 0.0;

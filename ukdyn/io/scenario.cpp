@@ -15,6 +15,7 @@
 #include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 
 namespace ukdyn {
 
@@ -169,6 +170,10 @@ struct Loading {
       io_detail::make_definition_context();  // serial_chain points
   Node subs;                                 // the subsystems list
   std::vector<Node> sub_nodes;  // the node of each subsystem (an instance: its template)
+  // free_body subsystems: name and quaternion coordinates (their unit-norm rows come first).
+  std::vector<std::pair<std::string, std::vector<std::string>>> free_bodies;
+  // Subsystems whose M(q0) is not positive definite: checked with the constraints ([M; A]).
+  std::vector<std::size_t> singular_mass;
   Node init;                                 // the initial block
 };
 
@@ -249,21 +254,33 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     const Node type_node = L.child(s, "type", true);
     const std::string type = L.string(type_node);
     // Coordinate names: unique across the system, usable as CSV column names.
-    const Node cn = L.child(s, "coordinates", true);
-    if (!cn.node.IsSequence() || cn.node.size() == 0)
-      L.fail(cn, "expected a list of coordinate names");
-    if (cn.node.size() > static_cast<std::size_t>(kMaxDof)) L.fail(cn, "too many coordinates");
     std::vector<std::string> names, local;
-    for (std::size_t j = 0; j < cn.node.size(); ++j) {
-      const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
-      local.push_back(L.name(e));
-      std::string c = inst.prefix + local.back();  // an instance: its prefix (else none)
-      if (inst.is_instance) (void)L.name(Node{YAML::Node(c), inst.at.key + ".prefix"});
-      if (coord_index.count(c))
-        L.fail(inst.is_instance ? inst.at : e, "duplicate coordinate name '" + c + "'");
-      coord_index[c] = system->dof() + static_cast<Index>(j);
-      names.push_back(std::move(c));
+    if (type == "free_body" && !L.child(s, "coordinates", false).node.IsDefined()) {
+      names = symbolic::free_body_coordinates(name);  // NAME_x, ..., NAME_qz
+      for (std::size_t j = 0; j < names.size(); ++j) {
+        if (coord_index.count(names[j]))
+          L.fail(name_node, "duplicate coordinate name '" + names[j] + "'");
+        coord_index[names[j]] = system->dof() + static_cast<Index>(j);
+      }
+      local = names;
+    } else {
+      const Node cn = L.child(s, "coordinates", true);
+      if (!cn.node.IsSequence() || cn.node.size() == 0)
+        L.fail(cn, "expected a list of coordinate names");
+      if (cn.node.size() > static_cast<std::size_t>(kMaxDof)) L.fail(cn, "too many coordinates");
+      for (std::size_t j = 0; j < cn.node.size(); ++j) {
+        const Node e{cn.node[j], cn.key + "[" + std::to_string(j) + "]"};
+        local.push_back(L.name(e));
+        std::string c = inst.prefix + local.back();  // an instance: its prefix (else none)
+        if (inst.is_instance) (void)L.name(Node{YAML::Node(c), inst.at.key + ".prefix"});
+        if (coord_index.count(c))
+          L.fail(inst.is_instance ? inst.at : e, "duplicate coordinate name '" + c + "'");
+        coord_index[c] = system->dof() + static_cast<Index>(j);
+        names.push_back(std::move(c));
+      }
+
     }
+    const Node cn = L.child(s, "coordinates", false);
     io_detail::InstanceSpec spec = inst.spec;
     spec.local = local;
     const io_detail::InstanceSpec* ispec = inst.is_instance ? &spec : nullptr;
@@ -284,9 +301,13 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
       } else if (type == "serial_chain") {  // docs/definitions.md
         sub =
             io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context, ispec);
+      } else if (type == "free_body") {  // docs/free-bodies.md
+        st.free_bodies.push_back({name, {names[3], names[4], names[5], names[6]}});
+        sub = io_detail::load_free_body_subsystem(L, s, name, names, gravity);
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
-                              "' (expected mobile_manipulator, definitions or serial_chain)");
+                              "' (expected mobile_manipulator, definitions, serial_chain or "
+                              "free_body)");
       }
     } catch (const ScenarioError&) {
       throw;
@@ -332,9 +353,31 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
   }
   for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // M(q0) positive definite (definitions)
     const auto& info = sc.subsystems[k];
-    io_detail::check_mass_matrix(L, st.sub_nodes[k], *system->subsystems()[k],
-                                 sc.q0.segment(info.offset, info.dof));
+    // Singular M is allowed when the constraints fix its null directions ([M; A] of full column
+    // rank, core/uk_singular.hpp): checked once the constraints are loaded (check_singular_mass).
+    if (!symbolic::mass_matrix_problem(*system->subsystems()[k],
+                                       sc.q0.segment(info.offset, info.dof))
+             .empty())
+      st.singular_mass.push_back(k);
   }
+}
+
+// A subsystem with M(q0) singular: fine if [M; A] has full column rank at q0, else the error names
+// the coordinates of the undetermined direction.
+void check_singular_mass(const Loader& L, Scenario& sc, Loading& st) {
+  if (st.singular_mass.empty()) return;
+  const System& system = *st.system;
+  ForwardData d(system);
+  const Vec qd = Vec::Zero(system.dof());
+  evaluate_dynamics(system, d, sc.q0, qd);
+  evaluate_constraints(system, d, sc.sim.t0, sc.q0, qd);
+  const std::string why = undetermined_direction(d.M, d.A, system.coordinate_names());
+  if (why.empty()) return;
+  const std::size_t k = st.singular_mass.front();
+  const auto& info = sc.subsystems[k];
+  const std::string problem =
+      symbolic::mass_matrix_problem(*system.subsystems()[k], sc.q0.segment(info.offset, info.dof));
+  L.fail(st.sub_nodes[k], "at initial.q, " + problem + "; " + why);
 }
 
 // constraints: each one built and added to the system; row names unique.
@@ -358,6 +401,14 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
     if (it == arms.end()) L.fail(a, "no subsystem named '" + nm + "'");
     return it->second;
   };
+  for (const auto& [fb, quat] : st.free_bodies) {  // free bodies: |q|² = 1 (docs/free-bodies.md)
+    try {
+      add(st.subs, symbolic::make_constraint(
+                       symbolic::free_body_norm_constraint(fb, quat, system->coordinate_names())));
+    } catch (const Error& e) {
+      L.fail(st.subs, e.what());
+    }
+  }
   if (Node cons = L.child(root, "constraints", false); cons.node.IsDefined()) {
     if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
     for (std::size_t i = 0; i < cons.node.size(); ++i) {
@@ -659,6 +710,7 @@ Scenario load_scenario_unguarded(const std::string& text, const std::filesystem:
   const bool applied = load_forces(L, root, sc, st);
   load_simulation(L, root, sc, applied);
   load_solver(L, root, sc);
+  check_singular_mass(L, sc, st);
   if (options.check_initial) check_initial_state(L, st, sc);
   sc.system = st.system;
   return sc;

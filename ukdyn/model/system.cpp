@@ -1,6 +1,8 @@
 #include "ukdyn/model/system.hpp"
 
 #include <algorithm>
+#include <Eigen/Eigenvalues>
+#include <cstdint>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -109,9 +111,35 @@ ForwardData::ForwardData(const System& system)
       qdd(Vec::Zero(system.dof())),
       uk(system.layout(), system.rows()),
       arrow(system.arrow() ? ArrowWorkspace(*system.arrow(), system.rows()) : ArrowWorkspace()),
+      singular(system.layout(), system.rows()),
       slot_start(slot_starts(system)),
       system_(&system) {
   slots = Vec::Zero(slot_start.back());
+  // Blocks whose M is singular at every state (core/uk_singular.hpp): M_k at three fixed
+  // pseudo-random states (components in [-1, 1]), smallest eigenvalue under 1e-10 of the largest.
+  const auto& subs = system.subsystems();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    const Index nk = subs[k]->dof();
+    Mat Mk(nk, nk);
+    bool singular_everywhere = true;
+    std::uint64_t state = 0x9e3779b97f4a7c15ULL + k;
+    for (int trial = 0; trial < 3 && singular_everywhere; ++trial) {
+      Vec q(nk);
+      for (Index i = 0; i < nk; ++i) {
+        state = state * 6364136223846793005ULL + 1442695040888963407ULL;  // LCG, Knuth MMIX
+        q(i) = static_cast<double>(state >> 11) * 0x1.0p-52 - 1.0;
+      }
+      subs[k]->mass(q, Mk);
+      if (!Mk.allFinite()) {
+        singular_everywhere = false;
+        break;
+      }
+      const Vec ev = Eigen::SelfAdjointEigenSolver<Mat>(Mk, Eigen::EigenvaluesOnly).eigenvalues();
+      singular_everywhere = !(ev(0) > 1e-10 * std::max(ev(nk - 1), 0.0));
+    }
+    singular.structural[k] = singular_everywhere ? 1 : 0;
+    singular.any_structural = singular.any_structural || singular_everywhere;
+  }
 }
 
 Slot ForwardData::subsystem_slot(std::size_t k) {
@@ -192,7 +220,7 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
 }
 
 bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings) {
-  return system.arrow() && data.arrow.built() &&
+  return system.arrow() && data.arrow.built() && !data.singular.any_structural &&
          (settings.method == UkMethod::exact || settings.method == UkMethod::adaptive);
 }
 
@@ -203,6 +231,7 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
   // adaptive band is redone densely (the pivots of the pieces stand for the singular values).
   data.used_arrow = false;
   if (arrow_applies(system, data, settings) && factor_mass(data.M, data.uk) &&
+      mass_factor_regular(data.M, data.uk) &&
       uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow,
                      data.qdd, data.Qc, settings, data.result)) {
     const bool in_band = settings.method == UkMethod::adaptive &&
@@ -211,10 +240,32 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
                                                           data.result.sigma_max;
     if (!in_band) {
       data.used_arrow = true;
+      data.singular.active = false;
       return;
     }
   }
-  data.result = uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc, settings);
+  data.result = uk_solve_dispatch(data, data.b, data.Q, data.qdd, data.Qc, settings);
+}
+
+UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,
+                           const UkSettings& settings) {
+  // The positive-definite fast path (uk_solve() = factor_mass + uk_solve_factored), unless a block
+  // is singular: then the augmented form of core/uk_singular.hpp.
+  if (!data.singular.any_structural && factor_mass(data.M, data.uk) &&
+      mass_factor_regular(data.M, data.uk)) {
+    data.singular.active = false;
+    return uk_solve_factored(data.A, b, Q, data.uk, qdd, Qc, settings);
+  }
+  return uk_solve_singular(data.M, data.A, b, Q, data.uk, data.singular, qdd, Qc, settings);
+}
+
+double mass_condition(const ForwardData& data, std::size_t* block) {
+  if (data.singular.active) {
+    if (block) *block = data.singular.cond_block;
+    return data.singular.rank_deficient ? std::numeric_limits<double>::infinity()
+                                        : data.singular.cond_estimate;
+  }
+  return mass_condition_estimate(data.M, data.uk, block);
 }
 
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,

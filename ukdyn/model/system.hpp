@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ukdyn/core/uk_arrow.hpp"
+#include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/core/uk_solve.hpp"
 #include "ukdyn/model/applied_force.hpp"
 #include "ukdyn/model/constraint.hpp"
@@ -85,6 +86,9 @@ struct ForwardData {
   /// used it (true) or the dense solve (false).
   ArrowWorkspace arrow;
   bool used_arrow = false;
+  /// The singular-M solve's buffers (core/uk_singular.hpp); `singular.active` tells whether the
+  /// last solve used it.
+  UkSingularWorkspace singular;
   /// (τ + Q_nc)ᵀ q̇: the power of τ and of the non-conservative part of the applied forces.
   double applied_power = 0.0;
   /// W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt, set by simulate() at samples when energy_balance is on.
@@ -119,6 +123,16 @@ void check_data_for(const System& system, const ForwardData& data, const char* w
 /// If M is not positive definite, data.result.finite is false and q̈ is NaN.
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings = {});
+
+/// The U-K solve of forward() on data.M (factored here) and data.A for the given b and Q: the
+/// positive-definite block solve, or uk_solve_singular() (core/uk_singular.hpp) when a block of M
+/// is not positive definite (or a pivot is under kSingularPivot). Allocation-free.
+UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,
+                           const UkSettings& settings = {});
+
+/// Largest Cholesky-pivot estimate of cond(M_k) over the blocks of the last solve in data (of M_a
+/// after a singular solve); `block` gets the worst block (docs/free-bodies.md).
+double mass_condition(const ForwardData& data, std::size_t* block = nullptr);
 
 /// Stage: data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and
 /// data.applied_power.

@@ -43,6 +43,11 @@ std::string diagnose_singularity(const System& system, double t, const std::vect
   }
   const double ev_min = es.eigenvalues()(0), ev_max = es.eigenvalues()(n - 1);
   if (!(ev_min > 1e-8 * std::max(ev_max, 0.0))) {
+    // A singular M is fine when [M; A] has full column rank (core/uk_singular.hpp).
+    evaluate_constraints(system, d, t, q, qd);
+    const std::string why = undetermined_direction(d.M, d.A, cn);
+    if (!why.empty()) return "at t = " + std::to_string(t) + ": " + why;
+    if (system.rows() > 0) return "";
     return "the mass matrix is (nearly) singular at t = " + std::to_string(t) +
            ": smallest eigenvalue " + sci(ev_min) + " of largest " + sci(ev_max) +
            ", in coordinates [" + names(cn, es.eigenvectors().col(0)) + "]";

@@ -33,7 +33,7 @@ double Projector::project(double t, double* x, long& iterations) {
     evaluate_dynamics(system, data, q, qd);
     evaluate_constraints(system, data, t, q, qd);
     phi = -phi;
-    uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+    uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
     q += delta;
     last_dq += delta.cwiseAbs().maxCoeff();
     ++iterations;
@@ -50,7 +50,7 @@ double Projector::project(double t, double* x, long& iterations) {
   evaluate_constraints(system, data, t, q, qd);
   velocity_residuals(system, data, t, q, qd, phi);
   phi = -phi;
-  uk_solve(data.M, data.A, phi, zero_Q, data.uk, delta, Qc_scratch, uk);
+  uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
   qd += delta;
   last_dqd = delta.cwiseAbs().maxCoeff();
   return r;

@@ -254,6 +254,7 @@ class Run {
     ++stats_.samples;
     stats_.t_reached = t;
     const UkResult& r = sample_data_.result;
+    if (r.finite) warn_mass_condition(t);
     const bool keep_going = observer_ ? observer_(t, q, qd, sample_data_) : true;
     if (!r.finite || !finite_state(xs)) {
       stats_.status = RunStatus::non_finite;
@@ -301,6 +302,22 @@ class Run {
       return false;
     }
     return true;
+  }
+
+  // M near singular (gimbal lock of Euler angles): warned before the solve gives up.
+  void warn_mass_condition(double t) {
+    std::size_t blk = 0;
+    const double cond = mass_condition(sample_data_, &blk);
+    if (!(cond > kMassConditionWarning)) return;
+    const bool dense = sample_data_.singular.active && sample_data_.singular.dense_used;
+    warn(t, "ill_conditioned_mass",
+         "the mass matrix" +
+             (dense ? std::string(" (augmented with the constraints)")
+                    : " of subsystem '" + system_.subsystems()[blk]->name() + "'") +
+             " is ill-conditioned (cond >= " + detail::sci(cond) +
+             ", Cholesky pivot estimate): a singular configuration of its coordinates is near "
+             "(the gimbal lock of Euler angles?); digits are lost, and the run stops at cond " +
+             detail::sci(1.0 / kSingularPivot) + " (use type: free_body for a rigid body in space)");
   }
 
   // The adaptive solve damped the constraint force somewhere in the run: said once, with the time.

@@ -294,12 +294,9 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       d.M(i, j) = m;
       d.M(j, i) = m;
     }
-    if (d.M(i, i).is_zero()) {
-      throw DefinitionError("coordinate '" + d.coordinates[i] +
-                                "' moves no mass and no inertia (M(" + d.coordinates[i] + ", " +
-                                d.coordinates[i] + ") = 0)",
-                            -1, static_cast<int>(i));
-    }
+    // M(i, i) = 0 (a coordinate that moves no mass: a massless link) is allowed: the motion is
+    // still unique when the constraints fix that direction ([M; A] of full column rank,
+    // core/uk_singular.hpp); the scenario loader checks it at initial.q.
   }
   // Christoffel symbols of the first kind: C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k.
   std::vector<matrix> dM(n, matrix(un, un));
