@@ -23,11 +23,12 @@ sym::Vec3Ex vec3(const Loader& L, const Node& n, const sym::DefinitionScope& sco
 // A frame: "SUBSYSTEM.FRAME" or {frame: SUBSYSTEM.FRAME, xyz: [...], rpy: [...]}.
 sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
                           const DefinitionContext& context, std::string& name) {
-  Node ref = n;
+  // (Bound once: assigning a YAML::Node would overwrite the node it refers to.)
+  const bool mapping = n.node.IsMap();
+  if (mapping) L.only_keys(n, {"frame", "xyz", "rpy"});
+  const Node ref = mapping ? L.child(n, "frame", true) : n;
   sym::OriginDef offset;
-  if (n.node.IsMap()) {
-    L.only_keys(n, {"frame", "xyz", "rpy"});
-    ref = L.child(n, "frame", true);
+  if (mapping) {
     if (Node x = L.child(n, "xyz", false); x.node.IsDefined()) offset.xyz = vec3(L, x, scope);
     if (Node r = L.child(n, "rpy", false); r.node.IsDefined()) offset.rpy = vec3(L, r, scope);
   } else if (!n.node.IsScalar()) {
@@ -81,16 +82,15 @@ std::shared_ptr<const Constraint> load_frame_constraint(
   load_parameters(L, c, def);
   const Node an = L.child(c, "a", true);
   f.a = load_frame(L, an, def, context, f.frame_a);
-  Node bn = an;
+  const Node bn = f.kind != K::level ? L.child(c, "b", true) : an;  // (bound once, see above)
   if (f.kind != K::level) {
-    bn = L.child(c, "b", true);
     f.b = load_frame(L, bn, def, context, f.frame_b);
     if (f.frame_a == f.frame_b && !an.node.IsMap() && !bn.node.IsMap())
       L.fail(bn, "a and b are the same frame '" + f.frame_a + "'");
   }
-  Node axis_node;
-  if (f.kind == K::hinge || f.kind == K::level) {
-    axis_node = L.child(c, "axis", true);
+  const bool has_axis = f.kind == K::hinge || f.kind == K::level;
+  const Node axis_node = has_axis ? L.child(c, "axis", true) : c;
+  if (has_axis) {
     f.axis = vec3(L, axis_node, def);
   }
   if (f.kind == K::level) {
@@ -134,7 +134,7 @@ std::shared_ptr<const Constraint> load_frame_constraint(
   try {
     sym::add_frame_constraint(def, f);
   } catch (const sym::DefinitionError& e) {
-    L.fail(axis_node.node.IsDefined() ? axis_node : c, e.what());
+    L.fail(axis_node, e.what());
   }
   try {
     return sym::make_frame_constraint(def, f);
