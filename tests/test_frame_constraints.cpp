@@ -538,8 +538,7 @@ simulation: {t_end: 0.1, sample_dt: 0.01}
 // paper_load_body.yaml) describe the same motion as the cut model (scenarios/paper_urdf.yaml):
 // both are fully prescribed by the same kinematics. Joint angles over 2 s; the redundant roll rows
 // are reported as a split that is not unique.
-// DISABLED: written at the deadline, not yet compiled or run (see the branch report).
-TEST(FrameConstraintsYaml, DISABLED_LoadAsBodyMatchesTheCutModel) {
+TEST(FrameConstraintsYaml, LoadAsBodyMatchesTheCutModel) {
   auto body =
       ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_load_body.yaml");
   auto cut = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_urdf.yaml");
