@@ -193,9 +193,15 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
 
 }  // namespace
 
+struct DefinitionContext {
+  std::map<std::string, sym::ChainModel> chains;
+  sym::FrameTable frames;  // docs/frame-constraints.md
+};
+
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity, const InstanceSpec* instance) {
+    const std::vector<std::string>& coordinates, double gravity, const InstanceSpec* instance,
+    DefinitionContext* context) {
   L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity",
                   "potential", "instances"});
   auto def = start_definition<sym::SubsystemDef>(L, s, name, coordinates, gravity, instance);
@@ -236,7 +242,9 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
       body.rotation = parse_matrix(L, *def, r, false);
   }
   try {
-    return sym::make_subsystem(*def);
+    auto sub = sym::make_subsystem(*def);
+    if (context != nullptr) context->frames.add_bodies(*def);  // frame constraints
+    return sub;
   } catch (const sym::DefinitionError& e) {
     if (e.body >= 0)
       L.fail(Node{bodies.node[static_cast<std::size_t>(e.body)],
@@ -257,7 +265,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
 
 std::shared_ptr<const Subsystem> load_free_body_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity) {
+    const std::vector<std::string>& coordinates, double gravity, DefinitionContext* context) {
   L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "mass", "inertia", "gravity",
                   "potential"});
   if (coordinates.size() != 7) {
@@ -288,6 +296,7 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
   }
   try {
     sym::add_free_body(*def, mass, J);
+    if (context != nullptr) context->frames.add_bodies(*def);  // frame constraints
     return sym::make_subsystem(*def);
   } catch (const sym::DefinitionError& e) {
     L.fail(e.body >= 0 ? in : s, e.what());
@@ -352,13 +361,11 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 
 // ------------------------------------------------------------------------------ serial chains
 
-struct DefinitionContext {
-  std::map<std::string, sym::ChainModel> chains;
-};
-
 std::shared_ptr<DefinitionContext> make_definition_context() {
   return std::make_shared<DefinitionContext>();
 }
+
+const sym::FrameTable& frames_of(const DefinitionContext& context) { return context.frames; }
 
 namespace {
 
@@ -514,6 +521,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   try {
     sym::ChainModel model = sym::build_chain(*def);
     auto sub = sym::make_subsystem(model.def);
+    context.frames.add_chain(name, model, def.get());  // frame constraints
     context.chains.emplace(name, std::move(model));
     return sub;
   } catch (const Error& e) {

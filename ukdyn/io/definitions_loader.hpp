@@ -14,6 +14,7 @@
 #include "ukdyn/model/subsystem.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -27,18 +28,22 @@ struct InstanceSpec {
   Node mount;                              ///< undefined: the template's
 };
 
+struct DefinitionContext;  // below
+
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
     const std::vector<std::string>& coordinates, double gravity,
-    const InstanceSpec* instance = nullptr);
+    const InstanceSpec* instance = nullptr, DefinitionContext* context = nullptr);
 
 /// A subsystem node with type: free_body (docs/free-bodies.md): 7 coordinates (x, y, z, qw, qx,
-/// qy, qz), mass, inertia (body frame). Its unit-norm row is added by the scenario loader.
+/// qy, qz), mass, inertia (body frame). Its unit-norm row is added by the scenario loader. Its body
+/// is registered as the frame NAME.NAME in `context` (frame constraints).
 std::shared_ptr<const Subsystem> load_free_body_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity);
+    const std::vector<std::string>& coordinates, double gravity,
+    DefinitionContext* context = nullptr);
 
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
 /// all coordinates in order.
@@ -49,6 +54,8 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 /// What later constraints may refer to: the named points of serial chains, by subsystem name.
 struct DefinitionContext;
 std::shared_ptr<DefinitionContext> make_definition_context();
+/// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
+const symbolic::FrameTable& frames_of(const DefinitionContext& context);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.

@@ -9,6 +9,7 @@
 #include <optional>
 #include <ostream>
 
+#include "ukdyn/io/constraint_force_output.hpp"
 #include "ukdyn/io/csv_writer.hpp"
 #include "ukdyn/io/plots.hpp"
 #include "ukdyn/io/safe_text.hpp"
@@ -164,6 +165,9 @@ struct Observer {
   bool balance = false;
   double balance0 = 0.0;
   bool first = true;
+  const ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
+  bool split_unique = true;                        // the force split was unique at every sample
+  double split_t = 0.0;                            // the first sample where it was not
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     const Index n = sys.dof();
@@ -220,6 +224,12 @@ struct Observer {
     if (balance) {
       row[k++] = d.work;
       row[k++] = E - d.work;
+    }
+    if (forces != nullptr && !forces->empty()) {  // docs/frame-constraints.md
+      if (!forces->fill(q, d, row.data() + k) && split_unique) {
+        split_unique = false;
+        split_t = t;
+      }
     }
     try {
       csv->row(row);
@@ -358,7 +368,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
-  const auto header = trajectory_header(sys, balance);
+  auto header = trajectory_header(sys, balance);
+  const ConstraintForceColumns force_columns(sc);  // frame constraints only
+  bool split_unique = true;
+  header.insert(header.end(), force_columns.header().begin(), force_columns.header().end());
   std::optional<CsvWriter> csv;
   try {
     csv.emplace(out, kCsv, header);
@@ -371,6 +384,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     Observer observer{
         sys,    rep,    &*csv,  progress, options.cancel, std::vector<double>(header.size()),
         Vec(m), Vec(m), balance};
+    observer.forces = &force_columns;
     const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
     SimulationSettings settings = sc.sim;
     settings.cancel = options.cancel;
@@ -379,6 +393,13 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                            [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                              return observer(t, q, qd, d);
                            });
+      if (!observer.split_unique) {  // docs/frame-constraints.md
+        split_unique = false;
+        rep.stats.warnings.push_back(
+            {observer.split_t, "constraint_force_split",
+             "redundant constraint rows: the force of each constraint block is not unique; the "
+             "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
+      }
     } catch (const std::exception& e) {
       // Invalid settings: the summary must not be left saying "running".
       progress.done();
@@ -391,6 +412,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   }
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
   progress.done();
   if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
     // simulate() says "cancelled at t = <time of the step>" when it stopped between samples.
@@ -421,6 +443,16 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 
   if (rep.complete() && options.figures) {
     std::vector<Figure> figs = default_figures(sc);
+    for (std::size_t f = 0; f < force_columns.figure_names().size(); ++f) {
+      const auto& cols = force_columns.figure_columns()[f];
+      if (cols.empty()) continue;
+      const std::string& nm = force_columns.figure_names()[f];
+      const bool wrench = nm.rfind("wrench_", 0) == 0;
+      figs.push_back({nm + ".png",
+                      wrench ? "Wrench of '" + nm.substr(7) + "' on its frame (world axes)"
+                             : "Force A_k^T lambda_k of '" + nm.substr(6) + "'",
+                      wrench ? "[N or N·m]" : "[N or N·m]", cols});
+    }
     cap_figures(figs, rep.figure_notes);
     try {
       const FigureResult fr = render_figures(out, kCsv, header, figs, options.cancel);
@@ -437,6 +469,11 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     reason = "write failed: " + rep.write_error;
   } else if (!complete) {
     reason = to_string(rep.stats.status) + ": " + rep.stats.message;
+  }
+  if (!force_columns.empty()) {
+    summary["constraint_forces"] = {
+        {"split_unique", split_unique},
+        {"choice", split_unique ? "unique" : "least-norm multipliers (not unique)"}};
   }
   summary["status"] = complete ? "complete" : "incomplete";
   summary["stop_reason"] = reason;

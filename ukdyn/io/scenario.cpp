@@ -12,6 +12,7 @@
 
 #include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/forces_loader.hpp"
+#include "ukdyn/io/frame_constraints_loader.hpp"
 #include "ukdyn/io/yaml_loader.hpp"
 #include "ukdyn/models/cooperative_constraints.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
@@ -297,13 +298,15 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
         arms[name] = {arm, system->dof()};
         sub = arm;
       } else if (type == "definitions") {  // docs/definitions.md
-        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity, ispec);
+        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity, ispec,
+                                                    definition_context.get());
       } else if (type == "serial_chain") {  // docs/definitions.md
         sub =
             io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context, ispec);
       } else if (type == "free_body") {  // docs/free-bodies.md
         st.free_bodies.push_back({name, {names[3], names[4], names[5], names[6]}});
-        sub = io_detail::load_free_body_subsystem(L, s, name, names, gravity);
+        sub = io_detail::load_free_body_subsystem(L, s, name, names, gravity,
+                                                   definition_context.get());
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
                               "' (expected mobile_manipulator, definitions, serial_chain or "
@@ -466,6 +469,11 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
           std::vector<std::string> coords(static_cast<std::size_t>(n));
           for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
           add(c, io_detail::load_definitions_constraint(L, c, cname, type == "expression", coords));
+        } else if (io_detail::is_frame_constraint(type)) {  // docs/frame-constraints.md
+          std::vector<std::string> coords(static_cast<std::size_t>(n));
+          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
+          add(c, io_detail::load_frame_constraint(L, c, cname, type, coords, *definition_context,
+                                                  sc.q0));
         } else if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
           std::vector<std::string> coords(static_cast<std::size_t>(n));
           for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
@@ -475,8 +483,8 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
           L.fail(type_node,
                  "unknown constraint type '" + type +
                      "' (expected closure, cut_point_trajectory, coordinate, expression, "
-                     "nonholonomic, points_coincide, point_trajectory or "
-                     "angle_relation)");
+                     "nonholonomic, points_coincide, point_trajectory, angle_relation, weld, "
+                     "ball, hinge, level or distance)");
         }
       } catch (const ScenarioError&) {
         throw;

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -336,7 +337,9 @@ std::string format_system(const System& system, Format f) {
   const auto& cons = system.constraints();
   for (std::size_t k = 0; k < cons.size(); ++k) {
     const auto& rn = cons[k]->row_names();
-    if (const auto* d = dynamic_cast<const DerivedConstraint*>(cons[k].get())) {
+    const auto* d = dynamic_cast<const DerivedConstraint*>(cons[k].get());
+    if (const auto* fc = dynamic_cast<const FrameConstraint*>(cons[k].get())) d = &fc->derived();
+    if (d != nullptr) {
       std::string name = rn.size() == 1 ? rn[0] : rn[0].substr(0, rn[0].rfind('_'));
       for (const auto& r : rn) {
         if (r.compare(0, name.size(), name) != 0) name = "constraint_" + std::to_string(k + 1);

@@ -1,0 +1,56 @@
+// The force of each constraint block, and the internal (squeeze) wrench on a grasped load
+// (docs/frame-constraints.md).
+//
+// Split: Qc = Aᵀλ = Σ_k A_kᵀλ_k. When A has full row rank λ is unique and so is every block's force
+// A_kᵀλ_k. When rows are redundant (rank A < m) only the total Qc is determined; the split reported
+// is the documented choice λ = (Aᵀ)⁺ Qc, the multipliers of least Euclidean norm (a complete
+// orthogonal decomposition of Aᵀ), and `unique` is false.
+//
+// Internal wrench: w (6N) stacks the wrenches [f_k; m_k] that N grasps apply to a load at the
+// grasp points p_k (world axes, moments about p_k). The grasp matrix G (6 × 6N) gives the net
+// wrench about the reference point r: [Σ f_k; Σ m_k + (p_k − r) × f_k]. Any right inverse G# of G
+// splits w = G# G w + (I − G# G) w into a manipulating and an internal part:
+//   walker:   G# = G⁺ = Gᵀ(G Gᵀ)⁻¹, the null-space decomposition of [Walker1991];
+//   weighted: G* = Λ Gᵀ (G Λ Gᵀ)⁻¹ with Λ the agents' inertia at the grasps, [Verginis2019]
+//             (their Theorem on internal-force-free distributions): zero for motion that does not
+//             squeeze, e.g. agents driven by forces proportional to their inertia.
+// Both internal parts lie in null(G): G w_int = 0.
+#pragma once
+
+#include <vector>
+
+#include "ukdyn/core/types.hpp"
+
+namespace ukdyn {
+
+struct ConstraintForceSplit {
+  Vec lambda;                     ///< λ with Aᵀλ = Qc (least norm when not unique)
+  std::vector<Vec> block_force;   ///< A_kᵀλ_k per block (n each)
+  std::vector<Vec> block_lambda;  ///< λ_k per block
+  int rank = 0;                   ///< numerical rank of A
+  bool unique = true;             ///< rank == rows: the split is the only one
+  double residual = 0.0;          ///< ‖Aᵀλ − Qc‖
+};
+
+/// `row_offsets[k]`: first row of block k (ascending; block k ends where k+1 starts, the last at
+/// A.rows()). `rel_tol`: singular values of A under rel_tol · σ_max count as zero. Allocates.
+ConstraintForceSplit split_constraint_force(const Mat& A, const Vec& Qc,
+                                            const std::vector<Index>& row_offsets,
+                                            double rel_tol = 1e-10);
+
+/// G (6 × 6N) for grasp points p_k and reference point r.
+Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference);
+
+/// (I − G⁺G) w, [Walker1991].
+Vec internal_wrench_walker(const Mat& G, const Vec& w);
+
+/// (I − G*G) w, G* = Λ Gᵀ (G Λ Gᵀ)⁺, [Verginis2019]. Λ: 6N × 6N, symmetric positive semidefinite
+/// with G Λ Gᵀ invertible.
+Vec internal_wrench_weighted(const Mat& G, const Mat& Lambda, const Vec& w);
+
+/// Λ = (J M⁻¹ Jᵀ)⁺: the inertia seen at the grasp frames of twist Jacobian J (6N × n), M the mass
+/// matrix (positive definite). For a free rigid body J is square and Λ its spatial inertia at the
+/// grasp.
+Mat task_space_inertia(const Mat& M, const Mat& J);
+
+}  // namespace ukdyn

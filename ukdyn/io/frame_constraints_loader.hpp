@@ -1,0 +1,25 @@
+// Internal to ukdyn::io: constraints between frames (type: weld, ball, hinge, level, distance),
+// docs/frame-constraints.md. Frames are "<subsystem>.<link-or-body-or-point>" of the serial_chain
+// and definitions subsystems defined before, optionally moved by an offset {xyz, rpy}.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ukdyn/io/definitions_loader.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
+
+namespace ukdyn::io_detail {
+
+/// True for weld, ball, hinge, level and distance.
+bool is_frame_constraint(const std::string& type);
+
+/// A constraint node of one of the kinds above (a symbolic::FrameConstraint); `q0` is the initial
+/// state (length: initial).
+std::shared_ptr<const Constraint> load_frame_constraint(
+    const Loader& L, const Node& c, const std::string& name, const std::string& type,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const Vec& q0);
+
+}  // namespace ukdyn::io_detail

@@ -1,0 +1,172 @@
+// Constraints between frames (docs/frame-constraints.md): weld, ball, hinge, level and distance,
+// written as rows Φ(q) = 0 of a ConstraintDef, so that A = ∂Φ/∂q and b follow exactly from the
+// existing derivation (definitions.hpp).
+//
+// A frame is a position p(q) and a rotation R(q) (frame → world) of GiNaC expressions. Frames come
+// from serial chains (every link, every named point with its link's rotation) and from definition
+// bodies (the CoM `com` and, when given, `rotation`): FrameTable names them
+// "<subsystem>.<link-or-body-or-point>", and "world" is the fixed world frame. An offset (xyz, rpy
+// in the frame's axes, as a URDF origin) moves a frame on its body: p' = p + R xyz, R' = R Rz(yaw)
+// Ry(pitch) Rx(roll).
+//
+//   weld      6 rows  p_a − p_b (world x, y, z) and the vector part of the relative rotation
+//                     R_rel = R_aᵀ R_b: ½ vee(R_rel − R_relᵀ) = sin θ · u (θ, u: angle, axis of
+//                     R_rel). Regular (rank 3) for θ < 90°, see docs/frame-constraints.md.
+//   ball      3 rows  p_a − p_b
+//   hinge     5 rows  p_a − p_b and (R_a u)·(R_b n1), (R_a u)·(R_b n2), u the axis in the frames'
+//                     axes, n1, n2 ⊥ u
+//   level     1 row   (R_a u)·up = 0 (axis horizontal), or 2 rows (R_a u)·e1 = (R_a u)·e2 = 0
+//                     (axis vertical), e1, e2 ⊥ up (up = world z by default)
+//   distance  1 row   ½ (|p_a − p_b|² − L²)
+//
+// FrameWrenchMap turns the multipliers λ_k of one such block into the wrench (force, moment about
+// the frame origin, in world and in the frame's own axes) that the constraint applies to each of
+// its two frames: Φ̇ = G_a [v_a; ω_a] + G_b [v_b; ω_b] (world twists), so A_kᵀλ_k = J_aᵀ (G_aᵀλ_k)
+// + J_bᵀ (G_bᵀλ_k) and w_a = G_aᵀλ_k, w_b = G_bᵀλ_k.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "ukdyn/core/types.hpp"
+#include "ukdyn/symbolic/chain.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/tape.hpp"
+
+namespace ukdyn::symbolic {
+
+struct FramePose {
+  Vec3Ex position{0, 0, 0};
+  Mat3Ex rotation{1, 0, 0, 0, 1, 0, 0, 0, 1};  ///< frame → world, row-major
+  bool has_rotation = true;  ///< false: a point of a body without `rotation` (ball, distance only)
+};
+
+/// p + R xyz, R Rz(yaw) Ry(pitch) Rx(roll).
+FramePose offset_frame(const FramePose& frame, const OriginDef& offset);
+
+/// Named frames "<subsystem>.<name>" with parameter values substituted.
+class FrameTable {
+ public:
+  void add(const std::string& subsystem, const std::string& name, FramePose pose);
+  /// Every link of a chain and, if `def` is given, its named points (rotation of their link).
+  void add_chain(const std::string& subsystem, const ChainModel& model,
+                 const ChainDef* def = nullptr);
+  /// Every body of a definitions subsystem: its CoM and, if given, its rotation.
+  void add_bodies(const SubsystemDef& def);
+  /// "world" (the origin, identity rotation) or a frame added. Throws DefinitionError naming the
+  /// frame and listing the known ones.
+  [[nodiscard]] const FramePose& find(const std::string& ref) const;
+  [[nodiscard]] std::vector<std::string> names() const;
+
+ private:
+  std::map<std::string, FramePose> frames_;
+  FramePose world_;  // "world": the origin, identity rotation
+};
+
+struct FrameConstraintDef {
+  enum class Kind { weld, ball, hinge, level, distance };
+  Kind kind = Kind::weld;
+  std::string name;              ///< row prefix
+  std::string frame_a, frame_b;  ///< names (for messages and the wrench CSV columns)
+  FramePose a, b;                ///< with offsets applied
+  Vec3Ex axis{0, 0, 1};          ///< hinge: in both frames' axes; level: in frame a's axes
+  Vec3Ex up{0, 0, 1};            ///< level: the world vertical
+  bool vertical = false;         ///< level: axis vertical (2 rows) instead of horizontal (1 row)
+  GiNaC::ex length = 0;          ///< distance
+};
+
+const char* to_string(FrameConstraintDef::Kind kind);
+
+/// The rows (name, Φ) of a frame constraint for the poses a and b. Throws DefinitionError (a frame
+/// without rotation where one is needed, a zero axis, a non-positive length).
+std::vector<std::pair<std::string, GiNaC::ex>> frame_rows(const FrameConstraintDef& f,
+                                                          const GiNaC::exmap& values = {});
+
+/// Adds frame_rows(f) to def (parameter values of def substituted in axes and length).
+void add_frame_constraint(ConstraintDef& def, const FrameConstraintDef& f);
+
+/// The wrench the constraint applies to each frame (force, moment about the frame's origin).
+struct FrameWrench {
+  Vec3 force_a, moment_a, force_b, moment_b;  ///< world axes
+  Vec3 force_b_local, moment_b_local;         ///< frame b's axes (the grasp frame on a load)
+  Vec3 force_a_local, moment_a_local;         ///< frame a's axes
+  Vec3 position_a, position_b;
+  Eigen::Matrix3d rotation_a, rotation_b;
+};
+
+/// G_a, G_b of one frame constraint compiled over the system coordinates, and the frames' poses
+/// and twist Jacobians J (6 × n: [v; ω] = J q̇, world).
+class FrameWrenchMap {
+ public:
+  FrameWrenchMap(const FrameConstraintDef& f, const std::vector<std::string>& system_coordinates,
+                 const GiNaC::exmap& values = {});
+  [[nodiscard]] const std::string& name() const { return name_; }
+  [[nodiscard]] const std::string& frame_a() const { return frame_a_; }
+  [[nodiscard]] const std::string& frame_b() const { return frame_b_; }
+  [[nodiscard]] FrameConstraintDef::Kind kind() const { return kind_; }
+  [[nodiscard]] Index rows() const { return m_; }
+  [[nodiscard]] bool has_b() const { return has_b_; }
+  /// w = G_aᵀλ, G_bᵀλ at q for the multipliers λ (rows()) of this block. Allocates.
+  [[nodiscard]] FrameWrench evaluate(const Vec& q, const Vec& lambda) const;
+  /// G_a, G_b (m × 6 each) at q.
+  void maps(const Vec& q, Mat& Ga, Mat& Gb) const;
+  /// Twist Jacobians of the frames a and b (6 × n) at q.
+  void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const;
+
+ private:
+  std::string name_, frame_a_, frame_b_;
+  FrameConstraintDef::Kind kind_;
+  Index m_ = 0, n_ = 0;
+  bool has_b_ = true;
+  Tape tape_;  // Ga (m×6), Gb (m×6), pa, Ra, pb, Rb, Ja (6×n), Jb (6×n)
+};
+
+/// A derived constraint block that also knows the wrenches on its frames (what the io layer's
+/// constraint_force_output writes). Every evaluation is the DerivedConstraint's.
+class FrameConstraint final : public Constraint {
+ public:
+  FrameConstraint(std::shared_ptr<const DerivedConstraint> derived,
+                  std::shared_ptr<const FrameWrenchMap> wrench)
+      : d_(std::move(derived)), w_(std::move(wrench)) {}
+  [[nodiscard]] Index rows() const override { return d_->rows(); }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override {
+    return d_->row_names();
+  }
+  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override {
+    d_->evaluate(t, q, qd, A, b);
+  }
+  void position_residual(double t, CVecRef q, VecRef phi) const override {
+    d_->position_residual(t, q, phi);
+  }
+  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override {
+    d_->velocity_residual(t, q, qd, phid);
+  }
+  [[nodiscard]] Index slot_size() const override { return d_->slot_size(); }
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override {
+    d_->evaluate_with(slots, t, q, qd, A, b);
+  }
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override {
+    d_->position_residual_with(slots, t, q, phi);
+  }
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override {
+    d_->velocity_residual_with(slots, t, q, qd, phid);
+  }
+  [[nodiscard]] const DerivedConstraint& derived() const { return *d_; }
+  [[nodiscard]] const FrameWrenchMap& wrench() const { return *w_; }
+
+ private:
+  std::shared_ptr<const DerivedConstraint> d_;
+  std::shared_ptr<const FrameWrenchMap> w_;
+};
+
+/// make_constraint(def) (def holding the rows of f, add_frame_constraint) with f's wrench map.
+std::shared_ptr<FrameConstraint> make_frame_constraint(const ConstraintDef& def,
+                                                       const FrameConstraintDef& f);
+
+}  // namespace ukdyn::symbolic
