@@ -2,6 +2,8 @@
 // forces.hpp). Expressions are given as text (the syntax of docs/definitions.md) or as numbers.
 // The derivations run with the GIL held: GiNaC is not thread-safe, so two Python threads never
 // derive at once.
+#include "ukdyn/symbolic/definitions.hpp"
+
 #include <pybind11/stl.h>
 
 #include <optional>
@@ -10,7 +12,6 @@
 #include <vector>
 
 #include "bindings.hpp"
-#include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/forces.hpp"
 
 namespace ukdyn_python {
@@ -101,16 +102,15 @@ void bind_definitions(py::module_& m) {
         return "<ukdyn.Subsystem '" + s.ptr->name() + "', " + std::to_string(s.ptr->dof()) +
                " coordinates>";
       });
-  py::class_<PyConstraint>(m, "Constraint",
-                           "A block of constraint rows (A, b): made by make_constraint(); constant.")
+  py::class_<PyConstraint>(
+      m, "Constraint", "A block of constraint rows (A, b): made by make_constraint(); constant.")
       .def_property_readonly("rows", [](const PyConstraint& c) { return c.ptr->rows(); })
-      .def_property_readonly("row_names",
-                             [](const PyConstraint& c) { return c.ptr->row_names(); })
+      .def_property_readonly("row_names", [](const PyConstraint& c) { return c.ptr->row_names(); })
       .def("__repr__", [](const PyConstraint& c) {
         return "<ukdyn.Constraint, " + std::to_string(c.ptr->rows()) + " rows>";
       });
-  py::class_<PyAppliedForce>(
-      m, "AppliedForce", "An applied force Q_a(t, q, qd) derived from a ForceDef; constant.")
+  py::class_<PyAppliedForce>(m, "AppliedForce",
+                             "An applied force Q_a(t, q, qd) derived from a ForceDef; constant.")
       .def_property_readonly("name", [](const PyAppliedForce& f) { return f.ptr->name(); });
 
   py::class_<SubsystemDef> sd(m, "SubsystemDef", R"doc(A subsystem written as definitions: bodies
@@ -124,17 +124,16 @@ with masses, centre-of-mass positions p(q) and inertias; M, C, G are derived exa
     sub = ukdyn.make_subsystem(d)
 
 Expressions are str in the syntax of docs/definitions.md (velocities are <name>_dot) or numbers.)doc");
-  sd.def(py::init<std::string, std::vector<std::string>>(), py::arg("name"),
-         py::arg("coordinates"), "Declares the subsystem's coordinates (unique identifiers).");
+  sd.def(py::init<std::string, std::vector<std::string>>(), py::arg("name"), py::arg("coordinates"),
+         "Declares the subsystem's coordinates (unique identifiers).");
   bind_scope(sd);
   sd.def_property_readonly("name", &SubsystemDef::name)
       .def_property_readonly("coordinates", &SubsystemDef::coordinates)
       .def(
           "add_body",
           [](SubsystemDef& d, const std::string& name, const py::object& mass,
-             const py::object& com, const py::object& angular_velocity,
-             const py::object& rotation, const py::object& inertia,
-             const std::string& inertia_frame) {
+             const py::object& com, const py::object& angular_velocity, const py::object& rotation,
+             const py::object& inertia, const std::string& inertia_frame) {
             const std::string where = "body '" + name + "'";
             ukdyn::symbolic::BodyDef b;
             b.name = name;
@@ -167,9 +166,9 @@ Expressions are str in the syntax of docs/definitions.md (velocities are <name>_
             }
             d.add_body(name) = std::move(b);
           },
-          py::arg("name"), py::arg("mass"), py::arg("com"), py::arg("angular_velocity") = py::none(),
-          py::arg("rotation") = py::none(), py::arg("inertia") = py::none(),
-          py::arg("inertia_frame") = "body",
+          py::arg("name"), py::arg("mass"), py::arg("com"),
+          py::arg("angular_velocity") = py::none(), py::arg("rotation") = py::none(),
+          py::arg("inertia") = py::none(), py::arg("inertia_frame") = "body",
           R"doc(Adds a body: mass, centre of mass com = p(q) (3 expressions, world frame), optionally
 the angular velocity (3) or the rotation body -> world (9, row-major), and the inertia about the
 CoM: one expression (T_rot = 1/2 I w.w), 3 (principal moments) or 9 (a tensor, row-major) in
@@ -265,8 +264,7 @@ torques; derived exactly and compiled. system_coordinates are all coordinates, i
              const py::object& v) {
             d.add_torque(element, coord, to_ex(d, v, "torque '" + element + "'"));
           },
-          py::arg("element"), py::arg("coordinate"), py::arg("value"),
-          "Q_i += value(t, q, qd).");
+          py::arg("element"), py::arg("coordinate"), py::arg("value"), "Q_i += value(t, q, qd).");
 
   m.def(
       "make_subsystem",

@@ -6,6 +6,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cmath>
 #include <exception>
 #include <limits>
@@ -50,8 +51,8 @@ py::array_t<double> copy_of(CVecRef v) {
 }
 
 // Calls f(t, q, qd) (the GIL taken) and adds (add = true) or writes its n numbers into out.
-void call_python(const py::object& f, const char* what, CallbackErrors& errors, double t,
-                 CVecRef q, CVecRef qd, VecRef out, bool add) {
+void call_python(const py::object& f, const char* what, CallbackErrors& errors, double t, CVecRef q,
+                 CVecRef qd, VecRef out, bool add) {
   py::gil_scoped_acquire gil;
   if (!errors.first) {
     try {
@@ -59,15 +60,15 @@ void call_python(const py::object& f, const char* what, CallbackErrors& errors, 
       const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(r);
       if (!a) {
         PyErr_Clear();
-        throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) +
-                           ": returned " + py::repr(r).cast<std::string>() +
-                           ", expected a sequence of " + std::to_string(out.size()) + " numbers");
+        throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) + ": returned " +
+                           py::repr(r).cast<std::string>() + ", expected a sequence of " +
+                           std::to_string(out.size()) + " numbers");
       }
       if (a.ndim() != 1 || a.size() != out.size()) {
         throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) +
                            ": returned an array of shape " +
-                           py::repr(a.attr("shape")).cast<std::string>() +
-                           ", expected " + std::to_string(out.size()) + " numbers");
+                           py::repr(a.attr("shape")).cast<std::string>() + ", expected " +
+                           std::to_string(out.size()) + " numbers");
       }
       const double* p = a.data();
       for (Index i = 0; i < out.size(); ++i) out(i) = add ? out(i) + p[i] : p[i];
@@ -144,8 +145,8 @@ Vec vector_arg(const py::object& v, Index n, const char* what) {
   }
   if (a.ndim() != 1 || a.size() != n) {
     throw py::value_error(std::string(what) + ": expected " + std::to_string(n) +
-                          " numbers, got an array of " + std::to_string(a.size()) +
-                          " in " + std::to_string(a.ndim()) + " dimensions");
+                          " numbers, got an array of " + std::to_string(a.size()) + " in " +
+                          std::to_string(a.ndim()) + " dimensions");
   }
   Vec out(n);
   std::copy(a.data(), a.data() + n, out.data());
@@ -287,7 +288,8 @@ std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
   const std::size_t cols = mem->header.size();
   run->rows = mem->report.csv_rows;
   // Row-major (as sampled) → column-major, once, in C++.
-  auto* buffer = new std::vector<double>(mem->values.size());
+  // (never empty: a run with no sample still hands out views of a valid pointer)
+  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem->values.size()));
   const auto rows = static_cast<std::size_t>(run->rows);
   for (std::size_t i = 0; i < rows; ++i) {
     for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem->values[i * cols + j];
@@ -338,10 +340,10 @@ std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object
   sc.sim.abs_tol = abs_tol;
   sc.sim.rel_tol = rel_tol;
   sc.sim.step = step;
-  sc.sim.drift.kind = enum_of(drift,
-                              {ukdyn::DriftControl::none, ukdyn::DriftControl::baumgarte,
-                               ukdyn::DriftControl::projection},
-                              "drift");
+  sc.sim.drift.kind = enum_of(
+      drift,
+      {ukdyn::DriftControl::none, ukdyn::DriftControl::baumgarte, ukdyn::DriftControl::projection},
+      "drift");
   sc.sim.energy_balance = energy_balance;
   if (!(t_end > t0) || !(sample_dt > 0.0) || !(step > 0.0)) {
     throw ukdyn::Error("Scenario.from_system: need t_end > t0, sample_dt > 0 and step > 0");
@@ -406,12 +408,13 @@ column of trajectory.csv of that name as a numpy array; every column is a view o
 (run.data, rows x columns, column-major), nothing is copied.)doc")
       .def_readonly("columns", &Run::columns, "the column names, as in trajectory.csv")
       .def("__getitem__", &Run::column, py::arg("name"), "the column `name` (a view, no copy)")
-      .def("__contains__", [](const Run& r, const std::string& name) {
-        for (const auto& c : r.columns) {
-          if (c == name) return true;
-        }
-        return false;
-      })
+      .def("__contains__",
+           [](const Run& r, const std::string& name) {
+             for (const auto& c : r.columns) {
+               if (c == name) return true;
+             }
+             return false;
+           })
       .def("__len__", [](const Run& r) { return r.rows; })
       .def("keys", [](const Run& r) { return r.columns; })
       .def_property_readonly("data", &Run::data,
@@ -507,9 +510,10 @@ made from a System built in code (Scenario.from_system).)doc")
           "integrate W and write the W, E_balance columns")
       .def_property_readonly("integrator",
                              [](const PyScenario& s) { return to_string(s.sc.sim.integrator); })
-      .def("forward", &forward, py::arg("t"), py::arg("q"), py::arg("qd"),
-           py::arg("tau") = py::none(), py::arg("forces") = std::vector<py::object>{},
-           R"doc(Forward dynamics at (t, q, qd) with generalized forces tau (default 0): M, C, Cqd, G,
+      .def(
+          "forward", &forward, py::arg("t"), py::arg("q"), py::arg("qd"),
+          py::arg("tau") = py::none(), py::arg("forces") = std::vector<py::object>{},
+          R"doc(Forward dynamics at (t, q, qd) with generalized forces tau (default 0): M, C, Cqd, G,
 Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python callables
 f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),

@@ -1,8 +1,11 @@
 """ukdyn from Python: forward() against `ukdyn eval`, systems built in code against closed forms,
 errors as Python exceptions with ukdyn's FILE:LINE:COLUMN messages, `ukdyn assemble`'s paste-ready
 initial section, and the GIL released while C++ runs."""
-import math
+import os
+import pathlib
 import re
+import subprocess
+import sys
 import threading
 import time
 
@@ -186,3 +189,25 @@ def test_gil_released_during_simulate():
     assert result["run"].complete
     assert duration > 0.05, duration
     assert longest < 0.5 * duration, (longest, duration)
+
+
+def test_installed_package_imports(tmp_path):
+    # `cmake --install` puts the package under the prefix (lib/python3.X/site-packages/ukdyn); it
+    # imports from there alone (not from the build tree) and runs.
+    build, cmake = os.environ.get("UKDYN_BUILD_DIR"), os.environ.get("CMAKE_COMMAND")
+    if not build or not cmake:
+        pytest.skip("UKDYN_BUILD_DIR / CMAKE_COMMAND not set (run through ctest)")
+    prefix = tmp_path / "prefix"
+    p = subprocess.run([cmake, "--install", build, "--prefix", str(prefix)], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    site = prefix / "lib" / ("python%d.%d" % sys.version_info[:2]) / "site-packages"
+    assert (site / "ukdyn" / "__init__.pyi").is_file() and (site / "ukdyn" / "py.typed").is_file()
+    code = ("import ukdyn, sys; sc = ukdyn.load_scenario(sys.argv[1]); "
+            "r = sc.forward(0.0, sc.q0, sc.qd0); print(ukdyn.__file__, r.rank)")
+    env = dict(os.environ, PYTHONPATH=str(site))
+    p = subprocess.run([sys.executable, "-c", code, str(scenario_path("paper.yaml"))],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
+    assert p.returncode == 0, p.stderr
+    where, rank = p.stdout.split()
+    assert pathlib.Path(where).resolve().is_relative_to(site.resolve()) and rank == "12"

@@ -167,3 +167,14 @@ def test_system_from_code_conserves_energy():
     assert run.complete and len(run) == 201
     assert np.max(np.abs(run["E"] - run["E"][0])) < 1e-8
     assert np.max(np.abs(run["x"] ** 2 + run["y"] ** 2 - 1)) < 1e-12
+
+
+def test_numerical_trouble_is_a_status_bad_settings_an_error():
+    sc = ukdyn.Scenario.from_text(PENDULUM.replace("FORCES", ""), "plain.yaml")
+    run = sc.simulate(controller=lambda t, q, qd: [math.nan, 0.0])
+    assert not run.complete and run.status == "non_finite" and run.message
+    assert run.summary["status"] == "incomplete"
+    assert run.data.shape[0] == len(run) and all(run[c].size == len(run) for c in run.columns)
+    sc.sample_dt = -1.0
+    with pytest.raises(ukdyn.Error):
+        sc.simulate()

@@ -465,7 +465,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   const std::size_t cols = run.header.size();
   // The rows are known in advance (one per sample): reserve them, up to 128 MiB.
   const double samples = std::floor((sc.sim.t_end - sc.sim.t0) / sc.sim.sample_dt) + 2.0;
-  if (samples * static_cast<double>(cols) < double(std::size_t{1} << 24)) {
+  if (samples > 0.0 && samples * static_cast<double>(cols) < double(std::size_t{1} << 24)) {
     run.values.reserve(static_cast<std::size_t>(samples) * cols);
   }
   Progress progress(nullptr, sc.sim.t0, sc.sim.t_end);
