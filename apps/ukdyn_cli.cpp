@@ -104,7 +104,10 @@ int main(int argc, char** argv) {
     if (assembling) {
       const auto a = ukdyn::assemble(*sc.system, sc.sim.t0, sc.q0, sc.qd0, sc.held);
       if (!ukdyn::print_assembly_report(*asmb ? std::cout : std::cerr, std::cerr, sc, a)) return 2;
-      if (*asmb) return 0;
+      if (*asmb) {
+        ukdyn::print_assembled_initial(std::cout, sc, a);
+        return 0;
+      }
       sc.q0 = a.q;
       sc.qd0 = a.qd;
     }

@@ -7,7 +7,8 @@ set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
       libginac-dev liburdfdom-dev libsundials-dev
-      libmujoco-dev)  # MJCF files (optional at build time: ukdyn/symbolic/mjcf.hpp)
+      libmujoco-dev                                  # MJCF files (ukdyn/symbolic/mjcf.hpp)
+      python3-dev python3-pybind11 python3-numpy python3-pytest)  # the Python module (python/)
 for arg in "$@"; do
   case "$arg" in
     --bench) pkgs+=(libbenchmark-dev libsimbody-dev) ;;

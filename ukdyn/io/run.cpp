@@ -157,7 +157,7 @@ void write_final_summary(const OutputDir& out, const nlohmann::json& summary, Ru
 struct Observer {
   const System& sys;
   RunReport& rep;
-  CsvWriter* csv;
+  CsvWriter* csv;  ///< the rows go here, or (if null) into `memory`
   Progress& progress;
   const std::atomic<bool>* cancel;
   std::vector<double> row;
@@ -168,6 +168,7 @@ struct Observer {
   const ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
   bool split_unique = true;                        // the force split was unique at every sample
   double split_t = 0.0;                            // the first sample where it was not
+  std::vector<double>* memory = nullptr;  ///< run_scenario_in_memory(): the rows, back to back
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     const Index n = sys.dof();
@@ -231,11 +232,15 @@ struct Observer {
         split_t = t;
       }
     }
-    try {
-      csv->row(row);
-    } catch (const Error& e) {
-      rep.write_error = e.what();
-      return false;
+    if (!csv) {
+      memory->insert(memory->end(), row.begin(), row.end());
+    } else {
+      try {
+        csv->row(row);
+      } catch (const Error& e) {
+        rep.write_error = e.what();
+        return false;
+      }
     }
     progress.update(t);
     return !(cancel && cancel->load());
@@ -483,6 +488,48 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   return rep;
 }
 
+MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& options) {
+  const System& sys = *sc.system;
+  const Index m = sys.rows();
+  MemoryRun run;
+  RunReport& rep = run.report;
+  rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.rank_min = static_cast<int>(m);
+  rep.sigma_min = std::numeric_limits<double>::infinity();
+  const bool balance = sc.sim.energy_balance;
+  rep.energy_balance = balance;
+  run.header = trajectory_header(sys, balance);
+  const std::size_t cols = run.header.size();
+  // The rows are known in advance (one per sample): reserve them, up to 128 MiB.
+  const double samples = std::floor((sc.sim.t_end - sc.sim.t0) / sc.sim.sample_dt) + 2.0;
+  if (samples > 0.0 && samples * static_cast<double>(cols) < double(std::size_t{1} << 24)) {
+    run.values.reserve(static_cast<std::size_t>(samples) * cols);
+  }
+  Progress progress(nullptr, sc.sim.t0, sc.sim.t_end);
+  Observer observer{sys,    rep,    nullptr, progress, options.cancel, std::vector<double>(cols),
+                    Vec(m), Vec(m), balance};
+  observer.memory = &run.values;
+  const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
+  SimulationSettings settings = sc.sim;
+  settings.cancel = options.cancel;
+  const auto start = std::chrono::steady_clock::now();
+  rep.stats = simulate(sys, sc.q0, sc.qd0, options.tau ? options.tau : constant, settings,
+                       [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+                         return observer(t, q, qd, d);
+                       });
+  rep.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  rep.csv_rows = static_cast<long>(run.values.size() / cols);
+  nlohmann::json summary = summary_start(sc);
+  summary["status"] = rep.complete() ? "complete" : "incomplete";
+  summary["stop_reason"] =
+      rep.complete() ? std::string() : to_string(rep.stats.status) + ": " + rep.stats.message;
+  summary_results(summary, sys, rep);
+  run.summary_json = json_text(summary);
+  return run;
+}
+
 bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& sc,
                            const AssemblyResult& a) {
   const auto& names = sc.system->coordinate_names();
@@ -510,6 +557,25 @@ bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& 
     return false;
   }
   return true;
+}
+
+void print_assembled_initial(std::ostream& os, const Scenario& sc, const AssemblyResult& a) {
+  // Shortest round-trip decimal of each number ("{}"): the pasted file loads the same doubles.
+  const auto list = [](const Vec& v) {
+    std::string s = "[";
+    for (Index i = 0; i < v.size(); ++i) s += fmt::format("{}{}", i ? ", " : "", v(i));
+    return s + "]";
+  };
+  os << "# assembled initial state, ready to paste over the scenario's initial: section\n";
+  os << "initial:\n";
+  os << "  q: " << list(a.q) << "\n";
+  os << "  qd: " << list(a.qd) << "\n";
+  std::string hold;
+  const auto& names = sc.system->coordinate_names();
+  for (std::size_t j = 0; j < names.size() && j < sc.held.size(); ++j) {
+    if (sc.held[j]) hold += (hold.empty() ? "" : ", ") + printable(names[j]);
+  }
+  if (!hold.empty()) os << "  hold: [" << hold << "]\n";
 }
 
 void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep) {

@@ -73,10 +73,35 @@ std::vector<std::string> trajectory_header(const System& system, bool energy_bal
 RunReport run_scenario(const Scenario& scenario, const std::filesystem::path& out_dir,
                        const RunOptions& options);
 
+/// run_scenario_in_memory(): what replaces the file outputs.
+struct MemoryRunOptions {
+  /// The applied generalized forces τ(t, q, q̇) of the run; if empty, the scenario's constant
+  /// forces.tau (as run_scenario()).
+  ForceFunction tau;
+  const std::atomic<bool>* cancel = nullptr;  ///< as RunOptions::cancel
+};
+
+/// A run kept in memory: the rows of trajectory.csv as numbers, exactly (not rounded to text).
+struct MemoryRun {
+  RunReport report;                 ///< out_dir, csv, summary, figures empty
+  std::vector<std::string> header;  ///< trajectory_header(system, energy_balance)
+  std::vector<double> values;       ///< row-major: report.csv_rows rows of header.size() values
+  std::string summary_json;         ///< summary.json as run_scenario() writes it (no outputs)
+};
+
+/// Simulates the scenario as run_scenario() does (same samples, same columns, same summary), but
+/// writes nothing: the trajectory is returned (the Python module's simulate()). Throws
+/// ukdyn::Error for invalid settings; never for numerical trouble (report.stats.status).
+MemoryRun run_scenario_in_memory(const Scenario& scenario, const MemoryRunOptions& options = {});
+
 /// What assembly changed, on `os`; if it failed, also an error naming the unmet constraints on
 /// `err`. Returns a.success.
 bool print_assembly_report(std::ostream& os, std::ostream& err, const Scenario& scenario,
                            const AssemblyResult& a);
+
+/// The assembled (q0, q̇0) as an `initial:` section of a scenario (q, qd and the held coordinates;
+/// every number in its shortest form that reads back as the same double), ready to paste.
+void print_assembled_initial(std::ostream& os, const Scenario& scenario, const AssemblyResult& a);
 
 /// The console report of a run (what `ukdyn simulate` prints on stdout).
 void print_run_report(std::ostream& os, const Scenario& scenario, const RunReport& report);

@@ -1,0 +1,550 @@
+// The Python module ukdyn (docs/python.md): scenarios, forward dynamics and simulation with numpy
+// arrays. The C++ work runs with the GIL released; Python callables (controllers, applied forces)
+// take it back while they run. A run's columns are views of one C++ buffer (no copy). ukdyn::Error
+// and its subclasses become ukdyn.Error (ScenarioError, DefinitionError), with ukdyn's message.
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/stl.h>
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "bindings.hpp"
+#include "ukdyn/io/run.hpp"
+#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/io/scenario_file.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
+
+#ifndef UKDYN_VERSION
+#define UKDYN_VERSION "unknown"
+#endif
+
+namespace ukdyn_python {
+
+namespace {
+
+using ukdyn::CVecRef;
+using ukdyn::Index;
+using ukdyn::Mat;
+using ukdyn::Vec;
+using ukdyn::VecRef;
+
+// ---------------------------------------------------------------------------- Python callbacks
+
+// The first exception raised by a Python callable during one forward() / simulate() call. A
+// callback never lets an exception through the C++ integrators (CVODE is C): it records it, returns
+// NaN (which ends the run as non_finite), and later callbacks return NaN without calling Python;
+// the call then re-raises the recorded exception.
+struct CallbackErrors {
+  std::exception_ptr first;
+};
+
+py::array_t<double> copy_of(CVecRef v) {
+  py::array_t<double> a(v.size());
+  std::copy(v.data(), v.data() + v.size(), a.mutable_data());
+  return a;
+}
+
+// Calls f(t, q, qd) (the GIL taken) and adds (add = true) or writes its n numbers into out.
+void call_python(const py::object& f, const char* what, CallbackErrors& errors, double t, CVecRef q,
+                 CVecRef qd, VecRef out, bool add) {
+  py::gil_scoped_acquire gil;
+  if (!errors.first) {
+    try {
+      const py::object r = f(t, copy_of(q), copy_of(qd));
+      const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(r);
+      if (!a) {
+        PyErr_Clear();
+        throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) + ": returned " +
+                           py::repr(r).cast<std::string>() + ", expected a sequence of " +
+                           std::to_string(out.size()) + " numbers");
+      }
+      if (a.ndim() != 1 || a.size() != out.size()) {
+        throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) +
+                           ": returned an array of shape " +
+                           py::repr(a.attr("shape")).cast<std::string>() + ", expected " +
+                           std::to_string(out.size()) + " numbers");
+      }
+      const double* p = a.data();
+      for (Index i = 0; i < out.size(); ++i) out(i) = add ? out(i) + p[i] : p[i];
+      return;
+    } catch (...) {
+      errors.first = std::current_exception();
+    }
+  }
+  out.setConstant(std::numeric_limits<double>::quiet_NaN());
+}
+
+// A Python callable f(t, q, qd) -> Q_a (n numbers) as an applied force: all of it
+// non-conservative (no potential), its power Q_aᵀ q̇ counted in the energy balance.
+class PythonForce final : public ukdyn::AppliedForce {
+ public:
+  PythonForce(py::object f, std::string name, Index n, CallbackErrors& errors)
+      : f_(new py::object(std::move(f)), release_with_gil),
+        name_(std::move(name)),
+        errors_(errors),
+        buffer_(n) {}
+  [[nodiscard]] const std::string& name() const override { return name_; }
+  double add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const override {
+    // buffer_ is scratch of this force object, which exists for one call only (make_run_system).
+    call_python(*f_, "applied force", errors_, t, q, qd, buffer_, false);
+    Q += buffer_;
+    return buffer_.dot(qd);
+  }
+  [[nodiscard]] double potential(CVecRef) const override { return 0.0; }
+
+ private:
+  static void release_with_gil(py::object* p) {
+    py::gil_scoped_acquire gil;
+    delete p;
+  }
+  std::shared_ptr<py::object> f_;
+  std::string name_;
+  CallbackErrors& errors_;
+  mutable Vec buffer_;
+};
+
+// The system of one call: the scenario's, plus the Python forces (a copy; the scenario's own
+// system is never changed).
+std::shared_ptr<const ukdyn::System> make_run_system(const ukdyn::Scenario& sc,
+                                                     const std::vector<py::object>& forces,
+                                                     CallbackErrors& errors) {
+  if (forces.empty()) return sc.system;
+  auto sys = std::make_shared<ukdyn::System>(*sc.system);
+  for (std::size_t k = 0; k < forces.size(); ++k) {
+    if (!PyCallable_Check(forces[k].ptr())) {
+      throw py::type_error("forces[" + std::to_string(k) + "]: expected a callable f(t, q, qd)");
+    }
+    sys->add_applied_force(std::make_shared<PythonForce>(
+        forces[k], "python_force_" + std::to_string(k), sys->dof(), errors));
+  }
+  return sys;
+}
+
+void rethrow_recorded(const CallbackErrors& errors) {
+  if (errors.first) std::rethrow_exception(errors.first);
+}
+
+// ---------------------------------------------------------------------------- scenario
+
+struct PyScenario {
+  ukdyn::Scenario sc;
+};
+
+Vec vector_arg(const py::object& v, Index n, const char* what) {
+  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+  if (!a) {
+    PyErr_Clear();
+    throw py::type_error(std::string(what) + ": expected a sequence of " + std::to_string(n) +
+                         " numbers");
+  }
+  if (a.ndim() != 1 || a.size() != n) {
+    throw py::value_error(std::string(what) + ": expected " + std::to_string(n) +
+                          " numbers, got an array of " + std::to_string(a.size()) + " in " +
+                          std::to_string(a.ndim()) + " dimensions");
+  }
+  Vec out(n);
+  std::copy(a.data(), a.data() + n, out.data());
+  return out;
+}
+
+py::array_t<double> numpy_of(const Vec& v) { return copy_of(v); }
+py::array_t<double> numpy_of(const Mat& M) {
+  py::array_t<double> a({M.rows(), M.cols()});
+  auto w = a.mutable_unchecked<2>();
+  for (Index i = 0; i < M.rows(); ++i) {
+    for (Index j = 0; j < M.cols(); ++j) w(i, j) = M(i, j);
+  }
+  return a;
+}
+
+template <class Enum>
+Enum enum_of(const std::string& name, std::initializer_list<Enum> values, const char* what) {
+  std::string known;
+  for (Enum e : values) {
+    if (to_string(e) == name) return e;
+    known += (known.empty() ? "" : ", ") + to_string(e);
+  }
+  throw ukdyn::Error(std::string(what) + ": '" + name + "' (expected one of " + known + ")");
+}
+
+// ---------------------------------------------------------------------------- forward
+
+struct ForwardResult {
+  py::array_t<double> M, C, Cqd, G, Q, A, b, Qc, qdd;
+  int rank = 0;
+  double residual = 0.0, sigma_min = 0.0, sigma_max = 0.0;
+  bool consistent = true, finite = true;
+};
+
+ForwardResult forward(const PyScenario& s, double t, const py::object& q_in,
+                      const py::object& qd_in, const py::object& tau_in,
+                      const std::vector<py::object>& forces) {
+  const ukdyn::Scenario& sc = s.sc;
+  const Index n = sc.system->dof();
+  const Vec q = vector_arg(q_in, n, "q");
+  const Vec qd = vector_arg(qd_in, n, "qd");
+  const Vec tau = tau_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
+  CallbackErrors errors;
+  const auto sys = make_run_system(sc, forces, errors);
+  ukdyn::ForwardData data(*sys);
+  Mat C(n, n);
+  {
+    py::gil_scoped_release release;
+    ukdyn::forward(*sys, data, t, q, qd, tau, sc.sim.uk);
+    ukdyn::coriolis_matrix(*sys, q, qd, C);
+  }
+  rethrow_recorded(errors);
+  ForwardResult r;
+  r.M = numpy_of(data.M);
+  r.C = numpy_of(C);
+  r.Cqd = numpy_of(data.Cqd);
+  r.G = numpy_of(data.G);
+  r.Q = numpy_of(data.Q);
+  r.A = numpy_of(data.A);
+  r.b = numpy_of(data.b);
+  r.Qc = numpy_of(data.Qc);
+  r.qdd = numpy_of(data.qdd);
+  r.rank = data.result.rank;
+  r.residual = data.result.residual;
+  r.sigma_min = data.result.sigma_min_kept;
+  r.sigma_max = data.result.sigma_max;
+  r.consistent = data.result.consistent;
+  r.finite = data.result.finite;
+  return r;
+}
+
+// ---------------------------------------------------------------------------- simulate
+
+// A run: the trajectory in one C++ buffer, column-major (each column contiguous), owned by a
+// capsule; every array handed out is a view of it with the capsule as its base.
+struct Run {
+  std::vector<std::string> columns;
+  Index rows = 0;
+  py::capsule owner;
+  double* values = nullptr;
+  py::object summary;
+  py::list warnings;
+  std::string status, message;
+  bool complete = false;
+  ukdyn::SimulationStats stats;
+
+  [[nodiscard]] Index column_index(const std::string& name) const {
+    for (std::size_t j = 0; j < columns.size(); ++j) {
+      if (columns[j] == name) return static_cast<Index>(j);
+    }
+    std::string known;
+    for (const auto& c : columns) known += (known.empty() ? "" : ", ") + c;
+    throw py::key_error("no column '" + name + "' (the columns are " + known + ")");
+  }
+  [[nodiscard]] py::array column(const std::string& name) const {
+    const Index j = column_index(name);
+    return py::array_t<double>({rows}, {static_cast<py::ssize_t>(sizeof(double))},
+                               values + j * rows, owner);
+  }
+  [[nodiscard]] py::array data() const {
+    const auto s = static_cast<py::ssize_t>(sizeof(double));
+    return py::array_t<double>({rows, static_cast<Index>(columns.size())}, {s, s * rows}, values,
+                               owner);
+  }
+};
+
+std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
+                              const std::vector<py::object>& forces) {
+  ukdyn::Scenario sc = s.sc;
+  CallbackErrors errors;
+  sc.system = make_run_system(s.sc, forces, errors);
+  ukdyn::MemoryRunOptions opt;
+  std::shared_ptr<py::object> ctrl;
+  if (!controller.is_none()) {
+    if (!PyCallable_Check(controller.ptr())) {
+      throw py::type_error("controller: expected a callable u(t, q, qd) returning tau");
+    }
+    ctrl = std::shared_ptr<py::object>(new py::object(controller), [](py::object* p) {
+      py::gil_scoped_acquire gil;
+      delete p;
+    });
+    // τ = forces.tau + u(t, q, q̇): the controller's output adds to the scenario's constant τ.
+    opt.tau = [&sc, &errors, ctrl](double t, CVecRef q, CVecRef qd, VecRef tau) {
+      tau = sc.tau;
+      call_python(*ctrl, "controller", errors, t, q, qd, tau, true);
+    };
+  }
+  ukdyn::MemoryRun result;
+  {
+    py::gil_scoped_release release;
+    result = ukdyn::run_scenario_in_memory(sc, opt);
+  }
+  rethrow_recorded(errors);
+  const ukdyn::MemoryRun* mem = &result;
+
+  auto run = std::make_shared<Run>();
+  run->columns = mem->header;
+  const std::size_t cols = mem->header.size();
+  run->rows = mem->report.csv_rows;
+  // Row-major (as sampled) → column-major, once, in C++.
+  // (never empty: a run with no sample still hands out views of a valid pointer)
+  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem->values.size()));
+  const auto rows = static_cast<std::size_t>(run->rows);
+  for (std::size_t i = 0; i < rows; ++i) {
+    for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem->values[i * cols + j];
+  }
+  run->values = buffer->data();
+  run->owner = py::capsule(buffer, [](void* p) { delete static_cast<std::vector<double>*>(p); });
+  run->summary = py::module_::import("json").attr("loads")(mem->summary_json);
+  for (const auto& w : mem->report.stats.warnings) {
+    py::dict d;
+    d["t"] = w.t;
+    d["kind"] = w.kind;
+    d["message"] = w.message;
+    run->warnings.append(d);
+  }
+  run->stats = mem->report.stats;
+  run->status = ukdyn::to_string(mem->report.stats.status);
+  run->message = mem->report.stats.message;
+  run->complete = mem->report.complete();
+  return run;
+}
+
+std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object& q0,
+                                        const py::object& qd0, const py::object& tau, double t0,
+                                        double t_end, double sample_dt,
+                                        const std::string& integrator, bool adaptive,
+                                        double abs_tol, double rel_tol, double step,
+                                        const std::string& drift, bool energy_balance,
+                                        const std::string& name) {
+  auto s = std::make_shared<PyScenario>();
+  ukdyn::Scenario& sc = s->sc;
+  sc.system = std::make_shared<const ukdyn::System>(*system.ptr);
+  const Index n = sc.system->dof();
+  if (n == 0) throw ukdyn::Error("Scenario.from_system: the system has no coordinates");
+  sc.path = "<python>";
+  sc.name = name;
+  sc.q0 = vector_arg(q0, n, "q0");
+  sc.qd0 = qd0.is_none() ? Vec(Vec::Zero(n)) : vector_arg(qd0, n, "qd0");
+  sc.tau = tau.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau, n, "tau");
+  sc.held.assign(static_cast<std::size_t>(n), false);
+  sc.sim.t0 = t0;
+  sc.sim.t_end = t_end;
+  sc.sim.sample_dt = sample_dt;
+  sc.sim.integrator = enum_of(integrator,
+                              {ukdyn::IntegratorKind::rk4, ukdyn::IntegratorKind::dopri5,
+                               ukdyn::IntegratorKind::rkf78, ukdyn::IntegratorKind::bdf},
+                              "integrator");
+  sc.sim.adaptive = adaptive;
+  sc.sim.abs_tol = abs_tol;
+  sc.sim.rel_tol = rel_tol;
+  sc.sim.step = step;
+  sc.sim.drift.kind = enum_of(
+      drift,
+      {ukdyn::DriftControl::none, ukdyn::DriftControl::baumgarte, ukdyn::DriftControl::projection},
+      "drift");
+  sc.sim.energy_balance = energy_balance;
+  if (!(t_end > t0) || !(sample_dt > 0.0) || !(step > 0.0)) {
+    throw ukdyn::Error("Scenario.from_system: need t_end > t0, sample_dt > 0 and step > 0");
+  }
+  return s;
+}
+
+}  // namespace
+
+}  // namespace ukdyn_python
+
+PYBIND11_MODULE(_ukdyn, m) {
+  using namespace ukdyn_python;
+  m.doc() = "ukdyn: Udwadia-Kalaba dynamics of constrained multibody systems (C++ core).";
+  m.attr("__version__") = UKDYN_VERSION;
+
+  // Errors: ukdyn::Error → ukdyn.Error (the most derived type registered last is tried first).
+  static py::exception<ukdyn::Error> error(m, "Error");
+  static py::exception<ukdyn::ScenarioError> scenario_error(m, "ScenarioError", error.ptr());
+  static py::exception<ukdyn::symbolic::DefinitionError> definition_error(m, "DefinitionError",
+                                                                          error.ptr());
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const ukdyn::ScenarioError& e) {
+      PyErr_SetString(scenario_error.ptr(), e.what());
+    } catch (const ukdyn::symbolic::DefinitionError& e) {
+      PyErr_SetString(definition_error.ptr(), e.what());
+    } catch (const ukdyn::Error& e) {
+      PyErr_SetString(error.ptr(), e.what());
+    }
+  });
+
+  bind_definitions(m);
+
+  py::class_<ForwardResult>(m, "ForwardResult",
+                            "Forward dynamics at one state (paper Eqs. (4), (11), (18)).")
+      .def_readonly("M", &ForwardResult::M, "mass matrix, n x n")
+      .def_readonly("C", &ForwardResult::C, "Coriolis matrix C(q, qd), n x n")
+      .def_readonly("Cqd", &ForwardResult::Cqd, "C(q, qd) qd, n")
+      .def_readonly("G", &ForwardResult::G, "gravity G(q), n")
+      .def_readonly("Q", &ForwardResult::Q, "tau + Q_a - C qd - G, n")
+      .def_readonly("A", &ForwardResult::A, "constraint matrix, m x n")
+      .def_readonly("b", &ForwardResult::b, "constraint right-hand side, m")
+      .def_readonly("Qc", &ForwardResult::Qc, "constraint force, n (Eq. (4))")
+      .def_readonly("qdd", &ForwardResult::qdd, "accelerations M^-1 (Q + Qc), n (Eq. (18))")
+      .def_readonly("rank", &ForwardResult::rank, "numerical rank of A M^-1/2")
+      .def_readonly("residual", &ForwardResult::residual, "||A qdd - b||_2")
+      .def_readonly("sigma_min", &ForwardResult::sigma_min,
+                    "smallest kept singular value (pivot estimate)")
+      .def_readonly("sigma_max", &ForwardResult::sigma_max, "largest singular value (estimate)")
+      .def_readonly("consistent", &ForwardResult::consistent,
+                    "the residual is at round-off level (consistent constraints)")
+      .def_readonly("finite", &ForwardResult::finite, "every output is finite")
+      .def("__repr__", [](const ForwardResult& r) {
+        return "<ukdyn.ForwardResult rank=" + std::to_string(r.rank) +
+               " residual=" + std::to_string(r.residual) + ">";
+      });
+
+  py::class_<Run, std::shared_ptr<Run>>(m, "Run", R"doc(A simulation run. run["theta1"] is the
+column of trajectory.csv of that name as a numpy array; every column is a view of one C++ buffer
+(run.data, rows x columns, column-major), nothing is copied.)doc")
+      .def_readonly("columns", &Run::columns, "the column names, as in trajectory.csv")
+      .def("__getitem__", &Run::column, py::arg("name"), "the column `name` (a view, no copy)")
+      .def("__contains__",
+           [](const Run& r, const std::string& name) {
+             for (const auto& c : r.columns) {
+               if (c == name) return true;
+             }
+             return false;
+           })
+      .def("__len__", [](const Run& r) { return r.rows; })
+      .def("keys", [](const Run& r) { return r.columns; })
+      .def_property_readonly("data", &Run::data,
+                             "all columns: rows x columns (Fortran order), a view of the buffer")
+      .def_property_readonly("rows", [](const Run& r) { return r.rows; })
+      .def_readonly("summary", &Run::summary,
+                    "summary.json of the run as a dict (as `ukdyn simulate` writes it)")
+      .def_readonly("warnings", &Run::warnings, "the run's warnings: dicts t, kind, message")
+      .def_readonly("status", &Run::status,
+                    "completed, non_finite, inconsistent_constraints, step_failure, stopped, "
+                    "branch_switch")
+      .def_readonly("message", &Run::message, "why the run stopped early (empty if completed)")
+      .def_readonly("complete", &Run::complete, "the integration reached t_end")
+      .def_property_readonly("steps", [](const Run& r) { return r.stats.steps; })
+      .def_property_readonly("rhs_evaluations",
+                             [](const Run& r) { return r.stats.rhs_evaluations; })
+      .def("__repr__", [](const Run& r) {
+        return "<ukdyn.Run " + r.status + ", " + std::to_string(r.rows) + " rows x " +
+               std::to_string(r.columns.size()) + " columns>";
+      });
+
+  py::class_<PyScenario, std::shared_ptr<PyScenario>>(m, "Scenario", R"doc(A system with its initial
+state, constant forces and run settings: loaded from a YAML scenario (docs/scenario-format.md) or
+made from a System built in code (Scenario.from_system).)doc")
+      .def_static(
+          "load",
+          [](const std::string& path, bool check_initial) {
+            ukdyn::LoadOptions o;
+            o.check_initial = check_initial;
+            return std::make_shared<PyScenario>(PyScenario{ukdyn::load_scenario_file(path, o)});
+          },
+          py::arg("path"), py::arg("check_initial") = true,
+          "Loads and validates a scenario file; raises ukdyn.ScenarioError with "
+          "FILE:LINE:COLUMN: key '...': message.")
+      .def_static(
+          "from_text",
+          [](const std::string& text, const std::string& path, bool check_initial) {
+            ukdyn::LoadOptions o;
+            o.check_initial = check_initial;
+            return std::make_shared<PyScenario>(
+                PyScenario{ukdyn::load_scenario_text(text, path, o)});
+          },
+          py::arg("text"), py::arg("path") = "<string>", py::arg("check_initial") = true,
+          "Same, from YAML text (`path` is used in messages only).")
+      .def_static("from_system", &from_system, py::arg("system"), py::arg("q0"),
+                  py::arg("qd0") = py::none(), py::arg("tau") = py::none(), py::arg("t0") = 0.0,
+                  py::arg("t_end") = 1.0, py::arg("sample_dt") = 0.01,
+                  py::arg("integrator") = "dopri5", py::arg("adaptive") = true,
+                  py::arg("abs_tol") = 1e-12, py::arg("rel_tol") = 1e-12, py::arg("step") = 1e-3,
+                  py::arg("drift") = "projection", py::arg("energy_balance") = false,
+                  py::arg("name") = "python",
+                  "A scenario from a System built in code (the system is copied).")
+      .def_property_readonly("name", [](const PyScenario& s) { return s.sc.name; })
+      .def_property_readonly("path", [](const PyScenario& s) { return s.sc.path.string(); })
+      .def_property_readonly("description", [](const PyScenario& s) { return s.sc.description; })
+      .def_property_readonly("dof", [](const PyScenario& s) { return s.sc.system->dof(); })
+      .def_property_readonly("rows", [](const PyScenario& s) { return s.sc.system->rows(); })
+      .def_property_readonly("coordinate_names",
+                             [](const PyScenario& s) { return s.sc.system->coordinate_names(); })
+      .def_property_readonly(
+          "constraint_row_names",
+          [](const PyScenario& s) { return s.sc.system->constraint_row_names(); })
+      .def_property(
+          "q0", [](const PyScenario& s) { return numpy_of(s.sc.q0); },
+          [](PyScenario& s, const py::object& v) {
+            s.sc.q0 = vector_arg(v, s.sc.system->dof(), "q0");
+          },
+          "initial coordinates (a copy; assign to change)")
+      .def_property(
+          "qd0", [](const PyScenario& s) { return numpy_of(s.sc.qd0); },
+          [](PyScenario& s, const py::object& v) {
+            s.sc.qd0 = vector_arg(v, s.sc.system->dof(), "qd0");
+          },
+          "initial velocities")
+      .def_property(
+          "tau", [](const PyScenario& s) { return numpy_of(s.sc.tau); },
+          [](PyScenario& s, const py::object& v) {
+            s.sc.tau = vector_arg(v, s.sc.system->dof(), "tau");
+          },
+          "constant generalized forces (forces.tau)")
+      .def_property(
+          "t0", [](const PyScenario& s) { return s.sc.sim.t0; },
+          [](PyScenario& s, double v) { s.sc.sim.t0 = v; })
+      .def_property(
+          "t_end", [](const PyScenario& s) { return s.sc.sim.t_end; },
+          [](PyScenario& s, double v) { s.sc.sim.t_end = v; })
+      .def_property(
+          "sample_dt", [](const PyScenario& s) { return s.sc.sim.sample_dt; },
+          [](PyScenario& s, double v) { s.sc.sim.sample_dt = v; })
+      .def_property(
+          "energy_balance", [](const PyScenario& s) { return s.sc.sim.energy_balance; },
+          [](PyScenario& s, bool v) { s.sc.sim.energy_balance = v; },
+          "integrate W and write the W, E_balance columns")
+      .def_property_readonly("integrator",
+                             [](const PyScenario& s) { return to_string(s.sc.sim.integrator); })
+      .def(
+          "forward", &forward, py::arg("t"), py::arg("q"), py::arg("qd"),
+          py::arg("tau") = py::none(), py::arg("forces") = std::vector<py::object>{},
+          R"doc(Forward dynamics at (t, q, qd) with generalized forces tau (default 0): M, C, Cqd, G,
+Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python callables
+f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
+      .def("simulate", &simulate, py::arg("controller") = py::none(),
+           py::arg("forces") = std::vector<py::object>{},
+           R"doc(Runs the scenario as `ukdyn simulate` does (same samples, columns and summary), in
+memory. controller: u(t, q, qd) -> n numbers, added to the constant tau. forces: callables
+f(t, q, qd) -> Q_a (n numbers), applied forces (non-conservative). The GIL is released while C++
+runs and taken back for each call of a callable; an exception raised there ends the run and is
+re-raised here.)doc")
+      .def(
+          "assemble",
+          [](const PyScenario& s) {
+            ukdyn::AssemblyResult a;
+            {
+              py::gil_scoped_release release;
+              a = ukdyn::assemble(*s.sc.system, s.sc.sim.t0, s.sc.q0, s.sc.qd0, s.sc.held);
+            }
+            py::dict d;
+            d["q"] = numpy_of(a.q);
+            d["qd"] = numpy_of(a.qd);
+            d["success"] = a.success;
+            d["iterations"] = a.iterations;
+            d["max_position_residual"] = a.max_position_residual;
+            d["max_velocity_residual"] = a.max_velocity_residual;
+            d["message"] = a.message;
+            return d;
+          },
+          "The consistent (q, qd) nearest to (q0, qd0), holding initial.hold, as `ukdyn "
+          "assemble` finds it: a dict q, qd, success, iterations, residuals, message.")
+      .def("__repr__", [](const PyScenario& s) {
+        return "<ukdyn.Scenario '" + s.sc.name + "', " + std::to_string(s.sc.system->dof()) +
+               " coordinates, " + std::to_string(s.sc.system->rows()) + " constraint rows>";
+      });
+}

@@ -1,0 +1,213 @@
+"""ukdyn from Python: forward() against `ukdyn eval`, systems built in code against closed forms,
+errors as Python exceptions with ukdyn's FILE:LINE:COLUMN messages, `ukdyn assemble`'s paste-ready
+initial section, and the GIL released while C++ runs."""
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import ukdyn
+from conftest import SOURCE, cli_eval, max_rel_diff, run_cli, scenario_path
+
+EVAL_KEYS = ["M", "C", "Cqd", "G", "Q", "A", "b", "Qc", "qdd"]
+
+
+def random_states(sc, count, seed):
+    rng = np.random.default_rng(seed)
+    n = sc.dof
+    for k in range(count):
+        q = sc.q0 + 0.05 * rng.standard_normal(n)
+        qd = 0.3 * rng.standard_normal(n)
+        tau = rng.standard_normal(n) if k % 2 else np.zeros(n)
+        yield 0.1 * k, q, qd, tau
+
+
+@pytest.mark.parametrize("name", ["paper.yaml", "paper_generic.yaml", "rolling_disk.yaml",
+                                  "five_bar_redundant.yaml"])
+def test_forward_equals_ukdyn_eval(name):
+    path = scenario_path(name)
+    sc = ukdyn.load_scenario(path)
+    states = list(random_states(sc, 6, seed=len(name)))
+    answers = cli_eval(path, [{"t": t, "q": q.tolist(), "qd": qd.tolist(), "tau": tau.tolist()}
+                              for t, q, qd, tau in states])
+    assert len(answers) == len(states)
+    for (t, q, qd, tau), ref in zip(states, answers):
+        assert "error" not in ref, ref
+        r = sc.forward(t, q, qd, tau)
+        for key in EVAL_KEYS:
+            got = getattr(r, key)
+            want = np.array(ref[key], dtype=float).reshape(got.shape)
+            assert max_rel_diff(got, want) <= 1e-14, (name, key)
+        assert r.rank == ref["rank"]
+        assert r.consistent == ref["consistent"]
+        assert abs(r.residual - ref["residual"]) <= 1e-14 * max(1.0, abs(ref["residual"]))
+        assert r.M.shape == (sc.dof, sc.dof) and r.A.shape == (sc.rows, sc.dof)
+
+
+def test_forward_satisfies_the_equations():
+    # Independent of eval: M qdd = Q + Qc (Eq. (18)) and A qdd = b at a state of the paper's system.
+    sc = ukdyn.load_scenario(scenario_path("paper.yaml"))
+    _, q, qd, tau = list(random_states(sc, 2, seed=3))[1]
+    r = sc.forward(0.3, q, qd, tau)
+    assert np.max(np.abs(r.M @ r.qdd - (r.Q + r.Qc))) < 1e-10
+    assert np.max(np.abs(r.A @ r.qdd - r.b)) < 1e-9
+    assert np.max(np.abs(r.C @ qd - r.Cqd)) < 1e-10
+    assert np.allclose(r.M, r.M.T, atol=0, rtol=0)
+
+
+def cartesian_pendulum(L=1.0, m=1.0, g=9.81):
+    d = ukdyn.SubsystemDef("pendulum", ["x", "y"])
+    d.parameter("m", m)
+    d.add_body("P1", mass="m", com=["x", "y", 0])
+    d.gravity = [0, -g, 0]
+    c = ukdyn.ConstraintDef("rod", "holonomic", ["x", "y"])
+    c.parameter("L", L)
+    c.add_row("length", "x^2 + y^2 - L^2")
+    s = ukdyn.System()
+    assert s.add_subsystem(ukdyn.make_subsystem(d)) == 0
+    assert s.add_constraint(ukdyn.make_constraint(c)) == 0
+    return s
+
+
+def test_system_from_definitions_closed_form():
+    # A point mass on a massless rod of length L (Cartesian x, y): at the bottom (0, -L) moving at
+    # speed v, qdd = (0, v^2 / L) (centripetal); the rod force is m (g + v^2 / L) upwards.
+    L, m, g, v = 1.5, 2.0, 9.81, 0.7
+    s = cartesian_pendulum(L, m, g)
+    assert s.coordinate_names == ["x", "y"] and s.constraint_row_names == ["length"]
+    sc = ukdyn.Scenario.from_system(s, q0=[0, -L], qd0=[v, 0], t_end=1.0)
+    r = sc.forward(0.0, [0, -L], [v, 0])
+    assert np.allclose(r.M, m * np.eye(2), rtol=0, atol=1e-15)
+    assert np.allclose(r.qdd, [0, v * v / L], rtol=0, atol=1e-13)
+    assert np.allclose(r.Qc, [0, m * (g + v * v / L)], rtol=0, atol=1e-12)
+    assert r.rank == 1
+
+
+def test_system_from_definitions_equals_the_yaml_scenario():
+    # The same model written in code and in scenarios/benchmarks/simple_pendulum.yaml.
+    sc_yaml = ukdyn.load_scenario(scenario_path("benchmarks/simple_pendulum.yaml"))
+    sc_code = ukdyn.Scenario.from_system(cartesian_pendulum(), q0=[1, 0], t_end=10,
+                                         sample_dt=0.01)
+    for t, q, qd, tau in random_states(sc_yaml, 4, seed=7):
+        a, b = sc_yaml.forward(t, q, qd, tau), sc_code.forward(t, q, qd, tau)
+        for key in EVAL_KEYS:
+            assert max_rel_diff(getattr(a, key), getattr(b, key)) <= 1e-14, key
+
+
+def test_python_force_in_forward():
+    # A Python applied force adds to Q exactly: Q(force) - Q(no force) = f.
+    sc = ukdyn.load_scenario(scenario_path("paper.yaml"))
+    q, qd = sc.q0, np.linspace(-0.2, 0.3, sc.dof)
+    f = np.linspace(1.0, 2.0, sc.dof)
+    r0 = sc.forward(0.0, q, qd)
+    r1 = sc.forward(0.0, q, qd, forces=[lambda t, q, qd: f])
+    assert np.max(np.abs((r1.Q - r0.Q) - f)) <= 1e-13
+
+
+def test_bad_scenario_raises_with_file_line_column():
+    path = SOURCE / "tests" / "hostile" / "com_two_entries.yaml"
+    expect = path.read_text().splitlines()[0].removeprefix("# expect: ")
+    with pytest.raises(ukdyn.ScenarioError) as info:
+        ukdyn.load_scenario(path)
+    msg = str(info.value)
+    assert re.match(r"^.*com_two_entries\.yaml:\d+:\d+: ", msg), msg
+    assert expect in msg
+    assert isinstance(info.value, ukdyn.Error)
+    # The same message as the CLI's (exit 2).
+    code, _, err = run_cli("check", path)
+    assert code == 2 and msg in err
+
+
+def test_bad_scenario_text_names_the_line():
+    text = scenario_path("paper.yaml").read_text().replace("t_end: 4", "t_end: -4")
+    with pytest.raises(ukdyn.ScenarioError, match=r"^bad\.yaml:\d+:\d+: key 'simulation.t_end'"):
+        ukdyn.Scenario.from_text(text, "bad.yaml")
+
+
+def test_errors_of_definitions_and_sizes():
+    d = ukdyn.SubsystemDef("p", ["phi"])
+    with pytest.raises(ukdyn.Error, match="column"):
+        d.add_body("b", mass="1 +* 2", com=[0, 0, 0])
+    d.add_body("b", mass=1, com=["sin(phi)", 0, 0])
+    c = ukdyn.ConstraintDef("c", "holonomic", ["phi"])
+    c.add_row("bad", "phi_dot")  # a velocity in a holonomic row: refused by the derivation
+    with pytest.raises(ukdyn.Error):
+        ukdyn.make_constraint(c)
+    sc = ukdyn.load_scenario(scenario_path("paper.yaml"))
+    with pytest.raises(ValueError, match="12"):
+        sc.forward(0.0, [0.0, 1.0], sc.qd0)
+
+
+def test_assemble_prints_a_pasteable_initial_section(tmp_path):
+    # Perturb the paper's q0 off the constraints, assemble with the CLI, paste its initial: block
+    # over the scenario's: the pasted file passes `ukdyn check` (the state is consistent) and loads
+    # the assembled doubles exactly.
+    text = scenario_path("paper.yaml").read_text()
+    old = "  q: [0, 0, 0, pi/2, -pi/3, 0, 1.6, 0, -pi, pi/2, -pi/3, 0]\n  qd: zeros\n"
+    assert old in text
+    guess = text.replace(old, "  q: [0, 0, 0, 1.6, -1.0, 0.01, 1.62, 0.01, -3.1, 1.5, -1.1, 0]\n"
+                              "  qd: [0, 0, 0, 0.1, 0, 0, 0, 0, 0, 0, 0, 0]\n")
+    p = tmp_path / "guess.yaml"
+    p.write_text(guess)
+    code, out, err = run_cli("assemble", p)
+    assert code == 0, err
+    block = out[out.index("initial:\n"):]
+    pasted = guess.replace(guess[guess.index("initial:\n"):guess.index("forces:")], block)
+    q = tmp_path / "pasted.yaml"
+    q.write_text(pasted)
+    code, _, err = run_cli("check", q)
+    assert code == 0, err
+    a = ukdyn.load_scenario(p, check_initial=False).assemble()
+    assert a["success"]
+    loaded = ukdyn.load_scenario(q)
+    assert np.array_equal(loaded.q0, a["q"]) and np.array_equal(loaded.qd0, a["qd"])
+    assert not np.array_equal(a["q"], ukdyn.load_scenario(p, check_initial=False).q0)
+
+
+def test_gil_released_during_simulate():
+    # While one thread simulates, another runs Python: the longest pause of the main thread
+    # stays far below the run's duration (with the GIL held it would pause for all of it).
+    sc = ukdyn.load_scenario(scenario_path("paper.yaml"))
+    start = time.perf_counter()
+    sc.simulate()
+    duration = time.perf_counter() - start
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("run", sc.simulate()))
+    longest, last = 0.0, time.perf_counter()
+    worker.start()
+    while worker.is_alive():
+        now = time.perf_counter()
+        longest = max(longest, now - last)
+        last = now
+    worker.join()
+    assert result["run"].complete
+    assert duration > 0.05, duration
+    assert longest < 0.5 * duration, (longest, duration)
+
+
+def test_installed_package_imports(tmp_path):
+    # `cmake --install` puts the package under the prefix (lib/python3.X/site-packages/ukdyn); it
+    # imports from there alone (not from the build tree) and runs.
+    build, cmake = os.environ.get("UKDYN_BUILD_DIR"), os.environ.get("CMAKE_COMMAND")
+    if not build or not cmake:
+        pytest.skip("UKDYN_BUILD_DIR / CMAKE_COMMAND not set (run through ctest)")
+    prefix = tmp_path / "prefix"
+    p = subprocess.run([cmake, "--install", build, "--prefix", str(prefix)], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    site = prefix / "lib" / ("python%d.%d" % sys.version_info[:2]) / "site-packages"
+    assert (site / "ukdyn" / "__init__.pyi").is_file() and (site / "ukdyn" / "py.typed").is_file()
+    code = ("import ukdyn, sys; sc = ukdyn.load_scenario(sys.argv[1]); "
+            "r = sc.forward(0.0, sc.q0, sc.qd0); print(ukdyn.__file__, r.rank)")
+    env = dict(os.environ, PYTHONPATH=str(site))
+    p = subprocess.run([sys.executable, "-c", code, str(scenario_path("paper.yaml"))],
+                       capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
+    assert p.returncode == 0, p.stderr
+    where, rank = p.stdout.split()
+    assert pathlib.Path(where).resolve().is_relative_to(site.resolve()) and rank == "12"
