@@ -6,7 +6,8 @@
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
-      libginac-dev liburdfdom-dev libsundials-dev)
+      libginac-dev liburdfdom-dev libsundials-dev
+      libopenmpi-dev openmpi-bin)  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
 for arg in "$@"; do
   case "$arg" in
     --bench) pkgs+=(libbenchmark-dev libmujoco-dev libsimbody-dev) ;;
