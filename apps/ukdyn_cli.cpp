@@ -23,13 +23,13 @@
 #include <string>
 #include <vector>
 
+#include "apps/sweep_mpi.hpp"
 #include "ukdyn/io/eval_protocol.hpp"
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/safe_text.hpp"
 #include "ukdyn/io/scenario_file.hpp"
 #include "ukdyn/io/sweep.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-#include "apps/sweep_mpi.hpp"
 
 namespace {
 
@@ -73,7 +73,8 @@ int cmd_sweep(const SweepArgs& a, bool merge, int* argc, char*** argv) {
   const std::string out = a.out.empty() ? "out/sweep-" + sw.name : a.out;
   if (a.extract >= 0) {
     if (a.extract >= sw.samples)
-      throw ukdyn::ScenarioError(fmt::format("--extract: the sweep has samples 0..{}", sw.samples - 1));
+      throw ukdyn::ScenarioError(
+          fmt::format("--extract: the sweep has samples 0..{}", sw.samples - 1));
     if (root) std::cout << ukdyn::sample_scenario_text(sw, a.extract);
     return 0;
   }
@@ -101,9 +102,10 @@ int cmd_sweep(const SweepArgs& a, bool merge, int* argc, char*** argv) {
   }
   if (!a.quiet) ukdyn::print_sweep_report(std::cout, sw, rep);
   if (!rep.complete) {
-    std::cerr << fmt::format("ukdyn: sweep incomplete: {} of {} samples in {}; run it again to "
-                             "resume\n", rep.computed + rep.resumed, rep.samples,
-                             ukdyn::printable(out));
+    std::cerr << fmt::format(
+        "ukdyn: sweep incomplete: {} of {} samples in {}; run it again to "
+        "resume\n",
+        rep.computed + rep.resumed, rep.samples, ukdyn::printable(out));
     return 1;
   }
   return 0;

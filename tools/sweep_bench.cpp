@@ -23,10 +23,12 @@
 
 int main(int argc, char** argv) {
   namespace fs = std::filesystem;
-  const fs::path file =
-      argc > 1 ? fs::path(argv[1]) : fs::path(UKDYN_SOURCE_DIR) / "scenarios/sweeps/paper_free_bench.yaml";
+  const fs::path file = argc > 1
+                            ? fs::path(argv[1])
+                            : fs::path(UKDYN_SOURCE_DIR) / "scenarios/sweeps/paper_free_bench.yaml";
   const long n_arg = argc > 2 ? std::atol(argv[2]) : 0;
-  const fs::path out = argc > 3 ? fs::path(argv[3]) : fs::temp_directory_path() / "ukdyn_sweep_bench";
+  const fs::path out =
+      argc > 3 ? fs::path(argv[3]) : fs::temp_directory_path() / "ukdyn_sweep_bench";
   try {
     ukdyn::Sweep sw = ukdyn::load_sweep(file);
     if (n_arg > 0 && n_arg < sw.samples) sw.samples = n_arg;
@@ -45,9 +47,9 @@ int main(int argc, char** argv) {
       const ukdyn::Vec tau = sc.tau;
       const ukdyn::ForceFunction f = [&tau](double, ukdyn::CVecRef, ukdyn::CVecRef,
                                             ukdyn::VecRef o) { o = tau; };
-      const auto st = ukdyn::simulate(*sc.system, sc.q0, sc.qd0, f, sc.sim,
-                                      [](double, ukdyn::CVecRef, ukdyn::CVecRef,
-                                         const ukdyn::ForwardData&) { return true; });
+      const auto st = ukdyn::simulate(
+          *sc.system, sc.q0, sc.qd0, f, sc.sim,
+          [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
       steps += st.steps;
     }
     const double plain = std::chrono::duration<double>(clock::now() - p0).count();
@@ -68,19 +70,22 @@ int main(int argc, char** argv) {
         return 1;
       }
     }
-    std::cout << fmt::format("sweep bench: {} samples of '{}' ({} integration steps in all), "
-                             "{} hardware threads\n",
-                             n, sw.base_path.filename().string(), steps,
-                             std::thread::hardware_concurrency());
-    std::cout << fmt::format("  plain simulate loop   {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n",
-                             plain, n / plain, 1e3 * plain / n);
-    std::cout << fmt::format("  ukdyn sweep 1 thread  {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n",
-                             t_sweep[1], n / t_sweep[1], 1e3 * t_sweep[1] / n);
+    std::cout << fmt::format(
+        "sweep bench: {} samples of '{}' ({} integration steps in all), "
+        "{} hardware threads\n",
+        n, sw.base_path.filename().string(), steps, std::thread::hardware_concurrency());
+    std::cout << fmt::format(
+        "  plain simulate loop   {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n", plain,
+        n / plain, 1e3 * plain / n);
+    std::cout << fmt::format(
+        "  ukdyn sweep 1 thread  {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n", t_sweep[1],
+        n / t_sweep[1], 1e3 * t_sweep[1] / n);
     std::cout << fmt::format("  ukdyn sweep 2 threads {:8.3f} s  {:8.2f} samples/s\n", t_sweep[2],
                              n / t_sweep[2]);
     std::cout << fmt::format("  speed-up 2 threads / 1 thread: {:.2f}x\n", t_sweep[1] / t_sweep[2]);
-    std::cout << fmt::format("  overhead per sample (sweep 1 thread vs plain): {:+.1f} %  ({:+.3f} ms)\n",
-                             100.0 * (t_sweep[1] / plain - 1.0), 1e3 * (t_sweep[1] - plain) / n);
+    std::cout << fmt::format(
+        "  overhead per sample (sweep 1 thread vs plain): {:+.1f} %  ({:+.3f} ms)\n",
+        100.0 * (t_sweep[1] / plain - 1.0), 1e3 * (t_sweep[1] - plain) / n);
   } catch (const std::exception& e) {
     std::cerr << "sweep_bench: " << e.what() << "\n";
     return 2;

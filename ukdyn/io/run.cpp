@@ -102,8 +102,9 @@ class Progress {
       const double frac = std::clamp((t - t0_) / (t1_ - t0_), 0.0, 1.0);
       const double el = std::chrono::duration<double>(now - start_).count();
       const double eta = frac > 0.0 ? el * (1.0 - frac) / frac : 0.0;
-      *os_ << fmt::format("ukdyn: t = {:.6g} s of {:.6g} s ({:.1f}%), {:.0f} s elapsed, ETA {:.0f} s\n",
-                          t, t1_, 100.0 * frac, el, eta)
+      *os_ << fmt::format(
+                  "ukdyn: t = {:.6g} s of {:.6g} s ({:.1f}%), {:.0f} s elapsed, ETA {:.0f} s\n", t,
+                  t1_, 100.0 * frac, el, eta)
            << std::flush;
       return;
     }

@@ -261,8 +261,9 @@ Vec initial_vector(const Loader& L, const Node& n, Index expected,
       L.fail(e, std::string("cannot evaluate: ") + ex.what());
     }
     if (!GiNaC::is_a<GiNaC::numeric>(val) || !GiNaC::ex_to<GiNaC::numeric>(val).is_real())
-      L.fail(e, "expected a number: the expression must evaluate to a real number (it may use "
-                "numbers, pi, functions and the names of initial.parameters)");
+      L.fail(e,
+             "expected a number: the expression must evaluate to a real number (it may use "
+             "numbers, pi, functions and the names of initial.parameters)");
     v(i) = GiNaC::ex_to<GiNaC::numeric>(val).to_double();
     if (!std::isfinite(v(i))) L.fail(e, "must be finite, got '" + e.node.Scalar() + "'");
   }

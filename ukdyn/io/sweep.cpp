@@ -51,7 +51,8 @@ std::uint64_t splitmix64(std::uint64_t x) {
 double sweep_uniform(std::uint64_t seed, long sample, int parameter, int draw) {
   std::uint64_t h = splitmix64(seed);
   h = splitmix64(h ^ static_cast<std::uint64_t>(sample));
-  h = splitmix64(h ^ (static_cast<std::uint64_t>(parameter) << 32 | static_cast<std::uint32_t>(draw)));
+  h = splitmix64(h ^
+                 (static_cast<std::uint64_t>(parameter) << 32 | static_cast<std::uint32_t>(draw)));
   return static_cast<double>(h >> 11) * 0x1p-53;  // 53 bits: exactly representable, in [0, 1)
 }
 
@@ -265,7 +266,7 @@ bool system_independent_of_state(const YAML::Node& doc) {
     if (!c.IsMap() || !c["type"] || !c["type"].IsScalar()) return false;
     const std::string type = c["type"].Scalar();
     if (type == "closure" || type == "expression" || type == "nonholonomic") continue;
-    const char* key = type == "coordinate" ? "value"
+    const char* key = type == "coordinate"             ? "value"
                       : type == "cut_point_trajectory" ? "origin"
                                                        : nullptr;
     if (!key) return false;  // the other kinds may take a point's initial position
@@ -297,11 +298,10 @@ std::vector<double> load_values(const Loader& L, const Node& p) {
   if (!(c >= 1 && c <= 1e6 && c == std::floor(c))) L.fail(cn, "expected an integer in [1, 1e6]");
   const auto count = static_cast<long>(c);
   for (long i = 0; i < count; ++i) {
-    // a + (b − a) i / (count − 1), with both ends exact.
-    vals.push_back(count == 1 ? a
-                   : i == count - 1
-                       ? b
-                       : a + (b - a) * static_cast<double>(i) / static_cast<double>(count - 1));
+    // (a (count − 1 − i) + b i) / (count − 1): both ends exact, 0.2..1 by 5 gives 0.6, not
+    // 0.6000000000000001 as a + i (b − a) / (count − 1) would.
+    const double di = static_cast<double>(i), dn = static_cast<double>(count - 1);
+    vals.push_back(count == 1 ? a : i == count - 1 ? b : (a * (dn - di) + b * di) / dn);
   }
   return vals;
 }
@@ -427,8 +427,8 @@ Sweep load_sweep(const std::filesystem::path& path) {
   }
   const Node root{root_node, ""};
   if (!root_node.IsMap()) throw ScenarioError(printable(path.string()) + ": expected a mapping");
-  L.only_keys(root, {"ukdyn_sweep", "name", "base", "mode", "seed", "samples", "parameters",
-                     "set", "metrics", "assemble", "figures"});
+  L.only_keys(root, {"ukdyn_sweep", "name", "base", "mode", "seed", "samples", "parameters", "set",
+                     "metrics", "assemble", "figures"});
   Sweep sw;
   sw.path = path;
   {
@@ -490,7 +490,8 @@ Sweep load_sweep(const std::filesystem::path& path) {
     const Node dn = L.child(p, "distribution", false);
     if (sw.mode == Sweep::Mode::random) {
       if (!dn.node.IsDefined()) L.fail(p, "missing required key '" + p.key + ".distribution'");
-      if (L.child(p, "values", false).node.IsDefined() || L.child(p, "range", false).node.IsDefined())
+      if (L.child(p, "values", false).node.IsDefined() ||
+          L.child(p, "range", false).node.IsDefined())
         L.fail(p, "a random sweep draws values: give distribution, not values / range");
       par.dist = load_distribution(L, dn);
     } else {
@@ -546,6 +547,17 @@ Sweep load_sweep(const std::filesystem::path& path) {
   sw.figures = flag("figures", true);
   // The base scenario itself must load (its own errors name its own file and lines).
   const Scenario base = load_scenario_text(sw.base_text, sw.base_path, {false});
+  {
+    std::set<std::string> cols;
+    for (const auto& c : sweep_header(sw, base)) {
+      if (!cols.insert(c).second) {
+        L.fail(
+            L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : ps,
+            "two columns of the table would be named '" + c +
+                "' (a parameter and a metric, or two metrics, share the name)");
+      }
+    }
+  }
   for (const auto& c : sw.metrics.columns) {
     const auto h = trajectory_header(*base.system, base.sim.energy_balance);
     if (std::find(h.begin(), h.end(), c.column) == h.end())
@@ -614,7 +626,8 @@ std::string emit(const YAML::Node& doc) {
 // The scenario text with the fixed values and the chosen parameters' values written in.
 std::string scenario_text(const Sweep& sw, const std::vector<double>& vals, bool with_state) {
   YAML::Node doc = clone(base_yaml(sw));
-  for (std::size_t i = 0; i < sw.fixed.size(); ++i) write_at(doc, sw.fixed[i].path, sw.fixed_values[i]);
+  for (std::size_t i = 0; i < sw.fixed.size(); ++i)
+    write_at(doc, sw.fixed[i].path, sw.fixed_values[i]);
   for (std::size_t j = 0; j < sw.parameters.size(); ++j) {
     for (const auto& t : sw.parameters[j].targets) {
       bool vel = false;
@@ -630,8 +643,8 @@ std::string scenario_text(const Sweep& sw, const std::vector<double>& vals, bool
 std::string sample_scenario_text(const Sweep& sw, long k) {
   const auto vals = sample_values(sw, k);
   std::string head = fmt::format(
-      "# Sample {} of sweep '{}' ({}), base scenario {}; written by ukdyn {} sweep --extract.\n",
-      k, sw.name, printable(sw.path.string()), printable(sw.base_path.string()), version());
+      "# Sample {} of sweep '{}' ({}), base scenario {}; written by ukdyn {} sweep --extract.\n", k,
+      sw.name, printable(sw.path.string()), printable(sw.base_path.string()), version());
   for (std::size_t j = 0; j < vals.size(); ++j)
     head += fmt::format("#   {} = {}\n", sw.parameters[j].name, num(vals[j]));
   return head + scenario_text(sw, vals, true);
@@ -662,6 +675,9 @@ std::vector<std::string> sweep_header(const Sweep& sw, const Scenario& base) {
 
 namespace {
 
+// max that keeps a NaN (a NaN sample is the least trustworthy: it must show).
+double nanmax(double a, double b) { return std::isnan(a) || std::isnan(b) ? NAN : std::max(a, b); }
+
 // Metrics over the samples of one run (the same quantities as trajectory.csv, run.cpp).
 struct SampleObserver {
   SampleObserver(const System& s, const SweepMetrics& m) : sys(s), mx(m) {}
@@ -675,8 +691,6 @@ struct SampleObserver {
   Vec max_qc, q_last, qd_last;
   std::vector<double> cmin, cmax, csq, clast, cabs;
   long count = 0;
-
-  static double nanmax(double a, double b) { return std::isnan(a) || std::isnan(b) ? NAN : std::max(a, b); }
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     const Index n = sys.dof(), m = sys.rows();
@@ -804,9 +818,10 @@ class SampleRunner {
           const double p = phi.cwiseAbs().maxCoeff(), v = phid.cwiseAbs().maxCoeff();
           if (!(p <= sc.initial_tolerance) || !(v <= sc.initial_tolerance)) {
             status = "inconsistent_initial";
-            reason = fmt::format("initial state violates the constraints: max |Phi| = {:.3e}, "
-                                 "max |Phi_dot| = {:.3e} > initial_tolerance {:g}",
-                                 p, v, sc.initial_tolerance);
+            reason = fmt::format(
+                "initial state violates the constraints: max |Phi| = {:.3e}, "
+                "max |Phi_dot| = {:.3e} > initial_tolerance {:g}",
+                p, v, sc.initial_tolerance);
             ok = false;
           }
         }
@@ -874,9 +889,9 @@ class SampleRunner {
       for (const auto& c : mx.columns) {
         for (const auto& s : c.stats) {
           const double cnt = static_cast<double>(std::max(o.count, 1L));
-          const double v = s == "min"   ? o.cmin[ci]
-                           : s == "max" ? o.cmax[ci]
-                           : s == "rms" ? std::sqrt(o.csq[ci] / cnt)
+          const double v = s == "min"       ? o.cmin[ci]
+                           : s == "max"     ? o.cmax[ci]
+                           : s == "rms"     ? std::sqrt(o.csq[ci] / cnt)
                            : s == "max_abs" ? o.cabs[ci]
                                             : o.clast[ci];
           cells.push_back(num(v));
@@ -1010,7 +1025,9 @@ double percentile(const std::vector<double>& sorted, double p) {
   return sorted[lo] + (h - static_cast<double>(lo)) * (sorted[hi] - sorted[lo]);
 }
 
-nlohmann::json jnum(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+nlohmann::json jnum(double v) {
+  return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
+}
 
 struct Table {
   std::vector<std::string> header;
@@ -1020,8 +1037,8 @@ struct Table {
 // The first metric column (after sample, parameters, status, reason, t_reached, steps).
 std::size_t first_metric(const Sweep& sw) { return 1 + sw.parameters.size() + 4; }
 
-nlohmann::json summary_json(const Sweep& sw, const Table& t, const SweepOptions* opt,
-                            bool complete, SweepReport& rep) {
+nlohmann::json summary_json(const Sweep& sw, const Table& t, const SweepOptions* opt, bool complete,
+                            SweepReport& rep) {
   nlohmann::json j;
   j["ukdyn_version"] = version();
   j["sweep"] = {{"name", sw.name},
@@ -1117,24 +1134,34 @@ void draw_figures(const OutputDir& out, const Sweep& sw, const Table& t, SweepRe
     const std::string stem = file_stem("hist_" + t.header[c]);
     files.push_back(stem + ".png");
     gp += "set output " + gnuplot_string(files.back()) + "\n";
-    gp += "set title " + gnuplot_string(fmt::format("{} over {} completed samples", t.header[c], v.size())) +
+    gp += "set title " +
+          gnuplot_string(fmt::format("{} over {} completed samples", t.header[c], v.size())) +
           " noenhanced\n";
     gp += "set xlabel " + gnuplot_string(t.header[c]) + " noenhanced\nset ylabel 'samples'\n";
-    gp += fmt::format("set style fill solid 0.6\nbin(x) = {} * floor((x - {}) / {}) + {} + {} / 2\n",
-                      num(w), num(*lo), num(w), num(*lo), num(w));
-    gp += fmt::format("plot {} skip 1 using (strcol({}) eq 'completed' ? bin(column({})) : NaN):(1.0) "
-                      "smooth freq with boxes\nunset output\n",
-                      data, st + 1, c + 1);
+    gp +=
+        fmt::format("set style fill solid 0.6\nbin(x) = {} * floor((x - {}) / {}) + {} + {} / 2\n",
+                    num(w), num(*lo), num(w), num(*lo), num(w));
+    gp += fmt::format(
+        "plot {} skip 1 using (strcol({}) eq 'completed' ? bin(column({})) : NaN):(1.0) "
+        "smooth freq with boxes\nunset output\n",
+        data, st + 1, c + 1);
     if (heat) {
       files.push_back(file_stem("heat_" + t.header[c]) + ".png");
       gp += "set output " + gnuplot_string(files.back()) + "\n";
       gp += "set title " + gnuplot_string(t.header[c] + " over the grid") + " noenhanced\n";
       gp += "set xlabel " + gnuplot_string(sw.parameters[0].name) + " noenhanced\n";
       gp += "set ylabel " + gnuplot_string(sw.parameters[1].name) + " noenhanced\n";
+      // One filled square per grid point, coloured by the metric (failed samples left blank).
+      const std::size_t cells_max =
+          std::max(sw.parameters[0].dist.values.size(), sw.parameters[1].dist.values.size());
+      const double ps = std::clamp(60.0 / static_cast<double>(cells_max), 0.5, 8.0);
       gp += "set palette rgbformulae 33,13,10\nset colorbox\n";
-      gp += fmt::format("plot {} skip 1 using 2:3:(strcol({}) eq 'completed' ? column({}) : NaN) "
-                        "with points pointtype 5 pointsize 4 palette\nunset output\nunset colorbox\n",
-                        data, st + 1, c + 1);
+      gp += "set offsets graph 0.08, graph 0.08, graph 0.08, graph 0.08\n";
+      gp += fmt::format(
+          "plot {} skip 1 using 2:3:(strcol({}) eq 'completed' ? column({}) : NaN) "
+          "with points pointtype 5 pointsize {} palette\nunset output\n"
+          "unset colorbox\nset offsets 0, 0, 0, 0\n",
+          data, st + 1, c + 1, num(ps));
     }
   }
   if (files.empty()) return;
@@ -1310,7 +1337,7 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
     if (opt.resume && size == 1) done = read_journal(*out, head, header.size());
     for (auto it = done.begin(); it != done.end();) {  // rows of this shard only
       it = (it->first % opt.shards == opt.shard && it->first < sw.samples) ? std::next(it)
-                                                                            : done.erase(it);
+                                                                           : done.erase(it);
     }
     if (size == 1) journal.emplace(*out, head, done);
     rep.resumed = static_cast<long>(done.size());
@@ -1321,8 +1348,9 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
     if (!done.count(shard_samples[i])) todo.push_back(shard_samples[i]);
   }
 
-  int threads = opt.threads > 0 ? opt.threads
-                                : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  int threads = opt.threads > 0
+                    ? opt.threads
+                    : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   threads = static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(threads),
                                                    std::max<std::size_t>(todo.size(), 1)));
   std::vector<std::string> rows(todo.size());
@@ -1344,7 +1372,8 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
     auto last = std::chrono::steady_clock::now();
     auto report = [&](bool final) {
       if (!opt.progress || rank != 0) return;
-      const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      const double el =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       const auto f = static_cast<double>(finished.load());
       const double total = static_cast<double>(todo.size());
       const double rate = el > 0 ? f / el : 0.0;
@@ -1358,8 +1387,10 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
                                      duration_text(eta));
         if (final) *opt.progress << "\n";
       } else {
-        *opt.progress << fmt::format("ukdyn: sweep: {}/{} samples ({:.0f}%), {:.2f} samples/s, "
-                                     "ETA {}\n", f, total, 100.0 * frac, rate, duration_text(eta));
+        *opt.progress << fmt::format(
+            "ukdyn: sweep: {}/{} samples ({:.0f}%), {:.2f} samples/s, "
+            "ETA {}\n",
+            f, total, 100.0 * frac, rate, duration_text(eta));
       }
       *opt.progress << std::flush;
     };
@@ -1407,7 +1438,8 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   rep.complete = static_cast<long>(t.rows.size()) == rep.samples && journal_error.empty();
   if (!journal_error.empty()) rep.failures.push_back("journal: " + journal_error);
   write_outputs(*out, sw, t, &opt, rep.complete, rep, opt.cancel);
-  rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  rep.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return rep;
 }
 
@@ -1441,15 +1473,18 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
     std::istringstream is(text);
     std::string line;
     std::getline(is, line);
-    if (line != header_line(header)) throw ScenarioError(printable((d / kTable).string()) + ": another header");
+    if (line != header_line(header))
+      throw ScenarioError(printable((d / kTable).string()) + ": another header");
     while (std::getline(is, line)) {
       const long k = std::strtol(line.c_str(), nullptr, 10);
-      if (k % n != i) throw ScenarioError(printable((d / kTable).string()) + ": a row of another shard");
+      if (k % n != i)
+        throw ScenarioError(printable((d / kTable).string()) + ": a row of another shard");
       t.rows[k] = line;
     }
   }
   if (shards < 0 || static_cast<int>(seen.size()) != shards)
-    throw ScenarioError(fmt::format("merge: {} of {} shards given", seen.size(), std::max(shards, 0)));
+    throw ScenarioError(
+        fmt::format("merge: {} of {} shards given", seen.size(), std::max(shards, 0)));
   SweepReport rep;
   rep.samples = sw.samples;
   rep.resumed = static_cast<long>(t.rows.size());
@@ -1457,7 +1492,8 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
   if (!rep.complete) throw ScenarioError("merge: the shards do not hold every sample");
   OutputDir out(out_dir);
   write_outputs(out, sw, t, nullptr, true, rep, nullptr);
-  rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  rep.wall_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return rep;
 }
 
@@ -1467,15 +1503,18 @@ void print_sweep_report(std::ostream& os, const Sweep& sw, const SweepReport& re
   os << fmt::format("  samples             {} ({} computed, {} from the journal), {} failed\n",
                     rep.samples, rep.computed, rep.resumed, rep.failed);
   os << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
-  if (!rep.table.empty()) os << fmt::format("  outputs             {}\n", printable(rep.table.string()));
-  if (!rep.summary.empty()) os << fmt::format("                      {}\n", printable(rep.summary.string()));
+  if (!rep.table.empty())
+    os << fmt::format("  outputs             {}\n", printable(rep.table.string()));
+  if (!rep.summary.empty())
+    os << fmt::format("                      {}\n", printable(rep.summary.string()));
   if (!rep.figures.empty())
     os << fmt::format("                      {} figures in {}\n", rep.figures.size(),
                       printable((rep.table.parent_path() / "figures").string()));
   const std::size_t shown = std::min<std::size_t>(rep.failures.size(), 10);
   for (std::size_t i = 0; i < shown; ++i) os << "  failed: " << printable(rep.failures[i]) << "\n";
   if (rep.failures.size() > shown)
-    os << fmt::format("  ... and {} more failed samples (summary.json)\n", rep.failures.size() - shown);
+    os << fmt::format("  ... and {} more failed samples (summary.json)\n",
+                      rep.failures.size() - shown);
   if (!rep.figure_error.empty()) os << "  figures: " << printable(rep.figure_error) << "\n";
 }
 

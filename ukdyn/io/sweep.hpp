@@ -31,9 +31,9 @@ struct SweepDistribution {
 };
 
 struct SweepTarget {
-  std::string path;    ///< into the base scenario's YAML
-  double scale = 1.0;  ///< the value written is scale × parameter
-  double offset = 0.0; ///< ... + offset
+  std::string path;     ///< into the base scenario's YAML
+  double scale = 1.0;   ///< the value written is scale × parameter
+  double offset = 0.0;  ///< ... + offset
 };
 
 struct SweepParameter {
@@ -58,15 +58,15 @@ struct SweepMetrics {
 };
 
 struct Sweep {
-  std::filesystem::path path;        ///< the sweep file
-  std::filesystem::path base_path;   ///< the base scenario
+  std::filesystem::path path;       ///< the sweep file
+  std::filesystem::path base_path;  ///< the base scenario
   std::string name;
   std::string hash;  ///< FNV-1a 64 over the sweep file and the base scenario, hex
   enum class Mode { grid, list, random } mode = Mode::grid;
   std::uint64_t seed = 0;
   long samples = 0;  ///< number of samples (grid: the product of the value counts)
   std::vector<SweepParameter> parameters;
-  std::vector<SweepTarget> fixed;       ///< `set:` paths written in every sample (with values)
+  std::vector<SweepTarget> fixed;  ///< `set:` paths written in every sample (with values)
   std::vector<double> fixed_values;
   SweepMetrics metrics;
   bool assemble = false;  ///< move each sample's (q0, q̇0) onto the constraints first
@@ -104,7 +104,7 @@ class SweepComm {
 };
 
 struct SweepOptions {
-  int threads = 0;          ///< 0: std::thread::hardware_concurrency()
+  int threads = 0;            ///< 0: std::thread::hardware_concurrency()
   int shard = 0, shards = 1;  ///< compute the samples k with k % shards == shard
   std::ostream* progress = nullptr;
   bool progress_tty = false;  ///< a bar redrawn in place; else a line every progress_every s
