@@ -24,7 +24,7 @@ parameters:
     path: subsystems[left].params.link_mass[1]
     distribution: {type: uniform, low: 3, high: 5}
 set:
-  simulation.t_end: 0.1
+  simulation.t_end: 0.05
   simulation.abs_tol: 1e-10
   simulation.rel_tol: 1e-10
 metrics: [max_residual, energy_drift, max_abs_Qc, final_state]

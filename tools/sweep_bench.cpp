@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <iostream>
 #include <string>
@@ -34,6 +35,7 @@ int main(int argc, char** argv) {
     if (n_arg > 0 && n_arg < sw.samples) sw.samples = n_arg;
     sw.figures = false;
     const long n = sw.samples;
+    const double nd = static_cast<double>(n);
     using clock = std::chrono::steady_clock;
 
     // 1. plain simulate() of the same scenarios.
@@ -41,6 +43,10 @@ int main(int argc, char** argv) {
     for (long k = 0; k < n; ++k) {
       scs.push_back(ukdyn::load_scenario_text(ukdyn::sample_scenario_text(sw, k), sw.base_path));
     }
+    // Wall time, and the process's CPU time (std::clock: all threads), which a loaded machine
+    // disturbs far less than the wall time.
+    const auto cpu = [] { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; };
+    const double pc0 = cpu();
     const auto p0 = clock::now();
     long steps = 0;
     for (const auto& sc : scs) {
@@ -53,18 +59,21 @@ int main(int argc, char** argv) {
       steps += st.steps;
     }
     const double plain = std::chrono::duration<double>(clock::now() - p0).count();
+    const double plain_cpu = cpu() - pc0;
+    double cpu_sweep[3] = {0, 0, 0};
 
     // 2. the sweep at 1 and 2 threads (fresh: no journal reuse).
     double t_sweep[3] = {0, 0, 0};
-    std::string tables[3];
     for (int threads : {1, 2}) {
       ukdyn::SweepOptions opt;
       opt.threads = threads;
       opt.resume = false;
       const fs::path dir = out / fmt::format("threads{}", threads);
+      const double c0 = cpu();
       const auto s0 = clock::now();
       const auto rep = ukdyn::run_sweep(sw, dir, opt);
       t_sweep[threads] = std::chrono::duration<double>(clock::now() - s0).count();
+      cpu_sweep[threads] = cpu() - c0;
       if (!rep.complete || rep.failed != 0) {
         std::cerr << "sweep_bench: the sweep did not complete every sample\n";
         return 1;
@@ -76,16 +85,22 @@ int main(int argc, char** argv) {
         n, sw.base_path.filename().string(), steps, std::thread::hardware_concurrency());
     std::cout << fmt::format(
         "  plain simulate loop   {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n", plain,
-        n / plain, 1e3 * plain / n);
+        nd / plain, 1e3 * plain / nd);
     std::cout << fmt::format(
         "  ukdyn sweep 1 thread  {:8.3f} s  {:8.2f} samples/s  {:.3f} ms/sample\n", t_sweep[1],
-        n / t_sweep[1], 1e3 * t_sweep[1] / n);
+        nd / t_sweep[1], 1e3 * t_sweep[1] / nd);
     std::cout << fmt::format("  ukdyn sweep 2 threads {:8.3f} s  {:8.2f} samples/s\n", t_sweep[2],
-                             n / t_sweep[2]);
+                             nd / t_sweep[2]);
     std::cout << fmt::format("  speed-up 2 threads / 1 thread: {:.2f}x\n", t_sweep[1] / t_sweep[2]);
     std::cout << fmt::format(
         "  overhead per sample (sweep 1 thread vs plain): {:+.1f} %  ({:+.3f} ms)\n",
-        100.0 * (t_sweep[1] / plain - 1.0), 1e3 * (t_sweep[1] - plain) / n);
+        100.0 * (t_sweep[1] / plain - 1.0), 1e3 * (t_sweep[1] - plain) / nd);
+    std::cout << fmt::format(
+        "  CPU time: plain {:.3f} s, sweep 1 thread {:.3f} s, sweep 2 threads {:.3f} s\n",
+        plain_cpu, cpu_sweep[1], cpu_sweep[2]);
+    std::cout << fmt::format(
+        "  overhead per sample in CPU time (sweep 1 thread vs plain): {:+.1f} %  ({:+.3f} ms)\n",
+        100.0 * (cpu_sweep[1] / plain_cpu - 1.0), 1e3 * (cpu_sweep[1] - plain_cpu) / nd);
   } catch (const std::exception& e) {
     std::cerr << "sweep_bench: " << e.what() << "\n";
     return 2;
