@@ -6,7 +6,7 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench benchmarks drift-study sanitize tsan check-state fuzz clean format
+.PHONY: all deps configure build run test bench benchmarks sweep-bench drift-study sanitize tsan check-state fuzz clean format
 FUZZ_SECONDS ?= 60
 
 all: build
@@ -37,6 +37,12 @@ benchmarks: deps
 	@cmake --preset release >/dev/null
 	@cmake --build build/release -j $(JOBS) --target ukdyn_benchmarks
 	build/release/ukdyn_benchmarks $(BENCHMARKS_ARGS)
+
+# Sweep throughput: samples/s at 1 and 2 threads, overhead vs plain simulate (docs/performance.md).
+sweep-bench: deps
+	@cmake --preset release >/dev/null
+	@cmake --build build/release -j $(JOBS) --target ukdyn_sweep_bench
+	build/release/ukdyn_sweep_bench $(SWEEP_BENCH_ARGS)
 
 drift-study: build
 	$(BUILD_DIR)/ukdyn_drift_study scenarios/paper_free.yaml 100

@@ -6,6 +6,9 @@
 //   ukdyn check SCENARIO           (load and validate only)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
 //   docs/definitions.md)
+//   ukdyn sweep SWEEP [--out DIR] [--threads N] [--shard i/N] [--extract K]   (docs/sweeps.md;
+//   also under mpirun)
+//   ukdyn sweep merge SWEEP --out DIR SHARD_DIR...
 // Exit codes: 0 success; 1 run incomplete (stopped, interrupted, a write failed) or some eval lines
 // failed; 2 bad input: a usage error, a bad scenario, an output folder ukdyn refuses or one in use.
 #include <fmt/format.h>
@@ -14,13 +17,18 @@
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <csignal>
+#include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <string>
+#include <vector>
 
+#include "apps/sweep_mpi.hpp"
 #include "ukdyn/io/eval_protocol.hpp"
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/safe_text.hpp"
 #include "ukdyn/io/scenario_file.hpp"
+#include "ukdyn/io/sweep.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 namespace {
@@ -28,10 +36,15 @@ namespace {
 std::atomic<bool> g_interrupted{false};
 extern "C" void on_interrupt(int /*signal*/) { g_interrupted.store(true); }
 
-int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures, bool quiet) {
+int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures, bool quiet,
+                 double progress_every) {
   ukdyn::RunOptions opt;
   opt.figures = figures;
-  if (!quiet && isatty(STDERR_FILENO)) opt.progress = &std::cerr;
+  if (!quiet) {  // a bar on a terminal, else a line every few seconds (a log, a batch job)
+    opt.progress = &std::cerr;
+    opt.progress_lines = isatty(STDERR_FILENO) == 0;
+    opt.progress_every = progress_every;
+  }
   // Ctrl-C (or SIGTERM) ends the run after the current step; what was computed is kept.
   std::signal(SIGINT, on_interrupt);
   std::signal(SIGTERM, on_interrupt);
@@ -41,6 +54,61 @@ int cmd_simulate(const ukdyn::Scenario& sc, const std::string& out, bool figures
   std::cout.flush();
   ukdyn::print_run_warnings(std::cerr, sc, rep);
   return rep.complete() ? 0 : 1;
+}
+
+struct SweepArgs {
+  std::string file, out, shard = "0/1";
+  int threads = 0;
+  long extract = -1;
+  double progress_every = 5.0;
+  bool no_figures = false, quiet = false, fresh = false;
+  std::vector<std::string> shard_dirs;
+};
+
+int cmd_sweep(const SweepArgs& a, bool merge, int* argc, char*** argv) {
+  auto comm = merge ? nullptr : ukdyn_app::make_mpi_comm(argc, argv);
+  const bool root = !comm || comm->rank() == 0;
+  ukdyn::Sweep sw = ukdyn::load_sweep(a.file);
+  if (a.no_figures) sw.figures = false;
+  const std::string out = a.out.empty() ? "out/sweep-" + sw.name : a.out;
+  if (a.extract >= 0) {
+    if (a.extract >= sw.samples)
+      throw ukdyn::ScenarioError(
+          fmt::format("--extract: the sweep has samples 0..{}", sw.samples - 1));
+    if (root) std::cout << ukdyn::sample_scenario_text(sw, a.extract);
+    return 0;
+  }
+  ukdyn::SweepReport rep;
+  if (merge) {
+    std::vector<std::filesystem::path> dirs(a.shard_dirs.begin(), a.shard_dirs.end());
+    rep = ukdyn::merge_sweep(sw, dirs, out);
+  } else {
+    ukdyn::SweepOptions opt;
+    if (std::sscanf(a.shard.c_str(), "%d/%d", &opt.shard, &opt.shards) != 2)
+      throw ukdyn::ScenarioError("--shard: expected i/N, got '" + ukdyn::printable(a.shard) + "'");
+    opt.threads = a.threads;
+    if (!a.quiet) {
+      opt.progress = &std::cerr;
+      opt.progress_tty = isatty(STDERR_FILENO) != 0;
+      opt.progress_every = a.progress_every;
+    }
+    std::signal(SIGINT, on_interrupt);
+    std::signal(SIGTERM, on_interrupt);
+    opt.cancel = &g_interrupted;
+    opt.comm = comm.get();
+    opt.resume = !a.fresh;
+    rep = ukdyn::run_sweep(sw, out, opt);
+    if (!root) return 0;
+  }
+  if (!a.quiet) ukdyn::print_sweep_report(std::cout, sw, rep);
+  if (!rep.complete) {
+    std::cerr << fmt::format(
+        "ukdyn: sweep incomplete: {} of {} samples in {}; run it again to "
+        "resume\n",
+        rep.computed + rep.resumed, rep.samples, ukdyn::printable(out));
+    return 1;
+  }
+  return 0;
 }
 
 }  // namespace
@@ -63,6 +131,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   sim->add_flag("--no-figures", no_figures, "skip the figures");
   sim->add_flag("--quiet,-q", quiet, "print nothing but errors");
+  double progress_every = 5.0;
+  sim->add_option("--progress-every", progress_every,
+                  "seconds between progress lines when stderr is not a terminal")
+      ->check(CLI::Range(0.01, 86400.0))
+      ->capture_default_str();
   sim->add_flag(
       "--assemble", do_assemble,
       "first move q0, qd0 onto the constraints (holding initial.hold), as `assemble` does");
@@ -89,14 +162,39 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"latex", "c", "matlab", "text"}))
       ->capture_default_str();
 
+  SweepArgs sa;
+  auto* swp = app.add_subcommand(
+      "sweep", "Run a scenario over a grid, a list or random draws of its parameters");
+  swp->add_option("sweep", sa.file, "sweep file (YAML, docs/sweeps.md)");
+  swp->add_option("--out,-o", sa.out, "output folder (default out/sweep-NAME)");
+  swp->add_option("--threads,-j", sa.threads, "worker threads (default: every core)")
+      ->check(CLI::Range(1, 4096));
+  swp->add_option("--shard", sa.shard, "compute shard i of N (samples k with k % N == i)");
+  swp->add_option("--extract", sa.extract, "print sample K as a standalone scenario")
+      ->check(CLI::Range(0L, 100000000L));
+  swp->add_flag("--no-figures", sa.no_figures, "skip the figures");
+  swp->add_flag("--quiet,-q", sa.quiet, "print nothing but errors");
+  swp->add_option("--progress-every", sa.progress_every,
+                  "seconds between progress lines when stderr is not a terminal")
+      ->check(CLI::Range(0.01, 86400.0))
+      ->capture_default_str();
+  swp->add_flag("--fresh", sa.fresh, "ignore the journal of an earlier, interrupted run");
+  auto* mrg = swp->add_subcommand("merge", "Merge the output folders of shards into one table");
+  mrg->add_option("sweep", sa.file, "sweep file (YAML)")->required();
+  mrg->add_option("--out,-o", sa.out, "output folder")->required();
+  mrg->add_option("shards", sa.shard_dirs, "the shards' output folders")->required();
+  mrg->add_flag("--quiet,-q", sa.quiet, "print nothing but errors");
+
   try {
     app.parse(argc, argv);
+    if (*swp && !*mrg && sa.file.empty()) throw CLI::RequiredError("sweep");
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; every usage error exits 2 (CLI11's own codes are 105–114).
     return app.exit(e) == 0 ? 0 : 2;
   }
 
   try {
+    if (*swp) return cmd_sweep(sa, mrg->parsed(), &argc, &argv);
     const bool assembling = *asmb || (*sim && do_assemble);
     ukdyn::LoadOptions lopt;
     lopt.check_initial = !assembling;
@@ -111,7 +209,7 @@ int main(int argc, char** argv) {
       sc.q0 = a.q;
       sc.qd0 = a.qd;
     }
-    if (*sim) return cmd_simulate(sc, out, !no_figures, quiet);
+    if (*sim) return cmd_simulate(sc, out, !no_figures, quiet, progress_every);
     if (*ev) {
       const auto counts = ukdyn::run_eval_protocol(sc, std::cin, std::cout, &std::cerr);
       return counts.failures == 0 ? 0 : 1;

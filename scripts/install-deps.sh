@@ -8,7 +8,8 @@ pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcl
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
       libginac-dev liburdfdom-dev libsundials-dev
       libmujoco-dev                                  # MJCF files (ukdyn/symbolic/mjcf.hpp)
-      python3-dev python3-pybind11 python3-numpy python3-pytest)  # the Python module (python/)
+      python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
+      libopenmpi-dev openmpi-bin)  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
 for arg in "$@"; do
   case "$arg" in
     --bench) pkgs+=(libbenchmark-dev libsimbody-dev) ;;

@@ -32,6 +32,7 @@ fs::path short_copy() {
   fs::copy(kSource / "scenarios", dir, fs::copy_options::recursive);
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
     if (e.path().extension() != ".yaml") continue;
+    if (e.path().parent_path().filename() == "sweeps") continue;  // sweep files (docs/sweeps.md)
     const ukdyn::Scenario sc = ukdyn::load_scenario(e.path());
     const double span = std::min(sc.sim.t_end - sc.sim.t0, std::max(0.05, 3 * sc.sim.sample_dt));
     std::ostringstream t_end;
@@ -71,6 +72,7 @@ TEST(Reproducibility, EveryScenarioGivesTheSameBytesInTwoProcesses) {
   int scenarios = 0;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
     if (e.path().extension() != ".yaml") continue;
+    if (e.path().parent_path().filename() == "sweeps") continue;  // sweep files (docs/sweeps.md)
     ++scenarios;
     const ukdyn::Scenario sc = ukdyn::load_scenario(e.path());
     const std::string stem = fs::relative(e.path(), dir).replace_extension().string();

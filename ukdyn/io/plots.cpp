@@ -246,3 +246,75 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
 }
 
 }  // namespace ukdyn
+
+namespace ukdyn {
+
+// The private-folder steps of render_figures() for a script written elsewhere (sweep figures).
+FigureResult render_gnuplot_script(const OutputDir& out, const std::string& script,
+                                   const std::vector<std::string>& drawn,
+                                   const std::atomic<bool>* cancel) {
+  FigureResult res;
+  for (const auto& n : drawn) {
+    if (!ukdyn_figure_name(n)) throw OutputRefused("not a figure name: " + printable(n));
+  }
+  remove_previous_figures(out);
+  const int fig = out.open_subdir("figures");
+  try {
+    for (const auto& n : drawn) out.require_file_or_absent(fig, "figures/", n);
+    for (const char* n : {kScript, kLog, kManifest}) out.require_file_or_absent(fig, "figures/", n);
+  } catch (...) {
+    ::close(fig);
+    throw;
+  }
+  std::string priv_name;
+  int priv = -1;
+  std::vector<std::string> priv_files{kScript, kLog};
+  priv_files.insert(priv_files.end(), drawn.begin(), drawn.end());
+  try {
+    priv = out.make_private_dir(priv_name);
+    {
+      AtomicFile gp(out, priv, priv_name + "/", kScript);
+      gp.write(script);
+      gp.commit();
+    }
+    res.error = run_gnuplot(priv, cancel);
+    std::vector<std::string> moving;
+    for (const auto& n : drawn) {
+      if (is_regular(priv, n)) moving.push_back(n);
+    }
+    moving.push_back(kScript);
+    if (!res.error.empty() && is_regular(priv, kLog)) moving.push_back(kLog);
+    if (res.error.empty() && moving.size() != drawn.size() + 1) {
+      res.error = "gnuplot did not draw every figure";
+      if (is_regular(priv, kLog)) moving.push_back(kLog);
+    }
+    {
+      std::string list;
+      for (const auto& n : moving) list += n + "\n";
+      AtomicFile mf(out, fig, "figures/", kManifest);
+      mf.write(list);
+      mf.commit();
+    }
+    for (const auto& n : moving) {
+      out.require_file_or_absent(fig, "figures/", n);
+      if (::renameat(priv, n.c_str(), fig, n.c_str()) != 0) {
+        res.error = fmt::format("{}: cannot move into place: {}", out.display("figures/" + n),
+                                std::strerror(errno));
+        break;
+      }
+      if (n != kScript && n != kLog) res.written.push_back("figures/" + n);
+    }
+  } catch (const OutputRefused&) {
+    if (priv >= 0) out.remove_private_dir(priv, priv_name, priv_files);
+    ::close(fig);
+    throw;
+  } catch (const std::exception& e) {
+    res.error = e.what();
+  }
+  if (priv >= 0) out.remove_private_dir(priv, priv_name, priv_files);
+  ::close(fig);
+  out.sync();
+  return res;
+}
+
+}  // namespace ukdyn

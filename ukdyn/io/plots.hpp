@@ -46,3 +46,14 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
 void remove_previous_figures(const OutputDir& out);
 
 }  // namespace ukdyn
+
+namespace ukdyn {
+
+/// Runs a gnuplot script (every string in it a gnuplot_string literal; data read as "../NAME",
+/// i.e. from OUT) that draws the PNGs `files`, and moves them into OUT/figures as render_figures()
+/// does (listed in OUT/figures/.ukdyn-figures; the script kept as figures.gp). Used by sweeps.
+FigureResult render_gnuplot_script(const OutputDir& out, const std::string& script,
+                                   const std::vector<std::string>& files,
+                                   const std::atomic<bool>* cancel = nullptr);
+
+}  // namespace ukdyn

@@ -91,10 +91,24 @@ std::vector<Figure> default_figures(const Scenario& sc) {
 
 class Progress {
  public:
-  Progress(std::ostream* os, double t0, double t1) : os_(os), t0_(t0), t1_(t1) {}
+  Progress(std::ostream* os, double t0, double t1, bool lines = false, double every = 5.0)
+      : os_(os), t0_(t0), t1_(t1), lines_(lines), every_(every) {}
   void update(double t) {
     if (!os_) return;
     const auto now = std::chrono::steady_clock::now();
+    if (lines_) {  // not a terminal: a whole line every `every_` seconds, none for a short run
+      if (start_ == std::chrono::steady_clock::time_point{}) start_ = last_ = now;
+      if (std::chrono::duration<double>(now - last_).count() < every_) return;
+      last_ = now;
+      const double frac = std::clamp((t - t0_) / (t1_ - t0_), 0.0, 1.0);
+      const double el = std::chrono::duration<double>(now - start_).count();
+      const double eta = frac > 0.0 ? el * (1.0 - frac) / frac : 0.0;
+      *os_ << fmt::format(
+                  "ukdyn: t = {:.6g} s of {:.6g} s ({:.1f}%), {:.0f} s elapsed, ETA {:.0f} s\n", t,
+                  t1_, 100.0 * frac, el, eta)
+           << std::flush;
+      return;
+    }
     if (now - last_ < std::chrono::milliseconds(100) && t < t1_) return;
     last_ = now;
     const double frac = std::clamp((t - t0_) / (t1_ - t0_), 0.0, 1.0);
@@ -105,13 +119,15 @@ class Progress {
          << fmt::format("{:5.1f}%  t = {:.3f} s", 100.0 * frac, t) << std::flush;
   }
   void done() {
-    if (os_) *os_ << "\n" << std::flush;
+    if (os_ && !lines_) *os_ << "\n" << std::flush;
   }
 
  private:
   std::ostream* os_;
   double t0_, t1_;
-  std::chrono::steady_clock::time_point last_{};
+  bool lines_ = false;
+  double every_ = 5.0;
+  std::chrono::steady_clock::time_point last_{}, start_{};
 };
 
 constexpr const char* kSummary = "summary.json";
@@ -383,7 +399,8 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   } catch (const WriteFailed& e) {
     rep.write_error = e.what();
   }
-  Progress progress(options.progress, sc.sim.t0, sc.sim.t_end);
+  Progress progress(options.progress, sc.sim.t0, sc.sim.t_end, options.progress_lines,
+                    options.progress_every);
   const auto start = std::chrono::steady_clock::now();
   if (csv) {
     Observer observer{

@@ -19,6 +19,10 @@ const char* version();
 struct RunOptions {
   bool figures = true;
   std::ostream* progress = nullptr;  ///< a progress line is drawn here if set (a terminal)
+  /// progress is not a terminal: instead of a bar, one line every progress_every seconds of
+  /// wall time (none for a run shorter than that).
+  bool progress_lines = false;
+  double progress_every = 5.0;
   /// If set and it becomes true (e.g. from a SIGINT handler), the run stops after the current
   /// integration step and its results so far are kept (status `stopped`).
   const std::atomic<bool>* cancel = nullptr;

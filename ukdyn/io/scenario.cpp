@@ -324,6 +324,43 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
   if (system->dof() > kMaxDof) L.fail(subs, "too many coordinates");
 }
 
+// A list of n numbers, each a plain number (as everywhere) or an expression of numbers, pi, the
+// functions of docs/definitions.md and the names of initial.parameters / let: "sqrt(0.09)".
+Vec initial_vector(const Loader& L, const Node& n, Index expected,
+                   const symbolic::DefinitionScope& scope) {
+  if (!n.node.IsSequence())
+    L.fail(n, "expected a list of " + std::to_string(expected) + " numbers");
+  if (static_cast<Index>(n.node.size()) != expected) {
+    L.fail(n, "expected " + std::to_string(expected) + " numbers, got " +
+                  std::to_string(n.node.size()));
+  }
+  Vec v(expected);
+  for (Index i = 0; i < expected; ++i) {
+    const Node e{n.node[static_cast<std::size_t>(i)], n.key + "[" + std::to_string(i) + "]"};
+    double x = 0.0;
+    if (e.node.IsScalar() && Loader::parse_number(e.node.Scalar(), x)) {
+      v(i) = L.number(e);  // (the finite check and its message)
+      continue;
+    }
+    if (!e.node.IsScalar()) L.fail(e, "expected a number or an expression");
+    GiNaC::ex val;
+    try {
+      val = io_detail::parse_expression(L, scope, e).subs(scope.parameter_values()).evalf();
+    } catch (const ScenarioError&) {
+      throw;
+    } catch (const std::exception& ex) {  // GiNaC: 1/0, log(0)
+      L.fail(e, std::string("cannot evaluate: ") + ex.what());
+    }
+    if (!GiNaC::is_a<GiNaC::numeric>(val) || !GiNaC::ex_to<GiNaC::numeric>(val).is_real())
+      L.fail(e,
+             "expected a number: the expression must evaluate to a real number (it may use "
+             "numbers, pi, functions and the names of initial.parameters)");
+    v(i) = GiNaC::ex_to<GiNaC::numeric>(val).to_double();
+    if (!std::isfinite(v(i))) L.fail(e, "must be finite, got '" + e.node.Scalar() + "'");
+  }
+  return v;
+}
+
 // initial: q, qd, hold; then M(q0) positive definite for the definition-based subsystems.
 void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   const std::shared_ptr<System>& system = st.system;
@@ -331,13 +368,16 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
   const Index n = system->dof();
   st.init = L.child(root, "initial", true);
   const Node& init = st.init;
-  L.only_keys(init, {"q", "qd", "hold"});
-  sc.q0 = L.vector(L.child(init, "q", true), n);
+  L.only_keys(init, {"q", "qd", "hold", "parameters", "let"});
+  // initial.parameters / let: names for the expressions of q and qd (docs/scenario-format.md).
+  symbolic::DefinitionScope scope;
+  io_detail::load_parameters(L, init, scope);
+  sc.q0 = initial_vector(L, L.child(init, "q", true), n, scope);
   if (Node qd = L.child(init, "qd", false); qd.node.IsDefined()) {
     if (qd.node.IsScalar() && qd.node.Scalar() == "zeros") {
       sc.qd0 = Vec::Zero(n);
     } else {
-      sc.qd0 = L.vector(qd, n);
+      sc.qd0 = initial_vector(L, qd, n, scope);
     }
   } else {
     sc.qd0 = Vec::Zero(n);
