@@ -286,7 +286,24 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 
 struct DefinitionContext {
   std::map<std::string, sym::ChainModel> chains;
+  /// Per chain: (parent link, child link) of every joint and (link, point) of every named point,
+  /// for drawing (geometry.cpp).
+  std::map<std::string, std::vector<std::pair<std::string, std::string>>> edges;
 };
+
+const sym::ChainModel* chain_model(const DefinitionContext* context, const std::string& name) {
+  if (!context) return nullptr;
+  auto it = context->chains.find(name);
+  return it == context->chains.end() ? nullptr : &it->second;
+}
+
+std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
+                                                             const std::string& name) {
+  if (!context) return {};
+  auto it = context->edges.find(name);
+  return it == context->edges.end() ? std::vector<std::pair<std::string, std::string>>{}
+                                    : it->second;
+}
 
 std::shared_ptr<DefinitionContext> make_definition_context() {
   return std::make_shared<DefinitionContext>();
@@ -428,6 +445,14 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     sym::ChainModel model = sym::build_chain(*def);
     auto sub = sym::make_subsystem(model.def);
     context.chains.emplace(name, std::move(model));
+    // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
+    auto& edges = context.edges[name];
+    std::string last = def->base.enabled ? def->base.link : def->root_link;
+    for (const auto& j : def->joints) {
+      edges.emplace_back(j.parent.empty() ? last : j.parent, j.link);
+      last = j.link;
+    }
+    for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());

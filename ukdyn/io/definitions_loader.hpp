@@ -31,6 +31,11 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 /// What later constraints may refer to: the named points of serial chains, by subsystem name.
 struct DefinitionContext;
 std::shared_ptr<DefinitionContext> make_definition_context();
+/// The chain model of serial_chain subsystem `name` (null if none, or no context).
+const symbolic::ChainModel* chain_model(const DefinitionContext* context, const std::string& name);
+/// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.
+std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
+                                                             const std::string& name);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.
