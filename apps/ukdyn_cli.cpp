@@ -57,7 +57,7 @@ int write_replay_page(const ukdyn::Scenario& sc, const std::string& out, bool qu
     std::cout << fmt::format(
         "replay page:          {} ({:.2f} MB, {} frames{})\n", ukdyn::printable(r.file.string()),
         static_cast<double>(r.bytes) / 1e6, r.frames,
-        r.stride > 1 ? fmt::format(", every {}th of {} samples", r.stride, r.source_rows)
+        r.stride > 1 ? fmt::format(", 1 in {} of {} samples", r.stride, r.source_rows)
                      : std::string());
   }
   for (const auto& s : r.left_out) {

@@ -168,9 +168,21 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
 
 }  // namespace
 
+// What later constraints and the replay page (geometry.cpp) need of the subsystems loaded.
+struct DefinitionContext {
+  std::map<std::string, sym::ChainModel> chains;
+  /// Per chain: (parent link, child link) of every joint and (link, point) of every named point,
+  /// for drawing (geometry.cpp).
+  std::map<std::string, std::vector<std::pair<std::string, std::string>>> edges;
+  /// Per chain: the coordinates that are lengths (the base's x, y; prismatic joints'), in order.
+  std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
+  /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
+  std::map<std::string, std::vector<std::pair<std::string, sym::Vec3Ex>>> bodies;
+};
+
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity) {
+    const std::vector<std::string>& coordinates, double gravity, DefinitionContext* context) {
   L.only_keys(
       s, {"name", "type", "coordinates", "parameters", "let", "bodies", "gravity", "potential"});
   auto def = start_definition<sym::SubsystemDef>(L, s, name, coordinates, gravity);
@@ -211,7 +223,17 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
       body.rotation = parse_matrix(L, *def, r, false);
   }
   try {
-    return sym::make_subsystem(*def);
+    auto sub = sym::make_subsystem(*def);
+    if (context) {  // the bodies' CoMs, for drawing (geometry.cpp)
+      auto& list = context->bodies[name];
+      const GiNaC::exmap values = def->parameter_values();
+      for (const auto& b : def->bodies) {
+        list.push_back({b.name,
+                        {b.com[0].subs(values).expand(), b.com[1].subs(values).expand(),
+                         b.com[2].subs(values).expand()}});
+      }
+    }
+    return sub;
   } catch (const sym::DefinitionError& e) {
     if (e.body >= 0)
       L.fail(Node{bodies.node[static_cast<std::size_t>(e.body)],
@@ -284,12 +306,27 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 
 // ------------------------------------------------------------------------------ serial chains
 
-struct DefinitionContext {
-  std::map<std::string, sym::ChainModel> chains;
-  /// Per chain: (parent link, child link) of every joint and (link, point) of every named point,
-  /// for drawing (geometry.cpp).
-  std::map<std::string, std::vector<std::pair<std::string, std::string>>> edges;
-};
+std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
+    const DefinitionContext* context, const std::string& name) {
+  if (!context) return {};
+  auto it = context->bodies.find(name);
+  return it == context->bodies.end() ? std::vector<std::pair<std::string, symbolic::Vec3Ex>>{}
+                                     : it->second;
+}
+
+std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,
+                                                const std::string& name) {
+  if (!context) return {};
+  auto it = context->base_coordinates.find(name);
+  return it == context->base_coordinates.end() ? std::vector<std::string>{} : it->second;
+}
+
+std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
+                                                     const std::string& name) {
+  if (!context) return {};
+  auto it = context->prismatic_coordinates.find(name);
+  return it == context->prismatic_coordinates.end() ? std::vector<std::string>{} : it->second;
+}
 
 const sym::ChainModel* chain_model(const DefinitionContext* context, const std::string& name) {
   if (!context) return nullptr;
@@ -453,6 +490,11 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       last = j.link;
     }
     for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
+    if (def->base.enabled) context.base_coordinates[name] = {def->base.x, def->base.y};
+    for (const auto& j : def->joints) {
+      if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
+        context.prismatic_coordinates[name].push_back(j.coordinate);
+    }
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());

@@ -18,9 +18,12 @@ namespace ukdyn::io_detail {
 
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
+struct DefinitionContext;
+/// ... its bodies' CoMs are recorded in `context` if given (for the replay page).
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
-    const std::vector<std::string>& coordinates, double gravity);
+    const std::vector<std::string>& coordinates, double gravity,
+    DefinitionContext* context = nullptr);
 
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
 /// all coordinates in order.
@@ -36,6 +39,14 @@ const symbolic::ChainModel* chain_model(const DefinitionContext* context, const 
 /// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.
 std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
                                                              const std::string& name);
+/// The coordinates of its mobile base's x, y translation / of its prismatic joints (lengths, m).
+std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,
+                                                const std::string& name);
+std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
+                                                     const std::string& name);
+/// The bodies (name, CoM in the world) of definitions subsystem `name`.
+std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
+    const DefinitionContext* context, const std::string& name);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.

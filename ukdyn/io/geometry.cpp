@@ -119,6 +119,35 @@ void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel&
              });
 }
 
+// A definitions subsystem: the CoM of every body (no segments: the file says nothing of links).
+void add_bodies(Geometry& g, const std::string& name,
+                const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
+                const System& sys) {
+  namespace sym = symbolic;
+  sym::InputMap in;
+  const auto& coords = sys.coordinate_names();
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    in[sym::coordinate_symbol(coords[i])] = {sym::TapeInput::Source::q,
+                                             static_cast<std::int32_t>(i)};
+  }
+  std::vector<GeometryPoint> pts;
+  std::vector<GiNaC::ex> ex;
+  for (const auto& [bn, com] : bodies) {
+    pts.push_back({name + "." + bn, "com"});
+    for (const auto& e : com) ex.push_back(e);
+  }
+  auto tape = std::make_shared<const sym::Tape>(ex, in);
+  const std::size_t count = pts.size();
+  g.add_part(std::move(pts), {},
+             [tape, count](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+               std::vector<double> v(3 * count);
+               tape->eval(0.0, q.data(), nullptr, v.data());
+               for (std::size_t k = 0; k < count; ++k) {
+                 out[first + k] = Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+               }
+             });
+}
+
 }  // namespace
 
 Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) {
@@ -131,6 +160,9 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
       add_mobile_manipulator(g, info.name, arm, info.offset);
     } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
       add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
+    } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
+               !bodies.empty()) {
+      add_bodies(g, info.name, bodies, sys);
     } else if (left_out) {
       left_out->push_back(info.name);
     }

@@ -215,7 +215,8 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
         arms[name] = {arm, system->dof()};
         sub = arm;
       } else if (type == "definitions") {  // docs/definitions.md
-        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity);
+        sub = io_detail::load_definitions_subsystem(L, s, name, names, gravity,
+                                                    definition_context.get());
       } else if (type == "serial_chain") {  // docs/definitions.md
         sub = io_detail::load_chain_subsystem(L, s, name, names, gravity, *definition_context);
       } else {

@@ -23,11 +23,11 @@ std::size_t count_csv_rows(const std::filesystem::path& csv);
 /// naming file:line for a row that is not `header.size()` numbers.
 TrajectoryTable read_trajectory(const std::filesystem::path& csv, std::size_t stride = 1);
 
-/// At most about 2·buckets rows: the rows split by index into `buckets` runs of consecutive rows;
-/// each run gives two rows, at its first and last time (column 0), holding for every other column
-/// its minimum and maximum over the run in the order they occur (so a curve drawn through them
-/// reaches every extreme of the original, within one bucket in time). Files with at most
-/// 2·buckets rows are returned whole.
+/// At most about 2·buckets rows (after [Jugel2014]'s M4, without its first/last rows): the rows
+/// split by index into `buckets` runs of consecutive rows; each run gives two rows, at its first
+/// and last time (column 0), holding for every other column its minimum and maximum over the run in
+/// the order they occur (so a curve drawn through them reaches every extreme of the original,
+/// within one bucket in time). Files with at most 2·buckets rows are returned whole.
 TrajectoryTable read_trajectory_minmax(const std::filesystem::path& csv, std::size_t buckets);
 
 }  // namespace ukdyn

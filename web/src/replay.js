@@ -14,7 +14,7 @@ const plots = [];
 
 $('name').textContent = D.name;
 $('info').textContent = `${D.scenario} · t ∈ [${D.t[0]}, ${D.t[frames - 1]}] s · ${frames} frames` +
-  (D.stride > 1 ? ` (every ${D.stride}th of ${D.source_rows} samples)` : '') + ` · status ${D.status}`;
+  (D.stride > 1 ? ` (1 in ${D.stride} of ${D.source_rows} samples)` : '') + ` · status ${D.status}`;
 if (D.left_out && D.left_out.length) $('note').textContent = `not drawn: ${D.left_out.join(', ')}`;
 
 // ---- scene (world frame of the simulation: z up)
