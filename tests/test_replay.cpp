@@ -192,7 +192,7 @@ TEST(Figures, LongRunsAreDrawnFromADecimatedCopyKeepingTheExtremes) {
     const TrajectoryTable dec = read_trajectory(copy);
     EXPECT_EQ(full.rows.size(), 6001u);
     EXPECT_LE(dec.rows.size(), 2 * kFigureBuckets);
-    for (const char* c : {"x", "y", "E", "res_rod"}) {
+    for (const char* c : {"x", "y", "E", "res_rod_length"}) {
       const auto ci = static_cast<std::size_t>(
           std::find(full.header.begin(), full.header.end(), c) - full.header.begin());
       const auto di = static_cast<std::size_t>(std::find(dec.header.begin(), dec.header.end(), c) -
