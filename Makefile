@@ -20,8 +20,9 @@ configure: deps
 build: configure
 	@cmake --build $(BUILD_DIR) -j $(JOBS)
 
+# Also OUT/replay.html, the run in 3D (docs/replay.md): open it in a browser.
 run: build
-	$(BUILD_DIR)/ukdyn simulate $(SCENARIO) --out $(OUT)
+	$(BUILD_DIR)/ukdyn simulate $(SCENARIO) --out $(OUT) --html
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)

@@ -1,6 +1,7 @@
 // ukdyn: command-line front end. Holds no physics and no report formatting: it parses arguments
 // and calls ukdyn::io.
-//   ukdyn simulate SCENARIO [--out DIR] [--no-figures] [--quiet] [--assemble]
+//   ukdyn simulate SCENARIO [--out DIR] [--no-figures] [--quiet] [--assemble] [--html]
+//   ukdyn replay OUT_DIR [--scenario FILE]   (OUT_DIR/replay.html, the run in 3D: docs/replay.md)
 //   ukdyn assemble SCENARIO
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
@@ -19,12 +20,15 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "apps/sweep_mpi.hpp"
 #include "ukdyn/io/eval_protocol.hpp"
+#include "ukdyn/io/replay.hpp"
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/safe_text.hpp"
 #include "ukdyn/io/scenario_file.hpp"
@@ -111,6 +115,41 @@ int cmd_sweep(const SweepArgs& a, bool merge, int* argc, char*** argv) {
   return 0;
 }
 
+// OUT/replay.html of a run: the page's size on stdout (unless quiet).
+int write_replay_page(const ukdyn::Scenario& sc, const std::string& out, bool quiet,
+                      const std::string& status) {
+  ukdyn::ReplayOptions ro;
+  ro.status = status;
+  const auto r = ukdyn::write_replay(sc, out, ro);
+  if (!quiet) {
+    std::cout << fmt::format(
+        "replay page:          {} ({:.2f} MB, {} frames{})\n", ukdyn::printable(r.file.string()),
+        static_cast<double>(r.bytes) / 1e6, r.frames,
+        r.stride > 1 ? fmt::format(", 1 in {} of {} samples", r.stride, r.source_rows)
+                     : std::string());
+  }
+  for (const auto& s : r.left_out) {
+    std::cerr << "ukdyn: note: replay: subsystem '" << ukdyn::printable(s)
+              << "' is not drawn (no geometry)\n";
+  }
+  return 0;
+}
+
+// The scenario of an output folder: --scenario, else the path its summary.json names.
+std::string scenario_of(const std::string& out_dir) {
+  const std::string summary = out_dir + "/summary.json";
+  std::ifstream in(summary);
+  if (!in) throw ukdyn::Error(summary + ": cannot open (give the scenario with --scenario)");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(in);
+    return j.at("scenario").at("path").get<std::string>();
+  } catch (const std::exception& e) {
+    throw ukdyn::Error(summary + ": no scenario.path (" + e.what() +
+                       "); give the scenario with --scenario");
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -139,6 +178,16 @@ int main(int argc, char** argv) {
   sim->add_flag(
       "--assemble", do_assemble,
       "first move q0, qd0 onto the constraints (holding initial.hold), as `assemble` does");
+  bool html = false;
+  sim->add_flag("--html", html, "also write OUT/replay.html, the run in 3D (docs/replay.md)");
+
+  std::string replay_dir, replay_scenario;
+  auto* rpl = app.add_subcommand(
+      "replay", "Write OUT_DIR/replay.html: the run of OUT_DIR in 3D, one self-contained page");
+  rpl->add_option("out_dir", replay_dir, "output folder of a run (trajectory.csv)")->required();
+  rpl->add_option("--scenario,-s", replay_scenario,
+                  "its scenario (default: the path in OUT_DIR/summary.json)");
+  rpl->add_flag("--quiet,-q", quiet, "print nothing but errors");
 
   auto* asmb = app.add_subcommand(
       "assemble", "Find the consistent (q0, qd0) nearest to the scenario's guess and report it");
@@ -195,6 +244,27 @@ int main(int argc, char** argv) {
 
   try {
     if (*swp) return cmd_sweep(sa, mrg->parsed(), &argc, &argv);
+    if (*rpl) {
+      if (!ukdyn::replay_available()) {
+        throw ukdyn::Error(
+            "ukdyn replay: this ukdyn was built without three.js (web/node_modules/three was "
+            "missing when it was configured): run `npm ci` in web/ (scripts/install-deps.sh does) "
+            "and rebuild");
+      }
+      const std::string file = replay_scenario.empty() ? scenario_of(replay_dir) : replay_scenario;
+      const ukdyn::Scenario sc = ukdyn::load_scenario_file(file);
+      std::string status = "unknown";
+      if (std::ifstream in(replay_dir + "/summary.json"); in) {
+        const auto j = nlohmann::json::parse(in, nullptr, false);
+        if (j.is_object() && j.contains("status") && j["status"].is_string()) status = j["status"];
+        if (j.is_object() && j.contains("scenario") && j["scenario"].is_object() &&
+            j["scenario"].value("hash_fnv1a64", sc.hash) != sc.hash) {
+          std::cerr << "ukdyn: warning: " << ukdyn::printable(file)
+                    << " changed since the run (its hash differs from summary.json's)\n";
+        }
+      }
+      return write_replay_page(sc, replay_dir, quiet, status);
+    }
     const bool assembling = *asmb || (*sim && do_assemble);
     ukdyn::LoadOptions lopt;
     lopt.check_initial = !assembling;
@@ -209,7 +279,22 @@ int main(int argc, char** argv) {
       sc.q0 = a.q;
       sc.qd0 = a.qd;
     }
-    if (*sim) return cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+    if (*sim) {
+      if (html && !ukdyn::replay_available()) {  // said before the run, not after it
+        ukdyn::write_replay(sc, out);            // throws the message: how to get three.js
+      }
+      const int rc = cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+      if (!html) return rc;
+      try {
+        write_replay_page(sc, out, quiet, rc == 0 ? "complete" : "incomplete");
+      } catch (const ukdyn::OutputRefused&) {
+        throw;
+      } catch (const std::exception& e) {
+        std::cerr << "ukdyn: error: replay page: " << ukdyn::printable(e.what(), true) << "\n";
+        return rc == 0 ? 1 : rc;
+      }
+      return rc;
+    }
     if (*ev) {
       const auto counts = ukdyn::run_eval_protocol(sc, std::cin, std::cout, &std::cerr);
       return counts.failures == 0 ? 0 : 1;

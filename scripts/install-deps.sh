@@ -9,7 +9,8 @@ pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcl
       libginac-dev liburdfdom-dev libsundials-dev
       libmujoco-dev                                  # MJCF files (ukdyn/symbolic/mjcf.hpp)
       python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
-      libopenmpi-dev openmpi-bin)  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
+      libopenmpi-dev openmpi-bin  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
+      nodejs chromium)  # the replay page: three.js from npm (web/), its browser test
 for arg in "$@"; do
   case "$arg" in
     --bench) pkgs+=(libbenchmark-dev libsimbody-dev) ;;
@@ -20,12 +21,28 @@ missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-if ((${#missing[@]} == 0)); then
-  exit 0
+if ((${#missing[@]} > 0)); then
+  echo "install-deps: installing ${missing[*]}" >&2
+  SUDO=""
+  if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
-echo "install-deps: installing ${missing[*]}" >&2
-SUDO=""
-if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+
+# web/: three.js (inlined into the replay page at build time) and playwright-core (its browser
+# test), pinned by web/package-lock.json; `npm ci` only when node_modules is missing or older than
+# the lock file. A failure here is a warning: the build stays green without them (docs/replay.md).
+if ! command -v npm >/dev/null; then  # Debian's nodejs comes without npm (NodeSource's has it)
+  SUDO=""
+  if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
+  $SUDO apt-get install -y -qq --no-install-recommends npm ||
+    echo "install-deps: warning: cannot install npm" >&2
+fi
+web="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)/web"
+stamp="$web/node_modules/.package-lock.json"
+if command -v npm >/dev/null && { [[ ! -f $stamp ]] || [[ $web/package-lock.json -nt $stamp ]]; }; then
+  echo "install-deps: npm ci in $web" >&2
+  (cd "$web" && npm ci --no-audit --no-fund --loglevel=error) ||
+    echo "install-deps: warning: npm ci failed: the replay page and its test are left out" >&2
+fi

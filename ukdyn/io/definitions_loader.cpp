@@ -193,9 +193,17 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
 
 }  // namespace
 
+// What later constraints and the replay page (geometry.cpp) need of the subsystems loaded.
 struct DefinitionContext {
   std::map<std::string, sym::ChainModel> chains;
   sym::FrameTable frames;  // docs/frame-constraints.md
+  /// Per chain: (parent link, child link) of every joint and (link, point) of every named point,
+  /// for drawing (geometry.cpp).
+  std::map<std::string, std::vector<std::pair<std::string, std::string>>> edges;
+  /// Per chain: the coordinates that are lengths (the base's x, y; prismatic joints'), in order.
+  std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
+  /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
+  std::map<std::string, std::vector<std::pair<std::string, sym::Vec3Ex>>> bodies;
 };
 
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
@@ -243,7 +251,16 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   }
   try {
     auto sub = sym::make_subsystem(*def);
-    if (context != nullptr) context->frames.add_bodies(*def);  // frame constraints
+    if (context) {
+      context->frames.add_bodies(*def);  // frame constraints
+      auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
+      const GiNaC::exmap values = def->parameter_values();
+      for (const auto& b : def->bodies) {
+        list.push_back({b.name,
+                        {b.com[0].subs(values).expand(), b.com[1].subs(values).expand(),
+                         b.com[2].subs(values).expand()}});
+      }
+    }
     return sub;
   } catch (const sym::DefinitionError& e) {
     if (e.body >= 0)
@@ -360,6 +377,42 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 }
 
 // ------------------------------------------------------------------------------ serial chains
+
+std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
+    const DefinitionContext* context, const std::string& name) {
+  if (!context) return {};
+  auto it = context->bodies.find(name);
+  return it == context->bodies.end() ? std::vector<std::pair<std::string, symbolic::Vec3Ex>>{}
+                                     : it->second;
+}
+
+std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,
+                                                const std::string& name) {
+  if (!context) return {};
+  auto it = context->base_coordinates.find(name);
+  return it == context->base_coordinates.end() ? std::vector<std::string>{} : it->second;
+}
+
+std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
+                                                     const std::string& name) {
+  if (!context) return {};
+  auto it = context->prismatic_coordinates.find(name);
+  return it == context->prismatic_coordinates.end() ? std::vector<std::string>{} : it->second;
+}
+
+const sym::ChainModel* chain_model(const DefinitionContext* context, const std::string& name) {
+  if (!context) return nullptr;
+  auto it = context->chains.find(name);
+  return it == context->chains.end() ? nullptr : &it->second;
+}
+
+std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
+                                                             const std::string& name) {
+  if (!context) return {};
+  auto it = context->edges.find(name);
+  return it == context->edges.end() ? std::vector<std::pair<std::string, std::string>>{}
+                                    : it->second;
+}
 
 std::shared_ptr<DefinitionContext> make_definition_context() {
   return std::make_shared<DefinitionContext>();
@@ -523,6 +576,19 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     auto sub = sym::make_subsystem(model.def);
     context.frames.add_chain(name, model, def.get());  // frame constraints
     context.chains.emplace(name, std::move(model));
+    // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
+    auto& edges = context.edges[name];
+    std::string last = def->base.enabled ? def->base.link : def->root_link;
+    for (const auto& j : def->joints) {
+      edges.emplace_back(j.parent.empty() ? last : j.parent, j.link);
+      last = j.link;
+    }
+    for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
+    if (def->base.enabled) context.base_coordinates[name] = {def->base.x, def->base.y};
+    for (const auto& j : def->joints) {
+      if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
+        context.prismatic_coordinates[name].push_back(j.coordinate);
+    }
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());

@@ -32,6 +32,8 @@ struct DefinitionContext;  // below
 
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
+struct DefinitionContext;
+/// ... its bodies' CoMs are recorded in `context` if given (for the replay page).
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
     const std::vector<std::string>& coordinates, double gravity,
@@ -56,6 +58,19 @@ struct DefinitionContext;
 std::shared_ptr<DefinitionContext> make_definition_context();
 /// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
 const symbolic::FrameTable& frames_of(const DefinitionContext& context);
+/// The chain model of serial_chain subsystem `name` (null if none, or no context).
+const symbolic::ChainModel* chain_model(const DefinitionContext* context, const std::string& name);
+/// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.
+std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
+                                                             const std::string& name);
+/// The coordinates of its mobile base's x, y translation / of its prismatic joints (lengths, m).
+std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,
+                                                const std::string& name);
+std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
+                                                     const std::string& name);
+/// The bodies (name, CoM in the world) of definitions subsystem `name`.
+std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
+    const DefinitionContext* context, const std::string& name);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.

@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "ukdyn/io/safe_text.hpp"
+#include "ukdyn/io/trajectory_table.hpp"
 
 extern char** environ;  // NOLINT: POSIX, for posix_spawnp
 
@@ -26,10 +27,12 @@ namespace {
 constexpr const char* kManifest = ".ukdyn-figures";
 constexpr const char* kScript = "figures.gp";
 constexpr const char* kLog = "gnuplot.log";
+/// The figures' copy of a long run's CSV, decimated (decimated_copy()).
+constexpr const char* kData = "figures_data.csv";
 
 // A name ukdyn itself could have given a figure file (file_stem + ".png"), or the script or log.
 bool ukdyn_figure_name(const std::string& n) {
-  if (n == kScript || n == kLog) return true;
+  if (n == kScript || n == kLog || n == kData) return true;
   if (n.size() < 5 || n.size() > 80 || n.front() == '.' || n.substr(n.size() - 4) != ".png") {
     return false;
   }
@@ -52,7 +55,8 @@ std::vector<std::string> file_names(const std::vector<Figure>& figures) {
   return names;
 }
 
-std::string script_text(const std::string& csv_name, const std::vector<std::string>& header,
+// `data`: the CSV as gnuplot reads it from OUT/figures ("../trajectory.csv", or kData).
+std::string script_text(const std::string& data_file, const std::vector<std::string>& header,
                         const std::vector<Figure>& figures, const std::vector<std::string>& files,
                         std::vector<std::string>& drawn) {
   std::string gp;
@@ -62,7 +66,7 @@ std::string script_text(const std::string& csv_name, const std::vector<std::stri
   gp += "set terminal pngcairo size 1000,600 enhanced font 'sans,11'\n";
   gp += "set grid\nset key outside right top noenhanced\nset xlabel 't [s]'\n";
   gp += "set format y '%g'\n";
-  const std::string data = gnuplot_string("../" + csv_name);
+  const std::string data = gnuplot_string(data_file);
   for (std::size_t i = 0; i < figures.size(); ++i) {
     const Figure& f = figures[i];
     std::vector<std::size_t> idx;
@@ -126,6 +130,45 @@ std::string run_gnuplot(int dir_fd, const std::atomic<bool>* cancel) {
                            : fmt::format("gnuplot killed by signal {}", WTERMSIG(status));
 }
 
+// For a run of more than kDecimateAbove rows: the columns the figures use, min/max decimated to
+// kFigureBuckets buckets (at most 2 rows each; every extreme of every curve kept, see
+// read_trajectory_minmax), as CSV text with its header in `header`. Empty for a shorter run.
+std::string decimated_copy(const std::filesystem::path& csv, const std::vector<Figure>& figures,
+                           std::vector<std::string>& header, std::string& note) {
+  const std::size_t rows = count_csv_rows(csv);
+  if (rows <= kDecimateAbove) return {};
+  const TrajectoryTable tab = read_trajectory_minmax(csv, kFigureBuckets);
+  std::vector<std::size_t> keep{0};
+  for (std::size_t c = 1; c < tab.header.size(); ++c) {
+    for (const auto& f : figures) {
+      if (std::find(f.columns.begin(), f.columns.end(), tab.header[c]) != f.columns.end()) {
+        keep.push_back(c);
+        break;
+      }
+    }
+  }
+  std::string text;
+  header.clear();
+  for (std::size_t k = 0; k < keep.size(); ++k) {
+    header.push_back(tab.header[keep[k]]);
+    text += (k ? "," : "") + tab.header[keep[k]];
+  }
+  text += '\n';
+  for (const auto& r : tab.rows) {
+    for (std::size_t k = 0; k < keep.size(); ++k) {
+      if (k) text += ',';
+      fmt::format_to(std::back_inserter(text), "{:.17g}", r[keep[k]]);
+    }
+    text += '\n';
+  }
+  note = fmt::format(
+      "figures drawn from {} rows of {} (per column the minimum and maximum of each run of "
+      "{:.3g} samples: figures/{})",
+      tab.rows.size(), rows, static_cast<double>(rows) / static_cast<double>(kFigureBuckets),
+      kData);
+  return text;
+}
+
 bool is_regular(int dir_fd, const std::string& name) {
   struct stat st {};
   return ::fstatat(dir_fd, name.c_str(), &st, AT_SYMLINK_NOFOLLOW) == 0 && S_ISREG(st.st_mode);
@@ -180,19 +223,31 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
   FigureResult res;
   const std::vector<std::string> files = file_names(figures);
   std::vector<std::string> drawn;
-  const std::string script = script_text(csv_name, header, figures, files, drawn);
+  // A long run: gnuplot reads a decimated copy (a 3000 s run at 100 Hz took it ~100 s whole).
+  std::vector<std::string> data_header = header;
+  std::string data;
+  try {
+    data = decimated_copy(out.path() / csv_name, figures, data_header, res.note);
+  } catch (const Error& e) {
+    res.error = e.what();
+    return res;
+  }
+  const std::string script =
+      script_text(data.empty() ? "../" + csv_name : kData, data_header, figures, files, drawn);
   const int fig = out.open_subdir("figures");
   // Every name to be written in figures/ must be free or a regular file (ukdyn's own, earlier).
   try {
     for (const auto& n : drawn) out.require_file_or_absent(fig, "figures/", n);
-    for (const char* n : {kScript, kLog, kManifest}) out.require_file_or_absent(fig, "figures/", n);
+    for (const char* n : {kScript, kLog, kManifest, kData}) {
+      out.require_file_or_absent(fig, "figures/", n);
+    }
   } catch (...) {
     ::close(fig);
     throw;
   }
   std::string priv_name;
   int priv = -1;
-  std::vector<std::string> priv_files{kScript, kLog};
+  std::vector<std::string> priv_files{kScript, kLog, kData};
   priv_files.insert(priv_files.end(), drawn.begin(), drawn.end());
   try {
     priv = out.make_private_dir(priv_name);
@@ -201,14 +256,20 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
       gp.write(script);
       gp.commit();
     }
+    if (!data.empty()) {
+      AtomicFile dc(out, priv, priv_name + "/", kData);
+      dc.write(data);
+      dc.commit();
+    }
     res.error = run_gnuplot(priv, cancel);
     std::vector<std::string> moving;
     for (const auto& n : drawn) {
       if (is_regular(priv, n)) moving.push_back(n);
     }
     moving.push_back(kScript);
+    if (!data.empty()) moving.push_back(kData);
     if (!res.error.empty() && is_regular(priv, kLog)) moving.push_back(kLog);
-    if (res.error.empty() && moving.size() != drawn.size() + 1) {
+    if (res.error.empty() && moving.size() != drawn.size() + 1 + (data.empty() ? 0 : 1)) {
       res.error = "gnuplot did not draw every figure";
       if (is_regular(priv, kLog)) moving.push_back(kLog);
     }
@@ -227,7 +288,7 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
                                 std::strerror(errno));
         break;
       }
-      if (n != kScript && n != kLog) res.written.push_back("figures/" + n);
+      if (n != kScript && n != kLog && n != kData) res.written.push_back("figures/" + n);
     }
     if (!res.error.empty() && std::find(moving.begin(), moving.end(), kLog) != moving.end()) {
       res.error += "; see " + out.display(std::string("figures/") + kLog);

@@ -27,9 +27,16 @@ inline constexpr std::size_t kMaxSeriesPerFigure = 12;
 /// Cuts `figures` to the limits above; says what was left out in `notes` (one line each).
 void cap_figures(std::vector<Figure>& figures, std::vector<std::string>& notes);
 
+/// A run of more rows than this is drawn from a decimated copy (OUT/figures/figures_data.csv):
+/// per column the minimum and maximum of each of kFigureBuckets runs of consecutive samples, so
+/// every extreme of every curve is kept (the figures are 1000 pixels wide).
+inline constexpr std::size_t kDecimateAbove = 4000;
+inline constexpr std::size_t kFigureBuckets = 2000;
+
 struct FigureResult {
   std::vector<std::string> written;  ///< relative to OUT, e.g. "figures/energy.png"
   std::string error;                 ///< empty if gnuplot drew everything
+  std::string note;                  ///< drawn from a decimated copy: how (else empty)
 };
 
 /// Draws the figures from OUT/<csv_name> into OUT/figures, with the gnuplot script beside them

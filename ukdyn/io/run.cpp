@@ -11,7 +11,9 @@
 
 #include "ukdyn/io/constraint_force_output.hpp"
 #include "ukdyn/io/csv_writer.hpp"
+#include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/plots.hpp"
+#include "ukdyn/io/replay.hpp"
 #include "ukdyn/io/safe_text.hpp"
 
 #ifndef UKDYN_VERSION
@@ -67,21 +69,38 @@ std::vector<Figure> default_figures(const Scenario& sc) {
       plat.columns.push_back(sys.coordinate_names()[static_cast<std::size_t>(s.offset)]);
       plat.columns.push_back(sys.coordinate_names()[static_cast<std::size_t>(s.offset + 1)]);
     }
+    // A serial chain's mobile base: its x, y translation (metres) here, not among the angles.
+    for (const auto& c : io_detail::chain_base_coordinates(sc.definitions.get(), s.name)) {
+      plat.columns.push_back(c);
+    }
   }
   if (!plat.columns.empty()) figs.push_back(plat);
   // Joint angles per subsystem (paper Fig. 6), constraint forces, accelerations.
   for (const auto& s : sc.subsystems) {
-    Figure ang{"angles_" + s.name + ".png", "Joint angles of '" + s.name + "'", "[rad]", {}};
+    // Units: a mobile_manipulator's angles and a chain's revolute joints are rad; a chain's
+    // prismatic joints are m; a definitions subsystem's coordinates may be either.
+    const auto base = io_detail::chain_base_coordinates(sc.definitions.get(), s.name);
+    const auto prismatic = io_detail::chain_prismatic_coordinates(sc.definitions.get(), s.name);
+    const bool chain = s.type == "serial_chain";
+    Figure ang{
+        "angles_" + s.name + ".png",
+        (chain || s.type == "mobile_manipulator" ? "Joint angles of '" : "Coordinates of '") +
+            s.name + "'" + (prismatic.empty() ? "" : " (prismatic joints in m)"),
+        chain || s.type == "mobile_manipulator" ? (prismatic.empty() ? "[rad]" : "[rad or m]")
+                                                : "[m or rad]",
+        {}};
     Figure qc{"constraint_force_" + s.name + ".png",
               "Constraint force Qc on '" + s.name + "'",
               "Qc [N or N·m]",
               {}};
     for (Index j = 0; j < s.dof; ++j) {
       const auto& nm = sys.coordinate_names()[static_cast<std::size_t>(s.offset + j)];
-      if (s.type != "mobile_manipulator" || j >= 2) ang.columns.push_back(nm);
+      const bool platform = (s.type == "mobile_manipulator" && j < 2) ||
+                            std::find(base.begin(), base.end(), nm) != base.end();
+      if (!platform) ang.columns.push_back(nm);
       qc.columns.push_back("Qc_" + nm);
     }
-    figs.push_back(ang);
+    if (!ang.columns.empty()) figs.push_back(ang);
     figs.push_back(qc);
   }
   figs.push_back(
@@ -268,14 +287,17 @@ struct Observer {
 // only regular files under ukdyn's own names are removed.
 void clear_previous_outputs(const OutputDir& out) {
   const std::string incomplete = CsvWriter::incomplete_name(kCsv);
-  for (const std::string& f : {std::string(kSummary), std::string(kSummary) + ".part",
-                               std::string(kCsv), std::string(kCsv) + ".part", incomplete}) {
+  for (const std::string& f :
+       {std::string(kSummary), std::string(kSummary) + ".part", std::string(kCsv),
+        std::string(kCsv) + ".part", incomplete, std::string(kReplayFile)}) {
     out.require_file_or_absent(out.fd(), "", f);
   }
   if (const int figures = out.open_subdir("figures", false); figures >= 0) {
     ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
   }
-  for (const std::string& f : {std::string(kSummary), std::string(kCsv), incomplete}) {
+  // (replay.html too: a page of the previous run; simulate --html writes this run's afterwards)
+  for (const std::string& f :
+       {std::string(kSummary), std::string(kCsv), incomplete, std::string(kReplayFile)}) {
     out.remove_file(out.fd(), f);
   }
   remove_previous_figures(out);
@@ -476,10 +498,24 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                       wrench ? "[N or N·m]" : "[N or N·m]", cols});
     }
     cap_figures(figs, rep.figure_notes);
+    // Said before and after: drawing a long run's figures takes seconds (no silent wait).
+    const auto drawing = std::chrono::steady_clock::now();
+    if (options.progress) {
+      *options.progress << fmt::format("drawing {} figures (gnuplot) ...\n", figs.size())
+                        << std::flush;
+    }
     try {
       const FigureResult fr = render_figures(out, kCsv, header, figs, options.cancel);
       for (const auto& f : fr.written) rep.figures.push_back(out_dir / f);
       rep.figure_error = fr.error;
+      if (!fr.note.empty()) rep.figure_notes.push_back(fr.note);
+      if (options.progress) {
+        *options.progress << fmt::format("drew {} figures in {:.1f} s\n", fr.written.size(),
+                                         std::chrono::duration<double>(
+                                             std::chrono::steady_clock::now() - drawing)
+                                             .count())
+                          << std::flush;
+      }
     } catch (const Error& e) {
       rep.figure_error = e.what();
     }

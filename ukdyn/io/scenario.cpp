@@ -753,6 +753,7 @@ Scenario load_scenario_unguarded(const std::string& text, const std::filesystem:
   const double gravity = load_header(L, root, sc);
   Loading st;
   load_subsystems(L, root, gravity, sc, st);
+  sc.definitions = st.definition_context;
   load_initial(L, root, sc, st);
   load_constraints(L, root, sc, st);
   const bool applied = load_forces(L, root, sc, st);

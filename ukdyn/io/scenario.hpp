@@ -12,6 +12,10 @@
 
 namespace ukdyn {
 
+namespace io_detail {
+struct DefinitionContext;
+}
+
 /// An error in a scenario file; what() reads "FILE:LINE:COL: key 'KEY': message".
 class ScenarioError : public Error {
  public:
@@ -36,6 +40,9 @@ struct Scenario {
   SimulationSettings sim;
   double initial_tolerance = 1e-9;  ///< |Φ(q0, t0)| and |Φ̇(q0, q̇0, t0)| must stay under this
   std::vector<bool> held;           ///< coordinates kept fixed by assembly (initial.hold)
+  /// The serial chains' link poses and points, as loaded (what the replay page draws:
+  /// io/geometry.hpp). Internal to ukdyn::io.
+  std::shared_ptr<const io_detail::DefinitionContext> definitions;
 };
 
 struct LoadOptions {

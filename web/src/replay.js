@@ -1,0 +1,273 @@
+// ukdyn replay page (docs/replay.md). Data: the JSON block #ukdyn-data written by `ukdyn replay`:
+//   t[frames], points[{name, kind}], segments[[a, b, kind]], pos[frames][3·points] (world, z up),
+//   columns{name: values[frames]}, groups{title: [column names]}.
+// Test hook: window.ukdyn (setFrame, setTime, markerOnly, project, ready).
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const D = JSON.parse(document.getElementById('ukdyn-data').textContent);
+const frames = D.t.length;
+const np = D.points.length;
+const $ = (id) => document.getElementById(id);
+let frame = 0, playing = false, dirty = true, tPlay = D.t[0], last = null;
+const plots = [];
+
+$('name').textContent = D.name;
+$('info').textContent = `${D.scenario} · t ∈ [${D.t[0]}, ${D.t[frames - 1]}] s · ${frames} frames` +
+  (D.stride > 1 ? ` (1 in ${D.stride} of ${D.source_rows} samples)` : '') + ` · status ${D.status}`;
+if (D.left_out && D.left_out.length) $('note').textContent = `not drawn: ${D.left_out.join(', ')}`;
+
+// ---- scene (world frame of the simulation: z up)
+const view = $('view');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(1);
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+const background = new THREE.Color(0xffffff);
+scene.background = background;
+const camera = new THREE.PerspectiveCamera(45, 1, 0.01, 1000);
+camera.up.set(0, 0, 1);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.addEventListener('change', () => { dirty = true; });
+const world = new THREE.Group();
+scene.add(world);
+world.add(new THREE.HemisphereLight(0xffffff, 0x8090a0, 2.2));
+const sun = new THREE.DirectionalLight(0xffffff, 1.2);
+sun.position.set(3, -4, 6);
+world.add(sun);
+
+// Bounding box of every point over the run: sizes and the initial view.
+const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+for (const p of D.pos) for (let i = 0; i < p.length; i++) {
+  const v = p[i];
+  if (v === null || !isFinite(v)) continue;
+  lo[i % 3] = Math.min(lo[i % 3], v); hi[i % 3] = Math.max(hi[i % 3], v);
+}
+if (!isFinite(lo[0])) { lo.fill(-1); hi.fill(1); }
+const extent = Math.max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 0.5);
+const centre = new THREE.Vector3((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2);
+const r = extent * 0.012 + 0.01;  // joint sphere radius
+
+const grid = new THREE.GridHelper(Math.ceil(extent * 2 + 2), Math.ceil(extent * 2 + 2), 0x90a4ae, 0xcfd8dc);
+grid.rotation.x = Math.PI / 2;
+grid.position.set(Math.round(centre.x), Math.round(centre.y), Math.min(0, lo[2]) - 0.001);
+world.add(grid);
+world.add(new THREE.AxesHelper(extent * 0.15));
+
+const colours = { platform: 0x546e7a, joint: 0x37474f, cut: 0xd32f2f, grasp: 0x2e7d32, com: 0x8e24aa, point: 0x1565c0 };
+const segColours = { link: 0x78909c, load: 0xef6c00, base: 0x455a64 };
+const sphere = new THREE.SphereGeometry(1, 20, 14);
+const cylinder = new THREE.CylinderGeometry(1, 1, 1, 16);
+const box = new THREE.BoxGeometry(1, 1, 1);
+const pointMeshes = D.points.map((p) => {
+  let m;
+  if (p.kind === 'platform') {
+    m = new THREE.Mesh(box, new THREE.MeshStandardMaterial({ color: colours.platform }));
+    m.scale.set(extent * 0.25, extent * 0.17, extent * 0.04);
+  } else {
+    m = new THREE.Mesh(sphere, new THREE.MeshStandardMaterial({ color: colours[p.kind] ?? colours.point }));
+    const s = p.kind === 'cut' || p.kind === 'grasp' ? 1.6 : p.kind === 'com' ? 0.8 : 1.2;
+    m.scale.setScalar(r * s);
+  }
+  world.add(m);
+  return m;
+});
+const segMeshes = D.segments.map(([a, b, kind]) => {
+  const m = new THREE.Mesh(cylinder, new THREE.MeshStandardMaterial({ color: segColours[kind] ?? segColours.link }));
+  m.userData = { a, b, radius: kind === 'load' ? r * 1.3 : r * 0.7 };
+  world.add(m);
+  return m;
+});
+{
+  const kinds = [...new Set(D.points.map((p) => p.kind))];
+  $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
+    (D.segments.some((s) => s[2] === 'load') ? `<i style="background:#ef6c00"></i>load` : '');
+}
+
+// The test marker: one unlit sphere of pure red, shown alone (window.ukdyn.markerOnly).
+const marker = new THREE.Mesh(sphere, new THREE.MeshBasicMaterial({ color: 0xff0000 }));
+marker.visible = false;
+scene.add(marker);
+let markerPoint = -1;
+
+// Path of a chosen point over the whole run.
+let pathLine = null;
+function setPath(i) {
+  if (pathLine) { world.remove(pathLine); pathLine.geometry.dispose(); pathLine = null; }
+  if (i >= 0) {
+    const xyz = new Float32Array(frames * 3);
+    for (let f = 0; f < frames; f++) for (let k = 0; k < 3; k++) xyz[3 * f + k] = D.pos[f][3 * i + k] ?? NaN;
+    const g = new THREE.BufferGeometry();
+    g.setAttribute('position', new THREE.BufferAttribute(xyz, 3));
+    pathLine = new THREE.Line(g, new THREE.LineBasicMaterial({ color: 0xd81b60 }));
+    world.add(pathLine);
+  }
+  dirty = true;
+}
+
+const up = new THREE.Vector3(0, 1, 0), va = new THREE.Vector3(), vb = new THREE.Vector3(), dir = new THREE.Vector3();
+function pointAt(f, i, v) { const p = D.pos[f]; return v.set(p[3 * i] ?? NaN, p[3 * i + 1] ?? NaN, p[3 * i + 2] ?? NaN); }
+function place(f) {
+  for (let i = 0; i < np; i++) {
+    pointAt(f, i, va);
+    const m = pointMeshes[i];
+    m.position.copy(va);
+    if (D.points[i].kind === 'platform') m.position.z -= m.scale.z / 2;
+  }
+  for (const m of segMeshes) {
+    pointAt(f, m.userData.a, va); pointAt(f, m.userData.b, vb);
+    dir.subVectors(vb, va);
+    const len = dir.length();
+    m.visible = len > 1e-9 && markerPoint < 0;
+    if (!m.visible) continue;
+    m.position.addVectors(va, vb).multiplyScalar(0.5);
+    m.quaternion.setFromUnitVectors(up, dir.divideScalar(len));
+    m.scale.set(m.userData.radius, len, m.userData.radius);
+  }
+  if (markerPoint >= 0) { pointAt(f, markerPoint, va); marker.position.copy(va); }
+}
+
+// ---- camera: looking at the centre from the front-left, above
+camera.position.set(centre.x - extent * 1.1, centre.y - extent * 1.6, centre.z + extent * 0.9);
+controls.target.copy(centre);
+controls.update();
+
+function resize() {
+  const w = view.clientWidth, h = view.clientHeight;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / Math.max(h, 1);
+  camera.updateProjectionMatrix();
+  dirty = true;
+  for (const p of plots) p.resize();
+}
+window.addEventListener('resize', resize);
+
+// ---- plots of CSV columns, with a cursor at the current time
+const palette = ['#1565c0', '#c62828', '#2e7d32', '#ef6c00', '#6a1b9a', '#00838f', '#5d4037', '#ad1457', '#9e9d24', '#283593', '#4e342e', '#00695c'];
+function addPlot(title, names) {
+  names = names.filter((n) => n in D.columns);
+  if (!names.length) return;
+  const div = document.createElement('div');
+  div.className = 'plot';
+  div.innerHTML = `<div class="title"><span></span><button title="remove">✕</button></div><canvas></canvas>`;
+  div.querySelector('span').textContent = title;
+  $('plots').appendChild(div);
+  const canvas = div.querySelector('canvas');
+  let ymin = Infinity, ymax = -Infinity;
+  for (const n of names) for (const v of D.columns[n]) if (v !== null && isFinite(v)) { ymin = Math.min(ymin, v); ymax = Math.max(ymax, v); }
+  if (!isFinite(ymin)) { ymin = -1; ymax = 1; }
+  if (ymax - ymin < 1e-300) { ymin -= 1; ymax += 1; }
+  const plot = {
+    resize() { canvas.width = canvas.clientWidth; canvas.height = canvas.clientHeight; this.base = null; this.draw(); },
+    draw() {
+      const ctx = canvas.getContext('2d', { willReadFrequently: true });
+      const W = canvas.width, H = canvas.height, L = 62, R = 8, T = 6, B = 18;
+      const x = (t) => L + (t - D.t[0]) / Math.max(D.t[frames - 1] - D.t[0], 1e-300) * (W - L - R);
+      const y = (v) => T + (ymax - v) / (ymax - ymin) * (H - T - B);
+      if (!this.base) {
+        ctx.fillStyle = '#fff'; ctx.fillRect(0, 0, W, H);
+        ctx.strokeStyle = '#ccc'; ctx.strokeRect(L, T, W - L - R, H - T - B);
+        ctx.fillStyle = '#555'; ctx.font = '11px sans-serif';
+        ctx.fillText(ymax.toPrecision(3), 2, T + 9); ctx.fillText(ymin.toPrecision(3), 2, H - B);
+        ctx.fillText(`${D.t[0]} s`, L, H - 4); ctx.textAlign = 'right'; ctx.fillText(`${D.t[frames - 1]} s`, W - R, H - 4); ctx.textAlign = 'left';
+        names.forEach((n, k) => {
+          ctx.strokeStyle = palette[k % palette.length]; ctx.lineWidth = 1.3; ctx.beginPath();
+          let pen = false;
+          const v = D.columns[n];
+          for (let f = 0; f < frames; f++) {
+            if (v[f] === null || !isFinite(v[f])) { pen = false; continue; }
+            if (pen) ctx.lineTo(x(D.t[f]), y(v[f])); else ctx.moveTo(x(D.t[f]), y(v[f]));
+            pen = true;
+          }
+          ctx.stroke();
+          ctx.fillStyle = palette[k % palette.length];
+          if (k < 8) ctx.fillText(n, L + 4 + (k % 4) * ((W - L) / 4), T + 12 + Math.floor(k / 4) * 12);
+        });
+        this.base = ctx.getImageData(0, 0, W, H);
+      } else {
+        ctx.putImageData(this.base, 0, 0);
+      }
+      ctx.strokeStyle = '#000'; ctx.lineWidth = 1; ctx.beginPath();
+      const cx = Math.round(x(D.t[frame])) + 0.5;
+      ctx.moveTo(cx, T); ctx.lineTo(cx, H - B); ctx.stroke();
+    },
+  };
+  div.querySelector('button').onclick = () => { div.remove(); plots.splice(plots.indexOf(plot), 1); };
+  plots.push(plot);
+  plot.resize();
+}
+
+// ---- playback
+const slider = $('slider');
+slider.max = String(frames - 1);
+function setFrame(f) {
+  frame = Math.max(0, Math.min(frames - 1, f | 0));
+  slider.value = String(frame);
+  $('time').textContent = `t = ${D.t[frame].toFixed(3)} s`;
+  place(frame);
+  for (const p of plots) p.draw();
+  dirty = true;
+}
+function frameAt(t) {  // the last frame at or before t
+  let a = 0, b = frames - 1;
+  if (t >= D.t[b]) return b;
+  while (b - a > 1) { const m = (a + b) >> 1; if (D.t[m] <= t) a = m; else b = m; }
+  return a;
+}
+function setPlaying(on) {
+  playing = on; last = null;
+  $('play').textContent = on ? '❚❚ pause' : '▶ play';
+  if (on && frame === frames - 1) tPlay = D.t[0]; else tPlay = D.t[frame];
+}
+$('play').onclick = () => setPlaying(!playing);
+window.addEventListener('keydown', (e) => { if (e.code === 'Space' && e.target.tagName !== 'SELECT') { e.preventDefault(); setPlaying(!playing); } });
+slider.oninput = () => { setPlaying(false); setFrame(+slider.value); };
+D.points.forEach((p, i) => { const o = document.createElement('option'); o.value = String(i); o.textContent = p.name; $('path').appendChild(o); });
+$('path').onchange = () => setPath(+$('path').value);
+for (const n of Object.keys(D.columns)) { const o = document.createElement('option'); o.textContent = n; $('addplot').appendChild(o); }
+$('addplot').onchange = () => { const n = $('addplot').value; if (n) addPlot(n, [n]); $('addplot').value = ''; };
+for (const [title, names] of Object.entries(D.groups)) addPlot(title, names);
+const cutIndex = D.points.findIndex((p) => p.kind === 'cut');
+if (cutIndex >= 0) { $('path').value = String(cutIndex); setPath(cutIndex); }
+
+function loop(now) {
+  if (playing) {
+    if (last !== null) tPlay += (now - last) / 1000 * +$('speed').value;
+    last = now;
+    if (tPlay >= D.t[frames - 1]) { tPlay = D.t[frames - 1]; setFrame(frames - 1); setPlaying(false); }
+    else if (frameAt(tPlay) !== frame) setFrame(frameAt(tPlay));
+  }
+  if (dirty) { renderer.render(scene, camera); dirty = false; }
+  requestAnimationFrame(loop);
+}
+resize();
+setFrame(0);
+requestAnimationFrame(loop);
+
+// ---- test hook (tests/browser/replay_test.mjs)
+window.ukdyn = {
+  data: D,
+  frames,
+  setFrame(f) { setPlaying(false); setFrame(f); renderer.render(scene, camera); dirty = false; return frame; },
+  setTime(t) { return this.setFrame(frameAt(t)); },
+  /// Shows only a red unlit sphere at point `name` on a black background (or everything again
+  /// with null); the marker's radius in metres.
+  markerOnly(name, radius = 0.03) {
+    markerPoint = name === null ? -1 : D.points.findIndex((p) => p.name === name);
+    world.visible = markerPoint < 0;
+    $('legend').style.display = markerPoint < 0 ? '' : 'none';  // (it lies over the canvas)
+    marker.visible = markerPoint >= 0;
+    marker.scale.setScalar(radius);
+    scene.background = markerPoint >= 0 ? new THREE.Color(0x000000) : background;
+    place(frame);
+    renderer.render(scene, camera);
+    return markerPoint;
+  },
+  /// The canvas pixel (x right, y down, CSS pixels from the canvas' top-left) of world point xyz
+  /// through the page's camera.
+  project(xyz) {
+    const v = new THREE.Vector3(xyz[0], xyz[1], xyz[2]).project(camera);
+    return [(v.x + 1) / 2 * renderer.domElement.clientWidth, (1 - v.y) / 2 * renderer.domElement.clientHeight];
+  },
+  ready: true,
+};

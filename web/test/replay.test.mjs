@@ -1,0 +1,158 @@
+// Browser test of the replay page (docs/replay.md), run by tests/browser_replay.sh (ctest
+// Browser.Replay): Debian's chromium driven headless by playwright-core, WebGL by SwiftShader.
+//   node replay.test.mjs UKDYN SOURCE_DIR SCRATCH_DIR
+// Checks: the page opens with every network request refused (only the file itself is let through),
+// no console error; the canvas is not blank; two screenshots of the same frame are identical; the
+// pixel centroid of one marker at the left arm's cut point follows the simulated coordinate,
+// computed here from trajectory.csv's q by the paper's closed form (not by ukdyn's geometry code)
+// and projected through the page's camera.
+import { execFileSync } from 'node:child_process';
+import fs from 'node:fs';
+import path from 'node:path';
+import zlib from 'node:zlib';
+import { pathToFileURL } from 'node:url';
+import { chromium } from 'playwright-core';
+
+const [ukdyn, source, scratch] = process.argv.slice(2);
+const started = Date.now();
+const fail = (msg) => { console.error(`FAIL: ${msg}`); process.exit(1); };
+const check = (ok, msg) => { if (!ok) fail(msg); console.log(`ok: ${msg}`); };
+
+// ---- the run: the paper's scenario, with its page
+const out = path.join(scratch, 'paper');
+fs.rmSync(out, { recursive: true, force: true });
+execFileSync(ukdyn, ['simulate', path.join(source, 'scenarios/paper.yaml'), '--out', out, '--no-figures', '--html', '--quiet'], { stdio: 'inherit' });
+const file = path.join(out, 'replay.html');
+const bytes = fs.statSync(file).size;
+console.log(`page: ${file}, ${(bytes / 1e6).toFixed(2)} MB (${((Date.now() - started) / 1000).toFixed(1)} s for the run)`);
+
+// trajectory.csv → columns by name
+const lines = fs.readFileSync(path.join(out, 'trajectory.csv'), 'utf8').trim().split('\n');
+const header = lines[0].split(',');
+const rows = lines.slice(1).map((l) => l.split(',').map(Number));
+const col = (n) => { const i = header.indexOf(n); if (i < 0) fail(`no column ${n}`); return rows.map((r) => r[i]); };
+// The paper's arm (scenarios/paper.yaml, Table 1: l_r = 0.5, l = 0.7, 0.8, 0.4): the cut point is
+// (Δx + κ cos δ, Δy + κ sin δ, l_r + ρ) with κ = Σ l_k cos θ_k, ρ = Σ l_k sin θ_k (paper Eq. (12)).
+const [dx, dy, de, t1, t2, t3] = ['dx1', 'dy1', 'delta1', 'theta1', 'theta2', 'theta3'].map(col);
+const L = [0.7, 0.8, 0.4];
+const cut = (i) => {
+  const th = [t1[i], t2[i], t3[i]];
+  const kappa = th.reduce((s, a, k) => s + L[k] * Math.cos(a), 0);
+  const rho = th.reduce((s, a, k) => s + L[k] * Math.sin(a), 0);
+  return [dx[i] + kappa * Math.cos(de[i]), dy[i] + kappa * Math.sin(de[i]), 0.5 + rho];
+};
+
+// ---- minimal PNG decoder (8-bit RGB/RGBA, not interlaced: what Chromium's screenshots are)
+function decodePng(buf) {
+  let pos = 8, w = 0, h = 0, ch = 0;
+  const idat = [];
+  while (pos < buf.length) {
+    const len = buf.readUInt32BE(pos), type = buf.toString('ascii', pos + 4, pos + 8);
+    const data = buf.subarray(pos + 8, pos + 8 + len);
+    if (type === 'IHDR') {
+      w = data.readUInt32BE(0); h = data.readUInt32BE(4);
+      if (data[8] !== 8 || data[12] !== 0) fail('unexpected PNG format');
+      ch = { 2: 3, 6: 4 }[data[9]];
+      if (!ch) fail(`unexpected PNG colour type ${data[9]}`);
+    } else if (type === 'IDAT') idat.push(data);
+    pos += 12 + len;
+  }
+  const raw = zlib.inflateSync(Buffer.concat(idat));
+  const px = Buffer.alloc(w * h * 4), stride = w * ch;
+  let prev = Buffer.alloc(stride), p = 0;
+  for (let y = 0; y < h; y++) {
+    const f = raw[p++], line = Buffer.from(raw.subarray(p, p + stride)); p += stride;
+    for (let x = 0; x < stride; x++) {
+      const a = x >= ch ? line[x - ch] : 0, b = prev[x], c = x >= ch ? prev[x - ch] : 0;
+      const pa = Math.abs(b - c), pb = Math.abs(a - c), pc = Math.abs(a + b - 2 * c);
+      const pred = [0, a, b, (a + b) >> 1, pa <= pb && pa <= pc ? a : pb <= pc ? b : c][f];
+      line[x] = (line[x] + pred) & 255;
+    }
+    for (let x = 0; x < w; x++) {
+      for (let k = 0; k < 3; k++) px[4 * (y * w + x) + k] = line[ch * x + k];
+      px[4 * (y * w + x) + 3] = ch === 4 ? line[ch * x + 3] : 255;
+    }
+    prev = line;
+  }
+  return { w, h, px };
+}
+
+// ---- the browser: Debian's chromium, no network
+// (a fresh profile folder: launchPersistentContext passes it as --user-data-dir)
+const context = await chromium.launchPersistentContext(fs.mkdtempSync(path.join(scratch, 'chromium-')), {
+  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+  headless: true,
+  args: ['--headless', '--no-sandbox', '--enable-unsafe-swiftshader', '--use-gl=angle', '--use-angle=swiftshader',
+    '--disable-background-networking', '--disable-component-update', '--disable-sync', '--no-first-run'],
+  viewport: { width: 1200, height: 800 },
+  deviceScaleFactor: 1,
+  offline: true,
+});
+try {
+  const page = await context.newPage();
+  const url = pathToFileURL(file).href;
+  const refused = [], errors = [];
+  await page.route('**/*', (route) => (route.request().url() === url ? route.continue() : (refused.push(route.request().url()), route.abort())));
+  page.on('console', (m) => {
+    if (m.type() === 'error') errors.push(`${m.type()}: ${m.text()}`);
+    else if (m.type() === 'warning') console.log(`(console warning: ${m.text()})`);
+  });
+  page.on('pageerror', (e) => errors.push(`page error: ${e.message}`));
+  page.on('requestfailed', (r) => { if (r.url() !== url) refused.push(r.url()); });
+  await page.goto(url);
+  await page.waitForFunction(() => window.ukdyn && window.ukdyn.ready, null, { timeout: 20000 });
+  const canvas = page.locator('#view canvas');
+  const shot = async () => decodePng(await canvas.screenshot());
+
+  // the canvas is not blank: many pixels off the white background, in several colours
+  await page.evaluate(() => window.ukdyn.setFrame(150));
+  const a = await shot();
+  let drawn = 0;
+  const colours = new Set();
+  for (let i = 0; i < a.w * a.h; i++) {
+    const [r, g, b] = [a.px[4 * i], a.px[4 * i + 1], a.px[4 * i + 2]];
+    if (r < 245 || g < 245 || b < 245) drawn++;
+    colours.add((r >> 4) << 8 | (g >> 4) << 4 | (b >> 4));
+  }
+  check(drawn > 0.01 * a.w * a.h && colours.size > 20, `canvas drawn (${drawn} of ${a.w * a.h} pixels off white, ${colours.size} colours)`);
+
+  // the same frame twice, with another in between: identical pixels
+  await page.evaluate(() => window.ukdyn.setFrame(380));
+  await page.evaluate(() => window.ukdyn.setFrame(150));
+  const b = await shot();
+  check(a.w === b.w && a.h === b.h && a.px.equals(b.px), 'two screenshots of frame 150 identical');
+
+  // the marker at left.cut follows the simulated cut point
+  const frames = await page.evaluate(() => window.ukdyn.frames);
+  check(frames === rows.length, `the page has every sample (${frames} frames)`);
+  check((await page.evaluate(() => window.ukdyn.markerOnly('left.cut', 0.03))) >= 0, 'marker at left.cut');
+  let worst = 0;
+  const seen = [];
+  for (const i of [0, 50, 100, 200, 300, 400]) {
+    const tPage = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.data.t[k]), i);
+    if (Math.abs(tPage - col('t')[i]) > 1e-6) fail(`frame ${i}: page t ${tPage} vs CSV ${col('t')[i]}`);
+    const s = await shot();
+    let n = 0, sx = 0, sy = 0;
+    for (let y = 0; y < s.h; y++) for (let x = 0; x < s.w; x++) {
+      const k = 4 * (y * s.w + x);
+      // red, weighted by coverage (antialiased edges count in part)
+      const wgt = s.px[k] / 255;
+      if (s.px[k + 1] > 40 || s.px[k + 2] > 40 || wgt < 0.05) continue;
+      n += wgt; sx += wgt * (x + 0.5); sy += wgt * (y + 0.5);
+    }
+    if (n < 10) fail(`frame ${i}: marker not visible (${n} px)`);
+    const expect = await page.evaluate((p) => window.ukdyn.project(p), cut(i));
+    const err = Math.hypot(sx / n - expect[0], sy / n - expect[1]);
+    worst = Math.max(worst, err);
+    seen.push([sx / n, sy / n]);
+    console.log(`frame ${i} t=${tPage}: centroid (${(sx / n).toFixed(2)}, ${(sy / n).toFixed(2)}) px, projected (${expect[0].toFixed(2)}, ${expect[1].toFixed(2)}), ${n.toFixed(0)} px, error ${err.toFixed(3)} px`);
+  }
+  const moved = Math.hypot(seen[2][0] - seen[0][0], seen[2][1] - seen[0][1]);
+  check(moved > 30, `the marker moved ${moved.toFixed(1)} px from t = 0 to 1 s`);
+  check(worst < 0.5, `centroid within ${worst.toFixed(3)} px of the projected simulated cut point`);
+  check(refused.length === 0, `no request but the file itself (${refused.length} refused: ${refused.slice(0, 3).join(' ')})`);
+  check(errors.length === 0, `no console error (${errors.slice(0, 3).join(' | ')})`);
+} finally {
+  await context.close();
+}
+console.log(`passed in ${((Date.now() - started) / 1000).toFixed(1)} s`);
