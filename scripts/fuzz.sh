@@ -23,7 +23,7 @@ san="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-
 # Warnings are enforced by the gcc CI build; clang's extra diagnostics must not stop the fuzzer.
 cmake -S . -B "$build" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=Debug \
   -DCMAKE_CXX_FLAGS="$san -O1 -g" -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" \
-  -DUKDYN_BUILD_FUZZ=ON -DUKDYN_BUILD_TESTS=OFF -DUKDYN_WERROR=OFF >/dev/null
+  -DUKDYN_BUILD_FUZZ=ON -DUKDYN_BUILD_TESTS=OFF -DUKDYN_WERROR=OFF -DUKDYN_BUILD_PYTHON=OFF >/dev/null
 cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression -j "$jobs"
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:detect_stack_use_after_return=1}

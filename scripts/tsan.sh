@@ -13,7 +13,7 @@ jobs=${JOBS:-2}
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS="-fsanitize=thread -fno-omit-frame-pointer" \
   -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=thread" -DUKDYN_WERROR=OFF -DUKDYN_BUILD_APP=OFF \
-  -DUKDYN_BUILD_THREAD_TESTS=ON >/dev/null
+  -DUKDYN_BUILD_THREAD_TESTS=ON -DUKDYN_BUILD_PYTHON=OFF >/dev/null
 cmake --build "$build" -j "$jobs" --target ukdyn_thread_tests
 logs=$PWD/$build/tsan-logs
 rm -rf "$logs"

@@ -214,7 +214,9 @@ TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
     EXPECT_EQ(tr->rank_max, 4);
     EXPECT_LT(tr->max_residual, 1e-12);
     EXPECT_LT(tr->max_dE, 1e-8);
-    EXPECT_TRUE(tr->stats.warnings.empty());
+    // Only the adaptive solve's note: near t = 0.154 s a singular value of A M^-1/2 comes within
+    // 1e-4 of the largest (the scenario default damps there, docs/singular-positions.md).
+    for (const auto& w : tr->stats.warnings) EXPECT_EQ(w.kind, "damped_solve") << w.message;
   }
   // Released at rest: E0 = V0 = −g Σ m y_CoM = −9.81 (0 + 0.5 + 1 + 1 + 0.5) J.
   EXPECT_NEAR(ta.E0, -3 * 9.81, 1e-12);

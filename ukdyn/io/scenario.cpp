@@ -668,6 +668,12 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
   // A scenario's default solve is the adaptive one (exact away from singular positions, damped
   // only near them: docs/singular-positions.md); the C++ default UkSettings{} stays exact.
   sc.sim.uk.method = UkMethod::adaptive;
+  // Its damping scale: 1e-6 (the band starts at σ_min/σ_max = 1e-4). Measured against 1e-5: the
+  // Bricard benchmark's energy error 1.1e-7 → 5.7e-12 J over 10 s, the N-four-bar (N = 2, 10 s)
+  // still crosses every flat position on its branch (docs/singular-positions.md). The regularized
+  // method keeps UkSettings' 1e-5 unless solver.regularization is given.
+  constexpr double kAdaptiveRegularization = 1e-6;
+  sc.sim.uk.regularization = kAdaptiveRegularization;
   if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
     L.only_keys(s, {"rank_tol", "consistency_tol", "method", "regularization"});
     // solver.method / solver.regularization: docs/singular-positions.md (added by H4).
@@ -684,6 +690,7 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
                "unknown solver method '" + method + "' (expected adaptive, exact or regularized)");
       }
     }
+    if (sc.sim.uk.method != UkMethod::adaptive) sc.sim.uk.regularization = UkSettings{}.regularization;
     if (Node rg = L.child(s, "regularization", false); rg.node.IsDefined()) {
       sc.sim.uk.regularization = L.number(rg);
       if (!(sc.sim.uk.regularization >= 1e-14 && sc.sim.uk.regularization <= 1e-2))

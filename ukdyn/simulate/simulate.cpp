@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -194,6 +195,7 @@ class Run {
         projector_(system, s.drift, s.uk),
         x_(static_cast<std::size_t>(2 * n_ + (s.energy_balance ? 1 : 0)), 0.0),  // [q; q̇; W]
         x_out_(x_.size()),
+        last_good_(x_.size()),
         sample_data_(system) {
     Eigen::Map<Vec>(x_.data(), n_) = q0;
     Eigen::Map<Vec>(x_.data() + n_, n_) = qd0;
@@ -372,6 +374,17 @@ class Run {
     if (!finite_state(xs)) {
       stats_.status = RunStatus::non_finite;
       stats_.message = "non-finite state at t = " + std::to_string(t);
+      if (std::isfinite(last_good_t_)) {  // why: at the last finite state (a singular M or A)
+        const std::string cause =
+            detail::diagnose_singularity(system_, last_good_t_, last_good_, s_.uk);
+        if (!cause.empty()) stats_.message += ": " + cause;
+      }
+      // The evaluation that gave the NaN: a singular M whose null direction no constraint fixes.
+      const ForwardData& d = rhs_.data;
+      if (stats_.message.find(':') == std::string::npos && d.singular.active) {
+        const std::string why = undetermined_direction(d.M, d.A, system_.coordinate_names());
+        if (!why.empty()) stats_.message += ": " + why;
+      }
       return false;
     }
     if (project_) {
@@ -389,6 +402,8 @@ class Run {
       stats_.message = "more than 1e9 steps at t = " + std::to_string(t);
       return false;
     }
+    std::copy(xs.begin(), xs.end(), last_good_.begin());  // no allocation: same size
+    last_good_t_ = t;
     return true;
   }
 
@@ -548,6 +563,8 @@ class Run {
   Rhs rhs_;
   detail::Projector projector_;
   State x_, x_out_;
+  State last_good_;        ///< the state after the last accepted finite step (for the diagnosis)
+  double last_good_t_ = std::numeric_limits<double>::quiet_NaN();
   ForwardData sample_data_;
   SimulationStats stats_;
   int last_rank_ = -1;
