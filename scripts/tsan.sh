@@ -10,7 +10,7 @@ bash scripts/install-deps.sh
 
 build=build/tsan
 jobs=${JOBS:-2}
-cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG" \
   -DCMAKE_CXX_FLAGS="-fsanitize=thread -fno-omit-frame-pointer" \
   -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=thread" -DUKDYN_WERROR=OFF -DUKDYN_BUILD_APP=OFF \
   -DUKDYN_BUILD_THREAD_TESTS=ON -DUKDYN_BUILD_PYTHON=OFF >/dev/null
