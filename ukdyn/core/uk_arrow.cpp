@@ -1,5 +1,7 @@
 #include "ukdyn/core/uk_arrow.hpp"
 
+#include "ukdyn/core/dense_kernels.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -152,20 +154,12 @@ Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, double ref, Index
   return kept;
 }
 
-// x ← L^{-1} x and x ← L^{-ᵀ} x for a lower factor L (ldl) with 1/L_ii in inv_diag.
+// x ← L^{-1} x and x ← L^{-ᵀ} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
 void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
-  for (Index i = 0; i < n; ++i) {
-    double s = x[i];
-    for (Index k = 0; k < i; ++k) s -= L[i + k * ldl] * x[k];
-    x[i] = s * inv_diag[i];
-  }
+  detail::l_solve<0>(L, ldl, inv_diag, x, n);
 }
 void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
-  for (Index i = n - 1; i >= 0; --i) {
-    double s = x[i];
-    for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
-    x[i] = s * inv_diag[i];
-  }
+  detail::lt_solve<0>(L, ldl, inv_diag, x, n);
 }
 
 // Rows k and p of a column-major matrix (m rows, c columns) swapped.

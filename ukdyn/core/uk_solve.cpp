@@ -1,5 +1,7 @@
 #include "ukdyn/core/uk_solve.hpp"
 
+#include "ukdyn/core/dense_kernels.hpp"
+
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <Eigen/SVD>
@@ -29,53 +31,10 @@ UkWorkspace::UkWorkspace(const BlockLayout& block_layout, Index m)
 
 namespace {
 
-// ---- Small dense kernels on raw column-major storage. N > 0: the size is known at compile time
-// (the loops unroll); N == 0: the runtime size n is used. Every routine works for any size, so the
-// solve is correct for large systems too; it is tuned for the small blocks of multibody models.
-
-// Cholesky M = L Lᵀ of one n × n block (lower triangle of M read). Writes L's lower triangle and
-// 1/L_ii. Returns false when a pivot is not > 0 (not positive definite, or NaN).
-template <int N>
-bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_diag, Index n_rt) {
-  const Index n = N > 0 ? Index{N} : n_rt;
-  for (Index j = 0; j < n; ++j) {
-    double d = M[j + j * ldm];
-    for (Index k = 0; k < j; ++k) d -= L[j + k * ldl] * L[j + k * ldl];
-    if (!(d > 0.0)) return false;
-    const double ljj = std::sqrt(d);
-    const double inv = 1.0 / ljj;
-    L[j + j * ldl] = ljj;
-    inv_diag[j] = inv;
-    for (Index i = j + 1; i < n; ++i) {
-      double s = M[i + j * ldm];
-      for (Index k = 0; k < j; ++k) s -= L[i + k * ldl] * L[j + k * ldl];
-      L[i + j * ldl] = s * inv;
-    }
-  }
-  return true;
-}
-
-// x ← L^{-1} x (forward substitution), x contiguous.
-template <int N>
-void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
-  const Index n = N > 0 ? Index{N} : n_rt;
-  for (Index i = 0; i < n; ++i) {
-    double s = x[i];
-    for (Index k = 0; k < i; ++k) s -= L[i + k * ldl] * x[k];
-    x[i] = s * inv_diag[i];
-  }
-}
-
-// x ← L^{-T} x (back substitution with the columns of L), x contiguous.
-template <int N>
-void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
-  const Index n = N > 0 ? Index{N} : n_rt;
-  for (Index i = n - 1; i >= 0; --i) {
-    double s = x[i];
-    for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
-    x[i] = s * inv_diag[i];
-  }
-}
+// The kernels chol_block<N>, l_solve<N>, lt_solve<N> are in dense_kernels.hpp.
+using detail::chol_block;
+using detail::l_solve;
+using detail::lt_solve;
 
 // The same three kernels for P blocks of one compile-time size N at once, in lockstep. One block's
 // Cholesky or substitution is a chain of dependent steps (sqrt, division, multiply-adds); the
