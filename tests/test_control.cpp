@@ -312,4 +312,31 @@ TEST(Control, RunWritesErrorsInputsAndFlagsSaturation) {
   std::filesystem::remove_all(dir);
 }
 
+// Bad control input names file:line:column and the key; the paper's control scenario loads with
+// its plant, 12 actuators and the closure as its only physical block.
+TEST(Control, ScenarioKeysAndThePaperControlScenario) {
+  const auto bad = [](const std::string& extra, const std::string& expect) {
+    try {
+      (void)ukdyn::load_scenario_text(uktest::pendulum_servo_yaml(1.0, extra), "c.yaml");
+      ADD_FAILURE() << "accepted: " << extra;
+    } catch (const ukdyn::ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(expect), std::string::npos) << e.what();
+    }
+  };
+  bad("control:\n  law: pid\n", "c.yaml:25:8: key 'control.law': unknown law 'pid'");
+  bad("control:\n  law: stabilized\n  plant: missing.yaml\n",
+      "key 'control.plant': the plant scenario");
+  bad("control:\n  law: stabilized\n  initial_offset: {rod_circle: 0.1}\n",
+      "key 'control.initial_offset.rod_circle': row 'rod_circle' is not a servo row");
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_control.yaml");
+  ASSERT_TRUE(sc.control && sc.control->plant);
+  EXPECT_EQ(sc.actuators.count(), 12);
+  EXPECT_EQ(sc.control->plant->name, "paper_generic_exact_inertia");
+  const auto plant =
+      ukdyn::physical_system(*sc.control->plant->system, sc.control->plant->constraint_roles);
+  EXPECT_EQ(plant->rows(), 6);  // the closure only
+  EXPECT_EQ(sc.control->law.kind, ukdyn::ControlLawKind::robust);
+}
+
 }  // namespace

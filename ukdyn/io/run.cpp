@@ -578,6 +578,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
   run.header = trajectory_header(sys, balance);
+  ControlColumns control_columns(sc, nullptr);  // the same columns as run_scenario's CSV
+  run.header.insert(run.header.end(), control_columns.header().begin(),
+                    control_columns.header().end());
   const std::size_t cols = run.header.size();
   // The rows are known in advance (one per sample): reserve them, up to 128 MiB.
   const double samples = std::floor((sc.sim.t_end - sc.sim.t0) / sc.sim.sample_dt) + 2.0;
@@ -588,6 +591,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   Observer observer{sys,    rep,    nullptr, progress, options.cancel, std::vector<double>(cols),
                     Vec(m), Vec(m), balance};
   observer.memory = &run.values;
+  observer.control = &control_columns;
   const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
@@ -599,7 +603,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   rep.csv_rows = static_cast<long>(run.values.size() / cols);
+  for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
   nlohmann::json summary = summary_start(sc);
+  if (!control_columns.empty()) summary["control"] = control_columns.summary();
   summary["status"] = rep.complete() ? "complete" : "incomplete";
   summary["stop_reason"] =
       rep.complete() ? std::string() : to_string(rep.stats.status) + ": " + rep.stats.message;
