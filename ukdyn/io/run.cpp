@@ -10,6 +10,7 @@
 #include <ostream>
 
 #include "ukdyn/io/constraint_force_output.hpp"
+#include "ukdyn/io/control_output.hpp"
 #include "ukdyn/io/csv_writer.hpp"
 #include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/plots.hpp"
@@ -201,6 +202,7 @@ struct Observer {
   double balance0 = 0.0;
   bool first = true;
   const ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
+  ControlColumns* control = nullptr;               // after those (docs/control.md), if any
   bool split_unique = true;                        // the force split was unique at every sample
   double split_t = 0.0;                            // the first sample where it was not
   std::vector<double>* memory = nullptr;  ///< run_scenario_in_memory(): the rows, back to back
@@ -266,7 +268,9 @@ struct Observer {
         split_unique = false;
         split_t = t;
       }
+      k += forces->header().size();
     }
+    if (control != nullptr && !control->empty()) control->fill(t, q, qd, d, row.data() + k);
     if (!csv) {
       memory->insert(memory->end(), row.begin(), row.end());
     } else {
@@ -392,12 +396,15 @@ WorstResidual worst_position_residual(const System& system, const RunReport& rep
 
 RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                        const RunOptions& options) {
-  const System& sys = *sc.system;
+  // docs/control.md: with `control:` the plant (physical rows only, τ = B u) is integrated.
+  const std::unique_ptr<ControlRun> ctl = make_control_run(sc);
+  const System& sys = ctl ? *ctl->plant : *sc.system;
   const Index m = sys.rows();
   OutputDir out(out_dir, options.write_failure);
   clear_previous_outputs(out);
 
   RunReport rep;
+  if (ctl) rep.plant = ctl->plant;
   rep.out_dir = out_dir;
   rep.summary = out_dir / kSummary;
   rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
@@ -414,7 +421,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   auto header = trajectory_header(sys, balance);
   const ConstraintForceColumns force_columns(sc);  // frame constraints only
   bool split_unique = true;
-  header.insert(header.end(), force_columns.header().begin(), force_columns.header().end());
+  if (!ctl)
+    header.insert(header.end(), force_columns.header().begin(), force_columns.header().end());
+  ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // docs/control.md
+  header.insert(header.end(), control_columns.header().begin(), control_columns.header().end());
   std::optional<CsvWriter> csv;
   try {
     csv.emplace(out, kCsv, header);
@@ -428,12 +438,15 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
     Observer observer{
         sys,    rep,    &*csv,  progress, options.cancel, std::vector<double>(header.size()),
         Vec(m), Vec(m), balance};
-    observer.forces = &force_columns;
-    const ForceFunction tau = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
+    observer.forces = ctl ? nullptr : &force_columns;
+    observer.control = &control_columns;
+    const ForceFunction tau =
+        ctl ? ctl->loop->force_function()
+            : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
     SimulationSettings settings = sc.sim;
     settings.cancel = options.cancel;
     try {
-      rep.stats = simulate(sys, sc.q0, sc.qd0, tau, settings,
+      rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                            [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                              return observer(t, q, qd, d);
                            });
@@ -444,6 +457,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
              "redundant constraint rows: the force of each constraint block is not unique; the "
              "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
       }
+      for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
     } catch (const std::exception& e) {
       // Invalid settings: the summary must not be left saying "running".
       progress.done();
@@ -497,6 +511,15 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                              : "Force A_k^T lambda_k of '" + nm.substr(6) + "'",
                       wrench ? "[N or N·m]" : "[N or N·m]", cols});
     }
+    for (const auto& [nm, cols] : control_columns.figures())  // docs/control.md
+      figs.push_back({nm + ".png", nm, "[N, N·m or m]", cols});
+    if (ctl) {  // the plant has no servo rows: drop the curves of columns it does not write
+      for (auto& f : figs)
+        std::erase_if(f.columns, [&header](const std::string& c) {
+          return std::find(header.begin(), header.end(), c) == header.end();
+        });
+      std::erase_if(figs, [](const Figure& f) { return f.columns.empty(); });
+    }
     cap_figures(figs, rep.figure_notes);
     // Said before and after: drawing a long run's figures takes seconds (no silent wait).
     const auto drawing = std::chrono::steady_clock::now();
@@ -528,7 +551,8 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   } else if (!complete) {
     reason = to_string(rep.stats.status) + ": " + rep.stats.message;
   }
-  if (!force_columns.empty()) {
+  if (!control_columns.empty()) summary["control"] = control_columns.summary();
+  if (!force_columns.empty() && !ctl) {
     summary["constraint_forces"] = {
         {"split_unique", split_unique},
         {"choice", split_unique ? "unique" : "least-norm multipliers (not unique)"}};
@@ -542,6 +566,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 }
 
 MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& options) {
+  if (sc.control) throw Error("a scenario with control: runs with run_scenario (docs/control.md)");
   const System& sys = *sc.system;
   const Index m = sys.rows();
   MemoryRun run;
@@ -553,6 +578,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
   run.header = trajectory_header(sys, balance);
+  ControlColumns control_columns(sc, nullptr);  // the same columns as run_scenario's CSV
+  run.header.insert(run.header.end(), control_columns.header().begin(),
+                    control_columns.header().end());
   const std::size_t cols = run.header.size();
   // The rows are known in advance (one per sample): reserve them, up to 128 MiB.
   const double samples = std::floor((sc.sim.t_end - sc.sim.t0) / sc.sim.sample_dt) + 2.0;
@@ -563,6 +591,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   Observer observer{sys,    rep,    nullptr, progress, options.cancel, std::vector<double>(cols),
                     Vec(m), Vec(m), balance};
   observer.memory = &run.values;
+  observer.control = &control_columns;
   const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
@@ -574,7 +603,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   rep.csv_rows = static_cast<long>(run.values.size() / cols);
+  for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
   nlohmann::json summary = summary_start(sc);
+  if (!control_columns.empty()) summary["control"] = control_columns.summary();
   summary["status"] = rep.complete() ? "complete" : "incomplete";
   summary["stop_reason"] =
       rep.complete() ? std::string() : to_string(rep.stats.status) + ": " + rep.stats.message;
@@ -633,7 +664,7 @@ void print_assembled_initial(std::ostream& os, const Scenario& sc, const Assembl
 
 void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep) {
   const auto p = [](const std::string& s) { return printable(s); };
-  const WorstResidual worst = worst_position_residual(*sc.system, rep);
+  const WorstResidual worst = worst_position_residual(rep.plant ? *rep.plant : *sc.system, rep);
   os << fmt::format("ukdyn {}: scenario '{}' ({}), t = {} .. {} s\n", version(), p(sc.name),
                     p(sc.path.string()), sc.sim.t0, rep.stats.t_reached);
   os << fmt::format("  status              {}{}\n",

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <filesystem>
 #include <iosfwd>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,9 @@ struct RunReport {
   bool energy_balance = false;  ///< the run integrated W (SimulationSettings::energy_balance)
   int rank_min = 0, rank_max = 0;
   double sigma_min = 0.0;  ///< smallest kept singular value seen (pivot estimate)
+  /// A control run (docs/control.md): the system integrated (the plant, physical rows only), whose
+  /// rows the residuals above belong to; null otherwise (the scenario's system).
+  std::shared_ptr<const System> plant;
 
   /// The integration reached t_end and every output was written.
   [[nodiscard]] bool complete() const {

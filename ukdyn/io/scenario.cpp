@@ -10,6 +10,7 @@
 #include <set>
 #include <sstream>
 
+#include "ukdyn/io/control_loader.hpp"
 #include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/forces_loader.hpp"
 #include "ukdyn/io/frame_constraints_loader.hpp"
@@ -142,7 +143,7 @@ YAML::Node parse_yaml(const std::string& text, const std::filesystem::path& path
 // The format version, name and description; returns the scenario's gravity g.
 double load_header(const Loader& L, const Node& root, Scenario& sc) {
   L.only_keys(root, {"ukdyn", "name", "description", "gravity", "subsystems", "constraints",
-                     "initial", "forces", "simulation", "solver"});
+                     "initial", "forces", "simulation", "solver", "actuators", "control"});
   {
     Node v = L.child(root, "ukdyn", true);
     if (L.number(v) != 1.0) L.fail(v, "unsupported format version (this ukdyn reads version 1)");
@@ -431,10 +432,12 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
   const auto& definition_context = st.definition_context;
   const Index n = system->dof();
   std::set<std::string> row_names;
+  io_detail::RoleChoice role;  // of the block being added (docs/control.md)
   auto add = [&](const Node& at, std::shared_ptr<const Constraint> c) {
     for (const auto& r : c->row_names()) {
       if (!row_names.insert(r).second) L.fail(at, "duplicate constraint row name '" + r + "'");
     }
+    sc.constraint_roles.push_back(io_detail::resolve_role(role, *c, sc.q0));
     system->add_constraint(std::move(c));
   };
   auto arm_ref = [&](const Node& parent, const std::string& key) {
@@ -459,6 +462,7 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
       const Node type_node = L.child(c, "type", true);
       const std::string type = L.string(type_node);
       const std::string cname = L.name(L.child(c, "name", true));
+      role = io_detail::take_role(L, c, type);  // `role:` (removed from c) or the type's default
       try {
         if (type == "closure") {
           L.only_keys(c, {"type", "name", "left", "right", "dz", "yaw_offset", "load_pitch"});
@@ -766,6 +770,8 @@ Scenario load_scenario_unguarded(const std::string& text, const std::filesystem:
   const bool applied = load_forces(L, root, sc, st);
   load_simulation(L, root, sc, applied);
   load_solver(L, root, sc);
+  sc.system = st.system;
+  io_detail::load_control_sections(L, root, sc, st.coord_index);  // docs/control.md
   check_singular_mass(L, sc, st);
   if (options.check_initial) check_initial_state(L, st, sc);
   sc.system = st.system;

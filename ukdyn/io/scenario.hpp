@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/simulate/control.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 namespace ukdyn {
@@ -21,6 +22,8 @@ class ScenarioError : public Error {
  public:
   using Error::Error;
 };
+
+struct ControlSpec;
 
 struct SubsystemInfo {
   std::string name;
@@ -43,6 +46,21 @@ struct Scenario {
   /// The serial chains' link poses and points, as loaded (what the replay page draws:
   /// io/geometry.hpp). Internal to ukdyn::io.
   std::shared_ptr<const io_detail::DefinitionContext> definitions;
+  /// docs/control.md: the role of every block of system->constraints() (physical or servo), the
+  /// actuators (`actuators:`, count 0 if none) and the `control:` section (null if none).
+  std::vector<ConstraintRole> constraint_roles;
+  Actuators actuators;
+  std::shared_ptr<const ControlSpec> control;
+};
+
+/// The `control:` section (docs/control.md): the law, the plant (another scenario, same
+/// coordinates; the scenario itself if none), a constant disturbance τ_d and the servo rows' offsets
+/// at the start.
+struct ControlSpec {
+  ServoLawSettings law;
+  std::shared_ptr<const Scenario> plant;  ///< null: the plant is this scenario's own system
+  Vec disturbance;                        ///< n
+  Vec initial_offset;                     ///< m (rows of the model), 0 for physical rows
 };
 
 struct LoadOptions {

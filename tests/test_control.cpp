@@ -1,0 +1,342 @@
+// Constraint roles, the force split by role, actuators and servo control (docs/control.md).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <Eigen/LU>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "control_systems.hpp"
+#include "ukdyn/core/force_split.hpp"
+#include "ukdyn/core/uk_solve.hpp"
+#include "ukdyn/io/control_output.hpp"
+#include "ukdyn/io/run.hpp"
+#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/simulate/control.hpp"
+
+namespace {
+
+using ukdyn::ConstraintRole;
+using ukdyn::Index;
+using ukdyn::Mat;
+using ukdyn::Vec;
+
+Mat random_spd(std::mt19937_64& rng, Index n) {
+  std::normal_distribution<double> g;
+  Mat X(n, n);
+  for (Index i = 0; i < n; ++i)
+    for (Index j = 0; j < n; ++j) X(i, j) = g(rng);
+  return X * X.transpose() + Mat::Identity(n, n);
+}
+
+Mat random_mat(std::mt19937_64& rng, Index r, Index c) {
+  std::normal_distribution<double> g;
+  Mat X(r, c);
+  for (Index i = 0; i < r; ++i)
+    for (Index j = 0; j < c; ++j) X(i, j) = g(rng);
+  return X;
+}
+
+// The split of the U-K force against the multipliers of an independent KKT solve
+// [M Aᵀ; A 0][q̈; −λ] = [Q; b] (full-pivot LU): Qp = A_pᵀλ_p, Qs = A_sᵀλ_s.
+TEST(ForceSplit, MatchesKktMultipliers) {
+  std::mt19937_64 rng(12);
+  for (int trial = 0; trial < 20; ++trial) {
+    const Index n = 9, m = 6;
+    const Mat M = random_spd(rng, n), A = random_mat(rng, m, n);
+    const Vec b = random_mat(rng, m, 1), Q = random_mat(rng, n, 1);
+    ukdyn::UkWorkspace ws(ukdyn::BlockLayout::single(n), m);
+    Vec qdd(n), Qc(n);
+    ukdyn::uk_solve(M, A, b, Q, ws, qdd, Qc);
+    Mat K = Mat::Zero(n + m, n + m);
+    K.topLeftCorner(n, n) = M;
+    K.topRightCorner(n, m) = A.transpose();
+    K.bottomLeftCorner(m, n) = A;
+    Vec rhs(n + m);
+    rhs << Q, b;
+    const Vec sol = K.fullPivLu().solve(rhs);
+    const Vec lambda = -sol.tail(m);
+    std::vector<bool> servo = {false, false, true, false, true, true};
+    Vec Qp = Vec::Zero(n), Qs = Vec::Zero(n);
+    for (Index i = 0; i < m; ++i)
+      (servo[static_cast<std::size_t>(i)] ? Qs : Qp) += A.row(i).transpose() * lambda(i);
+    const auto s = ukdyn::split_by_role(A, Qc, servo);
+    ASSERT_TRUE(s.unique);
+    const double scale = Qc.norm() + 1.0;
+    EXPECT_LT((s.Qp - Qp).norm(), 1e-10 * scale);
+    EXPECT_LT((s.Qs - Qs).norm(), 1e-10 * scale);
+    EXPECT_LT((s.Qp + s.Qs - Qc).norm(), 1e-12 * scale);
+  }
+}
+
+// A repeated row: the split is not unique, the rows of the dependency are named, the total holds,
+// and the least-norm choice gives the two copies half each.
+TEST(ForceSplit, RedundantRowsAreNamedAndSplitByLeastNorm) {
+  std::mt19937_64 rng(3);
+  const Index n = 5;
+  Mat A = random_mat(rng, 3, n);
+  A.row(2) = A.row(0);  // row 2 (servo) repeats row 0 (physical)
+  const Vec lam_true = (Vec(3) << 2.0, -1.0, 0.0).finished();
+  const Vec Qc = A.transpose() * lam_true;
+  const auto s = ukdyn::split_by_role(A, Qc, {false, false, true});
+  EXPECT_FALSE(s.unique);
+  EXPECT_EQ(s.rank, 2);
+  EXPECT_EQ(s.redundant_rows, (std::vector<Index>{0, 2}));
+  EXPECT_NEAR(s.lambda(0), 1.0, 1e-12);
+  EXPECT_NEAR(s.lambda(2), 1.0, 1e-12);
+  EXPECT_LT((s.Qp + s.Qs - Qc).norm(), 1e-12 * Qc.norm());
+}
+
+// Roles by type: paper.yaml's closure is physical, its cut-point trajectory and coordinate rows are
+// servo; an expression is servo iff it depends on t; `role:` overrides; a bad role names
+// file:line:column and the key.
+TEST(ForceSplit, RolesFromTheScenario) {
+  const auto paper = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper.yaml");
+  ASSERT_EQ(paper.constraint_roles.size(), paper.system->constraints().size());
+  EXPECT_EQ(paper.constraint_roles.front(), ConstraintRole::physical);
+  for (std::size_t c = 1; c < paper.constraint_roles.size(); ++c)
+    EXPECT_EQ(paper.constraint_roles[c], ConstraintRole::servo) << c;
+  const auto pend = ukdyn::load_scenario_text(uktest::pendulum_servo_yaml(), "p.yaml");
+  EXPECT_EQ(pend.constraint_roles,
+            (std::vector<ConstraintRole>{ConstraintRole::physical, ConstraintRole::servo}));
+  std::string text = uktest::pendulum_servo_yaml();
+  text.replace(text.find("    name: rod\n"), 14, "    name: rod\n    role: servo\n");
+  const auto both = ukdyn::load_scenario_text(text, "p.yaml");
+  EXPECT_EQ(both.constraint_roles.front(), ConstraintRole::servo);
+  std::string bad = uktest::pendulum_servo_yaml();
+  bad.replace(bad.find("    name: rod\n"), 14, "    name: rod\n    role: brake\n");
+  try {
+    (void)ukdyn::load_scenario_text(bad, "bad.yaml");
+    FAIL() << "accepted role: brake";
+  } catch (const ukdyn::ScenarioError& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.yaml:14:11: key 'constraints[0].role'"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+double theta_r(double t) { return 0.3 * (1 - std::cos(2 * t)); }
+double theta_r_dot(double t) { return 0.6 * std::sin(2 * t); }
+double theta_r_ddot(double t) { return 1.2 * std::cos(2 * t); }
+
+ukdyn::ControlModel model_of(const ukdyn::Scenario& sc) {
+  return {sc.system, ukdyn::servo_row_flags(*sc.system, sc.constraint_roles), sc.actuators, sc.tau,
+          sc.sim.uk};
+}
+
+// Inverse dynamics against the closed form: along θr the horizontal push is
+// u = m (θ̈r + g sin θr) / cos θr (tangential balance of the bob on its rod of length 1).
+TEST(Actuation, MatchesClosedFormOnThePendulum) {
+  const auto sc = ukdyn::load_scenario_text(uktest::pendulum_servo_yaml(1.7), "p.yaml");
+  const auto model = model_of(sc);
+  ukdyn::ForwardData d(*sc.system);
+  for (double t : {0.0, 0.3, 0.9, 1.4, 2.2}) {
+    const double th = theta_r(t), w = theta_r_dot(t);
+    const Vec q = (Vec(2) << std::sin(th), -std::cos(th)).finished();
+    const Vec qd = (Vec(2) << w * std::cos(th), w * std::sin(th)).finished();
+    ukdyn::forward(*sc.system, d, t, q, qd, Vec::Zero(2), sc.sim.uk);
+    const auto a = ukdyn::actuation_for(model, d);
+    const double u = 1.7 * (theta_r_ddot(t) + 9.8 * std::sin(th)) / std::cos(th);
+    EXPECT_NEAR(a.u(0), u, 1e-10 * (1 + std::abs(u))) << t;
+    EXPECT_FALSE(a.underactuated);
+  }
+}
+
+// A vertical push cannot turn the bob at the bottom: underactuated, with the residual.
+TEST(Actuation, UnderactuationIsReported) {
+  std::string text = uktest::pendulum_servo_yaml();
+  text.replace(text.find("coordinate: x}"), 14, "coordinate: z}");
+  const auto sc = ukdyn::load_scenario_text(text, "p.yaml");
+  ukdyn::ForwardData d(*sc.system);
+  const Vec q = (Vec(2) << 0.0, -1.0).finished();
+  ukdyn::forward(*sc.system, d, 0.0, q, Vec::Zero(2), Vec::Zero(2), sc.sim.uk);
+  const auto a = ukdyn::actuation_for(model_of(sc), d);
+  EXPECT_TRUE(a.underactuated);
+  EXPECT_NEAR(a.residual, 1.2, 1e-9);  // the whole tangential force m θ̈r(0) = 1.2 N
+}
+
+// u(t) from the inverse dynamics along the reference, applied open loop (τ = B u, a function of t
+// only) to the plant with only its physical rod: the servo trajectory is reproduced.
+TEST(Actuation, OpenLoopInputsReproduceTheServoTrajectory) {
+  const auto sc = ukdyn::load_scenario_text(uktest::pendulum_servo_yaml(), "p.yaml");
+  const auto model = model_of(sc);
+  const auto plant = ukdyn::physical_system(*sc.system, sc.constraint_roles);
+  ASSERT_EQ(plant->rows(), 1);
+  ukdyn::ForwardData d(*sc.system);
+  const ukdyn::ForceFunction open_loop = [&](double t, ukdyn::CVecRef, ukdyn::CVecRef,
+                                             ukdyn::VecRef tau) {
+    const double th = theta_r(t), w = theta_r_dot(t);
+    const Vec q = (Vec(2) << std::sin(th), -std::cos(th)).finished();
+    const Vec qd = (Vec(2) << w * std::cos(th), w * std::sin(th)).finished();
+    ukdyn::forward(*sc.system, d, t, q, qd, Vec::Zero(2), sc.sim.uk);
+    tau = sc.actuators.B * ukdyn::actuation_for(model, d).u;
+  };
+  double max_servo = 0, max_rod = 0;
+  long samples = 0;
+  const auto stats = ukdyn::simulate(
+      *plant, sc.q0, sc.qd0, open_loop, sc.sim,
+      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef, const ukdyn::ForwardData&) {
+        const double th = theta_r(t);
+        max_servo = std::max(max_servo, std::abs(q(0) * std::cos(th) + q(1) * std::sin(th)));
+        max_rod = std::max(max_rod, std::abs(0.5 * (q.squaredNorm() - 1)));
+        ++samples;
+        return true;
+      });
+  ASSERT_EQ(stats.status, ukdyn::RunStatus::completed) << stats.message;
+  EXPECT_EQ(samples, 401);
+  EXPECT_LT(max_servo, 1e-8);
+  EXPECT_LT(max_rod, 1e-12);
+  RecordProperty("max_servo_error", std::to_string(max_servo));
+  std::printf("open loop over 4 s: max |servo| = %.3e, max |rod| = %.3e\n", max_servo, max_rod);
+}
+
+// ---- closed loop (a pendulum model and plant; docs/control.md)
+
+std::string control_yaml(const std::string& law) {
+  return "control:\n" + law + "  initial_offset: {swing_angle: 0.02}\n";
+}
+
+struct LoopResult {
+  ukdyn::SimulationStats stats;
+  std::vector<double> t, e;
+  double max_e(double from, double to) const {
+    double m = 0;
+    for (std::size_t i = 0; i < t.size(); ++i)
+      if (t[i] >= from - 1e-12 && t[i] <= to + 1e-12) m = std::max(m, std::abs(e[i]));
+    return m;
+  }
+};
+
+LoopResult run_loop(const ukdyn::Scenario& sc, double t_end, double tol) {
+  const auto run = ukdyn::make_control_run(sc);
+  EXPECT_TRUE(run);
+  ukdyn::SimulationSettings sim = sc.sim;
+  sim.t_end = t_end;
+  sim.abs_tol = sim.rel_tol = tol;
+  LoopResult r;
+  Vec e, ed;
+  r.stats = ukdyn::simulate(
+      *run->plant, run->q0, run->qd0, run->loop->force_function(), sim,
+      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef qd, const ukdyn::ForwardData&) {
+        ukdyn::servo_errors(run->model, t, q, qd, e, ed);
+        r.t.push_back(t);
+        r.e.push_back(e(0));
+        return true;
+      });
+  return r;
+}
+
+std::filesystem::path temp_dir(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() /
+                 ("ukdyn_control_" + name + "_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(d);
+  return d;
+}
+
+// Exact model (the plant is the scenario itself) and the stabilised servo law from an offset start
+// at rest: e(t) = (1 + ωt) e^{−ωt} e(0), ω = 5 (the error ODE ë + 2ωė + ω²e = 0, ė(0) = 0).
+TEST(Control, StabilizedServoErrorIsCriticallyDamped) {
+  const auto sc = ukdyn::load_scenario_text(
+      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: stabilized\n  omega: 5\n")), "p.yaml");
+  const auto r = run_loop(sc, 4.0, 1e-13);
+  ASSERT_EQ(r.stats.status, ukdyn::RunStatus::completed) << r.stats.message;
+  const double e0 = r.e.front(), w = 5.0;
+  EXPECT_NEAR(e0, 0.02, 1e-14);
+  double worst = 0;
+  for (std::size_t i = 0; i < r.t.size(); ++i) {
+    const double exact = (1 + w * r.t[i]) * std::exp(-w * r.t[i]) * e0;
+    worst = std::max(worst, std::abs(r.e[i] - exact) / std::abs(e0));
+  }
+  EXPECT_LT(worst, 1e-6);
+  std::printf("stabilized, exact model: max |e - (1+wt)e^-wt e0| / |e0| = %.3e\n", worst);
+}
+
+// Perturbed plant (the load mass x1.2): the feedback-only baseline (rho = 0) against the robust
+// term (rho = 2, eps = 0.01): max|e| over [2, 10] s <= 1e-3 and >= 10x below the baseline; eps/10
+// shrinks the final error (max over [9, 10] s) >= 3x.
+TEST(Control, RobustTermBeatsFeedbackOnlyOnAHeavierLoad) {
+  const auto dir = temp_dir("robust");
+  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.2); }
+  auto scenario = [&](double rho, double eps) {
+    return ukdyn::load_scenario_text(
+        uktest::pendulum_servo_yaml(
+            1.0,
+            control_yaml("  law: robust\n  lambda: 5\n  kappa: 5\n  rho: " + std::to_string(rho) +
+                         "\n  epsilon: " + std::to_string(eps) + "\n  plant: plant.yaml\n")),
+        dir / "model.yaml");
+  };
+  const auto base = run_loop(scenario(0.0, 0.01), 10.0, 1e-10);
+  const auto robust = run_loop(scenario(2.0, 0.01), 10.0, 1e-10);
+  const auto tight = run_loop(scenario(2.0, 0.001), 10.0, 1e-10);
+  for (const auto* r : {&base, &robust, &tight})
+    ASSERT_EQ(r->stats.status, ukdyn::RunStatus::completed) << r->stats.message;
+  const double b = base.max_e(2, 10), rb = robust.max_e(2, 10);
+  const double f1 = robust.max_e(9, 10), f2 = tight.max_e(9, 10);
+  std::printf(
+      "max|e| [2,10] s: feedback only %.3e, robust %.3e (ratio %.1f); final [9,10] s: "
+      "eps 0.01 %.3e, eps 0.001 %.3e (ratio %.1f)\n",
+      b, rb, b / rb, f1, f2, f1 / f2);
+  EXPECT_LE(rb, 1e-3);
+  EXPECT_GE(b / rb, 10.0);
+  EXPECT_GE(f1 / f2, 3.0);
+  std::filesystem::remove_all(dir);
+}
+
+// Through run_scenario: the e_/ed_/u_ columns, the control summary, and saturation flagged.
+TEST(Control, RunWritesErrorsInputsAndFlagsSaturation) {
+  std::string text = uktest::pendulum_servo_yaml(1.0, control_yaml("  law: stabilized\n"));
+  text.replace(text.find("coordinate: x}"), 14, "coordinate: x, limit: 3}");
+  const auto dir = temp_dir("run");
+  const auto sc = ukdyn::load_scenario_text(text, dir / "p.yaml");
+  ukdyn::RunOptions o;
+  o.figures = false;
+  const auto rep = ukdyn::run_scenario(sc, dir / "out", o);
+  ASSERT_TRUE(rep.complete()) << rep.stats.message;
+  std::ifstream csv(dir / "out" / "trajectory.csv");
+  std::string header;
+  std::getline(csv, header);
+  for (const char* col : {"Qp_x", "Qs_z", "role_split_unique", "u_fx", "act_residual",
+                          "e_swing_angle", "ed_swing_angle"})
+    EXPECT_NE(header.find(col), std::string::npos) << col;
+  bool warned = false;
+  for (const auto& w : rep.stats.warnings) warned = warned || w.kind == "saturation";
+  EXPECT_TRUE(warned);
+  std::ifstream js(dir / "out" / "summary.json");
+  std::stringstream ss;
+  ss << js.rdbuf();
+  EXPECT_NE(ss.str().find("\"max_abs_e_second_half\""), std::string::npos);
+  EXPECT_NE(ss.str().find("\"saturation_max_over_limit\""), std::string::npos);
+  std::filesystem::remove_all(dir);
+}
+
+// Bad control input names file:line:column and the key; the paper's control scenario loads with
+// its plant, 12 actuators and the closure as its only physical block.
+TEST(Control, ScenarioKeysAndThePaperControlScenario) {
+  const auto bad = [](const std::string& extra, const std::string& expect) {
+    try {
+      (void)ukdyn::load_scenario_text(uktest::pendulum_servo_yaml(1.0, extra), "c.yaml");
+      ADD_FAILURE() << "accepted: " << extra;
+    } catch (const ukdyn::ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(expect), std::string::npos) << e.what();
+    }
+  };
+  bad("control:\n  law: pid\n", "c.yaml:25:8: key 'control.law': unknown law 'pid'");
+  bad("control:\n  law: stabilized\n  plant: missing.yaml\n",
+      "key 'control.plant': the plant scenario");
+  bad("control:\n  law: stabilized\n  initial_offset: {rod_circle: 0.1}\n",
+      "key 'control.initial_offset.rod_circle': row 'rod_circle' is not a servo row");
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_control.yaml");
+  ASSERT_TRUE(sc.control && sc.control->plant);
+  EXPECT_EQ(sc.actuators.count(), 12);
+  EXPECT_EQ(sc.control->plant->name, "paper_generic_exact_inertia");
+  const auto plant =
+      ukdyn::physical_system(*sc.control->plant->system, sc.control->plant->constraint_roles);
+  EXPECT_EQ(plant->rows(), 6);  // the closure only
+  EXPECT_EQ(sc.control->law.kind, ukdyn::ControlLawKind::robust);
+}
+
+}  // namespace
