@@ -17,6 +17,9 @@
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
+#ifdef UKDYN_CLI
+#include "cli_run.hpp"
+#endif
 
 namespace {
 
@@ -169,4 +172,18 @@ TEST(NRobotsWeld, RunsAndKeepsTheWelds) {
     std::printf("%s: 0.5 s, max |Phi| = %.3g, load z = %.4f m\n", file, drift, fall);
   }
 }
+#ifdef UKDYN_CLI
+TEST(NRobotsWeld, CliRunWithFiguresCompletes) {
+  // The figures of a scenario with frame constraints (force_*, wrench_*): ukdyn simulate crashed
+  // here (a dangling reference to a copy of ConstraintForceColumns' figure lists).
+  ukdyn_test::ScratchDir dir("ukdyn_weld_cli");
+  const std::string file = std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3_weld.yaml";
+  const auto r = ukdyn_test::run_cli(
+      UKDYN_CLI, dir.path,
+      "simulate " + ukdyn_test::sh(file) + " --out " + ukdyn_test::sh((dir.path / "out").string()));
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  const std::string summary = ukdyn_test::slurp(dir.path / "out" / "summary.json");
+  EXPECT_NE(summary.find("\"complete\""), std::string::npos) << summary.substr(0, 400);
+}
+#endif
 #endif
