@@ -7,6 +7,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <numbers>
 #include <random>
 
 #include "ukdyn/core/uk_singular.hpp"
@@ -263,6 +264,141 @@ TEST(FreeBody, HeavySymmetricTopPrecessesSteadily) {
   ASSERT_EQ(st.status, ukdyn::RunStatus::completed) << st.message;
   EXPECT_LE(err, 1e-9);
   std::printf("heavy top: precession %.9f rad/s, max axis error over 5 s %.3g\n", phid, err);
+}
+
+TEST(FreeBody, HeavyTopNutatesBetweenTheRootsOfTheEnergyCubic) {
+  // Goldstein Sec. 5.7: with u = cos θ, the energy and the two momenta p_φ, p_ψ = I3 ω3 give
+  // u̇² = f(u) = (1 − u²)(α − β u) − (b − a u)², a = I3 ω3 / I1', b = p_φ / I1', α = 2 E' / I1',
+  // β = 2 m g l / I1', I1' = I1 + m l² (about the tip). Released at θ0 with θ̇ = φ̇ = 0:
+  // b = a u0, α = β u0, so f(u) = (u0 − u)[β(1 − u²) − a²(u0 − u)] and θ nutates between θ0 and
+  // the root u2 = (a² − sqrt(a⁴ − 4β(a² u0 − β))) / (2β) of the bracket.
+  const double m = 1.5, l = 0.4, g = 9.81, I1 = 0.02, I3 = 0.03, th0 = 0.6, w3 = 100.0;
+  const double I1p = I1 + m * l * l, u0 = std::cos(th0);
+  const double a = I3 * w3 / I1p, beta = 2.0 * m * g * l / I1p;
+  const double u2 = (a * a - std::sqrt(a * a * a * a - 4.0 * beta * (a * a * u0 - beta))) /
+                    (2.0 * beta);
+  ASSERT_GT(u2, -1.0);
+  ASSERT_LT(u2, u0);
+  const Body b = free_body({I1, I1, I3}, m, g, Eigen::Vector3d(0, 0, -l));
+  Vec q0(7), qd0(7);
+  q0.tail(4) << std::cos(th0 / 2), std::sin(th0 / 2), 0, 0;
+  const Eigen::Matrix3d R = rot(q0.tail(4));
+  q0.head(3) = l * R.col(2);
+  const Eigen::Vector3d w_world = w3 * R.col(2);  // spin only: θ̇ = φ̇ = 0
+  qd0.head(3) = w_world.cross(Eigen::Vector3d(q0.head(3)));
+  qd0.tail(4) = quat_rate(q0.tail(4), R.transpose() * w_world);
+  std::vector<double> u;
+  double dpphi = 0, dppsi = 0;
+  const double pphi0 = I3 * w3 * u0;
+  const auto st = ukdyn::simulate(
+      *b.system, q0, qd0, nullptr, tight(2.0, 0.001),
+      [&](double, CVecRef q, CVecRef qd, const ForwardData&) {
+        const Eigen::Matrix3d Rq = rot(q.tail(4));
+        const Eigen::Vector3d w = omega_body(q.tail(4), qd.tail(4));
+        u.push_back(Rq(2, 2));
+        // p_ψ = I3 ω3 (body z); p_φ = L_z about the tip: (R J ω)_z + m (p × ṗ)_z.
+        const Eigen::Vector3d J(I1, I1, I3);
+        const Eigen::Vector3d p = q.head(3), pd = qd.head(3);
+        const double pphi = (Rq * J.cwiseProduct(w))(2) + m * p.cross(pd)(2);
+        dppsi = std::max(dppsi, std::abs(I3 * w(2) - I3 * w3) / (I3 * w3));
+        dpphi = std::max(dpphi, std::abs(pphi - pphi0) / (I3 * w3));
+        return true;
+      });
+  ASSERT_EQ(st.status, ukdyn::RunStatus::completed) << st.message;
+  // Extremes of u between samples: a parabola through the three samples around each one.
+  double umin = 1.0, umax = -1.0, below = 0.0, above = 0.0;
+  for (std::size_t i = 1; i + 1 < u.size(); ++i) {
+    below = std::max(below, u2 - u[i]);
+    above = std::max(above, u[i] - u0);
+    const bool lo = u[i] <= u[i - 1] && u[i] <= u[i + 1];
+    const bool hi = u[i] >= u[i - 1] && u[i] >= u[i + 1];
+    if (!lo && !hi) continue;
+    const double c2 = 0.5 * (u[i + 1] - 2 * u[i] + u[i - 1]), c1 = 0.5 * (u[i + 1] - u[i - 1]);
+    const double ext = std::abs(c2) > 0 ? u[i] - c1 * c1 / (4 * c2) : u[i];
+    if (lo) umin = std::min(umin, ext);
+    if (hi && i > 5) umax = std::max(umax, ext);
+  }
+  std::printf(
+      "heavy top nutation: theta in [%.10f, %.10f] rad, closed form [%.10f, %.10f]; "
+      "|p_phi|, |p_psi| drift %.3g, %.3g\n",
+      std::acos(umax), std::acos(umin), th0, std::acos(u2), dpphi, dppsi);
+  EXPECT_NEAR(umin, u2, 1e-8);
+  EXPECT_NEAR(umax, u0, 1e-8);
+  EXPECT_LE(below, 1e-10);  // never outside the bounds
+  EXPECT_LE(above, 1e-10);
+  EXPECT_LE(dpphi, 1e-11);
+  EXPECT_LE(dppsi, 1e-11);
+}
+
+namespace {
+// An Euler-angle body (Z-Y-X: R = Rz(yaw) Ry(pitch) Rx(roll)), ω_body from the angle rates; M is
+// singular at pitch = ±π/2 (gimbal lock): its rotational block has det ∝ cos² pitch.
+std::shared_ptr<System> euler_body() {
+  sym::SubsystemDef d("euler", {"yaw", "pitch", "roll"});
+  auto& b = d.add_body("body");
+  b.mass = 1;
+  b.com = {0, 0, 0};
+  b.rotation = std::array<GiNaC::ex, 9>{
+      d.parse("cos(yaw)*cos(pitch)"),
+      d.parse("cos(yaw)*sin(pitch)*sin(roll) - sin(yaw)*cos(roll)"),
+      d.parse("cos(yaw)*sin(pitch)*cos(roll) + sin(yaw)*sin(roll)"),
+      d.parse("sin(yaw)*cos(pitch)"),
+      d.parse("sin(yaw)*sin(pitch)*sin(roll) + cos(yaw)*cos(roll)"),
+      d.parse("sin(yaw)*sin(pitch)*cos(roll) - cos(yaw)*sin(roll)"),
+      d.parse("-sin(pitch)"),
+      d.parse("cos(pitch)*sin(roll)"),
+      d.parse("cos(pitch)*cos(roll)")};
+  // ω_body of Z-Y-X angles: [ṙ − ẏ sin p, ṗ cos r + ẏ cos p sin r, −ṗ sin r + ẏ cos p cos r].
+  b.angular_velocity = std::array<GiNaC::ex, 3>{
+      d.parse("roll_dot - yaw_dot*sin(pitch)"),
+      d.parse("pitch_dot*cos(roll) + yaw_dot*cos(pitch)*sin(roll)"),
+      d.parse("-pitch_dot*sin(roll) + yaw_dot*cos(pitch)*cos(roll)")};
+  b.inertia_kind = sym::BodyDef::InertiaKind::tensor;
+  b.inertia_tensor = {1, 0, 0, 0, 2, 0, 0, 0, 3};
+  b.inertia_frame = sym::Frame::body;
+  auto sys = std::make_shared<System>();
+  sys->add_subsystem(sym::make_subsystem(d));
+  return sys;
+}
+}  // namespace
+
+TEST(SingularMass, GimbalLockIsWarnedBeforeTheSolveBreaks) {
+  // Along pitch → π/2 the condition estimate passes kMassConditionWarning (1e8) at a distance
+  // from the lock where q̈ is still finite and accurate; the solve gives up only much closer.
+  const auto sys = euler_body();
+  ForwardData d(*sys);
+  double warn_at = -1, break_at = -1;
+  for (int k = 1; k <= 14; ++k) {
+    const double eps = std::pow(10.0, -0.5 * k);  // π/2 − pitch
+    Vec q(3), qd(3);
+    q << 0.3, std::numbers::pi / 2 - eps, 0.2;
+    qd << 0.0, 0.5, 0.0;  // a pure pitch rate: the exact motion stays regular
+    ukdyn::forward(*sys, d, 0.0, q, qd, Vec::Zero(3));
+    const double cond = ukdyn::mass_condition(d);
+    if (warn_at < 0 && cond > ukdyn::kMassConditionWarning) warn_at = eps;
+    const bool ok = d.result.finite && !d.singular.active;
+    if (break_at < 0 && !ok) break_at = eps;
+  }
+  std::printf("Euler angles: warned at pi/2 - pitch = %.3g, solve leaves the fast path at %.3g\n",
+              warn_at, break_at);
+  ASSERT_GT(warn_at, 0);
+  EXPECT_TRUE(break_at < 0 || warn_at > 10 * break_at);
+  // A run heading into the lock (pitch rate π/2 rad/s, lock at t = 1 s) ending 3e-5 s before it:
+  // the warning names the subsystem.
+  ukdyn::SimulationSettings s = tight(1.0 - 3e-5, (1.0 - 3e-5) / 100);
+  Vec q0(3), qd0(3);
+  q0 << 0.0, 0.0, 0.0;
+  qd0 << 0.0, std::numbers::pi / 2, 0.0;
+  const auto st = ukdyn::simulate(*sys, q0, qd0, nullptr, s,
+                                  [&](double, CVecRef, CVecRef, const ForwardData&) { return true; });
+  bool warned = false;
+  for (const auto& w : st.warnings) {
+    if (w.kind == "ill_conditioned_mass") {
+      warned = true;
+      EXPECT_NE(w.message.find("'euler'"), std::string::npos) << w.message;
+    }
+  }
+  EXPECT_TRUE(warned) << "no ill_conditioned_mass warning; status " << st.message;
 }
 
 namespace {

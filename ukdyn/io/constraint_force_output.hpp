@@ -27,8 +27,11 @@ class ConstraintForceColumns {
   /// Writes header().size() values from out[0]. Returns false if the split is not unique.
   bool fill(CVecRef q, const ForwardData& d, double* out) const;
   /// One figure per frame constraint (its world wrench) and one per block (its force).
-  [[nodiscard]] std::vector<std::vector<std::string>> figure_columns() const { return figures_; }
-  [[nodiscard]] std::vector<std::string> figure_names() const { return figure_names_; }
+  /// (By reference: run.cpp indexes them, `figure_columns()[f]`; a copy would dangle.)
+  [[nodiscard]] const std::vector<std::vector<std::string>>& figure_columns() const {
+    return figures_;
+  }
+  [[nodiscard]] const std::vector<std::string>& figure_names() const { return figure_names_; }
 
  private:
   const Scenario* sc_ = nullptr;

@@ -447,7 +447,8 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                                                       const InstanceSpec* instance) {
   L.only_keys(s,
               {"name", "type", "coordinates", "parameters", "let", "gravity", "potential", "mount",
-               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances"});
+               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
+               "floating_root"});
   auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
   const Node cn = L.child(s, "coordinates", true);
   Node m = L.child(s, "mount", false);
@@ -484,6 +485,8 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   const Node mjcf = L.child(s, "mjcf", false);
   if (int(joints.node.IsDefined()) + int(urdf.node.IsDefined()) + int(mjcf.node.IsDefined()) != 1)
     L.fail(s, "give one of joints (a list), urdf (a file) or mjcf (a file)");
+  if (Node fr = L.child(s, "floating_root", false); fr.node.IsDefined() && !urdf.node.IsDefined())
+    L.fail(fr, "floating_root is for urdf: (in joints, give the first joint type: floating)");
   std::vector<Node> joint_nodes;
   if (joints.node.IsDefined()) {
     if (!joints.node.IsSequence() || joints.node.size() == 0)
@@ -491,7 +494,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     for (std::size_t i = 0; i < joints.node.size(); ++i) {
       const Node j{joints.node[i], joints.key + "[" + std::to_string(i) + "]"};
       L.only_keys(j, {"name", "type", "parent", "link", "origin", "axis", "coordinate", "value",
-                      "mass", "com", "inertia", "inertia_rpy"});
+                      "mass", "com", "inertia", "inertia_rpy", "coordinates"});
       const std::string jname = L.label(L.child(j, "name", true));
       const Node tn = L.child(j, "type", true);
       const std::string type = L.string(tn);
@@ -502,8 +505,13 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
         jt = sym::JointDef::Type::prismatic;
       } else if (type == "fixed") {
         jt = sym::JointDef::Type::fixed;
+      } else if (type == "floating") {  // docs/free-bodies.md, "Floating joints"
+        jt = sym::JointDef::Type::floating;
+      } else if (type == "ball") {
+        jt = sym::JointDef::Type::ball;
       } else {
-        L.fail(tn, "unknown joint type '" + type + "' (expected revolute, prismatic or fixed)");
+        L.fail(tn, "unknown joint type '" + type +
+                       "' (expected revolute, prismatic, fixed, floating or ball)");
       }
       std::string link = jname;
       if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.label(k);
@@ -517,7 +525,22 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
         jd.axis = parse_list<3>(L, *def, a);
       const Node cnode = L.child(j, "coordinate", false);
       const Node vnode = L.child(j, "value", false);
-      if (jt == sym::JointDef::Type::fixed) {
+      const Node csnode = L.child(j, "coordinates", false);
+      if (jt == sym::JointDef::Type::floating || jt == sym::JointDef::Type::ball) {
+        const bool fl = jt == sym::JointDef::Type::floating;
+        const std::size_t nc = fl ? 7 : 4;
+        const std::string what = fl ? "a floating joint takes coordinates (7: x, y, z, qw, qx, qy, qz)"
+                                    : "a ball joint takes coordinates (4: qw, qx, qy, qz)";
+        if (cnode.node.IsDefined() || vnode.node.IsDefined())
+          L.fail(j, what + ", not a coordinate or value");
+        if (!csnode.node.IsDefined() || !csnode.node.IsSequence() || csnode.node.size() != nc)
+          L.fail(csnode.node.IsDefined() ? csnode : j, what);
+        for (std::size_t k = 0; k < nc; ++k)
+          jd.coordinates.push_back(coordinate_name(
+              Node{csnode.node[k], csnode.key + "[" + std::to_string(k) + "]"}));
+      } else if (csnode.node.IsDefined()) {
+        L.fail(csnode, "only floating and ball joints take coordinates (give coordinate)");
+      } else if (jt == sym::JointDef::Type::fixed) {
         if (cnode.node.IsDefined() || vnode.node.IsDefined())
           L.fail(j, "a fixed joint has no coordinate or value");
       } else if (cnode.node.IsDefined() && vnode.node.IsDefined()) {
@@ -543,6 +566,15 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       L.fail(mjcf, e.what());
     }
   } else {
+    if (Node fr = L.child(s, "floating_root", false); fr.node.IsDefined()) {
+      // The URDF's root link on a floating joint (docs/free-bodies.md, "Floating joints").
+      if (!fr.node.IsSequence() || fr.node.size() != 7)
+        L.fail(fr, "expected a list of 7 coordinates (x, y, z, qw, qx, qy, qz)");
+      if (def->base.enabled) L.fail(fr, "a floating root and a mobile base exclude each other");
+      for (std::size_t k = 0; k < 7; ++k)
+        def->floating_root.push_back(
+            coordinate_name(Node{fr.node[k], fr.key + "[" + std::to_string(k) + "]"}));
+    }
     std::filesystem::path file = L.string(urdf);
     if (file.is_relative()) file = L.path().parent_path() / file;
     std::map<std::string, ex> values;

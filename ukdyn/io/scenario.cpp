@@ -455,6 +455,18 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
       L.fail(st.subs, e.what());
     }
   }
+  for (const auto& info : sc.subsystems) {  // floating joints of chains: NAME_JOINT_unit
+    const symbolic::ChainModel* chain = io_detail::chain_model(definition_context.get(), info.name);
+    if (!chain) continue;
+    for (const auto& [joint, quat] : chain->quaternions) {
+      try {
+        add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
+                         info.name + "_" + joint, quat, system->coordinate_names())));
+      } catch (const Error& e) {
+        L.fail(st.subs, e.what());
+      }
+    }
+  }
   if (Node cons = L.child(root, "constraints", false); cons.node.IsDefined()) {
     if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
     for (std::size_t i = 0; i < cons.node.size(); ++i) {

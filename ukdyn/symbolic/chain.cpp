@@ -1,5 +1,7 @@
 #include "ukdyn/symbolic/chain.hpp"
 
+#include "ukdyn/symbolic/free_body.hpp"
+
 #include <algorithm>
 #include <set>
 #include <sstream>
@@ -119,7 +121,7 @@ Vec3Ex ChainModel::world_point(const std::string& name) const {
 }
 
 ChainModel build_chain(const ChainDef& chain) {
-  ChainModel m{static_cast<const SubsystemDef&>(chain), {}, {}};
+  ChainModel m{static_cast<const SubsystemDef&>(chain), {}, {}, {}};
   const GiNaC::exmap values = chain.parameter_values();
   const auto& coords = chain.coordinates();
   std::vector<GiNaC::symbol> q, qd;
@@ -157,6 +159,11 @@ ChainModel build_chain(const ChainDef& chain) {
     Vec3Ex axis{0, 0, 0};
     ex angle = 0;
     bool has_axis = false;
+    // Downstream of a floating joint: the angular velocity in the frame's own axes (wb), composed
+    // joint by joint with orthonormal steps, so that a body fixed to the floating link gets
+    // exactly the free body's ω_body = 2 E(q) q̇ (free_body.hpp); w is then unused.
+    bool floating = false;
+    Vec3Ex wb{0, 0, 0};
   };
   std::map<std::string, Pose> frames;
   const Mat3Ex Rm = rpy_rotation(chain.mount.rpy);
@@ -179,7 +186,8 @@ ChainModel build_chain(const ChainDef& chain) {
       b.inertia_tensor = in.inertia;
       b.inertia_frame = symbolic::Frame::body;
       b.rotation = Rb;
-      Vec3Ex wb = mul_transposed(Rb, f.w);
+      Vec3Ex wb = f.floating ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
+                             : mul_transposed(Rb, f.w);
       for (auto& e : wb) e = simplify_trig(e);
       b.angular_velocity = wb;
     }
@@ -227,6 +235,10 @@ ChainModel build_chain(const ChainDef& chain) {
     const Pose& P = pit->second;
     Pose jf = P;
     jf.p = add(P.p, mul(P.R, j.origin.xyz));
+    if (P.floating && !all_zero(j.origin.rpy)) {
+      jf.wb = mul_transposed(rpy_rotation(j.origin.rpy), P.wb);
+      for (auto& e : jf.wb) e = e.expand();
+    }
     if (!all_zero(j.origin.rpy)) {
       // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
       // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
@@ -235,7 +247,52 @@ ChainModel build_chain(const ChainDef& chain) {
       for (auto& e : jf.R) e = e.expand();
       jf.has_axis = false;
     }
-    if (j.type != JointDef::Type::fixed) {
+    if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball) {
+      // Position + unit quaternion (docs/free-bodies.md, "Floating joints"): p = p_joint +
+      // R_joint (x, y, z) (floating only), R = R_joint R(q), ω_body = R(q)ᵀ ω_joint + 2 E(q) q̇,
+      // the free body's rate (free_body.hpp) plus the joint frame's own angular velocity.
+      const bool floating = j.type == JointDef::Type::floating;
+      const std::size_t nc = floating ? 7 : 4;
+      const std::string kind = floating ? "a floating" : "a ball";
+      if (j.coordinates.size() != nc) {
+        throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
+                              " coordinates (" +
+                              (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") +
+                              "), got " + std::to_string(j.coordinates.size()));
+      }
+      for (const auto& c : j.coordinates) {
+        if (!has_coord(c))
+          throw DefinitionError(where + ": '" + c + "' is not a coordinate of the chain");
+      }
+      if (j.value || !j.coordinate.empty())
+        throw DefinitionError(where + ": " + kind +
+                              " joint takes coordinates, not a coordinate or value");
+      // The joint frame's angular velocity in its own axes (jf.R is orthonormal off a floating
+      // part: products of rotations about axes).
+      Vec3Ex wj = jf.wb;
+      if (!jf.floating) {
+        wj = mul_transposed(jf.R, jf.w);
+        for (auto& e : wj) e = simplify_trig(e.expand());
+      }
+      std::vector<ex> c(nc), d(nc);
+      for (std::size_t k = 0; k < nc; ++k) {
+        c[k] = coordinate_symbol(j.coordinates[k]);
+        d[k] = velocity_symbol(j.coordinates[k]);
+      }
+      const std::size_t o = floating ? 3 : 0;
+      if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
+      const Mat3Ex Rq = quaternion_rotation(c[o], c[o + 1], c[o + 2], c[o + 3]);
+      jf.R = mul(jf.R, Rq);
+      for (auto& e : jf.R) e = e.expand();
+      jf.wb = add(mul_transposed(Rq, wj), quaternion_body_rate(c[o], c[o + 1], c[o + 2], c[o + 3],
+                                                               d[o], d[o + 1], d[o + 2], d[o + 3]));
+      for (auto& e : jf.wb) e = e.expand();
+      jf.floating = true;
+      jf.has_axis = false;
+      m.quaternions.emplace_back(
+          j.name, std::vector<std::string>(j.coordinates.begin() + static_cast<long>(o),
+                                           j.coordinates.end()));
+    } else if (j.type != JointDef::Type::fixed) {
       ex v;
       if (j.value) {
         v = *j.value;
@@ -249,8 +306,13 @@ ChainModel build_chain(const ChainDef& chain) {
         v = coordinate_symbol(j.coordinate);
       }
       const Vec3Ex a = unit(j.axis, where, values);
+      if (j.type == JointDef::Type::revolute && jf.floating) {
+        // Body-frame composition: ω_child = Rot(a, v)ᵀ ω_joint + a v̇.
+        jf.wb = add(mul_transposed(axis_rotation(a, v), jf.wb), scale(a, rate(v)));
+        for (auto& e : jf.wb) e = e.expand();
+      }
       if (j.type == JointDef::Type::revolute) {
-        jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
+        if (!jf.floating) jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
         const bool same_axis = jf.has_axis && jf.axis[0].is_equal(a[0]) &&
                                jf.axis[1].is_equal(a[1]) && jf.axis[2].is_equal(a[2]);
         if (same_axis) {

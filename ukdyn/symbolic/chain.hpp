@@ -48,7 +48,11 @@ struct InertialDef {
 };
 
 struct JointDef {
-  enum class Type { revolute, prismatic, fixed };
+  /// floating: 6 DoF in position + unit quaternion (docs/free-bodies.md, "Floating joints"):
+  /// `coordinates` (7: x, y, z, qw, qx, qy, qz), the translation in the joint frame and the
+  /// rotation joint → child link; ball: the rotation only (4: qw, qx, qy, qz). Their unit-norm
+  /// rows are added by the scenario (ChainModel::quaternions).
+  enum class Type { revolute, prismatic, fixed, floating, ball };
   std::string name;
   Type type = Type::revolute;
   std::string parent;  ///< parent link; empty = the child link of the previous joint (or the base)
@@ -57,6 +61,7 @@ struct JointDef {
   Vec3Ex axis{0, 0, 1};
   std::string coordinate;          ///< the joint variable is this coordinate ...
   std::optional<GiNaC::ex> value;  ///< ... or this expression of the coordinates
+  std::vector<std::string> coordinates;  ///< floating: x, y, z, qw, qx, qy, qz; ball: qw .. qz
   InertialDef inertial;            ///< of the child link (mass 0: no body)
 };
 
@@ -87,6 +92,9 @@ class ChainDef : public SubsystemDef {
   std::vector<PointDef> points;
   /// Name of the root link when there is no mobile base.
   std::string root_link = "root";
+  /// A URDF's root link on a floating joint (append_urdf): its 7 coordinates (x, y, z, qw, qx, qy,
+  /// qz); empty = the root is fixed (or on the mobile base).
+  std::vector<std::string> floating_root;
 };
 
 struct LinkPose {
@@ -105,6 +113,9 @@ struct ChainModel {
   /// A named point with the parameter values substituted (usable in any ConstraintDef). Throws
   /// DefinitionError listing the known names if there is no such point.
   [[nodiscard]] Vec3Ex world_point(const std::string& name) const;
+  /// Per floating or ball joint: its name and its quaternion coordinates (qw, qx, qy, qz), whose unit-norm
+  /// row (free_body_norm_constraint) the system needs.
+  std::vector<std::pair<std::string, std::vector<std::string>>> quaternions;
 };
 
 /// Builds the link poses and bodies. Throws DefinitionError for unknown links or coordinates,

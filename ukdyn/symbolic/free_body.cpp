@@ -19,6 +19,13 @@ std::array<ex, 9> quaternion_rotation(const ex& w, const ex& x, const ex& y, con
       2 * (x * z - w * y),           2 * (y * z + w * x),           w * w - x * x - y * y + z * z};
 }
 
+std::array<ex, 3> quaternion_body_rate(const ex& w, const ex& x, const ex& y, const ex& z,
+                                       const ex& wd, const ex& xd, const ex& yd, const ex& zd) {
+  // ω_body = 2 E(q) q̇ ([Udwadia2010b]), = vee(Rᵀ Ṙ) for |q| = 1 (tests/test_free_body.cpp).
+  return {2 * (-x * wd + w * xd + z * yd - y * zd), 2 * (-y * wd - z * xd + w * yd + x * zd),
+          2 * (-z * wd + y * xd - x * yd + w * zd)};
+}
+
 BodyDef& add_free_body(SubsystemDef& def, const ex& mass, const std::array<ex, 9>& inertia) {
   const auto& c = def.coordinates();
   if (c.size() != 7) {
@@ -31,10 +38,7 @@ BodyDef& add_free_body(SubsystemDef& def, const ex& mass, const std::array<ex, 9
   b.mass = mass;
   b.com = {def.q(c[0]), def.q(c[1]), def.q(c[2])};
   b.rotation = quaternion_rotation(w, x, y, z);
-  // ω_body = 2 E(q) q̇ ([Udwadia2010b]), = vee(Rᵀ Ṙ) for |q| = 1 (tests/test_free_body.cpp).
-  b.angular_velocity = std::array<ex, 3>{2 * (-x * wd + w * xd + z * yd - y * zd),
-                                         2 * (-y * wd - z * xd + w * yd + x * zd),
-                                         2 * (-z * wd + y * xd - x * yd + w * zd)};
+  b.angular_velocity = quaternion_body_rate(w, x, y, z, wd, xd, yd, zd);
   b.inertia_kind = BodyDef::InertiaKind::tensor;
   b.inertia_tensor = inertia;
   b.inertia_frame = Frame::body;

@@ -29,6 +29,14 @@ std::vector<std::string> free_body_coordinates(const std::string& name);
 std::array<GiNaC::ex, 9> quaternion_rotation(const GiNaC::ex& w, const GiNaC::ex& x,
                                              const GiNaC::ex& y, const GiNaC::ex& z);
 
+/// ω_body = 2 E(q) q̇ (the formula of the header), the body-frame angular velocity of the rotation
+/// quaternion_rotation(w, x, y, z) with rates (wd, xd, yd, zd); shared by free bodies and the
+/// floating joints of chains (chain.hpp).
+std::array<GiNaC::ex, 3> quaternion_body_rate(const GiNaC::ex& w, const GiNaC::ex& x,
+                                              const GiNaC::ex& y, const GiNaC::ex& z,
+                                              const GiNaC::ex& wd, const GiNaC::ex& xd,
+                                              const GiNaC::ex& yd, const GiNaC::ex& zd);
+
 /// Adds the free body (named like def) to `def`, whose first 7 coordinates are (x, y, z, qw, qx,
 /// qy, qz): mass and the inertia tensor about the CoM in the body frame (row-major, symmetric).
 BodyDef& add_free_body(SubsystemDef& def, const GiNaC::ex& mass,

@@ -91,16 +91,16 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
   for (const auto& c : chain.coordinates())
     if (!taken.count(c)) free.push_back(c);
   for (int j = 0; j < m.njnt; ++j) {
-    const int t = m.jnt_type[j];
-    if (t != mjJNT_HINGE && t != mjJNT_SLIDE) {
+    const double* a = m.jnt_pos + 3 * j;
+    if (m.jnt_type[j] == mjJNT_FREE && (a[0] != 0.0 || a[1] != 0.0 || a[2] != 0.0)) {
       throw DefinitionError(path + ": joint '" + name_of(mjOBJ_JOINT, j, std::to_string(j)) +
-                            "': type " + (t == mjJNT_BALL ? "ball" : "free") +
-                            " is not supported yet (hinge and slide joints)");
+                            "': a free joint with an anchor off the body origin is not supported");
     }
   }
-  if (static_cast<int>(free.size()) != m.njnt) {
-    throw DefinitionError(path + ": the model has " + std::to_string(m.njnt) +
-                          " hinge/slide joints but the chain declares " +
+  if (static_cast<int>(free.size()) != m.nq) {
+    throw DefinitionError(path + ": the model has " + std::to_string(m.nq) +
+                          " qpos coordinates (hinge and slide joints 1, ball 4, free 7) but the "
+                          "chain declares " +
                           std::to_string(free.size()) + " joint coordinates");
   }
   if (m.neq > 0) {
@@ -125,12 +125,27 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
       const int j = j0 + i;
       const double* a = m.jnt_pos + 3 * j;
       const std::string jname = name_of(mjOBJ_JOINT, j, bname + "_joint" + std::to_string(i));
-      const bool hinge = m.jnt_type[j] == mjJNT_HINGE;
+      const int type = m.jnt_type[j];
+      const bool hinge = type == mjJNT_HINGE;
+      const JointDef::Type jt = type == mjJNT_FREE   ? JointDef::Type::floating
+                                : type == mjJNT_BALL ? JointDef::Type::ball
+                                : hinge              ? JointDef::Type::revolute
+                                                     : JointDef::Type::prismatic;
       // The joint frame sits at the anchor, oriented as the body frame.
-      JointDef& jd =
-          chain.add_joint(jname, hinge ? JointDef::Type::revolute : JointDef::Type::prismatic,
-                          bname + "__" + jname);
+      JointDef& jd = chain.add_joint(jname, jt, bname + "__" + jname);
       jd.parent = prev;
+      const auto adr = static_cast<std::size_t>(m.jnt_qposadr[j]);
+      if (type == mjJNT_FREE) {
+        // qpos: the body origin in the parent (world) frame and the body's quaternion (w, x, y,
+        // z), not relative to body_pos / body_quat; the joint frame is the parent's.
+        for (std::size_t k = 0; k < 7; ++k) jd.coordinates.push_back(free[adr + k]);
+        prev = jd.link;
+        prev_anchor = a;
+        continue;
+      }
+      if (type == mjJNT_BALL) {  // qpos: the quaternion of the rotation about the anchor
+        for (std::size_t k = 0; k < 4; ++k) jd.coordinates.push_back(free[adr + k]);
+      }
       if (i == 0) {
         const double p[3] = {bpos[0] + R[0] * a[0] + R[1] * a[1] + R[2] * a[2],
                              bpos[1] + R[3] * a[0] + R[4] * a[1] + R[5] * a[2],
@@ -141,10 +156,12 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
         const double d[3] = {a[0] - prev_anchor[0], a[1] - prev_anchor[1], a[2] - prev_anchor[2]};
         jd.origin.xyz = vec_of(d);
       }
-      jd.axis = vec_of(m.jnt_axis + 3 * j);
-      const ex q = coordinate_symbol(free[static_cast<std::size_t>(j)]);
-      const double q0 = m.qpos0[m.jnt_qposadr[j]];
-      jd.value = q0 == 0.0 ? q : q - exact_number(q0);
+      if (type != mjJNT_BALL) {
+        jd.axis = vec_of(m.jnt_axis + 3 * j);
+        const ex q = coordinate_symbol(free[adr]);
+        const double q0 = m.qpos0[m.jnt_qposadr[j]];
+        jd.value = q0 == 0.0 ? q : q - exact_number(q0);
+      }
       prev = jd.link;
       prev_anchor = a;
     }

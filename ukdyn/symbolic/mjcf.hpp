@@ -5,8 +5,10 @@
 // Per body: its frame relative to the parent (body_pos, body_quat), then each of its joints in
 // order (hinge: a rotation about jnt_axis through the anchor jnt_pos; slide: a translation along
 // jnt_axis; both in the body frame, by q − qpos0, so `ref` is honoured), then its inertia
-// (body_mass, body_ipos, body_iquat, the principal body_inertia). Ball and free joints, equality
-// constraints and contacts are not read (an error names the joint). Numbers are MuJoCo's compiled
+// (body_mass, body_ipos, body_iquat, the principal body_inertia). Free joints (qpos: the body
+// origin in the world, its quaternion) become floating joints and ball joints (qpos: a quaternion)
+// ball joints of the chain (ChainModel::quaternions: their unit-norm rows). Equality constraints
+// and contacts are not read (an error names the file). Numbers are MuJoCo's compiled
 // doubles (orientations as roll-pitch-yaw of its quaternions), so agreement with MuJoCo is to
 // round-off, not exact.
 #pragma once

@@ -155,6 +155,7 @@ void append_urdf(ChainDef& chain, const std::string& path,
   for (const auto& [jn, v] : joint_values) {
     if (GiNaC::is_a<GiNaC::symbol>(v)) taken.insert(GiNaC::ex_to<GiNaC::symbol>(v).get_name());
   }
+  for (const auto& c : chain.floating_root) taken.insert(c);
   std::vector<std::string> free;
   for (const auto& c : chain.coordinates()) {
     if (!taken.count(c)) free.push_back(c);
@@ -168,6 +169,12 @@ void append_urdf(ChainDef& chain, const std::string& path,
     if (root->inertial) {
       j.inertial.mass = exact_number(root->inertial->mass);
     }
+  } else if (!chain.floating_root.empty()) {
+    // The root link on a floating joint from a fixed frame NAME_mount (docs/free-bodies.md).
+    chain.root_link = root->name + "_mount";
+    JointDef& j = chain.add_joint(root->name + "_floating", JointDef::Type::floating, root->name);
+    j.parent = chain.root_link;
+    j.coordinates = chain.floating_root;
   } else {
     chain.root_link = root->name;
   }
@@ -199,7 +206,8 @@ void append_urdf(ChainDef& chain, const std::string& path,
              yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
     in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
   };
-  if (chain.base.enabled && root->inertial) inertial_of(*root, chain.joints.back().inertial);
+  if ((chain.base.enabled || !chain.floating_root.empty()) && root->inertial)
+    inertial_of(*root, chain.joints.back().inertial);
 
   // Depth-first from the root: parents are defined before their children. A link reached twice (a
   // cycle, or a link that is the child of two joints: urdfdom keeps the last parent) is refused.
@@ -236,18 +244,28 @@ void append_urdf(ChainDef& chain, const std::string& path,
       case urdf::Joint::FIXED:
         type = JointDef::Type::fixed;
         break;
+      case urdf::Joint::FLOATING:  // position + unit quaternion, the next 7 free coordinates
+        type = JointDef::Type::floating;
+        break;
       default:
         throw DefinitionError(where + ": type " +
-                              (uj.type == urdf::Joint::FLOATING ? std::string("floating")
-                               : uj.type == urdf::Joint::PLANAR ? std::string("planar")
-                                                                : std::string("unknown")) +
-                              " is not supported (revolute, continuous, prismatic, fixed)");
+                              (uj.type == urdf::Joint::PLANAR ? std::string("planar")
+                                                              : std::string("unknown")) +
+                              " is not supported (revolute, continuous, prismatic, fixed, "
+                              "floating)");
     }
     JointDef& j = chain.add_joint(uj.name, type, link->name);
     j.parent =
         uj.parent_link_name == root->name && chain.base.enabled ? root->name : uj.parent_link_name;
     j.origin = origin(uj.parent_to_joint_origin_transform);
-    if (type != JointDef::Type::fixed) {
+    if (type == JointDef::Type::floating) {
+      if (next + 7 > free.size()) {
+        throw DefinitionError(where + ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
+                              "qz); the chain has " + std::to_string(free.size() - next) +
+                              " left");
+      }
+      for (int k = 0; k < 7; ++k) j.coordinates.push_back(free[next++]);
+    } else if (type != JointDef::Type::fixed) {
       j.axis = vec(uj.axis);
       if (auto v = joint_values.find(uj.name); v != joint_values.end()) {
         j.value = v->second;

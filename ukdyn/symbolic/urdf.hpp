@@ -1,6 +1,7 @@
 // Serial chains (and trees) from URDF files, read with Debian's urdfdom (liburdfdom-dev).
 //
-// Supported joints: revolute, continuous (both turn about the axis), prismatic, fixed; mimic joints
+// Supported joints: revolute, continuous (both turn about the axis), prismatic, fixed, floating
+// (position + unit quaternion, 7 coordinates; ChainDef::floating_root puts the root on one); mimic joints
 // (value = multiplier · other + offset). Every link except the root needs an <inertial> block
 // (mass, origin xyz/rpy of the CoM frame, inertia about the CoM). Joint limits, dynamics, visual
 // and collision elements are ignored. Numbers that are short decimals are kept exact (0.7 = 7/10);
