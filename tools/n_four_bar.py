@@ -31,7 +31,7 @@ def main():
     w("# Benchmark A02 of the MBS benchmark library (IFToMM), Gonzalez, Dopico, Lugris, Cuadrado,")
     w("# Multibody Syst. Dyn. 16 (2006) 179-190: 2N+1 links of 1 m and 1 kg (uniform rods), g = 9.81")
     w("# along -y, start with all cranks vertical and the x velocity of B0 = 1 m/s. Exact solution")
-    w("# on the parallelogram branch: docs/singular-positions.md (tools/n_four_bar_exact.hpp).")
+    w("# on the parallelogram branch: docs/singular-positions.md (NFourBarReference, tools/benchmark_reference.hpp).")
     w("ukdyn: 1")
     w(f"name: n_four_bar_N{n}")
     w("description: >")

@@ -1,5 +1,6 @@
 // N-four-bar study (docs/singular-positions.md): runs a benchmarks/n_four_bar_N*.yaml scenario and
-// compares it with the exact parallelogram-branch motion (tests/n_four_bar_exact.hpp). Prints one
+// compares it with the exact parallelogram-branch motion (NFourBarReference,
+// tools/benchmark_reference.hpp). Prints one
 // table row per run: status, max error of B0 (the first coupler point) against the exact solution,
 // max energy drift, max |Φ|, the branch distance max_i |φ_i − φ_0|, steps, CPU time.
 // Usage: ukdyn_n_four_bar_study SCENARIO [--speed V] [--tol TOL] [--rank-tol R] [--method M]
@@ -11,7 +12,7 @@
 #include <iostream>
 #include <string>
 
-#include "n_four_bar_exact.hpp"
+#include "tools/benchmark_reference.hpp"
 #include "ukdyn/io/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
@@ -55,7 +56,7 @@ int main(int argc, char** argv) {
     const Index n = sc.system->dof();
     const int windows = static_cast<int>((n - 1) / 2);
     const Vec qd0 = sc.qd0 * speed;  // −speed for every crank: dx(B0)/dt = speed
-    const benchmarks::NFourBarExact exact(windows, 9.81, 1.0, speed);
+    const ukdyn_bench::NFourBarReference exact(windows, speed);
     double E0 = std::nan(""), max_dE = 0, max_err = 0, max_phi = 0, max_branch = 0;
     Vec phi(sc.system->rows());
     const std::clock_t c0 = std::clock();
@@ -66,7 +67,7 @@ int main(int argc, char** argv) {
           if (std::isnan(E0)) E0 = E;
           max_dE = std::max(max_dE, std::abs(E - E0));
           double x = 0, y = 0;
-          exact.b0(t, x, y);
+          exact.point_B0(t, x, y);
           max_err = std::max(max_err, std::hypot(std::cos(q(0)) - x, std::sin(q(0)) - y));
           position_residuals(*sc.system, t, q, phi);
           max_phi = std::max(max_phi, phi.cwiseAbs().maxCoeff());

@@ -15,6 +15,7 @@
 #include "ukdyn/io/definitions_loader.hpp"
 #include "ukdyn/io/plots.hpp"
 #include "ukdyn/io/replay.hpp"
+#include "ukdyn/io/run_observer.hpp"
 #include "ukdyn/io/safe_text.hpp"
 
 #ifndef UKDYN_VERSION
@@ -190,17 +191,13 @@ void write_final_summary(const OutputDir& out, const nlohmann::json& summary, Ru
   rep.summary.clear();
 }
 
+// The rows and extrema come from the SampleRecorder shared with the sweep (io/run_observer.hpp).
 struct Observer {
-  const System& sys;
+  io_detail::SampleRecorder recorder;
   RunReport& rep;
   CsvWriter* csv;  ///< the rows go here, or (if null) into `memory`
   Progress& progress;
   const std::atomic<bool>* cancel;
-  std::vector<double> row;
-  Vec phi, phid;
-  bool balance = false;
-  double balance0 = 0.0;
-  bool first = true;
   const ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
   ControlColumns* control = nullptr;               // after those (docs/control.md), if any
   bool split_unique = true;                        // the force split was unique at every sample
@@ -208,61 +205,8 @@ struct Observer {
   std::vector<double>* memory = nullptr;  ///< run_scenario_in_memory(): the rows, back to back
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
-    const Index n = sys.dof();
-    const Index m = sys.rows();
-    position_residuals(sys, t, q, phi);
-    velocity_residuals(sys, t, q, qd, phid);
-    const double T = kinetic_energy(d, qd);
-    const double V = potential_energy(sys, q);
-    const double E = T + V;
-    if (first) {
-      rep.E0 = E;
-      balance0 = E - d.work;
-      first = false;
-    }
-    if (balance) {
-      rep.energy_balance_drift =
-          std::max(rep.energy_balance_drift, std::abs(E - d.work - balance0));
-      rep.work_final = d.work;
-    }
-    rep.max_energy_drift = std::max(rep.max_energy_drift, std::abs(E - rep.E0));
-    rep.max_T = std::max(rep.max_T, T);
-    for (Index i = 0; i < m; ++i) {
-      auto& r = rep.max_abs_residual[static_cast<std::size_t>(i)];
-      r = std::max(r, std::abs(phi(i)));
-      auto& v = rep.max_abs_velocity_residual[static_cast<std::size_t>(i)];
-      v = std::max(v, std::abs(phid(i)));
-    }
-    rep.max_acc_residual = std::max(rep.max_acc_residual, d.result.residual);
-    rep.rank_min = std::min(rep.rank_min, d.result.rank);
-    rep.rank_max = std::max(rep.rank_max, d.result.rank);
-    if (d.result.rank > 0) rep.sigma_min = std::min(rep.sigma_min, d.result.sigma_min_kept);
-    std::size_t k = 0;
-    row[k++] = t;
-    for (Index i = 0; i < n; ++i) row[k++] = q(i);
-    for (Index i = 0; i < n; ++i) row[k++] = qd(i);
-    for (Index i = 0; i < n; ++i) row[k++] = d.qdd(i);
-    for (Index i = 0; i < n; ++i) row[k++] = d.Qc(i);
-    for (Index i = 0; i < m; ++i) row[k++] = phi(i);
-    row[k++] = T;
-    row[k++] = V;
-    row[k++] = E;
-    // Diagnostics: rank of A, free DOF n − rank, smallest kept singular value of A M^{-1/2}
-    // (exact, by SVD at the sample), ‖A q̈ − b‖.
-    row[k++] = d.result.rank;
-    row[k++] = static_cast<double>(n - d.result.rank);
-    if (m > 0) {
-      // M singular (core/uk_singular.hpp): of the augmented M_a = M + A^T alpha A it solved with.
-      const Vec sv = singular_values_A_Minvhalf(d.singular.active ? d.singular.Ma : d.M, d.A);
-      row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
-    } else {
-      row[k++] = 0.0;
-    }
-    row[k++] = d.result.residual;
-    if (balance) {
-      row[k++] = d.work;
-      row[k++] = E - d.work;
-    }
+    std::size_t k = recorder.record(t, q, qd, d);
+    std::vector<double>& row = recorder.row();
     if (forces != nullptr && !forces->empty()) {  // docs/frame-constraints.md
       if (!forces->fill(q, d, row.data() + k) && split_unique) {
         split_unique = false;
@@ -435,9 +379,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                     options.progress_every);
   const auto start = std::chrono::steady_clock::now();
   if (csv) {
-    Observer observer{
-        sys,    rep,    &*csv,  progress, options.cancel, std::vector<double>(header.size()),
-        Vec(m), Vec(m), balance};
+    Observer observer{{sys, rep, balance, header.size()}, rep, &*csv, progress, options.cancel};
     observer.forces = ctl ? nullptr : &force_columns;
     observer.control = &control_columns;
     const ForceFunction tau =
@@ -588,8 +530,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
     run.values.reserve(static_cast<std::size_t>(samples) * cols);
   }
   Progress progress(nullptr, sc.sim.t0, sc.sim.t_end);
-  Observer observer{sys,    rep,    nullptr, progress, options.cancel, std::vector<double>(cols),
-                    Vec(m), Vec(m), balance};
+  Observer observer{{sys, rep, balance, cols}, rep, nullptr, progress, options.cancel};
   observer.memory = &run.values;
   observer.control = &control_columns;
   const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };

@@ -761,13 +761,12 @@ void check_initial_state(const Loader& L, const Loading& st, Scenario& sc) {
 
 namespace {
 
-Scenario load_scenario_unguarded(const std::string& text, const std::filesystem::path& path,
-                                 const LoadOptions& options) {
+Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string& hash,
+                                 const std::filesystem::path& path, const LoadOptions& options) {
   Loader L(path);
   Scenario sc;
   sc.path = path;
-  sc.hash = hash_hex(text);
-  const YAML::Node root_node = parse_yaml(text, path);
+  sc.hash = hash;
   const Node root{root_node, ""};
   if (!root_node.IsMap()) {
     throw ScenarioError(Loader::printable(path.string()) +
@@ -795,11 +794,23 @@ Scenario load_scenario_unguarded(const std::string& text, const std::filesystem:
 Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
                             const LoadOptions& options) {
   try {
-    return load_scenario_unguarded(text, path, options);
+    return load_scenario_unguarded(parse_yaml(text, path), hash_hex(text), path, options);
   } catch (const ScenarioError&) {
     throw;
   } catch (const std::exception& e) {  // a last resort: yaml-cpp or GiNaC errors not caught where
                                        // they arose still name the file and exit as bad input
+    throw ScenarioError(Loader::printable(path.string() + ": " + e.what()));
+  }
+}
+
+Scenario io_detail::load_scenario_yaml(const YAML::Node& root, const std::string& hash,
+                                       const std::filesystem::path& path,
+                                       const LoadOptions& options) {
+  try {
+    return load_scenario_unguarded(root, hash, path, options);
+  } catch (const ScenarioError&) {
+    throw;
+  } catch (const std::exception& e) {  // as load_scenario_text
     throw ScenarioError(Loader::printable(path.string() + ": " + e.what()));
   }
 }

@@ -27,6 +27,7 @@
 
 #include "ukdyn/io/plots.hpp"
 #include "ukdyn/io/run.hpp"
+#include "ukdyn/io/run_observer.hpp"
 #include "ukdyn/io/safe_text.hpp"
 #include "ukdyn/io/scenario_file.hpp"
 #include "ukdyn/io/yaml_loader.hpp"
@@ -623,8 +624,9 @@ std::string emit(const YAML::Node& doc) {
   return std::string(e.c_str()) + "\n";
 }
 
-// The scenario text with the fixed values and the chosen parameters' values written in.
-std::string scenario_text(const Sweep& sw, const std::vector<double>& vals, bool with_state) {
+// The base scenario's tree (a copy: the base is parsed once, in load_sweep) with the fixed values
+// and the chosen parameters' values written in.
+YAML::Node sample_doc(const Sweep& sw, const std::vector<double>& vals, bool with_state) {
   YAML::Node doc = clone(base_yaml(sw));
   for (std::size_t i = 0; i < sw.fixed.size(); ++i)
     write_at(doc, sw.fixed[i].path, sw.fixed_values[i]);
@@ -635,7 +637,11 @@ std::string scenario_text(const Sweep& sw, const std::vector<double>& vals, bool
       write_at(doc, t.path, target_value(t, vals[j]));
     }
   }
-  return emit(doc);
+  return doc;
+}
+
+std::string scenario_text(const Sweep& sw, const std::vector<double>& vals, bool with_state) {
+  return emit(sample_doc(sw, vals, with_state));
 }
 
 }  // namespace
@@ -675,83 +681,54 @@ std::vector<std::string> sweep_header(const Sweep& sw, const Scenario& base) {
 
 namespace {
 
-// max that keeps a NaN (a NaN sample is the least trustworthy: it must show).
-double nanmax(double a, double b) { return std::isnan(a) || std::isnan(b) ? NAN : std::max(a, b); }
+using io_detail::nanmax;
 
-// Metrics over the samples of one run (the same quantities as trajectory.csv, run.cpp).
+// Metrics over the samples of one run: the trajectory.csv quantities and the report's extrema come
+// from the SampleRecorder that run_scenario() uses (io/run_observer.hpp); kept here: max |Qc|, the
+// final state and the statistics of chosen columns.
 struct SampleObserver {
-  SampleObserver(const System& s, const SweepMetrics& m) : sys(s), mx(m) {}
-  const System& sys;
-  const SweepMetrics& mx;
+  SampleObserver(const System& s, bool balance, std::size_t row_size, std::vector<std::size_t> cols,
+                 bool need_sigma)
+      : recorder(s, rep, balance, row_size, {!cols.empty(), false, need_sigma}),
+        col_index(std::move(cols)),
+        max_qc(Vec::Zero(s.dof())),
+        cmin(col_index.size(), NAN),
+        cmax(col_index.size(), NAN),
+        csq(col_index.size(), 0.0),
+        clast(col_index.size(), NAN),
+        cabs(col_index.size(), 0.0) {}
+  RunReport rep;  // (before the recorder, which writes into it)
+  io_detail::SampleRecorder recorder;
   std::vector<std::size_t> col_index;  // into the trajectory row, per ColumnMetric
-  bool need_row = false, need_sigma = false, balance = false;
-  std::vector<double> row;
-  Vec phi, phid;
-  double max_res = 0.0, E0 = 0.0, drift = 0.0, bal0 = 0.0, bal_drift = 0.0;
   Vec max_qc, q_last, qd_last;
   std::vector<double> cmin, cmax, csq, clast, cabs;
   long count = 0;
 
+  [[nodiscard]] double max_residual() const {
+    double r = 0.0;
+    for (double v : rep.max_abs_residual) r = nanmax(r, v);
+    return r;
+  }
+
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
-    const Index n = sys.dof(), m = sys.rows();
-    double T = 0.0, V = 0.0;
-    if (mx.energy_drift || mx.energy_balance_drift || need_row) {
-      T = kinetic_energy(d, qd);
-      V = potential_energy(sys, q);
-    }
-    const double E = T + V;
-    if (count == 0) {
-      E0 = E;
-      bal0 = E - d.work;
-    }
-    drift = nanmax(drift, std::abs(E - E0));
-    bal_drift = nanmax(bal_drift, std::abs(E - d.work - bal0));
-    if (m > 0 && (mx.max_residual || need_row)) {
-      position_residuals(sys, t, q, phi);
-      for (Index i = 0; i < m; ++i) max_res = nanmax(max_res, std::abs(phi(i)));
-    }
-    for (Index i = 0; i < n; ++i) max_qc(i) = nanmax(max_qc(i), std::abs(d.Qc(i)));
+    recorder.record(t, q, qd, d);
+    for (Index i = 0; i < max_qc.size(); ++i) max_qc(i) = nanmax(max_qc(i), std::abs(d.Qc(i)));
     q_last = q;
     qd_last = qd;
-    if (need_row) {
-      std::size_t k = 0;
-      row[k++] = t;
-      for (Index i = 0; i < n; ++i) row[k++] = q(i);
-      for (Index i = 0; i < n; ++i) row[k++] = qd(i);
-      for (Index i = 0; i < n; ++i) row[k++] = d.qdd(i);
-      for (Index i = 0; i < n; ++i) row[k++] = d.Qc(i);
-      for (Index i = 0; i < m; ++i) row[k++] = phi(i);
-      row[k++] = T;
-      row[k++] = V;
-      row[k++] = E;
-      row[k++] = d.result.rank;
-      row[k++] = static_cast<double>(n - d.result.rank);
-      if (m > 0 && need_sigma) {
-        const Vec sv = singular_values_A_Minvhalf(d.M, d.A);
-        row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
+    const std::vector<double>& row = recorder.row();
+    for (std::size_t c = 0; c < col_index.size(); ++c) {
+      const double v = row[col_index[c]];
+      if (count == 0) {
+        cmin[c] = cmax[c] = v;
       } else {
-        row[k++] = 0.0;
+        cmin[c] = std::isnan(v) || std::isnan(cmin[c]) ? NAN : std::min(cmin[c], v);
+        cmax[c] = nanmax(cmax[c], v);
       }
-      row[k++] = d.result.residual;
-      if (balance) {
-        row[k++] = d.work;
-        row[k++] = E - d.work;
-      }
-      for (std::size_t c = 0; c < col_index.size(); ++c) {
-        const double v = row[col_index[c]];
-        if (count == 0) {
-          cmin[c] = cmax[c] = v;
-        } else {
-          cmin[c] = std::isnan(v) || std::isnan(cmin[c]) ? NAN : std::min(cmin[c], v);
-          cmax[c] = nanmax(cmax[c], v);
-        }
-        cabs[c] = nanmax(cabs[c], std::abs(v));
-        csq[c] += v * v;
-        clast[c] = v;
-      }
+      cabs[c] = nanmax(cabs[c], std::abs(v));
+      csq[c] += v * v;
+      clast[c] = v;
     }
     ++count;
-    (void)qd;
     return true;
   }
 };
@@ -799,7 +776,7 @@ class SampleRunner {
       Scenario sc = scenario_for(k, vals, status, reason);
       if (status == "completed") {
         const System& sys = *sc.system;
-        const Index n = sys.dof(), m = sys.rows();
+        const Index m = sys.rows();
         bool ok = true;
         if (sw_.assemble) {
           const auto a = assemble(sys, sc.sim.t0, sc.q0, sc.qd0, sc.held);
@@ -826,29 +803,19 @@ class SampleRunner {
           }
         }
         if (ok) {
-          obs.emplace(sys, sw_.metrics);
           const bool balance = sc.sim.energy_balance;
           const auto th = trajectory_header(sys, balance);
+          std::vector<std::size_t> cols;
+          bool need_sigma = false;
           for (const auto& c : sw_.metrics.columns) {
             const auto it = std::find(th.begin(), th.end(), c.column);
             if (it == th.end()) throw Error("no trajectory column named '" + c.column + "'");
-            obs->col_index.push_back(static_cast<std::size_t>(it - th.begin()));
-            obs->need_sigma = obs->need_sigma || c.column == "sigma_min";
+            cols.push_back(static_cast<std::size_t>(it - th.begin()));
+            need_sigma = need_sigma || c.column == "sigma_min";
           }
-          const std::size_t nc = obs->col_index.size();
-          obs->need_row = nc > 0;
-          obs->balance = balance;
-          obs->row.assign(th.size(), 0.0);
-          obs->phi = Vec::Zero(m);
-          obs->phid = Vec::Zero(m);
-          obs->max_qc = Vec::Zero(n);
+          obs.emplace(sys, balance, th.size(), std::move(cols), need_sigma);
           obs->q_last = sc.q0;
           obs->qd_last = sc.qd0;
-          obs->cmin.assign(nc, NAN);
-          obs->cmax.assign(nc, NAN);
-          obs->csq.assign(nc, 0.0);
-          obs->clast.assign(nc, NAN);
-          obs->cabs.assign(nc, 0.0);
           SimulationSettings settings = sc.sim;
           settings.cancel = cancel;
           const Vec tau = sc.tau;
@@ -876,9 +843,10 @@ class SampleRunner {
     if (obs) {
       const auto& mx = sw_.metrics;
       const auto& o = *obs;
-      if (mx.max_residual) cells.push_back(num(o.max_res));
-      if (mx.energy_drift) cells.push_back(num(o.drift));
-      if (mx.energy_balance_drift) cells.push_back(o.balance ? num(o.bal_drift) : "nan");
+      if (mx.max_residual) cells.push_back(num(o.max_residual()));
+      if (mx.energy_drift) cells.push_back(num(o.rep.max_energy_drift));
+      if (mx.energy_balance_drift)
+        cells.push_back(o.rep.energy_balance ? num(o.rep.energy_balance_drift) : "nan");
       if (mx.max_abs_qc)
         for (Index i = 0; i < o.max_qc.size(); ++i) cells.push_back(num(o.max_qc(i)));
       if (mx.final_state) {
@@ -925,10 +893,11 @@ class SampleRunner {
       if (auto it = cache_.entries.find(key); it != cache_.entries.end()) e = it->second;
     }
     if (!e.sc && e.error.empty()) {
-      const std::string text = scenario_text(sw_, vals, !share_state_);
+      // The values are written into a copy of the base scenario's tree, parsed once (load_sweep):
+      // no text is emitted and parsed again per sample.
       try {
-        e.sc = std::make_shared<const Scenario>(
-            load_scenario_text(text, sw_.base_path, LoadOptions{false}));
+        e.sc = std::make_shared<const Scenario>(io_detail::load_scenario_yaml(
+            sample_doc(sw_, vals, !share_state_), base_hash_, sw_.base_path, LoadOptions{false}));
       } catch (const ScenarioError& err) {
         e.error = err.what();
       }
@@ -957,6 +926,7 @@ class SampleRunner {
 
   const Sweep& sw_;
   const Scenario& base_;
+  std::string base_hash_ = base_.hash;  // Scenario::hash of every sample: the base scenario's
   bool share_state_ = false;
   std::vector<std::string> header_;
   ModelCache cache_;

@@ -27,10 +27,6 @@ ClosureConstraint::ClosureConstraint(std::shared_ptr<const MobileManipulator> le
     names_.push_back(opt_.prefix + s);
 }
 
-void ClosureConstraint::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
-  evaluate_with({}, t, q, qd, A, b);
-}
-
 void ClosureConstraint::evaluate_with(const ConstraintSlots& slots, double /*t*/, CVecRef q,
                                       CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J1, J2;
@@ -50,10 +46,6 @@ void ClosureConstraint::evaluate_with(const ConstraintSlots& slots, double /*t*/
   b.tail<3>().setZero();
 }
 
-void ClosureConstraint::position_residual(double t, CVecRef q, VecRef phi) const {
-  position_residual_with({}, t, q, phi);
-}
-
 void ClosureConstraint::position_residual_with(const ConstraintSlots& slots, double /*t*/,
                                                CVecRef q, VecRef phi) const {
   const Vec3 p1 = left_->cut_point(q.segment(lo_, 6), slots.subsystem(lo_));
@@ -65,10 +57,6 @@ void ClosureConstraint::position_residual_with(const ConstraintSlots& slots, dou
   phi(3) = q(lo_ + 2) - q(ro_ + 2) - opt_.yaw_offset;
   phi(4) = q(lo_ + 5) - opt_.load_pitch1;
   phi(5) = q(ro_ + 5) - opt_.load_pitch2;
-}
-
-void ClosureConstraint::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
-  velocity_residual_with({}, t, q, qd, phid);
 }
 
 void ClosureConstraint::velocity_residual_with(const ConstraintSlots& slots, double /*t*/,
@@ -100,10 +88,6 @@ CutPointTrajectory::CutPointTrajectory(std::shared_ptr<const MobileManipulator> 
   if (axis_.empty()) throw Error("trajectory constraint '" + prefix + "': no axis given");
 }
 
-void CutPointTrajectory::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
-  evaluate_with({}, t, q, qd, A, b);
-}
-
 void CutPointTrajectory::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q,
                                        CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J;
@@ -119,10 +103,6 @@ void CutPointTrajectory::evaluate_with(const ConstraintSlots& slots, double t, C
   }
 }
 
-void CutPointTrajectory::position_residual(double t, CVecRef q, VecRef phi) const {
-  position_residual_with({}, t, q, phi);
-}
-
 void CutPointTrajectory::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
                                                 VecRef phi) const {
   const Vec3 p = arm_->cut_point(q.segment(offset_, 6), slots.subsystem(offset_));
@@ -130,10 +110,6 @@ void CutPointTrajectory::position_residual_with(const ConstraintSlots& slots, do
     const int a = axis_[i];
     phi(static_cast<Index>(i)) = p(a) - origin_(a) - f_[i].eval(t, 0);
   }
-}
-
-void CutPointTrajectory::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
-  velocity_residual_with({}, t, q, qd, phid);
 }
 
 void CutPointTrajectory::velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q,

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/slot_constraint.hpp"
 #include "ukdyn/model/time_function.hpp"
 #include "ukdyn/models/mobile_manipulator.hpp"
 
@@ -17,7 +18,7 @@ namespace ukdyn {
 ///   x1 = x2, y1 = y2, l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz, δ1 − δ2 = yaw_offset (π), θ3 = load1, θ6 =
 ///   load2.
 /// Row names: <prefix>_x, _y, _z, _yaw, _load1, _load2.
-class ClosureConstraint final : public Constraint {
+class ClosureConstraint final : public SlotConstraint {
  public:
   struct Options {
     double dz = 0.0;
@@ -32,10 +33,8 @@ class ClosureConstraint final : public Constraint {
 
   [[nodiscard]] Index rows() const override { return 6; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
-  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
-  void position_residual(double t, CVecRef q, VecRef phi) const override;
-  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
-  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize).
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
+  /// versions without (SlotConstraint) recompute them.
   void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
                      VecRef b) const override;
   void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
@@ -52,7 +51,7 @@ class ClosureConstraint final : public Constraint {
 
 /// The cut point of one arm follows a trajectory along chosen axes, paper Eq. (19) rows 1–3, with
 /// A, b from Eq. (20):  p_axis(q) = origin_axis + f_axis(t). Unused axes are skipped.
-class CutPointTrajectory final : public Constraint {
+class CutPointTrajectory final : public SlotConstraint {
  public:
   CutPointTrajectory(std::shared_ptr<const MobileManipulator> arm, Index offset,
                      std::array<std::optional<TimeFunction>, 3> axes, Vec3 origin,
@@ -60,10 +59,8 @@ class CutPointTrajectory final : public Constraint {
 
   [[nodiscard]] Index rows() const override { return static_cast<Index>(axis_.size()); }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
-  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
-  void position_residual(double t, CVecRef q, VecRef phi) const override;
-  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
-  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize).
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
+  /// versions without (SlotConstraint) recompute them.
   void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
                      VecRef b) const override;
   void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,

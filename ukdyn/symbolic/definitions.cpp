@@ -635,48 +635,39 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
   phid_ = Tape(phid, in);
 }
 
-void DerivedConstraint::evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
-  constexpr std::size_t kStack = 512;
-  double buf[kStack];
-  std::vector<double> big;
-  double* out = buf;
-  if (ab_.outputs() > kStack) {
-    big.resize(ab_.outputs());
-    out = big.data();
-  }
-  ab_.eval(t, q.data(), qd.data(), out);
-  zero_rows(A);
-  std::size_t k = 0;
-  for (const auto& [r, c] : nz_) A(r, c) = out[k++];
-  for (Index r = 0; r < m_; ++r) b(r) = out[k++];
-}
-
-void DerivedConstraint::position_residual(double t, CVecRef q, VecRef phi) const {
-  phi_.eval(t, q.data(), nullptr, phi.data());
-}
-
-void DerivedConstraint::velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const {
-  phid_.eval(t, q.data(), qd.data(), phid.data());
-}
-
 Index DerivedConstraint::slot_size() const {
   return static_cast<Index>(
       std::max({ab_.outputs() + ab_.work_size(), phi_.work_size(), phid_.work_size()}));
 }
 
-void DerivedConstraint::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                                      MatRef A, VecRef b) const {
+// A, b from the tape: its outputs and work buffer in this constraint's slot, or (no slot: the
+// evaluations without data) in a local buffer, on the stack up to 512 outputs.
+void DerivedConstraint::eval_ab(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                                MatRef A, VecRef b, bool zero) const {
   const Slot own = slots.own();
-  if (own.size() != static_cast<std::size_t>(slot_size())) {
-    evaluate(t, q, qd, A, b);
-    return;
-  }
+  constexpr std::size_t kStack = 512;
+  double buf[kStack];
+  std::vector<double> big;
   double* out = own.data();
-  ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
-  zero_rows(A);
+  if (own.size() == static_cast<std::size_t>(slot_size())) {
+    ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
+  } else {
+    out = buf;
+    if (ab_.outputs() > kStack) {
+      big.resize(ab_.outputs());
+      out = big.data();
+    }
+    ab_.eval(t, q.data(), qd.data(), out);
+  }
+  if (zero) zero_rows(A);
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) A(r, c) = out[k++];
   for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+}
+
+void DerivedConstraint::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                                      MatRef A, VecRef b) const {
+  eval_ab(slots, t, q, qd, A, b, true);
 }
 
 std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
@@ -688,23 +679,14 @@ std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
 
 void DerivedConstraint::evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q,
                                                  CVecRef qd, MatRef A, VecRef b) const {
-  const Slot own = slots.own();
-  if (own.size() != static_cast<std::size_t>(slot_size())) {
-    evaluate(t, q, qd, A, b);
-    return;
-  }
-  double* out = own.data();
-  ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
-  std::size_t k = 0;
-  for (const auto& [r, c] : nz_) A(r, c) = out[k++];
-  for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+  eval_ab(slots, t, q, qd, A, b, false);
 }
 
 void DerivedConstraint::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
                                                VecRef phi) const {
   const Slot own = slots.own();
   if (own.size() != static_cast<std::size_t>(slot_size())) {
-    position_residual(t, q, phi);
+    phi_.eval(t, q.data(), nullptr, phi.data());
     return;
   }
   phi_.eval(t, q.data(), nullptr, phi.data(), own.data());
@@ -714,7 +696,7 @@ void DerivedConstraint::velocity_residual_with(const ConstraintSlots& slots, dou
                                                CVecRef qd, VecRef phid) const {
   const Slot own = slots.own();
   if (own.size() != static_cast<std::size_t>(slot_size())) {
-    velocity_residual(t, q, qd, phid);
+    phid_.eval(t, q.data(), qd.data(), phid.data());
     return;
   }
   phid_.eval(t, q.data(), qd.data(), phid.data(), own.data());

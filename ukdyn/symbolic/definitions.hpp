@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/slot_constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/symbolic/expression.hpp"
@@ -210,15 +211,13 @@ struct ConstraintDerivation {
 /// q̇, rows that involve no coordinate.
 ConstraintDerivation derive(const ConstraintDef& def);
 
-class DerivedConstraint final : public Constraint {
+class DerivedConstraint final : public SlotConstraint {
  public:
   explicit DerivedConstraint(ConstraintDerivation derivation);
   [[nodiscard]] Index rows() const override { return m_; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return d_.row_names; }
-  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
-  void position_residual(double t, CVecRef q, VecRef phi) const override;
-  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
-  /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes.
+  /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes. Without it
+  /// (the evaluations without data, SlotConstraint) the tapes run on a local buffer.
   [[nodiscard]] Index slot_size() const override;
   void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
                      VecRef b) const override;
@@ -239,6 +238,8 @@ class DerivedConstraint final : public Constraint {
   Index m_;
   std::vector<std::pair<Index, Index>> nz_;  // (row, column) of each structurally nonzero A entry
   Tape ab_, phi_, phid_;
+  void eval_ab(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A, VecRef b,
+               bool zero) const;
 };
 
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def);

@@ -126,7 +126,7 @@ class FrameWrenchMap {
 
 /// A derived constraint block that also knows the wrenches on its frames (what the io layer's
 /// constraint_force_output writes). Every evaluation is the DerivedConstraint's.
-class FrameConstraint final : public Constraint {
+class FrameConstraint final : public SlotConstraint {
  public:
   FrameConstraint(std::shared_ptr<const DerivedConstraint> derived,
                   std::shared_ptr<const FrameWrenchMap> wrench)
@@ -134,15 +134,6 @@ class FrameConstraint final : public Constraint {
   [[nodiscard]] Index rows() const override { return d_->rows(); }
   [[nodiscard]] const std::vector<std::string>& row_names() const override {
     return d_->row_names();
-  }
-  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override {
-    d_->evaluate(t, q, qd, A, b);
-  }
-  void position_residual(double t, CVecRef q, VecRef phi) const override {
-    d_->position_residual(t, q, phi);
-  }
-  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override {
-    d_->velocity_residual(t, q, qd, phid);
   }
   [[nodiscard]] Index slot_size() const override { return d_->slot_size(); }
   void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
