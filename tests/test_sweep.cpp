@@ -408,6 +408,10 @@ TEST(SweepCli, BadSweepFilesNameFileLineAndKey) {
            "\nmode: random\nseed: 1\nsamples: 3\nparameters:\n  - name: m\n"
            "    path: gravity\n    distribution: {type: gamma, low: 1}\n",
        ":10:26: key 'parameters[0].distribution.type': unknown distribution 'gamma'"},
+      // A control scenario would be swept without its controller: refused (docs/sweeps.md).
+      {"ukdyn_sweep: 1\nname: b\nbase: " + (kSource / "scenarios" / "paper_control.yaml").string() +
+           "\nmode: grid\nparameters: []\n",
+       ":3:7: key 'base': the base scenario has a 'control:' section"},
   };
   for (std::size_t i = 0; i < cases.size(); ++i) {
     const fs::path f = write(dir.path / fmt::format("b{}.yaml", i), cases[i].text);

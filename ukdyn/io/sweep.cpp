@@ -450,6 +450,12 @@ Sweep load_sweep(const std::filesystem::path& path) {
   } catch (const YAML::Exception& e) {
     L.fail(bn, "the base scenario is not valid YAML: " + e.msg);
   }
+  // A control run (docs/control.md) integrates its plant under the controller's inputs; a sample
+  // here runs simulate() on the scenario alone, so it would sweep the uncontrolled model and
+  // report it as the controlled one. Refused until the sweep runs the closed loop.
+  if ((*doc)["control"].IsDefined())
+    L.fail(bn, "the base scenario has a 'control:' section; a sweep would run it without its "
+               "controller and plant, so control scenarios cannot be swept yet (docs/sweeps.md)");
   sw.base_doc = doc;
   sw.hash = hash_hex(std::string(version()) + "\n" + text + "\n" + sw.base_text);
 
