@@ -1,8 +1,13 @@
 #include "ukdyn/io/control_loader.hpp"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <limits>
 #include <set>
+
+#include "ukdyn/io/scenario_file.hpp"
+#include "ukdyn/io/yaml_paths.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -97,10 +102,67 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc,
   }
 }
 
-void load_control(const Loader& L, const Node& c, Scenario& sc,
+// control.plant_set: the plant is the plant file (or, without one, this scenario's own tree less
+// its control and actuators sections) with the listed values changed, each {path, value} or
+// {path, scale} (the number there times scale). Paths as in sweeps (io/yaml_paths.hpp).
+std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, const Node& set,
+                                          const Node* plant_file, const Scenario& sc) {
+  if (!set.node.IsSequence() || set.node.size() == 0)
+    L.fail(set, "expected a list of {path, value} or {path, scale}");
+  std::filesystem::path where = sc.path;
+  YAML::Node doc;
+  std::string hash_input;
+  if (plant_file != nullptr) {
+    where = sc.path.parent_path() / L.string(*plant_file);
+    try {
+      const std::string text = read_scenario_text(where);
+      doc = clone_yaml(parse_scenario_yaml(text, where));
+      hash_input = text;
+    } catch (const ScenarioError& e) {
+      L.fail(*plant_file, std::string("the plant scenario: ") + e.what());
+    }
+  } else {
+    doc = clone_yaml(root.node);
+    doc.remove("control");
+    doc.remove("actuators");
+    hash_input = sc.hash;
+  }
+  for (std::size_t i = 0; i < set.node.size(); ++i) {
+    const Node e{set.node[i], set.key + "[" + std::to_string(i) + "]"};
+    L.only_keys(e, {"path", "value", "scale"});
+    const Node pn = L.child(e, "path", true);
+    const std::string path = L.string(pn);
+    const Node vn = L.child(e, "value", false), sn = L.child(e, "scale", false);
+    if (vn.node.IsDefined() == sn.node.IsDefined())
+      L.fail(e, "give exactly one of 'value' and 'scale'");
+    std::string why;
+    auto at = find_scalar(doc, path, why);
+    if (!at) L.fail(pn, "'" + path + "': " + why);
+    double v = 0.0;
+    if (vn.node.IsDefined()) {
+      v = L.number(vn);
+    } else {
+      double old = 0.0;
+      if (!Loader::parse_number(at->Scalar(), old) || !std::isfinite(old))
+        L.fail(pn, "'" + path + "' holds '" + Loader::printable(at->Scalar()) +
+                       "', not a number: 'scale' needs one (give 'value')");
+      v = old * L.number(sn);
+    }
+    *at = fmt::format("{}", v);  // the shortest text that reads back as v
+    hash_input += "\n" + path + "=" + fmt::format("{}", v);
+  }
+  try {
+    return std::make_shared<Scenario>(
+        load_scenario_yaml(doc, scenario_text_hash(hash_input), where, LoadOptions{}));
+  } catch (const ScenarioError& e) {
+    L.fail(set, std::string("the perturbed plant: ") + e.what());
+  }
+}
+
+void load_control(const Loader& L, const Node& root, const Node& c, Scenario& sc,
                   const std::map<std::string, Index>& coord_index) {
-  L.only_keys(c, {"law", "omega", "lambda", "kappa", "rho", "epsilon", "plant", "disturbance",
-                  "initial_offset"});
+  L.only_keys(c, {"law", "omega", "lambda", "kappa", "rho", "epsilon", "plant", "plant_set",
+                  "disturbance", "initial_offset"});
   if (sc.actuators.count() == 0) L.fail(c, "a control section needs an 'actuators:' list");
   const System& sys = *sc.system;
   auto spec = std::make_shared<ControlSpec>();
@@ -147,7 +209,14 @@ void load_control(const Loader& L, const Node& c, Scenario& sc,
       spec->initial_offset(static_cast<Index>(r)) = L.number(g);
     }
   }
-  if (Node pn = L.child(c, "plant", false); pn.node.IsDefined()) {
+  const Node pn = L.child(c, "plant", false);
+  if (Node sn = L.child(c, "plant_set", false); sn.node.IsDefined()) {
+    spec->plant = perturbed_plant(L, root, sn, pn.node.IsDefined() ? &pn : nullptr, sc);
+    if (spec->plant->control)
+      L.fail(pn, "the plant scenario must not have a control section itself");
+    if (spec->plant->system->coordinate_names() != sys.coordinate_names())
+      L.fail(sn, "the plant's coordinates differ from the model's (same names, same order)");
+  } else if (pn.node.IsDefined()) {
     const std::filesystem::path p = sc.path.parent_path() / L.string(pn);
     Scenario plant;
     try {
@@ -170,7 +239,7 @@ void load_control_sections(const Loader& L, const Node& root, Scenario& sc,
   if (Node a = L.child(root, "actuators", false); a.node.IsDefined())
     load_actuators(L, a, sc, coord_index);
   if (Node c = L.child(root, "control", false); c.node.IsDefined())
-    load_control(L, c, sc, coord_index);
+    load_control(L, root, c, sc, coord_index);
 }
 
 }  // namespace ukdyn::io_detail

@@ -803,6 +803,13 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
   }
 }
 
+YAML::Node io_detail::parse_scenario_yaml(const std::string& text,
+                                          const std::filesystem::path& path) {
+  return parse_yaml(text, path);
+}
+
+std::string io_detail::scenario_text_hash(const std::string& text) { return hash_hex(text); }
+
 Scenario io_detail::load_scenario_yaml(const YAML::Node& root, const std::string& hash,
                                        const std::filesystem::path& path,
                                        const LoadOptions& options) {

@@ -32,6 +32,10 @@ class Fd {
 }  // namespace
 
 Scenario load_scenario_file(const std::filesystem::path& path, const LoadOptions& options) {
+  return load_scenario_text(read_scenario_text(path), path, options);
+}
+
+std::string read_scenario_text(const std::filesystem::path& path) {
   const std::string name = printable(path.string());
   // O_NONBLOCK: opening a FIFO with no writer returns at once instead of waiting.
   const Fd fd(::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOCTTY | O_CLOEXEC));
@@ -69,7 +73,7 @@ Scenario load_scenario_file(const std::filesystem::path& path, const LoadOptions
       throw ScenarioError(name + ": not a readable scenario (larger than 4 MiB)");
     }
   }
-  return load_scenario_text(text, path, options);
+  return text;
 }
 
 }  // namespace ukdyn

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <filesystem>
+#include <string>
 
 #include "ukdyn/io/scenario.hpp"
 
@@ -12,5 +13,9 @@ namespace ukdyn {
 /// "is a FIFO (named pipe)", "is a device", "is a socket", "no such file", "permission denied"
 /// (ScenarioError naming the path). Reads it through the descriptor that was checked.
 Scenario load_scenario_file(const std::filesystem::path& path, const LoadOptions& options = {});
+
+/// The text of a scenario file, read with the same checks as load_scenario_file() (a regular
+/// file of at most 4 MiB); a ScenarioError naming the path otherwise.
+std::string read_scenario_text(const std::filesystem::path& path);
 
 }  // namespace ukdyn

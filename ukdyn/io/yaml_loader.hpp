@@ -235,4 +235,9 @@ class Loader {
 Scenario load_scenario_yaml(const YAML::Node& root, const std::string& hash,
                             const std::filesystem::path& path, const LoadOptions& options = {});
 
+/// The YAML document of a scenario's text, or a ScenarioError at the line and column (as
+/// load_scenario_text()), and the hash that load_scenario_text() gives Scenario::hash.
+YAML::Node parse_scenario_yaml(const std::string& text, const std::filesystem::path& path);
+std::string scenario_text_hash(const std::string& text);
+
 }  // namespace ukdyn::io_detail
