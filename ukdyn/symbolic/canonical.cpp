@@ -80,6 +80,30 @@ ex exact_rational(double v) {
   return GiNaC::numeric(mant) * GiNaC::pow(GiNaC::numeric(2), e - 53);
 }
 
+namespace {
+struct RoundLong : GiNaC::map_function {
+  long max_bits;
+  explicit RoundLong(long bits) : max_bits(bits) {}
+  ex operator()(const ex& e) override {
+    if (GiNaC::is_a<GiNaC::numeric>(e)) {
+      const GiNaC::numeric& n = GiNaC::ex_to<GiNaC::numeric>(e);
+      if (n.is_rational() && !n.is_integer() &&
+          n.numer().int_length() + n.denom().int_length() > max_bits) {
+        const double v = n.to_double();
+        if (std::isfinite(v)) return exact_rational(v);
+      }
+      return e;
+    }
+    return e.nops() == 0 ? e : e.map(*this);
+  }
+};
+}  // namespace
+
+ex round_long_rationals(const ex& e, long max_bits) {
+  RoundLong r(max_bits);
+  return r(e);
+}
+
 std::uint64_t StructuralOrder::hash(const ex& e) {
   if (auto it = memo_.find(e); it != memo_.end()) return it->second;
   const int t = tag(e);

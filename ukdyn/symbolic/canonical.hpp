@@ -24,6 +24,13 @@ namespace ukdyn::symbolic {
 /// rationals cannot. Throws ukdyn::Error for NaN or infinity.
 GiNaC::ex exact_rational(double v);
 
+/// e with every non-integer rational whose numerator and denominator together exceed max_bits
+/// replaced by the exact rational of its nearest double (exact_rational()). The rounding of an
+/// exact number does not depend on any operand order, so the result is the same in every process;
+/// it bounds the growth of the numbers when rotations by constant angles are composed
+/// (symbolic/chain.cpp).
+GiNaC::ex round_long_rationals(const GiNaC::ex& e, long max_bits = 256);
+
 class StructuralOrder {
  public:
   /// A 64-bit hash of e's structure, independent of GiNaC's hash and of addresses. Invariant

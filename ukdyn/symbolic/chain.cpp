@@ -1,8 +1,11 @@
 #include "ukdyn/symbolic/chain.hpp"
 
+#include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <numbers>
 #include <set>
 #include <sstream>
 
@@ -26,7 +29,7 @@ Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
     for (std::size_t j = 0; j < 3; ++j) {
       ex s = 0;
       for (std::size_t k = 0; k < 3; ++k) s += a[3 * i + k] * b[3 * k + j];
-      r[3 * i + j] = s;
+      r[3 * i + j] = round_long_rationals(s);  // bounded numbers (canonical.hpp)
     }
   }
   return r;
@@ -69,12 +72,26 @@ Mat3Ex axis_rotation(const Vec3Ex& a, const ex& q) {
   // R = cos q · 1 + (1 − cos q) a aᵀ + sin q [a]×
   // A constant angle that is not a multiple of pi/4 (rpy: [0.3, 0.2, 0.1]) gives cos(3/10), which
   // GiNaC keeps exact: a chain of such rotations multiplied out into polynomials of growing degree
-  // in these constants (15 fixed joints: minutes). Their cosines and sines are taken as floats
-  // instead.
+  // in these constants (15 fixed joints: minutes). Their cosines and sines are taken as the exact
+  // rationals of their doubles instead. Not as GiNaC floats: float arithmetic inside expressions
+  // follows GiNaC's operand order, which differs between processes (canonical.hpp), and made the
+  // derived M of the welded N-robot scenarios differ in the last bits from run to run.
   ex c = GiNaC::cos(q), s = GiNaC::sin(q);
-  if (GiNaC::is_a<GiNaC::numeric>(q)) {
-    c = c.evalf();
-    s = s.evalf();
+  // An angle within 1e-12 of a multiple of pi/4 (a quarter turn written as 1.5707963267948966,
+  // an MJCF quaternion's angle) is taken as that multiple, whose cosine and sine GiNaC keeps
+  // exact and short, as urdf.cpp does: the exact rationals of cos(1.5707963267948966) = 6.1e-17
+  // would carry ~160-bit numbers through every product of the chain.
+  if (GiNaC::is_a<GiNaC::numeric>(q) && GiNaC::ex_to<GiNaC::numeric>(q).is_real()) {
+    const double v = GiNaC::ex_to<GiNaC::numeric>(q).to_double();
+    const double k = std::round(v / (std::numbers::pi / 4));
+    if (std::abs(v - k * std::numbers::pi / 4) < 1e-12 && std::abs(k) < 1e6) {
+      const ex turn = GiNaC::numeric(static_cast<long>(k), 4) * GiNaC::Pi;
+      c = GiNaC::cos(turn);
+      s = GiNaC::sin(turn);
+    } else {
+      c = exact_rational(std::cos(v));
+      s = exact_rational(std::sin(v));
+    }
   }
   const Mat3Ex K{0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
   Mat3Ex R;
