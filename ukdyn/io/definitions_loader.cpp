@@ -204,6 +204,8 @@ struct DefinitionContext {
   std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
   /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
   std::map<std::string, std::vector<std::pair<std::string, sym::Vec3Ex>>> bodies;
+  /// Per chain: the constraints between its links (an MJCF file's weld / connect equalities).
+  std::map<std::string, std::vector<sym::LinkConstraintDef>> link_constraints;
 };
 
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
@@ -420,6 +422,13 @@ std::shared_ptr<DefinitionContext> make_definition_context() {
 
 const sym::FrameTable& frames_of(const DefinitionContext& context) { return context.frames; }
 
+std::vector<sym::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,
+                                                           const std::string& name) {
+  if (!context) return {};
+  auto it = context->link_constraints.find(name);
+  return it == context->link_constraints.end() ? std::vector<sym::LinkConstraintDef>{} : it->second;
+}
+
 namespace {
 
 sym::Vec3Ex parse_vec3_or(const Loader& L, const sym::DefinitionScope& scope, const Node& parent,
@@ -608,6 +617,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     auto sub = sym::make_subsystem(model.def);
     context.frames.add_chain(name, model, def.get());  // frame constraints
     context.chains.emplace(name, std::move(model));
+    if (!def->link_constraints.empty()) context.link_constraints[name] = def->link_constraints;
     // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
     auto& edges = context.edges[name];
     std::string last = def->base.enabled ? def->base.link : def->root_link;

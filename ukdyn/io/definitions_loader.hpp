@@ -58,6 +58,10 @@ struct DefinitionContext;
 std::shared_ptr<DefinitionContext> make_definition_context();
 /// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
 const symbolic::FrameTable& frames_of(const DefinitionContext& context);
+/// The constraints between the links of serial_chain subsystem `name` (its MJCF file's weld and
+/// connect equalities; empty if none, or no context).
+std::vector<symbolic::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,
+                                                                const std::string& name);
 /// The chain model of serial_chain subsystem `name` (null if none, or no context).
 const symbolic::ChainModel* chain_model(const DefinitionContext* context, const std::string& name);
 /// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.

@@ -145,4 +145,25 @@ std::shared_ptr<const Constraint> load_frame_constraint(
   }
 }
 
+std::shared_ptr<const Constraint> make_link_constraint(
+    const std::string& subsystem, const sym::LinkConstraintDef& lc,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context) {
+  using K = sym::FrameConstraintDef::Kind;
+  sym::FrameConstraintDef f;
+  f.name = subsystem + "_" + lc.name;
+  f.kind = lc.kind == sym::LinkConstraintDef::Kind::weld ? K::weld : K::ball;
+  f.frame_a = subsystem + "." + lc.link_a;
+  f.frame_b = subsystem + "." + lc.link_b;
+  const std::string what = std::string(sym::to_string(f.kind)) + " '" + lc.name + "'";
+  try {
+    f.a = sym::offset_frame(frames_of(context).find(f.frame_a), lc.offset_a);
+    f.b = sym::offset_frame(frames_of(context).find(f.frame_b), lc.offset_b);
+    sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates);
+    sym::add_frame_constraint(def, f);
+    return sym::make_frame_constraint(def, f);
+  } catch (const Error& e) {
+    throw sym::DefinitionError(what + " of subsystem '" + subsystem + "': " + e.what());
+  }
+}
+
 }  // namespace ukdyn::io_detail

@@ -22,4 +22,11 @@ std::shared_ptr<const Constraint> load_frame_constraint(
     const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
     const Vec& q0);
 
+/// The weld / ball constraint of a chain's link constraint (an MJCF equality), named
+/// SUBSYSTEM_NAME, between the frames "SUBSYSTEM.LINK" moved by the offsets. Throws
+/// symbolic::DefinitionError naming the constraint and the frame.
+std::shared_ptr<const Constraint> make_link_constraint(
+    const std::string& subsystem, const symbolic::LinkConstraintDef& lc,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context);
+
 }  // namespace ukdyn::io_detail

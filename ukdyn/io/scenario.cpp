@@ -467,6 +467,19 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
       }
     }
   }
+  for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // an MJCF file's weld / connect
+    const auto& info = sc.subsystems[k];
+    std::vector<std::string> coords;
+    for (const auto& lc : io_detail::chain_link_constraints(definition_context.get(), info.name)) {
+      if (coords.empty()) coords = system->coordinate_names();
+      try {
+        add(st.sub_nodes[k],
+            io_detail::make_link_constraint(info.name, lc, coords, *definition_context));
+      } catch (const Error& e) {
+        L.fail(st.sub_nodes[k], e.what());
+      }
+    }
+  }
   if (Node cons = L.child(root, "constraints", false); cons.node.IsDefined()) {
     if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
     for (std::size_t i = 0; i < cons.node.size(); ++i) {

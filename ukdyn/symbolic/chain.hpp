@@ -79,6 +79,18 @@ struct PointDef {
   Vec3Ex xyz{0, 0, 0};  ///< in the link frame
 };
 
+/// A constraint between two links of a chain, as an MJCF file's <equality> weld and connect give
+/// them (append_mjcf): frame a is link_a's frame moved by offset_a, frame b is link_b's moved by
+/// offset_b; weld: the two frames coincide (6 rows), ball: their origins (3 rows).
+/// The scenario adds them as frame constraints named SUBSYSTEM_NAME (docs/frame-constraints.md).
+struct LinkConstraintDef {
+  enum class Kind { weld, ball };
+  Kind kind = Kind::weld;
+  std::string name;
+  std::string link_a, link_b;
+  OriginDef offset_a, offset_b;
+};
+
 class ChainDef : public SubsystemDef {
  public:
   ChainDef(std::string name, std::vector<std::string> coordinates)
@@ -95,6 +107,8 @@ class ChainDef : public SubsystemDef {
   /// A URDF's root link on a floating joint (append_urdf): its 7 coordinates (x, y, z, qw, qx, qy,
   /// qz); empty = the root is fixed (or on the mobile base).
   std::vector<std::string> floating_root;
+  /// Constraints between its links (from an MJCF file's equalities).
+  std::vector<LinkConstraintDef> link_constraints;
 };
 
 struct LinkPose {

@@ -103,9 +103,18 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
                           "chain declares " +
                           std::to_string(free.size()) + " joint coordinates");
   }
-  if (m.neq > 0) {
-    throw DefinitionError(path + ": equality constraints are not read yet (" +
-                          std::to_string(m.neq) + " in the model): write them as constraints");
+  for (int e = 0; e < m.neq; ++e) {  // weld and connect only (read after the bodies, below)
+    const std::string ename = name_of(mjOBJ_EQUALITY, e, "equality" + std::to_string(e));
+    if (m.eq_type[e] != mjEQ_WELD && m.eq_type[e] != mjEQ_CONNECT) {
+      throw DefinitionError(path + ": equality '" + ename +
+                            "': only weld and connect equalities are read (joint and tendon "
+                            "couplings: write them as constraints)");
+    }
+    if (!m.eq_active[e]) {
+      throw DefinitionError(path + ": equality '" + ename +
+                            "' is inactive: ukdyn cannot switch a constraint on during a run "
+                            "(remove it, or make it active)");
+    }
   }
   if (gravity) chain.gravity = vec_of(m.opt.gravity);
   const std::string root = chain.base.enabled ? chain.base.link : chain.root_link;
@@ -181,6 +190,32 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
     const double* I = m.body_inertia + 3 * b;
     fd.inertial.inertia = {exact_number(I[0]), 0, 0, 0, exact_number(I[1]), 0, 0, 0,
                            exact_number(I[2])};
+  }
+  // Equalities, from the compiled eq_data (MuJoCo's mj_instantiateEquality, body semantic):
+  //   connect: x1 + R1 d[0:3] = x2 + R2 d[3:6]  (the anchor in body 1's frame, and the same
+  //            point in body 2's frame, as the compiler computed it at qpos0): a ball constraint;
+  //   weld:    x1 + R1 d[3:6] = x2 + R2 d[0:3] and R1 R(d[6:10]) = R2  (relpose: body 2's pose
+  //            in body 1's frame, computed at qpos0 when not given): frame a = body 1 moved by
+  //            (d[3:6], d[6:10]), frame b = body 2 moved by d[0:3]. torquescale (d[10]) only
+  //            scales MuJoCo's rotation rows, which for an ideal constraint changes no motion.
+  for (int e = 0; e < m.neq; ++e) {
+    const double* d = m.eq_data + mjNEQDATA * e;
+    LinkConstraintDef lc;
+    lc.name = name_of(mjOBJ_EQUALITY, e, "equality" + std::to_string(e));
+    // (Body 0, MuJoCo's world, is the chain's root: the base, or root_link at the mount.)
+    lc.link_a = link[static_cast<std::size_t>(m.eq_obj1id[e])];
+    lc.link_b = link[static_cast<std::size_t>(m.eq_obj2id[e])];
+    if (m.eq_type[e] == mjEQ_CONNECT) {
+      lc.kind = LinkConstraintDef::Kind::ball;
+      lc.offset_a.xyz = vec_of(d);
+      lc.offset_b.xyz = vec_of(d + 3);
+    } else {
+      lc.kind = LinkConstraintDef::Kind::weld;
+      lc.offset_a.xyz = vec_of(d + 3);
+      lc.offset_a.rpy = rpy_of(d + 6);
+      lc.offset_b.xyz = vec_of(d);
+    }
+    chain.link_constraints.push_back(std::move(lc));
   }
 }
 

@@ -7,10 +7,12 @@
 // jnt_axis; both in the body frame, by q − qpos0, so `ref` is honoured), then its inertia
 // (body_mass, body_ipos, body_iquat, the principal body_inertia). Free joints (qpos: the body
 // origin in the world, its quaternion) become floating joints and ball joints (qpos: a quaternion)
-// ball joints of the chain (ChainModel::quaternions: their unit-norm rows). Equality constraints
-// and contacts are not read (an error names the file). Numbers are MuJoCo's compiled
-// doubles (orientations as roll-pitch-yaw of its quaternions), so agreement with MuJoCo is to
-// round-off, not exact.
+// ball joints of the chain (ChainModel::quaternions: their unit-norm rows). Weld and connect
+// equalities become ChainDef::link_constraints (weld and ball frame constraints, ideal: MuJoCo's
+// solref / solimp softness is not modelled); joint and tendon equalities and inactive ones are
+// refused (an error names the file and the equality); contacts are not read. Numbers are MuJoCo's
+// compiled doubles (orientations as roll-pitch-yaw of its quaternions), so agreement with MuJoCo is
+// to round-off, not exact.
 #pragma once
 
 #include <string>
