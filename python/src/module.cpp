@@ -18,6 +18,7 @@
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/scenario.hpp"
 #include "ukdyn/io/scenario_file.hpp"
+#include "ukdyn/simulate/control.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 #ifndef UKDYN_VERSION
@@ -128,6 +129,99 @@ std::shared_ptr<const ukdyn::System> make_run_system(const ukdyn::Scenario& sc,
 
 void rethrow_recorded(const CallbackErrors& errors) {
   if (errors.first) std::rethrow_exception(errors.first);
+}
+
+// ---------------------------------------------------------------------------- control laws
+
+py::array_t<double> numpy_of(const Mat& M);
+
+// What a Python control law sees besides (t, q, q̇): the controller's model at the measured state
+// (ForwardData of forward() with the model's tau, all rows), its residuals Φ, Φ̇, which rows are
+// servo rows, and the actuators (docs/python.md "Control laws in Python"). Copies: the law may
+// keep them.
+struct ControlData {
+  double t = 0.0;
+  py::array_t<double> M, Q, A, b, Qc, qdd, phi, phid, B, limit, tau;
+  py::array_t<bool> servo;
+  int rank = 0;
+};
+
+// A Python callable law(t, q, qd, data) -> u (k numbers) as a ukdyn::ControlLaw: the closed loop
+// calls it at every right-hand-side evaluation and at every sample, with the GIL taken only for
+// the call (the run itself holds no GIL). An exception is recorded in `errors`, u is set to NaN
+// (the run ends as non_finite) and simulate() re-raises it.
+class PythonControlLaw final : public ukdyn::ControlLaw {
+ public:
+  PythonControlLaw(py::object f, CallbackErrors& errors)
+      : f_(new py::object(std::move(f)), release_with_gil), errors_(errors) {}
+  void control(const ukdyn::ControlModel& model, double t, CVecRef q, CVecRef qd,
+               const ukdyn::ForwardData& md, VecRef u) override {
+    const ukdyn::System& sys = *model.system;
+    phi_.resize(sys.rows());
+    phid_.resize(sys.rows());
+    ukdyn::position_residuals(sys, t, q, phi_);
+    ukdyn::velocity_residuals(sys, t, q, qd, phid_);
+    py::gil_scoped_acquire gil;
+    if (!errors_.first) {
+      try {
+        ControlData d;
+        d.t = t;
+        d.M = numpy_of(md.M);
+        d.Q = copy_of(md.Q);
+        d.A = numpy_of(md.A);
+        d.b = copy_of(md.b);
+        d.Qc = copy_of(md.Qc);
+        d.qdd = copy_of(md.qdd);
+        d.phi = copy_of(phi_);
+        d.phid = copy_of(phid_);
+        d.B = numpy_of(model.actuators.B);
+        d.limit = copy_of(model.actuators.limit);
+        d.tau = copy_of(model.tau);
+        d.servo = py::array_t<bool>(static_cast<py::ssize_t>(model.row_servo.size()));
+        for (std::size_t i = 0; i < model.row_servo.size(); ++i)
+          d.servo.mutable_data()[i] = model.row_servo[i];
+        d.rank = md.result.rank;
+        const py::object r = (*f_)(t, copy_of(q), copy_of(qd), py::cast(std::move(d)));
+        const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(r);
+        if (!a) {
+          PyErr_Clear();
+          throw ukdyn::Error("control law at t = " + std::to_string(t) + ": returned " +
+                             py::repr(r).cast<std::string>() + ", expected a sequence of " +
+                             std::to_string(u.size()) + " numbers (one per actuator)");
+        }
+        if (a.ndim() != 1 || a.size() != u.size()) {
+          throw ukdyn::Error("control law at t = " + std::to_string(t) +
+                             ": returned an array of shape " +
+                             py::repr(a.attr("shape")).cast<std::string>() + ", expected " +
+                             std::to_string(u.size()) + " numbers (one per actuator)");
+        }
+        std::copy(a.data(), a.data() + u.size(), u.data());
+        return;
+      } catch (...) {
+        errors_.first = std::current_exception();
+      }
+    }
+    u.setConstant(std::numeric_limits<double>::quiet_NaN());
+  }
+
+ private:
+  static void release_with_gil(py::object* p) {
+    py::gil_scoped_acquire gil;
+    delete p;
+  }
+  std::shared_ptr<py::object> f_;
+  CallbackErrors& errors_;
+  Vec phi_, phid_;
+};
+
+// law(t, q, qd, data), or an object with a method control(t, q, qd, data).
+py::object control_law_callable(const py::object& law) {
+  if (py::hasattr(law, "control") && PyCallable_Check(law.attr("control").ptr()))
+    return law.attr("control");
+  if (PyCallable_Check(law.ptr())) return law;
+  throw py::type_error(
+      "control_law: expected a callable law(t, q, qd, data) -> u or an object with a method "
+      "control(t, q, qd, data)");
 }
 
 // ---------------------------------------------------------------------------- scenario
@@ -255,11 +349,32 @@ struct Run {
 };
 
 std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
-                              const std::vector<py::object>& forces) {
+                              const std::vector<py::object>& forces,
+                              const py::object& control_law) {
   ukdyn::Scenario sc = s.sc;
   CallbackErrors errors;
+  if (sc.control && !forces.empty()) {
+    throw ukdyn::Error(
+        "forces: Python applied forces are not supported with a control: section (they would act "
+        "on the controller's model and the plant alike); use the plant's forces: or control.");
+  }
+  if (sc.control && !controller.is_none()) {
+    throw ukdyn::Error(
+        "controller: a scenario with a control: section takes control_law=law(t, q, qd, data) -> u "
+        "(per actuator), not controller= (docs/python.md)");
+  }
+  if (!sc.control && !control_law.is_none()) {
+    throw ukdyn::Error("control_law: scenario '" + sc.name +
+                       "' has no control: section (actuators, plant and model; docs/control.md); "
+                       "use controller=u(t, q, qd) for generalized forces");
+  }
   sc.system = make_run_system(s.sc, forces, errors);
   ukdyn::MemoryRunOptions opt;
+  std::unique_ptr<PythonControlLaw> law;
+  if (!control_law.is_none()) {
+    law = std::make_unique<PythonControlLaw>(control_law_callable(control_law), errors);
+    opt.law = law.get();
+  }
   std::shared_ptr<py::object> ctrl;
   if (!controller.is_none()) {
     if (!PyCallable_Check(controller.ptr())) {
@@ -280,6 +395,7 @@ std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
     py::gil_scoped_release release;
     result = ukdyn::run_scenario_in_memory(sc, opt);
   }
+  law.reset();  // with the GIL (it holds a Python object)
   rethrow_recorded(errors);
   const ukdyn::MemoryRun* mem = &result;
 
@@ -436,6 +552,26 @@ column of trajectory.csv of that name as a numpy array; every column is a view o
                std::to_string(r.columns.size()) + " columns>";
       });
 
+  py::class_<ControlData>(m, "ControlData", R"doc(What a Python control law sees (besides t, q, qd):
+the controller's model at the measured state, as ukdyn's built-in laws see it (docs/control.md).
+Every array is a copy (keep it if you like). m = constraint rows of the model (physical and servo),
+n = coordinates, k = actuators.)doc")
+      .def_readonly("t", &ControlData::t, "time [s]")
+      .def_readonly("M", &ControlData::M, "the model's mass matrix, n x n")
+      .def_readonly("Q", &ControlData::Q, "tau + Q_a - C qd - G of the model (its own tau), n")
+      .def_readonly("A", &ControlData::A, "constraint matrix of all the model's rows, m x n")
+      .def_readonly("b", &ControlData::b, "constraint right-hand side, m (A qdd = b)")
+      .def_readonly("Qc", &ControlData::Qc,
+                    "the model's U-K constraint force for all rows, n (paper Eq. (4))")
+      .def_readonly("qdd", &ControlData::qdd, "the model's accelerations M^-1 (Q + Qc), n")
+      .def_readonly("phi", &ControlData::phi, "position residuals Phi(q, t) of every row, m")
+      .def_readonly("phid", &ControlData::phid, "velocity residuals dPhi/dt of every row, m")
+      .def_readonly("servo", &ControlData::servo, "m booleans: the servo rows (role: servo)")
+      .def_readonly("B", &ControlData::B, "the actuators' input map tau = B u, n x k")
+      .def_readonly("limit", &ControlData::limit, "|u_j| allowed, k (inf: none); u is clipped")
+      .def_readonly("tau", &ControlData::tau, "the model's constant forces.tau, n")
+      .def_readonly("rank", &ControlData::rank, "numerical rank of the model's A M^-1/2");
+
   py::class_<PyScenario, std::shared_ptr<PyScenario>>(m, "Scenario", R"doc(A system with its initial
 state, constant forces and run settings: loaded from a YAML scenario (docs/scenario-format.md) or
 made from a System built in code (Scenario.from_system).)doc")
@@ -508,6 +644,16 @@ made from a System built in code (Scenario.from_system).)doc")
           "energy_balance", [](const PyScenario& s) { return s.sc.sim.energy_balance; },
           [](PyScenario& s, bool v) { s.sc.sim.energy_balance = v; },
           "integrate W and write the W, E_balance columns")
+      .def_property_readonly(
+          "actuator_names", [](const PyScenario& s) { return s.sc.actuators.names; },
+          "the actuators (`actuators:`), in the order of u")
+      .def_property_readonly(
+          "control_law",
+          [](const PyScenario& s) -> py::object {
+            if (!s.sc.control) return py::none();
+            return py::str(ukdyn::to_string(s.sc.control->law.kind));
+          },
+          "the built-in law of the control: section (feedforward, stabilized, robust), or None")
       .def_property_readonly("integrator",
                              [](const PyScenario& s) { return to_string(s.sc.sim.integrator); })
       .def(
@@ -517,12 +663,18 @@ made from a System built in code (Scenario.from_system).)doc")
 Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python callables
 f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),
-           py::arg("forces") = std::vector<py::object>{},
+           py::arg("forces") = std::vector<py::object>{}, py::kw_only(),
+           py::arg("control_law") = py::none(),
            R"doc(Runs the scenario as `ukdyn simulate` does (same samples, columns and summary), in
 memory. controller: u(t, q, qd) -> n numbers, added to the constant tau. forces: callables
-f(t, q, qd) -> Q_a (n numbers), applied forces (non-conservative). The GIL is released while C++
-runs and taken back for each call of a callable; an exception raised there ends the run and is
-re-raised here.)doc")
+f(t, q, qd) -> Q_a (n numbers), applied forces (non-conservative). A scenario with a control:
+section runs its closed loop (the plant integrated, the controller on the model; the columns
+u_*, e_*, ed_*, Qp_*, Qs_* and summary["control"] as `ukdyn simulate` writes them);
+control_law: law(t, q, qd, data) -> u (one number per actuator), or an object with a method
+control(t, q, qd, data), replaces its built-in law; data is a ControlData (the model's M, Q, A,
+b, Qc, qdd, phi, phid at the measured state, the servo-row mask, B, limits). The GIL is released
+while C++ runs and taken back for each call of a callable; an exception raised there ends the run
+and is re-raised here with its type.)doc")
       .def(
           "assemble",
           [](const PyScenario& s) {

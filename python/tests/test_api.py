@@ -211,3 +211,31 @@ def test_installed_package_imports(tmp_path):
     assert p.returncode == 0, p.stderr
     where, rank = p.stdout.split()
     assert pathlib.Path(where).resolve().is_relative_to(site.resolve()) and rank == "12"
+
+
+def test_cli_says_it_draws_figures_and_labels_platforms_in_metres(tmp_path):
+    # Issue 13, item 4: with stderr not a terminal (captured here) the CLI says that it draws the
+    # figures and when it is done; the paper's platform coordinates are drawn in metres, apart from
+    # the joint angles (rad).
+    if not pathlib.Path("/usr/bin/gnuplot").exists():
+        pytest.skip("no gnuplot")
+    text = scenario_path("paper.yaml").read_text()
+    assert "  t_end: 4\n" in text
+    p = tmp_path / "paper_short.yaml"
+    p.write_text(text.replace("  t_end: 4\n", "  t_end: 0.2\n"))
+    code, out, err = run_cli("simulate", p, "--out", tmp_path / "o")
+    assert code == 0, err
+    m = re.search(r"drawing (\d+) figures \(gnuplot\) \.\.\.\n", err)
+    assert m, err
+    assert re.search(r"drew %s figures in [0-9.]+ s\n" % m.group(1), err), err
+    assert "\r" not in err  # whole lines, no progress bar
+    gp = (tmp_path / "o" / "figures" / "figures.gp").read_text()
+
+    def figure(name):
+        a = gp.index('set output "%s"' % name)
+        return gp[a:gp.index("unset output", a)]
+
+    plat, angles = figure("platforms.png"), figure("angles_left.png")
+    assert 'set ylabel "[m]"' in plat and 'title "dx1"' in plat and 'title "dy2"' in plat
+    assert 'set ylabel "[rad]"' in angles and 'title "theta1"' in angles
+    assert 'title "dx1"' not in angles and 'title "dy1"' not in angles

@@ -69,6 +69,23 @@ def test_columns_equal_the_cli_csv(tmp_path, name):
                             for w in summary["warnings"]]
 
 
+def test_frame_constraint_columns_equal_the_cli_csv(tmp_path):
+    # The Fc_/W_ columns of frame constraints (docs/frame-constraints.md) and their summary
+    # section are the CLI's too; a short horizon of paper_load_body.yaml (two welds, redundant).
+    text = scenario_path("paper_load_body.yaml").read_text()
+    assert "  t_end: 4\n" in text and "urdf: paper_arm.urdf" in text
+    text = text.replace("  t_end: 4\n", "  t_end: 0.2\n").replace(
+        "urdf: paper_arm.urdf", "urdf: %s" % scenario_path("paper_arm.urdf"))
+    path = tmp_path / "load_body_short.yaml"
+    path.write_text(text)
+    header, data, summary = cli_csv(path, tmp_path / "out")
+    run = ukdyn.load_scenario(path).simulate()
+    assert any(c.startswith("W_grasp_l") for c in header), header
+    assert_run_equals_csv(run, header, data, 1e-14)
+    assert run.summary["constraint_forces"] == summary["constraint_forces"]
+    assert [w["kind"] for w in run.warnings] == [w["kind"] for w in summary["warnings"]]
+
+
 def test_columns_share_one_buffer():
     run = ukdyn.load_scenario(scenario_path("paper.yaml")).simulate()
     t, th = run["t"], run["theta1"]

@@ -1,7 +1,7 @@
 # Type stubs of the Python module ukdyn (docs/python.md). The classes live in ukdyn._ukdyn (C++,
 # pybind11) and are re-exported here.
 from os import PathLike
-from typing import Any, Callable, Literal, Optional, Sequence, Union
+from typing import Any, Callable, Literal, Optional, Protocol, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -15,6 +15,66 @@ ArrayLike = npt.ArrayLike
 FloatArray = npt.NDArray[np.float64]
 Callback = Callable[[float, FloatArray, FloatArray], ArrayLike]
 """f(t, q, qd) -> n numbers: a controller's tau or an applied force's Q_a."""
+
+class ControlData:
+    """What a Python control law sees besides (t, q, qd): the controller's model at the measured
+    state (forward() with the model's own tau, every row), as ukdyn's built-in laws see it
+    (docs/control.md). Copies. n coordinates, m rows of the model (physical and servo), k
+    actuators."""
+    @property
+    def t(self) -> float: ...
+    @property
+    def M(self) -> FloatArray:
+        """the model's mass matrix, n x n"""
+    @property
+    def Q(self) -> FloatArray:
+        """tau + Q_a - C qd - G of the model, n"""
+    @property
+    def A(self) -> FloatArray:
+        """constraint matrix of all the model's rows, m x n"""
+    @property
+    def b(self) -> FloatArray:
+        """constraint right-hand side, m (A qdd = b)"""
+    @property
+    def Qc(self) -> FloatArray:
+        """the model's U-K constraint force (paper Eq. (4)), n"""
+    @property
+    def qdd(self) -> FloatArray:
+        """the model's accelerations M^-1 (Q + Qc), n"""
+    @property
+    def phi(self) -> FloatArray:
+        """position residuals Phi(q, t) of every row, m"""
+    @property
+    def phid(self) -> FloatArray:
+        """velocity residuals dPhi/dt of every row, m"""
+    @property
+    def servo(self) -> npt.NDArray[np.bool_]:
+        """m booleans: the servo rows (role: servo)"""
+    @property
+    def B(self) -> FloatArray:
+        """the actuators' input map tau = B u, n x k"""
+    @property
+    def limit(self) -> FloatArray:
+        """|u_j| allowed, k (inf: none); u is clipped at it"""
+    @property
+    def tau(self) -> FloatArray:
+        """the model's constant forces.tau, n"""
+    @property
+    def rank(self) -> int:
+        """numerical rank of the model's A M^-1/2"""
+
+class ControlLawObject(Protocol):
+    def control(
+        self, t: float, q: FloatArray, qd: FloatArray, data: ControlData
+    ) -> ArrayLike: ...
+
+ControlLaw = Union[
+    Callable[[float, FloatArray, FloatArray, ControlData], ArrayLike], ControlLawObject
+]
+"""law(t, q, qd, data) -> u (one number per actuator), or an object with a method
+control(t, q, qd, data): replaces the built-in law of a scenario's control: section. Called at
+every right-hand-side evaluation and at every sample (a continuous-time controller), with the GIL
+taken for the call only."""
 
 class Error(Exception):
     """An error from ukdyn (its message as ukdyn prints it, FILE:LINE:COLUMN where known)."""
@@ -216,9 +276,22 @@ class Scenario:
         tau: Optional[ArrayLike] = None,
         forces: Sequence[Callback] = (),
     ) -> ForwardResult: ...
+    @property
+    def actuator_names(self) -> list[str]:
+        """the actuators (`actuators:`), in the order of u"""
+    @property
+    def control_law(self) -> Optional[str]:
+        """the built-in law of the control: section (feedforward, stabilized, robust), or None"""
     def simulate(
-        self, controller: Optional[Callback] = None, forces: Sequence[Callback] = ()
-    ) -> Run: ...
+        self,
+        controller: Optional[Callback] = None,
+        forces: Sequence[Callback] = (),
+        *,
+        control_law: Optional[ControlLaw] = None,
+    ) -> Run:
+        """Runs the scenario as `ukdyn simulate` does, in memory. With a control: section, the
+        closed loop (plant integrated, columns u_*, e_*, ed_*, Qp_*, Qs_*, summary["control"]);
+        control_law replaces its built-in law. controller / forces: scenarios without control:."""
     def assemble(self) -> dict[str, Any]: ...
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

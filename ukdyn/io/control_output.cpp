@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace ukdyn {
 
@@ -58,6 +59,8 @@ void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d,
       u = loop_->u;
       if (const auto* law = dynamic_cast<const ServoLaw*>(&loop_->law))
         residual = law->last_actuation().residual;
+      else  // a user's law (MemoryRunOptions::law): no actuation solve of ukdyn's to report
+        residual = std::numeric_limits<double>::quiet_NaN();
       const bool under = dynamic_cast<const ServoLaw*>(&loop_->law) != nullptr &&
                          static_cast<const ServoLaw&>(loop_->law).last_actuation().underactuated;
       if (under && !underactuated_) {
@@ -140,7 +143,9 @@ nlohmann::json ControlColumns::summary() const {
     j["underactuated"] = underactuated_;
   }
   if (loop_ != nullptr) {
-    j["law"] = to_string(sc_->control->law.kind);
+    const bool user = dynamic_cast<const ServoLaw*>(&loop_->law) == nullptr;
+    j["law"] = user ? std::string("user") : to_string(sc_->control->law.kind);
+    if (user) j["max_actuation_residual"] = nullptr;  // not known: the user's law solved for u
     j["plant"] = sc_->control->plant ? sc_->control->plant->name : sc_->name;
     j["max_abs_e"] = max_e_;
     j["max_abs_e_second_half"] = max_e_half_;

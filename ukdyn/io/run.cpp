@@ -508,11 +508,24 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 }
 
 MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& options) {
-  if (sc.control) throw Error("a scenario with control: runs with run_scenario (docs/control.md)");
-  const System& sys = *sc.system;
+  // docs/control.md: with `control:` the plant (physical rows only, τ = B u) is integrated, as in
+  // run_scenario().
+  const std::unique_ptr<ControlRun> ctl = make_control_run(sc);
+  if (ctl && options.tau)
+    throw Error(
+        "a scenario with control: takes a control law, not applied generalized forces tau "
+        "(the plant's tau is the closed loop's, docs/control.md)");
+  if (!ctl && options.law != nullptr)
+    throw Error("a control law needs a scenario with a control: section (docs/control.md)");
+  if (ctl && options.law != nullptr) {  // the user's law in place of the built-in one
+    ctl->loop = std::make_unique<ClosedLoop>(ctl->model, *options.law, ctl->loop->tau_plant,
+                                             ctl->loop->disturbance);
+  }
+  const System& sys = ctl ? *ctl->plant : *sc.system;
   const Index m = sys.rows();
   MemoryRun run;
   RunReport& rep = run.report;
+  if (ctl) rep.plant = ctl->plant;
   rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
   rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
   rep.rank_min = static_cast<int>(m);
@@ -520,7 +533,12 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
   run.header = trajectory_header(sys, balance);
-  ControlColumns control_columns(sc, nullptr);  // the same columns as run_scenario's CSV
+  const ConstraintForceColumns force_columns(sc);  // frame constraints only, as run_scenario's
+  if (!ctl) {
+    run.header.insert(run.header.end(), force_columns.header().begin(),
+                      force_columns.header().end());
+  }
+  ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // as run_scenario's CSV
   run.header.insert(run.header.end(), control_columns.header().begin(),
                     control_columns.header().end());
   const std::size_t cols = run.header.size();
@@ -532,21 +550,36 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   Progress progress(nullptr, sc.sim.t0, sc.sim.t_end);
   Observer observer{{sys, rep, balance, cols}, rep, nullptr, progress, options.cancel};
   observer.memory = &run.values;
+  observer.forces = ctl ? nullptr : &force_columns;
   observer.control = &control_columns;
   const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
+  const ForceFunction tau = ctl           ? ctl->loop->force_function()
+                            : options.tau ? options.tau
+                                          : constant;
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
   const auto start = std::chrono::steady_clock::now();
-  rep.stats = simulate(sys, sc.q0, sc.qd0, options.tau ? options.tau : constant, settings,
+  rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                        [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                          return observer(t, q, qd, d);
                        });
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   rep.csv_rows = static_cast<long>(run.values.size() / cols);
+  if (!observer.split_unique) {  // docs/frame-constraints.md, as run_scenario()
+    rep.stats.warnings.push_back(
+        {observer.split_t, "constraint_force_split",
+         "redundant constraint rows: the force of each constraint block is not unique; the "
+         "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
+  }
   for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
   nlohmann::json summary = summary_start(sc);
   if (!control_columns.empty()) summary["control"] = control_columns.summary();
+  if (!force_columns.empty() && !ctl) {
+    summary["constraint_forces"] = {
+        {"split_unique", observer.split_unique},
+        {"choice", observer.split_unique ? "unique" : "least-norm multipliers (not unique)"}};
+  }
   summary["status"] = rep.complete() ? "complete" : "incomplete";
   summary["stop_reason"] =
       rep.complete() ? std::string() : to_string(rep.stats.status) + ": " + rep.stats.message;

@@ -14,6 +14,8 @@
 
 namespace ukdyn {
 
+class ControlLaw;  // ukdyn/simulate/control.hpp
+
 /// The ukdyn version ("0.1.0"): written into summary.json and printed by the CLI.
 const char* version();
 
@@ -87,6 +89,11 @@ struct MemoryRunOptions {
   /// forces.tau (as run_scenario()).
   ForceFunction tau;
   const std::atomic<bool>* cancel = nullptr;  ///< as RunOptions::cancel
+  /// A scenario with `control:` (docs/control.md): if set, this law computes u in place of the
+  /// scenario's built-in one (same plant, model, offset start, limits and disturbance); the
+  /// summary's control.law is then "user" and the act_residual column NaN (no actuation solve of
+  /// ukdyn's). Ignored without `control:` (run_scenario_in_memory() refuses it then).
+  ControlLaw* law = nullptr;
 };
 
 /// A run kept in memory: the rows of trajectory.csv as numbers, exactly (not rounded to text).
@@ -98,8 +105,11 @@ struct MemoryRun {
 };
 
 /// Simulates the scenario as run_scenario() does (same samples, same columns, same summary), but
-/// writes nothing: the trajectory is returned (the Python module's simulate()). Throws
-/// ukdyn::Error for invalid settings; never for numerical trouble (report.stats.status).
+/// writes nothing: the trajectory is returned (the Python module's simulate()). A scenario with
+/// `control:` runs its closed loop as run_scenario() does (the plant integrated, the columns of
+/// trajectory.csv, the summary's control section); options.tau is refused for it (the plant's τ is
+/// the loop's). Throws ukdyn::Error for invalid settings; never for numerical trouble
+/// (report.stats.status).
 MemoryRun run_scenario_in_memory(const Scenario& scenario, const MemoryRunOptions& options = {});
 
 /// What assembly changed, on `os`; if it failed, also an error naming the unmet constraints on
