@@ -430,3 +430,195 @@ TEST(Control, MonteCarloOverThePlantMass) {
 }
 
 }  // namespace
+
+namespace {
+
+// The pendulum's closed loop (tests/control_systems.hpp) with the robust law ρ = 2, ε = 0.01 and
+// the plant's bob of mass `plant_mass` (the model's is 1 kg), through run_scenario.
+struct RhoRun {
+  nlohmann::json control;
+  std::vector<ukdyn::RunWarning> warnings;
+};
+RhoRun run_rho(double plant_mass, const std::string& name) {
+  const auto dir = temp_dir(name);
+  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(plant_mass); }
+  const auto sc = ukdyn::load_scenario_text(
+      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  lambda: 5\n  kappa: 5\n  "
+                                                    "rho: 2\n  epsilon: 0.01\n  plant: "
+                                                    "plant.yaml\n")),
+      dir / "model.yaml");
+  ukdyn::RunOptions o;
+  o.figures = false;
+  const auto rep = ukdyn::run_scenario(sc, dir / "out", o);
+  EXPECT_TRUE(rep.complete()) << rep.stats.message;
+  std::ifstream js(dir / "out" / "summary.json");
+  RhoRun r{nlohmann::json::parse(js)["control"], rep.stats.warnings};
+  std::filesystem::remove_all(dir);
+  return r;
+}
+
+bool has_warning(const std::vector<ukdyn::RunWarning>& w, const std::string& kind) {
+  return std::any_of(w.begin(), w.end(), [&](const auto& x) { return x.kind == kind; });
+}
+
+}  // namespace
+
+// The uncertainty the robust term must dominate (docs/control.md "The uncertainty bound ρ"):
+// δ = A_s q̈_plant − (b_s + v). At one state it equals A_s (q̈_plant − q̈_model), both accelerations
+// from forward() of the physical systems (plant: bob 1.2 kg, model: 1 kg) under the same applied
+// τ = B u, with A_s = [cos θr, sin θr] written by hand (Φ_s = x cos θr + z sin θr).
+TEST(Control, UncertaintyEqualsPlantMinusModelAcceleration) {
+  const auto dir = temp_dir("delta");
+  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.2); }
+  const auto sc = ukdyn::load_scenario_text(
+      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  rho: 2\n  epsilon: 0.01\n"
+                                                    "  plant: plant.yaml\n")),
+      dir / "model.yaml");
+  const auto run = ukdyn::make_control_run(sc);
+  ASSERT_TRUE(run);
+  const double t = 0.7, th = 0.35, w = 0.4;
+  Vec q(2), qd(2);
+  q << std::sin(th), -std::cos(th);
+  qd << w * std::cos(th), w * std::sin(th);  // tangent to the rod
+  run->loop->evaluate(t, q, qd);
+  Vec tau(2);
+  run->loop->plant_tau(tau);
+  ukdyn::ForwardData pd(*run->plant);
+  ukdyn::forward(*run->plant, pd, t, q, qd, tau);
+  const double delta = run->law->servo_uncertainty(run->model, pd.qdd);
+  // The model's physical system (its rod only) under the same u: its own τ + B u.
+  const auto model_phys = ukdyn::physical_system(*sc.system, sc.constraint_roles);
+  ukdyn::ForwardData md(*model_phys);
+  const Vec tau_m = sc.tau + sc.actuators.B * run->loop->u;
+  ukdyn::forward(*model_phys, md, t, q, qd, tau_m);
+  const double thr = 0.3 * (1 - std::cos(2 * t));
+  const double indep =
+      std::abs(std::cos(thr) * (pd.qdd(0) - md.qdd(0)) + std::sin(thr) * (pd.qdd(1) - md.qdd(1)));
+  std::printf("delta = %.17g, independent A_s (qdd_plant - qdd_model) = %.17g, diff %.2e\n", delta,
+              indep, std::abs(delta - indep));
+  EXPECT_GT(indep, 0.1);  // a real mismatch (the plant is 20 % heavier)
+  EXPECT_NEAR(delta, indep, 1e-12);
+  std::filesystem::remove_all(dir);
+}
+
+// The run's check of the assumption: a plant within the bound (bob 1.2 kg, ρ = 2) gives no warning
+// and a ratio < 1; bob mass × 3 with the same ρ gives `rho_bound_exceeded` and a ratio > 1.
+TEST(Control, RhoBoundCheckedAtRunTime) {
+  const auto in = run_rho(1.2, "rho_in"), out = run_rho(3.0, "rho_out");
+  for (const auto* r : {&in, &out})
+    for (const char* k : {"max_uncertainty", "max_uncertainty_t", "rho", "uncertainty_over_rho",
+                          "rho_bound_exceeded"})
+      EXPECT_TRUE(r->control.contains(k)) << k;
+  const double ri = in.control["uncertainty_over_rho"], ro = out.control["uncertainty_over_rho"];
+  std::printf(
+      "max ||delta|| / rho: bob x1.2 %.4f (max %.4f at t = %.3f s), bob x3 %.4f (max %.4f "
+      "at t = %.3f s)\n",
+      ri, double(in.control["max_uncertainty"]), double(in.control["max_uncertainty_t"]), ro,
+      double(out.control["max_uncertainty"]), double(out.control["max_uncertainty_t"]));
+  EXPECT_LT(ri, 1.0);
+  EXPECT_FALSE(in.control["rho_bound_exceeded"]);
+  EXPECT_FALSE(has_warning(in.warnings, "rho_bound_exceeded"));
+  EXPECT_GT(ro, 1.0);
+  EXPECT_TRUE(out.control["rho_bound_exceeded"]);
+  EXPECT_TRUE(has_warning(out.warnings, "rho_bound_exceeded"));
+  EXPECT_DOUBLE_EQ(double(out.control["rho"]), 2.0);
+}
+
+// The allocation-free actuation solve (ActuationWorkspace) gives the same bits as
+// solve_actuation(): fully, under- and redundantly actuated, rank-deficient physical rows, no
+// physical rows; one workspace reused across calls.
+TEST(Actuation, WorkspaceSolveIsBitIdentical) {
+  std::mt19937_64 rng(7);
+  struct Case {
+    Index n, k, mp;
+    bool deficient;
+  };
+  for (const Case c : {Case{6, 6, 2, false}, Case{6, 3, 2, false}, Case{6, 9, 3, false},
+                       Case{5, 5, 3, true}, Case{4, 2, 0, false}, Case{12, 12, 6, false}}) {
+    ukdyn::ActuationWorkspace ws(c.n, c.k, c.mp);
+    for (int trial = 0; trial < 5; ++trial) {
+      const Mat B = random_mat(rng, c.n, c.k);
+      Mat Ap = random_mat(rng, c.mp, c.n);
+      if (c.deficient) Ap.row(2) = Ap.row(0) + 0.5 * Ap.row(1);
+      const Vec Qc = random_mat(rng, c.n, 1);
+      const ukdyn::Actuation ref = ukdyn::solve_actuation(B, Ap, Qc);
+      ws.Ap = Ap;
+      ukdyn::solve_actuation(B, Qc, ws);
+      EXPECT_EQ(ws.result.u, ref.u) << c.n << " " << c.k << " " << c.mp;
+      EXPECT_EQ(ws.result.mu, ref.mu);
+      EXPECT_EQ(ws.result.residual, ref.residual);
+      EXPECT_EQ(ws.result.scale, ref.scale);
+      EXPECT_EQ(ws.result.underactuated, ref.underactuated);
+    }
+  }
+}
+
+namespace {
+// The built-in law as it was written before it got its workspace (select_rows() and the
+// allocating solve_actuation() at every call): the closed loop must be the same bit for bit.
+class AllocatingServoLaw : public ukdyn::ControlLaw {
+ public:
+  AllocatingServoLaw(const ukdyn::ControlModel& m, ukdyn::ServoLawSettings s)
+      : s_(s), work_(*m.system), phi_(m.system->rows()), phid_(m.system->rows()) {}
+  void control(const ukdyn::ControlModel& model, double t, ukdyn::CVecRef q, ukdyn::CVecRef qd,
+               const ukdyn::ForwardData& md, ukdyn::VecRef u) override {
+    const ukdyn::System& sys = *model.system;
+    Vec b = md.b;
+    ukdyn::position_residuals(sys, work_, t, q, phi_);
+    ukdyn::velocity_residuals(sys, work_, t, q, qd, phid_);
+    double mu2 = 0.0;
+    for (Index i = 0; i < sys.rows(); ++i)
+      if (model.row_servo[static_cast<std::size_t>(i)]) {
+        const double beta = phid_(i) + s_.lambda * phi_(i);
+        mu2 += s_.rho * s_.rho * beta * beta;
+      }
+    const double mn = std::sqrt(mu2), gamma = mn > s_.epsilon ? 1.0 / mn : 1.0 / s_.epsilon;
+    for (Index i = 0; i < sys.rows(); ++i) {
+      if (!model.row_servo[static_cast<std::size_t>(i)]) continue;
+      const double e = phi_(i), ed = phid_(i), beta = ed + s_.lambda * e, mu = s_.rho * beta;
+      b(i) += -s_.lambda * ed - s_.kappa * beta - s_.rho * gamma * mu;
+    }
+    work_.M = md.M;
+    work_.A = md.A;
+    work_.Q = md.Q;
+    ukdyn::uk_solve_dispatch(work_, b, work_.Q, work_.qdd, work_.Qc, model.uk);
+    u = ukdyn::solve_actuation(model.actuators.B,
+                               ukdyn::select_rows(work_.A, model.row_servo, false), work_.Qc)
+            .u;
+  }
+
+ private:
+  ukdyn::ServoLawSettings s_;
+  ukdyn::ForwardData work_;
+  Vec phi_, phid_;
+};
+}  // namespace
+
+TEST(Control, WorkspaceLawIsBitIdenticalToTheAllocatingOne) {
+  const auto dir = temp_dir("bits");
+  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.2); }
+  const auto sc = ukdyn::load_scenario_text(
+      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  rho: 2\n  epsilon: 0.01\n"
+                                                    "  plant: plant.yaml\n")),
+      dir / "model.yaml");
+  const auto a = run_loop(sc, 2.0, 1e-10);
+  const auto run = ukdyn::make_control_run(sc);
+  AllocatingServoLaw old(run->model, sc.control->law);
+  ukdyn::ClosedLoop loop(run->model, old, sc.control->plant->tau);
+  std::vector<double> e_old;
+  Vec e, ed;
+  ukdyn::SimulationSettings sim = sc.sim;
+  sim.t_end = 2.0;
+  sim.abs_tol = sim.rel_tol = 1e-10;
+  const auto st = ukdyn::simulate(
+      *run->plant, run->q0, run->qd0, loop.force_function(), sim,
+      [&](double t, ukdyn::CVecRef q, ukdyn::CVecRef qd, const ukdyn::ForwardData&) {
+        ukdyn::servo_errors(run->model, t, q, qd, e, ed);
+        e_old.push_back(e(0));
+        return true;
+      });
+  ASSERT_EQ(st.status, ukdyn::RunStatus::completed);
+  ASSERT_EQ(a.e.size(), e_old.size());
+  EXPECT_EQ(a.e, e_old);  // bit for bit over 2 s (201 samples)
+  std::filesystem::remove_all(dir);
+}

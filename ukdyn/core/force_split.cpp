@@ -2,6 +2,7 @@
 
 #include <Eigen/QR>
 #include <Eigen/SVD>
+#include <algorithm>
 
 namespace ukdyn {
 
@@ -76,6 +77,106 @@ Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel
   a.scale = Qc.norm() + (B.size() > 0 ? B.norm() * a.u.norm() : 0.0);
   a.underactuated = a.residual > rel_tol_residual * (a.scale + 1.0);
   return a;
+}
+
+namespace {
+
+// x = cod⁺ rhs as CompleteOrthogonalDecomposition::_solve_impl (Eigen 3.4) computes it, with the
+// caller's buffers: c = Qᵀ rhs, T z = c(0:r), y = Zᵀ [z; 0], x = P y. The same operations in the
+// same order as cod.solve(rhs), so the same bits; the copies replace Eigen's per-call temporaries
+// (c, the Householder workspace, Z's temp and the in-place permutation's mask).
+template <typename Rhs, typename Dst, typename Work>
+void cod_solve_into(const Eigen::CompleteOrthogonalDecomposition<Mat>& cod, const Rhs& rhs,
+                    Dst& dst, Dst& c, Dst& y, Vec& z_temp, Work& hh_work) {
+  // c: as rhs (cod.rows() rows); y, dst: cod.cols() rows.
+  const Index rank = cod.rank();
+  if (rank == 0) {
+    dst.setZero();
+    return;
+  }
+  c = rhs;
+  cod.householderQ().setLength(rank).adjoint().applyThisOnTheLeft(c, hh_work);
+  y.topRows(rank) = cod.matrixT()
+                        .topLeftCorner(rank, rank)
+                        .template triangularView<Eigen::Upper>()
+                        .solve(c.topRows(rank));
+  const Index cols = cod.cols();
+  if (rank < cols) {
+    y.bottomRows(cols - rank).setZero();
+    // applyZAdjointOnTheLeftInPlace (a protected member of Eigen's COD), with z_temp.
+    const Mat& qtz = cod.matrixQTZ();
+    for (Index k = 0; k < rank; ++k) {
+      if (k != rank - 1) y.row(k).swap(y.row(rank - 1));
+      y.middleRows(rank - 1, cols - rank + 1)
+          .applyHouseholderOnTheLeft(qtz.row(k).tail(cols - rank).adjoint(), cod.zCoeffs()(k),
+                                     &z_temp(0));
+      if (k != rank - 1) y.row(k).swap(y.row(rank - 1));
+    }
+  }
+  // x = P y out of place (Eigen's in-place permutation would allocate its mask).
+  const auto& perm = cod.colsPermutation().indices();
+  for (Index i = 0; i < perm.size(); ++i) dst.row(perm(i)) = y.row(i);
+}
+
+}  // namespace
+
+ActuationWorkspace::ActuationWorkspace(Index n, Index k, Index mp)
+    : Ap(Mat::Zero(mp, n)),
+      P(n, n),
+      X(mp, n),
+      ApTX(n, n),
+      PB(n, k),
+      I(Mat::Identity(n, n)),
+      c_mat(n, n),
+      y_mat(mp, n),
+      PQc(n),
+      rest(n),
+      Bu(n),
+      ApTmu(n),
+      r(n),
+      c_vec(n),
+      y_k(k),
+      y_mp(mp),
+      z_temp(std::max<Index>(n, 1)),
+      hh_mat(n),
+      hh_vec(1),
+      codp(n, mp),
+      cod(n, k) {
+  result.u = Vec::Zero(k);
+  result.mu = Vec::Zero(mp);
+}
+
+void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& w, double rel_tol,
+                     double rel_tol_residual) {
+  // The same steps as solve_actuation(B, Ap, Qc) above, each into a buffer of w.
+  Actuation& a = w.result;
+  const Index mp = w.Ap.rows();
+  w.P.setIdentity();
+  if (mp > 0) {
+    w.codp.setThreshold(Eigen::Default);  // a fresh decomposition's rank at compute()
+    w.codp.compute(w.Ap.transpose());
+    w.codp.setThreshold(rel_tol);
+    // codp is n × mp: its solve of I (n × n) is mp × n.
+    cod_solve_into(w.codp, w.I, w.X, w.c_mat, w.y_mat, w.z_temp, w.hh_mat);
+    w.ApTX.noalias() = w.Ap.transpose() * w.X;
+    w.P -= w.ApTX;
+  }
+  w.PB.noalias() = w.P * B;
+  w.cod.setThreshold(Eigen::Default);
+  w.cod.compute(w.PB);
+  w.cod.setThreshold(rel_tol);
+  if (B.cols() > 0) {
+    w.PQc.noalias() = w.P * Qc;
+    cod_solve_into(w.cod, w.PQc, a.u, w.c_vec, w.y_k, w.z_temp, w.hh_vec);
+  }
+  w.rest = Qc - B * a.u;
+  if (mp > 0) cod_solve_into(w.codp, w.rest, a.mu, w.c_vec, w.y_mp, w.z_temp, w.hh_vec);
+  w.Bu.noalias() = B * a.u;
+  w.ApTmu.noalias() = w.Ap.transpose() * a.mu;
+  w.r = w.Bu + w.ApTmu - Qc;
+  a.residual = w.r.norm();
+  a.scale = Qc.norm() + (B.size() > 0 ? B.norm() * a.u.norm() : 0.0);
+  a.underactuated = a.residual > rel_tol_residual * (a.scale + 1.0);
 }
 
 }  // namespace ukdyn

@@ -20,6 +20,7 @@
 // actuators cannot realise the servo constraints (underactuation): never hidden, the caller warns.
 #pragma once
 
+#include <Eigen/QR>
 #include <string>
 #include <vector>
 
@@ -61,5 +62,23 @@ struct Actuation {
 /// B: n × k actuator gains (τ = B u); Ap: physical rows (m_p × n); Qc: the force to realise.
 Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel_tol = 1e-10,
                           double rel_tol_residual = 1e-8);
+
+/// The buffers of solve_actuation() for B: n × k and A_p: m_p × n, allocated once (the control
+/// law's right-hand side, docs/control.md "No allocation").
+struct ActuationWorkspace {
+  ActuationWorkspace(Index n, Index k, Index mp);
+  Mat Ap;  ///< m_p × n: the caller writes the physical rows here
+  Mat P, X, ApTX, PB, I, c_mat, y_mat;
+  Vec PQc, rest, Bu, ApTmu, r, c_vec, y_k, y_mp, z_temp;
+  Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor> hh_mat, hh_vec;
+  Eigen::CompleteOrthogonalDecomposition<Mat> codp, cod;
+  Actuation result;  ///< u (k), mu (m_p) sized once
+};
+
+/// solve_actuation(B, ws.Ap, Qc) into ws.result without heap allocation (once ws exists; A_p of
+/// rank ≥ 48 takes Eigen's blocked Householder path, which allocates). Bit for bit the same
+/// numbers as solve_actuation() (Actuation.WorkspaceSolveIsBitIdentical).
+void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& ws, double rel_tol = 1e-10,
+                     double rel_tol_residual = 1e-8);
 
 }  // namespace ukdyn

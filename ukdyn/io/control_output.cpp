@@ -30,6 +30,8 @@ ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop) : sc_(&sc),
   if (loop_ != nullptr) {
     for (const auto& r : servo_names_) header_.push_back("e_" + r);
     for (const auto& r : servo_names_) header_.push_back("ed_" + r);
+    servo_law_ = dynamic_cast<const ServoLaw*>(&loop_->law);
+    if (servo_law_ != nullptr) header_.push_back("servo_uncertainty");
   }
   u_prev_ = Vec::Zero(sc.actuators.count());
 }
@@ -100,6 +102,24 @@ void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d,
     const double em = e.size() ? e.cwiseAbs().maxCoeff() : 0.0;
     max_e_ = std::max(max_e_, em);
     if (t >= t_half_) max_e_half_ = std::max(max_e_half_, em);
+    if (servo_law_ != nullptr) {
+      // δ = A_s q̈_plant − (b_s + v): d is the plant's forward() at this sample under the u of the
+      // evaluate() above (the same state, so the same u as the integrator's).
+      const double delta = servo_law_->servo_uncertainty(loop_->model, d.qdd);
+      out[k++] = delta;
+      if (delta > max_delta_ || first_) {
+        max_delta_ = delta;
+        max_delta_t_ = t;
+      }
+      const ServoLawSettings& ls = servo_law_->settings();
+      if (ls.kind == ControlLawKind::robust && ls.rho > 0.0 && delta > ls.rho) {
+        if (!rho_exceeded_) {
+          rho_exceeded_ = true;
+          rho_exceeded_t_ = t;
+        }
+        rho_exceeded_delta_ = std::max(rho_exceeded_delta_, delta);
+      }
+    }
   }
   first_ = false;
   t_prev_ = t;
@@ -122,6 +142,16 @@ std::vector<RunWarning> ControlColumns::warnings() const {
                  fmt::format("the actuators cannot realise the servo rows ({}): residual "
                              "‖B u + A_pᵀμ − Qc‖ up to {:.3e} (column act_residual)",
                              rows, max_residual_)});
+  }
+  if (rho_exceeded_) {
+    const double rho = servo_law_->settings().rho;
+    w.push_back(
+        {rho_exceeded_t_, "rho_bound_exceeded",
+         fmt::format("the plant's uncertainty ‖δ‖ = ‖A_s q̈ − (b_s + v)‖ exceeded the "
+                     "robust law's bound rho = {:.6g} (first at t = {:.6g} s, up to {:.6g}, "
+                     "{:.3g}× rho, at t = {:.6g} s): the assumption of the robust design "
+                     "does not hold, its error bound is not guaranteed (docs/control.md)",
+                     rho, rho_exceeded_t_, max_delta_, max_delta_ / rho, max_delta_t_)});
   }
   if (saturated_) {
     w.push_back(
@@ -150,6 +180,16 @@ nlohmann::json ControlColumns::summary() const {
     j["max_abs_e"] = max_e_;
     j["max_abs_e_second_half"] = max_e_half_;
     j["saturated"] = saturated_;
+    if (servo_law_ != nullptr) {
+      j["max_uncertainty"] = max_delta_;
+      j["max_uncertainty_t"] = max_delta_t_;
+      const ServoLawSettings& ls = servo_law_->settings();
+      if (ls.kind == ControlLawKind::robust) {
+        j["rho"] = ls.rho;
+        if (ls.rho > 0.0) j["uncertainty_over_rho"] = max_delta_ / ls.rho;
+        j["rho_bound_exceeded"] = rho_exceeded_;
+      }
+    }
     if (saturated_) {
       j["saturation_first_t"] = sat_t_;
       j["saturation_max_over_limit"] = sat_over_;

@@ -4,6 +4,7 @@
 //   u_<actuator>, act_residual                             the actuators' inputs (`actuators:`):
 //                                                          inverse dynamics, or the law's u
 //   e_<row>, ed_<row>                                      servo errors (`control:`)
+//   servo_uncertainty                                      ‖δ‖ of the built-in laws (`control:`)
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -47,6 +48,11 @@ class ControlColumns {
   double max_e_ = 0.0, max_e_half_ = 0.0, max_u_ = 0.0, max_udot_ = 0.0;
   bool saturated_ = false;
   double sat_t_ = 0.0, sat_over_ = 0.0;
+  // the uncertainty the robust term must dominate (docs/control.md "The uncertainty bound ρ")
+  const ServoLaw* servo_law_ = nullptr;
+  double max_delta_ = 0.0, max_delta_t_ = 0.0;
+  bool rho_exceeded_ = false;
+  double rho_exceeded_t_ = 0.0, rho_exceeded_delta_ = 0.0;
   Vec u_prev_;
   double t_prev_ = 0.0;
   bool first_ = true;

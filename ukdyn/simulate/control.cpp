@@ -71,7 +71,24 @@ ServoLaw::ServoLaw(const ControlModel& model, ServoLawSettings settings)
       work_(*model.system),
       phi_(model.system->rows()),
       phid_(model.system->rows()),
-      b_(model.system->rows()) {}
+      b_(model.system->rows()),
+      act_(model.system->dof(), model.actuators.count(), [&model] {
+        Index mp = 0;
+        for (bool s : model.row_servo) mp += s ? 0 : 1;
+        return mp;
+      }()) {}
+
+double ServoLaw::servo_uncertainty(const ControlModel& model, CVecRef qdd) const {
+  // ë = A_s q̈ − b_s on any trajectory (b_s: the servo rows' U-K right-hand side at the state), and
+  // the law asked for ë = v (b_ = b + v), so δ = A_s q̈ − b_ (docs/control.md).
+  double s2 = 0.0;
+  for (Index i = 0; i < work_.A.rows(); ++i) {
+    if (!model.row_servo[static_cast<std::size_t>(i)]) continue;
+    const double delta = work_.A.row(i).dot(qdd) - b_(i);
+    s2 += delta * delta;
+  }
+  return std::sqrt(s2);
+}
 
 void ServoLaw::control(const ControlModel& model, double t, CVecRef q, CVecRef qd,
                        const ForwardData& md, VecRef u) {
@@ -112,9 +129,12 @@ void ServoLaw::control(const ControlModel& model, double t, CVecRef q, CVecRef q
   work_.A = md.A;
   work_.Q = md.Q;
   uk_solve_dispatch(work_, b_, work_.Q, work_.qdd, work_.Qc, model.uk);
-  last_ =
-      solve_actuation(model.actuators.B, select_rows(work_.A, model.row_servo, false), work_.Qc);
-  u = last_.u;
+  // The physical rows into the workspace (select_rows() without its allocation).
+  Index r = 0;
+  for (Index i = 0; i < m; ++i)
+    if (!model.row_servo[static_cast<std::size_t>(i)]) act_.Ap.row(r++) = work_.A.row(i);
+  solve_actuation(model.actuators.B, work_.Qc, act_);
+  u = act_.result.u;
 }
 
 ClosedLoop::ClosedLoop(const ControlModel& m, ControlLaw& l, Vec plant_tau_,
@@ -126,7 +146,8 @@ ClosedLoop::ClosedLoop(const ControlModel& m, ControlLaw& l, Vec plant_tau_,
       model_data(*m.system),
       u_raw(Vec::Zero(m.actuators.count())),
       u(Vec::Zero(m.actuators.count())),
-      d(Vec::Zero(m.system->dof())) {}
+      d(Vec::Zero(m.system->dof())),
+      Bu_(Vec::Zero(m.system->dof())) {}
 
 void ClosedLoop::evaluate(double t, CVecRef q, CVecRef qd) {
   forward(*model.system, model_data, t, q, qd, model.tau, model.uk);
@@ -141,7 +162,10 @@ void ClosedLoop::evaluate(double t, CVecRef q, CVecRef qd) {
   if (disturbance) disturbance(t, d);
 }
 
-void ClosedLoop::plant_tau(VecRef tau) const { tau = tau_plant + model.actuators.B * u + d; }
+void ClosedLoop::plant_tau(VecRef tau) {
+  Bu_.noalias() = model.actuators.B * u;  // the temporary of tau_plant + B u + d, in a buffer
+  tau = tau_plant + Bu_ + d;
+}
 
 ForceFunction ClosedLoop::force_function() {
   return [this](double t, CVecRef q, CVecRef qd, VecRef tau) {

@@ -78,13 +78,19 @@ class ServoLaw : public ControlLaw {
   void control(const ControlModel& model, double t, CVecRef q, CVecRef qd,
                const ForwardData& model_data, VecRef u) override;
   /// The residual of the last actuation solve (underactuation if not round-off).
-  [[nodiscard]] const Actuation& last_actuation() const { return last_; }
+  [[nodiscard]] const Actuation& last_actuation() const { return act_.result; }
+  [[nodiscard]] const ServoLawSettings& settings() const { return s_; }
+  /// The uncertainty the robust term must dominate (docs/control.md "The uncertainty bound ρ"),
+  /// at the state of the last control() call: ‖δ‖₂ over the servo rows with
+  /// δ = A_s q̈ − (b_s + v), q̈ the plant's acceleration under the u just returned (so that
+  /// β̇ = −κβ − ργμ + δ on the plant). Allocates nothing.
+  [[nodiscard]] double servo_uncertainty(const ControlModel& model, CVecRef qdd_plant) const;
 
  private:
   ServoLawSettings s_;
   ForwardData work_;
   Vec phi_, phid_, b_;
-  Actuation last_;
+  ActuationWorkspace act_;  // the inverse dynamics' buffers, allocated once
 };
 
 /// Inverse dynamics at one state: the least-norm u with B u = Qc − A_pᵀμ for the model's Qc
@@ -102,7 +108,7 @@ struct ClosedLoop {
   /// Computes u at (t, q, q̇): forward() of the model, then the law; u_raw before saturation.
   void evaluate(double t, CVecRef q, CVecRef qd);
   /// The plant's τ for the state last evaluated.
-  void plant_tau(VecRef tau) const;
+  void plant_tau(VecRef tau);
   [[nodiscard]] ForceFunction force_function();
 
   const ControlModel& model;
@@ -113,6 +119,9 @@ struct ClosedLoop {
   Vec u_raw, u;  ///< k: the law's u, and u clipped at the actuators' limits
   bool saturated = false;
   Vec d;  ///< n: the disturbance at the last evaluation
+
+ private:
+  Vec Bu_;  // n: B u (a buffer, so that plant_tau() allocates nothing)
 };
 
 /// Gauss–Newton from q: q with the physical rows Φ_p = 0 and the servo rows Φ_s = offset
