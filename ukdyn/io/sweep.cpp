@@ -757,8 +757,17 @@ class SampleRunner {
     std::string status = "completed", reason;
     SimulationStats stats;
     std::optional<SampleObserver> obs;
+    // Building (and dropping) a model from definitions runs GiNaC, which is not thread-safe
+    // (docs/architecture.md, "Thread safety"): the sample's scenario and control run are built and
+    // released under build_mu_; only the integration runs in parallel.
+    std::optional<Scenario> held;
+    std::unique_ptr<ControlRun> ctl;
     try {
-      Scenario sc = scenario_for(k, vals, status, reason);
+      {
+        std::lock_guard<std::mutex> lock(build_mu_);
+        held.emplace(scenario_for(k, vals, status, reason));
+      }
+      Scenario& sc = *held;
       if (status == "completed") {
         const System& sys = *sc.system;
         const Index m = sys.rows();
@@ -791,7 +800,10 @@ class SampleRunner {
           const bool balance = sc.sim.energy_balance;
           // docs/control.md: with `control:` the plant (physical rows only, τ = B u from the
           // law) is integrated, exactly as run_scenario() does it (io/run.cpp).
-          const std::unique_ptr<ControlRun> ctl = make_control_run(sc);
+          {
+            std::lock_guard<std::mutex> lock(build_mu_);
+            ctl = make_control_run(sc);
+          }
           const System& psys = ctl ? *ctl->plant : sys;
           std::optional<ControlColumns> cc;
           auto th = trajectory_header(psys, balance);
@@ -829,6 +841,7 @@ class SampleRunner {
                            });
           if (cc) obs->peaks = cc->peaks();
           obs->control = nullptr;
+          cc.reset();
           status = to_string(stats.status);
           reason = stats.message;
           if (stats.status == RunStatus::completed) reason.clear();
@@ -838,6 +851,11 @@ class SampleRunner {
       status = "error";
       reason = e.what();
       obs.reset();
+    }
+    {
+      std::lock_guard<std::mutex> lock(build_mu_);
+      ctl.reset();
+      held.reset();
     }
     if (cancel && cancel->load()) return {};  // not recorded: recomputed on resume
     r += "," + status + "," + clean_reason(reason);
@@ -944,6 +962,7 @@ class SampleRunner {
   bool share_state_ = false;
   std::vector<std::string> header_;
   ModelCache cache_;
+  std::mutex build_mu_;  // model building and release (GiNaC), see row()
 };
 
 }  // namespace
