@@ -10,6 +10,7 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <set>
 #include <thread>
 
 #include "cli_run.hpp"
@@ -390,6 +391,93 @@ metrics: [max_residual, {{column: Qc_theta2, stats: [max_abs]}}]
   }
 }
 
+// A sweep of a control scenario (docs/sweeps.md, "Control scenarios"): each sample runs the
+// closed loop, the `plant.` paths perturb the plant only (the load's mass and its CoM, through
+// control.plant_set), and every control metric of a row equals the one that `ukdyn simulate`
+// reports for the extracted sample (summary.json → control, trajectory.csv), number for number.
+TEST(SweepCli, ControlSweepRowsEqualTheExtractedSamplesRuns) {
+  ScratchDir dir("ukdyn_sweep_control");
+  // The base and its plant file side by side in the scratch folder (the extracted samples are
+  // saved beside them, so that `plant:` resolves).
+  for (const char* f : {"paper_control.yaml", "paper_generic_exact_inertia.yaml"})
+    write(dir.path / f, slurp(kSource / "scenarios" / f));
+  const fs::path f = write(dir.path / "s.yaml", R"(ukdyn_sweep: 1
+name: control_test
+base: paper_control.yaml
+mode: random
+seed: 7
+samples: 3
+parameters:
+  - name: load_mass
+    path: ["plant.subsystems[left].parameters.m3", "plant.subsystems[right].parameters.m3"]
+    distribution: {type: uniform, low: 0.8, high: 1.2}
+  - name: load_length
+    path: "plant.subsystems[left].parameters.l3"
+    distribution: {type: uniform, low: 0.38, high: 0.42}
+set:
+  simulation.t_end: 0.2
+  simulation.abs_tol: 1e-9
+  simulation.rel_tol: 1e-9
+metrics:
+  - max_residual
+  - control
+  - squeeze_force
+  - final_state
+  - {column: u_theta2, stats: [max_abs]}
+)");
+  auto r =
+      run_cli(kCli, dir.path,
+              "sweep " + sh(f) + " --threads 2 --no-figures -o " + sh((dir.path / "o").string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto ls = lines(slurp(dir.path / "o" / "results.csv"));
+  ASSERT_EQ(ls.size(), 4u);
+  const auto h = cells(ls[0]);
+  std::set<std::string> distinct_u;
+  for (long k = 0; k < 3; ++k) {
+    const auto row = cells(ls[static_cast<std::size_t>(k) + 1]);
+    ASSERT_EQ(row[column(h, "status")], "completed") << ls[static_cast<std::size_t>(k) + 1];
+    auto e = run_cli(kCli, dir.path, fmt::format("sweep {} --extract {}", sh(f.string()), k));
+    ASSERT_EQ(e.exit_code, 0) << e.err;
+    // The perturbation goes to the plant (control.plant_set), the model keeps its load.
+    EXPECT_NE(e.out.find("plant_set"), std::string::npos) << e.out;
+    const fs::path sc = write(dir.path / fmt::format("sample{}.yaml", k), e.out);
+    const auto loaded = ukdyn::load_scenario(sc);
+    ASSERT_TRUE(loaded.control && loaded.control->plant);
+    const auto base = ukdyn::load_scenario(dir.path / "paper_control.yaml");
+    EXPECT_EQ(loaded.system->coordinate_names(), base.system->coordinate_names());
+    const fs::path out = dir.path / fmt::format("run{}", k);
+    auto s = run_cli(kCli, dir.path,
+                     "simulate " + sh(sc.string()) + " --no-figures -q -o " + sh(out.string()));
+    ASSERT_EQ(s.exit_code, 0) << s.err;
+    const auto js = nlohmann::json::parse(slurp(out / "summary.json"));
+    const auto& c = js["control"];
+    for (const char* m : {"max_abs_e", "max_abs_e_second_half", "max_abs_u", "max_abs_udot",
+                          "max_closure_force", "max_squeeze_force"}) {
+      ASSERT_TRUE(c.contains(m)) << m;
+      EXPECT_EQ(fmt::format("{}", c[m].get<double>()), row[column(h, m)]) << "sample " << k << m;
+    }
+    EXPECT_FALSE(c["saturated"].get<bool>());
+    EXPECT_EQ(row[column(h, "saturation_time")], "0");
+    EXPECT_EQ(fmt::format("{}", js["steps"].get<long>()), row[column(h, "steps")]);
+    EXPECT_EQ(fmt::format("{}", js["max_abs_position_residual_all"].get<double>()),
+              row[column(h, "max_residual")]);
+    const auto tl = lines(slurp(out / "trajectory.csv"));
+    const auto th = cells(tl[0]);
+    const auto last = cells(tl.back());
+    for (const char* q : {"dx1", "theta2", "theta6", "dy2"}) {
+      EXPECT_EQ(fmt::format("{}", std::stod(last[column(th, q)])),
+                row[column(h, std::string("final_") + q)])
+          << "sample " << k << " " << q;
+    }
+    double umax = 0;
+    for (std::size_t i = 1; i < tl.size(); ++i)
+      umax = std::max(umax, std::abs(std::stod(cells(tl[i])[column(th, "u_theta2")])));
+    EXPECT_EQ(fmt::format("{}", umax), row[column(h, "max_abs_u_theta2")]);
+    distinct_u.insert(row[column(h, "max_abs_e_second_half")]);
+  }
+  EXPECT_EQ(distinct_u.size(), 3u);  // the plant perturbation reaches the closed loop
+}
+
 TEST(SweepCli, BadSweepFilesNameFileLineAndKey) {
   ScratchDir dir("ukdyn_sweep_bad");
   const std::string base = (kSource / "scenarios" / "paper_free.yaml").string();
@@ -408,10 +496,22 @@ TEST(SweepCli, BadSweepFilesNameFileLineAndKey) {
            "\nmode: random\nseed: 1\nsamples: 3\nparameters:\n  - name: m\n"
            "    path: gravity\n    distribution: {type: gamma, low: 1}\n",
        ":10:26: key 'parameters[0].distribution.type': unknown distribution 'gamma'"},
-      // A control scenario would be swept without its controller: refused (docs/sweeps.md).
+      // A control scenario's plant: a `plant.` path must exist in the plant's tree.
       {"ukdyn_sweep: 1\nname: b\nbase: " + (kSource / "scenarios" / "paper_control.yaml").string() +
-           "\nmode: grid\nparameters: []\n",
-       ":3:7: key 'base': the base scenario has a 'control:' section"},
+           "\nmode: grid\nparameters:\n  - name: m\n"
+           "    path: plant.subsystems[left].parameters.mass\n    values: [1]\n",
+       ":7:11: key 'parameters[0].path': 'plant.subsystems[left].parameters.mass': in the plant: "
+       "'subsystems[left].parameters' has no key 'mass'"},
+      // ... and needs a control scenario; so do the control metrics.
+      {"ukdyn_sweep: 1\nname: b\nbase: " + base +
+           "\nmode: grid\nparameters:\n  - name: m\n    path: plant.gravity\n    values: [1]\n",
+       ":7:11: key 'parameters[0].path': 'plant.gravity': a 'plant.' path needs a base scenario "
+       "with a control: section"},
+      {"ukdyn_sweep: 1\nname: b\nbase: " + base +
+           "\nmode: grid\nparameters:\n  - name: m\n    path: gravity\n    values: [1]\n"
+           "metrics: [control]\n",
+       ":9:10: key 'metrics': the metrics control and squeeze_force need a base scenario with a "
+       "control: section"},
   };
   for (std::size_t i = 0; i < cases.size(); ++i) {
     const fs::path f = write(dir.path / fmt::format("b{}.yaml", i), cases[i].text);

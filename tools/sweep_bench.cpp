@@ -4,16 +4,27 @@
 //     observer, one after another (what a hand-written loop over the library costs at least);
 //  2. `ukdyn sweep` in memory (run_sweep) at 1 thread and at 2 threads, journal and table included.
 // Prints samples/s, the speed-up of 2 threads, and the overhead per sample of (2) at 1 thread
-// against (1). Usage: ukdyn_sweep_bench [SWEEP.yaml] [N] [OUT_DIR]
+// against (1). Usage: ukdyn_sweep_bench [SWEEP.yaml] [N] [OUT_DIR|-] [ROUNDS]
+// With ROUNDS > 0 it then runs ROUNDS interleaved rounds of five ways of computing the N samples
+// (the order rotated every round, so that no way always runs first or last on a warm or cold
+// machine) and prints the median and spread of each, and the median of the per-round ratios:
+//   A plain loop, models loaded beforehand (as above)
+//   B `ukdyn sweep` (run_sweep) at 1 thread
+//   C plain loop, each model loaded just before its integration (from the sample's text)
+//   D plain loop run in one worker std::jthread (as the sweep's single worker runs)
+//   E the sweep's per-sample path (run_sample) called in a loop on the main thread
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
 #include <iostream>
+#include <stdexcept>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "ukdyn/io/scenario.hpp"
 #include "ukdyn/io/sweep.hpp"
@@ -22,14 +33,116 @@
 #define UKDYN_SOURCE_DIR "."
 #endif
 
+namespace {
+
+using clock_type = std::chrono::steady_clock;
+double cpu_now() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
+
+long plain_loop(const std::vector<ukdyn::Scenario>& scs) {
+  long steps = 0;
+  for (const auto& sc : scs) {
+    const ukdyn::Vec tau = sc.tau;
+    const ukdyn::ForceFunction f = [&tau](double, ukdyn::CVecRef, ukdyn::CVecRef, ukdyn::VecRef o) {
+      o = tau;
+    };
+    const auto st = ukdyn::simulate(
+        *sc.system, sc.q0, sc.qd0, f, sc.sim,
+        [](double, ukdyn::CVecRef, ukdyn::CVecRef, const ukdyn::ForwardData&) { return true; });
+    steps += st.steps;
+  }
+  return steps;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n == 0 ? 0.0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+void interleaved(const ukdyn::Sweep& sw, const std::vector<ukdyn::Scenario>& scs,
+                 const std::filesystem::path& out, int rounds) {
+  const long n = sw.samples;
+  const char* names[5] = {"A plain, preloaded", "B ukdyn sweep, 1 thread",
+                          "C plain, loaded just before", "D plain, in a worker thread",
+                          "E run_sample loop (main thread)"};
+  std::vector<double> wall[5], cpu[5];
+  const ukdyn::Scenario base =
+      ukdyn::load_scenario_text(sw.base_text, sw.base_path, ukdyn::LoadOptions{false});
+  auto run = [&](int way) {
+    const double c0 = cpu_now();
+    const auto t0 = clock_type::now();
+    switch (way) {
+      case 0:
+        (void)plain_loop(scs);
+        break;
+      case 1: {
+        ukdyn::SweepOptions opt;
+        opt.threads = 1;
+        opt.resume = false;
+        const auto rep = ukdyn::run_sweep(sw, out / "interleaved", opt);
+        if (!rep.complete || rep.failed != 0) throw std::runtime_error("sweep incomplete");
+        break;
+      }
+      case 2:
+        for (long k = 0; k < n; ++k) {
+          std::vector<ukdyn::Scenario> one;
+          one.push_back(
+              ukdyn::load_scenario_text(ukdyn::sample_scenario_text(sw, k), sw.base_path));
+          (void)plain_loop(one);
+        }
+        break;
+      case 3: {
+        std::jthread worker([&scs] { (void)plain_loop(scs); });
+        break;
+      }
+      case 4:
+        for (long k = 0; k < n; ++k) (void)ukdyn::run_sample(sw, base, k);
+        break;
+    }
+    wall[way].push_back(std::chrono::duration<double>(clock_type::now() - t0).count());
+    cpu[way].push_back(cpu_now() - c0);
+  };
+  for (int r = 0; r < rounds; ++r) {
+    for (int i = 0; i < 5; ++i) run((i + r) % 5);  // rotated: each way in every position
+  }
+  std::cout << fmt::format("interleaved: {} rounds of {} samples each way (order rotated)\n",
+                           rounds, n);
+  std::cout << "  way                                  wall median [min, max]        CPU median "
+               "[min, max]\n";
+  for (int w = 0; w < 5; ++w) {
+    const auto [wl, wh] = std::minmax_element(wall[w].begin(), wall[w].end());
+    const auto [cl, ch] = std::minmax_element(cpu[w].begin(), cpu[w].end());
+    std::cout << fmt::format("  {:<34} {:7.3f} s [{:.3f}, {:.3f}]   {:7.3f} s [{:.3f}, {:.3f}]\n",
+                             names[w], median(wall[w]), *wl, *wh, median(cpu[w]), *cl, *ch);
+  }
+  for (int w = 1; w < 5; ++w) {
+    std::vector<double> rw, rc;
+    for (int r = 0; r < rounds; ++r) {
+      rw.push_back(wall[w][r] / wall[0][r]);
+      rc.push_back(cpu[w][r] / cpu[0][r]);
+    }
+    const auto [wl, wh] = std::minmax_element(rw.begin(), rw.end());
+    const auto [cl, ch] = std::minmax_element(rc.begin(), rc.end());
+    std::cout << fmt::format(
+        "  {} / A per round: wall median {:+.1f} % [{:+.1f}, {:+.1f}], CPU median {:+.1f} % "
+        "[{:+.1f}, {:+.1f}]\n",
+        names[w][0], 100 * (median(rw) - 1), 100 * (*wl - 1), 100 * (*wh - 1),
+        100 * (median(rc) - 1), 100 * (*cl - 1), 100 * (*ch - 1));
+  }
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   namespace fs = std::filesystem;
   const fs::path file = argc > 1
                             ? fs::path(argv[1])
                             : fs::path(UKDYN_SOURCE_DIR) / "scenarios/sweeps/paper_free_bench.yaml";
   const long n_arg = argc > 2 ? std::atol(argv[2]) : 0;
-  const fs::path out =
-      argc > 3 ? fs::path(argv[3]) : fs::temp_directory_path() / "ukdyn_sweep_bench";
+  const fs::path out = argc > 3 && std::string(argv[3]) != "-"
+                           ? fs::path(argv[3])
+                           : fs::temp_directory_path() / "ukdyn_sweep_bench";
+  const int rounds = argc > 4 ? std::atoi(argv[4]) : 0;
   try {
     ukdyn::Sweep sw = ukdyn::load_sweep(file);
     if (n_arg > 0 && n_arg < sw.samples) sw.samples = n_arg;
@@ -101,6 +214,7 @@ int main(int argc, char** argv) {
     std::cout << fmt::format(
         "  overhead per sample in CPU time (sweep 1 thread vs plain): {:+.1f} %  ({:+.3f} ms)\n",
         100.0 * (cpu_sweep[1] / plain_cpu - 1.0), 1e3 * (cpu_sweep[1] - plain_cpu) / nd);
+    if (rounds > 0) interleaved(sw, scs, out, rounds);
   } catch (const std::exception& e) {
     std::cerr << "sweep_bench: " << e.what() << "\n";
     return 2;

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <limits>
 
+#include "ukdyn/io/run_observer.hpp"
+
 namespace ukdyn {
 
 ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop) : sc_(&sc), loop_(loop) {
@@ -74,6 +76,7 @@ void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d,
         for (Index j = 0; j < u.size(); ++j)
           over = std::max(over, std::abs(loop_->u_raw(j)) - sc_->actuators.limit(j));
         if (!saturated_) sat_t_ = t;
+        if (!first_ && t > t_prev_) peaks_.saturation_time += t - t_prev_;
         saturated_ = true;
         sat_over_ = std::max(sat_over_, over);
       }
@@ -121,8 +124,57 @@ void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d,
       }
     }
   }
+  if (peaks_.closure) {
+    // The plant's multipliers: the least-norm λ with A_pᵀλ = Qc (its rows are all physical).
+    // λ_{x,y,z} of Φ = p1 − p2 is the force (world axes) the closure applies at robot 1's cut
+    // point, −λ at robot 2's (Qc = J1ᵀλ on robot 1's coordinates). The squeeze is its component
+    // against n, the horizontal unit vector from platform 1 to platform 2 (world x without the
+    // paper's dx1, dy1, dx2, dy2): compression > 0 (docs/control.md, "The squeeze force").
+    const RoleForceSplit s = split_by_role(d.A, d.Qc, std::vector<bool>(d.A.rows(), false));
+    const double fx = s.lambda(cx_), fy = s.lambda(cy_), fz = s.lambda(cz_);
+    double nx = 1.0, ny = 0.0;
+    if (px1_ >= 0) {
+      const double ax = q(px2_) - q(px1_), ay = q(py2_) - q(py1_), l = std::hypot(ax, ay);
+      if (l > 0.0) {
+        nx = ax / l;
+        ny = ay / l;
+      }
+    }
+    const double f = std::sqrt(fx * fx + fy * fy + fz * fz);
+    const double squeeze = -(fx * nx + fy * ny);
+    peaks_.max_closure_force = io_detail::nanmax(peaks_.max_closure_force, f);
+    peaks_.max_squeeze_force =
+        first_ ? squeeze : io_detail::nanmax(peaks_.max_squeeze_force, squeeze);
+  }
+  peaks_.max_abs_e = max_e_;
+  peaks_.max_abs_e_second_half = max_e_half_;
+  peaks_.max_abs_u = max_u_;
+  peaks_.max_abs_udot = max_udot_;
+  peaks_.saturation_max_over_limit = sat_over_;
   first_ = false;
   t_prev_ = t;
+}
+
+void ControlColumns::set_plant(const System& plant) {
+  const auto& rows = plant.constraint_row_names();
+  const auto row = [&rows](const char* n) {
+    const auto it = std::find(rows.begin(), rows.end(), n);
+    return it == rows.end() ? Index{-1} : static_cast<Index>(it - rows.begin());
+  };
+  cx_ = row("closure_x");
+  cy_ = row("closure_y");
+  cz_ = row("closure_z");
+  peaks_.closure = loop_ != nullptr && cx_ >= 0 && cy_ >= 0 && cz_ >= 0;
+  const auto& names = plant.coordinate_names();
+  const auto coord = [&names](const char* n) {
+    const auto it = std::find(names.begin(), names.end(), n);
+    return it == names.end() ? Index{-1} : static_cast<Index>(it - names.begin());
+  };
+  px1_ = coord("dx1");
+  py1_ = coord("dy1");
+  px2_ = coord("dx2");
+  py2_ = coord("dy2");
+  if (px1_ < 0 || py1_ < 0 || px2_ < 0 || py2_ < 0) px1_ = -1;
 }
 
 std::vector<RunWarning> ControlColumns::warnings() const {
@@ -193,6 +245,11 @@ nlohmann::json ControlColumns::summary() const {
     if (saturated_) {
       j["saturation_first_t"] = sat_t_;
       j["saturation_max_over_limit"] = sat_over_;
+      j["saturation_time"] = peaks_.saturation_time;
+    }
+    if (peaks_.closure && !first_) {
+      j["max_closure_force"] = peaks_.max_closure_force;
+      j["max_squeeze_force"] = peaks_.max_squeeze_force;
     }
   }
   return j;

@@ -30,6 +30,20 @@ class ControlColumns {
   /// summary.json → "control".
   [[nodiscard]] nlohmann::json summary() const;
   [[nodiscard]] std::vector<std::pair<std::string, std::vector<std::string>>> figures() const;
+  /// A control run: the simulated system (the plant). If it has the paper's closure rows
+  /// (closure_x, closure_y, closure_z), the peak closure and squeeze forces are taken from its
+  /// multipliers at every sample (docs/control.md, "The squeeze force").
+  void set_plant(const System& plant);
+  /// The run's extrema so far (summary.json → control; the metrics of `ukdyn sweep`).
+  struct Peaks {
+    double max_abs_e = 0.0, max_abs_e_second_half = 0.0, max_abs_u = 0.0, max_abs_udot = 0.0;
+    double saturation_time = 0.0;            ///< Σ (t_i − t_{i−1}) over saturated samples i
+    double saturation_max_over_limit = 0.0;  ///< 0 if never saturated
+    bool closure = false;                    ///< the plant has the closure rows
+    double max_closure_force = 0.0;          ///< max ‖(λ_x, λ_y, λ_z)‖
+    double max_squeeze_force = 0.0;  ///< max −λ·n (compression > 0); −inf before a sample
+  };
+  [[nodiscard]] const Peaks& peaks() const { return peaks_; }
 
  private:
   const Scenario* sc_;
@@ -56,6 +70,10 @@ class ControlColumns {
   Vec u_prev_;
   double t_prev_ = 0.0;
   bool first_ = true;
+  // the closure force (set_plant)
+  Peaks peaks_;
+  Index cx_ = -1, cy_ = -1, cz_ = -1;                // rows closure_x, _y, _z of the plant
+  Index px1_ = -1, py1_ = -1, px2_ = -1, py2_ = -1;  // coordinates dx1, dy1, dx2, dy2
 };
 
 }  // namespace ukdyn

@@ -368,6 +368,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   if (!ctl)
     header.insert(header.end(), force_columns.header().begin(), force_columns.header().end());
   ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // docs/control.md
+  if (ctl) control_columns.set_plant(*ctl->plant);  // the closure / squeeze force
   header.insert(header.end(), control_columns.header().begin(), control_columns.header().end());
   std::optional<CsvWriter> csv;
   try {

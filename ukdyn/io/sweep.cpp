@@ -25,6 +25,7 @@
 #include <sstream>
 #include <thread>
 
+#include "ukdyn/io/control_output.hpp"
 #include "ukdyn/io/plots.hpp"
 #include "ukdyn/io/run.hpp"
 #include "ukdyn/io/run_observer.hpp"
@@ -127,6 +128,26 @@ const YAML::Node& base_yaml(const Sweep& sw) {
   return *static_cast<const YAML::Node*>(sw.base_doc.get());
 }
 
+// A path `plant.P` (docs/sweeps.md, "Control scenarios") writes P in the plant of a control
+// scenario: as an entry {path: P, value: v} appended to the sample's control.plant_set
+// (io/control_loader.cpp), so the controller's model keeps its value.
+constexpr const char* kPlantPrefix = "plant.";
+bool plant_path(const std::string& path) { return path.rfind(kPlantPrefix, 0) == 0; }
+
+// The plant's tree of a control scenario, as control.plant_set sees it: the plant file, or the
+// scenario's own tree less its control and actuators sections.
+YAML::Node plant_tree(const YAML::Node& doc, const std::filesystem::path& base_path) {
+  const YAML::Node pf = doc["control"]["plant"];
+  if (pf && pf.IsScalar()) {
+    const auto where = base_path.parent_path() / pf.Scalar();
+    return clone(YAML::Load(read_text(where, "plant scenario")));
+  }
+  YAML::Node t = clone(doc);
+  t.remove("control");
+  t.remove("actuators");
+  return t;
+}
+
 // `initial.q[i]` / `initial.qd[i]`: the coordinate i of q0 / q̇0, or -1.
 long state_index(const std::string& path, bool& velocity) {
   for (const char* pre : {"initial.q[", "initial.qd["}) {
@@ -226,7 +247,24 @@ SweepDistribution load_distribution(const Loader& L, const Node& d) {
   return dist;
 }
 
-std::vector<SweepTarget> load_targets(const Loader& L, const Node& p, const YAML::Node& doc) {
+// `plant.P`: P must lead to a number in the plant's tree (null: the base has no control section).
+void check_path(const Loader& L, const Node& e, const std::string& path, const YAML::Node& doc,
+                const YAML::Node* plant) {
+  std::string why;
+  if (plant_path(path)) {
+    if (!plant)
+      L.fail(e, "'" + path + "': a 'plant.' path needs a base scenario with a control: section");
+    YAML::Node copy = clone(*plant);
+    const std::string rest = path.substr(std::strlen(kPlantPrefix));
+    if (!find_scalar(copy, rest, why)) L.fail(e, "'" + path + "': in the plant: " + why);
+    return;
+  }
+  YAML::Node copy = clone(doc);
+  if (!find_scalar(copy, path, why)) L.fail(e, "'" + path + "': " + why);
+}
+
+std::vector<SweepTarget> load_targets(const Loader& L, const Node& p, const YAML::Node& doc,
+                                      const YAML::Node* plant) {
   std::vector<SweepTarget> out;
   const Node pn = L.child(p, "path", true);
   auto one = [&](const Node& e) {
@@ -239,9 +277,7 @@ std::vector<SweepTarget> load_targets(const Loader& L, const Node& p, const YAML
     } else {
       t.path = L.string(e);
     }
-    std::string why;
-    YAML::Node copy = clone(doc);
-    if (!find_scalar(copy, t.path, why)) L.fail(e, "'" + t.path + "': " + why);
+    check_path(L, e, t.path, doc, plant);
     out.push_back(t);
   };
   if (pn.node.IsSequence()) {
@@ -273,10 +309,15 @@ void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
         mx.max_abs_qc = true;
       } else if (s == "final_state") {
         mx.final_state = true;
+      } else if (s == "control") {
+        mx.control = true;
+      } else if (s == "squeeze_force") {
+        mx.squeeze = true;
       } else {
         L.fail(e, "unknown metric '" + s +
                       "' (expected max_residual, energy_drift, energy_balance_drift, "
-                      "max_abs_Qc, final_state or {column: NAME, stats: [min, max, rms, "
+                      "max_abs_Qc, final_state, control, squeeze_force or {column: NAME, stats: "
+                      "[min, max, rms, "
                       "max_abs, final]})");
       }
       continue;
@@ -337,12 +378,16 @@ Sweep load_sweep(const std::filesystem::path& path) {
   } catch (const YAML::Exception& e) {
     L.fail(bn, "the base scenario is not valid YAML: " + e.msg);
   }
-  // A control run (docs/control.md) integrates its plant under the controller's inputs; a sample
-  // here runs simulate() on the scenario alone, so it would sweep the uncontrolled model and
-  // report it as the controlled one. Refused until the sweep runs the closed loop.
-  if ((*doc)["control"].IsDefined())
-    L.fail(bn, "the base scenario has a 'control:' section; a sweep would run it without its "
-               "controller and plant, so control scenarios cannot be swept yet (docs/sweeps.md)");
+  // A control scenario (docs/control.md): each sample runs its closed loop; `plant.` paths lead
+  // into the plant's tree.
+  std::optional<YAML::Node> plant;
+  if ((*doc)["control"].IsDefined()) {
+    try {
+      plant = plant_tree(*doc, sw.base_path);
+    } catch (const std::exception& e) {
+      L.fail(bn, std::string("the base scenario's plant: ") + e.what());
+    }
+  }
   sw.base_doc = doc;
   sw.hash = hash_hex(std::string(version()) + "\n" + text + "\n" + sw.base_text);
 
@@ -380,7 +425,7 @@ Sweep load_sweep(const std::filesystem::path& path) {
     const Node nn = L.child(p, "name", true);
     par.name = L.name(nn);
     if (!names.insert(par.name).second) L.fail(nn, "duplicate parameter name '" + par.name + "'");
-    par.targets = load_targets(L, p, *doc);
+    par.targets = load_targets(L, p, *doc, plant ? &*plant : nullptr);
     const Node dn = L.child(p, "distribution", false);
     if (sw.mode == Sweep::Mode::random) {
       if (!dn.node.IsDefined()) L.fail(p, "missing required key '" + p.key + ".distribution'");
@@ -422,9 +467,7 @@ Sweep load_sweep(const std::filesystem::path& path) {
       const std::string p = L.key(st, kv.first);
       const Node e{kv.second, st.key + "." + p};
       SweepTarget t{p, 1.0, 0.0};
-      std::string why;
-      YAML::Node copy = clone(*doc);
-      if (!find_scalar(copy, p, why)) L.fail(e, "'" + p + "': " + why);
+      check_path(L, e, p, *doc, plant ? &*plant : nullptr);
       sw.fixed.push_back(t);
       sw.fixed_values.push_back(L.number(e));
     }
@@ -452,8 +495,31 @@ Sweep load_sweep(const std::filesystem::path& path) {
       }
     }
   }
+  const Node metrics_node =
+      L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : root;
+  if ((sw.metrics.control || sw.metrics.squeeze) && !base.control)
+    L.fail(metrics_node,
+           "the metrics control and squeeze_force need a base scenario with a "
+           "control: section (docs/control.md)");
+  std::vector<std::string> h = trajectory_header(*base.system, base.sim.energy_balance);
+  if (base.control) {
+    // The columns of a control run: the plant's, then the control columns (as in trajectory.csv).
+    std::unique_ptr<ControlRun> ctl;
+    try {
+      ctl = make_control_run(base);
+    } catch (const std::exception& e) {
+      L.fail(bn, std::string("the base scenario's control run: ") + e.what());
+    }
+    h = trajectory_header(*ctl->plant, base.sim.energy_balance);
+    ControlColumns cc(base, ctl->loop.get());
+    cc.set_plant(*ctl->plant);
+    h.insert(h.end(), cc.header().begin(), cc.header().end());
+    if (sw.metrics.squeeze && !cc.peaks().closure)
+      L.fail(metrics_node,
+             "squeeze_force: the plant has no closure rows closure_x, closure_y, "
+             "closure_z (the paper's Eq. 12 block named 'closure')");
+  }
   for (const auto& c : sw.metrics.columns) {
-    const auto h = trajectory_header(*base.system, base.sim.energy_balance);
     if (std::find(h.begin(), h.end(), c.column) == h.end())
       L.fail(root, "metrics: no trajectory column named '" + c.column + "'");
   }
@@ -511,6 +577,21 @@ void write_at(YAML::Node& doc, const std::string& path, double value) {
   if (n) *n = num(value);  // assigns the node's content in the tree
 }
 
+// A `plant.P` target: {path: P, value: v} appended to control.plant_set (applied after the
+// entries of the base scenario, so it replaces what they wrote at P).
+void write_target(YAML::Node& doc, const std::string& path, double value) {
+  if (!plant_path(path)) {
+    write_at(doc, path, value);
+    return;
+  }
+  YAML::Node e(YAML::NodeType::Map);
+  e["path"] = path.substr(std::strlen(kPlantPrefix));
+  e["value"] = num(value);
+  if (!doc["control"]["plant_set"].IsSequence())
+    doc["control"]["plant_set"] = YAML::Node(YAML::NodeType::Sequence);
+  doc["control"]["plant_set"].push_back(e);
+}
+
 std::string emit(const YAML::Node& doc) {
   YAML::Emitter e;
   e << doc;
@@ -522,12 +603,12 @@ std::string emit(const YAML::Node& doc) {
 YAML::Node sample_doc(const Sweep& sw, const std::vector<double>& vals, bool with_state) {
   YAML::Node doc = clone(base_yaml(sw));
   for (std::size_t i = 0; i < sw.fixed.size(); ++i)
-    write_at(doc, sw.fixed[i].path, sw.fixed_values[i]);
+    write_target(doc, sw.fixed[i].path, sw.fixed_values[i]);
   for (std::size_t j = 0; j < sw.parameters.size(); ++j) {
     for (const auto& t : sw.parameters[j].targets) {
       bool vel = false;
       if (!with_state && state_index(t.path, vel) >= 0) continue;
-      write_at(doc, t.path, target_value(t, vals[j]));
+      write_target(doc, t.path, target_value(t, vals[j]));
     }
   }
   return doc;
@@ -561,6 +642,10 @@ std::vector<std::string> sweep_header(const Sweep& sw, const Scenario& base) {
   if (m.max_residual) h.push_back("max_residual");
   if (m.energy_drift) h.push_back("energy_drift");
   if (m.energy_balance_drift) h.push_back("energy_balance_drift");
+  if (m.control)
+    h.insert(h.end(), {"max_abs_e", "max_abs_e_second_half", "max_abs_u", "max_abs_udot",
+                       "saturation_time", "saturation_max_over_limit"});
+  if (m.squeeze) h.insert(h.end(), {"max_closure_force", "max_squeeze_force"});
   if (m.max_abs_qc)
     for (const auto& n : names) h.push_back("max_abs_Qc_" + n);
   if (m.final_state) {
@@ -596,6 +681,11 @@ struct SampleObserver {
   Vec max_qc, q_last, qd_last;
   std::vector<double> cmin, cmax, csq, clast, cabs;
   long count = 0;
+  // A control run: its columns after the trajectory's (as run_scenario's Observer fills them),
+  // and their extrema once the run is over.
+  ControlColumns* control = nullptr;
+  std::size_t control_at = 0;
+  ControlColumns::Peaks peaks;
 
   [[nodiscard]] double max_residual() const {
     double r = 0.0;
@@ -605,6 +695,7 @@ struct SampleObserver {
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     recorder.record(t, q, qd, d);
+    if (control != nullptr) control->fill(t, q, qd, d, recorder.row().data() + control_at);
     for (Index i = 0; i < max_qc.size(); ++i) max_qc(i) = nanmax(max_qc(i), std::abs(d.Qc(i)));
     q_last = q;
     qd_last = qd;
@@ -646,7 +737,8 @@ struct ModelCache {
 class SampleRunner {
  public:
   SampleRunner(const Sweep& sw, const Scenario& base) : sw_(sw), base_(base) {
-    share_state_ = system_independent_of_state(base_yaml(sw));
+    // A control scenario loads each sample whole (its plant and offset start follow q0).
+    share_state_ = !base.control && system_independent_of_state(base_yaml(sw));
     for (const auto& p : sw.parameters) {
       for (const auto& t : p.targets) {
         bool vel = false;
@@ -665,8 +757,17 @@ class SampleRunner {
     std::string status = "completed", reason;
     SimulationStats stats;
     std::optional<SampleObserver> obs;
+    // Building (and dropping) a model from definitions runs GiNaC, which is not thread-safe
+    // (docs/architecture.md, "Thread safety"): the sample's scenario and control run are built and
+    // released under build_mu_; only the integration runs in parallel.
+    std::optional<Scenario> held;
+    std::unique_ptr<ControlRun> ctl;
     try {
-      Scenario sc = scenario_for(k, vals, status, reason);
+      {
+        std::lock_guard<std::mutex> lock(build_mu_);
+        held.emplace(scenario_for(k, vals, status, reason));
+      }
+      Scenario& sc = *held;
       if (status == "completed") {
         const System& sys = *sc.system;
         const Index m = sys.rows();
@@ -697,7 +798,21 @@ class SampleRunner {
         }
         if (ok) {
           const bool balance = sc.sim.energy_balance;
-          const auto th = trajectory_header(sys, balance);
+          // docs/control.md: with `control:` the plant (physical rows only, τ = B u from the
+          // law) is integrated, exactly as run_scenario() does it (io/run.cpp).
+          {
+            std::lock_guard<std::mutex> lock(build_mu_);
+            ctl = make_control_run(sc);
+          }
+          const System& psys = ctl ? *ctl->plant : sys;
+          std::optional<ControlColumns> cc;
+          auto th = trajectory_header(psys, balance);
+          const std::size_t control_at = th.size();
+          if (ctl) {
+            cc.emplace(sc, ctl->loop.get());
+            cc->set_plant(*ctl->plant);
+            th.insert(th.end(), cc->header().begin(), cc->header().end());
+          }
           std::vector<std::size_t> cols;
           bool need_sigma = false;
           for (const auto& c : sw_.metrics.columns) {
@@ -706,18 +821,27 @@ class SampleRunner {
             cols.push_back(static_cast<std::size_t>(it - th.begin()));
             need_sigma = need_sigma || c.column == "sigma_min";
           }
-          obs.emplace(sys, balance, th.size(), std::move(cols), need_sigma);
-          obs->q_last = sc.q0;
-          obs->qd_last = sc.qd0;
+          const Vec& q0 = ctl ? ctl->q0 : sc.q0;
+          const Vec& qd0 = ctl ? ctl->qd0 : sc.qd0;
+          obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma);
+          obs->q_last = q0;
+          obs->qd_last = qd0;
+          obs->control = cc ? &*cc : nullptr;
+          obs->control_at = control_at;
           SimulationSettings settings = sc.sim;
           settings.cancel = cancel;
           const Vec tau = sc.tau;
-          const ForceFunction f = [&tau](double, CVecRef, CVecRef, VecRef o) { o = tau; };
+          const ForceFunction f =
+              ctl ? ctl->loop->force_function()
+                  : ForceFunction([&tau](double, CVecRef, CVecRef, VecRef o) { o = tau; });
           SampleObserver& o = *obs;
-          stats = simulate(sys, sc.q0, sc.qd0, f, settings,
+          stats = simulate(psys, q0, qd0, f, settings,
                            [&o](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                              return o(t, q, qd, d);
                            });
+          if (cc) obs->peaks = cc->peaks();
+          obs->control = nullptr;
+          cc.reset();
           status = to_string(stats.status);
           reason = stats.message;
           if (stats.status == RunStatus::completed) reason.clear();
@@ -727,6 +851,11 @@ class SampleRunner {
       status = "error";
       reason = e.what();
       obs.reset();
+    }
+    {
+      std::lock_guard<std::mutex> lock(build_mu_);
+      ctl.reset();
+      held.reset();
     }
     if (cancel && cancel->load()) return {};  // not recorded: recomputed on resume
     r += "," + status + "," + clean_reason(reason);
@@ -740,6 +869,16 @@ class SampleRunner {
       if (mx.energy_drift) cells.push_back(num(o.rep.max_energy_drift));
       if (mx.energy_balance_drift)
         cells.push_back(o.rep.energy_balance ? num(o.rep.energy_balance_drift) : "nan");
+      const auto& pk = o.peaks;
+      if (mx.control) {
+        for (double v : {pk.max_abs_e, pk.max_abs_e_second_half, pk.max_abs_u, pk.max_abs_udot,
+                         pk.saturation_time, pk.saturation_max_over_limit})
+          cells.push_back(num(v));
+      }
+      if (mx.squeeze) {
+        cells.push_back(o.count > 0 ? num(pk.max_closure_force) : "nan");
+        cells.push_back(o.count > 0 ? num(pk.max_squeeze_force) : "nan");
+      }
       if (mx.max_abs_qc)
         for (Index i = 0; i < o.max_qc.size(); ++i) cells.push_back(num(o.max_qc(i)));
       if (mx.final_state) {
@@ -823,6 +962,7 @@ class SampleRunner {
   bool share_state_ = false;
   std::vector<std::string> header_;
   ModelCache cache_;
+  std::mutex build_mu_;  // model building and release (GiNaC), see row()
 };
 
 }  // namespace

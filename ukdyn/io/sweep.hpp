@@ -54,6 +54,10 @@ struct SweepMetrics {
   bool energy_balance_drift = false;
   bool max_abs_qc = false;   ///< max |Qc| per coordinate
   bool final_state = false;  ///< q, q̇ at the last sample
+  /// A control run (docs/control.md): max |e| (whole run, second half), max |u|, max |u̇|, the
+  /// saturation time and the largest amount over a limit.
+  bool control = false;
+  bool squeeze = false;  ///< a control run on the paper's closure: peak closure / squeeze force
   std::vector<ColumnMetric> columns;
 };
 
