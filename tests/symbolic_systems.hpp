@@ -31,7 +31,7 @@ inline std::shared_ptr<ukdyn::System> spline_cart_system(const std::string& pref
   const sym::CubicSpline s({0, 0.3, 0.7, 1.0}, {0, 0.2, -0.1, 0.3}, sym::CubicSpline::End::clamped,
                            0, 0);
   sym::ConstraintDef c("follow", sym::ConstraintDef::Kind::holonomic, {x, phi});
-  sym::add_coordinate(c, "follow", x, sym::spline_expression(s));
+  sym::add_coordinate(c, "follow", x, sym::spline_expression(s, c.symbols().time()));
   system->add_constraint(sym::make_constraint(c));
   return system;
 }

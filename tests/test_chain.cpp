@@ -64,7 +64,8 @@ TEST(Chain, DoublePendulumMatchesClosedForm) {
   EXPECT_LE(worst, 1e-13);
   // Named points: link frame origins, `end`, and the tip.
   const auto tip = model.world_point("tip");
-  GiNaC::exmap at{{sym::coordinate_symbol("q1"), 0}, {sym::coordinate_symbol("q2"), 0}};
+  GiNaC::exmap at{{sym::coordinate_symbol(c.symbols(), "q1"), 0},
+                  {sym::coordinate_symbol(c.symbols(), "q2"), 0}};
   EXPECT_NEAR(GiNaC::ex_to<GiNaC::numeric>(tip[2].subs(at).evalf()).to_double(), -(l1 + l2), 1e-15);
   EXPECT_TRUE(model.points.count("end"));
   EXPECT_TRUE(model.points.count("link1"));

@@ -36,10 +36,12 @@ TEST(ChainConstraints, KindsGiveTheHandWrittenRows) {
   c.add_point("tip", "l2", {1, 0, 0});
   const auto model = sym::build_chain(c);
   const std::vector<std::string> coords{"a1", "a2"};
-  sym::ConstraintDef kinds("k", sym::ConstraintDef::Kind::holonomic, coords);
+  // The chain's table: the tip is an expression of the chain's coordinate symbols.
+  sym::ConstraintDef kinds("k", sym::ConstraintDef::Kind::holonomic, coords, c.symbol_table());
   const auto tip = model.world_point("tip");
   sym::add_point_trajectory(kinds, "p", tip,
-                            {sym::time_expression(ukdyn::TimeFunction::make_cosine(0.5, 0.25, 2.0)),
+                            {sym::time_expression(ukdyn::TimeFunction::make_cosine(0.5, 0.25, 2.0),
+                                                 kinds.symbols().time()),
                              std::nullopt, std::nullopt},
                             {0.5, 0, 0});
   sym::add_angle_relation(kinds, "rel", {{"a1", 2}, {"a2", -1}}, GiNaC::Pi / 3);

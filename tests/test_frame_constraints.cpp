@@ -37,9 +37,11 @@ constexpr double kG = 9.81;
 
 // A rigid body in position + roll-pitch-yaw coordinates <p>x, <p>y, <p>z, <p>r, <p>p, <p>w, with
 // its CoM at the position and a diagonal inertia in the body frame.
-sym::SubsystemDef rigid_body(const std::string& name, const std::string& p, double m,
+// `symbols`: the table of the system the body is part of (shared with its constraints).
+sym::SubsystemDef rigid_body(const std::shared_ptr<sym::SymbolTable>& symbols,
+                             const std::string& name, const std::string& p, double m,
                              std::array<double, 3> I, double g = kG) {
-  sym::SubsystemDef d(name, {p + "x", p + "y", p + "z", p + "r", p + "p", p + "w"});
+  sym::SubsystemDef d(name, {p + "x", p + "y", p + "z", p + "r", p + "p", p + "w"}, symbols);
   auto& b = d.add_body(name);
   b.mass = sym::exact_number(m);
   b.com = {d.q(p + "x"), d.q(p + "y"), d.q(p + "z")};
@@ -76,8 +78,9 @@ std::vector<std::string> concat(const std::vector<std::string>& a,
 // Every kind, between two rigid bodies with offsets on both frames: A = ∂Φ/∂q by central
 // differences of the compiled Φ, and Φ̇ = G_a J_a q̇ + G_b J_b q̇ = A q̇ (the wrench maps).
 TEST(FrameConstraints, JacobianMatchesFiniteDifferencesOfPhi) {
-  const auto b1 = rigid_body("one", "a", 2.0, {0.1, 0.2, 0.3});
-  const auto b2 = rigid_body("two", "b", 3.0, {0.3, 0.2, 0.4});
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
+  const auto b1 = rigid_body(symbols, "one", "a", 2.0, {0.1, 0.2, 0.3});
+  const auto b2 = rigid_body(symbols, "two", "b", 3.0, {0.3, 0.2, 0.4});
   sym::FrameTable t;
   t.add_bodies(b1);
   t.add_bodies(b2);
@@ -92,10 +95,10 @@ TEST(FrameConstraints, JacobianMatchesFiniteDifferencesOfPhi) {
     auto f = frame_def(kind, "c", t, "one.one", kind == K::level ? "world" : "two.two", oa, ob);
     f.axis = {1, 2, 2};
     f.length = sym::exact_number(0.8);
-    sym::ConstraintDef def("c", sym::ConstraintDef::Kind::holonomic, coords);
+    sym::ConstraintDef def("c", sym::ConstraintDef::Kind::holonomic, coords, symbols);
     sym::add_frame_constraint(def, f);
     const auto c = sym::make_constraint(def);
-    const sym::FrameWrenchMap wm(f, coords);
+    const sym::FrameWrenchMap wm(f, coords, *symbols);
     const Index m = c->rows();
     EXPECT_EQ(m, wm.rows());
     EXPECT_EQ(m, kind == K::weld    ? 6
@@ -135,11 +138,12 @@ TEST(FrameConstraints, JacobianMatchesFiniteDifferencesOfPhi) {
 // to the relative angular velocity, ½(tr R I − R) in closed form, has the singular values
 // |cos θ|, cos(θ/2), cos(θ/2): rank 3 for θ < 90°, rank 2 at 90° (docs/frame-constraints.md).
 TEST(FrameConstraints, WeldOrientationRowsRegularBelowNinetyDegrees) {
-  const auto b2 = rigid_body("two", "b", 3.0, {0.3, 0.2, 0.4});
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
+  const auto b2 = rigid_body(symbols, "two", "b", 3.0, {0.3, 0.2, 0.4});
   sym::FrameTable t;
   t.add_bodies(b2);
   const auto f = frame_def(K::weld, "w", t, "world", "two.two");
-  const sym::FrameWrenchMap wm(f, b2.coordinates());
+  const sym::FrameWrenchMap wm(f, b2.coordinates(), *symbols);
   const Vec3 axis = Vec3(0.3, -0.5, 0.8).normalized();
   for (double deg : {0.0, 10.0, 45.0, 80.0, 89.0, 90.0, 100.0, 120.0}) {
     const double th = deg * std::numbers::pi / 180.0;
@@ -167,10 +171,11 @@ TEST(FrameConstraints, WeldOrientationRowsRegularBelowNinetyDegrees) {
 // bodies written as one rigid body: q̈ of the first body agrees; the weld's force on the second
 // body is its m (p̈ − g) (Newton); the constraint does no work.
 TEST(FrameConstraints, WeldReproducesRigidAttachment) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
   const double m1 = 2.0, m2 = 3.5;
   const std::array<double, 3> I1{0.1, 0.2, 0.3}, I2{0.3, 0.25, 0.4};
-  const auto b1 = rigid_body("one", "a", m1, I1);
-  const auto b2 = rigid_body("two", "b", m2, I2);
+  const auto b1 = rigid_body(symbols, "one", "a", m1, I1);
+  const auto b2 = rigid_body(symbols, "two", "b", m2, I2);
   sym::FrameTable t;
   t.add_bodies(b1);
   t.add_bodies(b2);
@@ -179,15 +184,15 @@ TEST(FrameConstraints, WeldReproducesRigidAttachment) {
   const sym::Vec3Ex r0{sym::exact_number(0.3), sym::exact_number(-0.2), sym::exact_number(0.5)};
   // frame a: body one moved by d and turned by r0; frame b: body two turned by r0 → R2 = R1.
   const auto f = frame_def(K::weld, "w", t, "one.one", "two.two", {d, r0}, {{0, 0, 0}, r0});
-  sym::ConstraintDef def("w", sym::ConstraintDef::Kind::holonomic, coords);
+  sym::ConstraintDef def("w", sym::ConstraintDef::Kind::holonomic, coords, symbols);
   sym::add_frame_constraint(def, f);
   ukdyn::System welded;
   welded.add_subsystem(sym::make_subsystem(b1));
   welded.add_subsystem(sym::make_subsystem(b2));
   welded.add_constraint(sym::make_constraint(def));
-  const sym::FrameWrenchMap wm(f, coords);
+  const sym::FrameWrenchMap wm(f, coords, *symbols);
   // The same as one subsystem: body two at p1 + R1 d with R1.
-  auto one = rigid_body("both", "a", m1, I1);
+  auto one = rigid_body(symbols, "both", "a", m1, I1);
   {
     auto& b = one.add_body("two");
     b.mass = sym::exact_number(m2);
@@ -214,7 +219,7 @@ TEST(FrameConstraints, WeldReproducesRigidAttachment) {
       const sym::FramePose& pa = f.a;
       sym::InputMap in;
       for (std::size_t i = 0; i < 6; ++i)
-        in[sym::coordinate_symbol(coords[i])] = {sym::TapeInput::Source::q,
+        in[sym::coordinate_symbol(*symbols, coords[i])] = {sym::TapeInput::Source::q,
                                                  static_cast<std::int32_t>(i)};
       const sym::Tape tape({pa.position[0], pa.position[1], pa.position[2]}, in);
       double p[3];
@@ -259,19 +264,20 @@ TEST(FrameConstraints, WeldReproducesRigidAttachment) {
 // θ̈ = −m g l sin θ / (I_xx + m l²) in closed form; and the joint's force on the world frame is the
 // reaction of m (p̈ − g).
 TEST(FrameConstraints, BallPendulumMatchesClosedForm) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
   const double m = 1.5, l = 0.7;
   const std::array<double, 3> I{0.04, 0.07, 0.05};
-  const auto body = rigid_body("bob", "a", m, I);
+  const auto body = rigid_body(symbols, "bob", "a", m, I);
   sym::FrameTable t;
   t.add_bodies(body);
   const auto f =
       frame_def(K::ball, "pivot", t, "bob.bob", "world", {{0, 0, sym::exact_number(l)}, {0, 0, 0}});
-  sym::ConstraintDef def("pivot", sym::ConstraintDef::Kind::holonomic, body.coordinates());
+  sym::ConstraintDef def("pivot", sym::ConstraintDef::Kind::holonomic, body.coordinates(), symbols);
   sym::add_frame_constraint(def, f);
   ukdyn::System s;
   s.add_subsystem(sym::make_subsystem(body));
   s.add_constraint(sym::make_constraint(def));
-  const sym::FrameWrenchMap wm(f, body.coordinates());
+  const sym::FrameWrenchMap wm(f, body.coordinates(), *symbols);
   ukdyn::ForwardData d(s);
   double worst = 0, worst_force = 0, worst_work = 0;
   for (double th : {-2.5, -1.0, 0.2, 1.3, 2.9}) {
@@ -303,20 +309,21 @@ TEST(FrameConstraints, BallPendulumMatchesClosedForm) {
 // the hinge axis only (ω ∥ x at every state the hinge holds), and q̈ follows the same closed form
 // as the planar pendulum.
 TEST(FrameConstraints, HingeKeepsTheAxis) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
   const double m = 1.2, l = 0.5;
   const std::array<double, 3> I{0.03, 0.08, 0.06};
-  const auto body = rigid_body("door", "a", m, I);
+  const auto body = rigid_body(symbols, "door", "a", m, I);
   sym::FrameTable t;
   t.add_bodies(body);
   auto f =
       frame_def(K::hinge, "h", t, "door.door", "world", {{0, 0, sym::exact_number(l)}, {0, 0, 0}});
   f.axis = {1, 0, 0};
-  sym::ConstraintDef def("h", sym::ConstraintDef::Kind::holonomic, body.coordinates());
+  sym::ConstraintDef def("h", sym::ConstraintDef::Kind::holonomic, body.coordinates(), symbols);
   sym::add_frame_constraint(def, f);
   ukdyn::System s;
   s.add_subsystem(sym::make_subsystem(body));
   s.add_constraint(sym::make_constraint(def));
-  const sym::FrameWrenchMap wm(f, body.coordinates());
+  const sym::FrameWrenchMap wm(f, body.coordinates(), *symbols);
   ukdyn::ForwardData d(s);
   for (double th : {-1.1, 0.4, 2.0}) {
     Vec q(6), qd(6);
@@ -341,14 +348,15 @@ TEST(FrameConstraints, HingeKeepsTheAxis) {
 // level: a body's x axis kept horizontal (1 row) or vertical (2 rows); a free body under gravity
 // with the axis horizontal falls freely (the row needs no force) and the rows hold at q̈.
 TEST(FrameConstraints, LevelRowsAndNoForceInFreeFall) {
-  const auto body = rigid_body("tray", "a", 2.0, {0.1, 0.2, 0.3});
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
+  const auto body = rigid_body(symbols, "tray", "a", 2.0, {0.1, 0.2, 0.3});
   sym::FrameTable t;
   t.add_bodies(body);
   for (bool vertical : {false, true}) {
     auto f = frame_def(K::level, "lv", t, "tray.tray", "world");
     f.axis = {1, 0, 0};
     f.vertical = vertical;
-    sym::ConstraintDef def("lv", sym::ConstraintDef::Kind::holonomic, body.coordinates());
+    sym::ConstraintDef def("lv", sym::ConstraintDef::Kind::holonomic, body.coordinates(), symbols);
     sym::add_frame_constraint(def, f);
     ukdyn::System s;
     s.add_subsystem(sym::make_subsystem(body));
@@ -379,7 +387,8 @@ TEST(FrameConstraints, LevelRowsAndNoForceInFreeFall) {
 // Redundant rows: the same ball joint twice. The split is not unique (reported), the least-norm
 // choice halves the force between the two identical blocks, and the blocks still sum to Qc.
 TEST(ConstraintForces, RedundantRowsAreReportedAndSplitByLeastNorm) {
-  const auto body = rigid_body("bob", "a", 1.0, {0.02, 0.02, 0.02});
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
+  const auto body = rigid_body(symbols, "bob", "a", 1.0, {0.02, 0.02, 0.02});
   sym::FrameTable t;
   t.add_bodies(body);
   const sym::FrameConstraintDef f =
@@ -392,7 +401,7 @@ TEST(ConstraintForces, RedundantRowsAreReportedAndSplitByLeastNorm) {
   ukdyn::System s;
   s.add_subsystem(sym::make_subsystem(body));
   for (const sym::FrameConstraintDef* fd : {&f, &f2}) {
-    sym::ConstraintDef def(fd->name, sym::ConstraintDef::Kind::holonomic, body.coordinates());
+    sym::ConstraintDef def(fd->name, sym::ConstraintDef::Kind::holonomic, body.coordinates(), symbols);
     sym::add_frame_constraint(def, *fd);
     s.add_constraint(sym::make_constraint(def));
   }
@@ -415,10 +424,11 @@ TEST(ConstraintForces, RedundantRowsAreReportedAndSplitByLeastNorm) {
 // inertia, a motion that does not squeeze. The inertia-weighted decomposition [Verginis2019]
 // reports no internal wrench; the Moore–Penrose one [Walker1991] reports one. Both lie in null(G).
 TEST(ConstraintForces, WeightedDecompositionReportsNoSqueezeForRigidMotion) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();  // this system's
   const double mL = 4.0;
-  const auto load = rigid_body("load", "l", mL, {0.2, 0.5, 0.6}, 0.0);
-  const auto ag1 = rigid_body("ag1", "a", 1.0, {0.01, 0.02, 0.03});
-  const auto ag2 = rigid_body("ag2", "b", 6.0, {0.3, 0.1, 0.2});
+  const auto load = rigid_body(symbols, "load", "l", mL, {0.2, 0.5, 0.6}, 0.0);
+  const auto ag1 = rigid_body(symbols, "ag1", "a", 1.0, {0.01, 0.02, 0.03});
+  const auto ag2 = rigid_body(symbols, "ag2", "b", 6.0, {0.3, 0.1, 0.2});
   sym::FrameTable t;
   for (const auto* d : {&load, &ag1, &ag2}) t.add_bodies(*d);
   const auto coords = concat(concat(load.coordinates(), ag1.coordinates()), ag2.coordinates());
@@ -434,10 +444,10 @@ TEST(ConstraintForces, WeightedDecompositionReportsNoSqueezeForRigidMotion) {
   for (const auto* d : {&load, &ag1, &ag2}) s.add_subsystem(sym::make_subsystem(*d));
   std::vector<sym::FrameWrenchMap> maps;
   for (const auto* g : {&g1, &g2}) {
-    sym::ConstraintDef def(g->name, sym::ConstraintDef::Kind::holonomic, coords);
+    sym::ConstraintDef def(g->name, sym::ConstraintDef::Kind::holonomic, coords, symbols);
     sym::add_frame_constraint(def, *g);
     s.add_constraint(sym::make_constraint(def));
-    maps.emplace_back(*g, coords);
+    maps.emplace_back(*g, coords, *symbols);
   }
   // Consistent pose: load at (0.1, 0.2, 0.3) with angles (0.2, −0.1, 0.3); agents' angles equal.
   Vec q = Vec::Zero(18);

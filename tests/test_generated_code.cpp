@@ -155,7 +155,7 @@ TEST(GeneratedCode, NamesThatCollideWithTheGeneratedCodeAreRenamed) {
 TEST(GeneratedCode, CommentTextCannotEndItsComment) {
   namespace sym = ukdyn::symbolic;
   sym::ConstraintDef def("c", sym::ConstraintDef::Kind::holonomic, {"x"});
-  def.add_row("r\r\n*/ int evil; /*\n// x", sym::coordinate_symbol("x"));
+  def.add_row("r\r\n*/ int evil; /*\n// x", sym::coordinate_symbol(def.symbols(), "x"));
   const sym::ConstraintDerivation d = sym::derive(def);
   for (auto f : {sym::Format::c, sym::Format::latex, sym::Format::matlab, sym::Format::text}) {
     const std::string out = sym::format_derivation(d, "c\r\nevil", f);

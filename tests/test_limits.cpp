@@ -16,8 +16,9 @@ namespace lim = sym::limits;
 
 sym::Scope xy() {
   sym::Scope s;
-  s.add("x", sym::coordinate_symbol("x"));
-  s.add("y", sym::coordinate_symbol("y"));
+  sym::SymbolTable symbols;  // the symbols live on in the expressions that use them
+  s.add("x", sym::coordinate_symbol(symbols, "x"));
+  s.add("y", sym::coordinate_symbol(symbols, "y"));
   return s;
 }
 
@@ -88,7 +89,8 @@ TEST(Limits, EvaluationErrorsAreExpressionErrorsWithAColumn) {
 }
 
 TEST(Limits, ExpandedSizeIsBoundedBeforeExpanding) {
-  const GiNaC::ex x = sym::coordinate_symbol("x"), y = sym::coordinate_symbol("y");
+  sym::SymbolTable symbols;
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"), y = sym::coordinate_symbol(symbols, "y");
   EXPECT_NO_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 10), "e"));
   // (x + y + 1)^500 has an expansion bound of 3^500 terms.
   EXPECT_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 500), "e"), sym::ExpressionError);
@@ -122,7 +124,7 @@ TEST(Limits, DerivedSubsystemCoordinatesAreCapped) {
     for (const auto& c : names) {
       auto& b = d.add_body("b" + c);
       b.mass = 1;
-      b.com = {sym::coordinate_symbol(c), 0, 0};
+      b.com = {sym::coordinate_symbol(d.symbols(), c), 0, 0};
     }
     return sym::derive(d);
   };
@@ -157,7 +159,8 @@ TEST(Names, IdentifierRuleRefusesWhatPrintsAsSomethingElse) {
 // x^(2^65 + 1): to_long() wrapped the exponent to 1 and the tape evaluated x. It is a power now:
 // 0.5^(2^65+1) underflows to 0, 1.25^(2^65+1) overflows to inf.
 TEST(Limits, TapeDoesNotWrapHugeIntegerExponents) {
-  const GiNaC::symbol x = sym::coordinate_symbol("x");
+  sym::SymbolTable symbols;
+  const GiNaC::symbol x = sym::coordinate_symbol(symbols, "x");
   const GiNaC::ex big = GiNaC::pow(GiNaC::numeric(2), 65) + 1;
   sym::InputMap in;
   in[x] = {sym::TapeInput::Source::q, 0};

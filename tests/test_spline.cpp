@@ -65,9 +65,10 @@ TEST(ChainSpline, CubicSplinesInterpolate) {
 TEST(ChainSpline, SplineTrajectoryDerivesExactly) {
   const sym::CubicSpline s({0, 1, 2.5, 4}, {0, 0.4, 0.1, 1}, sym::CubicSpline::End::clamped, 0, 0);
   sym::ConstraintDef def("follow", sym::ConstraintDef::Kind::holonomic, {"x", "z"});
-  sym::add_coordinate(def, "follow", "x", sym::spline_expression(s));
-  sym::add_point_trajectory(def, "pz", {0, 0, sym::coordinate_symbol("z")},
-                            {std::nullopt, std::nullopt, 2 * sym::spline_expression(s)});
+  const GiNaC::symbol time = def.symbols().time();
+  sym::add_coordinate(def, "follow", "x", sym::spline_expression(s, time));
+  sym::add_point_trajectory(def, "pz", {0, 0, sym::coordinate_symbol(def.symbols(), "z")},
+                            {std::nullopt, std::nullopt, 2 * sym::spline_expression(s, time)});
   const auto c = sym::make_constraint(def);
   std::mt19937_64 rng(2);
   for (int k = 0; k < 50; ++k) {

@@ -33,7 +33,7 @@ std::shared_ptr<ukdyn::System> spline_system(
   auto system = std::make_shared<ukdyn::System>();
   system->add_subsystem(sym::make_subsystem(d));
   sym::ConstraintDef c("follow", sym::ConstraintDef::Kind::holonomic, {"life_x"});
-  const GiNaC::ex f = sym::spline_expression(sym::CubicSpline(t, y));
+  const GiNaC::ex f = sym::spline_expression(sym::CubicSpline(t, y), c.symbols().time());
   if (seen) *seen = sym::spline_of(f.op(0));
   sym::add_coordinate(c, "follow", "life_x", f);
   system->add_constraint(sym::make_constraint(c));

@@ -22,8 +22,10 @@ double num(const ex& e) { return GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_doub
 // ------------------------------------------------------------------------------------ tape
 
 TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
-  const GiNaC::symbol a = sym::coordinate_symbol("tape_a"), b = sym::coordinate_symbol("tape_b");
-  const GiNaC::symbol v = sym::velocity_symbol("tape_a"), t = sym::time_symbol();
+  sym::SymbolTable symbols;
+  const GiNaC::symbol a = sym::coordinate_symbol(symbols, "tape_a"),
+                      b = sym::coordinate_symbol(symbols, "tape_b");
+  const GiNaC::symbol v = sym::velocity_symbol(symbols, "tape_a"), t = sym::time_symbol(symbols);
   sym::InputMap in;
   in[a] = {sym::TapeInput::Source::q, 0};
   in[b] = {sym::TapeInput::Source::q, 1};
@@ -61,8 +63,10 @@ TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
 // same values (same operations in the same order; only FMA contraction, with -march=native, can
 // differ by an ulp). A product used twice, or a tape output, is kept.
 TEST(SymbolicTape, ProductsFoldIntoTheirOnlyUser) {
-  const GiNaC::symbol a = sym::coordinate_symbol("pf_a"), b = sym::coordinate_symbol("pf_b"),
-                      c = sym::coordinate_symbol("pf_c");
+  sym::SymbolTable symbols;
+  const GiNaC::symbol a = sym::coordinate_symbol(symbols, "pf_a"),
+                      b = sym::coordinate_symbol(symbols, "pf_b"),
+                      c = sym::coordinate_symbol(symbols, "pf_c");
   sym::InputMap in;
   in[a] = {sym::TapeInput::Source::q, 0};
   in[b] = {sym::TapeInput::Source::q, 1};
@@ -91,7 +95,9 @@ TEST(SymbolicTape, ProductsFoldIntoTheirOnlyUser) {
 // both); either order, a pair sharing nothing, and a lone sin or cos must all give exactly
 // std::sin / std::cos.
 TEST(SymbolicTape, SinCosPairsGiveTheSeparateCallsValues) {
-  const GiNaC::symbol a = sym::coordinate_symbol("sc_a"), b = sym::coordinate_symbol("sc_b");
+  sym::SymbolTable symbols;
+  const GiNaC::symbol a = sym::coordinate_symbol(symbols, "sc_a"),
+                      b = sym::coordinate_symbol(symbols, "sc_b");
   sym::InputMap in;
   in[a] = {sym::TapeInput::Source::q, 0};
   in[b] = {sym::TapeInput::Source::q, 1};

@@ -48,7 +48,7 @@ ConstraintForceColumns::ConstraintForceColumns(const Scenario& sc) : sc_(&sc) {
     figures_.push_back(fig);
     figure_names_.push_back("force_" + b);
   }
-  static const char* kW[6] = {"fx", "fy", "fz", "mx", "my", "mz"};
+  static const char* const kW[6] = {"fx", "fy", "fz", "mx", "my", "mz"};
   for (const auto& [c, map] : frames_) {
     std::vector<std::string> fig;
     for (const char* w : kW) {

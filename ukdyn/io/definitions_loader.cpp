@@ -157,7 +157,7 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
   const Node cn = L.child(s, "coordinates", true);
   std::unique_ptr<Def> def;
   try {
-    def = std::make_unique<Def>(name, coordinates);
+    def = std::make_unique<Def>(name, coordinates, L.symbol_table());
   } catch (const sym::DefinitionError& e) {
     if (e.coordinate >= 0) {
       L.fail(Node{cn.node[static_cast<std::size_t>(e.coordinate)],
@@ -294,7 +294,7 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
   }
   std::unique_ptr<sym::SubsystemDef> def;
   try {
-    def = std::make_unique<sym::SubsystemDef>(name, coordinates);
+    def = std::make_unique<sym::SubsystemDef>(name, coordinates, L.symbol_table());
   } catch (const sym::DefinitionError& e) {
     L.fail(L.child(s, "coordinates", false).node.IsDefined() ? L.child(s, "coordinates", true) : s,
            e.what());
@@ -333,7 +333,7 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
   sym::ConstraintDef def(
       name,
       holonomic ? sym::ConstraintDef::Kind::holonomic : sym::ConstraintDef::Kind::nonholonomic,
-      system_coordinates);
+      system_coordinates, L.symbol_table());
   load_scope(L, c, def);
   const Node rows = L.child(c, "rows", true);
   std::vector<Node> row_nodes;
@@ -690,7 +690,8 @@ ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionSco
   if (type == "cosine") {
     L.only_keys(n, {"type", "mean", "amplitude", "omega", "phase"});
     return sym::cosine_expression(field("mean", false), field("amplitude", true),
-                                  field("omega", true), field("phase", false));
+                                  field("omega", true), field("phase", false),
+                                  sym::time_symbol(scope.symbols()));
   }
   if (type == "polynomial") {
     L.only_keys(n, {"type", "coefficients"});
@@ -700,7 +701,7 @@ ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionSco
     std::vector<ex> cs;
     for (std::size_t i = 0; i < c.node.size(); ++i)
       cs.push_back(parse(L, scope, Node{c.node[i], c.key + "[" + std::to_string(i) + "]"}));
-    return sym::polynomial_expression(cs);
+    return sym::polynomial_expression(cs, sym::time_symbol(scope.symbols()));
   }
   if (type == "spline") {
     L.only_keys(n, {"type", "times", "values", "end", "slopes"});
@@ -738,7 +739,8 @@ ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionSco
       slopes = numbers(sl, 2);
     }
     try {
-      return sym::spline_expression(sym::CubicSpline(times, values, end, slopes[0], slopes[1]));
+      return sym::spline_expression(sym::CubicSpline(times, values, end, slopes[0], slopes[1]),
+                                    sym::time_symbol(scope.symbols()));
     } catch (const Error& e) {
       L.fail(tn2, e.what());
     } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
@@ -755,8 +757,9 @@ std::shared_ptr<const Constraint> load_constraint_kind(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
     const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
     const Vec& q0) {
-  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates);
-  static const char* kAxis[3] = {"x", "y", "z"};
+  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
+                         L.symbol_table());
+  static const char* const kAxis[3] = {"x", "y", "z"};
   if (type == "points_coincide") {
     L.only_keys(c, {"type", "name", "parameters", "let", "a", "b", "axes"});
     load_scope(L, c, def);
@@ -788,8 +791,8 @@ std::shared_ptr<const Constraint> load_constraint_kind(
         // term order), kept as the exact value of that double.
         sym::InputMap in;
         for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-          in[sym::coordinate_symbol(system_coordinates[i])] = {sym::TapeInput::Source::q,
-                                                               static_cast<std::int32_t>(i)};
+          in[sym::coordinate_symbol(def.symbols(), system_coordinates[i])] = {
+              sym::TapeInput::Source::q, static_cast<std::int32_t>(i)};
         }
         for (std::size_t k = 0; k < 3; ++k) {
           double v = 0.0;

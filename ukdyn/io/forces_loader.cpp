@@ -18,7 +18,7 @@ std::shared_ptr<const AppliedForce> load_applied_forces(
       L.fail(p, "parameters are only used by forces.generalized and forces.elements");
     return nullptr;
   }
-  sym::ForceDef def(system_coordinates);
+  sym::ForceDef def(system_coordinates, "forces", L.symbol_table());
   load_parameters(L, forces, def);
   auto coordinate = [&](const Node& parent, const std::string& key) {
     const Node c = L.child(parent, key, true);

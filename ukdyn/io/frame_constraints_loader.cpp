@@ -78,7 +78,8 @@ std::shared_ptr<const Constraint> load_frame_constraint(
     L.only_keys(c, {"type", "name", "parameters", "let", "a", "b", "length"});
     f.kind = K::distance;
   }
-  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates);
+  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
+                         L.symbol_table());
   load_parameters(L, c, def);
   const Node an = L.child(c, "a", true);
   f.a = load_frame(L, an, def, context, f.frame_a);
@@ -110,7 +111,7 @@ std::shared_ptr<const Constraint> load_frame_constraint(
       // |p_a − p_b| at initial.q by compiled tapes, kept as the exact value of that double.
       sym::InputMap in;
       for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-        in[sym::coordinate_symbol(system_coordinates[i])] = {sym::TapeInput::Source::q,
+        in[sym::coordinate_symbol(L.symbols(), system_coordinates[i])] = {sym::TapeInput::Source::q,
                                                              static_cast<std::int32_t>(i)};
       }
       double d2 = 0.0;

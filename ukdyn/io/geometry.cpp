@@ -76,11 +76,13 @@ void add_mobile_manipulator(Geometry& g, const std::string& name,
 void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel& model,
                const std::vector<std::pair<std::string, std::string>>& edges, const System& sys) {
   namespace sym = symbolic;
+  sym::SymbolTable& syms = model.def.symbols();
   sym::InputMap in;
   const auto& coords = sys.coordinate_names();
   for (std::size_t i = 0; i < coords.size(); ++i) {
-    in[sym::coordinate_symbol(coords[i])] = {sym::TapeInput::Source::q,
-                                             static_cast<std::int32_t>(i)};
+    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
+    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
+                                                   static_cast<std::int32_t>(i)};
   }
   const GiNaC::exmap values = model.def.parameter_values();
   std::vector<GeometryPoint> pts;
@@ -122,13 +124,14 @@ void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel&
 // A definitions subsystem: the CoM of every body (no segments: the file says nothing of links).
 void add_bodies(Geometry& g, const std::string& name,
                 const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
-                const System& sys) {
+                const System& sys, symbolic::SymbolTable& syms) {
   namespace sym = symbolic;
   sym::InputMap in;
   const auto& coords = sys.coordinate_names();
   for (std::size_t i = 0; i < coords.size(); ++i) {
-    in[sym::coordinate_symbol(coords[i])] = {sym::TapeInput::Source::q,
-                                             static_cast<std::int32_t>(i)};
+    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
+    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
+                                                   static_cast<std::int32_t>(i)};
   }
   std::vector<GeometryPoint> pts;
   std::vector<GiNaC::ex> ex;
@@ -161,8 +164,12 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
     } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
       add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
     } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
-               !bodies.empty()) {
-      add_bodies(g, info.name, bodies, sys);
+               !bodies.empty() && std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
+      // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
+      add_bodies(g, info.name, bodies, sys,
+                 *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)
+                      ->derivation()
+                      .symbols);
     } else if (left_out) {
       left_out->push_back(info.name);
     }

@@ -371,7 +371,7 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
   const Node& init = st.init;
   L.only_keys(init, {"q", "qd", "hold", "parameters", "let"});
   // initial.parameters / let: names for the expressions of q and qd (docs/scenario-format.md).
-  symbolic::DefinitionScope scope;
+  symbolic::DefinitionScope scope(L.symbol_table());
   io_detail::load_parameters(L, init, scope);
   sc.q0 = initial_vector(L, L.child(init, "q", true), n, scope);
   if (Node qd = L.child(init, "qd", false); qd.node.IsDefined()) {
@@ -450,7 +450,8 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
   for (const auto& [fb, quat] : st.free_bodies) {  // free bodies: |q|² = 1 (docs/free-bodies.md)
     try {
       add(st.subs, symbolic::make_constraint(
-                       symbolic::free_body_norm_constraint(fb, quat, system->coordinate_names())));
+                       symbolic::free_body_norm_constraint(
+                       fb, quat, system->coordinate_names(), L.symbol_table())));
     } catch (const Error& e) {
       L.fail(st.subs, e.what());
     }
@@ -461,7 +462,8 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
     for (const auto& [joint, quat] : chain->quaternions) {
       try {
         add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
-                         info.name + "_" + joint, quat, system->coordinate_names())));
+                         info.name + "_" + joint, quat, system->coordinate_names(),
+                         L.symbol_table())));
       } catch (const Error& e) {
         L.fail(st.subs, e.what());
       }
@@ -776,7 +778,9 @@ namespace {
 
 Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string& hash,
                                  const std::filesystem::path& path, const LoadOptions& options) {
-  Loader L(path);
+  // The symbols of this system's derivation: shared by every definition loaded below, held by the
+  // derived blocks, freed with the system (docs/architecture.md, "Symbols").
+  Loader L(path, std::make_shared<symbolic::SymbolTable>());
   Scenario sc;
   sc.path = path;
   sc.hash = hash;

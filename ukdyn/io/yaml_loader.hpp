@@ -9,6 +9,7 @@
 #include <initializer_list>
 #include <limits>
 #include <locale>
+#include <memory>
 #include <numbers>
 #include <set>
 #include <sstream>
@@ -16,6 +17,10 @@
 
 #include "ukdyn/core/types.hpp"
 #include "ukdyn/io/scenario.hpp"
+
+namespace ukdyn::symbolic {
+class SymbolTable;
+}
 
 namespace ukdyn::io_detail {
 
@@ -27,7 +32,11 @@ struct Node {
 
 class Loader {
  public:
-  explicit Loader(std::filesystem::path path) : path_(std::move(path)) {}
+  /// `symbols`: the symbol table of the system the file defines (docs/architecture.md, "Symbols"):
+  /// every definition the loaders make for it shares this table.
+  explicit Loader(std::filesystem::path path,
+                  std::shared_ptr<symbolic::SymbolTable> symbols = nullptr)
+      : path_(std::move(path)), symbols_(std::move(symbols)) {}
 
   [[noreturn]] void fail(const Node& at, const std::string& message) const {
     std::ostringstream os;
@@ -41,7 +50,7 @@ class Loader {
   // The text with every control byte (and DEL) shown as \xNN: a key or a name quoted in a message
   // never reaches the terminal raw.
   static std::string printable(const std::string& s) {
-    static const char* hex = "0123456789abcdef";
+    static const char* const hex = "0123456789abcdef";
     std::string out;
     for (char ch : s) {
       const auto u = static_cast<unsigned char>(ch);
@@ -123,7 +132,7 @@ class Loader {
       ok = ok && ((ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') ||
                   (ch >= '0' && ch <= '9') || ch == '_' || ch == '.' || ch == '-');
       if (i < 40) {
-        static const char* hex = "0123456789abcdef";
+        static const char* const hex = "0123456789abcdef";
         shown += u >= 0x20 && u < 0x7f ? std::string(1, ch)
                                        : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
       }
@@ -224,9 +233,13 @@ class Loader {
   }
 
   const std::filesystem::path& path() const { return path_; }
+  /// The table (shared with the definitions), and a reference to it (the loader must have one).
+  const std::shared_ptr<symbolic::SymbolTable>& symbol_table() const { return symbols_; }
+  symbolic::SymbolTable& symbols() const { return *symbols_; }
 
  private:
   std::filesystem::path path_;
+  std::shared_ptr<symbolic::SymbolTable> symbols_;
 };
 
 /// load_scenario_text() of an already parsed document (the sweep parses its base scenario once,

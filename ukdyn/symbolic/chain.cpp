@@ -143,8 +143,8 @@ ChainModel build_chain(const ChainDef& chain) {
   const auto& coords = chain.coordinates();
   std::vector<GiNaC::symbol> q, qd;
   for (const auto& c : coords) {
-    q.push_back(coordinate_symbol(c));
-    qd.push_back(velocity_symbol(c));
+    q.push_back(coordinate_symbol(chain.symbols(), c));
+    qd.push_back(velocity_symbol(chain.symbols(), c));
   }
   auto has_coord = [&](const std::string& c) {
     return std::find(coords.begin(), coords.end(), c) != coords.end();
@@ -217,16 +217,16 @@ ChainModel build_chain(const ChainDef& chain) {
                             "', '" + B.y + "')");
     }
     Pose f = root;
-    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(B.x), coordinate_symbol(B.y), 0}));
+    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(chain.symbols(), B.x), coordinate_symbol(chain.symbols(), B.y), 0}));
     if (!B.yaw.empty()) {
       if (!has_coord(B.yaw))
         throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");
-      f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(B.yaw)));
+      f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(chain.symbols(), B.yaw)));
       f.Rpre = Rm;
       f.axis = {0, 0, 1};
-      f.angle = coordinate_symbol(B.yaw);
+      f.angle = coordinate_symbol(chain.symbols(), B.yaw);
       f.has_axis = true;
-      f.w = scale(Vec3Ex{Rm[2], Rm[5], Rm[8]}, velocity_symbol(B.yaw));
+      f.w = scale(Vec3Ex{Rm[2], Rm[5], Rm[8]}, velocity_symbol(chain.symbols(), B.yaw));
     }
     frames[B.link] = f;
     last = B.link;
@@ -293,8 +293,8 @@ ChainModel build_chain(const ChainDef& chain) {
       }
       std::vector<ex> c(nc), d(nc);
       for (std::size_t k = 0; k < nc; ++k) {
-        c[k] = coordinate_symbol(j.coordinates[k]);
-        d[k] = velocity_symbol(j.coordinates[k]);
+        c[k] = coordinate_symbol(chain.symbols(), j.coordinates[k]);
+        d[k] = velocity_symbol(chain.symbols(), j.coordinates[k]);
       }
       const std::size_t o = floating ? 3 : 0;
       if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
@@ -320,7 +320,7 @@ ChainModel build_chain(const ChainDef& chain) {
           throw DefinitionError(where + ": '" + j.coordinate +
                                 "' is not a coordinate of the chain");
         }
-        v = coordinate_symbol(j.coordinate);
+        v = coordinate_symbol(chain.symbols(), j.coordinate);
       }
       const Vec3Ex a = unit(j.axis, where, values);
       if (j.type == JointDef::Type::revolute && jf.floating) {

@@ -93,8 +93,9 @@ struct LinkConstraintDef {
 
 class ChainDef : public SubsystemDef {
  public:
-  ChainDef(std::string name, std::vector<std::string> coordinates)
-      : SubsystemDef(std::move(name), std::move(coordinates)) {}
+  ChainDef(std::string name, std::vector<std::string> coordinates,
+           std::shared_ptr<SymbolTable> symbols = nullptr)
+      : SubsystemDef(std::move(name), std::move(coordinates), std::move(symbols)) {}
   JointDef& add_joint(std::string name, JointDef::Type type, std::string link);
   void add_point(std::string name, std::string link, Vec3Ex xyz);
 

@@ -27,29 +27,29 @@ ex exact_number(double v) {
   return exact_rational(v);  // exact, never a float (canonical.hpp)
 }
 
-ex cosine_expression(const ex& mean, const ex& amplitude, const ex& omega, const ex& phase) {
-  return mean + amplitude * GiNaC::cos(omega * time_symbol() + phase);
+ex cosine_expression(const ex& mean, const ex& amplitude, const ex& omega, const ex& phase,
+                     const GiNaC::symbol& t) {
+  return mean + amplitude * GiNaC::cos(omega * t + phase);
 }
 
-ex polynomial_expression(const std::vector<ex>& c) {
+ex polynomial_expression(const std::vector<ex>& c, const GiNaC::symbol& t) {
   ex r = 0;
-  for (std::size_t k = 0; k < c.size(); ++k)
-    r += c[k] * GiNaC::pow(time_symbol(), static_cast<int>(k));
+  for (std::size_t k = 0; k < c.size(); ++k) r += c[k] * GiNaC::pow(t, static_cast<int>(k));
   return r;
 }
 
-ex time_expression(const TimeFunction& f) {
+ex time_expression(const TimeFunction& f, const GiNaC::symbol& t) {
   switch (f.kind) {
     case TimeFunction::Kind::constant:
       return exact_number(f.coeff[0]);
     case TimeFunction::Kind::cosine:
       return cosine_expression(exact_number(f.mean), exact_number(f.amplitude),
-                               exact_number(f.omega), exact_number(f.phase));
+                               exact_number(f.omega), exact_number(f.phase), t);
     case TimeFunction::Kind::polynomial: {
       std::vector<ex> c;
       for (int k = 0; k < f.ncoeff; ++k)
         c.push_back(exact_number(f.coeff[static_cast<std::size_t>(k)]));
-      return polynomial_expression(c);
+      return polynomial_expression(c, t);
     }
   }
   return 0;
@@ -57,7 +57,7 @@ ex time_expression(const TimeFunction& f) {
 
 void add_points_coincide(ConstraintDef& def, const std::string& prefix, const Vec3Ex& a,
                          const Vec3Ex& b, std::array<bool, 3> axes) {
-  static const char* kAxis[3] = {"x", "y", "z"};
+  static const char* const kAxis[3] = {"x", "y", "z"};
   if (!axes[0] && !axes[1] && !axes[2])
     throw DefinitionError("points_coincide '" + prefix + "': no axis selected");
   for (std::size_t k = 0; k < 3; ++k) {
@@ -67,7 +67,7 @@ void add_points_coincide(ConstraintDef& def, const std::string& prefix, const Ve
 
 void add_point_trajectory(ConstraintDef& def, const std::string& prefix, const Vec3Ex& p,
                           const std::array<std::optional<ex>, 3>& f, const Vec3Ex& origin) {
-  static const char* kAxis[3] = {"x", "y", "z"};
+  static const char* const kAxis[3] = {"x", "y", "z"};
   bool any = false;
   for (std::size_t k = 0; k < 3; ++k) {
     if (!f[k]) continue;
@@ -92,7 +92,7 @@ void add_angle_relation(ConstraintDef& def, const std::string& row,
                             "' must be a constant");
     }
     any = any || !kv.is_zero();
-    phi += k * coordinate_symbol(c);
+    phi += k * coordinate_symbol(def.symbols(), c);
   }
   if (!any) throw DefinitionError("angle_relation '" + row + "': no nonzero coefficient");
   def.add_row(row, phi - value);

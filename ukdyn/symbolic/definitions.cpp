@@ -57,6 +57,9 @@ ex simplify_trig(const ex& e) {
 
 // ------------------------------------------------------------------------------ DefinitionScope
 
+DefinitionScope::DefinitionScope(std::shared_ptr<SymbolTable> symbols)
+    : symbols_(symbols ? std::move(symbols) : std::make_shared<SymbolTable>()) {}
+
 ex DefinitionScope::parameter(const std::string& name, const ex& value) {
   if (!real_value(value)) {
     throw ExpressionError(
@@ -97,8 +100,9 @@ GiNaC::exmap DefinitionScope::parameter_values() const {
 
 // ------------------------------------------------------------------------------ SubsystemDef
 
-SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinates)
-    : name_(std::move(name)), coords_(std::move(coordinates)) {
+SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinates,
+                           std::shared_ptr<SymbolTable> symbols)
+    : DefinitionScope(std::move(symbols)), name_(std::move(name)), coords_(std::move(coordinates)) {
   if (coords_.empty()) throw DefinitionError("subsystem '" + name_ + "' declares no coordinates");
   for (std::size_t i = 0; i < coords_.size(); ++i) {
     const std::string& c = coords_[i];
@@ -110,8 +114,8 @@ SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinate
       throw DefinitionError("coordinate '" + c + "_dot' clashes with the velocity of '" + c + "'",
                             -1, static_cast<int>(i));
     }
-    scope_.add(c, coordinate_symbol(c));
-    scope_.add(c + "_dot", velocity_symbol(c));
+    scope_.add(c, coordinate_symbol(*symbols_, c));
+    scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
 }
 
@@ -119,12 +123,12 @@ symbol SubsystemDef::q(const std::string& c) const {
   if (std::find(coords_.begin(), coords_.end(), c) == coords_.end()) {
     throw DefinitionError("subsystem '" + name_ + "' has no coordinate '" + c + "'");
   }
-  return coordinate_symbol(c);
+  return coordinate_symbol(*symbols_, c);
 }
 
 symbol SubsystemDef::qd(const std::string& c) const {
   (void)q(c);
-  return velocity_symbol(c);
+  return velocity_symbol(*symbols_, c);
 }
 
 BodyDef& SubsystemDef::add_body(std::string body_name) {
@@ -137,13 +141,14 @@ BodyDef& SubsystemDef::add_body(std::string body_name) {
 
 SubsystemDerivation derive(const SubsystemDef& def) {
   const auto t0 = Clock::now();
+  SymbolTable& syms = def.symbols();
   const std::size_t n = def.coordinates().size();
   std::vector<symbol> q, qd;
   for (const auto& c : def.coordinates()) {
-    q.push_back(coordinate_symbol(c));
-    qd.push_back(velocity_symbol(c));
+    q.push_back(coordinate_symbol(syms, c));
+    qd.push_back(velocity_symbol(syms, c));
   }
-  const std::vector<symbol> time{time_symbol()};
+  const std::vector<symbol> time{time_symbol(syms)};
   const GiNaC::exmap values = def.parameter_values();
   if (def.bodies.empty()) throw DefinitionError("subsystem '" + def.name() + "' has no bodies");
   if (n > limits::kDerivedCoordinates) {  // bounded work (docs/definitions.md, Limits)
@@ -166,7 +171,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       }
     };
     // Mass: a non-negative constant.
-    if (has_any(b.mass, q) || has_any(b.mass, qd) || b.mass.has(time_symbol())) {
+    if (has_any(b.mass, q) || has_any(b.mass, qd) || b.mass.has(time_symbol(syms))) {
       throw DefinitionError(where + ": the mass must be a constant", bidx);
     }
     const auto mv = real_value(b.mass.subs(values));
@@ -179,7 +184,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       const ex& p = b.com[k];
       if (has_any(p, qd))
         throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
-      if (p.has(time_symbol()))
+      if (p.has(time_symbol(syms)))
         throw DefinitionError(where + ": the position may not depend on time t", bidx);
       mark_used(p);
       v[k] = 0;
@@ -200,7 +205,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     if (b.angular_velocity) {
       w = *b.angular_velocity;
       for (const ex& e : w) {
-        if (e.has(time_symbol()))
+        if (e.has(time_symbol(syms)))
           throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
         mark_used(e);
       }
@@ -209,7 +214,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       for (unsigned i = 0; i < 3; ++i) {
         for (unsigned j = 0; j < 3; ++j) {
           const ex& r = (*b.rotation)[3 * i + j];
-          if (has_any(r, qd) || r.has(time_symbol())) {
+          if (has_any(r, qd) || r.has(time_symbol(syms))) {
             throw DefinitionError(where + ": the rotation may depend on the coordinates only",
                                   bidx);
           }
@@ -262,7 +267,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     }
   }
   V += def.extra_potential;
-  if (has_any(V, qd) || V.has(time_symbol())) {
+  if (has_any(V, qd) || V.has(time_symbol(syms))) {
     throw DefinitionError("the potential may depend on the coordinates only");
   }
   check_expression_size(T, "the kinetic energy T");
@@ -272,6 +277,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   SubsystemDerivation d;
   d.coordinates = def.coordinates();
   d.parameter_values = values;
+  d.symbols = def.symbol_table();
   d.T = T.expand();
   d.V = V.expand();
   const auto un = static_cast<unsigned>(n);
@@ -336,13 +342,13 @@ SubsystemDerivation derive(const SubsystemDef& def) {
 
 namespace {
 
-InputMap subsystem_inputs(const std::vector<std::string>& coords) {
+InputMap subsystem_inputs(SymbolTable& syms, const std::vector<std::string>& coords) {
   InputMap in;
   for (std::size_t i = 0; i < coords.size(); ++i) {
-    in[coordinate_symbol(coords[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-    in[velocity_symbol(coords[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
+    in[coordinate_symbol(syms, coords[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
+    in[velocity_symbol(syms, coords[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
   }
-  in[time_symbol()] = {TapeInput::Source::time, 0};
+  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
   return in;
 }
 
@@ -355,7 +361,7 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
       name_(std::move(name)),
       n_(static_cast<Index>(d_.coordinates.size())) {
   const auto t0 = Clock::now();
-  const InputMap in = subsystem_inputs(d_.coordinates);
+  const InputMap in = subsystem_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   const auto un = static_cast<unsigned>(n_);
   std::vector<ex> m, cqd, g, c;
@@ -507,13 +513,17 @@ std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
 // ------------------------------------------------------------------------------ constraints
 
 ConstraintDef::ConstraintDef(std::string name, Kind kind,
-                             std::vector<std::string> system_coordinates)
-    : name_(std::move(name)), kind_(kind), coords_(std::move(system_coordinates)) {
+                             std::vector<std::string> system_coordinates,
+                             std::shared_ptr<SymbolTable> symbols)
+    : DefinitionScope(std::move(symbols)),
+      name_(std::move(name)),
+      kind_(kind),
+      coords_(std::move(system_coordinates)) {
   for (const auto& c : coords_) {
-    scope_.add(c, coordinate_symbol(c));
-    scope_.add(c + "_dot", velocity_symbol(c));
+    scope_.add(c, coordinate_symbol(*symbols_, c));
+    scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
-  scope_.add("t", time_symbol());
+  scope_.add("t", time_symbol(*symbols_));
 }
 
 void ConstraintDef::add_row(std::string row_name, ex expression) {
@@ -524,13 +534,14 @@ ConstraintDerivation derive(const ConstraintDef& def) {
   const auto t0 = Clock::now();
   const std::size_t n = def.system_coordinates().size();
   const std::size_t m = def.rows().size();
+  SymbolTable& syms = def.symbols();
   if (m == 0) throw DefinitionError("constraint '" + def.name() + "' has no rows");
   std::vector<symbol> q, qd;
   for (const auto& c : def.system_coordinates()) {
-    q.push_back(coordinate_symbol(c));
-    qd.push_back(velocity_symbol(c));
+    q.push_back(coordinate_symbol(syms, c));
+    qd.push_back(velocity_symbol(syms, c));
   }
-  const symbol t = time_symbol();
+  const symbol t = time_symbol(syms);
   const bool hol = def.kind() == ConstraintDef::Kind::holonomic;
   const auto un = static_cast<unsigned>(n), um = static_cast<unsigned>(m);
   const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
@@ -538,6 +549,7 @@ ConstraintDerivation derive(const ConstraintDef& def) {
   d.holonomic = hol;
   d.coordinates = def.system_coordinates();
   d.parameter_values = def.parameter_values();
+  d.symbols = def.symbol_table();
   d.phi = matrix(um, 1);
   d.A = matrix(um, un);
   d.b = matrix(um, 1);
@@ -610,11 +622,14 @@ ConstraintDerivation derive(const ConstraintDef& def) {
 DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
     : d_(std::move(derivation)), m_(static_cast<Index>(d_.row_names.size())) {
   InputMap in;
+  SymbolTable& syms = *d_.symbols;
   for (std::size_t i = 0; i < d_.coordinates.size(); ++i) {
-    in[coordinate_symbol(d_.coordinates[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-    in[velocity_symbol(d_.coordinates[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
+    in[coordinate_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::q,
+                                                      static_cast<std::int32_t>(i)};
+    in[velocity_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::qd,
+                                                    static_cast<std::int32_t>(i)};
   }
-  in[time_symbol()] = {TapeInput::Source::time, 0};
+  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
   const auto& pv = d_.parameter_values;
   std::vector<ex> ab, phi, phid;
   for (unsigned r = 0; r < d_.A.rows(); ++r) {

@@ -53,9 +53,12 @@ struct Parameter {
   GiNaC::ex value;  ///< a real number (exact if given exactly)
 };
 
-/// Names, parameters and let-definitions shared by subsystem and constraint definitions.
+/// Names, parameters and let-definitions shared by subsystem and constraint definitions, and the
+/// symbol table of the system they belong to (`symbols`: null makes a table of its own; give every
+/// definition of one system the same table when expressions of one are used in another).
 class DefinitionScope {
  public:
+  explicit DefinitionScope(std::shared_ptr<SymbolTable> symbols = nullptr);
   /// Declares a parameter (a named number; it stays a symbol in the printed derivation).
   GiNaC::ex parameter(const std::string& name, const GiNaC::ex& value);
   GiNaC::ex parameter(const std::string& name, double value);
@@ -67,8 +70,12 @@ class DefinitionScope {
   [[nodiscard]] const std::vector<Parameter>& parameters() const { return params_; }
   /// parameter symbol → value.
   [[nodiscard]] GiNaC::exmap parameter_values() const;
+  /// The table of the coordinate, velocity and time symbols (shared with the derivations).
+  [[nodiscard]] SymbolTable& symbols() const { return *symbols_; }
+  [[nodiscard]] const std::shared_ptr<SymbolTable>& symbol_table() const { return symbols_; }
 
  protected:
+  std::shared_ptr<SymbolTable> symbols_;
   Scope scope_;
   std::vector<Parameter> params_;
 };
@@ -95,7 +102,8 @@ struct BodyDef {
 class SubsystemDef : public DefinitionScope {
  public:
   /// Declares the coordinates (names unique, valid identifiers); their velocities are <name>_dot.
-  SubsystemDef(std::string name, std::vector<std::string> coordinates);
+  SubsystemDef(std::string name, std::vector<std::string> coordinates,
+               std::shared_ptr<SymbolTable> symbols = nullptr);
   [[nodiscard]] const std::string& name() const { return name_; }
   [[nodiscard]] const std::vector<std::string>& coordinates() const { return coords_; }
   [[nodiscard]] GiNaC::symbol q(const std::string& coordinate) const;
@@ -118,6 +126,7 @@ struct SubsystemDerivation {
   GiNaC::ex T, V;
   GiNaC::matrix M, C, G, Cqd;  ///< n×n, n×n, n×1, n×1
   GiNaC::exmap parameter_values;
+  std::shared_ptr<SymbolTable> symbols;  ///< the definition's (its coordinates, velocities, t)
   double derive_seconds = 0.0;
   double compile_seconds = 0.0;
 };
@@ -180,7 +189,8 @@ class ConstraintDef : public DefinitionScope {
   enum class Kind { holonomic, nonholonomic };
   /// `system_coordinates`: all coordinates of the system in order (their names become symbols, with
   /// their velocities <name>_dot and the time t).
-  ConstraintDef(std::string name, Kind kind, std::vector<std::string> system_coordinates);
+  ConstraintDef(std::string name, Kind kind, std::vector<std::string> system_coordinates,
+                std::shared_ptr<SymbolTable> symbols = nullptr);
   [[nodiscard]] const std::string& name() const { return name_; }
   [[nodiscard]] Kind kind() const { return kind_; }
   [[nodiscard]] const std::vector<std::string>& system_coordinates() const { return coords_; }
@@ -204,6 +214,7 @@ struct ConstraintDerivation {
   GiNaC::matrix phid;  ///< m×1, A q̇ + Φ_t (holonomic) or the row itself (nonholonomic)
   bool holonomic = true;
   GiNaC::exmap parameter_values;
+  std::shared_ptr<SymbolTable> symbols;  ///< the definition's (its coordinates, velocities, t)
   double derive_seconds = 0.0;
 };
 

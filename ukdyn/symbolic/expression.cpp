@@ -3,7 +3,6 @@
 #include <cctype>
 #include <chrono>
 #include <cmath>
-#include <mutex>
 #include <set>
 #include <sstream>
 #include <unordered_map>
@@ -21,28 +20,10 @@ const std::set<std::string>& function_names() {
   return f;
 }
 
-std::mutex& registry_mutex() {
-  static std::mutex m;
-  return m;
-}
-
-std::map<std::string, GiNaC::symbol>& registry() {
-  static std::map<std::string, GiNaC::symbol> r;
-  return r;
-}
-
-GiNaC::symbol registered(const std::string& key, const std::string& print, const std::string& tex) {
-  std::lock_guard<std::mutex> lock(registry_mutex());
-  auto& r = registry();
-  auto it = r.find(key);
-  if (it == r.end()) it = r.emplace(key, GiNaC::symbol(print, tex)).first;
-  return it->second;
-}
-
 // A character for a message: itself if printable ASCII, else \xNN.
 std::string shown_char(char c) {
   const auto u = static_cast<unsigned char>(c);
-  static const char* hex = "0123456789abcdef";
+  static const char* const hex = "0123456789abcdef";
   return u >= 0x20 && u < 0x7f ? std::string(1, c)
                                : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
 }
@@ -88,7 +69,7 @@ class Parser {
     std::string shown;
     for (std::size_t i = 0; i < s_.size() && i < 80; ++i) {
       const auto u = static_cast<unsigned char>(s_[i]);
-      static const char* hex = "0123456789abcdef";
+      static const char* const hex = "0123456789abcdef";
       shown += u >= 0x20 && u < 0x7f ? std::string(1, s_[i])
                                      : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
     }
@@ -398,7 +379,7 @@ bool valid_name(const std::string& name, std::string* why) {
       std::string shown;  // never print a control byte of the name raw
       for (char ch : name.substr(0, 40)) {
         const auto u = static_cast<unsigned char>(ch);
-        static const char* hex = "0123456789abcdef";
+        static const char* const hex = "0123456789abcdef";
         shown += u >= 0x20 && u < 0x7f ? std::string(1, ch)
                                        : std::string{'\\', 'x', hex[u >> 4], hex[u & 15]};
       }
@@ -547,15 +528,32 @@ std::string latex_name(const std::string& name) {
   return out;
 }
 
-GiNaC::symbol coordinate_symbol(const std::string& name) {
-  return registered("q:" + name, name, latex_name(name));
+GiNaC::symbol SymbolTable::interned(const std::string& key, const std::string& print,
+                                    const std::string& tex) {
+  auto it = symbols_.find(key);
+  if (it == symbols_.end()) it = symbols_.emplace(key, GiNaC::symbol(print, tex)).first;
+  return it->second;
 }
 
-GiNaC::symbol velocity_symbol(const std::string& name) {
-  return registered("qd:" + name, name + "_dot", latex_name(name + "_dot"));
+GiNaC::symbol SymbolTable::coordinate(const std::string& name) {
+  return interned("q:" + name, name, latex_name(name));
 }
 
-GiNaC::symbol time_symbol() { return registered("t", "t", "t"); }
+GiNaC::symbol SymbolTable::velocity(const std::string& name) {
+  return interned("qd:" + name, name + "_dot", latex_name(name + "_dot"));
+}
+
+GiNaC::symbol SymbolTable::time() { return interned("t", "t", "t"); }
+
+GiNaC::symbol coordinate_symbol(SymbolTable& table, const std::string& name) {
+  return table.coordinate(name);
+}
+
+GiNaC::symbol velocity_symbol(SymbolTable& table, const std::string& name) {
+  return table.velocity(name);
+}
+
+GiNaC::symbol time_symbol(SymbolTable& table) { return table.time(); }
 
 GiNaC::symbol local_symbol(const std::string& name) {
   return GiNaC::symbol(name, latex_name(name));
@@ -563,7 +561,9 @@ GiNaC::symbol local_symbol(const std::string& name) {
 
 void Scope::add(const std::string& name, const GiNaC::ex& value) {
   std::string why;
-  const bool is_time = name == "t" && value.is_equal(time_symbol());
+  // The time symbol of a table (printed t; no parameter or let-name may be called t).
+  const bool is_time = name == "t" && GiNaC::is_a<GiNaC::symbol>(value) &&
+                       GiNaC::ex_to<GiNaC::symbol>(value).get_name() == "t";
   if (!is_time && !valid_name(name, &why)) throw ExpressionError(why, 0);
   if (names_.count(name)) throw ExpressionError("the name '" + name + "' is defined twice", 0);
   names_.emplace(name, value);

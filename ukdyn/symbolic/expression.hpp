@@ -1,7 +1,8 @@
 // Symbols and the expression parser of ukdyn::symbolic.
 //
-// Coordinates, their velocities and time are global, named GiNaC symbols: the coordinate `theta1`
-// is the same symbol in every subsystem and constraint, its velocity is `theta1_dot`, time is `t`.
+// Coordinates, their velocities and time are named GiNaC symbols interned in the SymbolTable of the
+// system being derived: the coordinate `theta1` is the same symbol in every subsystem and constraint
+// of that system, its velocity is `theta1_dot`, time is `t`.
 // Parameters are local to a definition (two subsystems may both have an `l1`).
 //
 // The parser reads  + - * / ^ (or **), parentheses, numbers (decimals are read exactly as
@@ -27,12 +28,37 @@ class ExpressionError : public Error {
   std::size_t offset;
 };
 
-/// The global symbol of coordinate `name` (created on first use).
-GiNaC::symbol coordinate_symbol(const std::string& name);
-/// The global symbol of the velocity of coordinate `name`, printed `name_dot`.
-GiNaC::symbol velocity_symbol(const std::string& name);
-/// The global time symbol `t`.
-GiNaC::symbol time_symbol();
+/// The coordinate, velocity and time symbols of one system's derivation, interned by name: within one
+/// table the coordinate `theta1` is one GiNaC symbol in every subsystem, constraint and force that
+/// uses the table. A table belongs to whoever derives a system (docs/architecture.md, "Symbols"):
+/// the scenario loader makes one per load; a definition (DefinitionScope) makes its own unless it
+/// is given one; the definitions and the derivations that use a table hold it by shared_ptr, so it
+/// is freed with the last of them (with the system). Not synchronised: one derivation runs on one
+/// thread; two systems derived on two threads have two tables.
+class SymbolTable {
+ public:
+  /// The symbol of coordinate `name` (created on first use).
+  GiNaC::symbol coordinate(const std::string& name);
+  /// The symbol of the velocity of coordinate `name`, printed `name_dot`.
+  GiNaC::symbol velocity(const std::string& name);
+  /// The time symbol `t`.
+  GiNaC::symbol time();
+  /// True if coordinate `name` has a symbol (a lookup that adds nothing).
+  [[nodiscard]] bool has_coordinate(const std::string& name) const {
+    return symbols_.count("q:" + name) != 0;
+  }
+  /// Symbols interned so far.
+  [[nodiscard]] std::size_t size() const { return symbols_.size(); }
+
+ private:
+  GiNaC::symbol interned(const std::string& key, const std::string& print, const std::string& tex);
+  std::map<std::string, GiNaC::symbol> symbols_;
+};
+
+/// table.coordinate(name), table.velocity(name), table.time().
+GiNaC::symbol coordinate_symbol(SymbolTable& table, const std::string& name);
+GiNaC::symbol velocity_symbol(SymbolTable& table, const std::string& name);
+GiNaC::symbol time_symbol(SymbolTable& table);
 /// A new local symbol (a parameter or a let-name), with a LaTeX name derived from `name`.
 GiNaC::symbol local_symbol(const std::string& name);
 /// LaTeX for a name: theta1 → \theta_{1}, l_r → l_{r}, theta1_dot → \dot{\theta}_{1}.

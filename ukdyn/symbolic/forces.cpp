@@ -18,13 +18,17 @@ std::string str(const ex& e) {
 
 }  // namespace
 
-ForceDef::ForceDef(std::vector<std::string> system_coordinates, std::string name)
-    : name_(std::move(name)), coords_(std::move(system_coordinates)), nc_(coords_.size(), 0) {
+ForceDef::ForceDef(std::vector<std::string> system_coordinates, std::string name,
+                   std::shared_ptr<SymbolTable> symbols)
+    : DefinitionScope(std::move(symbols)),
+      name_(std::move(name)),
+      coords_(std::move(system_coordinates)),
+      nc_(coords_.size(), 0) {
   for (const auto& c : coords_) {
-    scope_.add(c, coordinate_symbol(c));
-    scope_.add(c + "_dot", velocity_symbol(c));
+    scope_.add(c, coordinate_symbol(*symbols_, c));
+    scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
-  scope_.add("t", time_symbol());
+  scope_.add("t", time_symbol(*symbols_));
 }
 
 std::size_t ForceDef::index_of(const std::string& coordinate, const std::string& where) const {
@@ -48,9 +52,9 @@ void ForceDef::check_state_expression(const ex& e, const std::string& where) con
   const ex x = e.subs(parameter_values());
   for (GiNaC::const_preorder_iterator it = x.preorder_begin(); it != x.preorder_end(); ++it) {
     if (!GiNaC::is_a<GiNaC::symbol>(*it)) continue;
-    bool known = it->is_equal(time_symbol());
+    bool known = it->is_equal(time_symbol(*symbols_));
     for (const auto& c : coords_) {
-      known = known || it->is_equal(coordinate_symbol(c)) || it->is_equal(velocity_symbol(c));
+      known = known || it->is_equal(coordinate_symbol(*symbols_, c)) || it->is_equal(velocity_symbol(*symbols_, c));
     }
     if (!known) {
       throw DefinitionError(where + ": unknown symbol '" + str(*it) +
@@ -76,14 +80,14 @@ void ForceDef::add_spring_damper(const std::string& element, const Vec3Ex& a, co
   if (!(k >= 0.0)) throw DefinitionError(where + ": stiffness must be >= 0");
   if (!(c >= 0.0)) throw DefinitionError(where + ": damping must be >= 0");
   if (!(l0 >= 0.0)) throw DefinitionError(where + ": rest_length must be >= 0");
-  const GiNaC::symbol t = time_symbol();
+  const GiNaC::symbol t = time_symbol(*symbols_);
   Spring sp{element, {0, 0, 0}, k, c, l0, false};
   for (std::size_t k3 = 0; k3 < 3; ++k3) {
     check_state_expression(a[k3], where + ": point a");
     check_state_expression(b[k3], where + ": point b");
     sp.d[k3] = a[k3] - b[k3];
     for (const auto& cn : coords_) {
-      if (sp.d[k3].has(velocity_symbol(cn)))
+      if (sp.d[k3].has(velocity_symbol(*symbols_, cn)))
         throw DefinitionError(where + ": a point may not depend on velocities (*_dot)");
     }
     sp.moving = sp.moving || sp.d[k3].has(t);
@@ -100,7 +104,7 @@ void ForceDef::add_joint_friction(const std::string& element, const std::string&
     throw DefinitionError(where + ": viscous must be >= 0");
   const double mu = constant_value(coulomb, where + ": coulomb");
   if (!(mu >= 0.0)) throw DefinitionError(where + ": coulomb must be >= 0");
-  const ex v = velocity_symbol(coordinate);
+  const ex v = velocity_symbol(*symbols_, coordinate);
   nc_[i] += -viscous * v;
   if (mu > 0.0) {
     if (!(constant_value(velocity_scale, where + ": velocity_scale") > 0.0))
@@ -124,9 +128,11 @@ ForceDerivation derive(const ForceDef& def) {
   ForceDerivation d;
   d.coordinates = def.system_coordinates();
   d.parameter_values = def.parameter_values();
+  d.symbols = def.symbol_table();
+  SymbolTable& syms = def.symbols();
   d.Q = GiNaC::matrix(n, 1);
   for (unsigned i = 0; i < n; ++i) d.Q(i, 0) = def.nonconservative()[i];
-  const GiNaC::symbol t = time_symbol();
+  const GiNaC::symbol t = time_symbol(syms);
   for (const auto& sp : def.springs()) {
     ForceDerivation::Spring s{sp.name,
                               GiNaC::matrix(3, 1),
@@ -140,8 +146,8 @@ ForceDerivation derive(const ForceDef& def) {
       s.d(k, 0) = sp.d[k];
       ex dd = sp.d[k].diff(t);
       for (unsigned j = 0; j < n; ++j) {
-        s.J(k, j) = sp.d[k].diff(coordinate_symbol(d.coordinates[j]));
-        dd += s.J(k, j) * velocity_symbol(d.coordinates[j]);
+        s.J(k, j) = sp.d[k].diff(coordinate_symbol(syms, d.coordinates[j]));
+        dd += s.J(k, j) * velocity_symbol(syms, d.coordinates[j]);
       }
       s.dd(k, 0) = dd;
     }
@@ -159,11 +165,14 @@ ex numeric_form(const ex& e, const GiNaC::exmap& values) { return e.subs(values)
 DerivedAppliedForce::DerivedAppliedForce(ForceDerivation derivation, std::string name)
     : d_(std::move(derivation)), name_(std::move(name)) {
   InputMap in;
+  SymbolTable& syms = *d_.symbols;
   for (std::size_t i = 0; i < d_.coordinates.size(); ++i) {
-    in[coordinate_symbol(d_.coordinates[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-    in[velocity_symbol(d_.coordinates[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
+    in[coordinate_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::q,
+                                                      static_cast<std::int32_t>(i)};
+    in[velocity_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::qd,
+                                                    static_cast<std::int32_t>(i)};
   }
-  in[time_symbol()] = {TapeInput::Source::time, 0};
+  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
   const auto& pv = d_.parameter_values;
   std::vector<ex> out;
   for (unsigned i = 0; i < d_.Q.rows(); ++i) {

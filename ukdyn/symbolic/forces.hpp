@@ -33,7 +33,8 @@ namespace ukdyn::symbolic {
 class ForceDef : public DefinitionScope {
  public:
   /// All coordinates of the system in order; their names, <name>_dot and t become known names.
-  explicit ForceDef(std::vector<std::string> system_coordinates, std::string name = "forces");
+  explicit ForceDef(std::vector<std::string> system_coordinates, std::string name = "forces",
+                    std::shared_ptr<SymbolTable> symbols = nullptr);
   [[nodiscard]] const std::string& name() const { return name_; }
   [[nodiscard]] const std::vector<std::string>& system_coordinates() const { return coords_; }
 
@@ -89,6 +90,7 @@ struct ForceDerivation {
   };
   std::vector<Spring> springs;
   GiNaC::exmap parameter_values;
+  std::shared_ptr<SymbolTable> symbols;  ///< the definition's (its coordinates, velocities, t)
 };
 ForceDerivation derive(const ForceDef& def);
 

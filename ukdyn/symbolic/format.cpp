@@ -220,11 +220,12 @@ void block(std::ostream& os, Format f, const std::string& name, const GiNaC::mat
 namespace {
 
 // Every symbol the derivation's output holds (for renames()).
-ex all_symbols(const std::vector<std::string>& coords, const GiNaC::exmap& params) {
+ex all_symbols(SymbolTable& symbols, const std::vector<std::string>& coords,
+               const GiNaC::exmap& params) {
   GiNaC::lst l;
   for (const auto& c : coords) {
-    l.append(coordinate_symbol(c));
-    l.append(velocity_symbol(c));
+    l.append(coordinate_symbol(symbols, c));
+    l.append(velocity_symbol(symbols, c));
   }
   for (const auto& [s, v] : params) l.append(s);
   return l;
@@ -239,7 +240,7 @@ std::string printed_name(const GiNaC::symbol& s, Format f, const GiNaC::exmap& r
 
 std::string format_derivation(const SubsystemDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const GiNaC::exmap rename = renames(all_symbols(d.coordinates, d.parameter_values), f);
+  const GiNaC::exmap rename = renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
   os << comment_line(
       f, "subsystem '" + name + "': M (Eq. 5), C from Christoffel symbols (Eq. 9), G (Eq. 8)");
   header(os, f, d.coordinates, d.parameter_values, false, rename);
@@ -251,7 +252,7 @@ std::string format_derivation(const SubsystemDerivation& d, const std::string& n
 
 std::string format_derivation(const ConstraintDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const GiNaC::exmap rename = renames(all_symbols(d.coordinates, d.parameter_values), f);
+  const GiNaC::exmap rename = renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
   std::string line =
       "constraint '" + name + "' (" + (d.holonomic ? "holonomic" : "nonholonomic") + "), rows:";
   for (const auto& r : d.row_names) line += " " + r;
@@ -266,11 +267,11 @@ std::string format_derivation(const ConstraintDerivation& d, const std::string& 
 namespace {
 
 // The C function around a derivation: the coordinate and velocity variables, the outputs zeroed.
-void c_variables(std::ostream& os, const std::vector<std::string>& coords,
+void c_variables(std::ostream& os, SymbolTable& symbols, const std::vector<std::string>& coords,
                  const GiNaC::exmap& rename) {
   for (std::size_t i = 0; i < coords.size(); ++i) {
-    const std::string qn = printed_name(coordinate_symbol(coords[i]), Format::c, rename);
-    const std::string vn = printed_name(velocity_symbol(coords[i]), Format::c, rename);
+    const std::string qn = printed_name(coordinate_symbol(symbols, coords[i]), Format::c, rename);
+    const std::string vn = printed_name(velocity_symbol(symbols, coords[i]), Format::c, rename);
     os << "  const double " << qn << " = q[" << i << "], " << vn << " = qd[" << i << "];\n";
     os << "  (void)" << qn << ";\n  (void)" << vn << ";\n";
   }
@@ -320,8 +321,8 @@ std::string format_system(const System& system, Format f) {
         os << "void " << c_function_name(d->name(), "_dynamics", functions)
            << "(const double* q, const double* qd, double M[" << n << "][" << n << "], double C["
            << n << "][" << n << "], double G[" << n << "]) {\n";
-        c_variables(os, dv.coordinates,
-                    renames(all_symbols(dv.coordinates, dv.parameter_values), f));
+        c_variables(os, *dv.symbols, dv.coordinates,
+                    renames(all_symbols(*dv.symbols, dv.coordinates, dv.parameter_values), f));
         c_zero(os, "M[0][0]", n * n);
         c_zero(os, "C[0][0]", n * n);
         c_zero(os, "G[0]", n);
@@ -351,8 +352,8 @@ std::string format_system(const System& system, Format f) {
            << "(const double* q, const double* qd, double t, ";
         if (dv.holonomic) os << "double Phi[" << m << "], ";
         os << "double A[" << m << "][" << n << "], double b[" << m << "]) {\n";
-        c_variables(os, dv.coordinates,
-                    renames(all_symbols(dv.coordinates, dv.parameter_values), f));
+        c_variables(os, *dv.symbols, dv.coordinates,
+                    renames(all_symbols(*dv.symbols, dv.coordinates, dv.parameter_values), f));
         os << "  (void)t;\n";
         if (dv.holonomic) c_zero(os, "Phi[0]", m);
         c_zero(os, "A[0][0]", m * n);

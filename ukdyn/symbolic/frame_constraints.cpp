@@ -216,7 +216,7 @@ std::vector<std::pair<std::string, ex>> rows_for(const FrameConstraintDef& f, co
   std::vector<std::pair<std::string, ex>> rows;
   const std::string& p = f.name;
   auto position_rows = [&] {
-    static const char* kAxis[3] = {"x", "y", "z"};
+    static const char* const kAxis[3] = {"x", "y", "z"};
     for (std::size_t k = 0; k < 3; ++k)
       rows.emplace_back(p + "_" + kAxis[k], a.position[k] - b.position[k]);
   };
@@ -325,7 +325,7 @@ void add_frame_constraint(ConstraintDef& def, const FrameConstraintDef& f) {
 
 FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
                                const std::vector<std::string>& system_coordinates,
-                               const GiNaC::exmap& values)
+                               SymbolTable& symbols, const GiNaC::exmap& values)
     : name_(f.name), frame_a_(f.frame_a), frame_b_(f.frame_b), kind_(f.kind) {
   has_b_ = f.kind != FrameConstraintDef::Kind::level;
   n_ = static_cast<Index>(system_coordinates.size());
@@ -348,7 +348,7 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
   InputMap in;
   std::vector<GiNaC::symbol> q;
   for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-    q.push_back(coordinate_symbol(system_coordinates[i]));
+    q.push_back(coordinate_symbol(symbols, system_coordinates[i]));
     in[q.back()] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
   }
   // Twist Jacobians: v = Σ ∂p/∂q_j q̇_j, ω = Σ vee(∂R/∂q_j Rᵀ) q̇_j.
@@ -429,7 +429,8 @@ std::shared_ptr<FrameConstraint> make_frame_constraint(const ConstraintDef& def,
                                                        const FrameConstraintDef& f) {
   return std::make_shared<FrameConstraint>(
       make_constraint(def),
-      std::make_shared<FrameWrenchMap>(f, def.system_coordinates(), def.parameter_values()));
+      std::make_shared<FrameWrenchMap>(f, def.system_coordinates(), def.symbols(),
+                                       def.parameter_values()));
 }
 
 }  // namespace ukdyn::symbolic

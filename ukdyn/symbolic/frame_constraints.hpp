@@ -101,8 +101,9 @@ struct FrameWrench {
 /// and twist Jacobians J (6 × n: [v; ω] = J q̇, world).
 class FrameWrenchMap {
  public:
+  /// `symbols`: the table of the frames' expressions (their coordinates).
   FrameWrenchMap(const FrameConstraintDef& f, const std::vector<std::string>& system_coordinates,
-                 const GiNaC::exmap& values = {});
+                 SymbolTable& symbols, const GiNaC::exmap& values = {});
   [[nodiscard]] const std::string& name() const { return name_; }
   [[nodiscard]] const std::string& frame_a() const { return frame_a_; }
   [[nodiscard]] const std::string& frame_b() const { return frame_b_; }

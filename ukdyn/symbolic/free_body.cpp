@@ -48,12 +48,13 @@ BodyDef& add_free_body(SubsystemDef& def, const ex& mass, const std::array<ex, 9
 SubsystemDef free_body_definition(const std::string& name, double mass,
                                   const std::array<double, 9>& inertia,
                                   const std::array<double, 3>& gravity,
-                                  std::vector<std::string> coordinates) {
+                                  std::vector<std::string> coordinates,
+                                  std::shared_ptr<SymbolTable> symbols) {
   if (coordinates.empty()) coordinates = free_body_coordinates(name);
-  SubsystemDef def(name, std::move(coordinates));
+  SubsystemDef def(name, std::move(coordinates), std::move(symbols));
   const ex m = def.parameter("m", mass);
   std::array<ex, 9> J;
-  static const char* names[9] = {"Jxx", "Jxy", "Jxz", "Jxy", "Jyy", "Jyz", "Jxz", "Jyz", "Jzz"};
+  static const char* const names[9] = {"Jxx", "Jxy", "Jxz", "Jxy", "Jyy", "Jyz", "Jxz", "Jyz", "Jzz"};
   for (int i = 0; i < 3; ++i) {
     for (int j = i; j < 3; ++j) {
       const ex s = def.parameter(names[3 * i + j], inertia[static_cast<std::size_t>(3 * i + j)]);
@@ -71,9 +72,10 @@ SubsystemDef free_body_definition(const std::string& name, double mass,
 
 ConstraintDef free_body_norm_constraint(const std::string& name,
                                         const std::vector<std::string>& quaternion,
-                                        const std::vector<std::string>& system_coordinates) {
+                                        const std::vector<std::string>& system_coordinates,
+                                        std::shared_ptr<SymbolTable> symbols) {
   if (quaternion.size() != 4) throw DefinitionError("a quaternion has 4 coordinates");
-  ConstraintDef def(name, ConstraintDef::Kind::holonomic, system_coordinates);
+  ConstraintDef def(name, ConstraintDef::Kind::holonomic, system_coordinates, std::move(symbols));
   ex s = -1;
   for (const auto& c : quaternion) {
     const ex v = def.parse(c);

@@ -47,12 +47,14 @@ BodyDef& add_free_body(SubsystemDef& def, const GiNaC::ex& mass,
 SubsystemDef free_body_definition(const std::string& name, double mass,
                                   const std::array<double, 9>& inertia,
                                   const std::array<double, 3>& gravity,
-                                  std::vector<std::string> coordinates = {});
+                                  std::vector<std::string> coordinates = {},
+                                  std::shared_ptr<SymbolTable> symbols = nullptr);
 
 /// The unit-norm row NAME_unit: qw² + qx² + qy² + qz² − 1 = 0 over the system's coordinates;
 /// `quaternion` names the 4 quaternion coordinates (qw, qx, qy, qz).
 ConstraintDef free_body_norm_constraint(const std::string& name,
                                         const std::vector<std::string>& quaternion,
-                                        const std::vector<std::string>& system_coordinates);
+                                        const std::vector<std::string>& system_coordinates,
+                                        std::shared_ptr<SymbolTable> symbols = nullptr);
 
 }  // namespace ukdyn::symbolic

@@ -167,7 +167,7 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
       }
       if (type != mjJNT_BALL) {
         jd.axis = vec_of(m.jnt_axis + 3 * j);
-        const ex q = coordinate_symbol(free[adr]);
+        const ex q = coordinate_symbol(chain.symbols(), free[adr]);
         const double q0 = m.qpos0[m.jnt_qposadr[j]];
         jd.value = q0 == 0.0 ? q : q - exact_number(q0);
       }

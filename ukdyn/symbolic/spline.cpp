@@ -208,6 +208,4 @@ ex spline_expression(const CubicSpline& spline, const ex& arg) {
   return GiNaC::function(spline_serial(), handle, 0, arg);
 }
 
-ex spline_expression(const CubicSpline& spline) { return spline_expression(spline, time_symbol()); }
-
 }  // namespace ukdyn::symbolic

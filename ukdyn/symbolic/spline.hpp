@@ -1,6 +1,6 @@
 // Cubic splines through points as time functions of definition-based constraints.
 //
-// spline_expression(s) is a GiNaC function ukdyn_spline(S, k, t) (the k-th derivative of spline S):
+// spline_expression(s, t) is a GiNaC function ukdyn_spline(S, k, t) (the k-th derivative of spline S):
 // GiNaC differentiates it exactly (d/dt raises k; k ≥ 4 is 0), and the compiled tapes evaluate it
 // with a binary search over the knots (allocation-free). Outside [t_0, t_n] the first or last cubic
 // piece continues. S is a GiNaC object that holds the spline by shared_ptr: the spline lives as
@@ -42,8 +42,6 @@ class CubicSpline {
 /// f(arg) as an expression holding a copy of the spline (freed with the last expression or tape
 /// that uses it).
 GiNaC::ex spline_expression(const CubicSpline& spline, const GiNaC::ex& arg);
-/// spline_expression(spline, t) with the time symbol.
-GiNaC::ex spline_expression(const CubicSpline& spline);
 /// The spline held by S, the first argument of ukdyn_spline(S, k, t) (for the tape compiler);
 /// throws ukdyn::Error if `handle` is not such an argument.
 std::shared_ptr<const CubicSpline> spline_of(const GiNaC::ex& handle);

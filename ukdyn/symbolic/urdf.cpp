@@ -282,7 +282,7 @@ void append_urdf(ChainDef& chain, const std::string& path,
                                 std::to_string(chain.coordinates().size()) +
                                 " coordinates; add one or give joint_values)");
         }
-        j.value = coordinate_symbol(free[next++]);
+        j.value = coordinate_symbol(chain.symbols(), free[next++]);
       }
       values[uj.name] = *j.value;
     }
