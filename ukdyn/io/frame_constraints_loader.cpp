@@ -148,7 +148,8 @@ std::shared_ptr<const Constraint> load_frame_constraint(
 
 std::shared_ptr<const Constraint> make_link_constraint(
     const std::string& subsystem, const sym::LinkConstraintDef& lc,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context) {
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    std::shared_ptr<sym::SymbolTable> symbols) {
   using K = sym::FrameConstraintDef::Kind;
   sym::FrameConstraintDef f;
   f.name = subsystem + "_" + lc.name;
@@ -159,7 +160,8 @@ std::shared_ptr<const Constraint> make_link_constraint(
   try {
     f.a = sym::offset_frame(frames_of(context).find(f.frame_a), lc.offset_a);
     f.b = sym::offset_frame(frames_of(context).find(f.frame_b), lc.offset_b);
-    sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates);
+    sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
+                           std::move(symbols));
     sym::add_frame_constraint(def, f);
     return sym::make_frame_constraint(def, f);
   } catch (const Error& e) {

@@ -24,9 +24,11 @@ std::shared_ptr<const Constraint> load_frame_constraint(
 
 /// The weld / ball constraint of a chain's link constraint (an MJCF equality), named
 /// SUBSYSTEM_NAME, between the frames "SUBSYSTEM.LINK" moved by the offsets. Throws
-/// symbolic::DefinitionError naming the constraint and the frame.
+/// symbolic::DefinitionError naming the constraint and the frame. `symbols`: the table the chain
+/// was derived with (the scenario's).
 std::shared_ptr<const Constraint> make_link_constraint(
     const std::string& subsystem, const symbolic::LinkConstraintDef& lc,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context);
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    std::shared_ptr<symbolic::SymbolTable> symbols);
 
 }  // namespace ukdyn::io_detail

@@ -476,7 +476,8 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
       if (coords.empty()) coords = system->coordinate_names();
       try {
         add(st.sub_nodes[k],
-            io_detail::make_link_constraint(info.name, lc, coords, *definition_context));
+            io_detail::make_link_constraint(info.name, lc, coords, *definition_context,
+                                            L.symbol_table()));
       } catch (const Error& e) {
         L.fail(st.sub_nodes[k], e.what());
       }
