@@ -523,7 +523,7 @@ ConstraintDef::ConstraintDef(std::string name, Kind kind,
     scope_.add(c, coordinate_symbol(*symbols_, c));
     scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
-  scope_.add("t", time_symbol(*symbols_));
+  scope_.add_time(time_symbol(*symbols_));
 }
 
 void ConstraintDef::add_row(std::string row_name, ex expression) {

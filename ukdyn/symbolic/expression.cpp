@@ -561,12 +561,15 @@ GiNaC::symbol local_symbol(const std::string& name) {
 
 void Scope::add(const std::string& name, const GiNaC::ex& value) {
   std::string why;
-  // The time symbol of a table (printed t; no parameter or let-name may be called t).
-  const bool is_time = name == "t" && GiNaC::is_a<GiNaC::symbol>(value) &&
-                       GiNaC::ex_to<GiNaC::symbol>(value).get_name() == "t";
-  if (!is_time && !valid_name(name, &why)) throw ExpressionError(why, 0);
+  if (!valid_name(name, &why)) throw ExpressionError(why, 0);
   if (names_.count(name)) throw ExpressionError("the name '" + name + "' is defined twice", 0);
   names_.emplace(name, value);
+}
+
+void Scope::add_time(const GiNaC::symbol& t) {
+  // The time symbol of a table, under the name t that no parameter or let-name may take.
+  if (names_.count("t")) throw ExpressionError("the name 't' is defined twice", 0);
+  names_.emplace("t", t);
 }
 
 GiNaC::ex Scope::parse(const std::string& text) const { return Parser(text, names_).parse(); }

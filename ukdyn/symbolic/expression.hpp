@@ -69,6 +69,8 @@ class Scope {
  public:
   /// Adds a name; throws ExpressionError (offset 0) if the name is taken or invalid.
   void add(const std::string& name, const GiNaC::ex& value);
+  /// Adds the time symbol of a SymbolTable as `t` (a name add() refuses).
+  void add_time(const GiNaC::symbol& t);
   [[nodiscard]] bool has(const std::string& name) const { return names_.count(name) != 0; }
   [[nodiscard]] const std::map<std::string, GiNaC::ex>& names() const { return names_; }
   /// Parses `text`; throws ExpressionError with the offset of the problem.

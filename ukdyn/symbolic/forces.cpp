@@ -28,7 +28,7 @@ ForceDef::ForceDef(std::vector<std::string> system_coordinates, std::string name
     scope_.add(c, coordinate_symbol(*symbols_, c));
     scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
-  scope_.add("t", time_symbol(*symbols_));
+  scope_.add_time(time_symbol(*symbols_));
 }
 
 std::size_t ForceDef::index_of(const std::string& coordinate, const std::string& where) const {
