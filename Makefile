@@ -48,7 +48,7 @@ sweep-bench: deps
 drift-study: build
 	$(BUILD_DIR)/ukdyn_drift_study scenarios/paper_free.yaml 100
 
-# The test suite under AddressSanitizer + UndefinedBehaviorSanitizer (build/asan, clang-14).
+# The test suite under AddressSanitizer + UndefinedBehaviorSanitizer (build/asan).
 sanitize:
 	@bash scripts/sanitize.sh
 
@@ -60,8 +60,7 @@ tsan:
 check-state:
 	@bash scripts/check-no-hidden-state.sh
 
-# libFuzzer on the scenario loader, the eval protocol and the expression parser (built in build/asan,
-# clang-14; corpora and reproducers in build/fuzz).
+# libFuzzer on the scenario loader for FUZZ_SECONDS (build/fuzz, clang-14).
 fuzz:
 	@bash scripts/fuzz.sh $(FUZZ_SECONDS)
 
