@@ -68,9 +68,10 @@ def main():
     print(f"  |e_traj_x|: {e[0]:.4f} m at t = 0 -> {e[-1]:.2e} m at t = {mine['t'][-1]:g} s")
     print(f"  max |u| = {mine.summary['control']['max_abs_u']:.3f} (actuators "
           f"{', '.join(sc.actuator_names[:3])}, ...)")
-    # Every column but act_residual (NaN for a Python law: ukdyn did not solve for u); vectors
-    # (u, Qc, Qp, Qs, qdd) normwise: relative to their largest element over the run.
-    cols = [c for c in builtin.columns if c != "act_residual"]
+    # Every column of the Python law's run but act_residual (NaN for a Python law: ukdyn did not
+    # solve for u; the built-in run also has servo_uncertainty, which needs the built-in law's own
+    # correction); vectors (u, Qc, Qp, Qs, qdd) normwise: relative to their largest element.
+    cols = [c for c in mine.columns if c != "act_residual"]
 
     def group(c):
         return next((p for p in ("u_", "Qc_", "Qp_", "Qs_") if c.startswith(p)),

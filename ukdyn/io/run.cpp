@@ -540,6 +540,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
                       force_columns.header().end());
   }
   ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // as run_scenario's CSV
+  if (ctl) control_columns.set_plant(*ctl->plant);  // the closure / squeeze force, as there
   run.header.insert(run.header.end(), control_columns.header().begin(),
                     control_columns.header().end());
   const std::size_t cols = run.header.size();
