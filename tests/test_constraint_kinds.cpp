@@ -41,7 +41,7 @@ TEST(ChainConstraints, KindsGiveTheHandWrittenRows) {
   const auto tip = model.world_point("tip");
   sym::add_point_trajectory(kinds, "p", tip,
                             {sym::time_expression(ukdyn::TimeFunction::make_cosine(0.5, 0.25, 2.0),
-                                                 kinds.symbols().time()),
+                                                  kinds.symbols().time()),
                              std::nullopt, std::nullopt},
                             {0.5, 0, 0});
   sym::add_angle_relation(kinds, "rel", {{"a1", 2}, {"a2", -1}}, GiNaC::Pi / 3);

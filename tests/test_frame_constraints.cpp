@@ -220,7 +220,7 @@ TEST(FrameConstraints, WeldReproducesRigidAttachment) {
       sym::InputMap in;
       for (std::size_t i = 0; i < 6; ++i)
         in[sym::coordinate_symbol(*symbols, coords[i])] = {sym::TapeInput::Source::q,
-                                                 static_cast<std::int32_t>(i)};
+                                                           static_cast<std::int32_t>(i)};
       const sym::Tape tape({pa.position[0], pa.position[1], pa.position[2]}, in);
       double p[3];
       tape.eval(0.0, q1.data(), nullptr, p);
@@ -401,7 +401,8 @@ TEST(ConstraintForces, RedundantRowsAreReportedAndSplitByLeastNorm) {
   ukdyn::System s;
   s.add_subsystem(sym::make_subsystem(body));
   for (const sym::FrameConstraintDef* fd : {&f, &f2}) {
-    sym::ConstraintDef def(fd->name, sym::ConstraintDef::Kind::holonomic, body.coordinates(), symbols);
+    sym::ConstraintDef def(fd->name, sym::ConstraintDef::Kind::holonomic, body.coordinates(),
+                           symbols);
     sym::add_frame_constraint(def, *fd);
     s.add_constraint(sym::make_constraint(def));
   }

@@ -90,7 +90,8 @@ TEST(Limits, EvaluationErrorsAreExpressionErrorsWithAColumn) {
 
 TEST(Limits, ExpandedSizeIsBoundedBeforeExpanding) {
   sym::SymbolTable symbols;
-  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"), y = sym::coordinate_symbol(symbols, "y");
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"),
+                  y = sym::coordinate_symbol(symbols, "y");
   EXPECT_NO_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 10), "e"));
   // (x + y + 1)^500 has an expansion bound of 3^500 terms.
   EXPECT_THROW(sym::check_expression_size(GiNaC::pow(x + y + 1, 500), "e"), sym::ExpressionError);

@@ -44,7 +44,9 @@ std::string scenario_text(const Vec& q0) {
          "  - name: m\n    type: serial_chain\n"
          "    coordinates: [a1, a2, a3, b1, b2, b3, x, y, z, qw, qx, qy, qz]\n"
          "    mjcf: " +
-         kFile + "\ninitial:\n  q: " + q + "\n  qd: [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]\nsimulation:\n  t_end: 1\n  sample_dt: 0.01\n";
+         kFile + "\ninitial:\n  q: " + q +
+         "\n  qd: [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]\nsimulation:\n  t_end: 1\n  sample_dt: "
+         "0.01\n";
 }
 
 struct MuJoCo {

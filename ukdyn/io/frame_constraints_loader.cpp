@@ -111,8 +111,8 @@ std::shared_ptr<const Constraint> load_frame_constraint(
       // |p_a − p_b| at initial.q by compiled tapes, kept as the exact value of that double.
       sym::InputMap in;
       for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-        in[sym::coordinate_symbol(L.symbols(), system_coordinates[i])] = {sym::TapeInput::Source::q,
-                                                             static_cast<std::int32_t>(i)};
+        in[sym::coordinate_symbol(L.symbols(), system_coordinates[i])] = {
+            sym::TapeInput::Source::q, static_cast<std::int32_t>(i)};
       }
       double d2 = 0.0;
       for (std::size_t k = 0; k < 3; ++k) {

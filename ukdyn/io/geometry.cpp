@@ -164,12 +164,12 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
     } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
       add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
     } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
-               !bodies.empty() && std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
+               !bodies.empty() &&
+               std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
       // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
-      add_bodies(g, info.name, bodies, sys,
-                 *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)
-                      ->derivation()
-                      .symbols);
+      add_bodies(
+          g, info.name, bodies, sys,
+          *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
     } else if (left_out) {
       left_out->push_back(info.name);
     }

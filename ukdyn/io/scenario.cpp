@@ -449,8 +449,7 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
   };
   for (const auto& [fb, quat] : st.free_bodies) {  // free bodies: |q|² = 1 (docs/free-bodies.md)
     try {
-      add(st.subs, symbolic::make_constraint(
-                       symbolic::free_body_norm_constraint(
+      add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
                        fb, quat, system->coordinate_names(), L.symbol_table())));
     } catch (const Error& e) {
       L.fail(st.subs, e.what());
@@ -461,9 +460,9 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
     if (!chain) continue;
     for (const auto& [joint, quat] : chain->quaternions) {
       try {
-        add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
-                         info.name + "_" + joint, quat, system->coordinate_names(),
-                         L.symbol_table())));
+        add(st.subs,
+            symbolic::make_constraint(symbolic::free_body_norm_constraint(
+                info.name + "_" + joint, quat, system->coordinate_names(), L.symbol_table())));
       } catch (const Error& e) {
         L.fail(st.subs, e.what());
       }
@@ -475,9 +474,8 @@ void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& 
     for (const auto& lc : io_detail::chain_link_constraints(definition_context.get(), info.name)) {
       if (coords.empty()) coords = system->coordinate_names();
       try {
-        add(st.sub_nodes[k],
-            io_detail::make_link_constraint(info.name, lc, coords, *definition_context,
-                                            L.symbol_table()));
+        add(st.sub_nodes[k], io_detail::make_link_constraint(
+                                 info.name, lc, coords, *definition_context, L.symbol_table()));
       } catch (const Error& e) {
         L.fail(st.sub_nodes[k], e.what());
       }

@@ -217,7 +217,8 @@ ChainModel build_chain(const ChainDef& chain) {
                             "', '" + B.y + "')");
     }
     Pose f = root;
-    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(chain.symbols(), B.x), coordinate_symbol(chain.symbols(), B.y), 0}));
+    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(chain.symbols(), B.x),
+                                  coordinate_symbol(chain.symbols(), B.y), 0}));
     if (!B.yaw.empty()) {
       if (!has_coord(B.yaw))
         throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");

@@ -29,8 +29,7 @@ GiNaC::ex time_expression(const TimeFunction& f, const GiNaC::symbol& t);
 /// The same kinds with exact (symbolic) coefficients: mean + amplitude cos(omega t + phase), and
 /// Σ c_k t^k.
 GiNaC::ex cosine_expression(const GiNaC::ex& mean, const GiNaC::ex& amplitude,
-                            const GiNaC::ex& omega, const GiNaC::ex& phase,
-                            const GiNaC::symbol& t);
+                            const GiNaC::ex& omega, const GiNaC::ex& phase, const GiNaC::symbol& t);
 GiNaC::ex polynomial_expression(const std::vector<GiNaC::ex>& coefficients, const GiNaC::symbol& t);
 
 /// Rows <prefix>_x, _y, _z: a_k − b_k for the axes selected (all by default).

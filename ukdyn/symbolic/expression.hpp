@@ -1,9 +1,9 @@
 // Symbols and the expression parser of ukdyn::symbolic.
 //
 // Coordinates, their velocities and time are named GiNaC symbols interned in the SymbolTable of the
-// system being derived: the coordinate `theta1` is the same symbol in every subsystem and constraint
-// of that system, its velocity is `theta1_dot`, time is `t`.
-// Parameters are local to a definition (two subsystems may both have an `l1`).
+// system being derived: the coordinate `theta1` is the same symbol in every subsystem and
+// constraint of that system, its velocity is `theta1_dot`, time is `t`. Parameters are local to a
+// definition (two subsystems may both have an `l1`).
 //
 // The parser reads  + - * / ^ (or **), parentheses, numbers (decimals are read exactly as
 // rationals: 0.855 = 171/200), the constant pi, and the functions sin cos tan asin acos atan atan2
@@ -28,13 +28,13 @@ class ExpressionError : public Error {
   std::size_t offset;
 };
 
-/// The coordinate, velocity and time symbols of one system's derivation, interned by name: within one
-/// table the coordinate `theta1` is one GiNaC symbol in every subsystem, constraint and force that
-/// uses the table. A table belongs to whoever derives a system (docs/architecture.md, "Symbols"):
-/// the scenario loader makes one per load; a definition (DefinitionScope) makes its own unless it
-/// is given one; the definitions and the derivations that use a table hold it by shared_ptr, so it
-/// is freed with the last of them (with the system). Not synchronised: one derivation runs on one
-/// thread; two systems derived on two threads have two tables.
+/// The coordinate, velocity and time symbols of one system's derivation, interned by name: within
+/// one table the coordinate `theta1` is one GiNaC symbol in every subsystem, constraint and force
+/// that uses the table. A table belongs to whoever derives a system (docs/architecture.md,
+/// "Symbols"): the scenario loader makes one per load; a definition (DefinitionScope) makes its own
+/// unless it is given one; the definitions and the derivations that use a table hold it by
+/// shared_ptr, so it is freed with the last of them (with the system). Not synchronised: one
+/// derivation runs on one thread; two systems derived on two threads have two tables.
 class SymbolTable {
  public:
   /// The symbol of coordinate `name` (created on first use).

@@ -54,7 +54,8 @@ void ForceDef::check_state_expression(const ex& e, const std::string& where) con
     if (!GiNaC::is_a<GiNaC::symbol>(*it)) continue;
     bool known = it->is_equal(time_symbol(*symbols_));
     for (const auto& c : coords_) {
-      known = known || it->is_equal(coordinate_symbol(*symbols_, c)) || it->is_equal(velocity_symbol(*symbols_, c));
+      known = known || it->is_equal(coordinate_symbol(*symbols_, c)) ||
+              it->is_equal(velocity_symbol(*symbols_, c));
     }
     if (!known) {
       throw DefinitionError(where + ": unknown symbol '" + str(*it) +

@@ -240,7 +240,8 @@ std::string printed_name(const GiNaC::symbol& s, Format f, const GiNaC::exmap& r
 
 std::string format_derivation(const SubsystemDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const GiNaC::exmap rename = renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
+  const GiNaC::exmap rename =
+      renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
   os << comment_line(
       f, "subsystem '" + name + "': M (Eq. 5), C from Christoffel symbols (Eq. 9), G (Eq. 8)");
   header(os, f, d.coordinates, d.parameter_values, false, rename);
@@ -252,7 +253,8 @@ std::string format_derivation(const SubsystemDerivation& d, const std::string& n
 
 std::string format_derivation(const ConstraintDerivation& d, const std::string& name, Format f) {
   std::ostringstream os;
-  const GiNaC::exmap rename = renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
+  const GiNaC::exmap rename =
+      renames(all_symbols(*d.symbols, d.coordinates, d.parameter_values), f);
   std::string line =
       "constraint '" + name + "' (" + (d.holonomic ? "holonomic" : "nonholonomic") + "), rows:";
   for (const auto& r : d.row_names) line += " " + r;

@@ -54,7 +54,8 @@ SubsystemDef free_body_definition(const std::string& name, double mass,
   SubsystemDef def(name, std::move(coordinates), std::move(symbols));
   const ex m = def.parameter("m", mass);
   std::array<ex, 9> J;
-  static const char* const names[9] = {"Jxx", "Jxy", "Jxz", "Jxy", "Jyy", "Jyz", "Jxz", "Jyz", "Jzz"};
+  static const char* const names[9] = {"Jxx", "Jxy", "Jxz", "Jxy", "Jyy",
+                                       "Jyz", "Jxz", "Jyz", "Jzz"};
   for (int i = 0; i < 3; ++i) {
     for (int j = i; j < 3; ++j) {
       const ex s = def.parameter(names[3 * i + j], inertia[static_cast<std::size_t>(3 * i + j)]);

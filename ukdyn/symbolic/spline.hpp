@@ -1,10 +1,10 @@
 // Cubic splines through points as time functions of definition-based constraints.
 //
-// spline_expression(s, t) is a GiNaC function ukdyn_spline(S, k, t) (the k-th derivative of spline S):
-// GiNaC differentiates it exactly (d/dt raises k; k ≥ 4 is 0), and the compiled tapes evaluate it
-// with a binary search over the knots (allocation-free). Outside [t_0, t_n] the first or last cubic
-// piece continues. S is a GiNaC object that holds the spline by shared_ptr: the spline lives as
-// long as an expression or a tape that uses it, and no more (there is no registry). Two splines
+// spline_expression(s, t) is a GiNaC function ukdyn_spline(S, k, t) (the k-th derivative of spline
+// S): GiNaC differentiates it exactly (d/dt raises k; k ≥ 4 is 0), and the compiled tapes evaluate
+// it with a binary search over the knots (allocation-free). Outside [t_0, t_n] the first or last
+// cubic piece continues. S is a GiNaC object that holds the spline by shared_ptr: the spline lives
+// as long as an expression or a tape that uses it, and no more (there is no registry). Two splines
 // with the same knots and coefficients are the same S. In printed derivations S appears as
 // S_<hex digits of a hash of its content> (the same in every process).
 #pragma once
