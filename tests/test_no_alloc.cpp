@@ -299,11 +299,9 @@ TEST(NoAlloc, ControlRightHandSideAllocatesNothing) {
     ukdyn::SimulationSettings s = sc.sim;
     ukdyn::UkResult r;
     const long count = rhs_allocations(*run->plant, q0, s, run->loop->force_function(), 50, &r);
-    // NOT YET ZERO: 3 allocations per call remain (not located; the actuation solve and the
-    // model's forward() were made allocation-free). This bound keeps them from growing.
     std::printf("control right-hand side (%s): %ld allocations in 50 calls\n", law, count);
-    EXPECT_LE(count, 3 * 50) << "the control right-hand side (" << law << ") allocated " << count
-                             << " times in 50 calls";
+    EXPECT_EQ(count, 0) << "the control right-hand side (" << law << ") allocated " << count
+                        << " times in 50 calls";
     EXPECT_TRUE(r.finite);
     EXPECT_EQ(r.rank, 1);
     EXPECT_GT(run->loop->u.norm(), 0.0);

@@ -95,7 +95,31 @@ void cod_solve_into(const Eigen::CompleteOrthogonalDecomposition<Mat>& cod, cons
     return;
   }
   c = rhs;
-  cod.householderQ().setLength(rank).adjoint().applyThisOnTheLeft(c, hh_work);
+  // c = Qᵀ c: HouseholderSequence::applyThisOnTheLeft (Eigen 3.4, unblocked path) for the adjoint
+  // of Q = H_0 ⋯ H_{r−1} (H_0 first), written out with the same types and operations so that the
+  // bits are Eigen's; the one change is τ v, which Eigen's outer product evaluates into a heap
+  // temporary, is evaluated into z_temp (free until the Z step below).
+  const auto hq = cod.householderQ();
+  hh_work.resize(c.cols());  // no-op once sized (as Eigen's workspace.resize)
+  for (Index k = 0; k < rank; ++k) {
+    const Index rows_k = hq.rows() - k;
+    Eigen::Block<Dst, Eigen::Dynamic, Eigen::Dynamic> sub(c, k, 0, rows_k, c.cols());
+    const double tau = cod.hCoeffs().coeff(k);  // Q's coefficients (real: not conjugated)
+    if (rows_k == 1) {                          // MatrixBase::applyHouseholderOnTheLeft
+      sub *= 1.0 - tau;
+    } else if (tau != 0.0) {
+      const auto essential = hq.essentialVector(k);
+      Eigen::Map<Eigen::Matrix<double, 1, Eigen::Dynamic>> tmp(hh_work.data(), sub.cols());
+      Eigen::Block<decltype(sub), Eigen::Dynamic, Eigen::Dynamic> bottom(sub, 1, 0, rows_k - 1,
+                                                                         sub.cols());
+      tmp.noalias() = essential.adjoint() * bottom;
+      tmp += sub.row(0);
+      sub.row(0) -= tau * tmp;
+      auto tau_v = z_temp.head(rows_k - 1);
+      tau_v = tau * essential;
+      for (Index j = 0; j < sub.cols(); ++j) bottom.col(j) -= tmp(j) * tau_v;
+    }
+  }
   y.topRows(rank) = cod.matrixT()
                         .topLeftCorner(rank, rank)
                         .template triangularView<Eigen::Upper>()
@@ -169,9 +193,10 @@ void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& w, double 
     w.PQc.noalias() = w.P * Qc;
     cod_solve_into(w.cod, w.PQc, a.u, w.c_vec, w.y_k, w.z_temp, w.hh_vec);
   }
-  w.rest = Qc - B * a.u;
+  w.Bu.noalias() =
+      B * a.u;  // before `rest`: Qc − B u written at once evaluates B u into a heap temporary
+  w.rest = Qc - w.Bu;
   if (mp > 0) cod_solve_into(w.codp, w.rest, a.mu, w.c_vec, w.y_mp, w.z_temp, w.hh_vec);
-  w.Bu.noalias() = B * a.u;
   w.ApTmu.noalias() = w.Ap.transpose() * a.mu;
   w.r = w.Bu + w.ApTmu - Qc;
   a.residual = w.r.norm();
