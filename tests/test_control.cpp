@@ -433,6 +433,18 @@ TEST(Control, MonteCarloOverThePlantMass) {
 
 namespace {
 
+// The pendulum's model (bob 1 kg) under the robust law ρ = 2, ε = 0.01 against a plant whose bob
+// weighs `plant_mass` (tests/control_systems.hpp): plant.yaml and model.yaml in `dir`.
+ukdyn::Scenario robust_pendulum(const std::filesystem::path& dir, double plant_mass,
+                                const std::string& gains = "") {
+  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(plant_mass); }
+  return ukdyn::load_scenario_text(
+      uktest::pendulum_servo_yaml(1.0,
+                                  control_yaml("  law: robust\n" + gains +
+                                               "  rho: 2\n  epsilon: 0.01\n  plant: plant.yaml\n")),
+      dir / "model.yaml");
+}
+
 // The pendulum's closed loop (tests/control_systems.hpp) with the robust law ρ = 2, ε = 0.01 and
 // the plant's bob of mass `plant_mass` (the model's is 1 kg), through run_scenario.
 struct RhoRun {
@@ -441,12 +453,7 @@ struct RhoRun {
 };
 RhoRun run_rho(double plant_mass, const std::string& name) {
   const auto dir = temp_dir(name);
-  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(plant_mass); }
-  const auto sc = ukdyn::load_scenario_text(
-      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  lambda: 5\n  kappa: 5\n  "
-                                                    "rho: 2\n  epsilon: 0.01\n  plant: "
-                                                    "plant.yaml\n")),
-      dir / "model.yaml");
+  const auto sc = robust_pendulum(dir, plant_mass, "  lambda: 5\n  kappa: 5\n");
   ukdyn::RunOptions o;
   o.figures = false;
   const auto rep = ukdyn::run_scenario(sc, dir / "out", o);
@@ -469,11 +476,7 @@ bool has_warning(const std::vector<ukdyn::RunWarning>& w, const std::string& kin
 // τ = B u, with A_s = [cos θr, sin θr] written by hand (Φ_s = x cos θr + z sin θr).
 TEST(Control, UncertaintyEqualsPlantMinusModelAcceleration) {
   const auto dir = temp_dir("delta");
-  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.2); }
-  const auto sc = ukdyn::load_scenario_text(
-      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  rho: 2\n  epsilon: 0.01\n"
-                                                    "  plant: plant.yaml\n")),
-      dir / "model.yaml");
+  const auto sc = robust_pendulum(dir, 1.2);
   const auto run = ukdyn::make_control_run(sc);
   ASSERT_TRUE(run);
   const double t = 0.7, th = 0.35, w = 0.4;
@@ -596,11 +599,7 @@ class AllocatingServoLaw : public ukdyn::ControlLaw {
 
 TEST(Control, WorkspaceLawIsBitIdenticalToTheAllocatingOne) {
   const auto dir = temp_dir("bits");
-  { std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.2); }
-  const auto sc = ukdyn::load_scenario_text(
-      uktest::pendulum_servo_yaml(1.0, control_yaml("  law: robust\n  rho: 2\n  epsilon: 0.01\n"
-                                                    "  plant: plant.yaml\n")),
-      dir / "model.yaml");
+  const auto sc = robust_pendulum(dir, 1.2);
   const auto a = run_loop(sc, 2.0, 1e-10);
   const auto run = ukdyn::make_control_run(sc);
   AllocatingServoLaw old(run->model, sc.control->law);
@@ -621,4 +620,55 @@ TEST(Control, WorkspaceLawIsBitIdenticalToTheAllocatingOne) {
   ASSERT_EQ(a.e.size(), e_old.size());
   EXPECT_EQ(a.e, e_old);  // bit for bit over 2 s (201 samples)
   std::filesystem::remove_all(dir);
+}
+
+// The sign of the squeeze force, from statics (docs/control.md, "The squeeze force"). The paper's
+// plant (exact inertia, closure only) at rest, held by applied forces τ = G − A_cᵀλ0 with λ0 the
+// force F0 = −P n at robot 1's cut point (n: platform 1 → platform 2): the platforms are pushed
+// towards each other with P (τ_dx1 = +P n_x, τ_dx2 = −P n_x) and the joints hold. Statics: q̈ = 0,
+// and the closure must carry exactly F0, so the reported squeeze is +P (compression), and −P when
+// the platforms pull apart. Independent of how the sign was derived in control_output.cpp.
+TEST(Control, SqueezeSignFromAStaticHold) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_control.yaml");
+  const auto run = ukdyn::make_control_run(sc);
+  ASSERT_TRUE(run);
+  const ukdyn::System& plant = *run->plant;
+  const auto& rows = plant.constraint_row_names();
+  const auto& names = plant.coordinate_names();
+  const auto at = [](const auto& v, const char* n) {
+    const auto it = std::find(v.begin(), v.end(), n);
+    EXPECT_NE(it, v.end()) << n;
+    return static_cast<Index>(it - v.begin());
+  };
+  const Index cx = at(rows, "closure_x"), cy = at(rows, "closure_y");
+  const Index dx1 = at(names, "dx1"), dy1 = at(names, "dy1"), dx2 = at(names, "dx2"),
+              dy2 = at(names, "dy2");
+  const Vec q = run->q0, qd = Vec::Zero(q.size());
+  const double nx0 = q(dx2) - q(dx1), ny0 = q(dy2) - q(dy1), l = std::hypot(nx0, ny0);
+  const double nx = nx0 / l, ny = ny0 / l;
+  ukdyn::ForwardData d(plant);
+  const Vec zero = Vec::Zero(q.size());
+  ukdyn::forward(plant, d, 0.0, q, qd, zero);
+  const Vec G = -d.Q;  // at rest with τ = 0: Q = −G
+  for (const double P : {7.5, -4.0}) {
+    Vec lambda0 = Vec::Zero(plant.rows());
+    lambda0(cx) = -P * nx;
+    lambda0(cy) = -P * ny;
+    const Vec tau = G - d.A.transpose() * lambda0;
+    EXPECT_NEAR(tau(dx1), P * nx, 1e-12);  // the platforms push towards each other with P
+    EXPECT_NEAR(tau(dx2), -P * nx, 1e-12);
+    ukdyn::ForwardData h(plant);
+    ukdyn::forward(plant, h, 0.0, q, qd, tau);
+    EXPECT_LT(h.qdd.cwiseAbs().maxCoeff(), 1e-11) << "not a static hold";
+    ukdyn::ControlColumns cols(sc, run->loop.get());
+    cols.set_plant(plant);
+    ASSERT_TRUE(cols.peaks().closure);
+    std::vector<double> out(cols.header().size());
+    cols.fill(0.0, q, qd, h, out.data());
+    std::printf("platforms pushed together with P = %+.2f N: squeeze %+.15f N\n", P,
+                cols.peaks().max_squeeze_force);
+    EXPECT_NEAR(cols.peaks().max_squeeze_force, P, 1e-9 * std::abs(P));
+    EXPECT_NEAR(cols.peaks().max_closure_force, std::abs(P), 1e-9 * std::abs(P));
+  }
 }
