@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "symbolic_systems.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
@@ -42,15 +43,7 @@ TEST(SymbolTable, SameNameSameSymbolInOneTableOnly) {
 // sees its coordinate, A = [1 0] and Φ = x − 0.2 exactly.
 std::shared_ptr<ukdyn::System> cart(const std::shared_ptr<sym::SymbolTable>& symbols,
                                     const std::string& x, const std::string& phi) {
-  sym::SubsystemDef d("cart", {x, phi}, symbols);
-  const auto l = d.parameter("l", 0.8);
-  auto& body = d.add_body("cart");
-  body.mass = d.parameter("M", 2.0);
-  body.com = {d.q(x), 0, 0};
-  auto& bob = d.add_body("bob");
-  bob.mass = d.parameter("m", 0.5);
-  bob.com = {d.q(x) + l * GiNaC::sin(d.q(phi)), 0, -l * GiNaC::cos(d.q(phi))};
-  d.gravity = {0, 0, -9.81};
+  const sym::SubsystemDef d = uktest::cart_pendulum_def(x, phi, symbols);
   auto system = std::make_shared<ukdyn::System>();
   system->add_subsystem(sym::make_subsystem(d));
   sym::ConstraintDef c("hold", sym::ConstraintDef::Kind::holonomic, {x, phi}, symbols);
