@@ -448,10 +448,11 @@ std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object
   sc.sim.t0 = t0;
   sc.sim.t_end = t_end;
   sc.sim.sample_dt = sample_dt;
-  sc.sim.integrator = enum_of(integrator,
-                              {ukdyn::IntegratorKind::rk4, ukdyn::IntegratorKind::dopri5,
-                               ukdyn::IntegratorKind::rkf78, ukdyn::IntegratorKind::bdf},
-                              "integrator");
+  sc.sim.integrator = enum_of(
+      integrator,
+      {ukdyn::IntegratorKind::rk4, ukdyn::IntegratorKind::dopri5, ukdyn::IntegratorKind::rkf78,
+       ukdyn::IntegratorKind::bdf, ukdyn::IntegratorKind::esdirk},
+      "integrator");
   sc.sim.adaptive = adaptive;
   sc.sim.abs_tol = abs_tol;
   sc.sim.rel_tol = rel_tol;

@@ -152,11 +152,14 @@ def test_callback_exception_is_raised_with_its_type():
         sc.simulate(controller=42)
 
 
-def test_callback_exception_through_the_implicit_integrator():
-    # bdf is SUNDIALS CVODE (C): the exception must not cross its frames, and still be raised.
-    text = PENDULUM.replace("FORCES", "").replace("energy_balance: true", "integrator: bdf")
+@pytest.mark.parametrize("integrator", ["bdf", "esdirk"])
+def test_callback_exception_through_the_implicit_integrator(integrator):
+    # bdf is SUNDIALS CVODE, esdirk ARKODE (C): the exception must not cross their frames, and
+    # still be raised.
+    text = PENDULUM.replace("FORCES", "")
+    text = text.replace("energy_balance: true", "integrator: " + integrator)
     try:
-        sc = ukdyn.Scenario.from_text(text, "bdf.yaml")
+        sc = ukdyn.Scenario.from_text(text, integrator + ".yaml")
     except ukdyn.ScenarioError as e:
         pytest.skip("ukdyn built without SUNDIALS: %s" % e)
 

@@ -236,7 +236,7 @@ class Scenario:
         t0: float = 0.0,
         t_end: float = 1.0,
         sample_dt: float = 0.01,
-        integrator: Literal["rk4", "dopri5", "rkf78", "bdf"] = "dopri5",
+        integrator: Literal["rk4", "dopri5", "rkf78", "bdf", "esdirk"] = "dopri5",
         adaptive: bool = True,
         abs_tol: float = 1e-12,
         rel_tol: float = 1e-12,

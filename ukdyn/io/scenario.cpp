@@ -176,7 +176,7 @@ struct Loading {
   std::vector<std::pair<std::string, std::vector<std::string>>> free_bodies;
   // Subsystems whose M(q0) is not positive definite: checked with the constraints ([M; A]).
   std::vector<std::size_t> singular_mass;
-  Node init;                                 // the initial block
+  Node init;  // the initial block
 };
 
 // A subsystem entry's `instances:` (docs/scenario-format.md, "One robot, many copies"): for each,
@@ -280,7 +280,6 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
         coord_index[c] = system->dof() + static_cast<Index>(j);
         names.push_back(std::move(c));
       }
-
     }
     const Node cn = L.child(s, "coordinates", false);
     io_detail::InstanceSpec spec = inst.spec;
@@ -307,7 +306,7 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
       } else if (type == "free_body") {  // docs/free-bodies.md
         st.free_bodies.push_back({name, {names[3], names[4], names[5], names[6]}});
         sub = io_detail::load_free_body_subsystem(L, s, name, names, gravity,
-                                                   definition_context.get());
+                                                  definition_context.get());
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
                               "' (expected mobile_manipulator, definitions, serial_chain or "
@@ -617,8 +616,11 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     } else if (kind == "bdf") {
       if (!bdf_available()) L.fail(in, "this ukdyn was built without SUNDIALS CVODE (bdf)");
       sim.integrator = IntegratorKind::bdf;
+    } else if (kind == "esdirk") {
+      if (!esdirk_available()) L.fail(in, "this ukdyn was built without SUNDIALS ARKODE (esdirk)");
+      sim.integrator = IntegratorKind::esdirk;
     } else {
-      L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78, rk4 or bdf)");
+      L.fail(in, "unknown integrator '" + kind + "' (expected dopri5, rkf78, rk4, bdf or esdirk)");
     }
   }
   if (Node ad = L.child(s, "adaptive", false); ad.node.IsDefined()) {
@@ -627,6 +629,8 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     sim.adaptive = v == "true";
     if (!sim.adaptive && sim.integrator == IntegratorKind::bdf)
       L.fail(ad, "the bdf integrator is always adaptive");
+    if (!sim.adaptive && sim.integrator == IntegratorKind::esdirk)
+      L.fail(ad, "the esdirk integrator is always adaptive");
   }
   // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
   sim.energy_balance = applied;
@@ -720,7 +724,8 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
                "unknown solver method '" + method + "' (expected adaptive, exact or regularized)");
       }
     }
-    if (sc.sim.uk.method != UkMethod::adaptive) sc.sim.uk.regularization = UkSettings{}.regularization;
+    if (sc.sim.uk.method != UkMethod::adaptive)
+      sc.sim.uk.regularization = UkSettings{}.regularization;
     if (Node rg = L.child(s, "regularization", false); rg.node.IsDefined()) {
       sc.sim.uk.regularization = L.number(rg);
       if (!(sc.sim.uk.regularization >= 1e-14 && sc.sim.uk.regularization <= 1e-2))

@@ -14,6 +14,8 @@ namespace ukdyn::detail {
 
 /// True if this ukdyn was built with SUNDIALS CVODE.
 bool cvode_available();
+/// True if this ukdyn was built with SUNDIALS ARKODE (integrator esdirk).
+bool arkode_available();
 
 struct ImplicitProblem {
   std::size_t size = 0;                                              ///< state size
@@ -34,5 +36,10 @@ struct ImplicitResult {
 /// caller observed t0). Tolerances: settings.rel_tol, settings.abs_tol; initial step settings.step.
 ImplicitResult integrate_bdf(const ImplicitProblem& problem, std::vector<double>& x, double t0,
                              const SimulationSettings& settings);
+
+/// The same problem with SUNDIALS ARKODE's ARKStep, a fully implicit ESDIRK method (Kennedy &
+/// Carpenter), adaptive, steps ending on the samples, the drift projection after every step.
+ImplicitResult integrate_esdirk(const ImplicitProblem& problem, std::vector<double>& x, double t0,
+                                const SimulationSettings& settings);
 
 }  // namespace ukdyn::detail

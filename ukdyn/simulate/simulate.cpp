@@ -42,11 +42,14 @@ std::string to_string(IntegratorKind kind) {
       return "rkf78";
     case IntegratorKind::bdf:
       return "bdf";
+    case IntegratorKind::esdirk:
+      return "esdirk";
   }
   return "unknown";
 }
 
 bool bdf_available() { return detail::cvode_available(); }
+bool esdirk_available() { return detail::arkode_available(); }
 
 std::string to_string(DriftControl kind) {
   switch (kind) {
@@ -213,7 +216,7 @@ class Run {
     }
     if (!observe(s_.t0, x_)) return finish();
     try {
-      if (s_.integrator == IntegratorKind::bdf) {
+      if (s_.integrator == IntegratorKind::bdf || s_.integrator == IntegratorKind::esdirk) {
         run_bdf();
       } else if (fixed_) {
         run_fixed();
@@ -319,7 +322,8 @@ class Run {
              " is ill-conditioned (cond >= " + detail::sci(cond) +
              ", Cholesky pivot estimate): a singular configuration of its coordinates is near "
              "(the gimbal lock of Euler angles?); digits are lost, and the run stops at cond " +
-             detail::sci(1.0 / kSingularPivot) + " (use type: free_body for a rigid body in space)");
+             detail::sci(1.0 / kSingularPivot) +
+             " (use type: free_body for a rigid body in space)");
   }
 
   // The adaptive solve damped the constraint force somewhere in the run: said once, with the time.
@@ -432,7 +436,9 @@ class Run {
     p.observe = [&](double t, State& xs) { return observe(t, xs); };
     p.sample_time = [&](long i) { return sample_time(i); };
     p.total_samples = total_samples_;
-    const auto r = detail::integrate_bdf(p, x_, s_.t0, s_);
+    const auto r = s_.integrator == IntegratorKind::esdirk
+                       ? detail::integrate_esdirk(p, x_, s_.t0, s_)
+                       : detail::integrate_bdf(p, x_, s_.t0, s_);
     stats_.steps = r.steps;
     stats_.rejected_steps = r.error_test_failures + r.nonlinear_failures;
     if (r.failed && stats_.status == RunStatus::completed) {
@@ -465,6 +471,7 @@ class Run {
             f78.do_step(std::ref(rhs_), x_, t, h);
             break;
           case IntegratorKind::bdf:  // handled by run_bdf (always adaptive)
+          case IntegratorKind::esdirk:
             break;
         }
         ++k;
@@ -563,7 +570,7 @@ class Run {
   Rhs rhs_;
   detail::Projector projector_;
   State x_, x_out_;
-  State last_good_;        ///< the state after the last accepted finite step (for the diagnosis)
+  State last_good_;  ///< the state after the last accepted finite step (for the diagnosis)
   double last_good_t_ = std::numeric_limits<double>::quiet_NaN();
   ForwardData sample_data_;
   SimulationStats stats_;

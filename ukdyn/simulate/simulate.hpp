@@ -17,8 +17,10 @@ namespace ukdyn {
 /// onto the sample times. All from Boost.Odeint. dopri5 and rkf78 can also run with a fixed step
 /// (adaptive = false). bdf: SUNDIALS CVODE's variable-order BDF (implicit, for stiff problems;
 /// always adaptive), available when ukdyn was built with SUNDIALS (bdf_available()).
-enum class IntegratorKind { rk4, dopri5, rkf78, bdf };
+enum class IntegratorKind { rk4, dopri5, rkf78, bdf, esdirk };
 bool bdf_available();
+/// True if the esdirk integrator (SUNDIALS ARKODE) is available.
+bool esdirk_available();
 std::string to_string(IntegratorKind kind);
 
 /// Acceleration-level constraints drift (A q̈ = b only holds Φ̈ = 0). Choices:
@@ -69,7 +71,8 @@ struct SimulationSettings {
 /// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed
 /// step.
 inline bool adaptive_steps(const SimulationSettings& s) {
-  return s.integrator == IntegratorKind::bdf ||  // bdf: always adaptive
+  return s.integrator == IntegratorKind::bdf ||
+         s.integrator == IntegratorKind::esdirk ||  // bdf, esdirk: always adaptive
          (s.integrator != IntegratorKind::rk4 && s.adaptive);
 }
 
@@ -92,13 +95,13 @@ struct RunWarning {
 
 struct SimulationStats {
   RunStatus status = RunStatus::completed;
-  std::string message;       ///< why the run stopped early (empty if completed)
-  double t_reached = 0.0;    ///< last time written
-  long steps = 0;            ///< accepted steps
-  long rejected_steps = 0;   ///< steps rejected by the error control
-  long rhs_evaluations = 0;  ///< forward() calls by the integrator
-  long samples = 0;          ///< observer calls
-  long projections = 0;      ///< Gauss–Newton iterations done by the projection
+  std::string message;                   ///< why the run stopped early (empty if completed)
+  double t_reached = 0.0;                ///< last time written
+  long steps = 0;                        ///< accepted steps
+  long rejected_steps = 0;               ///< steps rejected by the error control
+  long rhs_evaluations = 0;              ///< forward() calls by the integrator
+  long samples = 0;                      ///< observer calls
+  long projections = 0;                  ///< Gauss–Newton iterations done by the projection
   double max_position_correction = 0.0;  ///< largest max|Δq| of one step's projection
   double max_velocity_correction = 0.0;  ///< largest max|Δq̇| of one step's projection
   double max_correction_ratio = 0.0;     ///< largest max|Δq| / the branch bound (≥ 1: warned)
@@ -152,7 +155,7 @@ struct AssemblyResult {
   int iterations = 0;
   double max_position_residual = 0.0;  ///< max |Φ(q, t)| over the m rows
   double max_velocity_residual = 0.0;  ///< max |Φ̇(q, q̇, t)| over the m rows
-  std::vector<Index> unmet_rows;  ///< rows still violated (|Φ| > tol) if !success
+  std::vector<Index> unmet_rows;       ///< rows still violated (|Φ| > tol) if !success
   std::string message;
 };
 AssemblyResult assemble(const System& system, double t, const Vec& q_guess, const Vec& qd_guess,
