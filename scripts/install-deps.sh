@@ -1,19 +1,21 @@
 #!/usr/bin/env bash
 # Installs the Debian packages ukdyn needs (only those missing). Idempotent.
 #   scripts/install-deps.sh            build + run + test dependencies
-#   scripts/install-deps.sh --bench    also the benchmark dependencies (MuJoCo, Simbody)
+#   scripts/install-deps.sh --bench    also the benchmark dependencies (Google Benchmark; MuJoCo and
+#                                      Simbody are in the base list)
 #   scripts/install-deps.sh --fuzz     also clang 14 and its runtime (libFuzzer: -fsanitize=fuzzer)
 set -euo pipefail
 pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
       libginac-dev liburdfdom-dev libsundials-dev
       libmujoco-dev                                  # MJCF files (ukdyn/symbolic/mjcf.hpp)
+      libsimbody-dev  # tests/test_simbody_three_robots.cpp (skipped without it) and the bench
       python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
       libopenmpi-dev openmpi-bin  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
       nodejs chromium)  # the replay page: three.js from npm (web/), its browser test
 for arg in "$@"; do
   case "$arg" in
-    --bench) pkgs+=(libbenchmark-dev libsimbody-dev) ;;
+    --bench) pkgs+=(libbenchmark-dev) ;;
     --fuzz) pkgs+=(clang-14 libclang-rt-14-dev) ;;
   esac
 done
