@@ -4,7 +4,7 @@
 //     observer, one after another (what a hand-written loop over the library costs at least);
 //  2. `ukdyn sweep` in memory (run_sweep) at 1 thread and at 2 threads, journal and table included.
 // Prints samples/s, the speed-up of 2 threads, and the overhead per sample of (2) at 1 thread
-// against (1). Usage: ukdyn_sweep_bench [SWEEP.yaml] [N] [OUT_DIR|-] [ROUNDS]
+// against (1). Usage: ukdyn_sweep_bench [SWEEP.yaml] [N] [OUT_DIR|-] [ROUNDS|only:K]
 // With ROUNDS > 0 it then runs ROUNDS interleaved rounds of five ways of computing the N samples
 // (the order rotated every round, so that no way always runs first or last on a warm or cold
 // machine) and prints the median and spread of each, and the median of the per-round ratios:
@@ -59,6 +59,41 @@ double median(std::vector<double> v) {
   return n == 0 ? 0.0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+// One way of computing the sweep's samples (the list in the header). Not inlined, so that an
+// instruction count (valgrind --tool=callgrind --toggle-collect=*compute_way*) can take it alone.
+[[gnu::noinline]] void compute_way(int way, const ukdyn::Sweep& sw,
+                                   const std::vector<ukdyn::Scenario>& scs,
+                                   const ukdyn::Scenario& base, const std::filesystem::path& out) {
+  const long n = sw.samples;
+  switch (way) {
+    case 0:
+      (void)plain_loop(scs);
+      break;
+    case 1: {
+      ukdyn::SweepOptions opt;
+      opt.threads = 1;
+      opt.resume = false;
+      const auto rep = ukdyn::run_sweep(sw, out / "interleaved", opt);
+      if (!rep.complete || rep.failed != 0) throw std::runtime_error("sweep incomplete");
+      break;
+    }
+    case 2:
+      for (long k = 0; k < n; ++k) {
+        std::vector<ukdyn::Scenario> one;
+        one.push_back(ukdyn::load_scenario_text(ukdyn::sample_scenario_text(sw, k), sw.base_path));
+        (void)plain_loop(one);
+      }
+      break;
+    case 3: {
+      std::jthread worker([&scs] { (void)plain_loop(scs); });
+      break;
+    }
+    case 4:
+      for (long k = 0; k < n; ++k) (void)ukdyn::run_sample(sw, base, k);
+      break;
+  }
+}
+
 void interleaved(const ukdyn::Sweep& sw, const std::vector<ukdyn::Scenario>& scs,
                  const std::filesystem::path& out, int rounds) {
   const long n = sw.samples;
@@ -71,34 +106,7 @@ void interleaved(const ukdyn::Sweep& sw, const std::vector<ukdyn::Scenario>& scs
   auto run = [&](int way) {
     const double c0 = cpu_now();
     const auto t0 = clock_type::now();
-    switch (way) {
-      case 0:
-        (void)plain_loop(scs);
-        break;
-      case 1: {
-        ukdyn::SweepOptions opt;
-        opt.threads = 1;
-        opt.resume = false;
-        const auto rep = ukdyn::run_sweep(sw, out / "interleaved", opt);
-        if (!rep.complete || rep.failed != 0) throw std::runtime_error("sweep incomplete");
-        break;
-      }
-      case 2:
-        for (long k = 0; k < n; ++k) {
-          std::vector<ukdyn::Scenario> one;
-          one.push_back(
-              ukdyn::load_scenario_text(ukdyn::sample_scenario_text(sw, k), sw.base_path));
-          (void)plain_loop(one);
-        }
-        break;
-      case 3: {
-        std::jthread worker([&scs] { (void)plain_loop(scs); });
-        break;
-      }
-      case 4:
-        for (long k = 0; k < n; ++k) (void)ukdyn::run_sample(sw, base, k);
-        break;
-    }
+    compute_way(way, sw, scs, base, out);
     wall[way].push_back(std::chrono::duration<double>(clock_type::now() - t0).count());
     cpu[way].push_back(cpu_now() - c0);
   };
@@ -142,7 +150,13 @@ int main(int argc, char** argv) {
   const fs::path out = argc > 3 && std::string(argv[3]) != "-"
                            ? fs::path(argv[3])
                            : fs::temp_directory_path() / "ukdyn_sweep_bench";
-  const int rounds = argc > 4 ? std::atoi(argv[4]) : 0;
+  // ROUNDS "only:K" runs way K (0..4 = A..E) once and nothing else: for an instruction count,
+  //   valgrind --tool=callgrind --collect-atstart=no --toggle-collect='*compute_way*'
+  //            ukdyn_sweep_bench SWEEP N - only:K
+  // which, unlike a time, does not depend on what else the machine runs (docs/performance.md).
+  const std::string last = argc > 4 ? std::string(argv[4]) : std::string();
+  const int only = last.rfind("only:", 0) == 0 ? std::atoi(last.c_str() + 5) : -1;
+  const int rounds = only < 0 && argc > 4 ? std::atoi(argv[4]) : 0;
   try {
     ukdyn::Sweep sw = ukdyn::load_sweep(file);
     if (n_arg > 0 && n_arg < sw.samples) sw.samples = n_arg;
@@ -155,6 +169,14 @@ int main(int argc, char** argv) {
     std::vector<ukdyn::Scenario> scs;
     for (long k = 0; k < n; ++k) {
       scs.push_back(ukdyn::load_scenario_text(ukdyn::sample_scenario_text(sw, k), sw.base_path));
+    }
+    if (only >= 0) {
+      if (only > 4) throw std::invalid_argument("only:K needs K in 0..4");
+      const ukdyn::Scenario base =
+          ukdyn::load_scenario_text(sw.base_text, sw.base_path, ukdyn::LoadOptions{false});
+      compute_way(only, sw, scs, base, out);
+      std::cout << fmt::format("sweep bench: way {} once, {} samples\n", only, n);
+      return 0;
     }
     // Wall time, and the process's CPU time (std::clock: all threads), which a loaded machine
     // disturbs far less than the wall time.
