@@ -98,7 +98,7 @@ struct Rhs {
       forward(system, d, t, q, qd, tau, s.uk);
       return;
     }
-    evaluate_dynamics(system, d, q, qd);
+    evaluate_dynamics(system, d, t, q, qd);
     generalized_forces(system, d, t, q, qd, tau);  // paper Eq. (11), with the applied forces
     evaluate_constraints(system, d, t, q, qd);
     detail::baumgarte_adjust_b(system, d, s.drift, t, q, qd, phi, phid);
@@ -116,8 +116,9 @@ struct Rhs {
     if (damped_t < 0.0 && data.result.damping > 0.0) damped_t = t;
     Eigen::Map<Vec>(dxdt, n) = qd;
     Eigen::Map<Vec>(dxdt + n, n) = data.qdd;
-    // Energy balance: Ẇ = (τ + Q_nc + Qc)ᵀ q̇ as state 2n.
-    if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd);
+    // Energy balance: Ẇ = (τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t as state 2n (the last term is 0 unless a mass
+    // depends on t: dE/dt = (τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t, docs/definitions.md "Time-varying masses").
+    if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd) - data.lagrangian_dt;
   }
 };
 
@@ -319,7 +320,8 @@ class Run {
              " is ill-conditioned (cond >= " + detail::sci(cond) +
              ", Cholesky pivot estimate): a singular configuration of its coordinates is near "
              "(the gimbal lock of Euler angles?); digits are lost, and the run stops at cond " +
-             detail::sci(1.0 / kSingularPivot) + " (use type: free_body for a rigid body in space)");
+             detail::sci(1.0 / kSingularPivot) +
+             " (use type: free_body for a rigid body in space)");
   }
 
   // The adaptive solve damped the constraint force somewhere in the run: said once, with the time.
@@ -563,7 +565,7 @@ class Run {
   Rhs rhs_;
   detail::Projector projector_;
   State x_, x_out_;
-  State last_good_;        ///< the state after the last accepted finite step (for the diagnosis)
+  State last_good_;  ///< the state after the last accepted finite step (for the diagnosis)
   double last_good_t_ = std::numeric_limits<double>::quiet_NaN();
   ForwardData sample_data_;
   SimulationStats stats_;

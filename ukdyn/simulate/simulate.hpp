@@ -60,9 +60,10 @@ struct SimulationSettings {
   /// If set and it becomes true (a SIGINT/SIGTERM handler), the run stops after the current step
   /// (status `stopped`), whatever the sample step.
   const std::atomic<bool>* cancel = nullptr;
-  /// Integrate the work W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt of τ, of the non-conservative applied
-  /// forces and of the constraint forces as one more state of the same stepper (same order and
-  /// error control); samples get it in ForwardData::work, and E − W stays constant.
+  /// Integrate the work W(t) = ∫ ((τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t) dt of τ, of the non-conservative
+  /// applied forces and of the constraint forces as one more state of the same stepper (same order
+  /// and error control; ∂L/∂t ≠ 0 only with a mass of t); samples get it in ForwardData::work, and
+  /// E − W stays constant.
   bool energy_balance = false;
 };
 
@@ -92,13 +93,13 @@ struct RunWarning {
 
 struct SimulationStats {
   RunStatus status = RunStatus::completed;
-  std::string message;       ///< why the run stopped early (empty if completed)
-  double t_reached = 0.0;    ///< last time written
-  long steps = 0;            ///< accepted steps
-  long rejected_steps = 0;   ///< steps rejected by the error control
-  long rhs_evaluations = 0;  ///< forward() calls by the integrator
-  long samples = 0;          ///< observer calls
-  long projections = 0;      ///< Gauss–Newton iterations done by the projection
+  std::string message;                   ///< why the run stopped early (empty if completed)
+  double t_reached = 0.0;                ///< last time written
+  long steps = 0;                        ///< accepted steps
+  long rejected_steps = 0;               ///< steps rejected by the error control
+  long rhs_evaluations = 0;              ///< forward() calls by the integrator
+  long samples = 0;                      ///< observer calls
+  long projections = 0;                  ///< Gauss–Newton iterations done by the projection
   double max_position_correction = 0.0;  ///< largest max|Δq| of one step's projection
   double max_velocity_correction = 0.0;  ///< largest max|Δq̇| of one step's projection
   double max_correction_ratio = 0.0;     ///< largest max|Δq| / the branch bound (≥ 1: warned)
@@ -152,7 +153,7 @@ struct AssemblyResult {
   int iterations = 0;
   double max_position_residual = 0.0;  ///< max |Φ(q, t)| over the m rows
   double max_velocity_residual = 0.0;  ///< max |Φ̇(q, q̇, t)| over the m rows
-  std::vector<Index> unmet_rows;  ///< rows still violated (|Φ| > tol) if !success
+  std::vector<Index> unmet_rows;       ///< rows still violated (|Φ| > tol) if !success
   std::string message;
 };
 AssemblyResult assemble(const System& system, double t, const Vec& q_guess, const Vec& qd_guess,
