@@ -17,6 +17,7 @@
 
 #include "control_systems.hpp"
 #include "helpers.hpp"
+#include "ukdyn/io/control_output.hpp"
 #include "ukdyn/io/scenario.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/simulate/simulate.hpp"
