@@ -308,7 +308,10 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   d.T = T.expand();
   d.V = V.expand();
   const symbol& ts = time[0];
-  d.time_varying = d.T.has(ts) || d.V.has(ts);
+  // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
+  // leaves the subsystem time-invariant).
+  d.time_varying = (d.T.has(ts) && !simplify_trig(d.T.diff(ts)).is_zero()) ||
+                   (d.V.has(ts) && !simplify_trig(d.V.diff(ts)).is_zero());
   const auto un = static_cast<unsigned>(n);
   d.M = matrix(un, un);
   std::vector<ex> dTdqd(n);
