@@ -88,7 +88,7 @@ void Stages_NRobots(benchmark::State& state) {
   const auto& sys = *c.system;
   ukdyn::ForwardData data(sys);
   for (auto _ : state) {
-    ukdyn::evaluate_dynamics(sys, data, c.q, c.qd);
+    ukdyn::evaluate_dynamics(sys, data, 0.0, c.q, c.qd);
     ukdyn::generalized_forces(sys, data, 0.0, c.q, c.qd, c.tau);
     benchmark::DoNotOptimize(data.Q.data());
   }
@@ -130,7 +130,7 @@ void Forward_NRobotsDense(benchmark::State& state) {
   const auto& sys = *c.system;
   ukdyn::ForwardData data(sys);
   for (auto _ : state) {
-    ukdyn::evaluate_dynamics(sys, data, c.q, c.qd);
+    ukdyn::evaluate_dynamics(sys, data, 0.0, c.q, c.qd);
     ukdyn::generalized_forces(sys, data, 0.0, c.q, c.qd, c.tau);
     ukdyn::evaluate_constraints(sys, data, 0.0, c.q, c.qd);
     data.result = ukdyn::uk_solve(data.M, data.A, data.b, data.Q, data.uk, data.qdd, data.Qc);

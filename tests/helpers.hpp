@@ -160,8 +160,8 @@ inline SystemDifference compare_systems(const ukdyn::System& ref, const ukdyn::S
   for (int k = 0; k < samples; ++k) {
     const Vec q = random_vec(rng, n, -3.2, 3.2), qd = random_vec(rng, n, -3, 3);
     const double t = uniform(rng, 0, 4);
-    ukdyn::evaluate_dynamics(ref, d0, q, qd);
-    ukdyn::evaluate_dynamics(other, d, q, qd);
+    ukdyn::evaluate_dynamics(ref, d0, t, q, qd);
+    ukdyn::evaluate_dynamics(other, d, t, q, qd);
     ukdyn::evaluate_constraints(ref, d0, t, q, qd);
     ukdyn::evaluate_constraints(other, d, t, q, qd);
     ukdyn::coriolis_matrix(ref, q, qd, C0);

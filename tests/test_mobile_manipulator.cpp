@@ -202,7 +202,7 @@ TEST(MobileManipulator, SystemDynamicsAreBlockDiagonalReference) {
     ukdyn::Vec q(12), qd(12);
     q << uktest::random_q(rng), uktest::random_q(rng);
     qd << uktest::random_qd(rng), uktest::random_qd(rng);
-    ukdyn::evaluate_dynamics(*two.system, data, q, qd);
+    ukdyn::evaluate_dynamics(*two.system, data, 0.0, q, qd);
     ukdyn::Mat Mref = ukdyn::Mat::Zero(12, 12);
     Mref.topLeftCorner<6, 6>() = ukref::mass_matrix<double>(pl, Vector6d(q.head<6>()));
     Mref.bottomRightCorner<6, 6>() = ukref::mass_matrix<double>(pr, Vector6d(q.tail<6>()));

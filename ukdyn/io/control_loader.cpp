@@ -104,11 +104,13 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc,
 
 // control.plant_set: the plant is the plant file (or, without one, this scenario's own tree less
 // its control and actuators sections) with the listed values changed, each {path, value} or
-// {path, scale} (the number there times scale). Paths as in sweeps (io/yaml_paths.hpp).
+// {path, scale} (the number there times scale) or {path, expression} (the text of an expression
+// put there, e.g. a load mass of t: docs/control.md "A time-varying load mass"). Paths as in
+// sweeps (io/yaml_paths.hpp).
 std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, const Node& set,
                                           const Node* plant_file, const Scenario& sc) {
   if (!set.node.IsSequence() || set.node.size() == 0)
-    L.fail(set, "expected a list of {path, value} or {path, scale}");
+    L.fail(set, "expected a list of {path, value}, {path, scale} or {path, expression}");
   std::filesystem::path where = sc.path;
   YAML::Node doc;
   std::string hash_input;
@@ -129,15 +131,28 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
   }
   for (std::size_t i = 0; i < set.node.size(); ++i) {
     const Node e{set.node[i], set.key + "[" + std::to_string(i) + "]"};
-    L.only_keys(e, {"path", "value", "scale"});
+    L.only_keys(e, {"path", "value", "scale", "expression"});
     const Node pn = L.child(e, "path", true);
     const std::string path = L.string(pn);
-    const Node vn = L.child(e, "value", false), sn = L.child(e, "scale", false);
-    if (vn.node.IsDefined() == sn.node.IsDefined())
-      L.fail(e, "give exactly one of 'value' and 'scale'");
+    const Node vn = L.child(e, "value", false), sn = L.child(e, "scale", false),
+               xn = L.child(e, "expression", false);
+    const int given = (vn.node.IsDefined() ? 1 : 0) + (sn.node.IsDefined() ? 1 : 0) +
+                      (xn.node.IsDefined() ? 1 : 0);
+    if (given != 1) {
+      L.fail(e, xn.node.IsDefined() ? "give exactly one of 'value', 'scale' and 'expression'"
+                                    : "give exactly one of 'value' and 'scale'");
+    }
     std::string why;
     auto at = find_scalar(doc, path, why);
     if (!at) L.fail(pn, "'" + path + "': " + why);
+    if (xn.node.IsDefined()) {
+      // The text goes in as written; the plant's loader parses it (and names this key's path in
+      // its own errors, through "the perturbed plant: ...").
+      const std::string text = L.string(xn);
+      *at = text;
+      hash_input += "\n" + path + "=" + text;
+      continue;
+    }
     double v = 0.0;
     if (vn.node.IsDefined()) {
       v = L.number(vn);

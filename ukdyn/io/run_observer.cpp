@@ -28,7 +28,7 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   if (m > 0) position_residuals(sys_, t, q, phi_);
   if (m > 0 && needs_.velocity_residuals) velocity_residuals(sys_, t, q, qd, phid_);
   const double T = kinetic_energy(d, qd);
-  const double V = potential_energy(sys_, q);
+  const double V = potential_energy(sys_, t, q);
   const double E = T + V;
   if (count_++ == 0) {
     rep_.E0 = E;

@@ -412,7 +412,7 @@ void check_singular_mass(const Loader& L, Scenario& sc, Loading& st) {
   const System& system = *st.system;
   ForwardData d(system);
   const Vec qd = Vec::Zero(system.dof());
-  evaluate_dynamics(system, d, sc.q0, qd);
+  evaluate_dynamics(system, d, sc.sim.t0, sc.q0, qd);
   evaluate_constraints(system, d, sc.sim.t0, sc.q0, qd);
   const std::string why = undetermined_direction(d.M, d.A, system.coordinate_names());
   if (why.empty()) return;

@@ -1,4 +1,5 @@
-// An unconstrained subsystem in Lagrange form, paper Eq. (10): M(q) q̈ + C(q, q̇) q̇ + G(q) = τ.
+// An unconstrained subsystem in Lagrange form, paper Eq. (10): M(q) q̈ + C(q, q̇) q̇ + G(q) = τ
+// (with a mass of t: M(q, t), G(q, t) and the extra (∂M/∂t) q̇ term, see dynamics_at()).
 #pragma once
 
 #include <span>
@@ -57,6 +58,30 @@ class Subsystem {
   }
   /// Potential energy V(q) (gravity), up to a constant.
   [[nodiscard]] virtual double potential(CVecRef q) const = 0;
+
+  // Time-varying subsystems (docs/definitions.md, "Time-varying masses"): a Lagrangian
+  // L(q, q̇, t) = T(q, q̇, t) − V(q, t) with T = ½ q̇ᵀ M(q, t) q̇ (a mass or inertia of t). Lagrange's
+  // equations d/dt ∂T/∂q̇ − ∂T/∂q + ∂V/∂q = Q give M q̈ + C q̇ + (∂M/∂t) q̇ + G(q, t) = Q: the
+  // "C q̇" of dynamics_at() then includes (∂M/∂t) q̇ = ∂²T/∂q̇∂t. The t-less methods above are the
+  // values at t = 0 for such a subsystem; forward() uses dynamics_at() and potential_at().
+  /// True if M, G or V depend on t explicitly (default false: every subsystem but a derived one
+  /// with a mass or inertia of t).
+  [[nodiscard]] virtual bool time_varying() const { return false; }
+  /// dynamics_with() at time t, also giving Lt = ∂L/∂t = ∂T/∂t − ∂V/∂t at (q, q̇, t) (the power
+  /// that enters the energy balance, dE/dt = Q_ncᵀq̇ + Q_cᵀq̇ − ∂L/∂t). Default: dynamics_with()
+  /// and Lt = 0 (a time-invariant subsystem). Same values as dynamics_with() when not
+  /// time_varying().
+  virtual void dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                           VecRef G, double& Lt) const {
+    (void)t;
+    dynamics_with(slot, q, qd, M, Cqd, G);
+    Lt = 0.0;
+  }
+  /// V(q, t). Default: potential(q).
+  [[nodiscard]] virtual double potential_at(double t, CVecRef q) const {
+    (void)t;
+    return potential(q);
+  }
 };
 
 }  // namespace ukdyn

@@ -1,7 +1,7 @@
 #include "ukdyn/model/system.hpp"
 
-#include <algorithm>
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
@@ -171,15 +171,20 @@ void check_data_for(const System& system, const ForwardData& data, const char* w
              static_cast<Index>(data.slot_start.size()));
 }
 
-void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd) {
+void evaluate_dynamics(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd) {
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
+  double Lt = 0.0;
   for (std::size_t k = 0; k < subs.size(); ++k) {
     const Index s = L.start[k];
     const Index n = L.size[k];
-    subs[k]->dynamics_with(data.subsystem_slot(k), q.segment(s, n), qd.segment(s, n),
-                           data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n));
+    double lt = 0.0;
+    subs[k]->dynamics_at(data.subsystem_slot(k), t, q.segment(s, n), qd.segment(s, n),
+                         data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n),
+                         lt);
+    Lt += lt;
   }
+  data.lagrangian_dt = Lt;
 }
 
 void evaluate_constraints(const System& system, ForwardData& data, double t, CVecRef q,
@@ -201,7 +206,7 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
   check_size("forward", "q", system.dof(), q.size());
   check_size("forward", "qd", system.dof(), qd.size());
   check_size("forward", "tau", system.dof(), tau.size());
-  evaluate_dynamics(system, data, q, qd);
+  evaluate_dynamics(system, data, t, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
   if (arrow_applies(system, data, settings)) {
     // Only A's structural non-zeros are written (the rest of data.A stays 0): O(N) for N robots.
@@ -232,12 +237,12 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
   data.used_arrow = false;
   if (arrow_applies(system, data, settings) && factor_mass(data.M, data.uk) &&
       mass_factor_regular(data.M, data.uk) &&
-      uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow,
-                     data.qdd, data.Qc, settings, data.result)) {
-    const bool in_band = settings.method == UkMethod::adaptive &&
-                         data.result.sigma_min_kept < settings.adaptive_band *
-                                                          settings.regularization *
-                                                          data.result.sigma_max;
+      uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow, data.qdd,
+                     data.Qc, settings, data.result)) {
+    const bool in_band =
+        settings.method == UkMethod::adaptive &&
+        data.result.sigma_min_kept <
+            settings.adaptive_band * settings.regularization * data.result.sigma_max;
     if (!in_band) {
       data.used_arrow = true;
       data.singular.active = false;
@@ -326,11 +331,22 @@ void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, V
 double kinetic_energy(const ForwardData& data, CVecRef qd) { return 0.5 * qd.dot(data.M * qd); }
 
 double potential_energy(const System& system, CVecRef q) {
+  return potential_energy(system, 0.0, q);
+}
+
+bool time_varying(const System& system) {
+  for (const auto& s : system.subsystems()) {
+    if (s->time_varying()) return true;
+  }
+  return false;
+}
+
+double potential_energy(const System& system, double t, CVecRef q) {
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
   double V = 0.0;
   for (std::size_t k = 0; k < subs.size(); ++k)
-    V += subs[k]->potential(q.segment(L.start[k], L.size[k]));
+    V += subs[k]->potential_at(t, q.segment(L.start[k], L.size[k]));
   for (const auto& f : system.applied_forces()) V += f->potential(q);
   return V;
 }

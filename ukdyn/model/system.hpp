@@ -72,14 +72,14 @@ class System {
 struct ForwardData {
   explicit ForwardData(const System& system);
 
-  Mat M;    ///< n × n, block-diagonal (block k: subsystem k's M at its coordinates)
-  Vec Cqd;  ///< n: C(q, q̇) q̇
-  Vec G;    ///< n: gravity G(q)
-  Vec Q;    ///< n: τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces Q_a
-  Mat A;    ///< m × n, constraint rows stacked (system.constraint_row_offsets())
-  Vec b;    ///< m
-  Vec Qc;   ///< n: constraint force, paper Eq. (4)
-  Vec qdd;  ///< n: q̈ = M^{-1}(Q + Qc), paper Eq. (18)
+  Mat M;            ///< n × n, block-diagonal (block k: subsystem k's M at its coordinates)
+  Vec Cqd;          ///< n: C(q, q̇) q̇
+  Vec G;            ///< n: gravity G(q)
+  Vec Q;            ///< n: τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces Q_a
+  Mat A;            ///< m × n, constraint rows stacked (system.constraint_row_offsets())
+  Vec b;            ///< m
+  Vec Qc;           ///< n: constraint force, paper Eq. (4)
+  Vec qdd;          ///< n: q̈ = M^{-1}(Q + Qc), paper Eq. (18)
   UkWorkspace uk;   ///< the U-K solve's buffers for (system.layout(), m)
   UkResult result;  ///< diagnostics of the last solve
   /// The arrow solve's buffers (built when system.arrow() is set) and whether the last forward()
@@ -91,6 +91,9 @@ struct ForwardData {
   UkSingularWorkspace singular;
   /// (τ + Q_nc)ᵀ q̇: the power of τ and of the non-conservative part of the applied forces.
   double applied_power = 0.0;
+  /// Σ_k ∂L_k/∂t of the subsystems at the last evaluate_dynamics() (0 unless a subsystem is
+  /// time_varying(): a mass of t). The energy balance integrates Ẇ = (τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t.
+  double lagrangian_dt = 0.0;
   /// W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt, set by simulate() at samples when energy_balance is on.
   double work = 0.0;
 
@@ -147,8 +150,9 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
 /// Whether solve_stage tries the block-arrow solve (ukdyn/core/uk_arrow.hpp) first.
 bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings);
 
-/// Stage 1 only: M, C q̇, G (no constraints), into data (and the subsystems' data slots).
-void evaluate_dynamics(const System& system, ForwardData& data, CVecRef q, CVecRef qd);
+/// Stage 1 only: M, C q̇, G (no constraints) at time t, into data (and the subsystems' data
+/// slots), and data.lagrangian_dt. t matters only for a time_varying() subsystem.
+void evaluate_dynamics(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd);
 /// Stage 2 only: A and b, into data (reading what stage 1 left in the slots, if it was run at the
 /// same q).
 void evaluate_constraints(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd);
@@ -169,7 +173,11 @@ void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, V
 
 /// Kinetic energy ½ q̇ᵀ M q̇ (M from data.M, already evaluated at q).
 double kinetic_energy(const ForwardData& data, CVecRef qd);
-/// Potential energy Σ V_k(q) of the subsystems plus the potentials of the applied forces.
+/// Potential energy Σ V_k(q, t) of the subsystems plus the potentials of the applied forces.
+double potential_energy(const System& system, double t, CVecRef q);
+/// potential_energy() at t = 0 (the same at any t unless a subsystem is time_varying()).
 double potential_energy(const System& system, CVecRef q);
+/// Whether any subsystem is time_varying() (a mass or inertia of t).
+bool time_varying(const System& system);
 
 }  // namespace ukdyn

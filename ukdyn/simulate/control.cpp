@@ -184,7 +184,7 @@ void offset_start(const ControlModel& model, double t, const Vec& offset, Vec& q
     phi -= offset;
     worst = phi.size() ? phi.cwiseAbs().maxCoeff() : 0.0;
     if (worst < 1e-14) break;
-    evaluate_dynamics(sys, d, q, qd);
+    evaluate_dynamics(sys, d, t, q, qd);
     evaluate_constraints(sys, d, t, q, qd);
     Eigen::CompleteOrthogonalDecomposition<Mat> cod(d.A);
     q -= cod.solve(phi);
@@ -193,7 +193,7 @@ void offset_start(const ControlModel& model, double t, const Vec& offset, Vec& q
   phi -= offset;
   worst = phi.size() ? phi.cwiseAbs().maxCoeff() : 0.0;
   if (!(worst < 1e-13)) throw Error("offset start: the constraints with the offsets cannot be met");
-  evaluate_dynamics(sys, d, q, qd);
+  evaluate_dynamics(sys, d, t, q, qd);
   evaluate_constraints(sys, d, t, q, qd);
   velocity_residuals(sys, d, t, q, qd, phid);
   Eigen::CompleteOrthogonalDecomposition<Mat> cod(d.A);

@@ -24,7 +24,7 @@ std::string diagnose_singularity(const System& system, double t, const std::vect
   const Eigen::Map<const Vec> q(x.data(), n);
   const Eigen::Map<const Vec> qd(x.data() + n, n);
   ForwardData d(system);
-  evaluate_dynamics(system, d, q, qd);
+  evaluate_dynamics(system, d, t, q, qd);
   const auto& cn = system.coordinate_names();
   const auto& rn = system.constraint_row_names();
   auto names = [](const std::vector<std::string>& all, const Vec& v) {

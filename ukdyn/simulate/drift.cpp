@@ -30,7 +30,7 @@ double Projector::project(double t, double* x, long& iterations) {
   double r = phi.cwiseAbs().maxCoeff();
   last_dq = 0.0;
   for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
-    evaluate_dynamics(system, data, q, qd);
+    evaluate_dynamics(system, data, t, q, qd);
     evaluate_constraints(system, data, t, q, qd);
     phi = -phi;
     uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
@@ -46,7 +46,7 @@ double Projector::project(double t, double* x, long& iterations) {
     r = r_new;
   }
   // Velocities onto A q̇ + Φ_t = 0 at the projected q.
-  evaluate_dynamics(system, data, q, qd);
+  evaluate_dynamics(system, data, t, q, qd);
   evaluate_constraints(system, data, t, q, qd);
   velocity_residuals(system, data, t, q, qd, phi);
   phi = -phi;

@@ -101,7 +101,7 @@ struct Rhs {
       forward(system, d, t, q, qd, tau, s.uk);
       return;
     }
-    evaluate_dynamics(system, d, q, qd);
+    evaluate_dynamics(system, d, t, q, qd);
     generalized_forces(system, d, t, q, qd, tau);  // paper Eq. (11), with the applied forces
     evaluate_constraints(system, d, t, q, qd);
     detail::baumgarte_adjust_b(system, d, s.drift, t, q, qd, phi, phid);
@@ -119,8 +119,9 @@ struct Rhs {
     if (damped_t < 0.0 && data.result.damping > 0.0) damped_t = t;
     Eigen::Map<Vec>(dxdt, n) = qd;
     Eigen::Map<Vec>(dxdt + n, n) = data.qdd;
-    // Energy balance: Ẇ = (τ + Q_nc + Qc)ᵀ q̇ as state 2n.
-    if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd);
+    // Energy balance: Ẇ = (τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t as state 2n (the last term is 0 unless a mass
+    // depends on t: dE/dt = (τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t, docs/definitions.md "Time-varying masses").
+    if (s.energy_balance) dxdt[2 * n] = data.applied_power + data.Qc.dot(qd) - data.lagrangian_dt;
   }
 };
 

@@ -62,9 +62,10 @@ struct SimulationSettings {
   /// If set and it becomes true (a SIGINT/SIGTERM handler), the run stops after the current step
   /// (status `stopped`), whatever the sample step.
   const std::atomic<bool>* cancel = nullptr;
-  /// Integrate the work W(t) = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt of τ, of the non-conservative applied
-  /// forces and of the constraint forces as one more state of the same stepper (same order and
-  /// error control); samples get it in ForwardData::work, and E − W stays constant.
+  /// Integrate the work W(t) = ∫ ((τ + Q_nc + Qc)ᵀ q̇ − ∂L/∂t) dt of τ, of the non-conservative
+  /// applied forces and of the constraint forces as one more state of the same stepper (same order
+  /// and error control; ∂L/∂t ≠ 0 only with a mass of t); samples get it in ForwardData::work, and
+  /// E − W stays constant.
   bool energy_balance = false;
 };
 

@@ -117,6 +117,9 @@ SubsystemDef::SubsystemDef(std::string name, std::vector<std::string> coordinate
     scope_.add(c, coordinate_symbol(*symbols_, c));
     scope_.add(c + "_dot", velocity_symbol(*symbols_, c));
   }
+  // t: a body's mass or inertia may be a function of time (docs/definitions.md, "Time-varying
+  // masses"); positions, rotations and angular velocities may not (checked in derive()).
+  scope_.add_time(time_symbol(*symbols_));
 }
 
 symbol SubsystemDef::q(const std::string& c) const {
@@ -170,14 +173,21 @@ SubsystemDerivation derive(const SubsystemDef& def) {
         if (e.has(q[j]) || e.has(qd[j])) used[j] = true;
       }
     };
-    // Mass: a non-negative constant.
-    if (has_any(b.mass, q) || has_any(b.mass, qd) || b.mass.has(time_symbol(syms))) {
-      throw DefinitionError(where + ": the mass must be a constant", bidx);
-    }
-    const auto mv = real_value(b.mass.subs(values));
-    if (!mv || !(*mv >= 0.0))
-      throw DefinitionError(where + ": the mass must be a number >= 0, got '" + str(b.mass) + "'",
+    // Mass: a non-negative constant or a function m(t) of time only (mass exchanged with a medium
+    // at rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked at t = 0 only.
+    if (has_any(b.mass, q) || has_any(b.mass, qd)) {
+      throw DefinitionError(where +
+                                ": the mass must be a constant or a function of t only (it depends "
+                                "on a coordinate or a velocity)",
                             bidx);
+    }
+    const auto mv = real_value(b.mass.subs(values).subs(time[0] == 0));
+    if (!mv || !(*mv >= 0.0)) {
+      throw DefinitionError(where + ": the mass must be a number >= 0" +
+                                (b.mass.has(time[0]) ? std::string(" at t = 0") : std::string()) +
+                                ", got '" + str(b.mass) + "'",
+                            bidx);
+    }
     // Position of the centre of mass p(q).
     std::array<ex, 3> v;
     for (std::size_t k = 0; k < 3; ++k) {
@@ -245,6 +255,23 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       throw DefinitionError(
           where + ": an inertia is given but neither angular_velocity nor rotation", bidx);
     }
+    // The inertia: constants or functions of t only (like the mass).
+    {
+      std::vector<ex> parts;
+      if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+        parts.push_back(b.inertia_scalar);
+      } else {
+        parts.assign(b.inertia_tensor.begin(), b.inertia_tensor.end());
+      }
+      for (const ex& e : parts) {
+        if (has_any(e, q) || has_any(e, qd)) {
+          throw DefinitionError(where +
+                                    ": the inertia must be constant or a function of t only (it "
+                                    "depends on a coordinate or a velocity)",
+                                bidx);
+        }
+      }
+    }
     if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
       T += b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
     } else {
@@ -267,7 +294,7 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     }
   }
   V += def.extra_potential;
-  if (has_any(V, qd) || V.has(time_symbol(syms))) {
+  if (has_any(V, qd) || def.extra_potential.has(time[0])) {
     throw DefinitionError("the potential may depend on the coordinates only");
   }
   check_expression_size(T, "the kinetic energy T");
@@ -280,6 +307,11 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   d.symbols = def.symbol_table();
   d.T = T.expand();
   d.V = V.expand();
+  const symbol& ts = time[0];
+  // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
+  // leaves the subsystem time-invariant).
+  d.time_varying = (d.T.has(ts) && !simplify_trig(d.T.diff(ts)).is_zero()) ||
+                   (d.V.has(ts) && !simplify_trig(d.V.diff(ts)).is_zero());
   const auto un = static_cast<unsigned>(n);
   d.M = matrix(un, un);
   std::vector<ex> dTdqd(n);
@@ -331,9 +363,19 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       d.C(i, j) = c;
       row += c * qd[j];
     }
+    // A mass of t: d/dt ∂T/∂q̇ = M q̈ + Σ_k (∂M/∂q_k) q̇_k q̇ + (∂M/∂t) q̇, so the velocity terms of
+    // Lagrange's equations gain (∂M/∂t) q̇ = ∂²T/∂q̇∂t (docs/definitions.md, "Time-varying
+    // masses"). C itself stays the Christoffel matrix of M(q, t) at fixed t.
+    if (d.time_varying) {
+      ex mt = 0;
+      for (unsigned j = 0; j < un; ++j) mt += d.M(i, j).diff(ts) * qd[j];
+      row += mt;
+    }
     d.Cqd(i, 0) = simplify_trig(row);
     d.G(i, 0) = simplify_trig(d.V.diff(q[i]));
   }
+  // ∂L/∂t = ∂T/∂t − ∂V/∂t: the power that the energy balance needs (dE/dt = Q q̇ − ∂L/∂t).
+  d.Lt = d.time_varying ? simplify_trig((d.T - d.V).diff(ts)) : ex(0);
   d.derive_seconds = seconds_since(t0);
   return d;
 }
@@ -379,6 +421,8 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   std::vector<ex> all = m;
   all.insert(all.end(), cqd.begin(), cqd.end());
   all.insert(all.end(), g.begin(), g.end());
+  // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
+  if (d_.time_varying) all.push_back(numeric_form(d_.Lt, pv));
   dyn_ = Tape(all, in);
   cor_ = Tape(c, in);
   pot_ = Tape({numeric_form(d_.V, pv)}, in);
@@ -410,23 +454,13 @@ void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
     big.resize(mass_.outputs());  // only for subsystems of more than 64 coordinates
     out = big.data();
   }
-  mass_.eval(0.0, q.data(), nullptr, out);
+  mass_.eval(0.0, q.data(), nullptr, out);  // M(q, 0) for a time-varying subsystem
   symmetric_from_upper(out, n_, M);
 }
 
 void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
-  constexpr std::size_t kStack = 32 * 33 / 2 + 2 * 32;
-  double buf[kStack];
-  std::vector<double> big;
-  double* out = buf;
-  if (dyn_.outputs() > kStack) {
-    big.resize(dyn_.outputs());  // only for subsystems of more than 32 coordinates
-    out = big.data();
-  }
-  dyn_.eval(0.0, q.data(), qd.data(), out);
-  std::size_t k = symmetric_from_upper(out, n_, M);
-  for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
-  for (Index i = 0; i < n_; ++i) G(i) = out[k++];
+  double Lt = 0.0;
+  dynamics_at({}, 0.0, q, qd, M, Cqd, G, Lt);
 }
 
 Index DerivedSubsystem::slot_size() const {
@@ -435,15 +469,36 @@ Index DerivedSubsystem::slot_size() const {
 
 void DerivedSubsystem::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                                      VecRef G) const {
+  double Lt = 0.0;
+  dynamics_at(slot, 0.0, q, qd, M, Cqd, G, Lt);
+}
+
+void DerivedSubsystem::dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                                   VecRef G, double& Lt) const {
   if (slot.size() != static_cast<std::size_t>(slot_size())) {
-    dynamics(q, qd, M, Cqd, G);
+    constexpr std::size_t kStack = 32 * 33 / 2 + 2 * 32 + 1;
+    double buf[kStack];
+    std::vector<double> big;
+    double* out = buf;
+    if (dyn_.outputs() > kStack) {
+      big.resize(dyn_.outputs());  // only for subsystems of more than 32 coordinates
+      out = big.data();
+    }
+    dyn_.eval(t, q.data(), qd.data(), out);
+    unpack_dynamics(out, M, Cqd, G, Lt);
     return;
   }
   double* out = slot.data();
-  dyn_.eval(0.0, q.data(), qd.data(), out, out + dyn_.outputs());
+  dyn_.eval(t, q.data(), qd.data(), out, out + dyn_.outputs());
+  unpack_dynamics(out, M, Cqd, G, Lt);
+}
+
+void DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G,
+                                       double& Lt) const {
   std::size_t k = symmetric_from_upper(out, n_, M);
   for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
   for (Index i = 0; i < n_; ++i) G(i) = out[k++];
+  Lt = d_.time_varying ? out[k] : 0.0;
 }
 
 void DerivedSubsystem::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
@@ -466,9 +521,17 @@ void DerivedSubsystem::gravity(CVecRef q, VecRef G) const {
   grav_.eval(0.0, q.data(), nullptr, G.data());
 }
 
-double DerivedSubsystem::potential(CVecRef q) const {
+double DerivedSubsystem::potential(CVecRef q) const { return potential_at(0.0, q); }
+
+double DerivedSubsystem::potential_at(double t, CVecRef q) const {
   double v = 0.0;
-  pot_.eval(0.0, q.data(), nullptr, &v);
+  pot_.eval(t, q.data(), nullptr, &v);
+  return v;
+}
+
+double DerivedSubsystem::kinetic_at(double t, CVecRef q, CVecRef qd) const {
+  double v = 0.0;
+  kin_.eval(t, q.data(), qd.data(), &v);
   return v;
 }
 

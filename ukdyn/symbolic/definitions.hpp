@@ -125,6 +125,10 @@ struct SubsystemDerivation {
   std::vector<std::string> coordinates;
   GiNaC::ex T, V;
   GiNaC::matrix M, C, G, Cqd;  ///< n×n, n×n, n×1, n×1
+  /// A mass or inertia of t (docs/definitions.md, "Time-varying masses"): T, V, M, G depend on t,
+  /// Cqd includes (∂M/∂t) q̇ (C does not), and Lt = ∂L/∂t = ∂T/∂t − ∂V/∂t (0 otherwise).
+  bool time_varying = false;
+  GiNaC::ex Lt = 0;
   GiNaC::exmap parameter_values;
   std::shared_ptr<SymbolTable> symbols;  ///< the definition's (its coordinates, velocities, t)
   double derive_seconds = 0.0;
@@ -161,6 +165,12 @@ class DerivedSubsystem final : public Subsystem {
   [[nodiscard]] double potential(CVecRef q) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(CVecRef q, CVecRef qd) const;
+  // A mass of t: the methods above are the values at t = 0; these take t.
+  [[nodiscard]] bool time_varying() const override { return d_.time_varying; }
+  void dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G,
+                   double& Lt) const override;
+  [[nodiscard]] double potential_at(double t, CVecRef q) const override;
+  [[nodiscard]] double kinetic_at(double t, CVecRef q, CVecRef qd) const;
 
   [[nodiscard]] const SubsystemDerivation& derivation() const { return d_; }
   /// Instruction counts of the mass, C q̇ and gravity tapes.
@@ -169,6 +179,8 @@ class DerivedSubsystem final : public Subsystem {
   }
 
  private:
+  void unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G, double& Lt) const;
+
   SubsystemDerivation d_;
   std::string name_;
   Index n_;

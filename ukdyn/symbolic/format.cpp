@@ -318,6 +318,19 @@ std::string format_system(const System& system, Format f) {
   for (std::size_t k = 0; k < subs.size(); ++k) {
     if (const auto* d = dynamic_cast<const DerivedSubsystem*>(subs[k].get())) {
       const auto& dv = d->derivation();
+      if (dv.time_varying) {
+        // A mass of t (docs/definitions.md, "Time-varying masses"): the generated C function has
+        // no t, and C below is the Christoffel matrix without the (∂M/∂t) q̇ term.
+        if (f == Format::c) {
+          throw Error("subsystem '" + d->name() +
+                      "' has a mass or inertia of t: the C output does not support time-varying "
+                      "subsystems (use latex, matlab or text)");
+        }
+        os << comment_line(f, "subsystem '" + d->name() +
+                                  "' has a mass or inertia of t: its equations are M(q,t) qdd + "
+                                  "C qd + (dM/dt) qd + G(q,t) = tau; C below excludes the "
+                                  "(dM/dt) qd term");
+      }
       if (f == Format::c) {
         const auto n = static_cast<std::size_t>(d->dof());
         os << "void " << c_function_name(d->name(), "_dynamics", functions)
