@@ -4,21 +4,28 @@
 // Every routine works for any size; it is tuned for the small blocks of multibody models.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "ukdyn/core/types.hpp"
 
 namespace ukdyn::detail {
 
 // Cholesky M = L Lᵀ of one n × n block (lower triangle of M read). Writes L's lower triangle and
-// 1/L_ii. Returns false when a pivot is not > 0 (not positive definite, or NaN).
+// 1/L_ii. Returns false when a pivot is not > 0 (not positive definite, or NaN). pivot_ratio (if
+// given) gets min_j L_jj² / max_i M_ii, the singular-mass test's measure (uk_singular.hpp).
 template <int N>
-bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_diag, Index n_rt) {
+bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_diag, Index n_rt,
+                double* pivot_ratio = nullptr) {
   const Index n = N > 0 ? Index{N} : n_rt;
+  double d_min = std::numeric_limits<double>::infinity(), m_max = 0.0;
   for (Index j = 0; j < n; ++j) {
     double d = M[j + j * ldm];
+    m_max = std::max(m_max, d);
     for (Index k = 0; k < j; ++k) d -= L[j + k * ldl] * L[j + k * ldl];
     if (!(d > 0.0)) return false;
+    d_min = std::min(d_min, d);
     const double ljj = std::sqrt(d);
     const double inv = 1.0 / ljj;
     L[j + j * ldl] = ljj;
@@ -29,6 +36,7 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
       L[i + j * ldl] = s * inv;
     }
   }
+  if (pivot_ratio != nullptr) *pivot_ratio = d_min / m_max;
   return true;
 }
 

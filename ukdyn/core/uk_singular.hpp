@@ -57,7 +57,8 @@ struct UkSingularWorkspace {
 };
 
 /// True if every block's factor in ws (factor_mass succeeded) has all pivots L_jj² ≥
-/// kSingularPivot · max_i M_ii of that block. n compares and multiplies.
+/// kSingularPivot · max_i M_ii of that block: ws.pivot_ratio, which factor_mass() records, against
+/// kSingularPivot (one compare). M is the matrix factor_mass() factored (kept for the interface).
 bool mass_factor_regular(const Mat& M, const UkWorkspace& ws);
 
 /// Largest over blocks of max_i M_ii / min_j L_jj² (a lower bound on cond(M_k)) for a factor in ws;

@@ -1,7 +1,5 @@
 #include "ukdyn/core/uk_solve.hpp"
 
-#include "ukdyn/core/dense_kernels.hpp"
-
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <Eigen/SVD>
@@ -13,6 +11,8 @@
 #include <string>
 #include <type_traits>
 #include <utility>
+
+#include "ukdyn/core/dense_kernels.hpp"
 
 namespace ukdyn {
 
@@ -43,14 +43,21 @@ using detail::lt_solve;
 template <int N, int P>
 bool chol_lockstep(const std::array<const double*, P>& M, Index ldm,
                    const std::array<double*, P>& L, Index ldl,
-                   const std::array<double*, P>& inv_diag) {
+                   const std::array<double*, P>& inv_diag, double& pivot_ratio) {
+  double d_min[P], m_max[P];
+  for (int p = 0; p < P; ++p) {
+    d_min[p] = std::numeric_limits<double>::infinity();
+    m_max[p] = 0.0;
+  }
   for (Index j = 0; j < N; ++j) {
     double d[P], inv[P];
     bool ok = true;
     for (int p = 0; p < P; ++p) {
       double v = M[p][j + j * ldm];
+      m_max[p] = std::max(m_max[p], v);
       for (Index k = 0; k < j; ++k) v -= L[p][j + k * ldl] * L[p][j + k * ldl];
       d[p] = v;
+      d_min[p] = std::min(d_min[p], v);
       ok = ok && d[p] > 0.0;
     }
     if (!ok) return false;
@@ -68,6 +75,9 @@ bool chol_lockstep(const std::array<const double*, P>& M, Index ldm,
       }
     }
   }
+  double ratio = std::numeric_limits<double>::infinity();
+  for (int p = 0; p < P; ++p) ratio = std::min(ratio, d_min[p] / m_max[p]);
+  pivot_ratio = ratio;
   return true;
 }
 
@@ -219,18 +229,23 @@ bool factor_mass(const Mat& M, UkWorkspace& ws) {
     double* Ld = ws.L.data();
     double* id = ws.inv_diag.data();
     return chol_lockstep<6, 2>({Md, Md + 6 + 6 * ldm}, ldm, {Ld, Ld + 6 + 6 * ldl}, ldl,
-                               {id, id + 6});
+                               {id, id + 6}, ws.pivot_ratio);
   }
+  double ratio = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < lay.blocks(); ++k) {
     const Index s = lay.start[k], n = lay.size[k];
     const double* Mk = M.data() + s + s * ldm;
     double* Lk = ws.L.data() + s + s * ldl;
     double* id = ws.inv_diag.data() + s;
     bool ok = false;
-    with_block_size(n,
-                    [&](auto N) { ok = chol_block<decltype(N)::value>(Mk, ldm, Lk, ldl, id, n); });
+    double block_ratio = 0.0;
+    with_block_size(n, [&](auto N) {
+      ok = chol_block<decltype(N)::value>(Mk, ldm, Lk, ldl, id, n, &block_ratio);
+    });
     if (!ok) return false;
+    ratio = std::min(ratio, block_ratio);
   }
+  ws.pivot_ratio = ratio;
   return true;
 }
 
@@ -536,9 +551,12 @@ template <int NB>
 
 // Step 7: the honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness
 // flags (as finish(), with ‖A‖_∞ from step 1).
-void residual_and_flags(const double* Ad, const Vec& b, Index m, Index n, const double* q,
-                        const double* qc, const double* r, double a_inf, double mu,
-                        const UkSettings& settings, double* rr, UkResult& res) {
+// Always inlined, so that a compile-time m and n (solve_impl<6, 2>) reach its loops.
+[[gnu::always_inline]] inline void residual_and_flags(const double* Ad, const Vec& b, Index m,
+                                                      Index n, const double* q, const double* qc,
+                                                      const double* r, double a_inf, double mu,
+                                                      const UkSettings& settings, double* rr,
+                                                      UkResult& res) {
   for (Index i = 0; i < m; ++i) rr[i] = -b[i];
   for (Index j = 0; j < n; ++j) {
     const double x = q[j];
@@ -619,7 +637,10 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   }
   double* qc = Qc.data();
   double* q = qdd.data();
-  auto solve_and_check = [&]() {
+  // Always inlined: called out of line, the lambda reads m, n and ldw through its captures, and
+  // the compile-time sizes no longer reach the loops (+580 instructions per forward/closure call,
+  // docs/performance.md).
+  auto solve_and_check = [&]() __attribute__((always_inline)) {
     basic_solve(W, ldw, m, pv.kept, ws.piv.data(), ws.r.data(),
                 equilibrate ? ws.row_scale.data() : nullptr, ws.lambda.data());
     constraint_force_and_qdd<NB>(Ad, ws, m, n, qc, q);

@@ -109,6 +109,9 @@ struct UkWorkspace {
   Vec lambda;              ///< W λ = r (basic solution)
   Vec tmp_m;               ///< scratch (m)
   Vec row_scale;           ///< equilibrated: D_ii = W_ii^{-1/2} (0 for a dropped row)
+  /// Set by factor_mass(): the smallest over the blocks of (smallest pivot L_jj²) / (largest
+  /// diagonal entry M_ii) of the block (mass_factor_regular() compares it with kSingularPivot).
+  double pivot_ratio = 0.0;
 };
 
 /// Factors M per block (Cholesky, L_k L_kᵀ) into ws.L. Returns false if a block is not positive
