@@ -2,6 +2,7 @@
 // references: docs/references.md).
 #pragma once
 
+#include <algorithm>
 #include <string>
 #include <vector>
 
@@ -98,11 +99,18 @@ class Constraint {
 };
 
 /// Sets every entry of a block of constraint rows to 0 (for evaluate(), before writing the
-/// nonzeros). A plain column loop: Eigen's setZero() on a strided block of a few rows runs its
-/// vectorisation prologue once per column, which cost more than the zeros themselves here.
+/// nonzeros). When the rows are all of A (one constraint) the block is contiguous: one fill.
+/// Otherwise a plain column loop: Eigen's setZero() on a strided block of a few rows runs its
+/// vectorisation prologue once per column, which cost more than the zeros themselves here (and
+/// the compiler turns each column into a memset call: one call in place of `cols` saves ≈ 110
+/// instructions per forward/closure call, docs/performance.md).
 inline void zero_rows(MatRef A) {
   const Index rows = A.rows(), cols = A.cols(), ld = A.outerStride();
   double* d = A.data();
+  if (rows == ld) {
+    std::fill_n(d, rows * cols, 0.0);
+    return;
+  }
   for (Index j = 0; j < cols; ++j)
     for (Index i = 0; i < rows; ++i) d[i + j * ld] = 0.0;
 }

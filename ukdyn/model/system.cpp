@@ -275,9 +275,21 @@ double mass_condition(const ForwardData& data, std::size_t* block) {
 
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau) {
-  // Q = τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces.
-  data.Q = tau - data.Cqd - data.G;
-  double power = tau.dot(qd);
+  // Q = τ + Q_a − C q̇ − G, paper Eq. (11) with the applied forces; the input power τ·q̇ in the
+  // same pass. One plain loop: Eigen's two expressions on these unaligned Refs (or two loops the
+  // compiler vectorises) peel for alignment and cost more than the arithmetic at the paper's 12
+  // coordinates (docs/performance.md).
+  const Index n = data.Q.size();
+  double* Qd = data.Q.data();
+  const double* ta = tau.data();
+  const double* v = qd.data();
+  const double* cq = data.Cqd.data();
+  const double* g = data.G.data();
+  double power = 0.0;
+  for (Index i = 0; i < n; ++i) {
+    Qd[i] = ta[i] - cq[i] - g[i];
+    power += ta[i] * v[i];
+  }
   for (const auto& f : system.applied_forces()) power += f->add_to(t, q, qd, data.Q);
   data.applied_power = power;
 }

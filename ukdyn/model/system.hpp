@@ -138,7 +138,8 @@ UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& q
 double mass_condition(const ForwardData& data, std::size_t* block = nullptr);
 
 /// Stage: data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and
-/// data.applied_power.
+/// data.applied_power. Like the other stages below it does not check sizes (forward() does, once,
+/// at the edge): q, qd, tau must have n entries and data be built for this system.
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau);
 

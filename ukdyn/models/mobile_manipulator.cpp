@@ -342,10 +342,17 @@ void MobileManipulator::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, Ve
 
 void MobileManipulator::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                                       VecRef G) const {
+  double Lt = 0.0;
+  dynamics_at(slot, 0.0, q, qd, M, Cqd, G, Lt);
+}
+
+void MobileManipulator::dynamics_at(Slot slot, double /*t*/, CVecRef q, CVecRef qd, MatRef M,
+                                    VecRef Cqd, VecRef G, double& Lt) const {
   const Trig t = trig(q, slot);
   mass_from(t, M);
   coriolis_times_qd_from(t, qd, Cqd);
   gravity_from(t.c, G);
+  Lt = 0.0;
 }
 
 double MobileManipulator::potential(CVecRef q) const {

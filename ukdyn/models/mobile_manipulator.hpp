@@ -61,6 +61,10 @@ class MobileManipulator final : public Subsystem {
   [[nodiscard]] Index slot_size() const override { return kSlotSize; }
   void dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                      VecRef G) const override;
+  /// Time-invariant: dynamics_with() and ∂L/∂t = 0, as the default, without its second virtual
+  /// call and argument copies (forward() calls this one).
+  void dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G,
+                   double& Lt) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
 
   /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates. `slot`: this
