@@ -142,187 +142,206 @@ BodyDef& SubsystemDef::add_body(std::string body_name) {
 
 // ------------------------------------------------------------------------------ derivation
 
-SubsystemDerivation derive(const SubsystemDef& def) {
-  const auto t0 = Clock::now();
-  SymbolTable& syms = def.symbols();
-  const std::size_t n = def.coordinates().size();
+namespace {
+
+// What every step of derive() reads: the coordinate, velocity and time symbols, the parameter
+// values, and which coordinates some body has used so far.
+struct DerivationSymbols {
+  const SubsystemDef& def;
   std::vector<symbol> q, qd;
-  for (const auto& c : def.coordinates()) {
-    q.push_back(coordinate_symbol(syms, c));
-    qd.push_back(velocity_symbol(syms, c));
+  symbol t;
+  GiNaC::exmap values;
+  std::vector<bool> used;
+
+  explicit DerivationSymbols(const SubsystemDef& d) : def(d), t(time_symbol(d.symbols())) {
+    for (const auto& c : d.coordinates()) {
+      q.push_back(coordinate_symbol(d.symbols(), c));
+      qd.push_back(velocity_symbol(d.symbols(), c));
+    }
+    values = d.parameter_values();
+    used.assign(q.size(), false);
   }
-  const std::vector<symbol> time{time_symbol(syms)};
-  const GiNaC::exmap values = def.parameter_values();
+  void mark_used(const ex& e) {
+    for (std::size_t j = 0; j < q.size(); ++j) {
+      if (e.has(q[j]) || e.has(qd[j])) used[j] = true;
+    }
+  }
+  // d/dt of an expression of q only: Σ_j ∂e/∂q_j q̇_j.
+  ex time_derivative(const ex& e) const {
+    ex d = 0;
+    for (std::size_t j = 0; j < q.size(); ++j) d += e.diff(q[j]) * qd[j];
+    return d;
+  }
+};
+
+// The subsystem's own limits, before any derivation work.
+void check_subsystem_size(const SubsystemDef& def) {
   if (def.bodies.empty()) throw DefinitionError("subsystem '" + def.name() + "' has no bodies");
+  const std::size_t n = def.coordinates().size();
   if (n > limits::kDerivedCoordinates) {  // bounded work (docs/definitions.md, Limits)
     throw DefinitionError("subsystem '" + def.name() + "' has " + std::to_string(n) +
                           " coordinates; a derived subsystem may have at most " +
                           std::to_string(limits::kDerivedCoordinates));
   }
-  const Deadline deadline;
+}
 
-  ex T = 0, V = 0;
-  std::vector<bool> used(n, false);
-  for (std::size_t bi = 0; bi < def.bodies.size(); ++bi) {
-    const BodyDef& b = def.bodies[bi];
-    const int bidx = static_cast<int>(bi);
-    const std::string where = "body '" + b.name + "'";
-    deadline.check(where);
-    auto mark_used = [&](const ex& e) {
-      for (std::size_t j = 0; j < n; ++j) {
-        if (e.has(q[j]) || e.has(qd[j])) used[j] = true;
+// Mass: a non-negative constant or a function m(t) of time only (mass exchanged with a medium at
+// rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked at t = 0 only.
+void check_body_mass(const BodyDef& b, const DerivationSymbols& s, const std::string& where,
+                     int bidx) {
+  if (has_any(b.mass, s.q) || has_any(b.mass, s.qd)) {
+    throw DefinitionError(where +
+                              ": the mass must be a constant or a function of t only (it depends "
+                              "on a coordinate or a velocity)",
+                          bidx);
+  }
+  const auto mv = real_value(b.mass.subs(s.values).subs(s.t == 0));
+  if (!mv || !(*mv >= 0.0)) {
+    throw DefinitionError(where + ": the mass must be a number >= 0" +
+                              (b.mass.has(s.t) ? std::string(" at t = 0") : std::string()) +
+                              ", got '" + str(b.mass) + "'",
+                          bidx);
+  }
+}
+
+// Velocity of the centre of mass, ṗ = (∂p/∂q) q̇, for a position p(q).
+std::array<ex, 3> com_velocity(const BodyDef& b, DerivationSymbols& s, const std::string& where,
+                               int bidx) {
+  std::array<ex, 3> v;
+  for (std::size_t k = 0; k < 3; ++k) {
+    const ex& p = b.com[k];
+    if (has_any(p, s.qd))
+      throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
+    if (p.has(s.t)) throw DefinitionError(where + ": the position may not depend on time t", bidx);
+    s.mark_used(p);
+    v[k] = s.time_derivative(p);
+  }
+  return v;
+}
+
+// ω from a rotation R(q): Rᵀ Ṙ (body frame) or Ṙ Rᵀ (world frame) is skew, ω its axial vector;
+// R must be a rotation, Rᵀ R = 1 identically (checked after simplification).
+std::array<ex, 3> rotation_angular_velocity(const BodyDef& b, DerivationSymbols& s,
+                                            const std::string& where, int bidx) {
+  matrix R(3, 3), Rd(3, 3);
+  for (unsigned i = 0; i < 3; ++i) {
+    for (unsigned j = 0; j < 3; ++j) {
+      const ex& r = (*b.rotation)[3 * i + j];
+      if (has_any(r, s.qd) || r.has(s.t)) {
+        throw DefinitionError(where + ": the rotation may depend on the coordinates only", bidx);
       }
-    };
-    // Mass: a non-negative constant or a function m(t) of time only (mass exchanged with a medium
-    // at rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked at t = 0 only.
-    if (has_any(b.mass, q) || has_any(b.mass, qd)) {
-      throw DefinitionError(where +
-                                ": the mass must be a constant or a function of t only (it depends "
-                                "on a coordinate or a velocity)",
-                            bidx);
+      s.mark_used(r);
+      R(i, j) = r;
+      Rd(i, j) = s.time_derivative(r);
     }
-    const auto mv = real_value(b.mass.subs(values).subs(time[0] == 0));
-    if (!mv || !(*mv >= 0.0)) {
-      throw DefinitionError(where + ": the mass must be a number >= 0" +
-                                (b.mass.has(time[0]) ? std::string(" at t = 0") : std::string()) +
-                                ", got '" + str(b.mass) + "'",
-                            bidx);
-    }
-    // Position of the centre of mass p(q).
-    std::array<ex, 3> v;
-    for (std::size_t k = 0; k < 3; ++k) {
-      const ex& p = b.com[k];
-      if (has_any(p, qd))
-        throw DefinitionError(where + ": the position may not use velocities (*_dot)", bidx);
-      if (p.has(time_symbol(syms)))
-        throw DefinitionError(where + ": the position may not depend on time t", bidx);
-      mark_used(p);
-      v[k] = 0;
-      for (std::size_t j = 0; j < n; ++j) v[k] += p.diff(q[j]) * qd[j];
-    }
-    T += b.mass / 2 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    V -= b.mass *
-         (def.gravity[0] * b.com[0] + def.gravity[1] * b.com[1] + def.gravity[2] * b.com[2]);
-    // Rotation.
-    if (b.inertia_kind == BodyDef::InertiaKind::none) {
-      if (b.angular_velocity || b.rotation) {
-        throw DefinitionError(where + ": an angular velocity or rotation is given but no inertia",
-                              bidx);
-      }
-      continue;
-    }
-    std::array<ex, 3> w{0, 0, 0};
-    if (b.angular_velocity) {
-      w = *b.angular_velocity;
-      for (const ex& e : w) {
-        if (e.has(time_symbol(syms)))
-          throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
-        mark_used(e);
-      }
-    } else if (b.rotation) {
-      matrix R(3, 3), Rd(3, 3);
-      for (unsigned i = 0; i < 3; ++i) {
-        for (unsigned j = 0; j < 3; ++j) {
-          const ex& r = (*b.rotation)[3 * i + j];
-          if (has_any(r, qd) || r.has(time_symbol(syms))) {
-            throw DefinitionError(where + ": the rotation may depend on the coordinates only",
-                                  bidx);
-          }
-          mark_used(r);
-          R(i, j) = r;
-          ex d = 0;
-          for (std::size_t k = 0; k < n; ++k) d += r.diff(q[k]) * qd[k];
-          Rd(i, j) = d;
-        }
-      }
-      // R must be a rotation: Rᵀ R = 1 identically (checked after simplification).
-      const matrix RtR = R.transpose().mul(R);
-      for (unsigned i = 0; i < 3; ++i) {
-        for (unsigned j = 0; j < 3; ++j) {
-          const ex e = simplify_trig((RtR(i, j) - (i == j ? 1 : 0)).subs(values));
-          const auto ev = real_value(e);
-          if (!(ev && std::abs(*ev) < 1e-12)) {
-            throw DefinitionError(
-                where + ": the rotation is not orthonormal (R^T R - 1 has entry '" + str(e) + "')",
-                bidx);
-          }
-        }
-      }
-      const matrix S =
-          b.inertia_frame == Frame::body ? R.transpose().mul(Rd) : Rd.mul(R.transpose());
-      w = {simplify_trig(S(2, 1)), simplify_trig(S(0, 2)), simplify_trig(S(1, 0))};
-    } else {
-      throw DefinitionError(
-          where + ": an inertia is given but neither angular_velocity nor rotation", bidx);
-    }
-    // The inertia: constants or functions of t only (like the mass).
-    {
-      std::vector<ex> parts;
-      if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
-        parts.push_back(b.inertia_scalar);
-      } else {
-        parts.assign(b.inertia_tensor.begin(), b.inertia_tensor.end());
-      }
-      for (const ex& e : parts) {
-        if (has_any(e, q) || has_any(e, qd)) {
-          throw DefinitionError(where +
-                                    ": the inertia must be constant or a function of t only (it "
-                                    "depends on a coordinate or a velocity)",
-                                bidx);
-        }
-      }
-    }
-    if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
-      T += b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-    } else {
-      const auto& I = b.inertia_tensor;
-      for (std::size_t i = 0; i < 3; ++i) {
-        for (std::size_t j = 0; j < 3; ++j) {
-          if (!I[3 * i + j].is_equal(I[3 * j + i]))
-            throw DefinitionError(where + ": the inertia tensor is not symmetric", bidx);
-          T += w[i] * I[3 * i + j] * w[j] / 2;
-        }
+  }
+  const matrix RtR = R.transpose().mul(R);
+  for (unsigned i = 0; i < 3; ++i) {
+    for (unsigned j = 0; j < 3; ++j) {
+      const ex e = simplify_trig((RtR(i, j) - (i == j ? 1 : 0)).subs(s.values));
+      const auto ev = real_value(e);
+      if (!(ev && std::abs(*ev) < 1e-12)) {
+        throw DefinitionError(
+            where + ": the rotation is not orthonormal (R^T R - 1 has entry '" + str(e) + "')",
+            bidx);
       }
     }
   }
-  for (std::size_t j = 0; j < n; ++j) {
-    if (!used[j]) {
+  const matrix S = b.inertia_frame == Frame::body ? R.transpose().mul(Rd) : Rd.mul(R.transpose());
+  return {simplify_trig(S(2, 1)), simplify_trig(S(0, 2)), simplify_trig(S(1, 0))};
+}
+
+// The body's angular velocity: given, or from its rotation.
+std::array<ex, 3> body_angular_velocity(const BodyDef& b, DerivationSymbols& s,
+                                        const std::string& where, int bidx) {
+  if (b.angular_velocity) {
+    for (const ex& e : *b.angular_velocity) {
+      if (e.has(s.t))
+        throw DefinitionError(where + ": the angular velocity may not depend on t", bidx);
+      s.mark_used(e);
+    }
+    return *b.angular_velocity;
+  }
+  if (b.rotation) return rotation_angular_velocity(b, s, where, bidx);
+  throw DefinitionError(where + ": an inertia is given but neither angular_velocity nor rotation",
+                        bidx);
+}
+
+// ½ ωᵀ I ω, the inertia constant or a function of t only (like the mass).
+ex rotational_energy(const BodyDef& b, const std::array<ex, 3>& w, const DerivationSymbols& s,
+                     const std::string& where, int bidx) {
+  std::vector<ex> parts;
+  if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+    parts.push_back(b.inertia_scalar);
+  } else {
+    parts.assign(b.inertia_tensor.begin(), b.inertia_tensor.end());
+  }
+  for (const ex& e : parts) {
+    if (has_any(e, s.q) || has_any(e, s.qd)) {
+      throw DefinitionError(where +
+                                ": the inertia must be constant or a function of t only (it "
+                                "depends on a coordinate or a velocity)",
+                            bidx);
+    }
+  }
+  if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+    return b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  }
+  ex T = 0;
+  const auto& I = b.inertia_tensor;
+  for (std::size_t i = 0; i < 3; ++i) {
+    for (std::size_t j = 0; j < 3; ++j) {
+      if (!I[3 * i + j].is_equal(I[3 * j + i]))
+        throw DefinitionError(where + ": the inertia tensor is not symmetric", bidx);
+      T += w[i] * I[3 * i + j] * w[j] / 2;
+    }
+  }
+  return T;
+}
+
+// One body's kinetic energy ½ m |ṗ|² + ½ ωᵀ I ω added to T, its potential −m g·p to V.
+void add_body_energy(const BodyDef& b, int bidx, DerivationSymbols& s, ex& T, ex& V) {
+  const std::string where = "body '" + b.name + "'";
+  check_body_mass(b, s, where, bidx);
+  const std::array<ex, 3> v = com_velocity(b, s, where, bidx);
+  const auto& g = s.def.gravity;
+  T += b.mass / 2 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  V -= b.mass * (g[0] * b.com[0] + g[1] * b.com[1] + g[2] * b.com[2]);
+  if (b.inertia_kind == BodyDef::InertiaKind::none) {
+    if (b.angular_velocity || b.rotation) {
+      throw DefinitionError(where + ": an angular velocity or rotation is given but no inertia",
+                            bidx);
+    }
+    return;
+  }
+  T += rotational_energy(b, body_angular_velocity(b, s, where, bidx), s, where, bidx);
+}
+
+void check_every_coordinate_used(const DerivationSymbols& s) {
+  for (std::size_t j = 0; j < s.used.size(); ++j) {
+    if (!s.used[j]) {
       throw DefinitionError(
-          "coordinate '" + def.coordinates()[j] +
+          "coordinate '" + s.def.coordinates()[j] +
               "' appears in no body (in no position, rotation or angular velocity)",
           -1, static_cast<int>(j));
     }
   }
-  V += def.extra_potential;
-  if (has_any(V, qd) || def.extra_potential.has(time[0])) {
-    throw DefinitionError("the potential may depend on the coordinates only");
-  }
-  check_expression_size(T, "the kinetic energy T");
-  check_expression_size(V, "the potential energy V");
-  deadline.check("the kinetic energy T");
+}
 
-  SubsystemDerivation d;
-  d.coordinates = def.coordinates();
-  d.parameter_values = values;
-  d.symbols = def.symbol_table();
-  d.T = T.expand();
-  d.V = V.expand();
-  const symbol& ts = time[0];
-  // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
-  // leaves the subsystem time-invariant).
-  d.time_varying = (d.T.has(ts) && !simplify_trig(d.T.diff(ts)).is_zero()) ||
-                   (d.V.has(ts) && !simplify_trig(d.V.diff(ts)).is_zero());
-  const auto un = static_cast<unsigned>(n);
+// M = ∂²T/∂q̇∂q̇ (the paper's Eq. (5) for any T), which must not depend on q̇.
+void derive_mass_matrix(SubsystemDerivation& d, const DerivationSymbols& s,
+                        const Deadline& deadline) {
+  const auto un = static_cast<unsigned>(s.q.size());
   d.M = matrix(un, un);
-  std::vector<ex> dTdqd(n);
-  for (unsigned i = 0; i < un; ++i) dTdqd[i] = d.T.diff(qd[i]);
+  std::vector<ex> dTdqd(un);
+  for (unsigned i = 0; i < un; ++i) dTdqd[i] = d.T.diff(s.qd[i]);
   for (unsigned i = 0; i < un; ++i) {
     for (unsigned j = i; j < un; ++j) {
       const std::string at = "M(" + d.coordinates[i] + ", " + d.coordinates[j] + ")";
       deadline.check(at);
-      const ex m = simplify_trig(dTdqd[i].diff(qd[j]));
+      const ex m = simplify_trig(dTdqd[i].diff(s.qd[j]));
       check_expression_size(m, at);
-      if (has_any(m, qd)) {
+      if (has_any(m, s.qd)) {
         throw DefinitionError(
             "the kinetic energy is not quadratic in the velocities (M(" + d.coordinates[i] + ", " +
                 d.coordinates[j] +
@@ -336,13 +355,19 @@ SubsystemDerivation derive(const SubsystemDef& def) {
     // still unique when the constraints fix that direction ([M; A] of full column rank,
     // core/uk_singular.hpp); the scenario loader checks it at initial.q.
   }
+}
+
+// C, C q̇ and G = ∂V/∂q from M and V (the paper's Eqs. (8) and (9), for any M(q, t) and V(q)).
+void derive_velocity_and_gravity_terms(SubsystemDerivation& d, const DerivationSymbols& s,
+                                       const Deadline& deadline) {
+  const auto un = static_cast<unsigned>(s.q.size());
   // Christoffel symbols of the first kind: C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k.
-  std::vector<matrix> dM(n, matrix(un, un));
+  std::vector<matrix> dM(un, matrix(un, un));
   for (unsigned k = 0; k < un; ++k) {
     deadline.check("dM/d" + d.coordinates[k]);
     for (unsigned i = 0; i < un; ++i) {
       for (unsigned j = i; j < un; ++j) {
-        const ex e = d.M(i, j).diff(q[k]);
+        const ex e = d.M(i, j).diff(s.q[k]);
         dM[k](i, j) = e;
         dM[k](j, i) = e;
       }
@@ -357,25 +382,62 @@ SubsystemDerivation derive(const SubsystemDef& def) {
       const std::string at = "C(" + d.coordinates[i] + ", " + d.coordinates[j] + ")";
       deadline.check(at);
       ex c = 0;
-      for (unsigned k = 0; k < un; ++k) c += (dM[k](i, j) + dM[j](i, k) - dM[i](j, k)) * qd[k] / 2;
+      for (unsigned k = 0; k < un; ++k)
+        c += (dM[k](i, j) + dM[j](i, k) - dM[i](j, k)) * s.qd[k] / 2;
       check_expression_size(c, at);
       c = simplify_trig(c);
       d.C(i, j) = c;
-      row += c * qd[j];
+      row += c * s.qd[j];
     }
     // A mass of t: d/dt ∂T/∂q̇ = M q̈ + Σ_k (∂M/∂q_k) q̇_k q̇ + (∂M/∂t) q̇, so the velocity terms of
     // Lagrange's equations gain (∂M/∂t) q̇ = ∂²T/∂q̇∂t (docs/definitions.md, "Time-varying
     // masses"). C itself stays the Christoffel matrix of M(q, t) at fixed t.
     if (d.time_varying) {
       ex mt = 0;
-      for (unsigned j = 0; j < un; ++j) mt += d.M(i, j).diff(ts) * qd[j];
+      for (unsigned j = 0; j < un; ++j) mt += d.M(i, j).diff(s.t) * s.qd[j];
       row += mt;
     }
     d.Cqd(i, 0) = simplify_trig(row);
-    d.G(i, 0) = simplify_trig(d.V.diff(q[i]));
+    d.G(i, 0) = simplify_trig(d.V.diff(s.q[i]));
   }
+}
+
+}  // namespace
+
+SubsystemDerivation derive(const SubsystemDef& def) {
+  const auto t0 = Clock::now();
+  DerivationSymbols s(def);
+  check_subsystem_size(def);
+  const Deadline deadline;
+
+  ex T = 0, V = 0;
+  for (std::size_t bi = 0; bi < def.bodies.size(); ++bi) {
+    deadline.check("body '" + def.bodies[bi].name + "'");
+    add_body_energy(def.bodies[bi], static_cast<int>(bi), s, T, V);
+  }
+  check_every_coordinate_used(s);
+  V += def.extra_potential;
+  if (has_any(V, s.qd) || def.extra_potential.has(s.t)) {
+    throw DefinitionError("the potential may depend on the coordinates only");
+  }
+  check_expression_size(T, "the kinetic energy T");
+  check_expression_size(V, "the potential energy V");
+  deadline.check("the kinetic energy T");
+
+  SubsystemDerivation d;
+  d.coordinates = def.coordinates();
+  d.parameter_values = s.values;
+  d.symbols = def.symbol_table();
+  d.T = T.expand();
+  d.V = V.expand();
+  // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
+  // leaves the subsystem time-invariant).
+  d.time_varying = (d.T.has(s.t) && !simplify_trig(d.T.diff(s.t)).is_zero()) ||
+                   (d.V.has(s.t) && !simplify_trig(d.V.diff(s.t)).is_zero());
+  derive_mass_matrix(d, s, deadline);
+  derive_velocity_and_gravity_terms(d, s, deadline);
   // ∂L/∂t = ∂T/∂t − ∂V/∂t: the power that the energy balance needs (dE/dt = Q q̇ − ∂L/∂t).
-  d.Lt = d.time_varying ? simplify_trig((d.T - d.V).diff(ts)) : ex(0);
+  d.Lt = d.time_varying ? simplify_trig((d.T - d.V).diff(s.t)) : ex(0);
   d.derive_seconds = seconds_since(t0);
   return d;
 }
