@@ -1,11 +1,11 @@
 #include "ukdyn/core/uk_arrow.hpp"
 
-#include "ukdyn/core/dense_kernels.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <utility>
+
+#include "ukdyn/core/dense_kernels.hpp"
 
 namespace ukdyn {
 
@@ -168,201 +168,233 @@ void swap_rows(Mat& X, Index k, Index p) {
   for (Index j = 0; j < X.cols(); ++j) std::swap(X(k, j), X(p, j));
 }
 
-}  // namespace
+// What every step of uk_solve_arrow reads: the problem, the robots' Cholesky factors (the dense
+// workspace's L, 1/L_ii) and the arrow workspace the steps write.
+struct ArrowProblem {
+  const ArrowStructure& st;
+  const Mat& M;
+  const Mat& A;
+  const Vec& b;
+  const Vec& Q;
+  const UkWorkspace& dws;
+  ArrowWorkspace& ws;
+  Index sL, nL, ldl;
+  const double* Ld;
+  const double* idg;
+  double tol2;
 
-bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b,
-                    const Vec& Q, const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
-                    const UkSettings& settings, UkResult& res) {
-  const Index n = dws.layout.dof();
-  const Index sL = st.load_start, nL = st.load_size;
-  const Index ldl = dws.L.rows();
-  const double* Ld = dws.L.data();
-  const double* idg = dws.inv_diag.data();
-  const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
-  double piv_max = 0.0, piv_min = std::numeric_limits<double>::infinity();
-  Index rank = 0;
-
-  // H = M_L, g = Q_L (the load's own inertia and forces), lower triangle.
-  for (Index j = 0; j < nL; ++j) {
-    for (Index i = j; i < nL; ++i) ws.H(i, j) = M(sL + i, sL + j);
-    ws.gL[j] = Q[sL + j];
-  }
-
-  Index mD = 0;
-  double w_ref = 0.0;  // max diag W
-  for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
-    const auto& grp = st.groups[gi];
-    auto& gb = ws.g[gi];
-    const Index mk = static_cast<Index>(grp.rows.size()), s = grp.start, nk = grp.size;
-    const double* Lk = Ld + s + s * ldl;
-    const double* id = idg + s;
-    // The group's rows of A: B (robot columns), C (load columns), b.
-    for (Index i = 0; i < mk; ++i) {
-      const Index row = grp.rows[static_cast<std::size_t>(i)];
-      for (Index j = 0; j < nk; ++j) gb.B(i, j) = A(row, s + j);
-      for (Index j = 0; j < nL; ++j) gb.C(i, j) = A(row, sL + j);
-      gb.bb[i] = b[row];
-    }
-    // Xᵀ = B L_k^{-ᵀ} column by column, y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k).
-    double* y = gb.w.data();
-    for (Index j = 0; j < nk; ++j) y[j] = Q[s + j];
-    l_solve(Lk, ldl, id, y, nk);
-    for (Index l = 0; l < nk; ++l) {
-      for (Index i = 0; i < mk; ++i) {
-        double v = gb.B(i, l);
-        for (Index p = 0; p < l; ++p) v -= Lk[l + p * ldl] * gb.Xt(i, p);
-        gb.Xt(i, l) = v * id[l];
-      }
-    }
-    for (Index i = 0; i < mk; ++i) {
-      double v = gb.bb[i];
-      for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
-      gb.r[i] = v;
-    }
-    // S = Xᵀ X (lower), and the diagonal of W = A M⁻¹Aᵀ, W_ii = S_ii + C_i M_L⁻¹ C_iᵀ: the scale of
-    // every rank decision below, as the dense solve's (max diag W).
-    for (Index j = 0; j < mk; ++j)
-      for (Index i = j; i < mk; ++i) {
-        double v = 0.0;
-        for (Index l = 0; l < nk; ++l) v += gb.Xt(i, l) * gb.Xt(j, l);
-        gb.S(i, j) = v;
-      }
-    for (Index i = 0; i < mk; ++i) {
-      for (Index j = 0; j < nL; ++j) ws.tmp[j] = gb.C(i, j);
-      double c2 = 0.0;
-      if (nL > 0) {
-        l_solve(Ld + sL + sL * ldl, ldl, idg + sL, ws.tmp.data(), nL);
-        for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
-      }
-      w_ref = std::max(w_ref, gb.S(i, i) + c2);
-    }
-  }
-  for (const Index row : st.load_rows) {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = A(row, sL + j);
-    l_solve(Ld + sL + sL * ldl, ldl, idg + sL, ws.tmp.data(), nL);
+  ArrowProblem(const ArrowStructure& st_, const Mat& M_, const Mat& A_, const Vec& b_,
+               const Vec& Q_, const UkWorkspace& dws_, ArrowWorkspace& ws_,
+               const UkSettings& settings)
+      : st(st_),
+        M(M_),
+        A(A_),
+        b(b_),
+        Q(Q_),
+        dws(dws_),
+        ws(ws_),
+        sL(st_.load_start),
+        nL(st_.load_size),
+        ldl(dws_.L.rows()),
+        Ld(dws_.L.data()),
+        idg(dws_.inv_diag.data()),
+        tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
+  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
+  void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
+  // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
+  double load_part_of_w(const Mat& X, Index i) const {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, j);
     double c2 = 0.0;
-    for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    if (nL > 0) {
+      load_l_solve(ws.tmp.data());
+      for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    }
+    return c2;
+  }
+};
+
+// The rank decisions' pivots: the number kept and the largest and smallest kept.
+struct ArrowPivots {
+  Index rank = 0;
+  double max = 0.0, min = std::numeric_limits<double>::infinity();
+  void add(Index kept, double d_max, double d_min) {
+    rank += kept;
+    if (kept > 0) {
+      max = std::max(max, d_max);
+      min = std::min(min, d_min);
+    }
+  }
+};
+
+// Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
+// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ.
+void reduce_group(const ArrowProblem& P, std::size_t gi) {
+  const auto& grp = P.st.groups[gi];
+  auto& gb = P.ws.g[gi];
+  const Index mk = static_cast<Index>(grp.rows.size()), s = grp.start, nk = grp.size;
+  const double* Lk = P.Ld + s + s * P.ldl;
+  const double* id = P.idg + s;
+  for (Index i = 0; i < mk; ++i) {
+    const Index row = grp.rows[static_cast<std::size_t>(i)];
+    for (Index j = 0; j < nk; ++j) gb.B(i, j) = P.A(row, s + j);
+    for (Index j = 0; j < P.nL; ++j) gb.C(i, j) = P.A(row, P.sL + j);
+    gb.bb[i] = P.b[row];
+  }
+  double* y = gb.w.data();
+  for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
+  l_solve(Lk, P.ldl, id, y, nk);
+  for (Index l = 0; l < nk; ++l) {
+    for (Index i = 0; i < mk; ++i) {
+      double v = gb.B(i, l);
+      for (Index p = 0; p < l; ++p) v -= Lk[l + p * P.ldl] * gb.Xt(i, p);
+      gb.Xt(i, l) = v * id[l];
+    }
+  }
+  for (Index i = 0; i < mk; ++i) {
+    double v = gb.bb[i];
+    for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
+    gb.r[i] = v;
+  }
+  for (Index j = 0; j < mk; ++j)
+    for (Index i = j; i < mk; ++i) {
+      double v = 0.0;
+      for (Index l = 0; l < nk; ++l) v += gb.Xt(i, l) * gb.Xt(j, l);
+      gb.S(i, j) = v;
+    }
+}
+
+// H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
+// returns max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii + C_i M_L⁻¹ C_iᵀ): the scale of every rank
+// decision below, as the dense solve's.
+double reduce_groups(const ArrowProblem& P) {
+  auto& ws = P.ws;
+  for (Index j = 0; j < P.nL; ++j) {
+    for (Index i = j; i < P.nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
+    ws.gL[j] = P.Q[P.sL + j];
+  }
+  double w_ref = 0.0;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    reduce_group(P, gi);
+    auto& gb = ws.g[gi];
+    for (Index i = 0; i < static_cast<Index>(P.st.groups[gi].rows.size()); ++i)
+      w_ref = std::max(w_ref, gb.S(i, i) + P.load_part_of_w(gb.C, i));
+  }
+  for (const Index row : P.st.load_rows) {
+    for (Index j = 0; j < P.nL; ++j) ws.tmp[j] = P.A(row, P.sL + j);
+    P.load_l_solve(ws.tmp.data());
+    double c2 = 0.0;
+    for (Index j = 0; j < P.nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
     w_ref = std::max(w_ref, c2);
   }
-  for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
-    const auto& grp = st.groups[gi];
-    auto& gb = ws.g[gi];
-    const Index mk = static_cast<Index>(grp.rows.size());
-    // Pivoted LDLᵀ of S, pivots under rank_rel_tol² · max diag W dropped.
-    double dmax = 0.0, dmin = 0.0;
-    gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, tol2, w_ref, gb.piv.data(), ws.tmp.data(),
-                           dmax, dmin);
-    const Index kp = gb.kept;
-    rank += kp;
-    if (kp > 0) {
-      piv_max = std::max(piv_max, dmax);
-      piv_min = std::min(piv_min, dmin);
-    }
-    // The same row order for C (into T), r and b (into z, lam as scratch).
-    gb.T = gb.C;  // same size: no allocation
-    for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
-    for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
-    for (Index k = 0; k < kp; ++k) {
-      const Index p = gb.piv[static_cast<std::size_t>(k)];
-      swap_rows(gb.T, k, p);
-      std::swap(gb.z[k], gb.z[p]);
-      std::swap(gb.lam[k], gb.lam[p]);
-    }
-    // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
-    // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
-    for (Index i = 1; i < mk; ++i) {
-      const Index pe = std::min(i, kp);
-      for (Index p = 0; p < pe; ++p) {
-        const double l = gb.S(i, p);
-        if (l == 0.0) continue;
-        for (Index j = 0; j < nL; ++j) gb.T(i, j) -= l * gb.T(p, j);
-        if (i < kp) gb.z[i] -= l * gb.z[p];
-        gb.lam[i] -= l * gb.lam[p];
-      }
-    }
-    // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
-    for (Index i = 0; i < kp; ++i) {
-      const double inv = 1.0 / gb.S(i, i);
-      for (Index jj = 0; jj < nL; ++jj) {
-        const double tj = gb.T(i, jj) * inv;
-        if (tj == 0.0) continue;
-        for (Index ii = jj; ii < nL; ++ii) ws.H(ii, jj) += gb.T(i, ii) * tj;
-        ws.gL[jj] += tj * gb.z[i];
-      }
-    }
-    // Dropped rows become rows on the load.
-    for (Index i = kp; i < mk; ++i) {
-      for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = gb.T(i, j);
-      ws.d[mD] = gb.lam[i];
-      ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
-      ++mD;
+  return w_ref;
+}
+
+// Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
+// dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
+// (appended at mD, which is returned advanced).
+Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
+                      Index mD) {
+  auto& ws = P.ws;
+  auto& gb = ws.g[gi];
+  const Index nL = P.nL;
+  const Index mk = static_cast<Index>(P.st.groups[gi].rows.size());
+  double dmax = 0.0, dmin = 0.0;
+  gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, P.tol2, w_ref, gb.piv.data(), ws.tmp.data(),
+                         dmax, dmin);
+  const Index kp = gb.kept;
+  pivots.add(kp, dmax, dmin);
+  // The same row order for C (into T), r and b (into z, lam as scratch).
+  gb.T = gb.C;  // same size: no allocation
+  for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
+  for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
+  for (Index k = 0; k < kp; ++k) {
+    const Index p = gb.piv[static_cast<std::size_t>(k)];
+    swap_rows(gb.T, k, p);
+    std::swap(gb.z[k], gb.z[p]);
+    std::swap(gb.lam[k], gb.lam[p]);
+  }
+  // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
+  // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
+  for (Index i = 1; i < mk; ++i) {
+    const Index pe = std::min(i, kp);
+    for (Index p = 0; p < pe; ++p) {
+      const double l = gb.S(i, p);
+      if (l == 0.0) continue;
+      for (Index j = 0; j < nL; ++j) gb.T(i, j) -= l * gb.T(p, j);
+      if (i < kp) gb.z[i] -= l * gb.z[p];
+      gb.lam[i] -= l * gb.lam[p];
     }
   }
-  for (std::size_t j = 0; j < st.load_rows.size(); ++j) {
-    const Index row = st.load_rows[j];
-    for (Index c = 0; c < nL; ++c) ws.Dt(mD, c) = A(row, sL + c);
-    ws.d[mD] = b[row];
+  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
+  for (Index i = 0; i < kp; ++i) {
+    const double inv = 1.0 / gb.S(i, i);
+    for (Index jj = 0; jj < nL; ++jj) {
+      const double tj = gb.T(i, jj) * inv;
+      if (tj == 0.0) continue;
+      for (Index ii = jj; ii < nL; ++ii) ws.H(ii, jj) += gb.T(i, ii) * tj;
+      ws.gL[jj] += tj * gb.z[i];
+    }
+  }
+  for (Index i = kp; i < mk; ++i) {
+    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = gb.T(i, j);
+    ws.d[mD] = gb.lam[i];
+    ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
+    ++mD;
+  }
+  return mD;
+}
+
+// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
+Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots) {
+  auto& ws = P.ws;
+  Index mD = 0;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
+    mD = eliminate_group(P, gi, w_ref, pivots, mD);
+  for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
+    const Index row = P.st.load_rows[j];
+    for (Index c = 0; c < P.nL; ++c) ws.Dt(mD, c) = P.A(row, P.sL + c);
+    ws.d[mD] = P.b[row];
     ws.d_from[static_cast<std::size_t>(mD)] = {-1, static_cast<Index>(j)};
     ++mD;
   }
+  return mD;
+}
 
-  // Cholesky of H in place (lower); 1/L_ii into tmp's head is not needed: divide directly.
+// Cholesky of H in place (lower), dividing directly; false if H is not positive definite.
+bool cholesky_in_place(Mat& H, Index nL) {
   for (Index j = 0; j < nL; ++j) {
-    double dj = ws.H(j, j);
-    for (Index k = 0; k < j; ++k) dj -= ws.H(j, k) * ws.H(j, k);
+    double dj = H(j, j);
+    for (Index k = 0; k < j; ++k) dj -= H(j, k) * H(j, k);
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
-    ws.H(j, j) = ljj;
+    H(j, j) = ljj;
     for (Index i = j + 1; i < nL; ++i) {
-      double v = ws.H(i, j);
-      for (Index k = 0; k < j; ++k) v -= ws.H(i, k) * ws.H(j, k);
-      ws.H(i, j) = v / ljj;
+      double v = H(i, j);
+      for (Index k = 0; k < j; ++k) v -= H(i, k) * H(j, k);
+      H(i, j) = v / ljj;
     }
   }
-  auto h_solve = [&](double* x) {
-    for (Index i = 0; i < nL; ++i) {
-      double v = x[i];
-      for (Index k = 0; k < i; ++k) v -= ws.H(i, k) * x[k];
-      x[i] = v / ws.H(i, i);
-    }
-  };
-  auto ht_solve = [&](double* x) {
-    for (Index i = nL - 1; i >= 0; --i) {
-      double v = x[i];
-      for (Index k = i + 1; k < nL; ++k) v -= ws.H(k, i) * x[k];
-      x[i] = v / ws.H(i, i);
-    }
-  };
-  // The load's own U-K with H: yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ, r_D = d − X_D yH.
-  double* yH = ws.qddL.data();
-  for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
-  h_solve(yH);
-  for (Index i = 0; i < mD; ++i) {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
-    h_solve(ws.tmp.data());
-    double v = ws.d[i];
-    for (Index j = 0; j < nL; ++j) {
-      ws.Dt(i, j) = ws.tmp[j];
-      v -= ws.tmp[j] * yH[j];
-    }
-    ws.rD[i] = v;
+  return true;
+}
+
+// x ← L_H⁻¹ x and x ← L_H^{-ᵀ} x with the Cholesky factor of H (cholesky_in_place).
+void h_solve(const Mat& H, Index nL, double* x) {
+  for (Index i = 0; i < nL; ++i) {
+    double v = x[i];
+    for (Index k = 0; k < i; ++k) v -= H(i, k) * x[k];
+    x[i] = v / H(i, i);
   }
-  for (Index j = 0; j < mD; ++j)
-    for (Index i = j; i < mD; ++i) {
-      double v = 0.0;
-      for (Index l = 0; l < nL; ++l) v += ws.Dt(i, l) * ws.Dt(j, l);
-      ws.WD(i, j) = v;
-    }
-  double dmaxD = 0.0, dminD = 0.0;
-  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, tol2, w_ref, ws.pivD.data(),
-                                   ws.tmp.data(), dmaxD, dminD);
-  rank += keptD;
-  if (keptD > 0) {
-    piv_max = std::max(piv_max, dmaxD);
-    piv_min = std::min(piv_min, dminD);
+}
+void ht_solve(const Mat& H, Index nL, double* x) {
+  for (Index i = nL - 1; i >= 0; --i) {
+    double v = x[i];
+    for (Index k = i + 1; k < nL; ++k) v -= H(k, i) * x[k];
+    x[i] = v / H(i, i);
   }
-  // Basic solution μ of W_D μ = r_D (as in uk_solve.cpp).
-  double* lam = ws.lamD.data();
+}
+
+// Basic solution μ of W_D μ = r_D from W_D's pivoted LDLᵀ with keptD pivots (as in uk_solve.cpp).
+void basic_solution(const ArrowWorkspace& ws, Index mD, Index keptD, double* lam) {
   const double* W = ws.WD.data();
   const Index ldw = ws.WD.rows();
   for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
@@ -381,74 +413,123 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
   }
   for (Index k = keptD - 1; k >= 0; --k)
     std::swap(lam[k], lam[ws.pivD[static_cast<std::size_t>(k)]]);
-  // q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ).
+}
+
+// The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
+// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
+void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
+  auto& ws = P.ws;
+  const Index nL = P.nL;
+  double* yH = ws.qddL.data();
+  for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
+  h_solve(ws.H, nL, yH);
+  for (Index i = 0; i < mD; ++i) {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
+    h_solve(ws.H, nL, ws.tmp.data());
+    double v = ws.d[i];
+    for (Index j = 0; j < nL; ++j) {
+      ws.Dt(i, j) = ws.tmp[j];
+      v -= ws.tmp[j] * yH[j];
+    }
+    ws.rD[i] = v;
+  }
+  for (Index j = 0; j < mD; ++j)
+    for (Index i = j; i < mD; ++i) {
+      double v = 0.0;
+      for (Index l = 0; l < nL; ++l) v += ws.Dt(i, l) * ws.Dt(j, l);
+      ws.WD(i, j) = v;
+    }
+  double dmaxD = 0.0, dminD = 0.0;
+  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, P.tol2, w_ref, ws.pivD.data(),
+                                   ws.tmp.data(), dmaxD, dminD);
+  pivots.add(keptD, dmaxD, dminD);
+  double* lam = ws.lamD.data();
+  basic_solution(ws, mD, keptD, lam);
   for (Index j = 0; j < nL; ++j) {
     double v = yH[j];
     for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];
     yH[j] = v;
   }
-  ht_solve(yH);
-  const double* qL = ws.qddL.data();
+  ht_solve(ws.H, nL, yH);
+}
 
-  // Multipliers: load-only rows and the dropped rows of each group from μ.
+// Robot k's multipliers: u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v for the kept rows
+// (λ = S⁻¹(r − C q̈_L) with the dropped rows' λ_E moved over, see the header), then its share of
+// Qc = Aᵀ λ on the robot and the load.
+void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
+  const auto& grp = P.st.groups[gi];
+  auto& gb = P.ws.g[gi];
+  const double* qL = P.ws.qddL.data();
+  const Index mk = static_cast<Index>(grp.rows.size()), kp = gb.kept;
+  for (Index i = 0; i < kp; ++i) {
+    double v = gb.z[i];
+    for (Index j = 0; j < P.nL; ++j) v -= gb.T(i, j) * qL[j];
+    gb.lam[i] = v / gb.S(i, i);
+  }
+  for (Index e = kp; e < mk; ++e) {
+    const double le = gb.lam[e];
+    for (Index p = 0; p < kp; ++p) gb.lam[p] -= gb.S(e, p) * le;
+  }
+  for (Index p = kp - 1; p >= 0; --p) {
+    double v = gb.lam[p];
+    for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
+    gb.lam[p] = v;
+  }
+  for (Index k = kp - 1; k >= 0; --k)
+    std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  const Index s = grp.start, nk = grp.size;
+  for (Index i = 0; i < mk; ++i) {
+    const double li = gb.lam[i];
+    P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = li;
+    if (li == 0.0) continue;
+    for (Index j = 0; j < nk; ++j) Qc[s + j] += gb.B(i, j) * li;
+    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += gb.C(i, j) * li;
+  }
+}
+
+// Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
+void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) {
+  auto& ws = P.ws;
+  const double* lam = ws.lamD.data();
   for (Index i = 0; i < mD; ++i) {
     const auto [grp, k] = ws.d_from[static_cast<std::size_t>(i)];
     if (grp < 0) {
-      ws.lambda[st.load_rows[static_cast<std::size_t>(k)]] = lam[i];
+      ws.lambda[P.st.load_rows[static_cast<std::size_t>(k)]] = lam[i];
     } else {
       ws.g[static_cast<std::size_t>(grp)].lam[k] = lam[i];
     }
   }
   Qc.setZero();
-  for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
-    const auto& grp = st.groups[gi];
-    auto& gb = ws.g[gi];
-    const Index mk = static_cast<Index>(grp.rows.size()), kp = gb.kept;
-    // u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v: robot k's kept rows
-    // (λ = S⁻¹(r − C q̈_L) with the dropped rows' λ_E moved over, see the header).
-    for (Index i = 0; i < kp; ++i) {
-      double v = gb.z[i];
-      for (Index j = 0; j < nL; ++j) v -= gb.T(i, j) * qL[j];
-      gb.lam[i] = v / gb.S(i, i);
-    }
-    for (Index e = kp; e < mk; ++e) {
-      const double le = gb.lam[e];
-      for (Index p = 0; p < kp; ++p) gb.lam[p] -= gb.S(e, p) * le;
-    }
-    for (Index p = kp - 1; p >= 0; --p) {
-      double v = gb.lam[p];
-      for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
-      gb.lam[p] = v;
-    }
-    for (Index k = kp - 1; k >= 0; --k)
-      std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
-    // Qc = Aᵀ λ on the robot and the load.
-    const Index s = grp.start, nk = grp.size;
-    for (Index i = 0; i < mk; ++i) {
-      const double li = gb.lam[i];
-      ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = li;
-      if (li == 0.0) continue;
-      for (Index j = 0; j < nk; ++j) Qc[s + j] += gb.B(i, j) * li;
-      for (Index j = 0; j < nL; ++j) Qc[sL + j] += gb.C(i, j) * li;
-    }
-  }
-  for (const Index row : st.load_rows) {
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers(P, gi, Qc);
+  for (const Index row : P.st.load_rows) {
     const double li = ws.lambda[row];
-    for (Index j = 0; j < nL; ++j) Qc[sL + j] += A(row, sL + j) * li;
+    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += P.A(row, P.sL + j) * li;
   }
-  // q̈ = M⁻¹(Q + Qc), block by block (every block, free ones too), paper Eq. (18).
-  for (std::size_t k = 0; k < dws.layout.blocks(); ++k) {
-    const Index s = dws.layout.start[k], nk = dws.layout.size[k];
-    for (Index j = 0; j < nk; ++j) qdd[s + j] = Q[s + j] + Qc[s + j];
-    l_solve(Ld + s + s * ldl, ldl, idg + s, qdd.data() + s, nk);
-    lt_solve(Ld + s + s * ldl, ldl, idg + s, qdd.data() + s, nk);
-  }
+}
 
-  // ‖A q̈ − b‖, ‖A‖_∞, consistency (as uk_solve.cpp's).
+// q̈ = M⁻¹(Q + Qc), block by block (every block, free ones too), paper Eq. (18).
+void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
+  const auto& layout = P.dws.layout;
+  for (std::size_t k = 0; k < layout.blocks(); ++k) {
+    const Index s = layout.start[k], nk = layout.size[k];
+    for (Index j = 0; j < nk; ++j) qdd[s + j] = P.Q[s + j] + Qc[s + j];
+    l_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
+    lt_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
+  }
+}
+
+// ‖A q̈ − b‖, ‖A‖_∞, consistency and finiteness (as uk_solve.cpp's) with the pivots into res.
+void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const ArrowPivots& pivots,
+                  const UkSettings& settings, UkResult& res) {
   double r2 = 0.0, b2 = 0.0, a_inf = 0.0;
-  for (std::size_t gi = 0; gi < st.groups.size(); ++gi) {
-    const auto& grp = st.groups[gi];
-    const auto& gb = ws.g[gi];
+  auto add_row = [&](double v, double ab, double bi) {
+    r2 += v * v;
+    b2 += bi * bi;
+    a_inf = std::max(a_inf, ab);
+  };
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    const auto& grp = P.st.groups[gi];
+    const auto& gb = P.ws.g[gi];
     const Index s = grp.start, nk = grp.size;
     for (Index i = 0; i < static_cast<Index>(grp.rows.size()); ++i) {
       double v = -gb.bb[i], ab = 0.0;
@@ -456,39 +537,51 @@ bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const 
         v += gb.B(i, j) * qdd[s + j];
         ab += std::abs(gb.B(i, j));
       }
-      for (Index j = 0; j < nL; ++j) {
-        v += gb.C(i, j) * qdd[sL + j];
+      for (Index j = 0; j < P.nL; ++j) {
+        v += gb.C(i, j) * qdd[P.sL + j];
         ab += std::abs(gb.C(i, j));
       }
-      r2 += v * v;
-      b2 += gb.bb[i] * gb.bb[i];
-      a_inf = std::max(a_inf, ab);
+      add_row(v, ab, gb.bb[i]);
     }
   }
-  for (const Index row : st.load_rows) {
-    double v = -b[row], ab = 0.0;
-    for (Index j = 0; j < nL; ++j) {
-      v += A(row, sL + j) * qdd[sL + j];
-      ab += std::abs(A(row, sL + j));
+  for (const Index row : P.st.load_rows) {
+    double v = -P.b[row], ab = 0.0;
+    for (Index j = 0; j < P.nL; ++j) {
+      v += P.A(row, P.sL + j) * qdd[P.sL + j];
+      ab += std::abs(P.A(row, P.sL + j));
     }
-    r2 += v * v;
-    b2 += b[row] * b[row];
-    a_inf = std::max(a_inf, ab);
+    add_row(v, ab, P.b[row]);
   }
   double q2 = 0.0;
   bool finite = true;
-  for (Index j = 0; j < n; ++j) {
+  for (Index j = 0; j < P.dws.layout.dof(); ++j) {
     q2 += qdd[j] * qdd[j];
     finite = finite && std::isfinite(qdd[j]) && std::isfinite(Qc[j]);
   }
   res = UkResult{};
-  res.rank = static_cast<int>(rank);
-  res.sigma_max = std::sqrt(piv_max);
-  res.sigma_min_kept = rank > 0 ? std::sqrt(piv_min) : 0.0;
+  res.rank = static_cast<int>(pivots.rank);
+  res.sigma_max = std::sqrt(pivots.max);
+  res.sigma_min_kept = pivots.rank > 0 ? std::sqrt(pivots.min) : 0.0;
   res.residual = std::sqrt(r2);
   res.consistent =
       res.residual <= settings.consistency_rel_tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
   res.finite = finite && std::isfinite(res.residual);
+}
+
+}  // namespace
+
+bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b,
+                    const Vec& Q, const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
+                    const UkSettings& settings, UkResult& res) {
+  const ArrowProblem P(st, M, A, b, Q, dws, ws, settings);
+  ArrowPivots pivots;
+  const double w_ref = reduce_groups(P);
+  const Index mD = eliminate_groups(P, w_ref, pivots);
+  if (!cholesky_in_place(ws.H, P.nL)) return false;
+  solve_load(P, mD, w_ref, pivots);
+  multipliers_and_constraint_force(P, mD, Qc);
+  accelerations(P, Qc, qdd);
+  arrow_result(P, qdd, Qc, pivots, settings, res);
   return true;
 }
 
