@@ -3,15 +3,19 @@
 // randomisation a compiled tape used to add the same terms in a different order in each process
 // (ukdyn/symbolic/canonical.hpp). Every scenario shipped in scenarios/ (benchmarks/ included) is
 // run twice, in two processes, with `ukdyn simulate` (trajectory.csv) and `ukdyn eval` (stdout),
-// on a short horizon; the bytes must be identical.
+// on a short horizon; the bytes must be identical. One test per scenario
+// (Shipped/Reproducibility.SameBytesInTwoProcesses/<scenario>).
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <regex>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "cli_run.hpp"
 #include "ukdyn/io/scenario.hpp"
@@ -25,25 +29,46 @@ using ukdyn_test::shell;
 using ukdyn_test::slurp;
 const fs::path kSource = UKDYN_SOURCE_DIR;
 
-// The scenario tree copied (URDF files and all) with every t_end shortened.
-fs::path short_copy() {
-  const fs::path dir = fs::temp_directory_path() / ("ukdyn_repro_" + std::to_string(::getpid()));
+// Every scenario shipped in scenarios/ (benchmarks/ included, sweep files not: docs/sweeps.md), as
+// paths relative to scenarios/, sorted (one ctest entry each, in a stable order).
+std::vector<std::string> shipped_scenarios() {
+  std::vector<std::string> list;
+  const fs::path root = kSource / "scenarios";
+  for (const auto& e : fs::recursive_directory_iterator(root)) {
+    if (e.path().extension() != ".yaml") continue;
+    if (e.path().parent_path().filename() == "sweeps") continue;
+    list.push_back(fs::relative(e.path(), root).generic_string());
+  }
+  std::sort(list.begin(), list.end());
+  return list;
+}
+
+// The scenario tree copied (URDF files and all, which scenarios name by relative path) into a
+// folder of this test's own, with the t_end of `scenario` shortened; returns the copy's path.
+fs::path short_copy(const std::string& scenario, const std::string& tag) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("ukdyn_repro_" + std::to_string(::getpid()) + "_" + tag);
   fs::remove_all(dir);
   fs::copy(kSource / "scenarios", dir, fs::copy_options::recursive);
-  for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.path().extension() != ".yaml") continue;
-    if (e.path().parent_path().filename() == "sweeps") continue;  // sweep files (docs/sweeps.md)
-    const ukdyn::Scenario sc = ukdyn::load_scenario(e.path());
-    const double span = std::min(sc.sim.t_end - sc.sim.t0, std::max(0.05, 3 * sc.sim.sample_dt));
-    std::ostringstream t_end;
-    t_end.precision(17);
-    t_end << "t_end: " << sc.sim.t0 + span;
-    const std::string text =
-        std::regex_replace(slurp(e.path()), std::regex("t_end:[^\\n#]*"), t_end.str(),
-                           std::regex_constants::format_first_only);
-    std::ofstream(e.path(), std::ios::binary) << text;
-  }
+  const fs::path file = dir / scenario;
+  const ukdyn::Scenario sc = ukdyn::load_scenario(file);
+  const double span = std::min(sc.sim.t_end - sc.sim.t0, std::max(0.05, 3 * sc.sim.sample_dt));
+  std::ostringstream t_end;
+  t_end.precision(17);
+  t_end << "t_end: " << sc.sim.t0 + span;
+  const std::string text = std::regex_replace(slurp(file), std::regex("t_end:[^\\n#]*"),
+                                              t_end.str(), std::regex_constants::format_first_only);
+  std::ofstream(file, std::ios::binary) << text;
   return dir;
+}
+
+// A gtest name for a scenario path: benchmarks/n_four_bar_N40.yaml → benchmarks_n_four_bar_N40.
+std::string test_name(const ::testing::TestParamInfo<std::string>& info) {
+  std::string n = fs::path(info.param).replace_extension().generic_string();
+  for (char& c : n) {
+    if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+  }
+  return n;
 }
 
 // {"t", "q", "qd"} of the last row of a trajectory.csv (t, q..., qd...).
@@ -65,44 +90,54 @@ std::string last_state_json(const fs::path& csv, Eigen::Index n) {
   return json + "]}\n";
 }
 
-TEST(Reproducibility, EveryScenarioGivesTheSameBytesInTwoProcesses) {
+// One ctest entry per scenario (they run in parallel under ctest -j, and each has its own time
+// limit: the sanitizer build, make sanitize, runs every process 10-20x slower).
+class Reproducibility : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(Reproducibility, SameBytesInTwoProcesses) {
   if (slurp("/proc/sys/kernel/randomize_va_space").rfind('0', 0) == 0)
     GTEST_SKIP() << "address-space randomisation is off: two processes would not differ anyway";
-  const fs::path dir = short_copy();
-  int scenarios = 0;
-  for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.path().extension() != ".yaml") continue;
-    if (e.path().parent_path().filename() == "sweeps") continue;  // sweep files (docs/sweeps.md)
-    ++scenarios;
-    const ukdyn::Scenario sc = ukdyn::load_scenario(e.path());
-    const std::string stem = fs::relative(e.path(), dir).replace_extension().string();
-    std::string csv[2], eval[2];
-    for (int k = 0; k < 2; ++k) {
-      const fs::path out = dir / "out" / (stem + "_" + std::to_string(k));
-      const int rc = shell("'" + std::string(UKDYN_CLI) + "' simulate --quiet --no-figures '" +
-                        e.path().string() + "' --out '" + out.string() + "' > /dev/null 2>&1");
-      ASSERT_EQ(rc, 0) << stem << ": simulate failed";
-      csv[k] = slurp(out / "trajectory.csv");
-      ASSERT_FALSE(csv[k].empty()) << stem;
-    }
-    EXPECT_TRUE(csv[0] == csv[1]) << stem << ": trajectory.csv differs between two processes";
-    const fs::path in = dir / "out" / (stem + "_eval_in.jsonl");
-    {
-      // The state of the last sample (velocities nonzero).
-      std::ofstream(in) << last_state_json(dir / "out" / (stem + "_0") / "trajectory.csv",
-                                           sc.system->dof());
-    }
-    for (int k = 0; k < 2; ++k) {
-      const fs::path out = dir / "out" / (stem + "_eval_" + std::to_string(k) + ".jsonl");
-      const int rc = shell("'" + std::string(UKDYN_CLI) + "' eval '" + e.path().string() + "' < '" +
-                        in.string() + "' > '" + out.string() + "' 2>/dev/null");
-      ASSERT_EQ(rc, 0) << stem << ": eval failed";
-      eval[k] = slurp(out);
-    }
-    EXPECT_TRUE(eval[0] == eval[1]) << stem << ": eval output differs between two processes";
+  const std::string stem = test_name({GetParam(), 0});
+  const fs::path dir = short_copy(GetParam(), stem);
+  const fs::path file = dir / GetParam();
+  const ukdyn::Scenario sc = ukdyn::load_scenario(file);
+  std::string csv[2], eval[2];
+  for (int k = 0; k < 2; ++k) {
+    const fs::path out = dir / "out" / (stem + "_" + std::to_string(k));
+    const int rc = shell("'" + std::string(UKDYN_CLI) + "' simulate --quiet --no-figures '" +
+                         file.string() + "' --out '" + out.string() + "' > /dev/null 2>&1");
+    ASSERT_EQ(rc, 0) << stem << ": simulate failed";
+    csv[k] = slurp(out / "trajectory.csv");
+    ASSERT_FALSE(csv[k].empty()) << stem;
   }
-  EXPECT_GE(scenarios, 10);
+  EXPECT_TRUE(csv[0] == csv[1]) << stem << ": trajectory.csv differs between two processes";
+  const fs::path in = dir / "out" / (stem + "_eval_in.jsonl");
+  {
+    // The state of the last sample (velocities nonzero).
+    std::ofstream(in) << last_state_json(dir / "out" / (stem + "_0") / "trajectory.csv",
+                                         sc.system->dof());
+  }
+  for (int k = 0; k < 2; ++k) {
+    const fs::path out = dir / "out" / (stem + "_eval_" + std::to_string(k) + ".jsonl");
+    const int rc = shell("'" + std::string(UKDYN_CLI) + "' eval '" + file.string() + "' < '" +
+                         in.string() + "' > '" + out.string() + "' 2>/dev/null");
+    ASSERT_EQ(rc, 0) << stem << ": eval failed";
+    eval[k] = slurp(out);
+  }
+  EXPECT_TRUE(eval[0] == eval[1]) << stem << ": eval output differs between two processes";
   fs::remove_all(dir);
+}
+
+INSTANTIATE_TEST_SUITE_P(Shipped, Reproducibility, ::testing::ValuesIn(shipped_scenarios()),
+                         test_name);
+
+// The list above is the shipped tree, not an empty directory walk.
+TEST(ReproducibilityList, CoversTheShippedScenarios) {
+  const auto list = shipped_scenarios();
+  EXPECT_GE(list.size(), 10u);
+  EXPECT_NE(std::find(list.begin(), list.end(), "paper.yaml"), list.end());
+  EXPECT_TRUE(std::any_of(list.begin(), list.end(),
+                          [](const std::string& s) { return s.rfind("benchmarks/", 0) == 0; }));
 }
 
 }  // namespace
