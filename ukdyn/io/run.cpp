@@ -322,6 +322,194 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
   if (!rep.figure_error.empty()) summary["figure_error"] = rep.figure_error;
 }
 
+// What the stages of run_scenario() share, all owned by run_scenario(): the scenario, the system
+// integrated and the columns of trajectory.csv.
+struct RunSetup {
+  const Scenario& sc;
+  const RunOptions& options;
+  const ControlRun* ctl;  // docs/control.md: the plant and its loop, or null
+  const System& sys;      // the plant with `control:`, else the scenario's system
+  const ConstraintForceColumns& force_columns;
+  ControlColumns& control_columns;
+  const std::vector<std::string>& header;
+};
+
+// A report with nothing seen yet: its extrema start from m rows of zero residual.
+RunReport start_report(const System& sys, const ControlRun* ctl,
+                       const std::filesystem::path& out_dir) {
+  const Index m = sys.rows();
+  RunReport rep;
+  if (ctl) rep.plant = ctl->plant;
+  rep.out_dir = out_dir;
+  rep.summary = out_dir / kSummary;
+  rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
+  rep.rank_min = static_cast<int>(m);
+  rep.sigma_min = std::numeric_limits<double>::infinity();
+  return rep;
+}
+
+// The CSV header: the trajectory's columns, the frame constraints' forces (if `forces`), then the
+// control columns.
+std::vector<std::string> run_csv_header(const System& sys, bool balance,
+                                        const ConstraintForceColumns* forces,
+                                        const ControlColumns& control_columns) {
+  auto header = trajectory_header(sys, balance);
+  if (forces) header.insert(header.end(), forces->header().begin(), forces->header().end());
+  header.insert(header.end(), control_columns.header().begin(), control_columns.header().end());
+  return header;
+}
+
+// Integrates the scenario, every sample a row of `csv`; rep.stats and its warnings are the run's.
+// Returns whether the constraint force split was unique at every sample.
+bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunReport& rep,
+                     const OutputDir& out, nlohmann::json& summary) {
+  const Scenario& sc = s.sc;
+  const ControlRun* ctl = s.ctl;
+  Observer observer{
+      {s.sys, rep, sc.sim.energy_balance, s.header.size()}, rep, &csv, progress, s.options.cancel};
+  observer.forces = ctl ? nullptr : &s.force_columns;
+  observer.control = &s.control_columns;
+  const ForceFunction tau =
+      ctl ? ctl->loop->force_function()
+          : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
+  SimulationSettings settings = sc.sim;
+  settings.cancel = s.options.cancel;
+  try {
+    rep.stats = simulate(s.sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
+                         [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+                           return observer(t, q, qd, d);
+                         });
+    if (!observer.split_unique) {  // docs/frame-constraints.md
+      rep.stats.warnings.push_back(
+          {observer.split_t, "constraint_force_split",
+           "redundant constraint rows: the force of each constraint block is not unique; the "
+           "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
+    }
+    for (auto& w : s.control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
+  } catch (const std::exception& e) {
+    // Invalid settings: the summary must not be left saying "running".
+    progress.done();
+    csv.abandon();
+    summary["status"] = "incomplete";
+    summary["stop_reason"] = std::string("error: ") + e.what();
+    write_final_summary(out, summary, rep);
+    throw;
+  }
+  return observer.split_unique;
+}
+
+// A run stopped by options.cancel: its message says it was interrupted, and when.
+void describe_interruption(RunReport& rep, const RunOptions& options) {
+  if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
+    // simulate() says "cancelled at t = <time of the step>" when it stopped between samples.
+    const std::string tag = "cancelled at t = ";
+    const auto at = rep.stats.message.rfind(tag, 0) == 0
+                        ? " at t = " + rep.stats.message.substr(tag.size())
+                        : std::string();
+    rep.stats.message = fmt::format("interrupted (SIGINT/SIGTERM){}; last sample at t = {}", at,
+                                    rep.stats.t_reached);
+  }
+}
+
+// trajectory.csv of a complete run; that of any other (or one whose commit failed) is kept under
+// its incomplete name.
+void finish_csv(std::optional<CsvWriter>& csv, RunReport& rep,
+                const std::filesystem::path& out_dir) {
+  bool committed = false;
+  if (csv && rep.complete()) {
+    try {
+      csv->commit();
+      committed = true;
+      rep.csv = out_dir / kCsv;
+    } catch (const Error& e) {
+      rep.write_error = e.what();
+    }
+  }
+  if (csv && !committed) {
+    const std::string name = csv->abandon();
+    if (!name.empty()) rep.csv = out_dir / name;
+  }
+  if (csv) rep.csv_rows = csv->rows_written();
+}
+
+// The figures of a run: the defaults, the frame constraints' forces, the control figures (within
+// the caps; what is left out goes to rep.figure_notes).
+std::vector<Figure> run_figures(const RunSetup& s, RunReport& rep) {
+  std::vector<Figure> figs = default_figures(s.sc);
+  const ConstraintForceColumns& force_columns = s.force_columns;
+  for (std::size_t f = 0; f < force_columns.figure_names().size(); ++f) {
+    const auto& cols = force_columns.figure_columns()[f];
+    if (cols.empty()) continue;
+    const std::string& nm = force_columns.figure_names()[f];
+    const bool wrench = nm.rfind("wrench_", 0) == 0;
+    figs.push_back({nm + ".png",
+                    wrench ? "Wrench of '" + nm.substr(7) + "' on its frame (world axes)"
+                           : "Force A_k^T lambda_k of '" + nm.substr(6) + "'",
+                    wrench ? "[N or N·m]" : "[N or N·m]", cols});
+  }
+  for (const auto& [nm, cols] : s.control_columns.figures())  // docs/control.md
+    figs.push_back({nm + ".png", nm, "[N, N·m or m]", cols});
+  if (s.ctl) {  // the plant has no servo rows: drop the curves of columns it does not write
+    const std::vector<std::string>& header = s.header;
+    for (auto& f : figs)
+      std::erase_if(f.columns, [&header](const std::string& c) {
+        return std::find(header.begin(), header.end(), c) == header.end();
+      });
+    std::erase_if(figs, [](const Figure& f) { return f.columns.empty(); });
+  }
+  cap_figures(figs, rep.figure_notes);
+  return figs;
+}
+
+// Draws the run's figures (gnuplot) into OUT/figures; a failure goes to rep.figure_error.
+void draw_run_figures(const RunSetup& s, const OutputDir& out, RunReport& rep) {
+  const std::vector<Figure> figs = run_figures(s, rep);
+  const RunOptions& options = s.options;
+  // Said before and after: drawing a long run's figures takes seconds (no silent wait).
+  const auto drawing = std::chrono::steady_clock::now();
+  if (options.progress) {
+    *options.progress << fmt::format("drawing {} figures (gnuplot) ...\n", figs.size())
+                      << std::flush;
+  }
+  try {
+    const FigureResult fr = render_figures(out, kCsv, s.header, figs, options.cancel);
+    for (const auto& f : fr.written) rep.figures.push_back(rep.out_dir / f);
+    rep.figure_error = fr.error;
+    if (!fr.note.empty()) rep.figure_notes.push_back(fr.note);
+    if (options.progress) {
+      *options.progress
+          << fmt::format(
+                 "drew {} figures in {:.1f} s\n", fr.written.size(),
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - drawing).count())
+          << std::flush;
+    }
+  } catch (const Error& e) {
+    rep.figure_error = e.what();
+  }
+}
+
+// The final summary's status, stop reason, control and constraint force sections, and results.
+void summary_final(nlohmann::json& summary, const RunSetup& s, bool split_unique,
+                   const RunReport& rep) {
+  const bool complete = rep.complete();
+  std::string reason;
+  if (!rep.write_error.empty()) {
+    reason = "write failed: " + rep.write_error;
+  } else if (!complete) {
+    reason = to_string(rep.stats.status) + ": " + rep.stats.message;
+  }
+  if (!s.control_columns.empty()) summary["control"] = s.control_columns.summary();
+  if (!s.force_columns.empty() && !s.ctl) {
+    summary["constraint_forces"] = {
+        {"split_unique", split_unique},
+        {"choice", split_unique ? "unique" : "least-norm multipliers (not unique)"}};
+  }
+  summary["status"] = complete ? "complete" : "incomplete";
+  summary["stop_reason"] = reason;
+  summary_results(summary, s.sys, rep);
+}
+
 }  // namespace
 
 WorstResidual worst_position_residual(const System& system, const RunReport& rep) {
@@ -343,18 +531,10 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   // docs/control.md: with `control:` the plant (physical rows only, τ = B u) is integrated.
   const std::unique_ptr<ControlRun> ctl = make_control_run(sc);
   const System& sys = ctl ? *ctl->plant : *sc.system;
-  const Index m = sys.rows();
   OutputDir out(out_dir, options.write_failure);
   clear_previous_outputs(out);
 
-  RunReport rep;
-  if (ctl) rep.plant = ctl->plant;
-  rep.out_dir = out_dir;
-  rep.summary = out_dir / kSummary;
-  rep.max_abs_residual.assign(static_cast<std::size_t>(m), 0.0);
-  rep.max_abs_velocity_residual.assign(static_cast<std::size_t>(m), 0.0);
-  rep.rank_min = static_cast<int>(m);
-  rep.sigma_min = std::numeric_limits<double>::infinity();
+  RunReport rep = start_report(sys, ctl.get(), out_dir);
 
   nlohmann::json summary = summary_start(sc);
   summary["status"] = "running";
@@ -362,14 +542,13 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
-  auto header = trajectory_header(sys, balance);
-  const ConstraintForceColumns force_columns(sc);  // frame constraints only
-  bool split_unique = true;
-  if (!ctl)
-    header.insert(header.end(), force_columns.header().begin(), force_columns.header().end());
+  const ConstraintForceColumns force_columns(sc);                       // frame constraints only
   ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // docs/control.md
   if (ctl) control_columns.set_plant(*ctl->plant);  // the closure / squeeze force
-  header.insert(header.end(), control_columns.header().begin(), control_columns.header().end());
+  const std::vector<std::string> header =
+      run_csv_header(sys, balance, ctl ? nullptr : &force_columns, control_columns);
+  const RunSetup setup{sc, options, ctl.get(), sys, force_columns, control_columns, header};
+  bool split_unique = true;
   std::optional<CsvWriter> csv;
   try {
     csv.emplace(out, kCsv, header);
@@ -379,130 +558,18 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
   Progress progress(options.progress, sc.sim.t0, sc.sim.t_end, options.progress_lines,
                     options.progress_every);
   const auto start = std::chrono::steady_clock::now();
-  if (csv) {
-    Observer observer{{sys, rep, balance, header.size()}, rep, &*csv, progress, options.cancel};
-    observer.forces = ctl ? nullptr : &force_columns;
-    observer.control = &control_columns;
-    const ForceFunction tau =
-        ctl ? ctl->loop->force_function()
-            : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
-    SimulationSettings settings = sc.sim;
-    settings.cancel = options.cancel;
-    try {
-      rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
-                           [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
-                             return observer(t, q, qd, d);
-                           });
-      if (!observer.split_unique) {  // docs/frame-constraints.md
-        split_unique = false;
-        rep.stats.warnings.push_back(
-            {observer.split_t, "constraint_force_split",
-             "redundant constraint rows: the force of each constraint block is not unique; the "
-             "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
-      }
-      for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
-    } catch (const std::exception& e) {
-      // Invalid settings: the summary must not be left saying "running".
-      progress.done();
-      csv->abandon();
-      summary["status"] = "incomplete";
-      summary["stop_reason"] = std::string("error: ") + e.what();
-      write_final_summary(out, summary, rep);
-      throw;
-    }
-  }
+  if (csv) split_unique = simulate_to_csv(setup, *csv, progress, rep, out, summary);
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   progress.done();
-  if (rep.stats.status == RunStatus::stopped && options.cancel && options.cancel->load()) {
-    // simulate() says "cancelled at t = <time of the step>" when it stopped between samples.
-    const std::string tag = "cancelled at t = ";
-    const auto at = rep.stats.message.rfind(tag, 0) == 0
-                        ? " at t = " + rep.stats.message.substr(tag.size())
-                        : std::string();
-    rep.stats.message = fmt::format("interrupted (SIGINT/SIGTERM){}; last sample at t = {}", at,
-                                    rep.stats.t_reached);
-  }
-
-  bool committed = false;
-  if (csv && rep.complete()) {
-    try {
-      csv->commit();
-      committed = true;
-      rep.csv = out_dir / kCsv;
-    } catch (const Error& e) {
-      rep.write_error = e.what();
-    }
-  }
-  if (csv && !committed) {
-    const std::string name = csv->abandon();
-    if (!name.empty()) rep.csv = out_dir / name;
-  }
-  if (csv) rep.csv_rows = csv->rows_written();
+  describe_interruption(rep, options);
+  finish_csv(csv, rep, out_dir);
   out.sync();
 
-  if (rep.complete() && options.figures) {
-    std::vector<Figure> figs = default_figures(sc);
-    for (std::size_t f = 0; f < force_columns.figure_names().size(); ++f) {
-      const auto& cols = force_columns.figure_columns()[f];
-      if (cols.empty()) continue;
-      const std::string& nm = force_columns.figure_names()[f];
-      const bool wrench = nm.rfind("wrench_", 0) == 0;
-      figs.push_back({nm + ".png",
-                      wrench ? "Wrench of '" + nm.substr(7) + "' on its frame (world axes)"
-                             : "Force A_k^T lambda_k of '" + nm.substr(6) + "'",
-                      wrench ? "[N or N·m]" : "[N or N·m]", cols});
-    }
-    for (const auto& [nm, cols] : control_columns.figures())  // docs/control.md
-      figs.push_back({nm + ".png", nm, "[N, N·m or m]", cols});
-    if (ctl) {  // the plant has no servo rows: drop the curves of columns it does not write
-      for (auto& f : figs)
-        std::erase_if(f.columns, [&header](const std::string& c) {
-          return std::find(header.begin(), header.end(), c) == header.end();
-        });
-      std::erase_if(figs, [](const Figure& f) { return f.columns.empty(); });
-    }
-    cap_figures(figs, rep.figure_notes);
-    // Said before and after: drawing a long run's figures takes seconds (no silent wait).
-    const auto drawing = std::chrono::steady_clock::now();
-    if (options.progress) {
-      *options.progress << fmt::format("drawing {} figures (gnuplot) ...\n", figs.size())
-                        << std::flush;
-    }
-    try {
-      const FigureResult fr = render_figures(out, kCsv, header, figs, options.cancel);
-      for (const auto& f : fr.written) rep.figures.push_back(out_dir / f);
-      rep.figure_error = fr.error;
-      if (!fr.note.empty()) rep.figure_notes.push_back(fr.note);
-      if (options.progress) {
-        *options.progress << fmt::format("drew {} figures in {:.1f} s\n", fr.written.size(),
-                                         std::chrono::duration<double>(
-                                             std::chrono::steady_clock::now() - drawing)
-                                             .count())
-                          << std::flush;
-      }
-    } catch (const Error& e) {
-      rep.figure_error = e.what();
-    }
-  }
+  if (rep.complete() && options.figures) draw_run_figures(setup, out, rep);
 
-  const bool complete = rep.complete();
-  std::string reason;
-  if (!rep.write_error.empty()) {
-    reason = "write failed: " + rep.write_error;
-  } else if (!complete) {
-    reason = to_string(rep.stats.status) + ": " + rep.stats.message;
-  }
-  if (!control_columns.empty()) summary["control"] = control_columns.summary();
-  if (!force_columns.empty() && !ctl) {
-    summary["constraint_forces"] = {
-        {"split_unique", split_unique},
-        {"choice", split_unique ? "unique" : "least-norm multipliers (not unique)"}};
-  }
-  summary["status"] = complete ? "complete" : "incomplete";
-  summary["stop_reason"] = reason;
-  summary_results(summary, sys, rep);
+  summary_final(summary, setup, split_unique, rep);
   write_final_summary(out, summary, rep);
   out.sync();
   return rep;

@@ -342,11 +342,8 @@ void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
   }
 }
 
-}  // namespace
-
-Sweep load_sweep(const std::filesystem::path& path) {
-  const std::string text = read_text(path, "sweep file");
-  Loader L(path);
+// The sweep file's YAML tree (a syntax error names its line and column).
+YAML::Node parse_sweep_yaml(const std::string& text, const std::filesystem::path& path) {
   YAML::Node root_node;
   try {
     root_node = YAML::Load(text);
@@ -354,54 +351,59 @@ Sweep load_sweep(const std::filesystem::path& path) {
     throw ScenarioError(fmt::format("{}:{}:{}: YAML syntax error: {}", printable(path.string()),
                                     e.mark.line + 1, e.mark.column + 1, printable(e.msg)));
   }
-  const Node root{root_node, ""};
-  if (!root_node.IsMap()) throw ScenarioError(printable(path.string()) + ": expected a mapping");
-  L.only_keys(root, {"ukdyn_sweep", "name", "base", "mode", "seed", "samples", "parameters", "set",
-                     "metrics", "assemble", "figures"});
-  Sweep sw;
-  sw.path = path;
-  {
-    const Node v = L.child(root, "ukdyn_sweep", true);
-    if (L.number(v) != 1.0) L.fail(v, "unsupported sweep format version (this ukdyn reads 1)");
-  }
-  sw.name = L.name(L.child(root, "name", true));
-  const Node bn = L.child(root, "base", true);
+  return root_node;
+}
+
+void check_format_version(const Loader& L, const Node& root) {
+  const Node v = L.child(root, "ukdyn_sweep", true);
+  if (L.number(v) != 1.0) L.fail(v, "unsupported sweep format version (this ukdyn reads 1)");
+}
+
+// The base scenario's tree, and the plant's tree of a control scenario.
+struct BaseTrees {
+  std::shared_ptr<YAML::Node> doc;
+  std::optional<YAML::Node> plant;
+};
+
+// `base:`: sets sw.base_path and sw.base_text; the base scenario parsed (not loaded yet).
+BaseTrees load_base_trees(const Loader& L, const Node& bn, const std::filesystem::path& path,
+                          Sweep& sw) {
   sw.base_path = path.parent_path() / L.string(bn);
   try {
     sw.base_text = read_text(sw.base_path, "base scenario");
   } catch (const ScenarioError& e) {
     L.fail(bn, e.what());
   }
-  auto doc = std::make_shared<YAML::Node>();
+  BaseTrees t;
+  t.doc = std::make_shared<YAML::Node>();
   try {
-    *doc = clone(YAML::Load(sw.base_text));
+    *t.doc = clone(YAML::Load(sw.base_text));
   } catch (const YAML::Exception& e) {
     L.fail(bn, "the base scenario is not valid YAML: " + e.msg);
   }
   // A control scenario (docs/control.md): each sample runs its closed loop; `plant.` paths lead
   // into the plant's tree.
-  std::optional<YAML::Node> plant;
-  if ((*doc)["control"].IsDefined()) {
+  if ((*t.doc)["control"].IsDefined()) {
     try {
-      plant = plant_tree(*doc, sw.base_path);
+      t.plant = plant_tree(*t.doc, sw.base_path);
     } catch (const std::exception& e) {
       L.fail(bn, std::string("the base scenario's plant: ") + e.what());
     }
   }
-  sw.base_doc = doc;
-  sw.hash = hash_hex(std::string(version()) + "\n" + text + "\n" + sw.base_text);
+  return t;
+}
 
+Sweep::Mode load_mode(const Loader& L, const Node& root) {
   const Node mn = L.child(root, "mode", true);
   const std::string mode = L.string(mn);
-  if (mode == "grid") {
-    sw.mode = Sweep::Mode::grid;
-  } else if (mode == "list") {
-    sw.mode = Sweep::Mode::list;
-  } else if (mode == "random") {
-    sw.mode = Sweep::Mode::random;
-  } else {
-    L.fail(mn, "unknown mode '" + mode + "' (expected grid, list or random)");
-  }
+  if (mode == "grid") return Sweep::Mode::grid;
+  if (mode == "list") return Sweep::Mode::list;
+  if (mode == "random") return Sweep::Mode::random;
+  L.fail(mn, "unknown mode '" + mode + "' (expected grid, list or random)");
+}
+
+// `seed:` (required by a random sweep) into sw.seed.
+void load_seed(const Loader& L, const Node& root, Sweep& sw) {
   if (Node s = L.child(root, "seed", false); s.node.IsDefined()) {
     const std::string t = L.string(s);
     char* end = nullptr;
@@ -413,94 +415,109 @@ Sweep load_sweep(const std::filesystem::path& path) {
   } else if (sw.mode == Sweep::Mode::random) {
     L.fail(root, "missing required key 'seed' (a random sweep needs one)");
   }
+}
 
-  const Node ps = L.child(root, "parameters", true);
+// One entry of `parameters:` (its name not among `names`, which it joins).
+SweepParameter load_parameter(const Loader& L, const Node& p, Sweep::Mode mode,
+                              const YAML::Node& doc, const YAML::Node* plant,
+                              std::set<std::string>& names) {
+  L.only_keys(p, {"name", "path", "values", "range", "distribution"});
+  SweepParameter par;
+  const Node nn = L.child(p, "name", true);
+  par.name = L.name(nn);
+  if (!names.insert(par.name).second) L.fail(nn, "duplicate parameter name '" + par.name + "'");
+  par.targets = load_targets(L, p, doc, plant);
+  const Node dn = L.child(p, "distribution", false);
+  if (mode == Sweep::Mode::random) {
+    if (!dn.node.IsDefined()) L.fail(p, "missing required key '" + p.key + ".distribution'");
+    if (L.child(p, "values", false).node.IsDefined() || L.child(p, "range", false).node.IsDefined())
+      L.fail(p, "a random sweep draws values: give distribution, not values / range");
+    par.dist = load_distribution(L, dn);
+  } else {
+    if (dn.node.IsDefined()) L.fail(dn, "only used with mode: random");
+    par.dist.values = load_values(L, p);
+  }
+  return par;
+}
+
+void load_parameters(const Loader& L, const Node& ps, const YAML::Node& doc,
+                     const YAML::Node* plant, Sweep& sw) {
   if (!ps.node.IsSequence() || ps.node.size() == 0 || ps.node.size() > 64)
     L.fail(ps, "expected a list of 1 to 64 parameters");
   std::set<std::string> names;
   for (std::size_t i = 0; i < ps.node.size(); ++i) {
     const Node p{ps.node[i], ps.key + "[" + std::to_string(i) + "]"};
-    L.only_keys(p, {"name", "path", "values", "range", "distribution"});
-    SweepParameter par;
-    const Node nn = L.child(p, "name", true);
-    par.name = L.name(nn);
-    if (!names.insert(par.name).second) L.fail(nn, "duplicate parameter name '" + par.name + "'");
-    par.targets = load_targets(L, p, *doc, plant ? &*plant : nullptr);
-    const Node dn = L.child(p, "distribution", false);
-    if (sw.mode == Sweep::Mode::random) {
-      if (!dn.node.IsDefined()) L.fail(p, "missing required key '" + p.key + ".distribution'");
-      if (L.child(p, "values", false).node.IsDefined() ||
-          L.child(p, "range", false).node.IsDefined())
-        L.fail(p, "a random sweep draws values: give distribution, not values / range");
-      par.dist = load_distribution(L, dn);
-    } else {
-      if (dn.node.IsDefined()) L.fail(dn, "only used with mode: random");
-      par.dist.values = load_values(L, p);
-    }
-    sw.parameters.push_back(std::move(par));
+    sw.parameters.push_back(load_parameter(L, p, sw.mode, doc, plant, names));
   }
+}
+
+// The number of samples: `samples:` of a random sweep, else what the parameters' values give.
+long load_sample_count(const Loader& L, const Node& root, const Node& ps, const Sweep& sw) {
   const Node sn = L.child(root, "samples", false);
   if (sw.mode == Sweep::Mode::random) {
     if (!sn.node.IsDefined()) L.fail(root, "missing required key 'samples'");
     const double v = L.number(sn);
     if (!(v >= 1 && v <= 1e7 && v == std::floor(v))) L.fail(sn, "expected an integer in [1, 1e7]");
-    sw.samples = static_cast<long>(v);
-  } else {
-    if (sn.node.IsDefined()) L.fail(sn, "only used with mode: random (the values set the count)");
-    if (sw.mode == Sweep::Mode::grid) {
-      double total = 1;
-      for (const auto& p : sw.parameters) total *= static_cast<double>(p.dist.values.size());
-      if (total > 1e7) L.fail(ps, "the grid has more than 1e7 samples");
-      sw.samples = static_cast<long>(total);
-    } else {
-      sw.samples = static_cast<long>(sw.parameters[0].dist.values.size());
-      for (std::size_t i = 0; i < sw.parameters.size(); ++i) {
-        if (static_cast<long>(sw.parameters[i].dist.values.size()) != sw.samples)
-          L.fail(Node{ps.node[i], ps.key + "[" + std::to_string(i) + "]"},
-                 "mode: list needs the same number of values for every parameter");
-      }
-    }
+    return static_cast<long>(v);
   }
+  if (sn.node.IsDefined()) L.fail(sn, "only used with mode: random (the values set the count)");
+  if (sw.mode == Sweep::Mode::grid) {
+    double total = 1;
+    for (const auto& p : sw.parameters) total *= static_cast<double>(p.dist.values.size());
+    if (total > 1e7) L.fail(ps, "the grid has more than 1e7 samples");
+    return static_cast<long>(total);
+  }
+  const auto samples = static_cast<long>(sw.parameters[0].dist.values.size());
+  for (std::size_t i = 0; i < sw.parameters.size(); ++i) {
+    if (static_cast<long>(sw.parameters[i].dist.values.size()) != samples)
+      L.fail(Node{ps.node[i], ps.key + "[" + std::to_string(i) + "]"},
+             "mode: list needs the same number of values for every parameter");
+  }
+  return samples;
+}
+
+// `set:` PATH: VALUE into sw.fixed and sw.fixed_values.
+void load_fixed(const Loader& L, const Node& root, const YAML::Node& doc, const YAML::Node* plant,
+                Sweep& sw) {
   if (Node st = L.child(root, "set", false); st.node.IsDefined()) {
     if (!st.node.IsMap()) L.fail(st, "expected a mapping PATH: VALUE");
     for (const auto& kv : st.node) {
       const std::string p = L.key(st, kv.first);
       const Node e{kv.second, st.key + "." + p};
       SweepTarget t{p, 1.0, 0.0};
-      check_path(L, e, p, *doc, plant ? &*plant : nullptr);
+      check_path(L, e, p, doc, plant);
       sw.fixed.push_back(t);
       sw.fixed_values.push_back(L.number(e));
     }
   }
-  if (Node m = L.child(root, "metrics", false); m.node.IsDefined()) load_metrics(L, m, sw.metrics);
-  auto flag = [&](const char* key, bool fallback) {
-    const Node f = L.child(root, key, false);
-    if (!f.node.IsDefined()) return fallback;
-    const std::string v = L.string(f);
-    if (v != "true" && v != "false") L.fail(f, "expected true or false");
-    return v == "true";
-  };
-  sw.assemble = flag("assemble", false);
-  sw.figures = flag("figures", true);
-  // The base scenario itself must load (its own errors name its own file and lines).
-  const Scenario base = load_scenario_text(sw.base_text, sw.base_path, {false});
-  {
-    std::set<std::string> cols;
-    for (const auto& c : sweep_header(sw, base)) {
-      if (!cols.insert(c).second) {
-        L.fail(
-            L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : ps,
-            "two columns of the table would be named '" + c +
-                "' (a parameter and a metric, or two metrics, share the name)");
-      }
+}
+
+// A `true` / `false` key of the sweep file, or the fallback if it is absent.
+bool load_flag(const Loader& L, const Node& root, const char* key, bool fallback) {
+  const Node f = L.child(root, key, false);
+  if (!f.node.IsDefined()) return fallback;
+  const std::string v = L.string(f);
+  if (v != "true" && v != "false") L.fail(f, "expected true or false");
+  return v == "true";
+}
+
+// No two columns of the table may share a name.
+void check_unique_columns(const Loader& L, const Node& root, const Node& ps, const Sweep& sw,
+                          const Scenario& base) {
+  std::set<std::string> cols;
+  for (const auto& c : sweep_header(sw, base)) {
+    if (!cols.insert(c).second) {
+      L.fail(
+          L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : ps,
+          "two columns of the table would be named '" + c +
+              "' (a parameter and a metric, or two metrics, share the name)");
     }
   }
-  const Node metrics_node =
-      L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : root;
-  if ((sw.metrics.control || sw.metrics.squeeze) && !base.control)
-    L.fail(metrics_node,
-           "the metrics control and squeeze_force need a base scenario with a "
-           "control: section (docs/control.md)");
+}
+
+// The trajectory columns a run of the base scenario has (those the column metrics may name).
+std::vector<std::string> base_run_columns(const Loader& L, const Node& bn, const Node& metrics_node,
+                                          const Sweep& sw, const Scenario& base) {
   std::vector<std::string> h = trajectory_header(*base.system, base.sim.energy_balance);
   if (base.control) {
     // The columns of a control run: the plant's, then the control columns (as in trajectory.csv).
@@ -519,10 +536,59 @@ Sweep load_sweep(const std::filesystem::path& path) {
              "squeeze_force: the plant has no closure rows closure_x, closure_y, "
              "closure_z (the paper's Eq. 12 block named 'closure')");
   }
+  return h;
+}
+
+// The base scenario itself must load (its own errors name its own file and lines), and the
+// metrics must fit it.
+void check_against_base(const Loader& L, const Node& root, const Node& ps, const Node& bn,
+                        const Sweep& sw) {
+  const Scenario base = load_scenario_text(sw.base_text, sw.base_path, {false});
+  check_unique_columns(L, root, ps, sw, base);
+  const Node metrics_node =
+      L.child(root, "metrics", false).node.IsDefined() ? L.child(root, "metrics", false) : root;
+  if ((sw.metrics.control || sw.metrics.squeeze) && !base.control)
+    L.fail(metrics_node,
+           "the metrics control and squeeze_force need a base scenario with a "
+           "control: section (docs/control.md)");
+  const std::vector<std::string> h = base_run_columns(L, bn, metrics_node, sw, base);
   for (const auto& c : sw.metrics.columns) {
     if (std::find(h.begin(), h.end(), c.column) == h.end())
       L.fail(root, "metrics: no trajectory column named '" + c.column + "'");
   }
+}
+
+}  // namespace
+
+Sweep load_sweep(const std::filesystem::path& path) {
+  const std::string text = read_text(path, "sweep file");
+  Loader L(path);
+  const YAML::Node root_node = parse_sweep_yaml(text, path);
+  const Node root{root_node, ""};
+  if (!root_node.IsMap()) throw ScenarioError(printable(path.string()) + ": expected a mapping");
+  L.only_keys(root, {"ukdyn_sweep", "name", "base", "mode", "seed", "samples", "parameters", "set",
+                     "metrics", "assemble", "figures"});
+  Sweep sw;
+  sw.path = path;
+  check_format_version(L, root);
+  sw.name = L.name(L.child(root, "name", true));
+  const Node bn = L.child(root, "base", true);
+  const BaseTrees trees = load_base_trees(L, bn, path, sw);
+  const YAML::Node& doc = *trees.doc;
+  const YAML::Node* plant = trees.plant ? &*trees.plant : nullptr;
+  sw.base_doc = trees.doc;
+  sw.hash = hash_hex(std::string(version()) + "\n" + text + "\n" + sw.base_text);
+
+  sw.mode = load_mode(L, root);
+  load_seed(L, root, sw);
+  const Node ps = L.child(root, "parameters", true);
+  load_parameters(L, ps, doc, plant, sw);
+  sw.samples = load_sample_count(L, root, ps, sw);
+  load_fixed(L, root, doc, plant, sw);
+  if (Node m = L.child(root, "metrics", false); m.node.IsDefined()) load_metrics(L, m, sw.metrics);
+  sw.assemble = load_flag(L, root, "assemble", false);
+  sw.figures = load_flag(L, root, "figures", true);
+  check_against_base(L, root, ps, bn, sw);
   return sw;
 }
 
@@ -754,9 +820,7 @@ class SampleRunner {
     const auto vals = sample_values(sw_, k);
     std::string r = fmt::format("{}", k);
     for (double v : vals) r += "," + num(v);
-    std::string status = "completed", reason;
-    SimulationStats stats;
-    std::optional<SampleObserver> obs;
+    SampleOutcome out;
     // Building (and dropping) a model from definitions runs GiNaC, which is not thread-safe
     // (docs/architecture.md, "Thread safety"): the sample's scenario and control run are built and
     // released under build_mu_; only the integration runs in parallel.
@@ -765,92 +829,16 @@ class SampleRunner {
     try {
       {
         std::lock_guard<std::mutex> lock(build_mu_);
-        held.emplace(scenario_for(k, vals, status, reason));
+        held.emplace(scenario_for(k, vals, out.status, out.reason));
       }
       Scenario& sc = *held;
-      if (status == "completed") {
-        const System& sys = *sc.system;
-        const Index m = sys.rows();
-        bool ok = true;
-        if (sw_.assemble) {
-          const auto a = assemble(sys, sc.sim.t0, sc.q0, sc.qd0, sc.held);
-          if (!a.success) {
-            status = "assembly_failed";
-            reason = a.message;
-            ok = false;
-          } else {
-            sc.q0 = a.q;
-            sc.qd0 = a.qd;
-          }
-        } else if (m > 0) {
-          Vec phi(m), phid(m);
-          position_residuals(sys, sc.sim.t0, sc.q0, phi);
-          velocity_residuals(sys, sc.sim.t0, sc.q0, sc.qd0, phid);
-          const double p = phi.cwiseAbs().maxCoeff(), v = phid.cwiseAbs().maxCoeff();
-          if (!(p <= sc.initial_tolerance) || !(v <= sc.initial_tolerance)) {
-            status = "inconsistent_initial";
-            reason = fmt::format(
-                "initial state violates the constraints: max |Phi| = {:.3e}, "
-                "max |Phi_dot| = {:.3e} > initial_tolerance {:g}",
-                p, v, sc.initial_tolerance);
-            ok = false;
-          }
-        }
-        if (ok) {
-          const bool balance = sc.sim.energy_balance;
-          // docs/control.md: with `control:` the plant (physical rows only, τ = B u from the
-          // law) is integrated, exactly as run_scenario() does it (io/run.cpp).
-          {
-            std::lock_guard<std::mutex> lock(build_mu_);
-            ctl = make_control_run(sc);
-          }
-          const System& psys = ctl ? *ctl->plant : sys;
-          std::optional<ControlColumns> cc;
-          auto th = trajectory_header(psys, balance);
-          const std::size_t control_at = th.size();
-          if (ctl) {
-            cc.emplace(sc, ctl->loop.get());
-            cc->set_plant(*ctl->plant);
-            th.insert(th.end(), cc->header().begin(), cc->header().end());
-          }
-          std::vector<std::size_t> cols;
-          bool need_sigma = false;
-          for (const auto& c : sw_.metrics.columns) {
-            const auto it = std::find(th.begin(), th.end(), c.column);
-            if (it == th.end()) throw Error("no trajectory column named '" + c.column + "'");
-            cols.push_back(static_cast<std::size_t>(it - th.begin()));
-            need_sigma = need_sigma || c.column == "sigma_min";
-          }
-          const Vec& q0 = ctl ? ctl->q0 : sc.q0;
-          const Vec& qd0 = ctl ? ctl->qd0 : sc.qd0;
-          obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma);
-          obs->q_last = q0;
-          obs->qd_last = qd0;
-          obs->control = cc ? &*cc : nullptr;
-          obs->control_at = control_at;
-          SimulationSettings settings = sc.sim;
-          settings.cancel = cancel;
-          const Vec tau = sc.tau;
-          const ForceFunction f =
-              ctl ? ctl->loop->force_function()
-                  : ForceFunction([&tau](double, CVecRef, CVecRef, VecRef o) { o = tau; });
-          SampleObserver& o = *obs;
-          stats = simulate(psys, q0, qd0, f, settings,
-                           [&o](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
-                             return o(t, q, qd, d);
-                           });
-          if (cc) obs->peaks = cc->peaks();
-          obs->control = nullptr;
-          cc.reset();
-          status = to_string(stats.status);
-          reason = stats.message;
-          if (stats.status == RunStatus::completed) reason.clear();
-        }
+      if (out.status == "completed" && prepare_initial_state(sc, out)) {
+        simulate_sample(sc, ctl, cancel, out);
       }
     } catch (const std::exception& e) {
-      status = "error";
-      reason = e.what();
-      obs.reset();
+      out.status = "error";
+      out.reason = e.what();
+      out.obs.reset();
     }
     {
       std::lock_guard<std::mutex> lock(build_mu_);
@@ -858,47 +846,11 @@ class SampleRunner {
       held.reset();
     }
     if (cancel && cancel->load()) return {};  // not recorded: recomputed on resume
-    r += "," + status + "," + clean_reason(reason);
-    r += "," + num(stats.t_reached) + "," + std::to_string(stats.steps);
+    r += "," + out.status + "," + clean_reason(out.reason);
+    r += "," + num(out.stats.t_reached) + "," + std::to_string(out.stats.steps);
     const std::size_t fixed = 1 + vals.size() + 4;
     std::vector<std::string> cells;
-    if (obs) {
-      const auto& mx = sw_.metrics;
-      const auto& o = *obs;
-      if (mx.max_residual) cells.push_back(num(o.max_residual()));
-      if (mx.energy_drift) cells.push_back(num(o.rep.max_energy_drift));
-      if (mx.energy_balance_drift)
-        cells.push_back(o.rep.energy_balance ? num(o.rep.energy_balance_drift) : "nan");
-      const auto& pk = o.peaks;
-      if (mx.control) {
-        for (double v : {pk.max_abs_e, pk.max_abs_e_second_half, pk.max_abs_u, pk.max_abs_udot,
-                         pk.saturation_time, pk.saturation_max_over_limit})
-          cells.push_back(num(v));
-      }
-      if (mx.squeeze) {
-        cells.push_back(o.count > 0 ? num(pk.max_closure_force) : "nan");
-        cells.push_back(o.count > 0 ? num(pk.max_squeeze_force) : "nan");
-      }
-      if (mx.max_abs_qc)
-        for (Index i = 0; i < o.max_qc.size(); ++i) cells.push_back(num(o.max_qc(i)));
-      if (mx.final_state) {
-        for (Index i = 0; i < o.q_last.size(); ++i) cells.push_back(num(o.q_last(i)));
-        for (Index i = 0; i < o.qd_last.size(); ++i) cells.push_back(num(o.qd_last(i)));
-      }
-      std::size_t ci = 0;
-      for (const auto& c : mx.columns) {
-        for (const auto& s : c.stats) {
-          const double cnt = static_cast<double>(std::max(o.count, 1L));
-          const double v = s == "min"       ? o.cmin[ci]
-                           : s == "max"     ? o.cmax[ci]
-                           : s == "rms"     ? std::sqrt(o.csq[ci] / cnt)
-                           : s == "max_abs" ? o.cabs[ci]
-                                            : o.clast[ci];
-          cells.push_back(num(v));
-        }
-        ++ci;
-      }
-    }
+    if (out.obs) cells = metric_cells(*out.obs);
     // A failed load leaves the metric cells empty (same count as the header).
     cells.resize(header_.size() - fixed);
     for (const auto& c : cells) r += "," + c;
@@ -908,6 +860,146 @@ class SampleRunner {
   const std::vector<std::string>& header() const { return header_; }
 
  private:
+  // What the run of one sample leaves for its row.
+  struct SampleOutcome {
+    std::string status = "completed", reason;
+    SimulationStats stats;
+    std::optional<SampleObserver> obs;  // empty if the sample did not run (or failed)
+  };
+
+  // Moves (q0, q̇0) onto the constraints (`assemble: true`), or checks that they meet them.
+  // Returns false (with out.status and out.reason saying why) if the sample cannot run.
+  bool prepare_initial_state(Scenario& sc, SampleOutcome& out) const {
+    const System& sys = *sc.system;
+    const Index m = sys.rows();
+    if (sw_.assemble) {
+      const auto a = assemble(sys, sc.sim.t0, sc.q0, sc.qd0, sc.held);
+      if (!a.success) {
+        out.status = "assembly_failed";
+        out.reason = a.message;
+        return false;
+      }
+      sc.q0 = a.q;
+      sc.qd0 = a.qd;
+    } else if (m > 0) {
+      Vec phi(m), phid(m);
+      position_residuals(sys, sc.sim.t0, sc.q0, phi);
+      velocity_residuals(sys, sc.sim.t0, sc.q0, sc.qd0, phid);
+      const double p = phi.cwiseAbs().maxCoeff(), v = phid.cwiseAbs().maxCoeff();
+      if (!(p <= sc.initial_tolerance) || !(v <= sc.initial_tolerance)) {
+        out.status = "inconsistent_initial";
+        out.reason = fmt::format(
+            "initial state violates the constraints: max |Phi| = {:.3e}, "
+            "max |Phi_dot| = {:.3e} > initial_tolerance {:g}",
+            p, v, sc.initial_tolerance);
+        return false;
+      }
+    }
+    return true;
+  }
+
+  // The trajectory row's index of each column metric; need_sigma: one of them is sigma_min.
+  std::vector<std::size_t> metric_column_indices(const std::vector<std::string>& th,
+                                                 bool& need_sigma) const {
+    std::vector<std::size_t> cols;
+    need_sigma = false;
+    for (const auto& c : sw_.metrics.columns) {
+      const auto it = std::find(th.begin(), th.end(), c.column);
+      if (it == th.end()) throw Error("no trajectory column named '" + c.column + "'");
+      cols.push_back(static_cast<std::size_t>(it - th.begin()));
+      need_sigma = need_sigma || c.column == "sigma_min";
+    }
+    return cols;
+  }
+
+  // Integrates the sample, its metrics into out.obs. ctl: its control run, built here and released
+  // by row() (both under build_mu_).
+  void simulate_sample(const Scenario& sc, std::unique_ptr<ControlRun>& ctl,
+                       const std::atomic<bool>* cancel, SampleOutcome& out) {
+    const System& sys = *sc.system;
+    const bool balance = sc.sim.energy_balance;
+    // docs/control.md: with `control:` the plant (physical rows only, τ = B u from the
+    // law) is integrated, exactly as run_scenario() does it (io/run.cpp).
+    {
+      std::lock_guard<std::mutex> lock(build_mu_);
+      ctl = make_control_run(sc);
+    }
+    const System& psys = ctl ? *ctl->plant : sys;
+    std::optional<ControlColumns> cc;
+    auto th = trajectory_header(psys, balance);
+    const std::size_t control_at = th.size();
+    if (ctl) {
+      cc.emplace(sc, ctl->loop.get());
+      cc->set_plant(*ctl->plant);
+      th.insert(th.end(), cc->header().begin(), cc->header().end());
+    }
+    bool need_sigma = false;
+    std::vector<std::size_t> cols = metric_column_indices(th, need_sigma);
+    const Vec& q0 = ctl ? ctl->q0 : sc.q0;
+    const Vec& qd0 = ctl ? ctl->qd0 : sc.qd0;
+    out.obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma);
+    out.obs->q_last = q0;
+    out.obs->qd_last = qd0;
+    out.obs->control = cc ? &*cc : nullptr;
+    out.obs->control_at = control_at;
+    SimulationSettings settings = sc.sim;
+    settings.cancel = cancel;
+    const Vec tau = sc.tau;
+    const ForceFunction f =
+        ctl ? ctl->loop->force_function()
+            : ForceFunction([&tau](double, CVecRef, CVecRef, VecRef o) { o = tau; });
+    SampleObserver& o = *out.obs;
+    out.stats = simulate(
+        psys, q0, qd0, f, settings,
+        [&o](double t, CVecRef q, CVecRef qd, const ForwardData& d) { return o(t, q, qd, d); });
+    if (cc) out.obs->peaks = cc->peaks();
+    out.obs->control = nullptr;
+    cc.reset();
+    out.status = to_string(out.stats.status);
+    out.reason = out.stats.message;
+    if (out.stats.status == RunStatus::completed) out.reason.clear();
+  }
+
+  // The metric cells of a sample that ran, in the order of sweep_header().
+  std::vector<std::string> metric_cells(const SampleObserver& o) const {
+    std::vector<std::string> cells;
+    const auto& mx = sw_.metrics;
+    if (mx.max_residual) cells.push_back(num(o.max_residual()));
+    if (mx.energy_drift) cells.push_back(num(o.rep.max_energy_drift));
+    if (mx.energy_balance_drift)
+      cells.push_back(o.rep.energy_balance ? num(o.rep.energy_balance_drift) : "nan");
+    const auto& pk = o.peaks;
+    if (mx.control) {
+      for (double v : {pk.max_abs_e, pk.max_abs_e_second_half, pk.max_abs_u, pk.max_abs_udot,
+                       pk.saturation_time, pk.saturation_max_over_limit})
+        cells.push_back(num(v));
+    }
+    if (mx.squeeze) {
+      cells.push_back(o.count > 0 ? num(pk.max_closure_force) : "nan");
+      cells.push_back(o.count > 0 ? num(pk.max_squeeze_force) : "nan");
+    }
+    if (mx.max_abs_qc)
+      for (Index i = 0; i < o.max_qc.size(); ++i) cells.push_back(num(o.max_qc(i)));
+    if (mx.final_state) {
+      for (Index i = 0; i < o.q_last.size(); ++i) cells.push_back(num(o.q_last(i)));
+      for (Index i = 0; i < o.qd_last.size(); ++i) cells.push_back(num(o.qd_last(i)));
+    }
+    std::size_t ci = 0;
+    for (const auto& c : mx.columns) {
+      for (const auto& s : c.stats) {
+        const double cnt = static_cast<double>(std::max(o.count, 1L));
+        const double v = s == "min"       ? o.cmin[ci]
+                         : s == "max"     ? o.cmax[ci]
+                         : s == "rms"     ? std::sqrt(o.csq[ci] / cnt)
+                         : s == "max_abs" ? o.cabs[ci]
+                                          : o.clast[ci];
+        cells.push_back(num(v));
+      }
+      ++ci;
+    }
+    return cells;
+  }
+
   Scenario scenario_for(long k, const std::vector<double>& vals, std::string& status,
                         std::string& reason) {
     // The values that shape the model: every target but the state ones when they can be shared.
@@ -1307,55 +1399,87 @@ std::string duration_text(double s) {
   return fmt::format("{}s", t);
 }
 
-}  // namespace
-
-SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
-                      const SweepOptions& opt) {
-  const auto start = std::chrono::steady_clock::now();
-  if (opt.shards < 1 || opt.shard < 0 || opt.shard >= opt.shards)
-    throw ScenarioError("--shard: expected i/N with 0 <= i < N");
-  const Scenario base = load_scenario_text(sw.base_text, sw.base_path, LoadOptions{false});
-  SampleRunner runner(sw, base);
-  const auto& header = runner.header();
-  const int rank = opt.comm ? opt.comm->rank() : 0;
-  const int size = opt.comm ? opt.comm->size() : 1;
-
-  // This shard's samples; then this rank's share of them.
+// The samples of this shard (k % shards == shard).
+std::vector<long> shard_sample_indices(const Sweep& sw, const SweepOptions& opt) {
   std::vector<long> shard_samples;
   for (long k = opt.shard; k < sw.samples; k += opt.shards) shard_samples.push_back(k);
-  SweepReport rep;
-  rep.samples = static_cast<long>(shard_samples.size());
+  return shard_samples;
+}
 
-  std::optional<OutputDir> out;
-  std::map<long, std::string> done;
-  std::optional<Journal> journal;
-  const std::string head = journal_head(sw, opt);
-  if (rank == 0) {
-    out.emplace(out_dir);
-    // A table or summary of an earlier run goes first: nothing on disk may describe another run.
-    for (const char* f : {kTable, kSummary}) {
-      out->require_file_or_absent(out->fd(), "", f);
-      out->remove_file(out->fd(), f);
-    }
-    if (opt.resume && size == 1) done = read_journal(*out, head, header.size());
-    for (auto it = done.begin(); it != done.end();) {  // rows of this shard only
-      it = (it->first % opt.shards == opt.shard && it->first < sw.samples) ? std::next(it)
-                                                                           : done.erase(it);
-    }
-    if (size == 1) journal.emplace(*out, head, done);
-    rep.resumed = static_cast<long>(done.size());
+// Rank 0's output folder: the earlier table and summary removed, the rows of an interrupted run of
+// this shard read back from its journal (`done`), and the journal opened (one process only).
+void open_sweep_output(const Sweep& sw, const SweepOptions& opt,
+                       const std::filesystem::path& out_dir, const std::string& head,
+                       std::size_t columns, int size, std::optional<OutputDir>& out,
+                       std::map<long, std::string>& done, std::optional<Journal>& journal) {
+  out.emplace(out_dir);
+  // A table or summary of an earlier run goes first: nothing on disk may describe another run.
+  for (const char* f : {kTable, kSummary}) {
+    out->require_file_or_absent(out->fd(), "", f);
+    out->remove_file(out->fd(), f);
   }
+  if (opt.resume && size == 1) done = read_journal(*out, head, columns);
+  for (auto it = done.begin(); it != done.end();) {  // rows of this shard only
+    it = (it->first % opt.shards == opt.shard && it->first < sw.samples) ? std::next(it)
+                                                                         : done.erase(it);
+  }
+  if (size == 1) journal.emplace(*out, head, done);
+}
+
+// This rank's share of the shard's samples, less those already done.
+std::vector<long> rank_todo(const std::vector<long>& shard_samples,
+                            const std::map<long, std::string>& done, int rank, int size) {
   std::vector<long> todo;
   for (std::size_t i = 0; i < shard_samples.size(); ++i) {
     if (static_cast<int>(i % static_cast<std::size_t>(size)) != rank) continue;
     if (!done.count(shard_samples[i])) todo.push_back(shard_samples[i]);
   }
+  return todo;
+}
 
+// Worker threads: opt.threads (or every core), at most one per sample to compute.
+int pool_threads(const SweepOptions& opt, std::size_t todo) {
   int threads = opt.threads > 0
                     ? opt.threads
                     : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  threads = static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(threads),
-                                                   std::max<std::size_t>(todo.size(), 1)));
+  threads = static_cast<int>(
+      std::min<std::size_t>(static_cast<std::size_t>(threads), std::max<std::size_t>(todo, 1)));
+  return threads;
+}
+
+// One progress report of rank 0: a bar on a terminal, else a line.
+void report_sweep_progress(const SweepOptions& opt, int rank,
+                           std::chrono::steady_clock::time_point start,
+                           const std::atomic<std::size_t>& finished, std::size_t todo, bool final) {
+  if (!opt.progress || rank != 0) return;
+  const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const auto f = static_cast<double>(finished.load());
+  const double total = static_cast<double>(todo);
+  const double rate = el > 0 ? f / el : 0.0;
+  const double eta = rate > 0 ? (total - f) / rate : NAN;
+  const double frac = total > 0 ? f / total : 1.0;
+  if (opt.progress_tty) {
+    const int width = 30, filled = static_cast<int>(frac * width);
+    *opt.progress << "\r[" << std::string(static_cast<std::size_t>(filled), '#')
+                  << std::string(static_cast<std::size_t>(width - filled), ' ') << "] "
+                  << fmt::format("{}/{} samples  {:.1f}/s  ETA {}   ", f, total, rate,
+                                 duration_text(eta));
+    if (final) *opt.progress << "\n";
+  } else {
+    *opt.progress << fmt::format(
+        "ukdyn: sweep: {}/{} samples ({:.0f}%), {:.2f} samples/s, "
+        "ETA {}\n",
+        f, total, 100.0 * frac, rate, duration_text(eta));
+  }
+  *opt.progress << std::flush;
+}
+
+// The rows of the samples `todo` (empty: cancelled), computed by a pool of threads, each appended
+// to the journal (if any) as it is done; progress from this thread while the pool works.
+std::vector<std::string> compute_rows(SampleRunner& runner, const std::vector<long>& todo,
+                                      Journal* journal, const SweepOptions& opt, int rank,
+                                      std::chrono::steady_clock::time_point start) {
+  const int threads = pool_threads(opt, todo.size());
   std::vector<std::string> rows(todo.size());
   std::atomic<std::size_t> next{0}, finished{0};
   {
@@ -1373,42 +1497,75 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
     }
     // Progress from this thread while the pool works.
     auto last = std::chrono::steady_clock::now();
-    auto report = [&](bool final) {
-      if (!opt.progress || rank != 0) return;
-      const double el =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      const auto f = static_cast<double>(finished.load());
-      const double total = static_cast<double>(todo.size());
-      const double rate = el > 0 ? f / el : 0.0;
-      const double eta = rate > 0 ? (total - f) / rate : NAN;
-      const double frac = total > 0 ? f / total : 1.0;
-      if (opt.progress_tty) {
-        const int width = 30, filled = static_cast<int>(frac * width);
-        *opt.progress << "\r[" << std::string(static_cast<std::size_t>(filled), '#')
-                      << std::string(static_cast<std::size_t>(width - filled), ' ') << "] "
-                      << fmt::format("{}/{} samples  {:.1f}/s  ETA {}   ", f, total, rate,
-                                     duration_text(eta));
-        if (final) *opt.progress << "\n";
-      } else {
-        *opt.progress << fmt::format(
-            "ukdyn: sweep: {}/{} samples ({:.0f}%), {:.2f} samples/s, "
-            "ETA {}\n",
-            f, total, 100.0 * frac, rate, duration_text(eta));
-      }
-      *opt.progress << std::flush;
-    };
     while (finished.load() < todo.size() && !(opt.cancel && opt.cancel->load())) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
       const auto now = std::chrono::steady_clock::now();
       const double every = opt.progress_tty ? 0.2 : opt.progress_every;
       if (std::chrono::duration<double>(now - last).count() >= every) {
-        report(false);
+        report_sweep_progress(opt, rank, start, finished, todo.size(), false);
         last = now;
       }
     }
     for (auto& th : pool) th.join();
-    if (opt.progress_tty || finished.load() > 0) report(true);
+    if (opt.progress_tty || finished.load() > 0)
+      report_sweep_progress(opt, rank, start, finished, todo.size(), true);
   }
+  return rows;
+}
+
+// Gather (MPI): every rank's rows into rank 0's table t. Returns false on the other ranks (their
+// part is done).
+bool gather_rows(SweepComm& comm, int rank, const std::vector<std::string>& rows, Table& t,
+                 SweepReport& rep) {
+  std::string mine;
+  if (rank != 0)
+    for (const auto& r : rows)
+      if (!r.empty()) mine += r + "\n";
+  const auto all = comm.gather(mine);
+  if (rank != 0) return false;
+  for (const auto& blob : all) {
+    std::size_t pos = 0;
+    while (pos < blob.size()) {
+      const auto end = blob.find('\n', pos);
+      const std::string line = blob.substr(pos, end - pos);
+      pos = end + 1;
+      t.rows[std::strtol(line.c_str(), nullptr, 10)] = line;
+      ++rep.computed;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
+                      const SweepOptions& opt) {
+  const auto start = std::chrono::steady_clock::now();
+  if (opt.shards < 1 || opt.shard < 0 || opt.shard >= opt.shards)
+    throw ScenarioError("--shard: expected i/N with 0 <= i < N");
+  const Scenario base = load_scenario_text(sw.base_text, sw.base_path, LoadOptions{false});
+  SampleRunner runner(sw, base);
+  const auto& header = runner.header();
+  const int rank = opt.comm ? opt.comm->rank() : 0;
+  const int size = opt.comm ? opt.comm->size() : 1;
+
+  // This shard's samples; then this rank's share of them.
+  const std::vector<long> shard_samples = shard_sample_indices(sw, opt);
+  SweepReport rep;
+  rep.samples = static_cast<long>(shard_samples.size());
+
+  std::optional<OutputDir> out;
+  std::map<long, std::string> done;
+  std::optional<Journal> journal;
+  const std::string head = journal_head(sw, opt);
+  if (rank == 0) {
+    open_sweep_output(sw, opt, out_dir, head, header.size(), size, out, done, journal);
+    rep.resumed = static_cast<long>(done.size());
+  }
+  const std::vector<long> todo = rank_todo(shard_samples, done, rank, size);
+
+  const std::vector<std::string> rows =
+      compute_rows(runner, todo, journal ? &*journal : nullptr, opt, rank, start);
   rep.computed = 0;
   for (const auto& r : rows) rep.computed += r.empty() ? 0 : 1;
 
@@ -1418,24 +1575,7 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   t.rows = done;
   for (std::size_t i = 0; i < todo.size(); ++i)
     if (!rows[i].empty()) t.rows[todo[i]] = rows[i];
-  if (opt.comm && size > 1) {
-    std::string mine;
-    if (rank != 0)
-      for (const auto& r : rows)
-        if (!r.empty()) mine += r + "\n";
-    const auto all = opt.comm->gather(mine);
-    if (rank != 0) return rep;
-    for (const auto& blob : all) {
-      std::size_t pos = 0;
-      while (pos < blob.size()) {
-        const auto end = blob.find('\n', pos);
-        const std::string line = blob.substr(pos, end - pos);
-        pos = end + 1;
-        t.rows[std::strtol(line.c_str(), nullptr, 10)] = line;
-        ++rep.computed;
-      }
-    }
-  }
+  if (opt.comm && size > 1 && !gather_rows(*opt.comm, rank, rows, t, rep)) return rep;
   const std::string journal_error = journal ? journal->error() : std::string();
   journal.reset();
   rep.complete = static_cast<long>(t.rows.size()) == rep.samples && journal_error.empty();
