@@ -9,8 +9,8 @@
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-#include "ukdyn/symbolic/mjcf.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
+#include "ukdyn/symbolic/mjcf.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/urdf.hpp"
 
@@ -254,7 +254,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   try {
     auto sub = sym::make_subsystem(*def);
     if (context) {
-      context->frames.add_bodies(*def);  // frame constraints
+      context->frames.add_bodies(*def);    // frame constraints
       auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
       const GiNaC::exmap values = def->parameter_values();
       for (const auto& b : def->bodies) {
@@ -454,10 +454,9 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                                                       const std::vector<std::string>& coordinates,
                                                       double gravity, DefinitionContext& context,
                                                       const InstanceSpec* instance) {
-  L.only_keys(s,
-              {"name", "type", "coordinates", "parameters", "let", "gravity", "potential", "mount",
-               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
-               "floating_root"});
+  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
+                  "mount", "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
+                  "floating_root"});
   auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
   const Node cn = L.child(s, "coordinates", true);
   Node m = L.child(s, "mount", false);
@@ -538,15 +537,16 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       if (jt == sym::JointDef::Type::floating || jt == sym::JointDef::Type::ball) {
         const bool fl = jt == sym::JointDef::Type::floating;
         const std::size_t nc = fl ? 7 : 4;
-        const std::string what = fl ? "a floating joint takes coordinates (7: x, y, z, qw, qx, qy, qz)"
-                                    : "a ball joint takes coordinates (4: qw, qx, qy, qz)";
+        const std::string what =
+            fl ? "a floating joint takes coordinates (7: x, y, z, qw, qx, qy, qz)"
+               : "a ball joint takes coordinates (4: qw, qx, qy, qz)";
         if (cnode.node.IsDefined() || vnode.node.IsDefined())
           L.fail(j, what + ", not a coordinate or value");
         if (!csnode.node.IsDefined() || !csnode.node.IsSequence() || csnode.node.size() != nc)
           L.fail(csnode.node.IsDefined() ? csnode : j, what);
         for (std::size_t k = 0; k < nc; ++k)
-          jd.coordinates.push_back(coordinate_name(
-              Node{csnode.node[k], csnode.key + "[" + std::to_string(k) + "]"}));
+          jd.coordinates.push_back(
+              coordinate_name(Node{csnode.node[k], csnode.key + "[" + std::to_string(k) + "]"}));
       } else if (csnode.node.IsDefined()) {
         L.fail(csnode, "only floating and ball joints take coordinates (give coordinate)");
       } else if (jt == sym::JointDef::Type::fixed) {

@@ -1,13 +1,13 @@
 #include "ukdyn/symbolic/chain.hpp"
 
-#include "ukdyn/symbolic/canonical.hpp"
-#include "ukdyn/symbolic/free_body.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <set>
 #include <sstream>
+
+#include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -203,8 +203,9 @@ ChainModel build_chain(const ChainDef& chain) {
       b.inertia_tensor = in.inertia;
       b.inertia_frame = symbolic::Frame::body;
       b.rotation = Rb;
-      Vec3Ex wb = f.floating ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
-                             : mul_transposed(Rb, f.w);
+      Vec3Ex wb = f.floating
+                      ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
+                      : mul_transposed(Rb, f.w);
       for (auto& e : wb) e = simplify_trig(e);
       b.angular_velocity = wb;
     }

@@ -248,11 +248,11 @@ void append_urdf(ChainDef& chain, const std::string& path,
         type = JointDef::Type::floating;
         break;
       default:
-        throw DefinitionError(where + ": type " +
-                              (uj.type == urdf::Joint::PLANAR ? std::string("planar")
-                                                              : std::string("unknown")) +
-                              " is not supported (revolute, continuous, prismatic, fixed, "
-                              "floating)");
+        throw DefinitionError(
+            where + ": type " +
+            (uj.type == urdf::Joint::PLANAR ? std::string("planar") : std::string("unknown")) +
+            " is not supported (revolute, continuous, prismatic, fixed, "
+            "floating)");
     }
     JointDef& j = chain.add_joint(uj.name, type, link->name);
     j.parent =
@@ -260,9 +260,10 @@ void append_urdf(ChainDef& chain, const std::string& path,
     j.origin = origin(uj.parent_to_joint_origin_transform);
     if (type == JointDef::Type::floating) {
       if (next + 7 > free.size()) {
-        throw DefinitionError(where + ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
-                              "qz); the chain has " + std::to_string(free.size() - next) +
-                              " left");
+        throw DefinitionError(where +
+                              ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
+                              "qz); the chain has " +
+                              std::to_string(free.size() - next) + " left");
       }
       for (int k = 0; k < 7; ++k) j.coordinates.push_back(free[next++]);
     } else if (type != JointDef::Type::fixed) {
