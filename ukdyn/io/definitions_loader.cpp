@@ -9,8 +9,8 @@
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-#include "ukdyn/symbolic/mjcf.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
+#include "ukdyn/symbolic/mjcf.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/urdf.hpp"
 
@@ -254,7 +254,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   try {
     auto sub = sym::make_subsystem(*def);
     if (context) {
-      context->frames.add_bodies(*def);  // frame constraints
+      context->frames.add_bodies(*def);    // frame constraints
       auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
       const GiNaC::exmap values = def->parameter_values();
       for (const auto& b : def->bodies) {
@@ -447,26 +447,14 @@ void load_inertial(const Loader& L, const sym::DefinitionScope& scope, const Nod
   in.rpy = parse_vec3_or(L, scope, n, "inertia_rpy");
 }
 
-}  // namespace
+// A coordinate named in a chain: one of its coordinates, or in an instance the template's name of
+// one (→ the instance's, prefixed, coordinate).
+struct ChainCoordinateNames {
+  const Loader& L;
+  const std::vector<std::string>& coordinates;
+  const InstanceSpec* instance;
 
-std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
-                                                      const std::string& name,
-                                                      const std::vector<std::string>& coordinates,
-                                                      double gravity, DefinitionContext& context,
-                                                      const InstanceSpec* instance) {
-  L.only_keys(s,
-              {"name", "type", "coordinates", "parameters", "let", "gravity", "potential", "mount",
-               "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
-               "floating_root"});
-  auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
-  const Node cn = L.child(s, "coordinates", true);
-  Node m = L.child(s, "mount", false);
-  if (instance && instance->mount.node.IsDefined()) m = instance->mount;
-  if (m.node.IsDefined()) {
-    L.only_keys(m, {"xyz", "rpy"});
-    def->mount = {parse_vec3_or(L, *def, m, "xyz"), parse_vec3_or(L, *def, m, "rpy")};
-  }
-  auto coordinate_name = [&](const Node& n) {
+  std::string operator()(const Node& n) const {
     const std::string c = L.string(n);
     if (instance) {  // the template's name → the instance's (prefixed) coordinate
       const auto& loc = instance->local;
@@ -477,18 +465,162 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     if (std::find(coordinates.begin(), coordinates.end(), c) == coordinates.end())
       L.fail(n, "'" + c + "' is not a coordinate of this subsystem");
     return c;
-  };
-  if (Node b = L.child(s, "base", false); b.node.IsDefined()) {
-    L.only_keys(b, {"type", "link", "x", "y", "yaw", "mass", "com", "inertia", "inertia_rpy"});
-    if (Node t = L.child(b, "type", false); t.node.IsDefined() && L.string(t) != "omnidirectional")
-      L.fail(t, "unknown base type '" + L.string(t) + "' (expected omnidirectional)");
-    def->base.enabled = true;
-    if (Node k = L.child(b, "link", false); k.node.IsDefined()) def->base.link = L.string(k);
-    def->base.x = coordinate_name(L.child(b, "x", true));
-    def->base.y = coordinate_name(L.child(b, "y", true));
-    if (Node y = L.child(b, "yaw", false); y.node.IsDefined()) def->base.yaw = coordinate_name(y);
-    load_inertial(L, *def, b, def->base.inertial);
   }
+};
+
+// mount: {xyz, rpy}; an instance's mount replaces the template's.
+void load_mount(const Loader& L, const Node& s, const InstanceSpec* instance, sym::ChainDef& def) {
+  Node m = L.child(s, "mount", false);
+  if (instance && instance->mount.node.IsDefined()) m = instance->mount;
+  if (m.node.IsDefined()) {
+    L.only_keys(m, {"xyz", "rpy"});
+    def.mount = {parse_vec3_or(L, def, m, "xyz"), parse_vec3_or(L, def, m, "rpy")};
+  }
+}
+
+// base: the omnidirectional mobile base (x, y, optional yaw) and its inertia.
+void load_base(const Loader& L, const Node& s, const ChainCoordinateNames& coordinate_name,
+               sym::ChainDef& def) {
+  const Node b = L.child(s, "base", false);
+  if (!b.node.IsDefined()) return;
+  L.only_keys(b, {"type", "link", "x", "y", "yaw", "mass", "com", "inertia", "inertia_rpy"});
+  if (Node t = L.child(b, "type", false); t.node.IsDefined() && L.string(t) != "omnidirectional")
+    L.fail(t, "unknown base type '" + L.string(t) + "' (expected omnidirectional)");
+  def.base.enabled = true;
+  if (Node k = L.child(b, "link", false); k.node.IsDefined()) def.base.link = L.string(k);
+  def.base.x = coordinate_name(L.child(b, "x", true));
+  def.base.y = coordinate_name(L.child(b, "y", true));
+  if (Node y = L.child(b, "yaw", false); y.node.IsDefined()) def.base.yaw = coordinate_name(y);
+  load_inertial(L, def, b, def.base.inertial);
+}
+
+sym::JointDef::Type load_joint_type(const Loader& L, const Node& tn) {
+  const std::string type = L.string(tn);
+  if (type == "revolute" || type == "continuous") return sym::JointDef::Type::revolute;
+  if (type == "prismatic") return sym::JointDef::Type::prismatic;
+  if (type == "fixed") return sym::JointDef::Type::fixed;
+  if (type == "floating")  // docs/free-bodies.md, "Floating joints"
+    return sym::JointDef::Type::floating;
+  if (type == "ball") return sym::JointDef::Type::ball;
+  L.fail(tn, "unknown joint type '" + type +
+                 "' (expected revolute, prismatic, fixed, floating or ball)");
+}
+
+// A joint's variable: coordinates (floating, ball), none (fixed), a coordinate or a value.
+void load_joint_variable(const Loader& L, const Node& j,
+                         const ChainCoordinateNames& coordinate_name, sym::ChainDef& def,
+                         sym::JointDef& jd) {
+  const Node cnode = L.child(j, "coordinate", false);
+  const Node vnode = L.child(j, "value", false);
+  const Node csnode = L.child(j, "coordinates", false);
+  const sym::JointDef::Type jt = jd.type;
+  if (jt == sym::JointDef::Type::floating || jt == sym::JointDef::Type::ball) {
+    const bool fl = jt == sym::JointDef::Type::floating;
+    const std::size_t nc = fl ? 7 : 4;
+    const std::string what = fl ? "a floating joint takes coordinates (7: x, y, z, qw, qx, qy, qz)"
+                                : "a ball joint takes coordinates (4: qw, qx, qy, qz)";
+    if (cnode.node.IsDefined() || vnode.node.IsDefined())
+      L.fail(j, what + ", not a coordinate or value");
+    if (!csnode.node.IsDefined() || !csnode.node.IsSequence() || csnode.node.size() != nc)
+      L.fail(csnode.node.IsDefined() ? csnode : j, what);
+    for (std::size_t k = 0; k < nc; ++k)
+      jd.coordinates.push_back(
+          coordinate_name(Node{csnode.node[k], csnode.key + "[" + std::to_string(k) + "]"}));
+  } else if (csnode.node.IsDefined()) {
+    L.fail(csnode, "only floating and ball joints take coordinates (give coordinate)");
+  } else if (jt == sym::JointDef::Type::fixed) {
+    if (cnode.node.IsDefined() || vnode.node.IsDefined())
+      L.fail(j, "a fixed joint has no coordinate or value");
+  } else if (cnode.node.IsDefined() && vnode.node.IsDefined()) {
+    L.fail(j, "give coordinate or value, not both");
+  } else if (vnode.node.IsDefined()) {
+    jd.value = parse(L, def, vnode);
+  } else if (cnode.node.IsDefined()) {
+    jd.coordinate = coordinate_name(cnode);
+  } else {
+    L.fail(j,
+           "a movable joint needs a coordinate (or a value: an expression of the "
+           "coordinates)");
+  }
+}
+
+// One entry of joints: name, type, parent, link, origin, axis, its variable and its link's inertia.
+void load_joint(const Loader& L, const Node& j, const ChainCoordinateNames& coordinate_name,
+                sym::ChainDef& def) {
+  L.only_keys(j, {"name", "type", "parent", "link", "origin", "axis", "coordinate", "value", "mass",
+                  "com", "inertia", "inertia_rpy", "coordinates"});
+  const std::string jname = L.label(L.child(j, "name", true));
+  const sym::JointDef::Type jt = load_joint_type(L, L.child(j, "type", true));
+  std::string link = jname;
+  if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.label(k);
+  sym::JointDef& jd = def.add_joint(jname, jt, link);
+  if (Node p = L.child(j, "parent", false); p.node.IsDefined()) jd.parent = L.string(p);
+  if (Node o = L.child(j, "origin", false); o.node.IsDefined()) {
+    L.only_keys(o, {"xyz", "rpy"});
+    jd.origin = {parse_vec3_or(L, def, o, "xyz"), parse_vec3_or(L, def, o, "rpy")};
+  }
+  if (Node a = L.child(j, "axis", false); a.node.IsDefined()) jd.axis = parse_list<3>(L, def, a);
+  load_joint_variable(L, j, coordinate_name, def, jd);
+  load_inertial(L, def, j, jd.inertial);
+}
+
+void load_joints(const Loader& L, const Node& joints, const ChainCoordinateNames& coordinate_name,
+                 sym::ChainDef& def) {
+  if (!joints.node.IsSequence() || joints.node.size() == 0)
+    L.fail(joints, "expected a non-empty list of joints");
+  for (std::size_t i = 0; i < joints.node.size(); ++i)
+    load_joint(L, Node{joints.node[i], joints.key + "[" + std::to_string(i) + "]"}, coordinate_name,
+               def);
+}
+
+// The file a urdf: or mjcf: key names, relative to the scenario's folder.
+std::filesystem::path model_file(const Loader& L, const Node& key) {
+  std::filesystem::path file = L.string(key);
+  if (file.is_relative()) file = L.path().parent_path() / file;
+  return file;
+}
+
+// mjcf: a file read with MuJoCo's parser (ukdyn/symbolic/mjcf.hpp).
+void load_mjcf(const Loader& L, const Node& mjcf, sym::ChainDef& def) {
+  const std::filesystem::path file = model_file(L, mjcf);
+  try {
+    sym::append_mjcf(def, file.string());
+  } catch (const sym::DefinitionError& e) {
+    L.fail(mjcf, e.what());
+  }
+}
+
+// urdf: a file, with floating_root and joint_values.
+void load_urdf(const Loader& L, const Node& s, const Node& urdf,
+               const ChainCoordinateNames& coordinate_name, sym::ChainDef& def) {
+  if (Node fr = L.child(s, "floating_root", false); fr.node.IsDefined()) {
+    // The URDF's root link on a floating joint (docs/free-bodies.md, "Floating joints").
+    if (!fr.node.IsSequence() || fr.node.size() != 7)
+      L.fail(fr, "expected a list of 7 coordinates (x, y, z, qw, qx, qy, qz)");
+    if (def.base.enabled) L.fail(fr, "a floating root and a mobile base exclude each other");
+    for (std::size_t k = 0; k < 7; ++k)
+      def.floating_root.push_back(
+          coordinate_name(Node{fr.node[k], fr.key + "[" + std::to_string(k) + "]"}));
+  }
+  const std::filesystem::path file = model_file(L, urdf);
+  std::map<std::string, ex> values;
+  if (Node jv = L.child(s, "joint_values", false); jv.node.IsDefined()) {
+    if (!jv.node.IsMap()) L.fail(jv, "expected a mapping joint: coordinate or expression");
+    for (const auto& kv : jv.node) {
+      const std::string k = L.key(jv, kv.first);
+      values[k] = parse(L, def, Node{kv.second, jv.key + "." + k});
+    }
+  }
+  try {
+    sym::append_urdf(def, file.string(), values);
+  } catch (const sym::DefinitionError& e) {
+    L.fail(urdf, e.what());
+  }
+}
+
+// The links: joints (a list), urdf (a file) or mjcf (a file), exactly one of them.
+void load_links(const Loader& L, const Node& s, const ChainCoordinateNames& coordinate_name,
+                sym::ChainDef& def) {
   const Node joints = L.child(s, "joints", false);
   const Node urdf = L.child(s, "urdf", false);
   const Node mjcf = L.child(s, "mjcf", false);
@@ -496,141 +628,72 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     L.fail(s, "give one of joints (a list), urdf (a file) or mjcf (a file)");
   if (Node fr = L.child(s, "floating_root", false); fr.node.IsDefined() && !urdf.node.IsDefined())
     L.fail(fr, "floating_root is for urdf: (in joints, give the first joint type: floating)");
-  std::vector<Node> joint_nodes;
   if (joints.node.IsDefined()) {
-    if (!joints.node.IsSequence() || joints.node.size() == 0)
-      L.fail(joints, "expected a non-empty list of joints");
-    for (std::size_t i = 0; i < joints.node.size(); ++i) {
-      const Node j{joints.node[i], joints.key + "[" + std::to_string(i) + "]"};
-      L.only_keys(j, {"name", "type", "parent", "link", "origin", "axis", "coordinate", "value",
-                      "mass", "com", "inertia", "inertia_rpy", "coordinates"});
-      const std::string jname = L.label(L.child(j, "name", true));
-      const Node tn = L.child(j, "type", true);
-      const std::string type = L.string(tn);
-      sym::JointDef::Type jt = sym::JointDef::Type::revolute;
-      if (type == "revolute" || type == "continuous") {
-        jt = sym::JointDef::Type::revolute;
-      } else if (type == "prismatic") {
-        jt = sym::JointDef::Type::prismatic;
-      } else if (type == "fixed") {
-        jt = sym::JointDef::Type::fixed;
-      } else if (type == "floating") {  // docs/free-bodies.md, "Floating joints"
-        jt = sym::JointDef::Type::floating;
-      } else if (type == "ball") {
-        jt = sym::JointDef::Type::ball;
-      } else {
-        L.fail(tn, "unknown joint type '" + type +
-                       "' (expected revolute, prismatic, fixed, floating or ball)");
-      }
-      std::string link = jname;
-      if (Node k = L.child(j, "link", false); k.node.IsDefined()) link = L.label(k);
-      sym::JointDef& jd = def->add_joint(jname, jt, link);
-      if (Node p = L.child(j, "parent", false); p.node.IsDefined()) jd.parent = L.string(p);
-      if (Node o = L.child(j, "origin", false); o.node.IsDefined()) {
-        L.only_keys(o, {"xyz", "rpy"});
-        jd.origin = {parse_vec3_or(L, *def, o, "xyz"), parse_vec3_or(L, *def, o, "rpy")};
-      }
-      if (Node a = L.child(j, "axis", false); a.node.IsDefined())
-        jd.axis = parse_list<3>(L, *def, a);
-      const Node cnode = L.child(j, "coordinate", false);
-      const Node vnode = L.child(j, "value", false);
-      const Node csnode = L.child(j, "coordinates", false);
-      if (jt == sym::JointDef::Type::floating || jt == sym::JointDef::Type::ball) {
-        const bool fl = jt == sym::JointDef::Type::floating;
-        const std::size_t nc = fl ? 7 : 4;
-        const std::string what = fl ? "a floating joint takes coordinates (7: x, y, z, qw, qx, qy, qz)"
-                                    : "a ball joint takes coordinates (4: qw, qx, qy, qz)";
-        if (cnode.node.IsDefined() || vnode.node.IsDefined())
-          L.fail(j, what + ", not a coordinate or value");
-        if (!csnode.node.IsDefined() || !csnode.node.IsSequence() || csnode.node.size() != nc)
-          L.fail(csnode.node.IsDefined() ? csnode : j, what);
-        for (std::size_t k = 0; k < nc; ++k)
-          jd.coordinates.push_back(coordinate_name(
-              Node{csnode.node[k], csnode.key + "[" + std::to_string(k) + "]"}));
-      } else if (csnode.node.IsDefined()) {
-        L.fail(csnode, "only floating and ball joints take coordinates (give coordinate)");
-      } else if (jt == sym::JointDef::Type::fixed) {
-        if (cnode.node.IsDefined() || vnode.node.IsDefined())
-          L.fail(j, "a fixed joint has no coordinate or value");
-      } else if (cnode.node.IsDefined() && vnode.node.IsDefined()) {
-        L.fail(j, "give coordinate or value, not both");
-      } else if (vnode.node.IsDefined()) {
-        jd.value = parse(L, *def, vnode);
-      } else if (cnode.node.IsDefined()) {
-        jd.coordinate = coordinate_name(cnode);
-      } else {
-        L.fail(j,
-               "a movable joint needs a coordinate (or a value: an expression of the "
-               "coordinates)");
-      }
-      load_inertial(L, *def, j, jd.inertial);
-      joint_nodes.push_back(j);
-    }
-  } else if (mjcf.node.IsDefined()) {  // MuJoCo's parser (ukdyn/symbolic/mjcf.hpp)
-    std::filesystem::path file = L.string(mjcf);
-    if (file.is_relative()) file = L.path().parent_path() / file;
-    try {
-      sym::append_mjcf(*def, file.string());
-    } catch (const sym::DefinitionError& e) {
-      L.fail(mjcf, e.what());
-    }
+    load_joints(L, joints, coordinate_name, def);
+  } else if (mjcf.node.IsDefined()) {
+    load_mjcf(L, mjcf, def);
   } else {
-    if (Node fr = L.child(s, "floating_root", false); fr.node.IsDefined()) {
-      // The URDF's root link on a floating joint (docs/free-bodies.md, "Floating joints").
-      if (!fr.node.IsSequence() || fr.node.size() != 7)
-        L.fail(fr, "expected a list of 7 coordinates (x, y, z, qw, qx, qy, qz)");
-      if (def->base.enabled) L.fail(fr, "a floating root and a mobile base exclude each other");
-      for (std::size_t k = 0; k < 7; ++k)
-        def->floating_root.push_back(
-            coordinate_name(Node{fr.node[k], fr.key + "[" + std::to_string(k) + "]"}));
-    }
-    std::filesystem::path file = L.string(urdf);
-    if (file.is_relative()) file = L.path().parent_path() / file;
-    std::map<std::string, ex> values;
-    if (Node jv = L.child(s, "joint_values", false); jv.node.IsDefined()) {
-      if (!jv.node.IsMap()) L.fail(jv, "expected a mapping joint: coordinate or expression");
-      for (const auto& kv : jv.node) {
-        const std::string k = L.key(jv, kv.first);
-        values[k] = parse(L, *def, Node{kv.second, jv.key + "." + k});
-      }
-    }
-    try {
-      sym::append_urdf(*def, file.string(), values);
-    } catch (const sym::DefinitionError& e) {
-      L.fail(urdf, e.what());
-    }
+    load_urdf(L, s, urdf, coordinate_name, def);
   }
-  if (Node p = L.child(s, "points", false); p.node.IsDefined()) {
-    if (!p.node.IsMap()) L.fail(p, "expected a mapping name: {link: LINK, xyz: [x, y, z]}");
-    for (const auto& kv : p.node) {
-      const std::string k = L.key(p, kv.first);
-      const Node v{kv.second, p.key + "." + k};
-      (void)L.name(Node{kv.first, p.key + "." + k});
-      if (k.find('.') != std::string::npos)
-        L.fail(Node{kv.first, p.key + "." + k}, "a point name may not hold '.' (SUBSYSTEM.POINT)");
-      L.only_keys(v, {"link", "xyz"});
-      def->add_point(k, L.string(L.child(v, "link", true)), parse_vec3_or(L, *def, v, "xyz"));
-    }
+}
+
+// points: {name: {link, xyz}}.
+void load_points(const Loader& L, const Node& s, sym::ChainDef& def) {
+  const Node p = L.child(s, "points", false);
+  if (!p.node.IsDefined()) return;
+  if (!p.node.IsMap()) L.fail(p, "expected a mapping name: {link: LINK, xyz: [x, y, z]}");
+  for (const auto& kv : p.node) {
+    const std::string k = L.key(p, kv.first);
+    const Node v{kv.second, p.key + "." + k};
+    (void)L.name(Node{kv.first, p.key + "." + k});
+    if (k.find('.') != std::string::npos)
+      L.fail(Node{kv.first, p.key + "." + k}, "a point name may not hold '.' (SUBSYSTEM.POINT)");
+    L.only_keys(v, {"link", "xyz"});
+    def.add_point(k, L.string(L.child(v, "link", true)), parse_vec3_or(L, def, v, "xyz"));
   }
+}
+
+// What later constraints and the replay page need of a chain built (DefinitionContext).
+void record_chain(DefinitionContext& context, const std::string& name, const sym::ChainDef& def,
+                  sym::ChainModel model) {
+  context.frames.add_chain(name, model, &def);  // frame constraints
+  context.chains.emplace(name, std::move(model));
+  if (!def.link_constraints.empty()) context.link_constraints[name] = def.link_constraints;
+  // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
+  auto& edges = context.edges[name];
+  std::string last = def.base.enabled ? def.base.link : def.root_link;
+  for (const auto& j : def.joints) {
+    edges.emplace_back(j.parent.empty() ? last : j.parent, j.link);
+    last = j.link;
+  }
+  for (const auto& pt : def.points) edges.emplace_back(pt.link, pt.name);
+  if (def.base.enabled) context.base_coordinates[name] = {def.base.x, def.base.y};
+  for (const auto& j : def.joints) {
+    if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
+      context.prismatic_coordinates[name].push_back(j.coordinate);
+  }
+}
+
+}  // namespace
+
+std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
+                                                      const std::string& name,
+                                                      const std::vector<std::string>& coordinates,
+                                                      double gravity, DefinitionContext& context,
+                                                      const InstanceSpec* instance) {
+  L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
+                  "mount", "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
+                  "floating_root"});
+  auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
+  load_mount(L, s, instance, *def);
+  const ChainCoordinateNames coordinate_name{L, coordinates, instance};
+  load_base(L, s, coordinate_name, *def);
+  load_links(L, s, coordinate_name, *def);
+  load_points(L, s, *def);
   try {
     sym::ChainModel model = sym::build_chain(*def);
     auto sub = sym::make_subsystem(model.def);
-    context.frames.add_chain(name, model, def.get());  // frame constraints
-    context.chains.emplace(name, std::move(model));
-    if (!def->link_constraints.empty()) context.link_constraints[name] = def->link_constraints;
-    // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
-    auto& edges = context.edges[name];
-    std::string last = def->base.enabled ? def->base.link : def->root_link;
-    for (const auto& j : def->joints) {
-      edges.emplace_back(j.parent.empty() ? last : j.parent, j.link);
-      last = j.link;
-    }
-    for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
-    if (def->base.enabled) context.base_coordinates[name] = {def->base.x, def->base.y};
-    for (const auto& j : def->joints) {
-      if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
-        context.prismatic_coordinates[name].push_back(j.coordinate);
-    }
+    record_chain(context, name, *def, std::move(model));
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());

@@ -423,147 +423,203 @@ void check_singular_mass(const Loader& L, Scenario& sc, Loading& st) {
   L.fail(st.sub_nodes[k], "at initial.q, " + problem + "; " + why);
 }
 
-// constraints: each one built and added to the system; row names unique.
-void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
-  const std::shared_ptr<System>& system = st.system;
-  const auto& coord_index = st.coord_index;
-  const auto& arms = st.arms;
-  const auto& definition_context = st.definition_context;
-  const Index n = system->dof();
+// Adds constraints to the system: their row names unique, each with the control role of the block
+// being added.
+struct ConstraintSink {
+  const Loader& L;
+  Scenario& sc;
+  System& system;
   std::set<std::string> row_names;
   io_detail::RoleChoice role;  // of the block being added (docs/control.md)
-  auto add = [&](const Node& at, std::shared_ptr<const Constraint> c) {
+
+  void add(const Node& at, std::shared_ptr<const Constraint> c) {
     for (const auto& r : c->row_names()) {
       if (!row_names.insert(r).second) L.fail(at, "duplicate constraint row name '" + r + "'");
     }
     sc.constraint_roles.push_back(io_detail::resolve_role(role, *c, sc.q0));
-    system->add_constraint(std::move(c));
-  };
-  auto arm_ref = [&](const Node& parent, const std::string& key) {
-    const Node a = L.child(parent, key, true);
-    const std::string nm = L.string(a);
-    auto it = arms.find(nm);
-    if (it == arms.end()) L.fail(a, "no subsystem named '" + nm + "'");
-    return it->second;
-  };
+    system.add_constraint(std::move(c));
+  }
+};
+
+// The unit-norm rows |q|² = 1 of the free bodies (docs/free-bodies.md) and of the chains' floating
+// and ball joints (NAME_JOINT_unit).
+void add_quaternion_norms(const Loader& L, const Scenario& sc, const Loading& st,
+                          ConstraintSink& sink) {
+  const System& system = *st.system;
   for (const auto& [fb, quat] : st.free_bodies) {  // free bodies: |q|² = 1 (docs/free-bodies.md)
     try {
-      add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
-                       fb, quat, system->coordinate_names(), L.symbol_table())));
+      sink.add(st.subs, symbolic::make_constraint(symbolic::free_body_norm_constraint(
+                            fb, quat, system.coordinate_names(), L.symbol_table())));
     } catch (const Error& e) {
       L.fail(st.subs, e.what());
     }
   }
   for (const auto& info : sc.subsystems) {  // floating joints of chains: NAME_JOINT_unit
-    const symbolic::ChainModel* chain = io_detail::chain_model(definition_context.get(), info.name);
+    const symbolic::ChainModel* chain =
+        io_detail::chain_model(st.definition_context.get(), info.name);
     if (!chain) continue;
     for (const auto& [joint, quat] : chain->quaternions) {
       try {
-        add(st.subs,
-            symbolic::make_constraint(symbolic::free_body_norm_constraint(
-                info.name + "_" + joint, quat, system->coordinate_names(), L.symbol_table())));
+        sink.add(st.subs,
+                 symbolic::make_constraint(symbolic::free_body_norm_constraint(
+                     info.name + "_" + joint, quat, system.coordinate_names(), L.symbol_table())));
       } catch (const Error& e) {
         L.fail(st.subs, e.what());
       }
     }
   }
+}
+
+// The weld / connect equalities of the chains read from MJCF files.
+void add_link_constraints(const Loader& L, const Scenario& sc, const Loading& st,
+                          ConstraintSink& sink) {
   for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // an MJCF file's weld / connect
     const auto& info = sc.subsystems[k];
     std::vector<std::string> coords;
-    for (const auto& lc : io_detail::chain_link_constraints(definition_context.get(), info.name)) {
-      if (coords.empty()) coords = system->coordinate_names();
+    for (const auto& lc :
+         io_detail::chain_link_constraints(st.definition_context.get(), info.name)) {
+      if (coords.empty()) coords = st.system->coordinate_names();
       try {
-        add(st.sub_nodes[k], io_detail::make_link_constraint(
-                                 info.name, lc, coords, *definition_context, L.symbol_table()));
+        sink.add(st.sub_nodes[k],
+                 io_detail::make_link_constraint(info.name, lc, coords, *st.definition_context,
+                                                 L.symbol_table()));
       } catch (const Error& e) {
         L.fail(st.sub_nodes[k], e.what());
       }
     }
   }
-  if (Node cons = L.child(root, "constraints", false); cons.node.IsDefined()) {
-    if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
-    for (std::size_t i = 0; i < cons.node.size(); ++i) {
-      const Node c{cons.node[i], cons.key + "[" + std::to_string(i) + "]"};
-      const Node type_node = L.child(c, "type", true);
-      const std::string type = L.string(type_node);
-      const std::string cname = L.name(L.child(c, "name", true));
-      role = io_detail::take_role(L, c, type);  // `role:` (removed from c) or the type's default
-      try {
-        if (type == "closure") {
-          L.only_keys(c, {"type", "name", "left", "right", "dz", "yaw_offset", "load_pitch"});
-          auto [left, lo] = arm_ref(c, "left");
-          auto [right, ro] = arm_ref(c, "right");
-          if (left == right) L.fail(L.child(c, "right", true), "left and right must differ");
-          ClosureConstraint::Options o;
-          o.prefix = cname;
-          o.dz = L.number_or(c, "dz", 0.0);
-          o.yaw_offset = L.number_or(c, "yaw_offset", std::numbers::pi);
-          if (Node lp = L.child(c, "load_pitch", false); lp.node.IsDefined()) {
-            const Vec v = L.vector(lp, 2);
-            o.load_pitch1 = v(0);
-            o.load_pitch2 = v(1);
-          }
-          add(c, std::make_shared<ClosureConstraint>(left, lo, right, ro, o));
-        } else if (type == "cut_point_trajectory") {
-          L.only_keys(c, {"type", "name", "arm", "origin", "x", "y", "z"});
-          auto [arm, off] = arm_ref(c, "arm");
-          Vec3 origin = Vec3::Zero();
-          const Node on = L.child(c, "origin", false);
-          if (!on.node.IsDefined() || (on.node.IsScalar() && on.node.Scalar() == "initial")) {
-            origin = arm->cut_point(sc.q0.segment(off, 6));
-          } else {
-            origin = L.vector(on, 3);
-          }
-          std::array<std::optional<TimeFunction>, 3> axes;
-          const char* keys[3] = {"x", "y", "z"};
-          for (std::size_t a = 0; a < 3; ++a) {
-            if (Node f = L.child(c, keys[a], false); f.node.IsDefined())
-              axes[a] = load_time_function(L, f);
-          }
-          if (!axes[0] && !axes[1] && !axes[2]) L.fail(c, "give at least one of x, y, z");
-          add(c, std::make_shared<CutPointTrajectory>(arm, off, axes, origin, cname));
-        } else if (type == "coordinate") {
-          L.only_keys(c, {"type", "name", "coordinate", "value"});
-          const Node cn = L.child(c, "coordinate", true);
-          const std::string coord = L.string(cn);
-          auto it = coord_index.find(coord);
-          if (it == coord_index.end()) L.fail(cn, "no coordinate named '" + coord + "'");
-          const Node vn = L.child(c, "value", false);
-          TimeFunction f = TimeFunction::make_constant(sc.q0(it->second));
-          if (vn.node.IsDefined() && !(vn.node.IsScalar() && vn.node.Scalar() == "initial")) {
-            f = load_time_function(L, vn);
-          }
-          add(c, std::make_shared<CoordinateConstraint>(it->second, f, cname));
-        } else if (type == "expression" || type == "nonholonomic") {  // docs/definitions.md
-          std::vector<std::string> coords(static_cast<std::size_t>(n));
-          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
-          add(c, io_detail::load_definitions_constraint(L, c, cname, type == "expression", coords));
-        } else if (io_detail::is_frame_constraint(type)) {  // docs/frame-constraints.md
-          std::vector<std::string> coords(static_cast<std::size_t>(n));
-          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
-          add(c, io_detail::load_frame_constraint(L, c, cname, type, coords, *definition_context,
-                                                  sc.q0));
-        } else if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
-          std::vector<std::string> coords(static_cast<std::size_t>(n));
-          for (const auto& [cn, ci] : coord_index) coords[static_cast<std::size_t>(ci)] = cn;
-          add(c, io_detail::load_constraint_kind(L, c, cname, type, coords, *definition_context,
-                                                 sc.q0));
-        } else {
-          L.fail(type_node,
-                 "unknown constraint type '" + type +
-                     "' (expected closure, cut_point_trajectory, coordinate, expression, "
-                     "nonholonomic, points_coincide, point_trajectory, angle_relation, weld, "
-                     "ball, hinge, level or distance)");
-        }
-      } catch (const ScenarioError&) {
-        throw;
-      } catch (const Error& e) {
-        L.fail(c, e.what());
-      } catch (const std::exception& e) {  // GiNaC's evaluation errors
-        L.fail(c, std::string("cannot evaluate: ") + e.what());
-      }
+}
+
+// The mobile manipulator subsystem named by parent.key, and its coordinate offset.
+std::pair<std::shared_ptr<const MobileManipulator>, Index> arm_ref(const Loader& L,
+                                                                   const Loading& st,
+                                                                   const Node& parent,
+                                                                   const std::string& key) {
+  const Node a = L.child(parent, key, true);
+  const std::string nm = L.string(a);
+  auto it = st.arms.find(nm);
+  if (it == st.arms.end()) L.fail(a, "no subsystem named '" + nm + "'");
+  return it->second;
+}
+
+// The system's coordinate names, in order.
+std::vector<std::string> system_coordinates(const Loading& st) {
+  std::vector<std::string> coords(static_cast<std::size_t>(st.system->dof()));
+  for (const auto& [cn, ci] : st.coord_index) coords[static_cast<std::size_t>(ci)] = cn;
+  return coords;
+}
+
+std::shared_ptr<const Constraint> closure_constraint(const Loader& L, const Node& c,
+                                                     const std::string& cname, const Loading& st) {
+  L.only_keys(c, {"type", "name", "left", "right", "dz", "yaw_offset", "load_pitch"});
+  auto [left, lo] = arm_ref(L, st, c, "left");
+  auto [right, ro] = arm_ref(L, st, c, "right");
+  if (left == right) L.fail(L.child(c, "right", true), "left and right must differ");
+  ClosureConstraint::Options o;
+  o.prefix = cname;
+  o.dz = L.number_or(c, "dz", 0.0);
+  o.yaw_offset = L.number_or(c, "yaw_offset", std::numbers::pi);
+  if (Node lp = L.child(c, "load_pitch", false); lp.node.IsDefined()) {
+    const Vec v = L.vector(lp, 2);
+    o.load_pitch1 = v(0);
+    o.load_pitch2 = v(1);
+  }
+  return std::make_shared<ClosureConstraint>(left, lo, right, ro, o);
+}
+
+std::shared_ptr<const Constraint> cut_point_trajectory(const Loader& L, const Node& c,
+                                                       const std::string& cname, const Scenario& sc,
+                                                       const Loading& st) {
+  L.only_keys(c, {"type", "name", "arm", "origin", "x", "y", "z"});
+  auto [arm, off] = arm_ref(L, st, c, "arm");
+  Vec3 origin = Vec3::Zero();
+  const Node on = L.child(c, "origin", false);
+  if (!on.node.IsDefined() || (on.node.IsScalar() && on.node.Scalar() == "initial")) {
+    origin = arm->cut_point(sc.q0.segment(off, 6));
+  } else {
+    origin = L.vector(on, 3);
+  }
+  std::array<std::optional<TimeFunction>, 3> axes;
+  const char* keys[3] = {"x", "y", "z"};
+  for (std::size_t a = 0; a < 3; ++a) {
+    if (Node f = L.child(c, keys[a], false); f.node.IsDefined()) axes[a] = load_time_function(L, f);
+  }
+  if (!axes[0] && !axes[1] && !axes[2]) L.fail(c, "give at least one of x, y, z");
+  return std::make_shared<CutPointTrajectory>(arm, off, axes, origin, cname);
+}
+
+std::shared_ptr<const Constraint> coordinate_constraint(const Loader& L, const Node& c,
+                                                        const std::string& cname,
+                                                        const Scenario& sc, const Loading& st) {
+  L.only_keys(c, {"type", "name", "coordinate", "value"});
+  const Node cn = L.child(c, "coordinate", true);
+  const std::string coord = L.string(cn);
+  auto it = st.coord_index.find(coord);
+  if (it == st.coord_index.end()) L.fail(cn, "no coordinate named '" + coord + "'");
+  const Node vn = L.child(c, "value", false);
+  TimeFunction f = TimeFunction::make_constant(sc.q0(it->second));
+  if (vn.node.IsDefined() && !(vn.node.IsScalar() && vn.node.Scalar() == "initial")) {
+    f = load_time_function(L, vn);
+  }
+  return std::make_shared<CoordinateConstraint>(it->second, f, cname);
+}
+
+// The constraint of an entry of constraints, by its type.
+std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node& c,
+                                                    const Node& type_node, const std::string& type,
+                                                    const std::string& cname, const Scenario& sc,
+                                                    const Loading& st) {
+  if (type == "closure") return closure_constraint(L, c, cname, st);
+  if (type == "cut_point_trajectory") return cut_point_trajectory(L, c, cname, sc, st);
+  if (type == "coordinate") return coordinate_constraint(L, c, cname, sc, st);
+  if (type == "expression" || type == "nonholonomic") {  // docs/definitions.md
+    return io_detail::load_definitions_constraint(L, c, cname, type == "expression",
+                                                  system_coordinates(st));
+  }
+  if (io_detail::is_frame_constraint(type)) {  // docs/frame-constraints.md
+    return io_detail::load_frame_constraint(L, c, cname, type, system_coordinates(st),
+                                            *st.definition_context, sc.q0);
+  }
+  if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
+    return io_detail::load_constraint_kind(L, c, cname, type, system_coordinates(st),
+                                           *st.definition_context, sc.q0);
+  }
+  L.fail(type_node, "unknown constraint type '" + type +
+                        "' (expected closure, cut_point_trajectory, coordinate, expression, "
+                        "nonholonomic, points_coincide, point_trajectory, angle_relation, weld, "
+                        "ball, hinge, level or distance)");
+}
+
+// constraints: each entry built, with its role, and added.
+void add_listed_constraints(const Loader& L, const Node& root, const Scenario& sc,
+                            const Loading& st, ConstraintSink& sink) {
+  const Node cons = L.child(root, "constraints", false);
+  if (!cons.node.IsDefined()) return;
+  if (!cons.node.IsSequence()) L.fail(cons, "expected a list of constraints");
+  for (std::size_t i = 0; i < cons.node.size(); ++i) {
+    const Node c{cons.node[i], cons.key + "[" + std::to_string(i) + "]"};
+    const Node type_node = L.child(c, "type", true);
+    const std::string type = L.string(type_node);
+    const std::string cname = L.name(L.child(c, "name", true));
+    sink.role = io_detail::take_role(L, c, type);  // `role:` (removed from c) or the type's default
+    try {
+      sink.add(c, listed_constraint(L, c, type_node, type, cname, sc, st));
+    } catch (const ScenarioError&) {
+      throw;
+    } catch (const Error& e) {
+      L.fail(c, e.what());
+    } catch (const std::exception& e) {  // GiNaC's evaluation errors
+      L.fail(c, std::string("cannot evaluate: ") + e.what());
     }
   }
+}
+
+// constraints: each one built and added to the system; row names unique.
+void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
+  ConstraintSink sink{L, sc, *st.system, {}, {}};
+  add_quaternion_norms(L, sc, st, sink);
+  add_link_constraints(L, sc, st, sink);
+  add_listed_constraints(L, root, sc, st, sink);
 }
 
 // forces: tau (constant), and the state-dependent parameters / generalized / elements

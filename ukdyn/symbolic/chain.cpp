@@ -1,13 +1,13 @@
 #include "ukdyn/symbolic/chain.hpp"
 
-#include "ukdyn/symbolic/canonical.hpp"
-#include "ukdyn/symbolic/free_body.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <set>
 #include <sstream>
+
+#include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -137,238 +137,318 @@ Vec3Ex ChainModel::world_point(const std::string& name) const {
   return {it->second[0].subs(values), it->second[1].subs(values), it->second[2].subs(values)};
 }
 
-ChainModel build_chain(const ChainDef& chain) {
-  ChainModel m{static_cast<const SubsystemDef&>(chain), {}, {}, {}};
-  const GiNaC::exmap values = chain.parameter_values();
-  const auto& coords = chain.coordinates();
-  std::vector<GiNaC::symbol> q, qd;
-  for (const auto& c : coords) {
-    q.push_back(coordinate_symbol(chain.symbols(), c));
-    qd.push_back(velocity_symbol(chain.symbols(), c));
+namespace {
+
+// A link frame while the chain is built.
+struct Pose {
+  Vec3Ex p;
+  Mat3Ex R;
+  Vec3Ex w;  // angular velocity in the world
+  // R = Rpre · Rot(axis, angle) when the last rotation was about `axis` (has_axis): a child joint
+  // about the same axis adds its angle, so parallel joints give cos(q1 + q2), and the paper's
+  // absolute angles (values theta2 − theta1) give back Ry(−theta2) exactly as written by hand.
+  Mat3Ex Rpre;
+  Vec3Ex axis{0, 0, 0};
+  ex angle = 0;
+  bool has_axis = false;
+  // Downstream of a floating joint: the angular velocity in the frame's own axes (wb), composed
+  // joint by joint with orthonormal steps, so that a body fixed to the floating link gets
+  // exactly the free body's ω_body = 2 E(q) q̇ (free_body.hpp); w is then unused.
+  bool floating = false;
+  Vec3Ex wb{0, 0, 0};
+};
+
+// The joint frame: the parent link frame P moved by the joint's fixed origin.
+Pose origin_frame(const Pose& P, const OriginDef& origin) {
+  Pose jf = P;
+  jf.p = add(P.p, mul(P.R, origin.xyz));
+  if (P.floating && !all_zero(origin.rpy)) {
+    jf.wb = mul_transposed(rpy_rotation(origin.rpy), P.wb);
+    for (auto& e : jf.wb) e = e.expand();
   }
-  auto has_coord = [&](const std::string& c) {
-    return std::find(coords.begin(), coords.end(), c) != coords.end();
-  };
-  auto rate = [&](const ex& v) {
-    ex r = 0;
-    for (std::size_t k = 0; k < q.size(); ++k) r += v.diff(q[k]) * qd[k];
-    return r;
-  };
-  // Only the chain's coordinates and parameters may appear in a joint value.
-  auto check_value = [&](const ex& v, const std::string& where) {
-    GiNaC::exmap zero = values;
-    for (const auto& s : q) zero[s] = 0;
-    const ex z = v.subs(zero).evalf();
-    if (!GiNaC::is_a<GiNaC::numeric>(z)) {
-      throw DefinitionError(where + ": the joint value '" + str(v) +
-                            "' may use only the chain's coordinates and parameters");
-    }
-  };
+  if (!all_zero(origin.rpy)) {
+    // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
+    // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
+    // the positions below took minutes.
+    jf.R = mul(P.R, rpy_rotation(origin.rpy));
+    for (auto& e : jf.R) e = e.expand();
+    jf.has_axis = false;
+  }
+  return jf;
+}
 
-  struct Pose {
-    Vec3Ex p;
-    Mat3Ex R;
-    Vec3Ex w;  // angular velocity in the world
-    // R = Rpre · Rot(axis, angle) when the last rotation was about `axis` (has_axis): a child joint
-    // about the same axis adds its angle, so parallel joints give cos(q1 + q2), and the paper's
-    // absolute angles (values theta2 − theta1) give back Ry(−theta2) exactly as written by hand.
-    Mat3Ex Rpre;
-    Vec3Ex axis{0, 0, 0};
-    ex angle = 0;
-    bool has_axis = false;
-    // Downstream of a floating joint: the angular velocity in the frame's own axes (wb), composed
-    // joint by joint with orthonormal steps, so that a body fixed to the floating link gets
-    // exactly the free body's ω_body = 2 E(q) q̇ (free_body.hpp); w is then unused.
-    bool floating = false;
-    Vec3Ex wb{0, 0, 0};
-  };
-  std::map<std::string, Pose> frames;
-  const Mat3Ex Rm = rpy_rotation(chain.mount.rpy);
-  Pose root;
-  root.p = chain.mount.xyz;
-  root.R = Rm;
-  root.w = {0, 0, 0};
-  std::string last = chain.root_link;
+// One build_chain call: the chain's coordinate symbols, the link frames built so far (a parent
+// before its children) and the model being filled.
+class ChainBuilder {
+ public:
+  explicit ChainBuilder(const ChainDef& chain);
+  // The root (or the mobile base), then every joint in order, then the links and named points.
+  ChainModel build();
 
-  auto add_body = [&](const std::string& name, const Pose& f, const InertialDef& in) {
-    bool has_inertia = false;
-    for (const ex& e : in.inertia) has_inertia = has_inertia || !e.is_zero();
-    if (in.mass.is_zero() && !has_inertia) return;
-    BodyDef& b = m.def.add_body(name);
-    b.mass = in.mass;
-    b.com = add(f.p, mul(f.R, in.com));
-    if (has_inertia) {
-      const Mat3Ex Rb = all_zero(in.rpy) ? f.R : mul(f.R, rpy_rotation(in.rpy));
-      b.inertia_kind = BodyDef::InertiaKind::tensor;
-      b.inertia_tensor = in.inertia;
-      b.inertia_frame = symbolic::Frame::body;
-      b.rotation = Rb;
-      Vec3Ex wb = f.floating ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
-                             : mul_transposed(Rb, f.w);
-      for (auto& e : wb) e = simplify_trig(e);
-      b.angular_velocity = wb;
-    }
-  };
+ private:
+  [[nodiscard]] bool has_coord(const std::string& c) const;
+  [[nodiscard]] ex rate(const ex& v) const;
+  void check_value(const ex& v, const std::string& where) const;
+  void add_body(const std::string& name, const Pose& f, const InertialDef& in);
+  void place_base(const Pose& root, const Mat3Ex& Rm);
+  [[nodiscard]] const Pose& parent_frame(const JointDef& j, const std::string& where);
+  void check_quaternion_joint(const JointDef& j, const std::string& where, bool floating) const;
+  void apply_quaternion_joint(const JointDef& j, const std::string& where, Pose& jf);
+  [[nodiscard]] ex joint_value(const JointDef& j, const std::string& where) const;
+  void apply_axis_joint(const JointDef& j, const std::string& where, Pose& jf) const;
+  void place_joint(const JointDef& j, const Deadline& deadline);
+  void collect_links_and_points();
 
-  if (chain.base.enabled) {
-    const auto& B = chain.base;
-    if (!has_coord(B.x) || !has_coord(B.y)) {
-      throw DefinitionError("mobile base: x and y must be coordinates of the chain (got '" + B.x +
-                            "', '" + B.y + "')");
+  const ChainDef& chain_;
+  ChainModel m_;
+  const GiNaC::exmap values_;
+  const std::vector<std::string>& coords_;
+  std::vector<GiNaC::symbol> q_, qd_;
+  std::map<std::string, Pose> frames_;
+  std::string last_;  // the previous joint's child link: the default parent
+  std::set<std::string> joint_names_;
+};
+
+ChainBuilder::ChainBuilder(const ChainDef& chain)
+    : chain_(chain),
+      m_{static_cast<const SubsystemDef&>(chain), {}, {}, {}},
+      values_(chain.parameter_values()),
+      coords_(chain.coordinates()) {
+  for (const auto& c : coords_) {
+    q_.push_back(coordinate_symbol(chain.symbols(), c));
+    qd_.push_back(velocity_symbol(chain.symbols(), c));
+  }
+}
+
+bool ChainBuilder::has_coord(const std::string& c) const {
+  return std::find(coords_.begin(), coords_.end(), c) != coords_.end();
+}
+
+ex ChainBuilder::rate(const ex& v) const {
+  ex r = 0;
+  for (std::size_t k = 0; k < q_.size(); ++k) r += v.diff(q_[k]) * qd_[k];
+  return r;
+}
+
+// Only the chain's coordinates and parameters may appear in a joint value.
+void ChainBuilder::check_value(const ex& v, const std::string& where) const {
+  GiNaC::exmap zero = values_;
+  for (const auto& s : q_) zero[s] = 0;
+  const ex z = v.subs(zero).evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(z)) {
+    throw DefinitionError(where + ": the joint value '" + str(v) +
+                          "' may use only the chain's coordinates and parameters");
+  }
+}
+
+void ChainBuilder::add_body(const std::string& name, const Pose& f, const InertialDef& in) {
+  bool has_inertia = false;
+  for (const ex& e : in.inertia) has_inertia = has_inertia || !e.is_zero();
+  if (in.mass.is_zero() && !has_inertia) return;
+  BodyDef& b = m_.def.add_body(name);
+  b.mass = in.mass;
+  b.com = add(f.p, mul(f.R, in.com));
+  if (has_inertia) {
+    const Mat3Ex Rb = all_zero(in.rpy) ? f.R : mul(f.R, rpy_rotation(in.rpy));
+    b.inertia_kind = BodyDef::InertiaKind::tensor;
+    b.inertia_tensor = in.inertia;
+    b.inertia_frame = symbolic::Frame::body;
+    b.rotation = Rb;
+    Vec3Ex wb = f.floating ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
+                           : mul_transposed(Rb, f.w);
+    for (auto& e : wb) e = simplify_trig(e);
+    b.angular_velocity = wb;
+  }
+}
+
+// The mobile base: x, y along the mount's axes, an optional yaw about its z.
+void ChainBuilder::place_base(const Pose& root, const Mat3Ex& Rm) {
+  const auto& B = chain_.base;
+  if (!has_coord(B.x) || !has_coord(B.y)) {
+    throw DefinitionError("mobile base: x and y must be coordinates of the chain (got '" + B.x +
+                          "', '" + B.y + "')");
+  }
+  Pose f = root;
+  f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(chain_.symbols(), B.x),
+                                coordinate_symbol(chain_.symbols(), B.y), 0}));
+  if (!B.yaw.empty()) {
+    if (!has_coord(B.yaw))
+      throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");
+    f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(chain_.symbols(), B.yaw)));
+    f.Rpre = Rm;
+    f.axis = {0, 0, 1};
+    f.angle = coordinate_symbol(chain_.symbols(), B.yaw);
+    f.has_axis = true;
+    f.w = scale(Vec3Ex{Rm[2], Rm[5], Rm[8]}, velocity_symbol(chain_.symbols(), B.yaw));
+  }
+  frames_[B.link] = f;
+  last_ = B.link;
+  add_body(B.link, f, B.inertial);
+}
+
+// The joint's names checked (unique joint, a new child link) and its parent link's frame.
+const Pose& ChainBuilder::parent_frame(const JointDef& j, const std::string& where) {
+  if (!joint_names_.insert(j.name).second)
+    throw DefinitionError("duplicate joint '" + j.name + "'");
+  if (j.link.empty()) throw DefinitionError(where + ": no child link");
+  if (frames_.count(j.link))
+    throw DefinitionError(where + ": link '" + j.link + "' is defined twice");
+  const std::string parent = j.parent.empty() ? last_ : j.parent;
+  auto pit = frames_.find(parent);
+  if (pit == frames_.end())
+    throw DefinitionError(where + ": no parent link '" + parent + "' defined before it");
+  return pit->second;
+}
+
+// A floating joint's 7 (a ball joint's 4) coordinates, all of the chain, and no coordinate or
+// value.
+void ChainBuilder::check_quaternion_joint(const JointDef& j, const std::string& where,
+                                          bool floating) const {
+  const std::size_t nc = floating ? 7 : 4;
+  const std::string kind = floating ? "a floating" : "a ball";
+  if (j.coordinates.size() != nc) {
+    throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
+                          " coordinates (" +
+                          (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") + "), got " +
+                          std::to_string(j.coordinates.size()));
+  }
+  for (const auto& c : j.coordinates) {
+    if (!has_coord(c))
+      throw DefinitionError(where + ": '" + c + "' is not a coordinate of the chain");
+  }
+  if (j.value || !j.coordinate.empty())
+    throw DefinitionError(where + ": " + kind +
+                          " joint takes coordinates, not a coordinate or value");
+}
+
+void ChainBuilder::apply_quaternion_joint(const JointDef& j, const std::string& where, Pose& jf) {
+  // Position + unit quaternion (docs/free-bodies.md, "Floating joints"): p = p_joint +
+  // R_joint (x, y, z) (floating only), R = R_joint R(q), ω_body = R(q)ᵀ ω_joint + 2 E(q) q̇,
+  // the free body's rate (free_body.hpp) plus the joint frame's own angular velocity.
+  const bool floating = j.type == JointDef::Type::floating;
+  const std::size_t nc = floating ? 7 : 4;
+  check_quaternion_joint(j, where, floating);
+  // The joint frame's angular velocity in its own axes (jf.R is orthonormal off a floating
+  // part: products of rotations about axes).
+  Vec3Ex wj = jf.wb;
+  if (!jf.floating) {
+    wj = mul_transposed(jf.R, jf.w);
+    for (auto& e : wj) e = simplify_trig(e.expand());
+  }
+  std::vector<ex> c(nc), d(nc);
+  for (std::size_t k = 0; k < nc; ++k) {
+    c[k] = coordinate_symbol(chain_.symbols(), j.coordinates[k]);
+    d[k] = velocity_symbol(chain_.symbols(), j.coordinates[k]);
+  }
+  const std::size_t o = floating ? 3 : 0;
+  if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
+  const Mat3Ex Rq = quaternion_rotation(c[o], c[o + 1], c[o + 2], c[o + 3]);
+  jf.R = mul(jf.R, Rq);
+  for (auto& e : jf.R) e = e.expand();
+  jf.wb = add(mul_transposed(Rq, wj), quaternion_body_rate(c[o], c[o + 1], c[o + 2], c[o + 3], d[o],
+                                                           d[o + 1], d[o + 2], d[o + 3]));
+  for (auto& e : jf.wb) e = e.expand();
+  jf.floating = true;
+  jf.has_axis = false;
+  m_.quaternions.emplace_back(
+      j.name,
+      std::vector<std::string>(j.coordinates.begin() + static_cast<long>(o), j.coordinates.end()));
+}
+
+// A revolute or prismatic joint's variable: its value (checked) or its coordinate.
+ex ChainBuilder::joint_value(const JointDef& j, const std::string& where) const {
+  if (j.value) {
+    const ex v = *j.value;
+    check_value(v, where);
+    return v;
+  }
+  if (j.coordinate.empty()) throw DefinitionError(where + ": no coordinate and no value");
+  if (!has_coord(j.coordinate)) {
+    throw DefinitionError(where + ": '" + j.coordinate + "' is not a coordinate of the chain");
+  }
+  return coordinate_symbol(chain_.symbols(), j.coordinate);
+}
+
+void ChainBuilder::apply_axis_joint(const JointDef& j, const std::string& where, Pose& jf) const {
+  const ex v = joint_value(j, where);
+  const Vec3Ex a = unit(j.axis, where, values_);
+  if (j.type == JointDef::Type::revolute && jf.floating) {
+    // Body-frame composition: ω_child = Rot(a, v)ᵀ ω_joint + a v̇.
+    jf.wb = add(mul_transposed(axis_rotation(a, v), jf.wb), scale(a, rate(v)));
+    for (auto& e : jf.wb) e = e.expand();
+  }
+  if (j.type == JointDef::Type::revolute) {
+    if (!jf.floating) jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
+    const bool same_axis = jf.has_axis && jf.axis[0].is_equal(a[0]) && jf.axis[1].is_equal(a[1]) &&
+                           jf.axis[2].is_equal(a[2]);
+    if (same_axis) {
+      jf.angle = (jf.angle + v).expand();
+    } else {
+      jf.Rpre = jf.R;
+      jf.axis = a;
+      jf.angle = v;
+      jf.has_axis = true;
     }
-    Pose f = root;
-    f.p = add(f.p, mul(Rm, Vec3Ex{coordinate_symbol(chain.symbols(), B.x),
-                                  coordinate_symbol(chain.symbols(), B.y), 0}));
-    if (!B.yaw.empty()) {
-      if (!has_coord(B.yaw))
-        throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");
-      f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(chain.symbols(), B.yaw)));
-      f.Rpre = Rm;
-      f.axis = {0, 0, 1};
-      f.angle = coordinate_symbol(chain.symbols(), B.yaw);
-      f.has_axis = true;
-      f.w = scale(Vec3Ex{Rm[2], Rm[5], Rm[8]}, velocity_symbol(chain.symbols(), B.yaw));
-    }
-    frames[B.link] = f;
-    last = B.link;
-    add_body(B.link, f, B.inertial);
+    jf.R = mul(jf.Rpre, axis_rotation(a, jf.angle));
+    for (auto& e : jf.R) e = e.expand();
   } else {
-    frames[chain.root_link] = root;
+    jf.p = add(jf.p, mul(jf.R, scale(a, v)));
   }
+}
 
-  std::set<std::string> joint_names;
-  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
-  for (const JointDef& j : chain.joints) {
-    const std::string where = "joint '" + j.name + "'";
-    deadline.check(where);
-    if (!joint_names.insert(j.name).second)
-      throw DefinitionError("duplicate joint '" + j.name + "'");
-    if (j.link.empty()) throw DefinitionError(where + ": no child link");
-    if (frames.count(j.link))
-      throw DefinitionError(where + ": link '" + j.link + "' is defined twice");
-    const std::string parent = j.parent.empty() ? last : j.parent;
-    auto pit = frames.find(parent);
-    if (pit == frames.end())
-      throw DefinitionError(where + ": no parent link '" + parent + "' defined before it");
-    const Pose& P = pit->second;
-    Pose jf = P;
-    jf.p = add(P.p, mul(P.R, j.origin.xyz));
-    if (P.floating && !all_zero(j.origin.rpy)) {
-      jf.wb = mul_transposed(rpy_rotation(j.origin.rpy), P.wb);
-      for (auto& e : jf.wb) e = e.expand();
-    }
-    if (!all_zero(j.origin.rpy)) {
-      // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
-      // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
-      // the positions below took minutes.
-      jf.R = mul(P.R, rpy_rotation(j.origin.rpy));
-      for (auto& e : jf.R) e = e.expand();
-      jf.has_axis = false;
-    }
-    if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball) {
-      // Position + unit quaternion (docs/free-bodies.md, "Floating joints"): p = p_joint +
-      // R_joint (x, y, z) (floating only), R = R_joint R(q), ω_body = R(q)ᵀ ω_joint + 2 E(q) q̇,
-      // the free body's rate (free_body.hpp) plus the joint frame's own angular velocity.
-      const bool floating = j.type == JointDef::Type::floating;
-      const std::size_t nc = floating ? 7 : 4;
-      const std::string kind = floating ? "a floating" : "a ball";
-      if (j.coordinates.size() != nc) {
-        throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
-                              " coordinates (" +
-                              (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") +
-                              "), got " + std::to_string(j.coordinates.size()));
-      }
-      for (const auto& c : j.coordinates) {
-        if (!has_coord(c))
-          throw DefinitionError(where + ": '" + c + "' is not a coordinate of the chain");
-      }
-      if (j.value || !j.coordinate.empty())
-        throw DefinitionError(where + ": " + kind +
-                              " joint takes coordinates, not a coordinate or value");
-      // The joint frame's angular velocity in its own axes (jf.R is orthonormal off a floating
-      // part: products of rotations about axes).
-      Vec3Ex wj = jf.wb;
-      if (!jf.floating) {
-        wj = mul_transposed(jf.R, jf.w);
-        for (auto& e : wj) e = simplify_trig(e.expand());
-      }
-      std::vector<ex> c(nc), d(nc);
-      for (std::size_t k = 0; k < nc; ++k) {
-        c[k] = coordinate_symbol(chain.symbols(), j.coordinates[k]);
-        d[k] = velocity_symbol(chain.symbols(), j.coordinates[k]);
-      }
-      const std::size_t o = floating ? 3 : 0;
-      if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
-      const Mat3Ex Rq = quaternion_rotation(c[o], c[o + 1], c[o + 2], c[o + 3]);
-      jf.R = mul(jf.R, Rq);
-      for (auto& e : jf.R) e = e.expand();
-      jf.wb = add(mul_transposed(Rq, wj), quaternion_body_rate(c[o], c[o + 1], c[o + 2], c[o + 3],
-                                                               d[o], d[o + 1], d[o + 2], d[o + 3]));
-      for (auto& e : jf.wb) e = e.expand();
-      jf.floating = true;
-      jf.has_axis = false;
-      m.quaternions.emplace_back(
-          j.name, std::vector<std::string>(j.coordinates.begin() + static_cast<long>(o),
-                                           j.coordinates.end()));
-    } else if (j.type != JointDef::Type::fixed) {
-      ex v;
-      if (j.value) {
-        v = *j.value;
-        check_value(v, where);
-      } else {
-        if (j.coordinate.empty()) throw DefinitionError(where + ": no coordinate and no value");
-        if (!has_coord(j.coordinate)) {
-          throw DefinitionError(where + ": '" + j.coordinate +
-                                "' is not a coordinate of the chain");
-        }
-        v = coordinate_symbol(chain.symbols(), j.coordinate);
-      }
-      const Vec3Ex a = unit(j.axis, where, values);
-      if (j.type == JointDef::Type::revolute && jf.floating) {
-        // Body-frame composition: ω_child = Rot(a, v)ᵀ ω_joint + a v̇.
-        jf.wb = add(mul_transposed(axis_rotation(a, v), jf.wb), scale(a, rate(v)));
-        for (auto& e : jf.wb) e = e.expand();
-      }
-      if (j.type == JointDef::Type::revolute) {
-        if (!jf.floating) jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
-        const bool same_axis = jf.has_axis && jf.axis[0].is_equal(a[0]) &&
-                               jf.axis[1].is_equal(a[1]) && jf.axis[2].is_equal(a[2]);
-        if (same_axis) {
-          jf.angle = (jf.angle + v).expand();
-        } else {
-          jf.Rpre = jf.R;
-          jf.axis = a;
-          jf.angle = v;
-          jf.has_axis = true;
-        }
-        jf.R = mul(jf.Rpre, axis_rotation(a, jf.angle));
-        for (auto& e : jf.R) e = e.expand();
-      } else {
-        jf.p = add(jf.p, mul(jf.R, scale(a, v)));
-      }
-    }
-    for (auto& e : jf.p) e = e.expand();
-    for (std::size_t k = 0; k < 3; ++k) check_expression_size(jf.p[k], where + ": its position");
-    for (std::size_t k = 0; k < 9; ++k) check_expression_size(jf.R[k], where + ": its rotation");
-    frames[j.link] = jf;
-    last = j.link;
-    add_body(j.link, jf, j.inertial);
+void ChainBuilder::place_joint(const JointDef& j, const Deadline& deadline) {
+  const std::string where = "joint '" + j.name + "'";
+  deadline.check(where);
+  Pose jf = origin_frame(parent_frame(j, where), j.origin);
+  if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball) {
+    apply_quaternion_joint(j, where, jf);
+  } else if (j.type != JointDef::Type::fixed) {
+    apply_axis_joint(j, where, jf);
   }
+  for (auto& e : jf.p) e = e.expand();
+  for (std::size_t k = 0; k < 3; ++k) check_expression_size(jf.p[k], where + ": its position");
+  for (std::size_t k = 0; k < 9; ++k) check_expression_size(jf.R[k], where + ": its rotation");
+  frames_[j.link] = jf;
+  last_ = j.link;
+  add_body(j.link, jf, j.inertial);
+}
 
-  for (const auto& [name, f] : frames) {
-    m.links[name] = {f.p, f.R};
-    m.points[name] = f.p;
+void ChainBuilder::collect_links_and_points() {
+  for (const auto& [name, f] : frames_) {
+    m_.links[name] = {f.p, f.R};
+    m_.points[name] = f.p;
   }
-  if (!chain.joints.empty()) m.points["end"] = frames[chain.joints.back().link].p;
-  for (const PointDef& p : chain.points) {
-    auto it = frames.find(p.link);
-    if (it == frames.end())
+  if (!chain_.joints.empty()) m_.points["end"] = frames_[chain_.joints.back().link].p;
+  for (const PointDef& p : chain_.points) {
+    auto it = frames_.find(p.link);
+    if (it == frames_.end())
       throw DefinitionError("point '" + p.name + "': no link '" + p.link + "'");
     Vec3Ex w = add(it->second.p, mul(it->second.R, p.xyz));
     for (auto& e : w) e = e.expand();
-    m.points[p.name] = w;
+    m_.points[p.name] = w;
   }
-  return m;
 }
+
+ChainModel ChainBuilder::build() {
+  const Mat3Ex Rm = rpy_rotation(chain_.mount.rpy);
+  Pose root;
+  root.p = chain_.mount.xyz;
+  root.R = Rm;
+  root.w = {0, 0, 0};
+  last_ = chain_.root_link;
+  if (chain_.base.enabled) {
+    place_base(root, Rm);
+  } else {
+    frames_[chain_.root_link] = root;
+  }
+  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
+  for (const JointDef& j : chain_.joints) place_joint(j, deadline);
+  collect_links_and_points();
+  return std::move(m_);
+}
+
+}  // namespace
+
+ChainModel build_chain(const ChainDef& chain) { return ChainBuilder(chain).build(); }
 
 }  // namespace ukdyn::symbolic

@@ -102,10 +102,8 @@ OriginDef origin(const urdf::Pose& p) {
   return {vec(p.position), {angle(r), angle(pi), angle(y)}};
 }
 
-}  // namespace
-
-void append_urdf(ChainDef& chain, const std::string& path,
-                 const std::map<std::string, GiNaC::ex>& joint_values) {
+// A directory, FIFO, device, missing or oversized file is refused before urdfdom opens it.
+void check_file(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
     // A directory, FIFO or device is not "missing" (and a FIFO is never opened).
@@ -115,22 +113,28 @@ void append_urdf(ChainDef& chain, const std::string& path,
   }
   if (std::filesystem::file_size(path, ec) > (16u << 20) || ec)
     throw DefinitionError(path + ": larger than 16 MiB (a URDF is a small text file)");
-  std::string messages;
-  const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
-  // urdfdom's links own their children (shared_ptr): a cyclic file makes a reference cycle that
-  // would never be freed. Cut every link's references on the way out, whatever the outcome.
-  struct Unlink {
-    const urdf::ModelInterfaceSharedPtr& m;
-    ~Unlink() {
-      if (!m) return;
-      for (auto& [name, link] : m->links_) {
-        if (!link) continue;
-        link->child_links.clear();
-        link->child_joints.clear();
-        link->parent_joint.reset();
-      }
+}
+
+// urdfdom's links own their children (shared_ptr): a cyclic file makes a reference cycle that
+// would never be freed. Cuts every link's references on the way out, whatever the outcome.
+struct Unlink {
+  const urdf::ModelInterfaceSharedPtr& m;
+  ~Unlink() {
+    if (!m) return;
+    for (auto& [name, link] : m->links_) {
+      if (!link) continue;
+      link->child_links.clear();
+      link->child_joints.clear();
+      link->parent_joint.reset();
     }
-  } unlink{model};
+  }
+};
+
+// The parsed model's root link; refuses a file urdfdom could not read or reported errors in,
+// and joint_values naming no joint of it.
+urdf::LinkConstSharedPtr checked_root(const urdf::ModelInterfaceSharedPtr& model,
+                                      const std::string& messages, const std::string& path,
+                                      const std::map<std::string, GiNaC::ex>& joint_values) {
   if (!model) {
     throw DefinitionError(path + ": urdfdom could not read this URDF" +
                           (messages.empty() ? std::string(" (malformed XML?)") : ": " + messages));
@@ -138,14 +142,26 @@ void append_urdf(ChainDef& chain, const std::string& path,
   // urdfdom reports some errors and carries on (a <mass value="heavy"/> drops the link's inertial
   // block, "inf" in an <inertia> likewise): any error it reported refuses the file.
   if (!messages.empty()) throw DefinitionError(path + ": urdfdom reported: " + messages);
-  const urdf::LinkConstSharedPtr root = model->getRoot();
+  urdf::LinkConstSharedPtr root = model->getRoot();
   if (!root) throw DefinitionError(path + ": the URDF has no root link");
   for (const auto& [jn, j] : joint_values) {
     if (!model->getJoint(jn))
       throw DefinitionError(path + ": joint_values names no joint '" + jn + "'");
   }
+  return root;
+}
 
-  // Coordinates free for joints without an explicit value.
+// The variables of the movable joints: the coordinates left for joints without an explicit
+// value (free, from next on), and the value of every movable joint read so far (for mimic).
+struct JointVariables {
+  std::vector<std::string> free;
+  std::size_t next = 0;
+  std::map<std::string, ex> values;  // joint → its value
+};
+
+// Coordinates free for joints without an explicit value.
+std::vector<std::string> free_coordinates(const ChainDef& chain,
+                                          const std::map<std::string, GiNaC::ex>& joint_values) {
   std::set<std::string> taken;
   if (chain.base.enabled) {
     taken.insert(chain.base.x);
@@ -160,133 +176,174 @@ void append_urdf(ChainDef& chain, const std::string& path,
   for (const auto& c : chain.coordinates()) {
     if (!taken.count(c)) free.push_back(c);
   }
-  std::size_t next = 0;
+  return free;
+}
 
-  std::string root_parent;
+// The root link: on the mobile base, on a floating joint, or the chain's root itself.
+void attach_root(ChainDef& chain, const urdf::Link& root) {
   if (chain.base.enabled) {
-    JointDef& j = chain.add_joint(root->name + "_mount", JointDef::Type::fixed, root->name);
+    JointDef& j = chain.add_joint(root.name + "_mount", JointDef::Type::fixed, root.name);
     j.parent = chain.base.link;
-    if (root->inertial) {
-      j.inertial.mass = exact_number(root->inertial->mass);
+    if (root.inertial) {
+      j.inertial.mass = exact_number(root.inertial->mass);
     }
   } else if (!chain.floating_root.empty()) {
     // The root link on a floating joint from a fixed frame NAME_mount (docs/free-bodies.md).
-    chain.root_link = root->name + "_mount";
-    JointDef& j = chain.add_joint(root->name + "_floating", JointDef::Type::floating, root->name);
+    chain.root_link = root.name + "_mount";
+    JointDef& j = chain.add_joint(root.name + "_floating", JointDef::Type::floating, root.name);
     j.parent = chain.root_link;
     j.coordinates = chain.floating_root;
   } else {
-    chain.root_link = root->name;
+    chain.root_link = root.name;
   }
+}
 
-  std::map<std::string, ex> values;  // joint → its value
-  auto inertial_of = [&](const urdf::Link& link, InertialDef& in) {
-    if (!link.inertial) {
-      throw DefinitionError(path + ": link '" + link.name +
-                            "' has no <inertial> block (give mass, origin and inertia)");
+// A link's <inertial> block, checked: finite, mass >= 0, inertia diagonal >= 0.
+void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in) {
+  if (!link.inertial) {
+    throw DefinitionError(path + ": link '" + link.name +
+                          "' has no <inertial> block (give mass, origin and inertia)");
+  }
+  const urdf::Inertial& I = *link.inertial;
+  const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
+  if (!std::isfinite(I.mass) || I.mass < 0.0) {
+    std::ostringstream os;
+    os << where << ": <mass value> must be a finite number >= 0, got " << I.mass;
+    throw DefinitionError(os.str());
+  }
+  for (double x : {I.ixx, I.ixy, I.ixz, I.iyy, I.iyz, I.izz}) {
+    if (!std::isfinite(x)) throw DefinitionError(where + ": <inertia> has a non-finite entry");
+  }
+  if (I.ixx < 0.0 || I.iyy < 0.0 || I.izz < 0.0)
+    throw DefinitionError(where + ": <inertia> has a negative diagonal entry (ixx, iyy, izz)");
+  check_pose(I.origin, where);
+  in.mass = exact_number(I.mass);
+  const OriginDef o = origin(I.origin);
+  in.com = o.xyz;
+  in.rpy = o.rpy;
+  const ex xx = exact_number(I.ixx), xy = exact_number(I.ixy), xz = exact_number(I.ixz),
+           yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
+  in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
+}
+
+// Pushes the link's children on the stack (the first child on top); a child reached twice (a
+// cycle, or a link that is the child of two joints: urdfdom keeps the last parent) is refused.
+void push_children(const urdf::ModelInterface& model, const urdf::Link& link,
+                   const std::string& path, std::set<std::string>& visited,
+                   std::vector<urdf::LinkConstSharedPtr>& stack) {
+  const auto& cj = link.child_joints;
+  for (auto it = cj.rbegin(); it != cj.rend(); ++it) {
+    urdf::LinkConstSharedPtr child = model.getLink((*it)->child_link_name);
+    if (!child) continue;
+    if (!visited.insert(child->name).second || child->parent_joint != *it) {
+      throw DefinitionError(path + ": joint '" + shown((*it)->name) + "': link '" +
+                            shown(child->name) +
+                            "' is reached twice (a cycle, or a link with two parent joints): "
+                            "a URDF must be a tree");
     }
-    const urdf::Inertial& I = *link.inertial;
-    const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
-    if (!std::isfinite(I.mass) || I.mass < 0.0) {
-      std::ostringstream os;
-      os << where << ": <mass value> must be a finite number >= 0, got " << I.mass;
-      throw DefinitionError(os.str());
+    stack.push_back(child);
+  }
+}
+
+JointDef::Type joint_type(const urdf::Joint& uj, const std::string& where) {
+  switch (uj.type) {
+    case urdf::Joint::REVOLUTE:
+    case urdf::Joint::CONTINUOUS:
+      return JointDef::Type::revolute;
+    case urdf::Joint::PRISMATIC:
+      return JointDef::Type::prismatic;
+    case urdf::Joint::FIXED:
+      return JointDef::Type::fixed;
+    case urdf::Joint::FLOATING:  // position + unit quaternion, the next 7 free coordinates
+      return JointDef::Type::floating;
+    default:
+      throw DefinitionError(
+          where + ": type " +
+          (uj.type == urdf::Joint::PLANAR ? std::string("planar") : std::string("unknown")) +
+          " is not supported (revolute, continuous, prismatic, fixed, "
+          "floating)");
+  }
+}
+
+// A floating joint's 7 coordinates; a movable joint's value: given in joint_values, mimicking an
+// earlier joint, or the next free coordinate.
+void assign_joint_variables(const ChainDef& chain, JointDef& j, const urdf::Joint& uj,
+                            const std::string& where,
+                            const std::map<std::string, GiNaC::ex>& joint_values,
+                            JointVariables& vars) {
+  const std::vector<std::string>& free = vars.free;
+  std::size_t& next = vars.next;
+  if (j.type == JointDef::Type::floating) {
+    if (next + 7 > free.size()) {
+      throw DefinitionError(where +
+                            ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
+                            "qz); the chain has " +
+                            std::to_string(free.size() - next) + " left");
     }
-    for (double x : {I.ixx, I.ixy, I.ixz, I.iyy, I.iyz, I.izz}) {
-      if (!std::isfinite(x)) throw DefinitionError(where + ": <inertia> has a non-finite entry");
+    for (int k = 0; k < 7; ++k) j.coordinates.push_back(free[next++]);
+  } else if (j.type != JointDef::Type::fixed) {
+    j.axis = vec(uj.axis);
+    if (auto v = joint_values.find(uj.name); v != joint_values.end()) {
+      j.value = v->second;
+    } else if (uj.mimic) {
+      auto m = vars.values.find(uj.mimic->joint_name);
+      if (m == vars.values.end()) {
+        throw DefinitionError(where + ": mimics joint '" + uj.mimic->joint_name +
+                              "', which is not a movable joint before it");
+      }
+      j.value = exact_number(uj.mimic->multiplier) * m->second + exact_number(uj.mimic->offset);
+    } else {
+      if (next >= free.size()) {
+        throw DefinitionError(where + ": no coordinate left for it (the chain declares " +
+                              std::to_string(chain.coordinates().size()) +
+                              " coordinates; add one or give joint_values)");
+      }
+      j.value = coordinate_symbol(chain.symbols(), free[next++]);
     }
-    if (I.ixx < 0.0 || I.iyy < 0.0 || I.izz < 0.0)
-      throw DefinitionError(where + ": <inertia> has a negative diagonal entry (ixx, iyy, izz)");
-    check_pose(I.origin, where);
-    in.mass = exact_number(I.mass);
-    const OriginDef o = origin(I.origin);
-    in.com = o.xyz;
-    in.rpy = o.rpy;
-    const ex xx = exact_number(I.ixx), xy = exact_number(I.ixy), xz = exact_number(I.ixz),
-             yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
-    in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
-  };
+    vars.values[uj.name] = *j.value;
+  }
+}
+
+// The joint from a non-root link's parent to it, with the link's inertia.
+void append_link(ChainDef& chain, const urdf::Link& link, const std::string& root_name,
+                 const std::string& path, const std::map<std::string, GiNaC::ex>& joint_values,
+                 JointVariables& vars) {
+  const urdf::Joint& uj = *link.parent_joint;
+  const std::string where = path + ": joint '" + shown(uj.name) + "'";
+  check_pose(uj.parent_to_joint_origin_transform, where);
+  const JointDef::Type type = joint_type(uj, where);
+  JointDef& j = chain.add_joint(uj.name, type, link.name);
+  j.parent =
+      uj.parent_link_name == root_name && chain.base.enabled ? root_name : uj.parent_link_name;
+  j.origin = origin(uj.parent_to_joint_origin_transform);
+  assign_joint_variables(chain, j, uj, where, joint_values, vars);
+  read_inertial(path, link, j.inertial);
+}
+
+}  // namespace
+
+void append_urdf(ChainDef& chain, const std::string& path,
+                 const std::map<std::string, GiNaC::ex>& joint_values) {
+  check_file(path);
+  std::string messages;
+  const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
+  const Unlink unlink{model};  // whatever the outcome
+  const urdf::LinkConstSharedPtr root = checked_root(model, messages, path, joint_values);
+  JointVariables vars{free_coordinates(chain, joint_values), 0, {}};
+  attach_root(chain, *root);
   if ((chain.base.enabled || !chain.floating_root.empty()) && root->inertial)
-    inertial_of(*root, chain.joints.back().inertial);
+    read_inertial(path, *root, chain.joints.back().inertial);
 
-  // Depth-first from the root: parents are defined before their children. A link reached twice (a
-  // cycle, or a link that is the child of two joints: urdfdom keeps the last parent) is refused.
+  // Depth-first from the root: parents are defined before their children (push_children refuses
+  // a link reached twice).
   std::set<std::string> visited{root->name};
   std::vector<urdf::LinkConstSharedPtr> stack{root};
   while (!stack.empty()) {
     const urdf::LinkConstSharedPtr link = stack.back();
     stack.pop_back();
-    const auto& cj = link->child_joints;
-    for (auto it = cj.rbegin(); it != cj.rend(); ++it) {
-      urdf::LinkConstSharedPtr child = model->getLink((*it)->child_link_name);
-      if (!child) continue;
-      if (!visited.insert(child->name).second || child->parent_joint != *it) {
-        throw DefinitionError(path + ": joint '" + shown((*it)->name) + "': link '" +
-                              shown(child->name) +
-                              "' is reached twice (a cycle, or a link with two parent joints): "
-                              "a URDF must be a tree");
-      }
-      stack.push_back(child);
-    }
+    push_children(*model, *link, path, visited, stack);
     if (link == root) continue;
-    const urdf::Joint& uj = *link->parent_joint;
-    const std::string where = path + ": joint '" + shown(uj.name) + "'";
-    check_pose(uj.parent_to_joint_origin_transform, where);
-    JointDef::Type type = JointDef::Type::fixed;
-    switch (uj.type) {
-      case urdf::Joint::REVOLUTE:
-      case urdf::Joint::CONTINUOUS:
-        type = JointDef::Type::revolute;
-        break;
-      case urdf::Joint::PRISMATIC:
-        type = JointDef::Type::prismatic;
-        break;
-      case urdf::Joint::FIXED:
-        type = JointDef::Type::fixed;
-        break;
-      case urdf::Joint::FLOATING:  // position + unit quaternion, the next 7 free coordinates
-        type = JointDef::Type::floating;
-        break;
-      default:
-        throw DefinitionError(where + ": type " +
-                              (uj.type == urdf::Joint::PLANAR ? std::string("planar")
-                                                              : std::string("unknown")) +
-                              " is not supported (revolute, continuous, prismatic, fixed, "
-                              "floating)");
-    }
-    JointDef& j = chain.add_joint(uj.name, type, link->name);
-    j.parent =
-        uj.parent_link_name == root->name && chain.base.enabled ? root->name : uj.parent_link_name;
-    j.origin = origin(uj.parent_to_joint_origin_transform);
-    if (type == JointDef::Type::floating) {
-      if (next + 7 > free.size()) {
-        throw DefinitionError(where + ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
-                              "qz); the chain has " + std::to_string(free.size() - next) +
-                              " left");
-      }
-      for (int k = 0; k < 7; ++k) j.coordinates.push_back(free[next++]);
-    } else if (type != JointDef::Type::fixed) {
-      j.axis = vec(uj.axis);
-      if (auto v = joint_values.find(uj.name); v != joint_values.end()) {
-        j.value = v->second;
-      } else if (uj.mimic) {
-        auto m = values.find(uj.mimic->joint_name);
-        if (m == values.end()) {
-          throw DefinitionError(where + ": mimics joint '" + uj.mimic->joint_name +
-                                "', which is not a movable joint before it");
-        }
-        j.value = exact_number(uj.mimic->multiplier) * m->second + exact_number(uj.mimic->offset);
-      } else {
-        if (next >= free.size()) {
-          throw DefinitionError(where + ": no coordinate left for it (the chain declares " +
-                                std::to_string(chain.coordinates().size()) +
-                                " coordinates; add one or give joint_values)");
-        }
-        j.value = coordinate_symbol(chain.symbols(), free[next++]);
-      }
-      values[uj.name] = *j.value;
-    }
-    inertial_of(*link, j.inertial);
+    append_link(chain, *link, root->name, path, joint_values, vars);
   }
 }
 
