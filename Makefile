@@ -56,9 +56,11 @@ sanitize:
 tsan:
 	@bash scripts/tsan.sh
 
-# No thread_local and no mutable static in ukdyn/ (also a ctest entry: Lint.NoHiddenState).
+# No thread_local and no mutable static in ukdyn/ (also a ctest entry: Lint.NoHiddenState), and no
+# function over 120 lines without a reason in its file (Lint.FunctionLength).
 check-state:
 	@bash scripts/check-no-hidden-state.sh
+	@python3 scripts/check-function-length.py
 
 # libFuzzer on the scenario loader for FUZZ_SECONDS (build/fuzz, clang-14).
 fuzz:
