@@ -168,6 +168,16 @@ void swap_rows(Mat& X, Index k, Index p) {
   for (Index j = 0; j < X.cols(); ++j) std::swap(X(k, j), X(p, j));
 }
 
+// The lower triangle of G = X Xᵀ for the leading rows × cols of X (a Gram matrix: S, W_D).
+void lower_gram(const Mat& X, Index rows, Index cols, Mat& G) {
+  for (Index j = 0; j < rows; ++j)
+    for (Index i = j; i < rows; ++i) {
+      double v = 0.0;
+      for (Index l = 0; l < cols; ++l) v += X(i, l) * X(j, l);
+      G(i, j) = v;
+    }
+}
+
 // What every step of uk_solve_arrow reads: the problem, the robots' Cholesky factors (the dense
 // workspace's L, 1/L_ii) and the arrow workspace the steps write.
 struct ArrowProblem {
@@ -202,8 +212,9 @@ struct ArrowProblem {
   // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
   void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
   // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
-  double load_part_of_w(const Mat& X, Index i) const {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, j);
+  // (columns col0 .. col0 + nL of row i of X).
+  double load_part_of_w(const Mat& X, Index i, Index col0 = 0) const {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, col0 + j);
     double c2 = 0.0;
     if (nL > 0) {
       load_l_solve(ws.tmp.data());
@@ -255,12 +266,7 @@ void reduce_group(const ArrowProblem& P, std::size_t gi) {
     for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
     gb.r[i] = v;
   }
-  for (Index j = 0; j < mk; ++j)
-    for (Index i = j; i < mk; ++i) {
-      double v = 0.0;
-      for (Index l = 0; l < nk; ++l) v += gb.Xt(i, l) * gb.Xt(j, l);
-      gb.S(i, j) = v;
-    }
+  lower_gram(gb.Xt, mk, nk, gb.S);
 }
 
 // H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
@@ -279,13 +285,7 @@ double reduce_groups(const ArrowProblem& P) {
     for (Index i = 0; i < static_cast<Index>(P.st.groups[gi].rows.size()); ++i)
       w_ref = std::max(w_ref, gb.S(i, i) + P.load_part_of_w(gb.C, i));
   }
-  for (const Index row : P.st.load_rows) {
-    for (Index j = 0; j < P.nL; ++j) ws.tmp[j] = P.A(row, P.sL + j);
-    P.load_l_solve(ws.tmp.data());
-    double c2 = 0.0;
-    for (Index j = 0; j < P.nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
-    w_ref = std::max(w_ref, c2);
-  }
+  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w(P.A, row, P.sL));
   return w_ref;
 }
 
@@ -433,12 +433,7 @@ void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivo
     }
     ws.rD[i] = v;
   }
-  for (Index j = 0; j < mD; ++j)
-    for (Index i = j; i < mD; ++i) {
-      double v = 0.0;
-      for (Index l = 0; l < nL; ++l) v += ws.Dt(i, l) * ws.Dt(j, l);
-      ws.WD(i, j) = v;
-    }
+  lower_gram(ws.Dt, mD, nL, ws.WD);
   double dmaxD = 0.0, dminD = 0.0;
   const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, P.tol2, w_ref, ws.pivD.data(),
                                    ws.tmp.data(), dmaxD, dminD);
