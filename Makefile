@@ -6,7 +6,7 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
-.PHONY: all deps configure build run test bench benchmarks sweep-bench drift-study sanitize tsan check-state fuzz clean format
+.PHONY: all deps configure build run test test-noapp bench benchmarks sweep-bench drift-study sanitize tsan check-state fuzz clean format
 FUZZ_SECONDS ?= 60
 
 all: build
@@ -26,6 +26,13 @@ run: build
 
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
+
+# The library and its tests without the CLI and io (-DUKDYN_BUILD_APP=OFF, build/ci-noapp): core +
+# symbolic build and pass on their own (the io / CLI test files are left out, tests/CMakeLists.txt).
+test-noapp: deps
+	@cmake --preset ci-noapp >/dev/null
+	@cmake --build build/ci-noapp -j $(JOBS)
+	cd build/ci-noapp && ctest --output-on-failure -j $(JOBS)
 
 bench:
 	@bash scripts/install-deps.sh --bench
