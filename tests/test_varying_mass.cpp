@@ -325,6 +325,47 @@ TEST(VaryingMass, MassOfACoordinateIsRefusedWithTheBody) {
       "body 'p': the mass must be a number >= 0 at t = 0");
 }
 
+// A mass of t that turns negative after t = 0 (derive() checks t = 0 only): negative_mass() finds
+// the first sample where it is < 0, and the scenario loader refuses the run whose time span
+// reaches it, naming the file, line, subsystem, body and time; the same model with a span that
+// stays positive loads.
+TEST(VaryingMass, MassOfTThatTurnsNegativeIsRefusedOverTheRun) {
+  sym::SubsystemDef def("s", {"z"});
+  def.parameter("m0", 2.0);
+  auto& fixed = def.add_body("fixed");
+  fixed.mass = def.parse("1");
+  fixed.com = {0, 0, def.parse("z")};
+  auto& shrinking = def.add_body("shrinking");
+  shrinking.mass = def.parse("m0*(1 - t)");  // 0 at t = 1, negative after
+  shrinking.com = {0, 0, def.parse("z")};
+  const auto sub = sym::make_subsystem(def);
+  ASSERT_TRUE(sub->time_varying());
+  EXPECT_EQ(sub->negative_mass(0.0, 0.9, 91), "");
+  EXPECT_EQ(sub->negative_mass(0.0, 1.0, 101), "");  // m(1) = 0 is allowed
+  const std::string why = sub->negative_mass(0.0, 2.0, 201);
+  EXPECT_NE(why.find("body 'shrinking'"), std::string::npos) << why;
+  EXPECT_NE(why.find("at t = 1.01"), std::string::npos) << why;  // the first sample past t = 1
+
+  const auto yaml = [](const std::string& t_end) {
+    return "ukdyn: 1\nname: shrink\ngravity: 9.8\nsubsystems:\n"
+           "  - name: s\n    type: definitions\n    coordinates: [z]\n"
+           "    parameters: {m0: 2}\n"
+           "    bodies:\n      - {name: p, mass: m0*(1 - 0.5*t), com: [0, 0, z]}\n"
+           "initial: {q: [1]}\nsimulation: {t_end: " +
+           t_end + ", sample_dt: 0.5}\n";
+  };
+  EXPECT_NO_THROW((void)ukdyn::load_scenario_text(yaml("2"), "shrink.yaml"));
+  try {
+    (void)ukdyn::load_scenario_text(yaml("2.5"), "shrink.yaml");
+    ADD_FAILURE() << "accepted a mass that is negative for t > 2";
+  } catch (const ukdyn::ScenarioError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("shrink.yaml:5:5: key 'subsystems[0]'"), std::string::npos) << what;
+    EXPECT_NE(what.find("subsystem 's', body 'p'"), std::string::npos) << what;
+    EXPECT_NE(what.find("a mass of t must stay >= 0"), std::string::npos) << what;
+  }
+}
+
 // The closed loop of docs/control.md with a plant whose bob has m(t) = m (1 + 0.2 sin 10t)
 // (control.plant_set with an expression), the model keeping 1 kg, robust law (rho = 2,
 // eps = 0.01, lambda = kappa = 5), start 0.02 rad off: the run completes and its tracking error

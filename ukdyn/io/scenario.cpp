@@ -3,6 +3,7 @@
 #include <yaml-cpp/depthguard.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -421,6 +422,25 @@ void check_singular_mass(const Loader& L, Scenario& sc, Loading& st) {
   const std::string problem =
       symbolic::mass_matrix_problem(*system.subsystems()[k], sc.q0.segment(info.offset, info.dof));
   L.fail(st.sub_nodes[k], "at initial.q, " + problem + "; " + why);
+}
+
+// A mass of t must stay >= 0 over the run (derive() checks t = 0 only): checked at every output
+// sample time from t0 to t_end, and at no fewer than 1001 evenly spaced times (at most 10^6).
+void check_masses_of_t(const Loader& L, const Scenario& sc, const Loading& st) {
+  const SimulationSettings& sim = sc.sim;
+  const double span = sim.t_end - sim.t0;
+  const double per_sample = sim.sample_dt > 0.0 ? span / sim.sample_dt : 0.0;
+  const long samples =
+      std::clamp(static_cast<long>(std::ceil(std::min(per_sample, 1e6))) + 1, 1001L, 1000001L);
+  const auto& subs = st.system->subsystems();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    const auto* derived = dynamic_cast<const symbolic::DerivedSubsystem*>(subs[k].get());
+    if (derived == nullptr || !derived->time_varying()) continue;
+    const std::string problem = derived->negative_mass(sim.t0, sim.t_end, samples);
+    if (problem.empty()) continue;
+    L.fail(st.sub_nodes[k], "subsystem '" + subs[k]->name() + "', " + problem +
+                                " (a mass of t must stay >= 0 from simulation.t0 to t_end)");
+  }
 }
 
 // Adds constraints to the system: their row names unique, each with the control role of the block
@@ -857,6 +877,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   load_constraints(L, root, sc, st);
   const bool applied = load_forces(L, root, sc, st);
   load_simulation(L, root, sc, applied);
+  check_masses_of_t(L, sc, st);
   load_solver(L, root, sc);
   sc.system = st.system;
   io_detail::load_control_sections(L, root, sc, st.coord_index);  // docs/control.md

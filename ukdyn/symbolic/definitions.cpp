@@ -186,7 +186,8 @@ void check_subsystem_size(const SubsystemDef& def) {
 }
 
 // Mass: a non-negative constant or a function m(t) of time only (mass exchanged with a medium at
-// rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked at t = 0 only.
+// rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked here at t = 0 only,
+// over a run's time span by DerivedSubsystem::negative_mass (the scenario loader calls it).
 void check_body_mass(const BodyDef& b, const DerivationSymbols& s, const std::string& where,
                      int bidx) {
   if (has_any(b.mass, s.q) || has_any(b.mass, s.qd)) {
@@ -438,6 +439,11 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   derive_velocity_and_gravity_terms(d, s, deadline);
   // ∂L/∂t = ∂T/∂t − ∂V/∂t: the power that the energy balance needs (dE/dt = Q q̇ − ∂L/∂t).
   d.Lt = d.time_varying ? simplify_trig((d.T - d.V).diff(s.t)) : ex(0);
+  for (const BodyDef& b : def.bodies) {
+    if (!b.mass.has(s.t)) continue;
+    d.mass_of_t_bodies.push_back(b.name);
+    d.masses_of_t.push_back(b.mass);
+  }
   d.derive_seconds = seconds_since(t0);
   return d;
 }
@@ -489,7 +495,33 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   cor_ = Tape(c, in);
   pot_ = Tape({numeric_form(d_.V, pv)}, in);
   kin_ = Tape({numeric_form(d_.T, pv)}, in);
+  std::vector<ex> masses;
+  for (const ex& mt : d_.masses_of_t) masses.push_back(numeric_form(mt, pv));
+  masses_of_t_ = Tape(masses, in);
   d_.compile_seconds = seconds_since(t0);
+}
+
+std::string DerivedSubsystem::negative_mass(double t0, double t1, long samples) const {
+  const std::size_t nb = masses_of_t_.outputs();
+  if (nb == 0) return {};
+  if (samples < 2) samples = 2;
+  std::vector<double> m(nb), work(masses_of_t_.work_size());
+  for (long i = 0; i < samples; ++i) {
+    // t1 itself at the last sample (no rounding past the end of the run).
+    const double t = i + 1 == samples ? t1
+                                      : t0 + (t1 - t0) * static_cast<double>(i) /
+                                                 static_cast<double>(samples - 1);
+    masses_of_t_.eval(t, nullptr, nullptr, m.data(), work.data());
+    for (std::size_t b = 0; b < nb; ++b) {
+      if (m[b] >= 0.0) continue;  // also false for NaN
+      std::ostringstream os;
+      os.precision(6);
+      os << "body '" << d_.mass_of_t_bodies[b] << "': the mass '" << d_.masses_of_t[b] << "' is "
+         << m[b] << " at t = " << t;
+      return os.str();
+    }
+  }
+  return {};
 }
 
 namespace {

@@ -129,6 +129,9 @@ struct SubsystemDerivation {
   /// Cqd includes (∂M/∂t) q̇ (C does not), and Lt = ∂L/∂t = ∂T/∂t − ∂V/∂t (0 otherwise).
   bool time_varying = false;
   GiNaC::ex Lt = 0;
+  /// The bodies whose mass is a function of t, and those masses (parameters kept as symbols).
+  std::vector<std::string> mass_of_t_bodies;
+  std::vector<GiNaC::ex> masses_of_t;
   GiNaC::exmap parameter_values;
   std::shared_ptr<SymbolTable> symbols;  ///< the definition's (its coordinates, velocities, t)
   double derive_seconds = 0.0;
@@ -171,6 +174,12 @@ class DerivedSubsystem final : public Subsystem {
                    double& Lt) const override;
   [[nodiscard]] double potential_at(double t, CVecRef q) const override;
   [[nodiscard]] double kinetic_at(double t, CVecRef q, CVecRef qd) const;
+  /// A mass of t must stay >= 0 (derive() checks it at t = 0 only): evaluates every mass of t at
+  /// `samples` evenly spaced times from t0 to t1 (both included; samples >= 2) and returns, for the
+  /// first time and body where the mass is negative or not finite, "body 'B': the mass is m at
+  /// t = T"; empty if none (or no mass depends on t). Between those times it is not checked.
+  /// Allocates (a set-up check, not for the integration hot path).
+  [[nodiscard]] std::string negative_mass(double t0, double t1, long samples) const;
 
   [[nodiscard]] const SubsystemDerivation& derivation() const { return d_; }
   /// Instruction counts of the mass, C q̇ and gravity tapes.
@@ -185,6 +194,7 @@ class DerivedSubsystem final : public Subsystem {
   std::string name_;
   Index n_;
   Tape mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
+  Tape masses_of_t_;  // d_.masses_of_t, one output per body
 };
 
 /// derive + compile.
