@@ -268,6 +268,50 @@ std::array<ex, 3> body_angular_velocity(const BodyDef& b, DerivationSymbols& s,
                         bidx);
 }
 
+// The inertia at t = 0 (like the mass): a scalar >= 0, a tensor positive semi-definite (its
+// smallest eigenvalue >= -1e-12 of its largest |entry|; a planar body's diag(0, 0, Izz) passes —
+// the triangle inequality of principal moments is not required). A negative inertia can leave M
+// positive definite and the motion silently wrong.
+void check_inertia_sign(const BodyDef& b, const DerivationSymbols& s, const std::string& where,
+                        int bidx) {
+  const auto at0 = [&](const ex& e) { return real_value(e.subs(s.values).subs(s.t == 0)); };
+  const std::string when = " (at t = 0)";
+  if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+    const auto v = at0(b.inertia_scalar);
+    if (!v || !(*v >= 0.0)) {
+      throw DefinitionError(where + ": the inertia must be a number >= 0" +
+                                (b.inertia_scalar.has(s.t) ? when : std::string()) + ", got '" +
+                                str(b.inertia_scalar) + "'",
+                            bidx);
+    }
+    return;
+  }
+  Eigen::Matrix3d I;
+  bool has_t = false;
+  for (int k = 0; k < 9; ++k) {
+    const ex& e = b.inertia_tensor[static_cast<std::size_t>(k)];
+    const auto v = at0(e);
+    if (!v || !std::isfinite(*v)) {
+      throw DefinitionError(where + ": the inertia tensor entry " + std::to_string(k) +
+                                " is not a finite number, got '" + str(e) + "'",
+                            bidx);
+    }
+    I(k / 3, k % 3) = *v;
+    has_t = has_t || e.has(s.t);
+  }
+  const double scale = I.cwiseAbs().maxCoeff();
+  const double lmin = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(I, Eigen::EigenvaluesOnly)
+                          .eigenvalues()
+                          .minCoeff();
+  if (lmin < -1e-12 * scale) {
+    std::ostringstream os;
+    os.precision(6);
+    os << where << ": the inertia tensor is not positive semi-definite" << (has_t ? when : "")
+       << ": its smallest eigenvalue is " << lmin;
+    throw DefinitionError(os.str(), bidx);
+  }
+}
+
 // ½ ωᵀ I ω, the inertia constant or a function of t only (like the mass).
 ex rotational_energy(const BodyDef& b, const std::array<ex, 3>& w, const DerivationSymbols& s,
                      const std::string& where, int bidx) {
@@ -286,6 +330,7 @@ ex rotational_energy(const BodyDef& b, const std::array<ex, 3>& w, const Derivat
     }
   }
   if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
+    check_inertia_sign(b, s, where, bidx);
     return b.inertia_scalar / 2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
   }
   ex T = 0;
@@ -297,6 +342,7 @@ ex rotational_energy(const BodyDef& b, const std::array<ex, 3>& w, const Derivat
       T += w[i] * I[3 * i + j] * w[j] / 2;
     }
   }
+  check_inertia_sign(b, s, where, bidx);  // symmetric: checked above
   return T;
 }
 
