@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <new>
@@ -16,6 +17,7 @@
 #include "helpers.hpp"
 #include "n_robots_model.hpp"
 #include "symbolic_systems.hpp"
+#include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #ifdef UKDYN_HAVE_IO
@@ -278,6 +280,52 @@ TEST(NoAlloc, ForwardWithAppliedForcesAllocatesNothing) {
   });
   EXPECT_EQ(n, 0) << "forward() with applied forces allocated " << n << " times in 20 calls";
   EXPECT_NE(data.applied_power, 0.0);
+}
+
+// The actuation solve in its workspace (the control law's last step, ukdyn/core/force_split.hpp)
+// for every shape the law meets: fully, under- and redundantly actuated, physical rows of full
+// rank and rank-deficient (a row the sum of two others: the COD's Z step runs), redundant
+// actuators (two equal columns of B), no physical rows. Deterministic matrices (no RNG here).
+TEST(NoAlloc, ActuationSolveInItsWorkspaceAllocatesNothing) {
+  struct Case {
+    Eigen::Index n, k, mp;
+    bool deficient_rows, equal_actuators;
+  };
+  for (const Case c :
+       {Case{6, 6, 2, false, false}, Case{6, 3, 2, false, false}, Case{6, 9, 3, false, false},
+        Case{5, 5, 3, true, false}, Case{6, 6, 3, true, true}, Case{4, 2, 0, false, false}}) {
+    ukdyn::Mat B(c.n, c.k), Ap(c.mp, c.n);
+    for (Eigen::Index i = 0; i < c.n; ++i)
+      for (Eigen::Index j = 0; j < c.k; ++j)
+        B(i, j) = std::sin(1.0 + 3.0 * double(i) + 7.0 * double(j));
+    for (Eigen::Index i = 0; i < c.mp; ++i)
+      for (Eigen::Index j = 0; j < c.n; ++j)
+        Ap(i, j) = std::cos(2.0 + 5.0 * double(i) + 1.3 * double(j));
+    if (c.deficient_rows) Ap.row(2) = Ap.row(0) + 0.5 * Ap.row(1);
+    if (c.equal_actuators) B.col(1) = B.col(0);
+    const Vec Qc = Vec::LinSpaced(c.n, -1.0, 2.0);
+    ukdyn::ActuationWorkspace ws(c.n, c.k, c.mp);
+    ws.Ap = Ap;
+    ukdyn::solve_actuation(B, Qc, ws);  // first call
+    const ukdyn::Actuation ref = ukdyn::solve_actuation(B, Ap, Qc);
+    const long count = allocations_in([&] {
+      for (int k = 0; k < 10; ++k) {
+        ws.Ap = Ap;
+        ukdyn::solve_actuation(B, Qc, ws);
+      }
+    });
+    EXPECT_EQ(count, 0) << "n " << c.n << " k " << c.k << " mp " << c.mp << ": " << count
+                        << " allocations in 10 solves";
+    EXPECT_EQ(ws.result.u, ref.u);  // and the numbers are the allocating solve's
+    // The Z steps ran: Apᵀ (n × mp) rank-deficient with the dependent row, P B (n × k) whenever
+    // its rank is under k (rank P B ≤ n − rank Ap).
+    if (c.deficient_rows) {
+      EXPECT_LT(ws.codp.rank(), c.mp);
+    }
+    if (c.mp > 0) {
+      EXPECT_LT(ws.cod.rank(), c.k);
+    }
+  }
 }
 
 // A closed-loop control run (docs/control.md): the plant's right-hand side calls the controller

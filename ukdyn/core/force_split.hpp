@@ -75,10 +75,10 @@ struct ActuationWorkspace {
   Actuation result;  ///< u (k), mu (m_p) sized once
 };
 
-/// solve_actuation(B, ws.Ap, Qc) into ws.result without heap allocation once ws exists (the Z
-/// step of a rank-deficient decomposition aside: docs/control.md). Bit for bit the same numbers as
-/// solve_actuation() (Actuation.WorkspaceSolveIsBitIdentical) below rank 48, where Eigen's own
-/// solve switches to its blocked Householder path and the two agree to round-off.
+/// solve_actuation(B, ws.Ap, Qc) into ws.result without heap allocation once ws exists, the Z step
+/// of a rank-deficient decomposition included (tests/test_no_alloc.cpp). Bit for bit the same
+/// numbers as solve_actuation() (Actuation.WorkspaceSolveIsBitIdentical) below rank 48, where
+/// Eigen's own solve switches to its blocked Householder path and the two agree to round-off.
 void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& ws, double rel_tol = 1e-10,
                      double rel_tol_residual = 1e-8);
 
