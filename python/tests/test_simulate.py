@@ -198,3 +198,19 @@ def test_numerical_trouble_is_a_status_bad_settings_an_error():
     sc.sample_dt = -1.0
     with pytest.raises(ukdyn.Error):
         sc.simulate()
+
+
+def test_a_mass_of_t_that_turns_negative_during_the_run_is_an_error():
+    # derive() checks a mass of t at t = 0 only; simulate() checks it over t0..t_end (every output
+    # sample, >= 1001 times): m(t) = 2 (1 - t) is 0 at t = 1, negative after.
+    d = ukdyn.SubsystemDef("s", ["z"])
+    d.parameter("m0", 2.0)
+    d.add_body("shrinking", mass="m0*(1 - t)", com=[0, 0, "z"])
+    d.gravity = [0, 0, -9.81]
+    s = ukdyn.System()
+    s.add_subsystem(ukdyn.make_subsystem(d))
+    sc = ukdyn.Scenario.from_system(s, q0=[1.0], t_end=0.9, sample_dt=0.1)
+    assert sc.simulate().complete
+    sc.t_end = 1.5
+    with pytest.raises(ukdyn.Error, match=r"subsystem 's', body 'shrinking': the mass .* at t = 1\.0"):
+        sc.simulate()

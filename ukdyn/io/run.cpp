@@ -590,6 +590,13 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
                                              ctl->loop->disturbance);
   }
   const System& sys = ctl ? *ctl->plant : *sc.system;
+  // The loader checked the masses of t over its own t0..t_end; a system built in Python, or a
+  // span changed since, is checked here (docs/definitions.md, "Time-varying masses").
+  if (const auto problem =
+          symbolic::negative_mass_over_run(sys, sc.sim.t0, sc.sim.t_end, sc.sim.sample_dt);
+      !problem.message.empty()) {
+    throw Error(problem.message + " (a mass of t must stay >= 0 from t0 to t_end)");
+  }
   const Index m = sys.rows();
   MemoryRun run;
   RunReport& rep = run.report;

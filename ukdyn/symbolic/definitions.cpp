@@ -547,6 +547,21 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   d_.compile_seconds = seconds_since(t0);
 }
 
+MassOfTProblem negative_mass_over_run(const System& system, double t0, double t_end,
+                                      double sample_dt) {
+  const double per_sample = sample_dt > 0.0 ? (t_end - t0) / sample_dt : 0.0;
+  const long samples = std::clamp(
+      static_cast<long>(std::ceil(std::min(std::max(per_sample, 0.0), 1e6))) + 1, 1001L, 1000001L);
+  const auto& subs = system.subsystems();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    const auto* derived = dynamic_cast<const DerivedSubsystem*>(subs[k].get());
+    if (derived == nullptr || !derived->time_varying()) continue;
+    std::string why = derived->negative_mass(t0, t_end, samples);
+    if (!why.empty()) return {k, "subsystem '" + subs[k]->name() + "', " + why};
+  }
+  return {};
+}
+
 std::string DerivedSubsystem::negative_mass(double t0, double t1, long samples) const {
   const std::size_t nb = masses_of_t_.outputs();
   if (nb == 0) return {};

@@ -200,6 +200,18 @@ class DerivedSubsystem final : public Subsystem {
 /// derive + compile.
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def);
 
+/// A mass of t negative during a run: the subsystem (its index in the system) and
+/// "subsystem 'S', body 'B': the mass '…' is m at t = T"; message empty if none.
+struct MassOfTProblem {
+  std::size_t subsystem = 0;
+  std::string message;
+};
+/// Every time-varying DerivedSubsystem of `system`, its masses of t checked by negative_mass() at
+/// every output sample time from t0 to t_end (step sample_dt) and at no fewer than 1001 evenly
+/// spaced times (at most 10^6). The scenario loader and the in-memory run (Python) call it.
+MassOfTProblem negative_mass_over_run(const System& system, double t0, double t_end,
+                                      double sample_dt);
+
 /// If M(q) is not positive definite, a message naming the coordinate(s) of the weakest direction;
 /// empty if it is.
 std::string mass_matrix_problem(const Subsystem& subsystem, const Vec& q);
