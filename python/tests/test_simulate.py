@@ -201,8 +201,8 @@ def test_numerical_trouble_is_a_status_bad_settings_an_error():
 
 
 def test_a_mass_of_t_that_turns_negative_during_the_run_is_an_error():
-    # derive() checks a mass of t at t = 0 only; simulate() checks it over t0..t_end (every output
-    # sample, >= 1001 times): m(t) = 2 (1 - t) is 0 at t = 1, negative after.
+    # derive() checks a mass of t at t = 0 only; simulate() checks it over t0..t_end (times at most
+    # sample_dt apart, >= 1001 times): m(t) = 2 (1 - t) is 0 at t = 1, negative after.
     d = ukdyn.SubsystemDef("s", ["z"])
     d.parameter("m0", 2.0)
     d.add_body("shrinking", mass="m0*(1 - t)", com=[0, 0, "z"])

@@ -185,9 +185,14 @@ void check_subsystem_size(const SubsystemDef& def) {
   }
 }
 
+// The number an expression of the parameters and t is at t = 0, or nullopt.
+std::optional<double> value_at_t0(const ex& e, const DerivationSymbols& s) {
+  return real_value(e.subs(s.values).subs(s.t == 0));
+}
+
 // Mass: a non-negative constant or a function m(t) of time only (mass exchanged with a medium at
 // rest, docs/definitions.md "Time-varying masses"); m(t) >= 0 is checked here at t = 0 only,
-// over a run's time span by DerivedSubsystem::negative_mass (the scenario loader calls it).
+// over a run's time span by negative_mass_over_run (the scenario loader and the in-memory run).
 void check_body_mass(const BodyDef& b, const DerivationSymbols& s, const std::string& where,
                      int bidx) {
   if (has_any(b.mass, s.q) || has_any(b.mass, s.qd)) {
@@ -196,7 +201,7 @@ void check_body_mass(const BodyDef& b, const DerivationSymbols& s, const std::st
                               "on a coordinate or a velocity)",
                           bidx);
   }
-  const auto mv = real_value(b.mass.subs(s.values).subs(s.t == 0));
+  const auto mv = value_at_t0(b.mass, s);
   if (!mv || !(*mv >= 0.0)) {
     throw DefinitionError(where + ": the mass must be a number >= 0" +
                               (b.mass.has(s.t) ? std::string(" at t = 0") : std::string()) +
@@ -274,10 +279,9 @@ std::array<ex, 3> body_angular_velocity(const BodyDef& b, DerivationSymbols& s,
 // positive definite and the motion silently wrong.
 void check_inertia_sign(const BodyDef& b, const DerivationSymbols& s, const std::string& where,
                         int bidx) {
-  const auto at0 = [&](const ex& e) { return real_value(e.subs(s.values).subs(s.t == 0)); };
   const std::string when = " (at t = 0)";
   if (b.inertia_kind == BodyDef::InertiaKind::scalar) {
-    const auto v = at0(b.inertia_scalar);
+    const auto v = value_at_t0(b.inertia_scalar, s);
     if (!v || !(*v >= 0.0)) {
       throw DefinitionError(where + ": the inertia must be a number >= 0" +
                                 (b.inertia_scalar.has(s.t) ? when : std::string()) + ", got '" +
@@ -290,7 +294,7 @@ void check_inertia_sign(const BodyDef& b, const DerivationSymbols& s, const std:
   bool has_t = false;
   for (int k = 0; k < 9; ++k) {
     const ex& e = b.inertia_tensor[static_cast<std::size_t>(k)];
-    const auto v = at0(e);
+    const auto v = value_at_t0(e, s);
     if (!v || !std::isfinite(*v)) {
       throw DefinitionError(where + ": the inertia tensor entry " + std::to_string(k) +
                                 " is not a finite number, got '" + str(e) + "'",

@@ -207,8 +207,8 @@ struct MassOfTProblem {
   std::string message;
 };
 /// Every time-varying DerivedSubsystem of `system`, its masses of t checked by negative_mass() at
-/// every output sample time from t0 to t_end (step sample_dt) and at no fewer than 1001 evenly
-/// spaced times (at most 10^6). The scenario loader and the in-memory run (Python) call it.
+/// evenly spaced times from t0 to t_end no further apart than sample_dt, and at no fewer than 1001
+/// of them (at most 10^6). The scenario loader and the in-memory run (Python) call it.
 MassOfTProblem negative_mass_over_run(const System& system, double t0, double t_end,
                                       double sample_dt);
 
