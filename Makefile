@@ -6,6 +6,12 @@ JOBS ?= 2
 SCENARIO ?= scenarios/paper.yaml
 OUT ?= out/paper
 
+# ccache (the compiler launcher, CMakeLists.txt): paths relative to the checkout, so that a fresh clone
+# in another folder (CI) reuses what an earlier build compiled.
+export CCACHE_BASEDIR := $(CURDIR)
+export CCACHE_NOHASHDIR := 1
+export CCACHE_MAXSIZE ?= 8G
+
 .PHONY: all deps configure build run test test-noapp bench benchmarks sweep-bench drift-study sanitize tsan check-state fuzz clean format
 FUZZ_SECONDS ?= 60
 
@@ -27,12 +33,14 @@ run: build
 test: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
 
-# The library and its tests without the CLI and io (-DUKDYN_BUILD_APP=OFF, build/ci-noapp): core +
-# symbolic build and pass on their own (the io / CLI test files are left out, tests/CMakeLists.txt).
+# The library without the CLI and io (-DUKDYN_BUILD_APP=OFF, build/ci-noapp): core + symbolic and
+# their tests build on their own (the io / CLI test files are left out, tests/CMakeLists.txt), and a
+# core-only consumer links them from an installed tree (ctest label install). The tests themselves
+# run in `make test`.
 test-noapp: deps
 	@cmake --preset ci-noapp >/dev/null
 	@cmake --build build/ci-noapp -j $(JOBS)
-	cd build/ci-noapp && ctest --output-on-failure -j $(JOBS)
+	cd build/ci-noapp && ctest --output-on-failure -j $(JOBS) -L install
 
 bench:
 	@bash scripts/install-deps.sh --bench

@@ -4,7 +4,7 @@
 
 #include <memory>
 
-#include "ukdyn/io/sweep.hpp"
+#include "ukdyn/sweep/sweep.hpp"
 
 namespace ukdyn_app {
 

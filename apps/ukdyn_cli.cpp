@@ -27,12 +27,12 @@
 #include <vector>
 
 #include "apps/sweep_mpi.hpp"
-#include "ukdyn/io/eval_protocol.hpp"
-#include "ukdyn/io/replay.hpp"
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/safe_text.hpp"
-#include "ukdyn/io/scenario_file.hpp"
-#include "ukdyn/io/sweep.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
+#include "ukdyn/output/replay.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/sweep/sweep.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 namespace {
@@ -152,6 +152,8 @@ std::string scenario_of(const std::string& out_dir) {
 
 }  // namespace
 
+// long function main: the command line as one CLI11 table (every subcommand, its options and its
+// help text), read top to bottom; the work is in ukdyn::io.
 int main(int argc, char** argv) {
   // A file-size limit (ulimit -f) makes a write fail (EFBIG), reported like a full disk, instead
   // of killing the process before it can say so.

@@ -1,5 +1,5 @@
 // ukdyn::symbolic benchmarks: deriving the paper's arm from definitions (GiNaC) and evaluating the
-// compiled tapes against the hand-written closed form (ukdyn/models/mobile_manipulator.cpp).
+// compiled tapes against the hand-written closed form (src/paper_robot/mobile_manipulator.cpp).
 //   Symbolic/DerivePaperArm        derive M, C, G, C q̇ of one arm and compile its tapes
 //   Symbolic/DynamicsDerived       M + C q̇ + G of one arm from the tapes (dynamics(): one tape)
 //   Symbolic/DynamicsClosedForm    the same from the closed form (dynamics(): shared trig)
@@ -18,8 +18,8 @@
 #include "bench_common.hpp"
 #include "paper_model.hpp"
 #include "ukdyn/model/system.hpp"
-#include "ukdyn/models/cooperative_constraints.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/paper_robot/cooperative_constraints.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 namespace {

@@ -11,8 +11,8 @@
 
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/model/time_function.hpp"
-#include "ukdyn/models/cooperative_constraints.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/paper_robot/cooperative_constraints.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace ukbench {
 

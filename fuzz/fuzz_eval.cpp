@@ -1,4 +1,4 @@
-// libFuzzer target on the `ukdyn eval` protocol (ukdyn/io/eval_protocol.cpp), with the paper's
+// libFuzzer target on the `ukdyn eval` protocol (src/run/eval_protocol.cpp), with the paper's
 // free-base scenario (12 coordinates, 6 constraint rows). Any input must be answered with exactly
 // one JSON object per non-blank line: either an error object {"line", "error"}, or a result whose
 // every number is finite. Anything else (an exception escaping, a crash, a sanitizer report, a
@@ -13,8 +13,8 @@
 #include <sstream>
 #include <string>
 
-#include "ukdyn/io/eval_protocol.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 namespace {
 

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 namespace {

@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <string>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   // ukdyn::load_scenario refuses files over 4 MiB before parsing; the text loader is only ever

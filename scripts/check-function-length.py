@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""No function in ukdyn/ longer than LIMIT lines without a reason in its file (docs/architecture.md,
+"""No function in include/, src/, apps/, tools/ or python/src/ longer than LIMIT lines without a reason in its file (docs/architecture.md,
 "Functions with one job").
 
     scripts/check-function-length.py [SOURCE_DIR] [--limit N] [--list M]
@@ -16,6 +16,8 @@ import re
 import sys
 
 LIMIT = 120
+# The library (public headers and sources), the CLI, the tools and the Python module.
+DIRS = ("include", "src", "apps", "tools", "python/src")
 
 
 def blank_literals(text: str) -> str:
@@ -136,9 +138,9 @@ def main(argv):
         else:
             root = pathlib.Path(a)
     status = 0
-    files = sorted((root / "ukdyn").rglob("*.[ch]pp"))
+    files = sorted(f for d in DIRS for f in (root / d).rglob("*.[ch]pp"))
     if not files:
-        print(f"check-function-length: no sources under {root / 'ukdyn'}", file=sys.stderr)
+        print(f"check-function-length: no sources under {root} ({', '.join(DIRS)})", file=sys.stderr)
         return 2
     for f in files:
         text = f.read_text(encoding="utf-8")

@@ -1,29 +1,25 @@
 #!/usr/bin/env bash
 # Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp), the eval protocol (fuzz/fuzz_eval.cpp) and the
 # expression parser + derivation (fuzz/fuzz_expression.cpp) with libFuzzer, AddressSanitizer and
-# UndefinedBehaviorSanitizer for a bounded time each. Builds with clang 14 in build/fuzz (asserts on).
+# UndefinedBehaviorSanitizer for a bounded time each. Builds with clang 14 in build/asan, the build `make sanitize` uses (asserts on).
 # Seeds: scenarios/*.yaml and tests/hostile/*.yaml (scenario), fuzz/eval_seeds, fuzz/expression_seeds;
-# new inputs go to build/fuzz/corpus_<target>.
+# new inputs go to build/asan/corpus_<target>.
 # Exits non-zero on any finding (crash, sanitizer report, exception other than ukdyn::Error, timeout,
-# out of memory); the reproducer is written to build/fuzz/artifacts_<target>/.
+# out of memory); the reproducer is written to build/asan/artifacts_<target>/.
 #   scripts/fuzz.sh [SECONDS]          (scenario loader; default: FUZZ_SECONDS or 60)
 #   EVAL_FUZZ_SECONDS=N                (eval lines; default 20; seeds fuzz/eval_seeds)
 #   EXPRESSION_FUZZ_SECONDS=N          (expression parser + derivation; default 30)
-#   build/fuzz/fuzz/fuzz_scenario build/fuzz/artifacts_fuzz_scenario/crash-...   replays one finding
+#   build/asan/fuzz/fuzz_scenario build/asan/artifacts_fuzz_scenario/crash-...   replays one finding
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh --fuzz
 
 seconds=${1:-${FUZZ_SECONDS:-60}}
-build=build/fuzz
 jobs=${JOBS:-2}
-cxx=$(command -v clang++-14 || command -v clang++)
-san="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer"
-
-# Warnings are enforced by the gcc CI build; clang's extra diagnostics must not stop the fuzzer.
-cmake -S . -B "$build" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
-  -DCMAKE_CXX_FLAGS="$san -O1" -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" \
-  -DUKDYN_BUILD_FUZZ=ON -DUKDYN_BUILD_TESTS=OFF -DUKDYN_WERROR=OFF -DUKDYN_BUILD_PYTHON=OFF >/dev/null
+# The instrumented clang build shared with `make sanitize` (build/asan, scripts/asan-configure.sh).
+# shellcheck source=asan-configure.sh
+source scripts/asan-configure.sh
+build=$asan_build
 cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression -j "$jobs"
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:detect_stack_use_after_return=1}

@@ -5,10 +5,10 @@
 #                                      Simbody are in the base list)
 #   scripts/install-deps.sh --fuzz     also clang 14 and its runtime (libFuzzer: -fsanitize=fuzzer)
 set -euo pipefail
-pkgs=(cmake make g++ pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
+pkgs=(cmake make g++ ccache pkg-config libeigen3-dev libboost-dev libyaml-cpp-dev libcli11-dev
       libfmt-dev nlohmann-json3-dev gnuplot-nox libgtest-dev libgmock-dev
       libginac-dev liburdfdom-dev libsundials-dev
-      libmujoco-dev                                  # MJCF files (ukdyn/symbolic/mjcf.hpp)
+      libmujoco-dev                                  # MJCF files (ukdyn/robot_files/mjcf.hpp)
       libsimbody-dev  # tests/test_simbody_three_robots.cpp (skipped without it) and the bench
       python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
       libopenmpi-dev openmpi-bin  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)

@@ -15,8 +15,8 @@
 #include <vector>
 
 #include "ukdyn/model/system.hpp"
-#include "ukdyn/models/cooperative_constraints.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/paper_robot/cooperative_constraints.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace uktest {
 

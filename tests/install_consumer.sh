@@ -15,7 +15,7 @@ tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 cmake --install "$build_dir" --prefix "$tmp/prefix" >/dev/null
 # Internal headers must not be installed.
-for internal in ukdyn/io/yaml_loader.hpp ukdyn/io/definitions_loader.hpp; do
+for internal in src/scenario/yaml_loader.hpp src/scenario/definitions_loader.hpp; do
   if [[ -e "$tmp/prefix/include/$internal" ]]; then
     echo "install_consumer: internal header $internal was installed" >&2
     exit 1

@@ -19,7 +19,7 @@
 #include <cmath>
 #include <unsupported/Eigen/AutoDiff>
 
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace ukref {
 

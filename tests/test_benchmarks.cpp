@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "tools/benchmark_reference.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 namespace {

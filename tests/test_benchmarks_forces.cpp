@@ -7,7 +7,7 @@
 #include <cmath>
 #include <filesystem>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 #ifdef UKDYN_HAVE_IO
 

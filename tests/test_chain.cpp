@@ -1,4 +1,4 @@
-// Serial chains and trees (ukdyn/symbolic/chain.cpp) against closed forms; definition errors.
+// Serial chains and trees (src/symbolic/chain.cpp) against closed forms; definition errors.
 // (Split from the former grab-bag test_chain.cpp: constraint kinds → test_constraint_kinds.cpp,
 // splines → test_spline.cpp, chain / URDF scenarios → test_chain_scenarios.cpp.)
 #include <gtest/gtest.h>

@@ -1,5 +1,5 @@
-// Chains, constraint kinds and URDF arms loaded from scenarios (ukdyn/io/definitions_loader.cpp,
-// ukdyn/symbolic/urdf.cpp): against the paper's hand-written definitions, and their error messages.
+// Chains, constraint kinds and URDF arms loaded from scenarios (src/scenario/definitions_loader.cpp,
+// src/robot_files/urdf.cpp): against the paper's hand-written definitions, and their error messages.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,10 +10,10 @@
 #include "helpers.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
-#include "ukdyn/symbolic/urdf.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
 
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #endif
 

@@ -1,4 +1,4 @@
-// Ready-made constraint kinds (ukdyn/symbolic/constraint_kinds.cpp) against hand-written Φ.
+// Ready-made constraint kinds (src/symbolic/constraint_kinds.cpp) against hand-written Φ.
 #include <gtest/gtest.h>
 
 #include <cmath>

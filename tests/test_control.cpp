@@ -14,9 +14,9 @@
 #include "control_systems.hpp"
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/core/uk_solve.hpp"
-#include "ukdyn/io/control_output.hpp"
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/output/control_output.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/control.hpp"
 
 namespace {

@@ -1,4 +1,4 @@
-// Derivations (ukdyn/symbolic/definitions.cpp) of textbook subsystems and constraints, checked
+// Derivations (src/symbolic/definitions.cpp) of textbook subsystems and constraints, checked
 // against hand-written formulas and finite differences that do not use the derivation code.
 #include <gtest/gtest.h>
 

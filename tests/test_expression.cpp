@@ -1,4 +1,4 @@
-// The expression parser (ukdyn/symbolic/expression.cpp). (Split from the former test_symbolic.cpp.)
+// The expression parser (src/symbolic/expression.cpp). (Split from the former test_symbolic.cpp.)
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -15,9 +15,9 @@
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
-#include "ukdyn/symbolic/urdf.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #endif
 
 namespace {

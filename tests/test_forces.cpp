@@ -10,7 +10,7 @@
 #include <random>
 #include <sstream>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/forces.hpp"
 

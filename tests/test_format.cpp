@@ -1,4 +1,4 @@
-// Printing derivations (ukdyn/symbolic/format.cpp): LaTeX, C and MATLAB.
+// Printing derivations (src/symbolic/format.cpp): LaTeX, C and MATLAB.
 #include <gtest/gtest.h>
 
 #include <cmath>

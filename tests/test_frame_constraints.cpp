@@ -19,7 +19,7 @@
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #endif
 

@@ -17,7 +17,7 @@
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #endif
 
 namespace {

@@ -15,7 +15,7 @@
 #include <string>
 
 #include "cli_run.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 #if defined(UKDYN_CLI) && defined(UKDYN_HAVE_IO)

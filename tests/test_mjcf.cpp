@@ -1,4 +1,4 @@
-// MJCF read with MuJoCo's own parser (ukdyn/symbolic/mjcf.hpp) into a chain, derived by ukdyn:
+// MJCF read with MuJoCo's own parser (ukdyn/robot_files/mjcf.hpp) into a chain, derived by ukdyn:
 // its M and C q̇ + G against MuJoCo's own mj_fullM and qfrc_bias (both exact there: MuJoCo's
 // recursive Newton–Euler and composite-rigid-body algorithms) at 100 random states.
 #include <gtest/gtest.h>
@@ -7,7 +7,7 @@
 
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-#include "ukdyn/symbolic/mjcf.hpp"
+#include "ukdyn/robot_files/mjcf.hpp"
 
 #ifdef UKDYN_TEST_HAVE_MUJOCO
 #include <mujoco/mujoco.h>

@@ -1,4 +1,4 @@
-// MJCF weld and connect equalities (ukdyn/symbolic/mjcf.hpp: ChainDef::link_constraints, added by
+// MJCF weld and connect equalities (ukdyn/robot_files/mjcf.hpp: ChainDef::link_constraints, added by
 // the scenario as weld / ball frame constraints) against MuJoCo's own equality rows, on
 // tests/mjcf/two_arms_load.xml (two 3-joint arms holding a free-body load: a weld to one, a connect
 // to the other). Independent evidence, all from MuJoCo 2.2's mj_forward:
@@ -19,9 +19,9 @@
 #include <Eigen/Dense>
 #include <random>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/model/system.hpp"
-#include "ukdyn/symbolic/mjcf.hpp"
+#include "ukdyn/robot_files/mjcf.hpp"
 
 namespace {
 

@@ -9,7 +9,7 @@
 #include "helpers.hpp"
 #include "reference_model.hpp"
 #include "ukdyn/model/system.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace {
 

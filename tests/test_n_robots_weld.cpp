@@ -13,7 +13,7 @@
 #include <random>
 
 #include "ukdyn/core/constraint_forces.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"

@@ -22,8 +22,8 @@
 #include "ukdyn/simulate/simulate.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "control_systems.hpp"
-#include "ukdyn/io/control_output.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/output/control_output.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/forces.hpp"
 #endif
 

@@ -17,10 +17,10 @@
 #include "cli_run.hpp"
 
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/eval_protocol.hpp"
-#include "ukdyn/io/plots.hpp"
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/safe_text.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
+#include "ukdyn/output/plots.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/output/safe_text.hpp"
 
 extern char** environ;
 

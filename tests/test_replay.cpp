@@ -9,13 +9,13 @@
 #include <regex>
 
 #include "cli_run.hpp"
-#include "ukdyn/io/geometry.hpp"
-#include "ukdyn/io/plots.hpp"
-#include "ukdyn/io/replay.hpp"
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/scenario.hpp"
-#include "ukdyn/io/trajectory_table.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/output/geometry.hpp"
+#include "ukdyn/output/plots.hpp"
+#include "ukdyn/output/replay.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/output/trajectory_table.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace {
 

@@ -18,7 +18,7 @@
 #include <vector>
 
 #include "cli_run.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 #ifdef UKDYN_CLI
 

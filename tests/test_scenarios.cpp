@@ -6,9 +6,9 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/scenario.hpp"
-#include "ukdyn/models/mobile_manipulator.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace {
 

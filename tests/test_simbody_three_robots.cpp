@@ -19,7 +19,7 @@
 #include <string>
 
 #include "simbody/three_robots_simbody.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/model/system.hpp"
 
 namespace {

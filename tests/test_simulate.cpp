@@ -4,7 +4,7 @@
 #include <cmath>
 #include <random>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 namespace {

@@ -7,7 +7,7 @@
 #include "ukdyn/simulate/simulate.hpp"
 
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 namespace {
 

@@ -1,4 +1,4 @@
-// Cubic splines (ukdyn/symbolic/spline.cpp): interpolation, ends, continuity, and a spline
+// Cubic splines (src/symbolic/spline.cpp): interpolation, ends, continuity, and a spline
 // trajectory derived exactly through GiNaC and the tapes.
 #include <gtest/gtest.h>
 

@@ -14,8 +14,8 @@
 #include <thread>
 
 #include "cli_run.hpp"
-#include "ukdyn/io/scenario.hpp"
-#include "ukdyn/io/sweep.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/sweep/sweep.hpp"
 
 namespace {
 

@@ -1,6 +1,6 @@
 // The paper's system written purely by definitions (scenarios/paper_generic.yaml, derived with
 // GiNaC) against the hand-derived closed form (scenarios/paper.yaml,
-// ukdyn/models/mobile_manipulator.cpp): two independent derivations of M, C, G, A, b must agree,
+// src/paper_robot/mobile_manipulator.cpp): two independent derivations of M, C, G, A, b must agree,
 // and so must q̈, Qc and the simulations.
 #ifdef UKDYN_HAVE_IO
 
@@ -9,7 +9,7 @@
 #include <random>
 
 #include "helpers.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 

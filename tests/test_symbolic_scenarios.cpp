@@ -10,7 +10,7 @@
 #include <sstream>
 
 #include "helpers.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 

@@ -1,4 +1,4 @@
-// Compiled tapes (ukdyn/symbolic/tape.cpp) against GiNaC: values, shared subexpressions, fused
+// Compiled tapes (src/symbolic/tape.cpp) against GiNaC: values, shared subexpressions, fused
 // products, sin/cos pairs.
 #include <gtest/gtest.h>
 

@@ -10,7 +10,7 @@
 #include "ukdyn/core/uk_arrow.hpp"
 #include "ukdyn/model/system.hpp"
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #endif
 

@@ -17,8 +17,8 @@
 
 #include "control_systems.hpp"
 #include "helpers.hpp"
-#include "ukdyn/io/control_output.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/output/control_output.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/definitions.hpp"

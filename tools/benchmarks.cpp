@@ -30,7 +30,7 @@
 #include <vector>
 
 #include "tools/benchmark_reference.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 #ifndef UKDYN_SOURCE_DIR
@@ -211,6 +211,7 @@ std::function<std::optional<Observer>(const Scenario&, std::string&)> bricard_p3
 
 // ---- the problems -----------------------------------------------------------------------------
 
+// long function problems: the table of benchmark problems, one entry each, with its source.
 std::vector<Problem> problems() {
   using ukdyn_bench::NFourBarReference;
   using ukdyn_bench::SimplePendulumReference;

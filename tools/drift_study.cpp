@@ -8,7 +8,7 @@
 #include <cmath>
 #include <iostream>
 
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 int main(int argc, char** argv) {

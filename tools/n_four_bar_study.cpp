@@ -13,7 +13,7 @@
 #include <string>
 
 #include "tools/benchmark_reference.hpp"
-#include "ukdyn/io/scenario.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 int main(int argc, char** argv) {

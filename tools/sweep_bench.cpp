@@ -26,8 +26,8 @@
 #include <thread>
 #include <vector>
 
-#include "ukdyn/io/scenario.hpp"
-#include "ukdyn/io/sweep.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/sweep/sweep.hpp"
 
 #ifndef UKDYN_SOURCE_DIR
 #define UKDYN_SOURCE_DIR "."

@@ -3,7 +3,7 @@
 // System::constraint_row_index), never by raw offsets.
 #include <cmath>
 #include <iostream>
-#include <ukdyn/models/cooperative_constraints.hpp>
+#include <ukdyn/paper_robot/cooperative_constraints.hpp>
 #include <ukdyn/simulate/simulate.hpp>
 
 int main() {

@@ -1,7 +1,7 @@
 // Loads a scenario file (argv[1]) with ukdyn::io and simulates its first 0.1 s; exit 0 if the run
 // completed with the constraints held.
 #include <iostream>
-#include <ukdyn/io/scenario.hpp>
+#include <ukdyn/scenario/scenario.hpp>
 #include <ukdyn/simulate/simulate.hpp>
 
 int main(int argc, char** argv) {

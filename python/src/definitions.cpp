@@ -91,6 +91,8 @@ void bind_scope(py::class_<Def>& c) {
 
 }  // namespace
 
+// long function bind_definitions: the binding table of the definitions API (one .def per method),
+// declarative; the logic is in the functions above.
 void bind_definitions(py::module_& m) {
   py::class_<PySubsystem>(m, "Subsystem",
                           "A subsystem (its M, C, G): made by make_subsystem(); constant.")

@@ -15,9 +15,9 @@
 #include <vector>
 
 #include "bindings.hpp"
-#include "ukdyn/io/run.hpp"
-#include "ukdyn/io/scenario.hpp"
-#include "ukdyn/io/scenario_file.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
@@ -472,6 +472,8 @@ std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object
 
 }  // namespace ukdyn_python
 
+// long function PYBIND11_MODULE: the module's binding table (one .def per function and class),
+// declarative; the logic is in the functions above.
 PYBIND11_MODULE(_ukdyn, m) {
   using namespace ukdyn_python;
   m.doc() = "ukdyn: Udwadia-Kalaba dynamics of constrained multibody systems (C++ core).";

@@ -1,0 +1,45 @@
+// The force of each constraint block and the wrenches of the frame constraints as extra columns of
+// trajectory.csv, written only for scenarios with frame constraints (docs/frame-constraints.md):
+//   Fc_<block>_<coordinate>   A_kᵀλ_k, for the coordinates of every subsystem the block touches
+//   W_<c>_fx .. W_<c>_mz      wrench of frame constraint c on its frame b (frame a for level),
+//                             world axes, moment about the frame's origin
+//   Wg_<c>_fx .. Wg_<c>_mz    the same in that frame's own axes (the grasp frame)
+//   split_unique              1 if A has full row rank (the split is the only one), else 0 (the
+//                             least-norm λ is reported)
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/model/system.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
+
+namespace ukdyn {
+
+class ConstraintForceColumns {
+ public:
+  /// Empty (no columns) unless the scenario has frame constraints.
+  explicit ConstraintForceColumns(const Scenario& scenario);
+  [[nodiscard]] bool empty() const { return header_.empty(); }
+  [[nodiscard]] const std::vector<std::string>& header() const { return header_; }
+  /// Writes header().size() values from out[0]. Returns false if the split is not unique.
+  bool fill(CVecRef q, const ForwardData& d, double* out) const;
+  /// One figure per frame constraint (its world wrench) and one per block (its force).
+  /// (By reference: run.cpp indexes them, `figure_columns()[f]`; a copy would dangle.)
+  [[nodiscard]] const std::vector<std::vector<std::string>>& figure_columns() const {
+    return figures_;
+  }
+  [[nodiscard]] const std::vector<std::string>& figure_names() const { return figure_names_; }
+
+ private:
+  const Scenario* sc_ = nullptr;
+  std::vector<std::pair<std::size_t, const symbolic::FrameWrenchMap*>> frames_;  // block, map
+  std::vector<std::string> header_;
+  std::vector<std::vector<Index>> block_coords_;  // per block: the coordinates written
+  std::vector<std::vector<std::string>> figures_;
+  std::vector<std::string> figure_names_;
+};
+
+}  // namespace ukdyn

@@ -1,0 +1,97 @@
+// The paper's constraints between and on the two mobile manipulators.
+#pragma once
+
+#include <array>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/slot_constraint.hpp"
+#include "ukdyn/model/time_function.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
+
+namespace ukdyn {
+
+/// Closure of the load cut at its centre, paper Eq. (12), with A, b from Eqs. (15)–(16):
+///   x1 = x2, y1 = y2, l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz, δ1 − δ2 = yaw_offset (π), θ3 = load1, θ6 =
+///   load2.
+/// Row names: <prefix>_x, _y, _z, _yaw, _load1, _load2.
+class ClosureConstraint final : public SlotConstraint {
+ public:
+  struct Options {
+    double dz = 0.0;
+    double yaw_offset = 3.141592653589793;
+    double load_pitch1 = 0.0;
+    double load_pitch2 = 0.0;
+    std::string prefix = "closure";
+  };
+  ClosureConstraint(std::shared_ptr<const MobileManipulator> left, Index left_offset,
+                    std::shared_ptr<const MobileManipulator> right, Index right_offset,
+                    Options options);
+
+  [[nodiscard]] Index rows() const override { return 6; }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
+  /// versions without (SlotConstraint) recompute them.
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override;
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override;
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override;
+
+ private:
+  std::shared_ptr<const MobileManipulator> left_, right_;
+  Index lo_, ro_;
+  Options opt_;
+  std::vector<std::string> names_;
+};
+
+/// The cut point of one arm follows a trajectory along chosen axes, paper Eq. (19) rows 1–3, with
+/// A, b from Eq. (20):  p_axis(q) = origin_axis + f_axis(t). Unused axes are skipped.
+class CutPointTrajectory final : public SlotConstraint {
+ public:
+  CutPointTrajectory(std::shared_ptr<const MobileManipulator> arm, Index offset,
+                     std::array<std::optional<TimeFunction>, 3> axes, Vec3 origin,
+                     std::string prefix);
+
+  [[nodiscard]] Index rows() const override { return static_cast<Index>(axis_.size()); }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
+  /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
+  /// versions without (SlotConstraint) recompute them.
+  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+                     VecRef b) const override;
+  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+                              VecRef phi) const override;
+  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+                              VecRef phid) const override;
+
+ private:
+  std::shared_ptr<const MobileManipulator> arm_;
+  Index offset_;
+  std::vector<int> axis_;
+  std::vector<TimeFunction> f_;
+  Vec3 origin_;
+  std::vector<std::string> names_;
+};
+
+/// One generalized coordinate follows a function of time: q_j = f(t) (paper Eq. (19) rows 4–6 with
+/// f constant, Eq. (20): q̈_j = 0).
+class CoordinateConstraint final : public Constraint {
+ public:
+  CoordinateConstraint(Index coordinate, TimeFunction f, std::string name);
+  [[nodiscard]] Index rows() const override { return 1; }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
+  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
+  void position_residual(double t, CVecRef q, VecRef phi) const override;
+  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+
+ private:
+  Index j_;
+  TimeFunction f_;
+  std::vector<std::string> names_;
+};
+
+}  // namespace ukdyn

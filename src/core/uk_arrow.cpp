@@ -1,0 +1,583 @@
+#include "ukdyn/core/uk_arrow.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+#include "core/dense_kernels.hpp"
+
+namespace ukdyn {
+
+std::optional<ArrowStructure> detect_arrow(const BlockLayout& layout,
+                                           const std::vector<std::vector<Index>>& row_blocks,
+                                           std::size_t min_groups) {
+  // The load: the block common to every row that couples two blocks.
+  std::vector<Index> common;  // candidates (at most 2)
+  bool any_pair = false;
+  for (const auto& rb : row_blocks) {
+    if (rb.empty() || rb.size() > 2) return std::nullopt;
+    if (rb.size() != 2) continue;
+    if (!any_pair) {
+      common = rb;
+      any_pair = true;
+      continue;
+    }
+    std::vector<Index> keep;
+    for (const Index c : common)
+      if (c == rb[0] || c == rb[1]) keep.push_back(c);
+    common = std::move(keep);
+    if (common.empty()) return std::nullopt;
+  }
+  ArrowStructure s;
+  if (any_pair) s.load_block = common.back();  // with a single coupled pair: the later block
+  if (s.load_block >= 0) {
+    s.load_start = layout.start[static_cast<std::size_t>(s.load_block)];
+    s.load_size = layout.size[static_cast<std::size_t>(s.load_block)];
+  }
+  std::vector<Index> group_of(layout.blocks(), -1);
+  std::size_t coupled = 0;
+  for (std::size_t i = 0; i < row_blocks.size(); ++i) {
+    const auto& rb = row_blocks[i];
+    Index robot = -1;
+    for (const Index blk : rb)
+      if (blk != s.load_block) robot = blk;
+    if (robot < 0) {
+      s.load_rows.push_back(static_cast<Index>(i));
+      continue;
+    }
+    auto& gi = group_of[static_cast<std::size_t>(robot)];
+    if (gi < 0) {
+      gi = static_cast<Index>(s.groups.size());
+      ArrowStructure::Group g;
+      g.block = robot;
+      g.start = layout.start[static_cast<std::size_t>(robot)];
+      g.size = layout.size[static_cast<std::size_t>(robot)];
+      s.groups.push_back(std::move(g));
+    }
+    s.groups[static_cast<std::size_t>(gi)].rows.push_back(static_cast<Index>(i));
+  }
+  for (const auto& g : s.groups) {
+    for (const Index r : g.rows) {
+      if (row_blocks[static_cast<std::size_t>(r)].size() == 2) {
+        ++coupled;
+        break;
+      }
+    }
+  }
+  if (coupled < min_groups) return std::nullopt;
+  return s;
+}
+
+ArrowWorkspace::ArrowWorkspace(const ArrowStructure& st, Index m) {
+  const Index nL = st.load_size;
+  Index mD = static_cast<Index>(st.load_rows.size());
+  for (const auto& grp : st.groups) {
+    const Index mk = static_cast<Index>(grp.rows.size()), nk = grp.size;
+    GroupBuffers gb;
+    gb.B = Mat::Zero(mk, nk);
+    gb.C = Mat::Zero(mk, nL);
+    gb.Xt = Mat::Zero(mk, nk);
+    gb.S = Mat::Zero(mk, mk);
+    gb.T = Mat::Zero(mk, nL);
+    gb.r = Vec::Zero(mk);
+    gb.bb = Vec::Zero(mk);
+    gb.z = Vec::Zero(mk);
+    gb.w = Vec::Zero(std::max(mk, nk));
+    gb.lam = Vec::Zero(mk);
+    gb.piv.assign(static_cast<std::size_t>(mk), 0);
+    g.push_back(std::move(gb));
+    mD += mk;
+  }
+  H = Mat::Zero(nL, nL);
+  gL = Vec::Zero(nL);
+  qddL = Vec::Zero(nL);
+  Dt = Mat::Zero(mD, nL);
+  d = Vec::Zero(mD);
+  WD = Mat::Zero(mD, mD);
+  rD = Vec::Zero(mD);
+  lamD = Vec::Zero(mD);
+  tmp = Vec::Zero(std::max(mD, nL));
+  pivD.assign(static_cast<std::size_t>(mD), 0);
+  d_from.assign(static_cast<std::size_t>(mD), {0, 0});
+  lambda = Vec::Zero(m);
+  built_ = true;
+}
+
+namespace {
+
+// Pivoted LDLᵀ (symmetric diagonal pivoting, a pivoted Cholesky: [Higham2002] ch. 10) of the
+// lower triangle of the m × m matrix W (leading dimension ldw), in place, as in uk_solve.cpp: each
+// step takes the largest remaining diagonal; it stops at the first pivot ≤ tol2 · (largest pivot).
+// Returns the number kept; piv holds the transpositions, L below the diagonal, D on it.
+Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, double ref, Index* piv, double* t,
+                   double& d_max, double& d_min_kept) {
+  d_max = 0.0;
+  d_min_kept = std::numeric_limits<double>::infinity();
+  double cutoff = 0.0;
+  Index kept = 0;
+  for (Index k = 0; k < m; ++k) {
+    Index p = k;
+    double dp = W[k + k * ldw];
+    for (Index i = k + 1; i < m; ++i) {
+      if (W[i + i * ldw] > dp) {
+        dp = W[i + i * ldw];
+        p = i;
+      }
+    }
+    if (k == 0) {
+      d_max = std::max(dp, 0.0);
+      cutoff = tol2 * std::max(d_max, ref);
+    }
+    if (!(d_max > 0.0 && dp > cutoff)) break;
+    piv[k] = p;
+    if (p != k) {
+      for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
+      std::swap(W[k + k * ldw], W[p + p * ldw]);
+      for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
+      for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
+    }
+    const double inv_d = 1.0 / dp;
+    double* colk = W + k * ldw;
+    for (Index i = k + 1; i < m; ++i) {
+      t[i] = colk[i];
+      colk[i] *= inv_d;
+    }
+    for (Index j = k + 1; j < m; ++j) {
+      const double tj = t[j];
+      double* colj = W + j * ldw;
+      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
+    }
+    d_min_kept = std::min(d_min_kept, dp);
+    ++kept;
+  }
+  return kept;
+}
+
+// x ← L^{-1} x and x ← L^{-ᵀ} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
+void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
+  detail::l_solve<0>(L, ldl, inv_diag, x, n);
+}
+void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
+  detail::lt_solve<0>(L, ldl, inv_diag, x, n);
+}
+
+// Rows k and p of a column-major matrix (m rows, c columns) swapped.
+void swap_rows(Mat& X, Index k, Index p) {
+  if (k == p) return;
+  for (Index j = 0; j < X.cols(); ++j) std::swap(X(k, j), X(p, j));
+}
+
+// The lower triangle of G = X Xᵀ for the leading rows × cols of X (a Gram matrix: S, W_D).
+void lower_gram(const Mat& X, Index rows, Index cols, Mat& G) {
+  for (Index j = 0; j < rows; ++j)
+    for (Index i = j; i < rows; ++i) {
+      double v = 0.0;
+      for (Index l = 0; l < cols; ++l) v += X(i, l) * X(j, l);
+      G(i, j) = v;
+    }
+}
+
+// What every step of uk_solve_arrow reads: the problem, the robots' Cholesky factors (the dense
+// workspace's L, 1/L_ii) and the arrow workspace the steps write.
+struct ArrowProblem {
+  const ArrowStructure& st;
+  const Mat& M;
+  const Mat& A;
+  const Vec& b;
+  const Vec& Q;
+  const UkWorkspace& dws;
+  ArrowWorkspace& ws;
+  Index sL, nL, ldl;
+  const double* Ld;
+  const double* idg;
+  double tol2;
+
+  ArrowProblem(const ArrowStructure& st_, const Mat& M_, const Mat& A_, const Vec& b_,
+               const Vec& Q_, const UkWorkspace& dws_, ArrowWorkspace& ws_,
+               const UkSettings& settings)
+      : st(st_),
+        M(M_),
+        A(A_),
+        b(b_),
+        Q(Q_),
+        dws(dws_),
+        ws(ws_),
+        sL(st_.load_start),
+        nL(st_.load_size),
+        ldl(dws_.L.rows()),
+        Ld(dws_.L.data()),
+        idg(dws_.inv_diag.data()),
+        tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
+  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
+  void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
+  // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
+  // (columns col0 .. col0 + nL of row i of X).
+  double load_part_of_w(const Mat& X, Index i, Index col0 = 0) const {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, col0 + j);
+    double c2 = 0.0;
+    if (nL > 0) {
+      load_l_solve(ws.tmp.data());
+      for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    }
+    return c2;
+  }
+};
+
+// The rank decisions' pivots: the number kept and the largest and smallest kept.
+struct ArrowPivots {
+  Index rank = 0;
+  double max = 0.0, min = std::numeric_limits<double>::infinity();
+  void add(Index kept, double d_max, double d_min) {
+    rank += kept;
+    if (kept > 0) {
+      max = std::max(max, d_max);
+      min = std::min(min, d_min);
+    }
+  }
+};
+
+// Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
+// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ.
+void reduce_group(const ArrowProblem& P, std::size_t gi) {
+  const auto& grp = P.st.groups[gi];
+  auto& gb = P.ws.g[gi];
+  const Index mk = static_cast<Index>(grp.rows.size()), s = grp.start, nk = grp.size;
+  const double* Lk = P.Ld + s + s * P.ldl;
+  const double* id = P.idg + s;
+  for (Index i = 0; i < mk; ++i) {
+    const Index row = grp.rows[static_cast<std::size_t>(i)];
+    for (Index j = 0; j < nk; ++j) gb.B(i, j) = P.A(row, s + j);
+    for (Index j = 0; j < P.nL; ++j) gb.C(i, j) = P.A(row, P.sL + j);
+    gb.bb[i] = P.b[row];
+  }
+  double* y = gb.w.data();
+  for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
+  l_solve(Lk, P.ldl, id, y, nk);
+  for (Index l = 0; l < nk; ++l) {
+    for (Index i = 0; i < mk; ++i) {
+      double v = gb.B(i, l);
+      for (Index p = 0; p < l; ++p) v -= Lk[l + p * P.ldl] * gb.Xt(i, p);
+      gb.Xt(i, l) = v * id[l];
+    }
+  }
+  for (Index i = 0; i < mk; ++i) {
+    double v = gb.bb[i];
+    for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
+    gb.r[i] = v;
+  }
+  lower_gram(gb.Xt, mk, nk, gb.S);
+}
+
+// H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
+// returns max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii + C_i M_L⁻¹ C_iᵀ): the scale of every rank
+// decision below, as the dense solve's.
+double reduce_groups(const ArrowProblem& P) {
+  auto& ws = P.ws;
+  for (Index j = 0; j < P.nL; ++j) {
+    for (Index i = j; i < P.nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
+    ws.gL[j] = P.Q[P.sL + j];
+  }
+  double w_ref = 0.0;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    reduce_group(P, gi);
+    auto& gb = ws.g[gi];
+    for (Index i = 0; i < static_cast<Index>(P.st.groups[gi].rows.size()); ++i)
+      w_ref = std::max(w_ref, gb.S(i, i) + P.load_part_of_w(gb.C, i));
+  }
+  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w(P.A, row, P.sL));
+  return w_ref;
+}
+
+// Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
+// dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
+// (appended at mD, which is returned advanced).
+Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
+                      Index mD) {
+  auto& ws = P.ws;
+  auto& gb = ws.g[gi];
+  const Index nL = P.nL;
+  const Index mk = static_cast<Index>(P.st.groups[gi].rows.size());
+  double dmax = 0.0, dmin = 0.0;
+  gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, P.tol2, w_ref, gb.piv.data(), ws.tmp.data(),
+                         dmax, dmin);
+  const Index kp = gb.kept;
+  pivots.add(kp, dmax, dmin);
+  // The same row order for C (into T), r and b (into z, lam as scratch).
+  gb.T = gb.C;  // same size: no allocation
+  for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
+  for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
+  for (Index k = 0; k < kp; ++k) {
+    const Index p = gb.piv[static_cast<std::size_t>(k)];
+    swap_rows(gb.T, k, p);
+    std::swap(gb.z[k], gb.z[p]);
+    std::swap(gb.lam[k], gb.lam[p]);
+  }
+  // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
+  // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
+  for (Index i = 1; i < mk; ++i) {
+    const Index pe = std::min(i, kp);
+    for (Index p = 0; p < pe; ++p) {
+      const double l = gb.S(i, p);
+      if (l == 0.0) continue;
+      for (Index j = 0; j < nL; ++j) gb.T(i, j) -= l * gb.T(p, j);
+      if (i < kp) gb.z[i] -= l * gb.z[p];
+      gb.lam[i] -= l * gb.lam[p];
+    }
+  }
+  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
+  for (Index i = 0; i < kp; ++i) {
+    const double inv = 1.0 / gb.S(i, i);
+    for (Index jj = 0; jj < nL; ++jj) {
+      const double tj = gb.T(i, jj) * inv;
+      if (tj == 0.0) continue;
+      for (Index ii = jj; ii < nL; ++ii) ws.H(ii, jj) += gb.T(i, ii) * tj;
+      ws.gL[jj] += tj * gb.z[i];
+    }
+  }
+  for (Index i = kp; i < mk; ++i) {
+    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = gb.T(i, j);
+    ws.d[mD] = gb.lam[i];
+    ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
+    ++mD;
+  }
+  return mD;
+}
+
+// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
+Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots) {
+  auto& ws = P.ws;
+  Index mD = 0;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
+    mD = eliminate_group(P, gi, w_ref, pivots, mD);
+  for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
+    const Index row = P.st.load_rows[j];
+    for (Index c = 0; c < P.nL; ++c) ws.Dt(mD, c) = P.A(row, P.sL + c);
+    ws.d[mD] = P.b[row];
+    ws.d_from[static_cast<std::size_t>(mD)] = {-1, static_cast<Index>(j)};
+    ++mD;
+  }
+  return mD;
+}
+
+// Cholesky of H in place (lower), dividing directly; false if H is not positive definite.
+bool cholesky_in_place(Mat& H, Index nL) {
+  for (Index j = 0; j < nL; ++j) {
+    double dj = H(j, j);
+    for (Index k = 0; k < j; ++k) dj -= H(j, k) * H(j, k);
+    if (!(dj > 0.0)) return false;
+    const double ljj = std::sqrt(dj);
+    H(j, j) = ljj;
+    for (Index i = j + 1; i < nL; ++i) {
+      double v = H(i, j);
+      for (Index k = 0; k < j; ++k) v -= H(i, k) * H(j, k);
+      H(i, j) = v / ljj;
+    }
+  }
+  return true;
+}
+
+// x ← L_H⁻¹ x and x ← L_H^{-ᵀ} x with the Cholesky factor of H (cholesky_in_place).
+void h_solve(const Mat& H, Index nL, double* x) {
+  for (Index i = 0; i < nL; ++i) {
+    double v = x[i];
+    for (Index k = 0; k < i; ++k) v -= H(i, k) * x[k];
+    x[i] = v / H(i, i);
+  }
+}
+void ht_solve(const Mat& H, Index nL, double* x) {
+  for (Index i = nL - 1; i >= 0; --i) {
+    double v = x[i];
+    for (Index k = i + 1; k < nL; ++k) v -= H(k, i) * x[k];
+    x[i] = v / H(i, i);
+  }
+}
+
+// Basic solution μ of W_D μ = r_D from W_D's pivoted LDLᵀ with keptD pivots (as in uk_solve.cpp).
+void basic_solution(const ArrowWorkspace& ws, Index mD, Index keptD, double* lam) {
+  const double* W = ws.WD.data();
+  const Index ldw = ws.WD.rows();
+  for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
+  for (Index k = 0; k < keptD; ++k) std::swap(lam[k], lam[ws.pivD[static_cast<std::size_t>(k)]]);
+  for (Index i = 0; i < keptD; ++i) {
+    double v = lam[i];
+    for (Index k = 0; k < i; ++k) v -= W[i + k * ldw] * lam[k];
+    lam[i] = v;
+  }
+  for (Index i = 0; i < keptD; ++i) lam[i] /= W[i + i * ldw];
+  for (Index i = keptD; i < mD; ++i) lam[i] = 0.0;
+  for (Index i = keptD - 1; i >= 0; --i) {
+    double v = lam[i];
+    for (Index k = i + 1; k < keptD; ++k) v -= W[k + i * ldw] * lam[k];
+    lam[i] = v;
+  }
+  for (Index k = keptD - 1; k >= 0; --k)
+    std::swap(lam[k], lam[ws.pivD[static_cast<std::size_t>(k)]]);
+}
+
+// The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
+// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
+void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
+  auto& ws = P.ws;
+  const Index nL = P.nL;
+  double* yH = ws.qddL.data();
+  for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
+  h_solve(ws.H, nL, yH);
+  for (Index i = 0; i < mD; ++i) {
+    for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
+    h_solve(ws.H, nL, ws.tmp.data());
+    double v = ws.d[i];
+    for (Index j = 0; j < nL; ++j) {
+      ws.Dt(i, j) = ws.tmp[j];
+      v -= ws.tmp[j] * yH[j];
+    }
+    ws.rD[i] = v;
+  }
+  lower_gram(ws.Dt, mD, nL, ws.WD);
+  double dmaxD = 0.0, dminD = 0.0;
+  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, P.tol2, w_ref, ws.pivD.data(),
+                                   ws.tmp.data(), dmaxD, dminD);
+  pivots.add(keptD, dmaxD, dminD);
+  double* lam = ws.lamD.data();
+  basic_solution(ws, mD, keptD, lam);
+  for (Index j = 0; j < nL; ++j) {
+    double v = yH[j];
+    for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];
+    yH[j] = v;
+  }
+  ht_solve(ws.H, nL, yH);
+}
+
+// Robot k's multipliers: u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v for the kept rows
+// (λ = S⁻¹(r − C q̈_L) with the dropped rows' λ_E moved over, see the header), then its share of
+// Qc = Aᵀ λ on the robot and the load.
+void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
+  const auto& grp = P.st.groups[gi];
+  auto& gb = P.ws.g[gi];
+  const double* qL = P.ws.qddL.data();
+  const Index mk = static_cast<Index>(grp.rows.size()), kp = gb.kept;
+  for (Index i = 0; i < kp; ++i) {
+    double v = gb.z[i];
+    for (Index j = 0; j < P.nL; ++j) v -= gb.T(i, j) * qL[j];
+    gb.lam[i] = v / gb.S(i, i);
+  }
+  for (Index e = kp; e < mk; ++e) {
+    const double le = gb.lam[e];
+    for (Index p = 0; p < kp; ++p) gb.lam[p] -= gb.S(e, p) * le;
+  }
+  for (Index p = kp - 1; p >= 0; --p) {
+    double v = gb.lam[p];
+    for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
+    gb.lam[p] = v;
+  }
+  for (Index k = kp - 1; k >= 0; --k)
+    std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  const Index s = grp.start, nk = grp.size;
+  for (Index i = 0; i < mk; ++i) {
+    const double li = gb.lam[i];
+    P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = li;
+    if (li == 0.0) continue;
+    for (Index j = 0; j < nk; ++j) Qc[s + j] += gb.B(i, j) * li;
+    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += gb.C(i, j) * li;
+  }
+}
+
+// Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
+void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) {
+  auto& ws = P.ws;
+  const double* lam = ws.lamD.data();
+  for (Index i = 0; i < mD; ++i) {
+    const auto [grp, k] = ws.d_from[static_cast<std::size_t>(i)];
+    if (grp < 0) {
+      ws.lambda[P.st.load_rows[static_cast<std::size_t>(k)]] = lam[i];
+    } else {
+      ws.g[static_cast<std::size_t>(grp)].lam[k] = lam[i];
+    }
+  }
+  Qc.setZero();
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers(P, gi, Qc);
+  for (const Index row : P.st.load_rows) {
+    const double li = ws.lambda[row];
+    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += P.A(row, P.sL + j) * li;
+  }
+}
+
+// q̈ = M⁻¹(Q + Qc), block by block (every block, free ones too), paper Eq. (18).
+void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
+  const auto& layout = P.dws.layout;
+  for (std::size_t k = 0; k < layout.blocks(); ++k) {
+    const Index s = layout.start[k], nk = layout.size[k];
+    for (Index j = 0; j < nk; ++j) qdd[s + j] = P.Q[s + j] + Qc[s + j];
+    l_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
+    lt_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
+  }
+}
+
+// ‖A q̈ − b‖, ‖A‖_∞, consistency and finiteness (as uk_solve.cpp's) with the pivots into res.
+void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const ArrowPivots& pivots,
+                  const UkSettings& settings, UkResult& res) {
+  double r2 = 0.0, b2 = 0.0, a_inf = 0.0;
+  auto add_row = [&](double v, double ab, double bi) {
+    r2 += v * v;
+    b2 += bi * bi;
+    a_inf = std::max(a_inf, ab);
+  };
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    const auto& grp = P.st.groups[gi];
+    const auto& gb = P.ws.g[gi];
+    const Index s = grp.start, nk = grp.size;
+    for (Index i = 0; i < static_cast<Index>(grp.rows.size()); ++i) {
+      double v = -gb.bb[i], ab = 0.0;
+      for (Index j = 0; j < nk; ++j) {
+        v += gb.B(i, j) * qdd[s + j];
+        ab += std::abs(gb.B(i, j));
+      }
+      for (Index j = 0; j < P.nL; ++j) {
+        v += gb.C(i, j) * qdd[P.sL + j];
+        ab += std::abs(gb.C(i, j));
+      }
+      add_row(v, ab, gb.bb[i]);
+    }
+  }
+  for (const Index row : P.st.load_rows) {
+    double v = -P.b[row], ab = 0.0;
+    for (Index j = 0; j < P.nL; ++j) {
+      v += P.A(row, P.sL + j) * qdd[P.sL + j];
+      ab += std::abs(P.A(row, P.sL + j));
+    }
+    add_row(v, ab, P.b[row]);
+  }
+  double q2 = 0.0;
+  bool finite = true;
+  for (Index j = 0; j < P.dws.layout.dof(); ++j) {
+    q2 += qdd[j] * qdd[j];
+    finite = finite && std::isfinite(qdd[j]) && std::isfinite(Qc[j]);
+  }
+  res = UkResult{};
+  res.rank = static_cast<int>(pivots.rank);
+  res.sigma_max = std::sqrt(pivots.max);
+  res.sigma_min_kept = pivots.rank > 0 ? std::sqrt(pivots.min) : 0.0;
+  res.residual = std::sqrt(r2);
+  res.consistent =
+      res.residual <= settings.consistency_rel_tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
+  res.finite = finite && std::isfinite(res.residual);
+}
+
+}  // namespace
+
+bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b,
+                    const Vec& Q, const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
+                    const UkSettings& settings, UkResult& res) {
+  const ArrowProblem P(st, M, A, b, Q, dws, ws, settings);
+  ArrowPivots pivots;
+  const double w_ref = reduce_groups(P);
+  const Index mD = eliminate_groups(P, w_ref, pivots);
+  if (!cholesky_in_place(ws.H, P.nL)) return false;
+  solve_load(P, mD, w_ref, pivots);
+  multipliers_and_constraint_force(P, mD, Qc);
+  accelerations(P, Qc, qdd);
+  arrow_result(P, qdd, Qc, pivots, settings, res);
+  return true;
+}
+
+}  // namespace ukdyn

@@ -1,0 +1,314 @@
+#include "ukdyn/output/control_output.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "run/run_observer.hpp"
+
+namespace ukdyn {
+
+ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop) : sc_(&sc), loop_(loop) {
+  const System& sys = *sc.system;
+  servo_ = servo_row_flags(sys, sc.constraint_roles);
+  model_ = ControlModel{sc.system, servo_, sc.actuators, sc.tau, sc.sim.uk};
+  row_names_ = sys.constraint_row_names();
+  for (std::size_t i = 0; i < servo_.size(); ++i)
+    if (servo_[i]) servo_names_.push_back(row_names_[i]);
+  split_ = !servo_names_.empty();
+  t0_ = sc.sim.t0;
+  t_half_ = 0.5 * (sc.sim.t0 + sc.sim.t_end);
+  if (split_) {
+    for (const auto& c : sys.coordinate_names()) header_.push_back("Qp_" + c);
+    for (const auto& c : sys.coordinate_names()) header_.push_back("Qs_" + c);
+    header_.push_back("role_split_unique");
+  }
+  if (sc.actuators.count() > 0) {
+    for (const auto& a : sc.actuators.names) header_.push_back("u_" + a);
+    header_.push_back("act_residual");
+  }
+  if (loop_ != nullptr) {
+    for (const auto& r : servo_names_) header_.push_back("e_" + r);
+    for (const auto& r : servo_names_) header_.push_back("ed_" + r);
+    servo_law_ = dynamic_cast<const ServoLaw*>(&loop_->law);
+    if (servo_law_ != nullptr) header_.push_back("servo_uncertainty");
+  }
+  u_prev_ = Vec::Zero(sc.actuators.count());
+}
+
+void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d, double* out) {
+  std::size_t k = 0;
+  const ForwardData* md = &d;
+  if (loop_ != nullptr) {
+    loop_->evaluate(t, q, qd);  // the law at the sample: the same u as the integrator's
+    md = &loop_->model_data;
+  }
+  if (split_) {
+    const RoleForceSplit s = split_by_role(md->A, md->Qc, servo_);
+    for (Index i = 0; i < s.Qp.size(); ++i) out[k++] = s.Qp(i);
+    for (Index i = 0; i < s.Qs.size(); ++i) out[k++] = s.Qs(i);
+    out[k++] = s.unique ? 1.0 : 0.0;
+    if (!s.unique && split_unique_) {
+      split_unique_ = false;
+      split_t_ = t;
+      redundant_ = s.redundant_rows;
+    }
+  }
+  if (sc_->actuators.count() > 0) {
+    Vec u;
+    double residual = 0.0;
+    if (loop_ != nullptr) {
+      u = loop_->u;
+      if (const auto* law = dynamic_cast<const ServoLaw*>(&loop_->law))
+        residual = law->last_actuation().residual;
+      else  // a user's law (MemoryRunOptions::law): no actuation solve of ukdyn's to report
+        residual = std::numeric_limits<double>::quiet_NaN();
+      const bool under = dynamic_cast<const ServoLaw*>(&loop_->law) != nullptr &&
+                         static_cast<const ServoLaw&>(loop_->law).last_actuation().underactuated;
+      if (under && !underactuated_) {
+        underactuated_ = true;
+        residual_t_ = t;
+      }
+      if (loop_->saturated) {
+        double over = 0.0;
+        for (Index j = 0; j < u.size(); ++j)
+          over = std::max(over, std::abs(loop_->u_raw(j)) - sc_->actuators.limit(j));
+        if (!saturated_) sat_t_ = t;
+        if (!first_ && t > t_prev_) peaks_.saturation_time += t - t_prev_;
+        saturated_ = true;
+        sat_over_ = std::max(sat_over_, over);
+      }
+    } else {
+      const Actuation a = actuation_for(model_, d);
+      u = a.u;
+      residual = a.residual;
+      if (a.underactuated && !underactuated_) {
+        underactuated_ = true;
+        residual_t_ = t;
+      }
+    }
+    max_residual_ = std::max(max_residual_, residual);
+    for (Index j = 0; j < u.size(); ++j) out[k++] = u(j);
+    out[k++] = residual;
+    max_u_ = std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0);
+    if (!first_ && t > t_prev_ && u.size())
+      max_udot_ = std::max(max_udot_, (u - u_prev_).cwiseAbs().maxCoeff() / (t - t_prev_));
+    u_prev_ = u;
+  }
+  if (loop_ != nullptr) {
+    Vec e, ed;
+    servo_errors(loop_->model, t, q, qd, e, ed);
+    for (Index i = 0; i < e.size(); ++i) out[k++] = e(i);
+    for (Index i = 0; i < ed.size(); ++i) out[k++] = ed(i);
+    const double em = e.size() ? e.cwiseAbs().maxCoeff() : 0.0;
+    max_e_ = std::max(max_e_, em);
+    if (t >= t_half_) max_e_half_ = std::max(max_e_half_, em);
+    if (servo_law_ != nullptr) {
+      // δ = A_s q̈_plant − (b_s + v): d is the plant's forward() at this sample under the u of the
+      // evaluate() above (the same state, so the same u as the integrator's).
+      const double delta = servo_law_->servo_uncertainty(loop_->model, d.qdd);
+      out[k++] = delta;
+      if (delta > max_delta_ || first_) {
+        max_delta_ = delta;
+        max_delta_t_ = t;
+      }
+      const ServoLawSettings& ls = servo_law_->settings();
+      if (ls.kind == ControlLawKind::robust && ls.rho > 0.0 && delta > ls.rho) {
+        if (!rho_exceeded_) {
+          rho_exceeded_ = true;
+          rho_exceeded_t_ = t;
+        }
+        rho_exceeded_delta_ = std::max(rho_exceeded_delta_, delta);
+      }
+    }
+  }
+  if (peaks_.closure) {
+    // The plant's multipliers: the least-norm λ with A_pᵀλ = Qc (its rows are all physical).
+    // λ_{x,y,z} of Φ = p1 − p2 is the force (world axes) the closure applies at robot 1's cut
+    // point, −λ at robot 2's (Qc = J1ᵀλ on robot 1's coordinates). The squeeze is its component
+    // against n, the horizontal unit vector from platform 1 to platform 2 (world x without the
+    // paper's dx1, dy1, dx2, dy2): compression > 0 (docs/control.md, "The squeeze force").
+    const RoleForceSplit s = split_by_role(d.A, d.Qc, std::vector<bool>(d.A.rows(), false));
+    const double fx = s.lambda(cx_), fy = s.lambda(cy_), fz = s.lambda(cz_);
+    double nx = 1.0, ny = 0.0;
+    if (px1_ >= 0) {
+      const double ax = q(px2_) - q(px1_), ay = q(py2_) - q(py1_), l = std::hypot(ax, ay);
+      if (l > 0.0) {
+        nx = ax / l;
+        ny = ay / l;
+      }
+    }
+    const double f = std::sqrt(fx * fx + fy * fy + fz * fz);
+    const double squeeze = -(fx * nx + fy * ny);
+    peaks_.max_closure_force = io_detail::nanmax(peaks_.max_closure_force, f);
+    peaks_.max_squeeze_force =
+        first_ ? squeeze : io_detail::nanmax(peaks_.max_squeeze_force, squeeze);
+  }
+  peaks_.max_abs_e = max_e_;
+  peaks_.max_abs_e_second_half = max_e_half_;
+  peaks_.max_abs_u = max_u_;
+  peaks_.max_abs_udot = max_udot_;
+  peaks_.saturation_max_over_limit = sat_over_;
+  first_ = false;
+  t_prev_ = t;
+}
+
+void ControlColumns::set_plant(const System& plant) {
+  const auto& rows = plant.constraint_row_names();
+  const auto row = [&rows](const char* n) {
+    const auto it = std::find(rows.begin(), rows.end(), n);
+    return it == rows.end() ? Index{-1} : static_cast<Index>(it - rows.begin());
+  };
+  cx_ = row("closure_x");
+  cy_ = row("closure_y");
+  cz_ = row("closure_z");
+  peaks_.closure = loop_ != nullptr && cx_ >= 0 && cy_ >= 0 && cz_ >= 0;
+  const auto& names = plant.coordinate_names();
+  const auto coord = [&names](const char* n) {
+    const auto it = std::find(names.begin(), names.end(), n);
+    return it == names.end() ? Index{-1} : static_cast<Index>(it - names.begin());
+  };
+  px1_ = coord("dx1");
+  py1_ = coord("dy1");
+  px2_ = coord("dx2");
+  py2_ = coord("dy2");
+  if (px1_ < 0 || py1_ < 0 || px2_ < 0 || py2_ < 0) px1_ = -1;
+}
+
+std::vector<RunWarning> ControlColumns::warnings() const {
+  std::vector<RunWarning> w;
+  if (!split_unique_) {
+    std::string rows;
+    for (Index r : redundant_) rows += (rows.empty() ? "" : ", ") + row_names_[r];
+    w.push_back({split_t_, "role_force_split",
+                 "redundant constraint rows (" + rows +
+                     "): the split Qc = Qp + Qs is not unique; the Qp_/Qs_ columns report the "
+                     "least-norm multipliers (docs/control.md)"});
+  }
+  if (underactuated_) {
+    std::string rows;
+    for (const auto& r : servo_names_) rows += (rows.empty() ? "" : ", ") + r;
+    w.push_back({residual_t_, "underactuated",
+                 fmt::format("the actuators cannot realise the servo rows ({}): residual "
+                             "‖B u + A_pᵀμ − Qc‖ up to {:.3e} (column act_residual)",
+                             rows, max_residual_)});
+  }
+  if (rho_exceeded_) {
+    const double rho = servo_law_->settings().rho;
+    w.push_back(
+        {rho_exceeded_t_, "rho_bound_exceeded",
+         fmt::format("the plant's uncertainty ‖δ‖ = ‖A_s q̈ − (b_s + v)‖ exceeded the "
+                     "robust law's bound rho = {:.6g} (first at t = {:.6g} s, up to {:.6g}, "
+                     "{:.3g}× rho, at t = {:.6g} s): the assumption of the robust design "
+                     "does not hold, its error bound is not guaranteed (docs/control.md)",
+                     rho, rho_exceeded_t_, max_delta_, max_delta_ / rho, max_delta_t_)});
+  }
+  if (saturated_) {
+    w.push_back(
+        {sat_t_, "saturation",
+         fmt::format("actuator limits reached: u clipped, up to {:.3e} over a limit", sat_over_)});
+  }
+  return w;
+}
+
+nlohmann::json ControlColumns::summary() const {
+  nlohmann::json j;
+  j["role_split_unique"] = split_unique_;
+  j["servo_rows"] = servo_names_;
+  if (sc_->actuators.count() > 0) {
+    j["actuators"] = sc_->actuators.names;
+    j["max_abs_u"] = max_u_;
+    j["max_abs_udot"] = max_udot_;
+    j["max_actuation_residual"] = max_residual_;
+    j["underactuated"] = underactuated_;
+  }
+  if (loop_ != nullptr) {
+    const bool user = dynamic_cast<const ServoLaw*>(&loop_->law) == nullptr;
+    j["law"] = user ? std::string("user") : to_string(sc_->control->law.kind);
+    if (user) j["max_actuation_residual"] = nullptr;  // not known: the user's law solved for u
+    j["plant"] = sc_->control->plant ? sc_->control->plant->name : sc_->name;
+    j["max_abs_e"] = max_e_;
+    j["max_abs_e_second_half"] = max_e_half_;
+    j["saturated"] = saturated_;
+    if (servo_law_ != nullptr) {
+      j["max_uncertainty"] = max_delta_;
+      j["max_uncertainty_t"] = max_delta_t_;
+      const ServoLawSettings& ls = servo_law_->settings();
+      if (ls.kind == ControlLawKind::robust) {
+        j["rho"] = ls.rho;
+        if (ls.rho > 0.0) j["uncertainty_over_rho"] = max_delta_ / ls.rho;
+        j["rho_bound_exceeded"] = rho_exceeded_;
+      }
+    }
+    if (saturated_) {
+      j["saturation_first_t"] = sat_t_;
+      j["saturation_max_over_limit"] = sat_over_;
+      j["saturation_time"] = peaks_.saturation_time;
+    }
+    if (peaks_.closure && !first_) {
+      j["max_closure_force"] = peaks_.max_closure_force;
+      j["max_squeeze_force"] = peaks_.max_squeeze_force;
+    }
+  }
+  return j;
+}
+
+std::vector<std::pair<std::string, std::vector<std::string>>> ControlColumns::figures() const {
+  std::vector<std::pair<std::string, std::vector<std::string>>> f;
+  const auto& names = sc_->system->coordinate_names();
+  if (split_) {
+    std::vector<std::string> p, s;
+    for (const auto& c : names) p.push_back("Qp_" + c);
+    for (const auto& c : names) s.push_back("Qs_" + c);
+    f.push_back({"force_physical", p});
+    f.push_back({"force_servo", s});
+  }
+  if (sc_->actuators.count() > 0) {
+    std::vector<std::string> u;
+    for (const auto& a : sc_->actuators.names) u.push_back("u_" + a);
+    f.push_back({"actuators", u});
+  }
+  if (loop_ != nullptr) {
+    std::vector<std::string> e;
+    for (const auto& r : servo_names_) e.push_back("e_" + r);
+    f.push_back({"servo_error", e});
+  }
+  return f;
+}
+
+}  // namespace ukdyn
+
+namespace ukdyn {
+
+std::unique_ptr<ControlRun> make_control_run(const Scenario& sc) {
+  if (!sc.control) return nullptr;
+  const ControlSpec& spec = *sc.control;
+  const Scenario& plant_sc = spec.plant ? *spec.plant : sc;
+  auto run = std::make_unique<ControlRun>();
+  run->plant = physical_system(*plant_sc.system, plant_sc.constraint_roles);
+  run->model = ControlModel{sc.system, servo_row_flags(*sc.system, sc.constraint_roles),
+                            sc.actuators, sc.tau, sc.sim.uk};
+  run->q0 = sc.q0;
+  run->qd0 = sc.qd0;
+  if (spec.initial_offset.size() > 0 && spec.initial_offset.cwiseAbs().maxCoeff() > 0.0)
+    offset_start(run->model, sc.sim.t0, spec.initial_offset, run->q0, run->qd0);
+  const System& p = *run->plant;
+  if (p.rows() > 0) {
+    Vec phi(p.rows());
+    position_residuals(p, sc.sim.t0, run->q0, phi);
+    if (phi.cwiseAbs().maxCoeff() > sc.initial_tolerance)
+      throw Error(
+          fmt::format("control: the start violates the plant's physical constraints by "
+                      "{:.3e} (the model's and the plant's geometry differ?)",
+                      phi.cwiseAbs().maxCoeff()));
+  }
+  run->law = std::make_unique<ServoLaw>(run->model, spec.law);
+  const Vec dist = spec.disturbance;
+  run->loop = std::make_unique<ClosedLoop>(run->model, *run->law, plant_sc.tau,
+                                           [dist](double, VecRef d) { d = dist; });
+  return run;
+}
+
+}  // namespace ukdyn

@@ -1,0 +1,180 @@
+#include "ukdyn/output/geometry.hpp"
+
+#include <cmath>
+#include <map>
+#include <memory>
+
+#include "scenario/definitions_loader.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/paper_robot/cooperative_constraints.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/symbolic/expression.hpp"
+#include "ukdyn/symbolic/tape.hpp"
+
+namespace ukdyn {
+
+std::size_t Geometry::add_part(std::vector<GeometryPoint> points,
+                               std::vector<GeometrySegment> segments, PartFunction positions) {
+  const std::size_t first = points_.size();
+  parts_.push_back({first, points.size(), std::move(positions)});
+  for (auto& p : points) points_.push_back(std::move(p));
+  for (auto& s : segments) {
+    s.a += first;
+    s.b += first;
+    segments_.push_back(std::move(s));
+  }
+  return first;
+}
+
+long Geometry::find(const std::string& name) const {
+  for (std::size_t i = 0; i < points_.size(); ++i) {
+    if (points_[i].name == name) return static_cast<long>(i);
+  }
+  return -1;
+}
+
+void Geometry::evaluate(CVecRef q, std::vector<Vec3>& out) const {
+  out.resize(points_.size());
+  for (const auto& p : parts_) p.f(q, out, p.first);
+}
+
+namespace {
+
+// The paper's arm (mobile_manipulator.hpp): platform at (Δx, Δy, 0), joint r on top of it at height
+// l_r, then links 1..3 in the vertical plane turned by δ, each of length l_k at absolute pitch θ_k:
+// joint k+1 = joint k + l_k (cos θ_k cos δ, cos θ_k sin δ, sin θ_k). The last one is the cut point
+// (MobileManipulator::cut_point, the same sum).
+void add_mobile_manipulator(Geometry& g, const std::string& name,
+                            std::shared_ptr<const MobileManipulator> arm, Index offset) {
+  std::vector<GeometryPoint> pts{{name + ".platform", "platform"},
+                                 {name + ".r", "joint"},
+                                 {name + ".j2", "joint"},
+                                 {name + ".j3", "grasp"},
+                                 {name + ".cut", "cut"}};
+  std::vector<GeometrySegment> segs{{0, 1, "base"}, {1, 2, "link"}, {2, 3, "link"}, {3, 4, "load"}};
+  g.add_part(std::move(pts), std::move(segs),
+             [arm, offset](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+               const auto& p = arm->params();
+               const auto qs = q.segment(offset, 6);
+               const double cd = std::cos(qs(2)), sd = std::sin(qs(2));
+               Vec3 x(qs(0), qs(1), 0.0);
+               out[first] = x;
+               x.z() = p.base_length;
+               out[first + 1] = x;
+               for (int k = 0; k < 3; ++k) {
+                 const double l = p.link_length[static_cast<std::size_t>(k)];
+                 const double th = qs(3 + k);
+                 x += Vec3(l * std::cos(th) * cd, l * std::cos(th) * sd, l * std::sin(th));
+                 out[first + 2 + static_cast<std::size_t>(k)] = x;
+               }
+             });
+}
+
+// A serial chain (or URDF robot): every link frame origin joined to its parent's, the chain's
+// named points joined to their link's origin, and the CoM of every body; all from one compiled tape
+// of the expressions symbolic::build_chain made (parameters substituted).
+void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel& model,
+               const std::vector<std::pair<std::string, std::string>>& edges, const System& sys) {
+  namespace sym = symbolic;
+  sym::SymbolTable& syms = model.def.symbols();
+  sym::InputMap in;
+  const auto& coords = sys.coordinate_names();
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
+    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
+                                                   static_cast<std::int32_t>(i)};
+  }
+  const GiNaC::exmap values = model.def.parameter_values();
+  std::vector<GeometryPoint> pts;
+  std::vector<GiNaC::ex> ex;
+  std::map<std::string, std::size_t> index;
+  auto add = [&](const std::string& n, const std::string& kind, const sym::Vec3Ex& p) {
+    pts.push_back({name + "." + n, kind});
+    for (const auto& e : p) ex.push_back(e.subs(values).expand());
+    index[n] = pts.size() - 1;
+  };
+  for (const auto& [ln, pose] : model.links) add(ln, "joint", pose.position);
+  if (!edges.empty() && model.links.count(edges.front().first)) {
+    pts[index[edges.front().first]].kind = "platform";  // the root link (or the mobile base)
+  }
+  for (const auto& [pn, p] : model.points) {
+    if (!index.count(pn)) add(pn, pn == "cut" ? "cut" : "point", p);
+  }
+  for (const auto& b : model.def.bodies) {
+    pts.push_back({name + "." + b.name + ".com", "com"});
+    for (const auto& e : b.com) ex.push_back(e.subs(values).expand());
+  }
+  std::vector<GeometrySegment> segs;
+  for (const auto& [a, b] : edges) {
+    auto ia = index.find(a), ib = index.find(b);
+    if (ia != index.end() && ib != index.end()) segs.push_back({ia->second, ib->second, "link"});
+  }
+  auto tape = std::make_shared<const sym::Tape>(ex, in);
+  const std::size_t count = pts.size();
+  g.add_part(std::move(pts), std::move(segs),
+             [tape, count](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+               std::vector<double> v(3 * count);
+               tape->eval(0.0, q.data(), nullptr, v.data());
+               for (std::size_t k = 0; k < count; ++k) {
+                 out[first + k] = Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+               }
+             });
+}
+
+// A definitions subsystem: the CoM of every body (no segments: the file says nothing of links).
+void add_bodies(Geometry& g, const std::string& name,
+                const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
+                const System& sys, symbolic::SymbolTable& syms) {
+  namespace sym = symbolic;
+  sym::InputMap in;
+  const auto& coords = sys.coordinate_names();
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
+    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
+                                                   static_cast<std::int32_t>(i)};
+  }
+  std::vector<GeometryPoint> pts;
+  std::vector<GiNaC::ex> ex;
+  for (const auto& [bn, com] : bodies) {
+    pts.push_back({name + "." + bn, "com"});
+    for (const auto& e : com) ex.push_back(e);
+  }
+  auto tape = std::make_shared<const sym::Tape>(ex, in);
+  const std::size_t count = pts.size();
+  g.add_part(std::move(pts), {},
+             [tape, count](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+               std::vector<double> v(3 * count);
+               tape->eval(0.0, q.data(), nullptr, v.data());
+               for (std::size_t k = 0; k < count; ++k) {
+                 out[first + k] = Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+               }
+             });
+}
+
+}  // namespace
+
+Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) {
+  Geometry g;
+  const System& sys = *sc.system;
+  for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {
+    const auto& info = sc.subsystems[k];
+    const auto& sub = sys.subsystems()[k];
+    if (auto arm = std::dynamic_pointer_cast<const MobileManipulator>(sub)) {
+      add_mobile_manipulator(g, info.name, arm, info.offset);
+    } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
+      add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
+    } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
+               !bodies.empty() &&
+               std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
+      // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
+      add_bodies(
+          g, info.name, bodies, sys,
+          *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
+    } else if (left_out) {
+      left_out->push_back(info.name);
+    }
+  }
+  return g;
+}
+
+}  // namespace ukdyn

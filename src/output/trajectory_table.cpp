@@ -1,0 +1,169 @@
+#include "ukdyn/output/trajectory_table.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <limits>
+
+#include "ukdyn/core/types.hpp"
+
+namespace ukdyn {
+
+namespace {
+
+std::ifstream open_csv(const std::filesystem::path& csv) {
+  std::ifstream in(csv, std::ios::binary);
+  if (!in) throw Error(fmt::format("{}: cannot open", csv.string()));
+  return in;
+}
+
+std::vector<std::string> split_header(const std::string& line) {
+  std::vector<std::string> h;
+  std::size_t pos = 0;
+  while (true) {
+    const auto c = line.find(',', pos);
+    h.push_back(line.substr(pos, c == std::string::npos ? std::string::npos : c - pos));
+    if (c == std::string::npos) break;
+    pos = c + 1;
+  }
+  return h;
+}
+
+// One row of `n` numbers ("nan", "inf" and "-inf" included, as {:.17g} writes them).
+void parse_row(const std::string& line, std::size_t n, std::vector<double>& out,
+               const std::filesystem::path& csv, std::size_t line_no) {
+  out.resize(n);
+  const char* p = line.data();
+  const char* end = p + line.size();
+  const char* stop = p;
+  for (std::size_t k = 0; k < n; ++k) {
+    stop = std::find(p, end, ',');
+    double v = 0.0;
+    const auto r = std::from_chars(p, stop, v);
+    if (r.ec != std::errc() || r.ptr != stop) {
+      const std::string cell(p, stop);
+      if (cell == "nan" || cell == "-nan") {
+        v = std::numeric_limits<double>::quiet_NaN();
+      } else if (cell == "inf") {
+        v = std::numeric_limits<double>::infinity();
+      } else if (cell == "-inf") {
+        v = -std::numeric_limits<double>::infinity();
+      } else {
+        throw Error(fmt::format("{}:{}: column {}: not a number", csv.string(), line_no, k + 1));
+      }
+    }
+    out[k] = v;
+    if (k + 1 < n && stop == end) {
+      throw Error(fmt::format("{}:{}: {} values, expected {}", csv.string(), line_no, k + 1, n));
+    }
+    if (stop != end) p = stop + 1;
+  }
+  if (stop != end) {
+    throw Error(fmt::format("{}:{}: more than {} values", csv.string(), line_no, n));
+  }
+}
+
+}  // namespace
+
+std::size_t count_csv_rows(const std::filesystem::path& csv) {
+  auto in = open_csv(csv);
+  std::size_t lines = 0;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (!line.empty()) ++lines;
+  }
+  return lines > 0 ? lines - 1 : 0;
+}
+
+TrajectoryTable read_trajectory(const std::filesystem::path& csv, std::size_t stride) {
+  stride = std::max<std::size_t>(stride, 1);
+  const std::size_t total = count_csv_rows(csv);
+  auto in = open_csv(csv);
+  TrajectoryTable t;
+  std::string line;
+  if (!std::getline(in, line)) throw Error(fmt::format("{}: empty (no header)", csv.string()));
+  t.header = split_header(line);
+  std::vector<double> row;
+  std::size_t i = 0, line_no = 1;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.empty()) continue;
+    if (i % stride == 0 || i + 1 == total) {
+      parse_row(line, t.header.size(), row, csv, line_no);
+      t.rows.push_back(row);
+    }
+    ++i;
+  }
+  t.source_rows = i;
+  return t;
+}
+
+TrajectoryTable read_trajectory_minmax(const std::filesystem::path& csv, std::size_t buckets) {
+  buckets = std::max<std::size_t>(buckets, 1);
+  const std::size_t total = count_csv_rows(csv);
+  if (total <= 2 * buckets) return read_trajectory(csv, 1);
+  auto in = open_csv(csv);
+  TrajectoryTable t;
+  std::string line;
+  std::getline(in, line);
+  t.header = split_header(line);
+  const std::size_t n = t.header.size();
+  std::vector<double> row, lo(n), hi(n), first(n);
+  std::vector<std::size_t> at_lo(n), at_hi(n);
+  std::size_t i = 0, line_no = 1, bucket = 0, in_bucket = 0;
+  auto flush = [&](double t_last) {
+    std::vector<double> a(n), b(n);
+    a[0] = first[0];
+    b[0] = t_last;
+    for (std::size_t k = 1; k < n; ++k) {
+      const bool lo_first = at_lo[k] <= at_hi[k];
+      a[k] = lo_first ? lo[k] : hi[k];
+      b[k] = lo_first ? hi[k] : lo[k];
+    }
+    t.rows.push_back(std::move(a));
+    t.rows.push_back(std::move(b));
+  };
+  double t_last = 0.0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.empty()) continue;
+    parse_row(line, n, row, csv, line_no);
+    // Row i belongs to bucket floor(i · buckets / total).
+    const std::size_t b = i * buckets / total;
+    if (b != bucket && in_bucket > 0) {
+      flush(t_last);
+      in_bucket = 0;
+    }
+    bucket = b;
+    if (in_bucket == 0) {
+      first = row;
+      lo = row;
+      hi = row;
+      std::fill(at_lo.begin(), at_lo.end(), 0);
+      std::fill(at_hi.begin(), at_hi.end(), 0);
+    } else {
+      for (std::size_t k = 1; k < n; ++k) {
+        // NaN is kept (it must show in a figure as a gap, never be hidden by decimation).
+        if (row[k] < lo[k] || std::isnan(row[k])) {
+          lo[k] = row[k];
+          at_lo[k] = in_bucket;
+        }
+        if (row[k] > hi[k] || std::isnan(row[k])) {
+          hi[k] = row[k];
+          at_hi[k] = in_bucket;
+        }
+      }
+    }
+    t_last = row[0];
+    ++in_bucket;
+    ++i;
+  }
+  if (in_bucket > 0) flush(t_last);
+  t.source_rows = i;
+  return t;
+}
+
+}  // namespace ukdyn

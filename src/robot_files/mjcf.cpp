@@ -1,0 +1,271 @@
+#include "ukdyn/robot_files/mjcf.hpp"
+
+#include <cmath>
+#include <numbers>
+#include <set>
+#include <vector>
+
+#include "ukdyn/symbolic/constraint_kinds.hpp"
+
+#ifdef UKDYN_HAVE_MUJOCO
+#include <mujoco/mujoco.h>
+#endif
+
+namespace ukdyn::symbolic {
+
+#ifndef UKDYN_HAVE_MUJOCO
+
+bool mjcf_supported() { return false; }
+
+void append_mjcf(ChainDef&, const std::string& path, bool) {
+  throw DefinitionError(path +
+                        ": this ukdyn was built without MuJoCo, so it cannot read MJCF files "
+                        "(install libmujoco-dev, scripts/install-deps.sh, and rebuild)");
+}
+
+#else
+
+namespace {
+
+using GiNaC::ex;
+
+// Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
+std::array<double, 9> quat_matrix(const double* q) {
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  const double n = w * w + x * x + y * y + z * z;
+  const double s = n > 0.0 ? 2.0 / n : 0.0;
+  return {1 - s * (y * y + z * z), s * (x * y - w * z),     s * (x * z + w * y),
+          s * (x * y + w * z),     1 - s * (x * x + z * z), s * (y * z - w * x),
+          s * (x * z - w * y),     s * (y * z + w * x),     1 - s * (x * x + y * y)};
+}
+
+// Roll, pitch, yaw with R = Rz(yaw) Ry(pitch) Rx(roll) (chain.hpp's convention).
+Vec3Ex rpy_of(const double* quat) {
+  const auto R = quat_matrix(quat);
+  double roll = 0.0, pitch = 0.0, yaw = 0.0;
+  const double s = -R[6];
+  if (std::abs(s) < 1.0 - 1e-12) {
+    pitch = std::asin(s);
+    roll = std::atan2(R[7], R[8]);
+    yaw = std::atan2(R[3], R[0]);
+  } else {  // pitch = ±π/2: only roll ∓ yaw is defined; take roll = 0
+    pitch = s > 0 ? std::numbers::pi / 2 : -std::numbers::pi / 2;
+    yaw = std::atan2(-R[1], R[4]);
+  }
+  return {exact_number(roll), exact_number(pitch), exact_number(yaw)};
+}
+
+Vec3Ex vec_of(const double* v) {
+  return {exact_number(v[0]), exact_number(v[1]), exact_number(v[2])};
+}
+
+struct ModelGuard {
+  mjModel* m = nullptr;
+  ~ModelGuard() {
+    if (m) mj_deleteModel(m);
+  }
+};
+
+// The compiled model and its file, for the messages.
+struct MjcfSource {
+  const mjModel& m;
+  const std::string& path;
+  [[nodiscard]] std::string name_of(int type, int id, const std::string& fallback) const {
+    const char* n = mj_id2name(&m, type, id);
+    return n && *n ? std::string(n) : fallback;
+  }
+};
+
+// Coordinates for the joints, in MuJoCo's order: the chain's, less the mobile base's.
+std::vector<std::string> joint_coordinates(const ChainDef& chain) {
+  std::set<std::string> taken;
+  if (chain.base.enabled) {
+    taken.insert(chain.base.x);
+    taken.insert(chain.base.y);
+    if (!chain.base.yaw.empty()) taken.insert(chain.base.yaw);
+  }
+  std::vector<std::string> free;
+  for (const auto& c : chain.coordinates())
+    if (!taken.count(c)) free.push_back(c);
+  return free;
+}
+
+// Refuses what the chain cannot hold: a free joint off its body's origin, a qpos count other
+// than the chain's joint coordinates, equalities other than active welds and connects.
+void check_supported(const MjcfSource& src, std::size_t ncoords) {
+  const mjModel& m = src.m;
+  const std::string& path = src.path;
+  for (int j = 0; j < m.njnt; ++j) {
+    const double* a = m.jnt_pos + 3 * j;
+    if (m.jnt_type[j] == mjJNT_FREE && (a[0] != 0.0 || a[1] != 0.0 || a[2] != 0.0)) {
+      throw DefinitionError(path + ": joint '" + src.name_of(mjOBJ_JOINT, j, std::to_string(j)) +
+                            "': a free joint with an anchor off the body origin is not supported");
+    }
+  }
+  if (static_cast<int>(ncoords) != m.nq) {
+    throw DefinitionError(path + ": the model has " + std::to_string(m.nq) +
+                          " qpos coordinates (hinge and slide joints 1, ball 4, free 7) but the "
+                          "chain declares " +
+                          std::to_string(ncoords) + " joint coordinates");
+  }
+  for (int e = 0; e < m.neq; ++e) {  // weld and connect only (read: append_equalities)
+    const std::string ename = src.name_of(mjOBJ_EQUALITY, e, "equality" + std::to_string(e));
+    if (m.eq_type[e] != mjEQ_WELD && m.eq_type[e] != mjEQ_CONNECT) {
+      throw DefinitionError(path + ": equality '" + ename +
+                            "': only weld and connect equalities are read (joint and tendon "
+                            "couplings: write them as constraints)");
+    }
+    if (!m.eq_active[e]) {
+      throw DefinitionError(path + ": equality '" + ename +
+                            "' is inactive: ukdyn cannot switch a constraint on during a run "
+                            "(remove it, or make it active)");
+    }
+  }
+}
+
+// Where a body's next joint hangs: the previous joint's link (first: the parent body's link), and
+// the previous joint's anchor in the body frame (nullptr before the first joint).
+struct JointCursor {
+  std::string prev;
+  const double* prev_anchor = nullptr;
+};
+
+// Joint i of body b, as a chain joint to a link BODY__JOINT after the cursor's link.
+void append_joint(ChainDef& chain, const MjcfSource& src, int b, int i, const std::string& bname,
+                  const std::vector<std::string>& free, JointCursor& at) {
+  const mjModel& m = src.m;
+  const double* bpos = m.body_pos + 3 * b;
+  const double* bquat = m.body_quat + 4 * b;
+  const int j = m.body_jntadr[b] + i;
+  const double* a = m.jnt_pos + 3 * j;
+  const std::string jname = src.name_of(mjOBJ_JOINT, j, bname + "_joint" + std::to_string(i));
+  const int type = m.jnt_type[j];
+  const bool hinge = type == mjJNT_HINGE;
+  const JointDef::Type jt = type == mjJNT_FREE   ? JointDef::Type::floating
+                            : type == mjJNT_BALL ? JointDef::Type::ball
+                            : hinge              ? JointDef::Type::revolute
+                                                 : JointDef::Type::prismatic;
+  // The joint frame sits at the anchor, oriented as the body frame.
+  JointDef& jd = chain.add_joint(jname, jt, bname + "__" + jname);
+  jd.parent = at.prev;
+  const auto adr = static_cast<std::size_t>(m.jnt_qposadr[j]);
+  if (type == mjJNT_FREE) {
+    // qpos: the body origin in the parent (world) frame and the body's quaternion (w, x, y,
+    // z), not relative to body_pos / body_quat; the joint frame is the parent's.
+    for (std::size_t k = 0; k < 7; ++k) jd.coordinates.push_back(free[adr + k]);
+    at = {jd.link, a};
+    return;
+  }
+  if (type == mjJNT_BALL) {  // qpos: the quaternion of the rotation about the anchor
+    for (std::size_t k = 0; k < 4; ++k) jd.coordinates.push_back(free[adr + k]);
+  }
+  if (i == 0) {
+    const auto R = quat_matrix(bquat);
+    const double p[3] = {bpos[0] + R[0] * a[0] + R[1] * a[1] + R[2] * a[2],
+                         bpos[1] + R[3] * a[0] + R[4] * a[1] + R[5] * a[2],
+                         bpos[2] + R[6] * a[0] + R[7] * a[1] + R[8] * a[2]};
+    jd.origin.xyz = vec_of(p);
+    jd.origin.rpy = rpy_of(bquat);
+  } else {
+    const double* pa = at.prev_anchor;
+    const double d[3] = {a[0] - pa[0], a[1] - pa[1], a[2] - pa[2]};
+    jd.origin.xyz = vec_of(d);
+  }
+  if (type != mjJNT_BALL) {
+    jd.axis = vec_of(m.jnt_axis + 3 * j);
+    const ex q = coordinate_symbol(chain.symbols(), free[adr]);
+    const double q0 = m.qpos0[m.jnt_qposadr[j]];
+    jd.value = q0 == 0.0 ? q : q - exact_number(q0);
+  }
+  at = {jd.link, a};
+}
+
+// The body frame (fixed to the last joint frame, or to the parent) with the body's inertia.
+void append_body_frame(ChainDef& chain, const MjcfSource& src, int b, const std::string& bname,
+                       const JointCursor& at) {
+  const mjModel& m = src.m;
+  const double* bpos = m.body_pos + 3 * b;
+  const double* bquat = m.body_quat + 4 * b;
+  JointDef& fd = chain.add_joint(bname + "__frame", JointDef::Type::fixed, bname);
+  fd.parent = at.prev;
+  if (m.body_jntnum[b] == 0) {
+    fd.origin.xyz = vec_of(bpos);
+    fd.origin.rpy = rpy_of(bquat);
+  } else {
+    const double d[3] = {-at.prev_anchor[0], -at.prev_anchor[1], -at.prev_anchor[2]};
+    fd.origin.xyz = vec_of(d);
+  }
+  fd.inertial.mass = exact_number(m.body_mass[b]);
+  fd.inertial.com = vec_of(m.body_ipos + 3 * b);
+  fd.inertial.rpy = rpy_of(m.body_iquat + 4 * b);
+  const double* I = m.body_inertia + 3 * b;
+  fd.inertial.inertia = {exact_number(I[0]), 0, 0, 0, exact_number(I[1]), 0, 0, 0,
+                         exact_number(I[2])};
+}
+
+// Body b > 0: its joints, then its frame; link[b] becomes its name (link: the link of every
+// body, body 0 the chain's root).
+void append_body(ChainDef& chain, const MjcfSource& src, int b,
+                 const std::vector<std::string>& free, std::vector<std::string>& link) {
+  const mjModel& m = src.m;
+  const std::string bname = src.name_of(mjOBJ_BODY, b, "body" + std::to_string(b));
+  link[static_cast<std::size_t>(b)] = bname;
+  JointCursor at{link[static_cast<std::size_t>(m.body_parentid[b])]};
+  for (int i = 0; i < m.body_jntnum[b]; ++i) append_joint(chain, src, b, i, bname, free, at);
+  append_body_frame(chain, src, b, bname, at);
+}
+
+// Equalities, from the compiled eq_data (MuJoCo's mj_instantiateEquality, body semantic):
+//   connect: x1 + R1 d[0:3] = x2 + R2 d[3:6]  (the anchor in body 1's frame, and the same
+//            point in body 2's frame, as the compiler computed it at qpos0): a ball constraint;
+//   weld:    x1 + R1 d[3:6] = x2 + R2 d[0:3] and R1 R(d[6:10]) = R2  (relpose: body 2's pose
+//            in body 1's frame, computed at qpos0 when not given): frame a = body 1 moved by
+//            (d[3:6], d[6:10]), frame b = body 2 moved by d[0:3]. torquescale (d[10]) only
+//            scales MuJoCo's rotation rows, which for an ideal constraint changes no motion.
+void append_equalities(ChainDef& chain, const MjcfSource& src,
+                       const std::vector<std::string>& link) {
+  const mjModel& m = src.m;
+  for (int e = 0; e < m.neq; ++e) {
+    const double* d = m.eq_data + mjNEQDATA * e;
+    LinkConstraintDef lc;
+    lc.name = src.name_of(mjOBJ_EQUALITY, e, "equality" + std::to_string(e));
+    // (Body 0, MuJoCo's world, is the chain's root: the base, or root_link at the mount.)
+    lc.link_a = link[static_cast<std::size_t>(m.eq_obj1id[e])];
+    lc.link_b = link[static_cast<std::size_t>(m.eq_obj2id[e])];
+    if (m.eq_type[e] == mjEQ_CONNECT) {
+      lc.kind = LinkConstraintDef::Kind::ball;
+      lc.offset_a.xyz = vec_of(d);
+      lc.offset_b.xyz = vec_of(d + 3);
+    } else {
+      lc.kind = LinkConstraintDef::Kind::weld;
+      lc.offset_a.xyz = vec_of(d + 3);
+      lc.offset_a.rpy = rpy_of(d + 6);
+      lc.offset_b.xyz = vec_of(d);
+    }
+    chain.link_constraints.push_back(std::move(lc));
+  }
+}
+
+}  // namespace
+
+bool mjcf_supported() { return true; }
+
+void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
+  char err[1000] = "";
+  ModelGuard g;
+  g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  if (!g.m) throw DefinitionError(path + ": MuJoCo could not load it: " + err);
+  const MjcfSource src{*g.m, path};
+  const std::vector<std::string> free = joint_coordinates(chain);
+  check_supported(src, free.size());
+  if (gravity) chain.gravity = vec_of(g.m->opt.gravity);
+  const std::string root = chain.base.enabled ? chain.base.link : chain.root_link;
+  std::vector<std::string> link(static_cast<std::size_t>(g.m->nbody));
+  link[0] = root;
+  for (int b = 1; b < g.m->nbody; ++b) append_body(chain, src, b, free, link);
+  append_equalities(chain, src, link);
+}
+
+#endif
+
+}  // namespace ukdyn::symbolic

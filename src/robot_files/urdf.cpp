@@ -1,0 +1,352 @@
+#include "ukdyn/robot_files/urdf.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <set>
+#include <sstream>
+
+#include "ukdyn/symbolic/constraint_kinds.hpp"
+
+#ifdef UKDYN_HAVE_URDFDOM
+#include <console_bridge/console.h>
+#include <urdf_parser/urdf_parser.h>
+
+#include <mutex>
+#endif
+
+namespace ukdyn::symbolic {
+
+#ifndef UKDYN_HAVE_URDFDOM
+
+bool urdf_supported() { return false; }
+
+void append_urdf(ChainDef&, const std::string& path, const std::map<std::string, GiNaC::ex>&) {
+  throw DefinitionError(path + ": this ukdyn was built without urdfdom (install liburdfdom-dev)");
+}
+
+#else
+
+bool urdf_supported() { return true; }
+
+namespace {
+
+using GiNaC::ex;
+
+ex angle(double a) {
+  const double k = a / (std::numbers::pi / 4);
+  const double kr = std::round(k);
+  if (std::abs(a - kr * std::numbers::pi / 4) < 1e-12) {
+    return GiNaC::numeric(static_cast<long>(kr), 4) * GiNaC::Pi;
+  }
+  return exact_number(a);
+}
+
+Vec3Ex vec(const urdf::Vector3& v) {
+  return {exact_number(v.x), exact_number(v.y), exact_number(v.z)};
+}
+
+// Collects urdfdom's messages (it reports parse errors through console_bridge) instead of printing.
+class Collect : public console_bridge::OutputHandler {
+ public:
+  void log(const std::string& text, console_bridge::LogLevel level, const char*, int) override {
+    if (level < console_bridge::CONSOLE_BRIDGE_LOG_ERROR || messages.size() >= 2000) return;
+    messages += (messages.empty() ? "" : "; ");
+    for (char ch : text) {  // the text may quote a name from the XML: no control bytes
+      const auto u = static_cast<unsigned char>(ch);
+      messages += u >= 0x20 && u < 0x7f ? ch : '?';
+    }
+  }
+  std::string messages;
+};
+
+urdf::ModelInterfaceSharedPtr parse_file(const std::string& path, std::string& messages) {
+  static std::mutex mutex;  // the output handler is global
+  const std::lock_guard<std::mutex> lock(mutex);
+  Collect collect;
+  console_bridge::useOutputHandler(&collect);
+  urdf::ModelInterfaceSharedPtr model;
+  try {
+    model = urdf::parseURDFFile(path);
+  } catch (...) {
+    console_bridge::restorePreviousOutputHandler();
+    throw;
+  }
+  console_bridge::restorePreviousOutputHandler();
+  messages = collect.messages;
+  return model;
+}
+
+// A name from the XML, for a message: printable ASCII only, at most 64 characters.
+std::string shown(const std::string& s) {
+  std::string out;
+  for (std::size_t i = 0; i < s.size() && i < 64; ++i) {
+    const auto u = static_cast<unsigned char>(s[i]);
+    out += u >= 0x20 && u < 0x7f ? s[i] : '?';
+  }
+  return s.size() > 64 ? out + "..." : out;
+}
+
+// Fails unless every number of the pose is finite.
+void check_pose(const urdf::Pose& p, const std::string& where) {
+  const double v[7] = {p.position.x, p.position.y, p.position.z, p.rotation.x,
+                       p.rotation.y, p.rotation.z, p.rotation.w};
+  for (double x : v) {
+    if (!std::isfinite(x)) throw DefinitionError(where + ": the <origin> has a non-finite number");
+  }
+}
+
+OriginDef origin(const urdf::Pose& p) {
+  double r = 0, pi = 0, y = 0;
+  p.rotation.getRPY(r, pi, y);
+  return {vec(p.position), {angle(r), angle(pi), angle(y)}};
+}
+
+// A directory, FIFO, device, missing or oversized file is refused before urdfdom opens it.
+void check_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    // A directory, FIFO or device is not "missing" (and a FIFO is never opened).
+    throw DefinitionError(path + (std::filesystem::exists(path, ec)
+                                      ? ": not a regular file (a directory, FIFO or device)"
+                                      : ": no such URDF file"));
+  }
+  if (std::filesystem::file_size(path, ec) > (16u << 20) || ec)
+    throw DefinitionError(path + ": larger than 16 MiB (a URDF is a small text file)");
+}
+
+// urdfdom's links own their children (shared_ptr): a cyclic file makes a reference cycle that
+// would never be freed. Cuts every link's references on the way out, whatever the outcome.
+struct Unlink {
+  const urdf::ModelInterfaceSharedPtr& m;
+  ~Unlink() {
+    if (!m) return;
+    for (auto& [name, link] : m->links_) {
+      if (!link) continue;
+      link->child_links.clear();
+      link->child_joints.clear();
+      link->parent_joint.reset();
+    }
+  }
+};
+
+// The parsed model's root link; refuses a file urdfdom could not read or reported errors in,
+// and joint_values naming no joint of it.
+urdf::LinkConstSharedPtr checked_root(const urdf::ModelInterfaceSharedPtr& model,
+                                      const std::string& messages, const std::string& path,
+                                      const std::map<std::string, GiNaC::ex>& joint_values) {
+  if (!model) {
+    throw DefinitionError(path + ": urdfdom could not read this URDF" +
+                          (messages.empty() ? std::string(" (malformed XML?)") : ": " + messages));
+  }
+  // urdfdom reports some errors and carries on (a <mass value="heavy"/> drops the link's inertial
+  // block, "inf" in an <inertia> likewise): any error it reported refuses the file.
+  if (!messages.empty()) throw DefinitionError(path + ": urdfdom reported: " + messages);
+  urdf::LinkConstSharedPtr root = model->getRoot();
+  if (!root) throw DefinitionError(path + ": the URDF has no root link");
+  for (const auto& [jn, j] : joint_values) {
+    if (!model->getJoint(jn))
+      throw DefinitionError(path + ": joint_values names no joint '" + jn + "'");
+  }
+  return root;
+}
+
+// The variables of the movable joints: the coordinates left for joints without an explicit
+// value (free, from next on), and the value of every movable joint read so far (for mimic).
+struct JointVariables {
+  std::vector<std::string> free;
+  std::size_t next = 0;
+  std::map<std::string, ex> values;  // joint → its value
+};
+
+// Coordinates free for joints without an explicit value.
+std::vector<std::string> free_coordinates(const ChainDef& chain,
+                                          const std::map<std::string, GiNaC::ex>& joint_values) {
+  std::set<std::string> taken;
+  if (chain.base.enabled) {
+    taken.insert(chain.base.x);
+    taken.insert(chain.base.y);
+    if (!chain.base.yaw.empty()) taken.insert(chain.base.yaw);
+  }
+  for (const auto& [jn, v] : joint_values) {
+    if (GiNaC::is_a<GiNaC::symbol>(v)) taken.insert(GiNaC::ex_to<GiNaC::symbol>(v).get_name());
+  }
+  for (const auto& c : chain.floating_root) taken.insert(c);
+  std::vector<std::string> free;
+  for (const auto& c : chain.coordinates()) {
+    if (!taken.count(c)) free.push_back(c);
+  }
+  return free;
+}
+
+// The root link: on the mobile base, on a floating joint, or the chain's root itself.
+void attach_root(ChainDef& chain, const urdf::Link& root) {
+  if (chain.base.enabled) {
+    JointDef& j = chain.add_joint(root.name + "_mount", JointDef::Type::fixed, root.name);
+    j.parent = chain.base.link;
+    if (root.inertial) {
+      j.inertial.mass = exact_number(root.inertial->mass);
+    }
+  } else if (!chain.floating_root.empty()) {
+    // The root link on a floating joint from a fixed frame NAME_mount (docs/free-bodies.md).
+    chain.root_link = root.name + "_mount";
+    JointDef& j = chain.add_joint(root.name + "_floating", JointDef::Type::floating, root.name);
+    j.parent = chain.root_link;
+    j.coordinates = chain.floating_root;
+  } else {
+    chain.root_link = root.name;
+  }
+}
+
+// A link's <inertial> block, checked: finite, mass >= 0, inertia diagonal >= 0.
+void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in) {
+  if (!link.inertial) {
+    throw DefinitionError(path + ": link '" + link.name +
+                          "' has no <inertial> block (give mass, origin and inertia)");
+  }
+  const urdf::Inertial& I = *link.inertial;
+  const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
+  if (!std::isfinite(I.mass) || I.mass < 0.0) {
+    std::ostringstream os;
+    os << where << ": <mass value> must be a finite number >= 0, got " << I.mass;
+    throw DefinitionError(os.str());
+  }
+  for (double x : {I.ixx, I.ixy, I.ixz, I.iyy, I.iyz, I.izz}) {
+    if (!std::isfinite(x)) throw DefinitionError(where + ": <inertia> has a non-finite entry");
+  }
+  if (I.ixx < 0.0 || I.iyy < 0.0 || I.izz < 0.0)
+    throw DefinitionError(where + ": <inertia> has a negative diagonal entry (ixx, iyy, izz)");
+  check_pose(I.origin, where);
+  in.mass = exact_number(I.mass);
+  const OriginDef o = origin(I.origin);
+  in.com = o.xyz;
+  in.rpy = o.rpy;
+  const ex xx = exact_number(I.ixx), xy = exact_number(I.ixy), xz = exact_number(I.ixz),
+           yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
+  in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
+}
+
+// Pushes the link's children on the stack (the first child on top); a child reached twice (a
+// cycle, or a link that is the child of two joints: urdfdom keeps the last parent) is refused.
+void push_children(const urdf::ModelInterface& model, const urdf::Link& link,
+                   const std::string& path, std::set<std::string>& visited,
+                   std::vector<urdf::LinkConstSharedPtr>& stack) {
+  const auto& cj = link.child_joints;
+  for (auto it = cj.rbegin(); it != cj.rend(); ++it) {
+    urdf::LinkConstSharedPtr child = model.getLink((*it)->child_link_name);
+    if (!child) continue;
+    if (!visited.insert(child->name).second || child->parent_joint != *it) {
+      throw DefinitionError(path + ": joint '" + shown((*it)->name) + "': link '" +
+                            shown(child->name) +
+                            "' is reached twice (a cycle, or a link with two parent joints): "
+                            "a URDF must be a tree");
+    }
+    stack.push_back(child);
+  }
+}
+
+JointDef::Type joint_type(const urdf::Joint& uj, const std::string& where) {
+  switch (uj.type) {
+    case urdf::Joint::REVOLUTE:
+    case urdf::Joint::CONTINUOUS:
+      return JointDef::Type::revolute;
+    case urdf::Joint::PRISMATIC:
+      return JointDef::Type::prismatic;
+    case urdf::Joint::FIXED:
+      return JointDef::Type::fixed;
+    case urdf::Joint::FLOATING:  // position + unit quaternion, the next 7 free coordinates
+      return JointDef::Type::floating;
+    default:
+      throw DefinitionError(
+          where + ": type " +
+          (uj.type == urdf::Joint::PLANAR ? std::string("planar") : std::string("unknown")) +
+          " is not supported (revolute, continuous, prismatic, fixed, "
+          "floating)");
+  }
+}
+
+// A floating joint's 7 coordinates; a movable joint's value: given in joint_values, mimicking an
+// earlier joint, or the next free coordinate.
+void assign_joint_variables(const ChainDef& chain, JointDef& j, const urdf::Joint& uj,
+                            const std::string& where,
+                            const std::map<std::string, GiNaC::ex>& joint_values,
+                            JointVariables& vars) {
+  const std::vector<std::string>& free = vars.free;
+  std::size_t& next = vars.next;
+  if (j.type == JointDef::Type::floating) {
+    if (next + 7 > free.size()) {
+      throw DefinitionError(where +
+                            ": a floating joint needs 7 coordinates (x, y, z, qw, qx, qy, "
+                            "qz); the chain has " +
+                            std::to_string(free.size() - next) + " left");
+    }
+    for (int k = 0; k < 7; ++k) j.coordinates.push_back(free[next++]);
+  } else if (j.type != JointDef::Type::fixed) {
+    j.axis = vec(uj.axis);
+    if (auto v = joint_values.find(uj.name); v != joint_values.end()) {
+      j.value = v->second;
+    } else if (uj.mimic) {
+      auto m = vars.values.find(uj.mimic->joint_name);
+      if (m == vars.values.end()) {
+        throw DefinitionError(where + ": mimics joint '" + uj.mimic->joint_name +
+                              "', which is not a movable joint before it");
+      }
+      j.value = exact_number(uj.mimic->multiplier) * m->second + exact_number(uj.mimic->offset);
+    } else {
+      if (next >= free.size()) {
+        throw DefinitionError(where + ": no coordinate left for it (the chain declares " +
+                              std::to_string(chain.coordinates().size()) +
+                              " coordinates; add one or give joint_values)");
+      }
+      j.value = coordinate_symbol(chain.symbols(), free[next++]);
+    }
+    vars.values[uj.name] = *j.value;
+  }
+}
+
+// The joint from a non-root link's parent to it, with the link's inertia.
+void append_link(ChainDef& chain, const urdf::Link& link, const std::string& root_name,
+                 const std::string& path, const std::map<std::string, GiNaC::ex>& joint_values,
+                 JointVariables& vars) {
+  const urdf::Joint& uj = *link.parent_joint;
+  const std::string where = path + ": joint '" + shown(uj.name) + "'";
+  check_pose(uj.parent_to_joint_origin_transform, where);
+  const JointDef::Type type = joint_type(uj, where);
+  JointDef& j = chain.add_joint(uj.name, type, link.name);
+  j.parent =
+      uj.parent_link_name == root_name && chain.base.enabled ? root_name : uj.parent_link_name;
+  j.origin = origin(uj.parent_to_joint_origin_transform);
+  assign_joint_variables(chain, j, uj, where, joint_values, vars);
+  read_inertial(path, link, j.inertial);
+}
+
+}  // namespace
+
+void append_urdf(ChainDef& chain, const std::string& path,
+                 const std::map<std::string, GiNaC::ex>& joint_values) {
+  check_file(path);
+  std::string messages;
+  const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
+  const Unlink unlink{model};  // whatever the outcome
+  const urdf::LinkConstSharedPtr root = checked_root(model, messages, path, joint_values);
+  JointVariables vars{free_coordinates(chain, joint_values), 0, {}};
+  attach_root(chain, *root);
+  if ((chain.base.enabled || !chain.floating_root.empty()) && root->inertial)
+    read_inertial(path, *root, chain.joints.back().inertial);
+
+  // Depth-first from the root: parents are defined before their children (push_children refuses
+  // a link reached twice).
+  std::set<std::string> visited{root->name};
+  std::vector<urdf::LinkConstSharedPtr> stack{root};
+  while (!stack.empty()) {
+    const urdf::LinkConstSharedPtr link = stack.back();
+    stack.pop_back();
+    push_children(*model, *link, path, visited, stack);
+    if (link == root) continue;
+    append_link(chain, *link, root->name, path, joint_values, vars);
+  }
+}
+
+#endif
+
+}  // namespace ukdyn::symbolic

@@ -1,0 +1,182 @@
+#include "ukdyn/run/eval_protocol.hpp"
+
+#include <fmt/format.h>
+
+#include <Eigen/Cholesky>
+#include <cmath>
+#include <istream>
+#include <nlohmann/json.hpp>
+#include <ostream>
+
+#include "ukdyn/output/safe_text.hpp"
+
+namespace ukdyn {
+
+namespace {
+
+using json = nlohmann::json;
+
+json rows_of(const Mat& M) {
+  json out = json::array();
+  for (Index i = 0; i < M.rows(); ++i) {
+    json r = json::array();
+    for (Index j = 0; j < M.cols(); ++j) r.push_back(M(i, j));
+    out.push_back(r);
+  }
+  return out;
+}
+
+json vec_of(const Vec& v) {
+  json out = json::array();
+  for (Index i = 0; i < v.size(); ++i) out.push_back(v(i));
+  return out;
+}
+
+bool all_finite(const Mat& m) { return m.allFinite(); }
+
+Vec read_vec(const json& j, const char* key, Index n, bool required) {
+  const auto it = j.find(key);
+  if (it == j.end()) {
+    if (required) throw Error(fmt::format("missing key '{}'", key));
+    return Vec::Zero(n);
+  }
+  const json& a = *it;
+  if (!a.is_array() || static_cast<Index>(a.size()) != n) {
+    throw Error(fmt::format("key '{}': expected a list of {} numbers{}", key, n,
+                            a.is_array() ? fmt::format(", got {}", a.size()) : ""));
+  }
+  Vec v(n);
+  for (Index i = 0; i < n; ++i) {
+    const json& e = a[static_cast<std::size_t>(i)];
+    if (!e.is_number()) throw Error(fmt::format("key '{}[{}]': expected a number", key, i));
+    v(i) = e.get<double>();
+    if (!std::isfinite(v(i))) throw Error(fmt::format("key '{}[{}]': not finite", key, i));
+  }
+  return v;
+}
+
+// Reads one line (without '\n') into `line`, at most `max` bytes kept; returns false at the end.
+// `too_long` is set if the line was longer (the rest of it is skipped).
+bool read_line(std::istream& in, std::string& line, std::size_t max, bool& too_long) {
+  line.clear();
+  too_long = false;
+  std::streambuf* sb = in.rdbuf();
+  if (!sb) return false;
+  bool any = false;
+  while (true) {
+    const auto c = sb->sbumpc();
+    if (c == std::char_traits<char>::eof()) return any;
+    any = true;
+    if (c == '\n') return true;
+    if (line.size() < max) {
+      line.push_back(static_cast<char>(c));
+    } else {
+      too_long = true;
+    }
+  }
+}
+
+// The answer to one request, or throws ukdyn::Error saying why there is none.
+json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& line,
+            const EvalOptions& opt) {
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  json in;
+  try {
+    in = json::parse(line);
+  } catch (const json::exception& e) {
+    throw Error(std::string("invalid JSON: ") + e.what());
+  }
+  if (!in.is_object()) throw Error(R"(expected a JSON object {"t", "q", "qd", "tau"})");
+  for (const auto& [key, value] : in.items()) {
+    if (key != "t" && key != "q" && key != "qd" && key != "tau") {
+      throw Error(fmt::format("unknown key '{}' (the keys are t, q, qd, tau)", printable(key)));
+    }
+  }
+  double t = 0.0;
+  if (const auto it = in.find("t"); it != in.end()) {
+    if (!it->is_number()) throw Error("key 't': expected a number");
+    t = it->get<double>();
+    if (!std::isfinite(t)) throw Error("key 't': not finite");
+  }
+  const Vec q = read_vec(in, "q", n, true);
+  const Vec qd = read_vec(in, "qd", n, true);
+  const Vec tau = read_vec(in, "tau", n, false);
+  forward(sys, data, t, q, qd, tau, sc.sim.uk);
+  if (!all_finite(data.M)) throw Error("the mass matrix M is not finite at this state");
+  // A singular M is fine when [M; A] has full column rank (core/uk_singular.hpp): then the
+  // checks below apply to the augmented M_a the solve used.
+  if (data.singular.rank_deficient) {
+    throw Error(undetermined_direction(data.M, data.A, sys.coordinate_names()));
+  }
+  const Eigen::LLT<Mat> llt(data.singular.active ? data.singular.Ma : data.M);
+  if (llt.info() != Eigen::Success) {
+    throw Error("the mass matrix M is singular (not positive definite) at this state");
+  }
+  if (const double rc = llt.rcond(); !(rc >= opt.min_rcond)) {
+    throw Error(fmt::format(
+        "the mass matrix M is singular to round-off at this state (reciprocal condition {:.3e})",
+        rc));
+  }
+  coriolis_matrix(sys, q, qd, C);
+  if (!data.result.finite || !all_finite(data.qdd) || !all_finite(data.Qc) || !all_finite(data.A) ||
+      !all_finite(data.b) || !all_finite(data.G) || !all_finite(data.Q) || !all_finite(data.Cqd) ||
+      !all_finite(C)) {
+    throw Error("non-finite result at this state (M, A, b, forces or accelerations)");
+  }
+  json out;
+  out["t"] = t;
+  out["M"] = rows_of(data.M);
+  out["C"] = rows_of(C);
+  out["Cqd"] = vec_of(data.Cqd);
+  out["G"] = vec_of(data.G);
+  out["Q"] = vec_of(data.Q);
+  out["A"] = rows_of(data.A);
+  out["b"] = vec_of(data.b);
+  out["Qc"] = vec_of(data.Qc);
+  out["qdd"] = vec_of(data.qdd);
+  out["rank"] = data.result.rank;
+  out["residual"] = data.result.residual;
+  out["consistent"] = data.result.consistent;
+  if (sys.rows() > 0) {
+    const Vec sv =  // of M_a = M + A^T alpha A when M is singular (core/uk_singular.hpp)
+        singular_values_A_Minvhalf(data.singular.active ? data.singular.Ma : data.M, data.A);
+    if (!all_finite(sv)) throw Error("non-finite singular values of A M^-1/2 at this state");
+    out["singular_values"] = vec_of(sv);
+  }
+  return out;
+}
+
+}  // namespace
+
+EvalCounts run_eval_protocol(const Scenario& sc, std::istream& in, std::ostream& out,
+                             std::ostream* err, const EvalOptions& opt) {
+  const Index n = sc.system->dof();
+  ForwardData data(*sc.system);
+  Mat C(n, n);
+  EvalCounts counts;
+  std::string line;
+  long lineno = 0;
+  bool too_long = false;
+  while (read_line(in, line, opt.max_line_bytes, too_long)) {
+    ++lineno;
+    if (!too_long && line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    ++counts.lines;
+    std::string text;
+    try {
+      if (too_long) throw Error(fmt::format("line longer than {} bytes", opt.max_line_bytes));
+      text = answer(sc, data, C, line, opt).dump();
+    } catch (const std::exception& e) {
+      ++counts.failures;
+      const std::string msg = fmt::format("{}:{}: {}", opt.source, lineno, e.what());
+      if (err) *err << "ukdyn eval: " << printable(msg) << "\n";
+      text = json{{"line", lineno}, {"error", msg}}.dump(-1, ' ', false,
+                                                         json::error_handler_t::replace);
+    }
+    out << text << "\n";
+  }
+  out.flush();
+  return counts;
+}
+
+}  // namespace ukdyn

@@ -1,0 +1,86 @@
+#include "run/run_observer.hpp"
+
+#include <cmath>
+#include <limits>
+
+namespace ukdyn::io_detail {
+
+SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balance,
+                               std::size_t row_size, Needs needs)
+    : sys_(system),
+      rep_(rep),
+      balance_(balance),
+      needs_(needs),
+      row_(row_size, 0.0),
+      phi_(Vec::Zero(system.rows())),
+      phid_(Vec::Zero(system.rows())) {
+  const auto m = static_cast<std::size_t>(system.rows());
+  rep.max_abs_residual.assign(m, 0.0);
+  rep.max_abs_velocity_residual.assign(m, 0.0);
+  rep.rank_min = static_cast<int>(system.rows());
+  rep.sigma_min = std::numeric_limits<double>::infinity();
+  rep.energy_balance = balance;
+}
+
+std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+  const Index n = sys_.dof();
+  const Index m = sys_.rows();
+  if (m > 0) position_residuals(sys_, t, q, phi_);
+  if (m > 0 && needs_.velocity_residuals) velocity_residuals(sys_, t, q, qd, phid_);
+  const double T = kinetic_energy(d, qd);
+  const double V = potential_energy(sys_, t, q);
+  const double E = T + V;
+  if (count_++ == 0) {
+    rep_.E0 = E;
+    balance0_ = E - d.work;
+  }
+  if (balance_) {
+    rep_.energy_balance_drift = nanmax(rep_.energy_balance_drift, std::abs(E - d.work - balance0_));
+    rep_.work_final = d.work;
+  }
+  rep_.max_energy_drift = nanmax(rep_.max_energy_drift, std::abs(E - rep_.E0));
+  rep_.max_T = nanmax(rep_.max_T, T);
+  for (Index i = 0; i < m; ++i) {
+    auto& r = rep_.max_abs_residual[static_cast<std::size_t>(i)];
+    r = nanmax(r, std::abs(phi_(i)));
+    if (needs_.velocity_residuals) {
+      auto& v = rep_.max_abs_velocity_residual[static_cast<std::size_t>(i)];
+      v = nanmax(v, std::abs(phid_(i)));
+    }
+  }
+  rep_.max_acc_residual = nanmax(rep_.max_acc_residual, d.result.residual);
+  rep_.rank_min = std::min(rep_.rank_min, d.result.rank);
+  rep_.rank_max = std::max(rep_.rank_max, d.result.rank);
+  if (d.result.rank > 0) rep_.sigma_min = std::min(rep_.sigma_min, d.result.sigma_min_kept);
+  if (!needs_.row) return 0;
+  std::size_t k = 0;
+  auto& row = row_;
+  row[k++] = t;
+  for (Index i = 0; i < n; ++i) row[k++] = q(i);
+  for (Index i = 0; i < n; ++i) row[k++] = qd(i);
+  for (Index i = 0; i < n; ++i) row[k++] = d.qdd(i);
+  for (Index i = 0; i < n; ++i) row[k++] = d.Qc(i);
+  for (Index i = 0; i < m; ++i) row[k++] = phi_(i);
+  row[k++] = T;
+  row[k++] = V;
+  row[k++] = E;
+  // Diagnostics: rank of A, free DOF n − rank, smallest kept singular value of A M^{-1/2}
+  // (exact, by SVD at the sample), ‖A q̈ − b‖.
+  row[k++] = d.result.rank;
+  row[k++] = static_cast<double>(n - d.result.rank);
+  if (m > 0 && needs_.sigma) {
+    // M singular (core/uk_singular.hpp): of the augmented M_a = M + A^T alpha A it solved with.
+    const Vec sv = singular_values_A_Minvhalf(d.singular.active ? d.singular.Ma : d.M, d.A);
+    row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
+  } else {
+    row[k++] = 0.0;
+  }
+  row[k++] = d.result.residual;
+  if (balance_) {
+    row[k++] = d.work;
+    row[k++] = E - d.work;
+  }
+  return k;
+}
+
+}  // namespace ukdyn::io_detail

@@ -1,0 +1,56 @@
+// Internal to ukdyn::io: what every output sample of a run contributes, written once for
+// run_scenario(), run_scenario_in_memory() (io/run.cpp) and the rows of `ukdyn sweep`
+// (io/sweep.cpp): the trajectory.csv row (the columns of trajectory_header()) and the extrema of
+// the run report (residuals, energy drift, energy balance, rank, smallest kept singular value).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/model/system.hpp"
+
+namespace ukdyn::io_detail {
+
+/// max that keeps a NaN: a sample with a NaN is the least trustworthy one, it must show.
+inline double nanmax(double a, double b) {
+  return std::isnan(a) || std::isnan(b) ? std::numeric_limits<double>::quiet_NaN() : std::max(a, b);
+}
+
+class SampleRecorder {
+ public:
+  /// What a caller needs beyond the report's extrema (all on for the trajectory.csv of a run).
+  struct Needs {
+    bool row = true;                 ///< fill row() with the trajectory_header() columns
+    bool velocity_residuals = true;  ///< rep.max_abs_velocity_residual
+    bool sigma = true;               ///< the sigma_min column (an SVD per sample; row only)
+  };
+  /// Prepares `rep` (extrema reset, energy_balance set) and the buffers; `row_size` ≥ the
+  /// trajectory_header(system, balance) size (more: room for the caller's own columns after it).
+  SampleRecorder(const System& system, RunReport& rep, bool balance, std::size_t row_size,
+                 Needs needs);
+  SampleRecorder(const System& system, RunReport& rep, bool balance, std::size_t row_size)
+      : SampleRecorder(system, rep, balance, row_size, Needs{}) {}
+
+  /// One output sample: updates the report's extrema and (Needs::row) fills the row; returns the
+  /// index of the first column after the trajectory_header() columns.
+  std::size_t record(double t, CVecRef q, CVecRef qd, const ForwardData& d);
+
+  [[nodiscard]] std::vector<double>& row() { return row_; }
+  [[nodiscard]] const Vec& phi() const { return phi_; }
+  [[nodiscard]] long samples() const { return count_; }
+
+ private:
+  const System& sys_;
+  RunReport& rep_;
+  bool balance_;
+  Needs needs_;
+  std::vector<double> row_;
+  Vec phi_, phid_;
+  double balance0_ = 0.0;
+  long count_ = 0;
+};
+
+}  // namespace ukdyn::io_detail

@@ -1,0 +1,32 @@
+// Internal to ukdyn::io: constraint roles (`role:` of a constraint), `actuators:` and `control:`
+// (docs/control.md, docs/scenario-format.md "Roles, actuators and control").
+#pragma once
+
+#include <map>
+#include <string>
+
+#include "scenario/yaml_loader.hpp"
+
+namespace ukdyn::io_detail {
+
+/// A constraint's role as written (`role: physical | servo`) or, if absent, by its type:
+/// closure, frame constraints, points_coincide, angle_relation, nonholonomic → physical;
+/// cut_point_trajectory, coordinate, point_trajectory → servo; expression → decided by
+/// resolve_role (servo iff Φ depends on t explicitly).
+struct RoleChoice {
+  ConstraintRole role = ConstraintRole::physical;
+  bool by_time = false;  ///< expression without `role:`: servo iff rheonomic
+};
+
+/// Reads and removes `role:` from the constraint node c (so that the type's own key check does not
+/// see it). Bad values: file:line:column and the key.
+RoleChoice take_role(const Loader& L, const Node& c, const std::string& type);
+
+/// The role of the built constraint (by_time: Φ(q0, t) or Φ̇(q0, 0, t) varies with t).
+ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const Vec& q0);
+
+/// `actuators:` and `control:` (after the constraints and the initial state are loaded).
+void load_control_sections(const Loader& L, const Node& root, Scenario& sc,
+                           const std::map<std::string, Index>& coord_index);
+
+}  // namespace ukdyn::io_detail

@@ -1,0 +1,110 @@
+// Internal to ukdyn::io: loading subsystems (type: definitions, serial_chain) and constraints
+// (type: expression, nonholonomic, points_coincide, point_trajectory, angle_relation) written as
+// definitions; see docs/definitions.md. Every error names file:line:col and the key; errors inside
+// an expression point at the column of the offending character.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "scenario/yaml_loader.hpp"
+#include "ukdyn/model/constraint.hpp"
+#include "ukdyn/model/subsystem.hpp"
+#include "ukdyn/symbolic/chain.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
+
+namespace ukdyn::io_detail {
+
+/// One copy of a subsystem written once (`instances:`, docs/scenario-format.md): its coordinates
+/// are the template's with a prefix; the template's own names (`local`) stay usable inside its
+/// expressions (as aliases of the prefixed coordinates and velocities); `parameters` replace the
+/// template's values of the same name; `mount` (serial_chain) replaces the template's mount.
+struct InstanceSpec {
+  std::vector<std::string> local;          ///< the template's coordinate names
+  std::map<std::string, Node> parameters;  ///< name → the instance's value node
+  Node mount;                              ///< undefined: the template's
+};
+
+struct DefinitionContext;  // below
+
+/// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
+/// [0, 0, −g]).
+struct DefinitionContext;
+/// ... its bodies' CoMs are recorded in `context` if given (for the replay page).
+std::shared_ptr<const Subsystem> load_definitions_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity,
+    const InstanceSpec* instance = nullptr, DefinitionContext* context = nullptr);
+
+/// A subsystem node with type: free_body (docs/free-bodies.md): 7 coordinates (x, y, z, qw, qx,
+/// qy, qz), mass, inertia (body frame). Its unit-norm row is added by the scenario loader. Its body
+/// is registered as the frame NAME.NAME in `context` (frame constraints).
+std::shared_ptr<const Subsystem> load_free_body_subsystem(
+    const Loader& L, const Node& s, const std::string& name,
+    const std::vector<std::string>& coordinates, double gravity,
+    DefinitionContext* context = nullptr);
+
+/// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
+/// all coordinates in order.
+std::shared_ptr<const Constraint> load_definitions_constraint(
+    const Loader& L, const Node& c, const std::string& name, bool holonomic,
+    const std::vector<std::string>& system_coordinates);
+
+/// What later constraints may refer to: the named points of serial chains, by subsystem name.
+struct DefinitionContext;
+std::shared_ptr<DefinitionContext> make_definition_context();
+/// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
+const symbolic::FrameTable& frames_of(const DefinitionContext& context);
+/// The constraints between the links of serial_chain subsystem `name` (its MJCF file's weld and
+/// connect equalities; empty if none, or no context).
+std::vector<symbolic::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,
+                                                                const std::string& name);
+/// The chain model of serial_chain subsystem `name` (null if none, or no context).
+const symbolic::ChainModel* chain_model(const DefinitionContext* context, const std::string& name);
+/// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.
+std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
+                                                             const std::string& name);
+/// The coordinates of its mobile base's x, y translation / of its prismatic joints (lengths, m).
+std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,
+                                                const std::string& name);
+std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
+                                                     const std::string& name);
+/// The bodies (name, CoM in the world) of definitions subsystem `name`.
+std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
+    const DefinitionContext* context, const std::string& name);
+
+/// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
+/// recorded in `context` for points_coincide and point_trajectory.
+std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Node& s,
+                                                      const std::string& name,
+                                                      const std::vector<std::string>& coordinates,
+                                                      double gravity, DefinitionContext& context,
+                                                      const InstanceSpec* instance = nullptr);
+
+/// True for points_coincide, point_trajectory and angle_relation.
+bool is_constraint_kind(const std::string& type);
+
+/// A constraint node of one of the kinds above; `q0` is the initial state (origin: initial).
+std::shared_ptr<const Constraint> load_constraint_kind(
+    const Loader& L, const Node& c, const std::string& name, const std::string& type,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const Vec& q0);
+
+/// Fails at `s` if the subsystem's mass matrix is not positive definite at q (names the
+/// coordinate).
+void check_mass_matrix(const Loader& L, const Node& s, const Subsystem& sub, const Vec& q);
+
+// The pieces other loaders share (forces_loader.cpp): an expression (errors at its column), the
+// parameters: and let: of a node, a point (SUBSYSTEM.POINT or [x, y, z]), a time function.
+GiNaC::ex parse_expression(const Loader& L, const symbolic::DefinitionScope& scope, const Node& n);
+void load_parameters(const Loader& L, const Node& parent, symbolic::DefinitionScope& scope);
+symbolic::Vec3Ex load_point_expression(const Loader& L, const Node& n,
+                                       const symbolic::DefinitionScope& scope,
+                                       const DefinitionContext& context);
+GiNaC::ex load_time_function_expression(const Loader& L, const Node& n,
+                                        const symbolic::DefinitionScope& scope);
+
+}  // namespace ukdyn::io_detail

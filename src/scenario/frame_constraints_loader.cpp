@@ -1,0 +1,172 @@
+#include "scenario/frame_constraints_loader.hpp"
+
+#include <cmath>
+
+#include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/expression.hpp"
+
+namespace ukdyn::io_detail {
+
+namespace {
+
+using GiNaC::ex;
+namespace sym = ukdyn::symbolic;
+
+sym::Vec3Ex vec3(const Loader& L, const Node& n, const sym::DefinitionScope& scope) {
+  if (!n.node.IsSequence() || n.node.size() != 3) L.fail(n, "expected a list of 3 expressions");
+  sym::Vec3Ex v;
+  for (std::size_t i = 0; i < 3; ++i)
+    v[i] = parse_expression(L, scope, Node{n.node[i], n.key + "[" + std::to_string(i) + "]"});
+  return v;
+}
+
+// A frame: "SUBSYSTEM.FRAME" or {frame: SUBSYSTEM.FRAME, xyz: [...], rpy: [...]}.
+sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
+                          const DefinitionContext& context, std::string& name) {
+  // (Bound once: assigning a YAML::Node would overwrite the node it refers to.)
+  const bool mapping = n.node.IsMap();
+  if (mapping) L.only_keys(n, {"frame", "xyz", "rpy"});
+  const Node ref = mapping ? L.child(n, "frame", true) : n;
+  sym::OriginDef offset;
+  if (mapping) {
+    if (Node x = L.child(n, "xyz", false); x.node.IsDefined()) offset.xyz = vec3(L, x, scope);
+    if (Node r = L.child(n, "rpy", false); r.node.IsDefined()) offset.rpy = vec3(L, r, scope);
+  } else if (!n.node.IsScalar()) {
+    L.fail(n, "expected a frame SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
+  }
+  name = L.string(ref);
+  if (name != "world" && name.find('.') == std::string::npos)
+    L.fail(ref,
+           "expected SUBSYSTEM.FRAME (a link, body or point, e.g. left.link3) or world, got '" +
+               name + "'");
+  try {
+    const sym::FramePose& f = frames_of(context).find(name);
+    sym::OriginDef values = offset;
+    const GiNaC::exmap pv = scope.parameter_values();
+    for (auto& e : values.xyz) e = e.subs(pv);
+    for (auto& e : values.rpy) e = e.subs(pv);
+    return sym::offset_frame(f, values);
+  } catch (const sym::DefinitionError& e) {
+    L.fail(ref, std::string(e.what()) + " (frame '" + name + "')");
+  }
+}
+
+}  // namespace
+
+bool is_frame_constraint(const std::string& type) {
+  return type == "weld" || type == "ball" || type == "hinge" || type == "level" ||
+         type == "distance";
+}
+
+std::shared_ptr<const Constraint> load_frame_constraint(
+    const Loader& L, const Node& c, const std::string& name, const std::string& type,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const Vec& q0) {
+  using K = sym::FrameConstraintDef::Kind;
+  sym::FrameConstraintDef f;
+  f.name = name;
+  if (type == "weld" || type == "ball") {
+    L.only_keys(c, {"type", "name", "parameters", "let", "a", "b"});
+    f.kind = type == "weld" ? K::weld : K::ball;
+  } else if (type == "hinge") {
+    L.only_keys(c, {"type", "name", "parameters", "let", "a", "b", "axis"});
+    f.kind = K::hinge;
+  } else if (type == "level") {
+    L.only_keys(c, {"type", "name", "parameters", "let", "a", "axis", "orientation", "up"});
+    f.kind = K::level;
+  } else {
+    L.only_keys(c, {"type", "name", "parameters", "let", "a", "b", "length"});
+    f.kind = K::distance;
+  }
+  sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
+                         L.symbol_table());
+  load_parameters(L, c, def);
+  const Node an = L.child(c, "a", true);
+  f.a = load_frame(L, an, def, context, f.frame_a);
+  const Node bn = f.kind != K::level ? L.child(c, "b", true) : an;  // (bound once, see above)
+  if (f.kind != K::level) {
+    f.b = load_frame(L, bn, def, context, f.frame_b);
+    if (f.frame_a == f.frame_b && !an.node.IsMap() && !bn.node.IsMap())
+      L.fail(bn, "a and b are the same frame '" + f.frame_a + "'");
+  }
+  const bool has_axis = f.kind == K::hinge || f.kind == K::level;
+  const Node axis_node = has_axis ? L.child(c, "axis", true) : c;
+  if (has_axis) {
+    f.axis = vec3(L, axis_node, def);
+  }
+  if (f.kind == K::level) {
+    if (Node o = L.child(c, "orientation", false); o.node.IsDefined()) {
+      const std::string s = L.string(o);
+      if (s == "vertical") {
+        f.vertical = true;
+      } else if (s != "horizontal") {
+        L.fail(o, "expected horizontal or vertical, got '" + s + "'");
+      }
+    }
+    if (Node u = L.child(c, "up", false); u.node.IsDefined()) f.up = vec3(L, u, def);
+  }
+  if (f.kind == K::distance) {
+    const Node ln = L.child(c, "length", true);
+    if (ln.node.IsScalar() && ln.node.Scalar() == "initial") {
+      // |p_a − p_b| at initial.q by compiled tapes, kept as the exact value of that double.
+      sym::InputMap in;
+      for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
+        in[sym::coordinate_symbol(L.symbols(), system_coordinates[i])] = {
+            sym::TapeInput::Source::q, static_cast<std::int32_t>(i)};
+      }
+      double d2 = 0.0;
+      for (std::size_t k = 0; k < 3; ++k) {
+        double v = 0.0;
+        try {
+          const sym::Tape tape({(f.a.position[k] - f.b.position[k]).expand()}, in);
+          tape.eval(0.0, q0.data(), nullptr, &v);
+        } catch (const Error&) {
+          L.fail(ln, "the frames are not functions of q only");
+        }
+        d2 += v * v;
+      }
+      if (!std::isfinite(d2) || !(d2 > 0.0))
+        L.fail(ln, "the frames coincide (or are not finite) at initial.q: no positive length");
+      f.length = sym::exact_rational(std::sqrt(d2));
+    } else {
+      f.length = parse_expression(L, def, ln);
+    }
+  }
+  try {
+    sym::add_frame_constraint(def, f);
+  } catch (const sym::DefinitionError& e) {
+    L.fail(axis_node, e.what());
+  }
+  try {
+    return sym::make_frame_constraint(def, f);
+  } catch (const Error& e) {
+    L.fail(c, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(c, std::string("cannot evaluate: ") + e.what());
+  }
+}
+
+std::shared_ptr<const Constraint> make_link_constraint(
+    const std::string& subsystem, const sym::LinkConstraintDef& lc,
+    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    std::shared_ptr<sym::SymbolTable> symbols) {
+  using K = sym::FrameConstraintDef::Kind;
+  sym::FrameConstraintDef f;
+  f.name = subsystem + "_" + lc.name;
+  f.kind = lc.kind == sym::LinkConstraintDef::Kind::weld ? K::weld : K::ball;
+  f.frame_a = subsystem + "." + lc.link_a;
+  f.frame_b = subsystem + "." + lc.link_b;
+  const std::string what = std::string(sym::to_string(f.kind)) + " '" + lc.name + "'";
+  try {
+    f.a = sym::offset_frame(frames_of(context).find(f.frame_a), lc.offset_a);
+    f.b = sym::offset_frame(frames_of(context).find(f.frame_b), lc.offset_b);
+    sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
+                           std::move(symbols));
+    sym::add_frame_constraint(def, f);
+    return sym::make_frame_constraint(def, f);
+  } catch (const Error& e) {
+    throw sym::DefinitionError(what + " of subsystem '" + subsystem + "': " + e.what());
+  }
+}
+
+}  // namespace ukdyn::io_detail
