@@ -14,6 +14,7 @@
 #include "control_systems.hpp"
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/core/uk_solve.hpp"
+#include "model/solve_stages.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"

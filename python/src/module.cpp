@@ -15,15 +15,13 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "ukdyn/version.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
-#ifndef UKDYN_VERSION
-#define UKDYN_VERSION "unknown"
-#endif
 
 namespace ukdyn_python {
 
@@ -477,7 +475,7 @@ std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object
 PYBIND11_MODULE(_ukdyn, m) {
   using namespace ukdyn_python;
   m.doc() = "ukdyn: Udwadia-Kalaba dynamics of constrained multibody systems (C++ core).";
-  m.attr("__version__") = UKDYN_VERSION;
+  m.attr("__version__") = ukdyn::version();
 
   // Errors: ukdyn::Error → ukdyn.Error (the most derived type registered last is tried first).
   static py::exception<ukdyn::Error> error(m, "Error");

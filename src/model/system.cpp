@@ -6,6 +6,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include "model/solve_stages.hpp"
 
 namespace ukdyn {
 

@@ -18,13 +18,7 @@
 #include "run/run_observer.hpp"
 #include "ukdyn/output/safe_text.hpp"
 
-#ifndef UKDYN_VERSION
-#define UKDYN_VERSION "unknown"
-#endif
-
 namespace ukdyn {
-
-const char* version() { return UKDYN_VERSION; }
 
 std::vector<std::string> trajectory_header(const System& system, bool energy_balance) {
   std::vector<std::string> h{"t"};

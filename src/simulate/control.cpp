@@ -6,6 +6,7 @@
 #include <utility>
 
 #include "ukdyn/core/types.hpp"
+#include "model/solve_stages.hpp"
 
 namespace ukdyn {
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include "model/solve_stages.hpp"
 
 namespace ukdyn::detail {
 

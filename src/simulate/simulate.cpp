@@ -11,6 +11,7 @@
 #include "ukdyn/simulate/diagnostics.hpp"
 #include "ukdyn/simulate/drift.hpp"
 #include "ukdyn/simulate/implicit.hpp"
+#include "model/solve_stages.hpp"
 
 namespace ukdyn {
 

@@ -127,12 +127,6 @@ void check_data_for(const System& system, const ForwardData& data, const char* w
 void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, CVecRef tau,
              const UkSettings& settings = {});
 
-/// The U-K solve of forward() on data.M (factored here) and data.A for the given b and Q: the
-/// positive-definite block solve, or uk_solve_singular() (core/uk_singular.hpp) when a block of M
-/// is not positive definite (or a pivot is under kSingularPivot). Allocation-free.
-UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,
-                           const UkSettings& settings = {});
-
 /// Largest Cholesky-pivot estimate of cond(M_k) over the blocks of the last solve in data (of M_a
 /// after a singular solve); `block` gets the worst block (docs/free-bodies.md).
 double mass_condition(const ForwardData& data, std::size_t* block = nullptr);
@@ -143,13 +137,6 @@ double mass_condition(const ForwardData& data, std::size_t* block = nullptr);
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau);
 
-/// Last stage: q̈, Qc and data.result from data.M, Q, A, b (the U-K solve, uk_solve.hpp). forward()
-/// ends with it; drift control (Baumgarte) calls the stages itself with b adjusted before this one.
-/// The block-arrow path is used when the system has the structure, data was built with its
-/// buffers, and the method is exact or adaptive.
-void solve_stage(const System& system, ForwardData& data, const UkSettings& settings);
-/// Whether solve_stage tries the block-arrow solve (ukdyn/core/uk_arrow.hpp) first.
-bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings);
 
 /// Stage 1 only: M, C q̇, G (no constraints) at time t, into data (and the subsystems' data
 /// slots), and data.lagrangian_dt. t matters only for a time_varying() subsystem.

@@ -11,13 +11,11 @@
 
 #include "ukdyn/output/output_dir.hpp"
 #include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/version.hpp"
 
 namespace ukdyn {
 
 class ControlLaw;  // ukdyn/simulate/control.hpp
-
-/// The ukdyn version ("0.1.0"): written into summary.json and printed by the CLI.
-const char* version();
 
 struct RunOptions {
   bool figures = true;
