@@ -255,8 +255,9 @@ namespace {
 // one function's loops, split only to be named; the generated code and every sum are as before.
 
 // Step 1: Xᵀ = A L^{-ᵀ} (m × n), so that W = A M^{-1} Aᵀ = Xᵀ X with X = L^{-1} Aᵀ. Block by block,
-// a forward substitution on whole columns: Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) /
-// L_ll. Every operation runs down a contiguous column of m rows (vectorised, no dependency chain).
+// a forward substitution on whole columns:
+//   Xᵀ(:, s+l) = (A(:, s+l) − Σ_{p<l} L_lp Xᵀ(:, s+p)) / L_ll.
+// Every operation runs down a contiguous column of m rows (vectorised, no dependency chain).
 // The same pass accumulates the absolute row sums of A (for ‖A‖_∞, returned) while the column of A
 // is at hand, and r = b − A a = b − Xᵀ y, the bracket of paper Eq. (4), once a column of Xᵀ is
 // done.
@@ -432,8 +433,8 @@ double damping_weight(double rho, const UkSettings& s) {
 // takes as pivot the largest remaining diagonal of the Schur complement, so D is non-increasing (up
 // to round-off) and D_0 = max diag W = max D ([Higham2002] ch. 10). The factorisation stops at the
 // first pivot not above the cut-off: what remains is round-off of redundant rows, and those rows
-// get λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with D_k − μ >
-// rank_tol² (D_0 − μ), as the exact method would.
+// get λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with
+// D_k − μ > rank_tol² (D_0 − μ), as the exact method would.
 struct Pivots {
   Index kept = 0, rank = 0;
   double d_max = 0.0;

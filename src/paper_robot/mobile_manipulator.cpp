@@ -281,12 +281,10 @@ void MobileManipulator::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
 
 // C(q, q̇) q̇ expanded from the entries of coriolis_from (same corrected appendix, errata 5 and 6),
 // without forming C:
-//   rows 1, 2: the yaw-row products collapse to ±2 S δ̇ (sin δ, cos δ) − (K δ̇² + Σ a_k ĉ_k θ̇_k²)(cos
-//   δ,
+//   rows 1, 2: the yaw-row products collapse to ±2 S δ̇ (sin δ, cos δ) − (K δ̇² + Σ a_k ĉ_k θ̇_k²)(cos δ,
 //              sin δ) with S = Σ a_k ŝ_k θ̇_k (C13 with the "−" of erratum 6);
 //   row 3:     C33 δ̇ − Σ k_j θ̇_j = 2 C33 δ̇, because Σ k_j θ̇_j = −C33 δ̇ (C34..C36 = −k_j);
-//   rows 4–6:  k_j δ̇ + Σ_{i≠j} a_{max(i,j)} l_i l_j sin(θ_j − θ_i) θ̇_i² (k1 with m1 ĉ1/4, erratum
-//   5).
+//   rows 4–6:  k_j δ̇ + Σ_{i≠j} a_{max(i,j)} l_i l_j sin(θ_j − θ_i) θ̇_i² (k1 with m1 ĉ1/4, erratum 5).
 void MobileManipulator::coriolis_times_qd_from(const Trig& t, CVecRef qd, VecRef Cqd) const {
   const auto& m = p_.link_mass;
   const auto& l = p_.link_length;

@@ -12,9 +12,10 @@
 // Actuation (inverse dynamics of the constrained system): a plant that enforces only its physical
 // constraints follows the servo rows iff B u = Qc − A_pᵀμ for some μ (the physical constraints
 // react to whatever the actuators do; with that τ the U-K solve of the physical rows alone returns
-// the same q̈, the KKT system being uniquely solvable for q̈). solve_actuation() solves [B, A_pᵀ][u;
-// μ] = Qc in least squares with the least-norm u: with P the orthogonal projector onto null(A_p) (=
-// range(A_pᵀ)^⊥),
+// the same q̈, the KKT system being uniquely solvable for q̈). solve_actuation() solves
+//   [B, A_pᵀ][u; μ] = Qc
+// in least squares with the least-norm u: with P the orthogonal projector onto
+// null(A_p) (= range(A_pᵀ)^⊥),
 //   u = (P B)⁺ P Qc,   μ = (A_pᵀ)⁺ (Qc − B u),
 // and the residual ‖B u + A_pᵀμ − Qc‖ = ‖P(B u − Qc)‖. A residual that is not round-off means the
 // actuators cannot realise the servo constraints (underactuation): never hidden, the caller warns.

@@ -4,8 +4,7 @@
 //
 // Production form (Cholesky, block-diagonal M = diag(L_k L_kᵀ)):
 //   y = L^{-1} Q,  X = L^{-1} Aᵀ,  W = Xᵀ X = A M^{-1} Aᵀ,  r = b − A M^{-1} Q = b − Xᵀ y,
-//   λ solves W λ = r (rank-revealing, see below),  Qc = Aᵀ λ,  q̈ = M^{-1}(Q + Qc) = L^{-ᵀ}(y + X
-//   λ).
+//   λ solves W λ = r (rank-revealing, see below),  Qc = Aᵀ λ,  q̈ = M^{-1}(Q + Qc) = L^{-ᵀ}(y + X λ).
 // This is the same force as Eq. (4): with M = L Lᵀ, M^{1/2}(A M^{-1/2})^+ = Aᵀ (A M^{-1} Aᵀ)^+ on
 // the range of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
 //
@@ -79,8 +78,8 @@ struct UkResult {
   double damped_acceleration = 0.0;
 };
 
-/// Block layout of a block-diagonal mass matrix: block k covers rows/cols [start[k],
-/// start[k]+size[k]).
+/// Block layout of a block-diagonal mass matrix: block k covers rows/cols
+/// [start[k], start[k]+size[k]).
 struct BlockLayout {
   std::vector<Index> start;
   std::vector<Index> size;

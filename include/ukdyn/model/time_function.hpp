@@ -9,8 +9,8 @@ namespace ukdyn {
 
 /// f(t) as one of:
 ///   constant:   f = c0
-///   cosine:     f = mean + amplitude · cos(omega · t + phase)     (paper Eq. (19): 0.5 − 0.5
-///   cos(πt)) polynomial: f = Σ_k coeff[k] t^k, k < 8
+///   cosine:     f = mean + amplitude · cos(omega · t + phase)     (paper Eq. (19): 0.5 − 0.5 cos(πt))
+///   polynomial: f = Σ_k coeff[k] t^k, k < 8
 struct TimeFunction {
   enum class Kind { constant, cosine, polynomial };
   Kind kind = Kind::constant;

@@ -15,8 +15,7 @@
 namespace ukdyn {
 
 /// Closure of the load cut at its centre, paper Eq. (12), with A, b from Eqs. (15)–(16):
-///   x1 = x2, y1 = y2, l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz, δ1 − δ2 = yaw_offset (π), θ3 = load1, θ6 =
-///   load2.
+///   x1 = x2, y1 = y2, l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz, δ1 − δ2 = yaw_offset (π), θ3 = load1, θ6 = load2.
 /// Row names: <prefix>_x, _y, _z, _yaw, _load1, _load2.
 class ClosureConstraint final : public SlotConstraint {
  public:

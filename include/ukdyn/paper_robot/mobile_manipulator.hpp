@@ -81,8 +81,8 @@ class MobileManipulator final : public Subsystem {
 
  private:
   /// The sin/cos every closed-form expression below uses, evaluated once per state: δ and θ1..θ3
-  /// directly, θi − θj by cos(a − b) = cos a cos b + sin a sin b, sin(a − b) = sin a cos b −
-  /// cos a sin b.
+  /// directly, θi − θj by
+  ///   cos(a − b) = cos a cos b + sin a sin b,  sin(a − b) = sin a cos b − cos a sin b.
   struct Trig {
     double cd = 1, sd = 0;             ///< cos δ, sin δ
     std::array<double, 3> ct{}, st{};  ///< cos θk, sin θk

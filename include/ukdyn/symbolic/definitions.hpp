@@ -1,8 +1,7 @@
 // Subsystems and constraints written as definitions; everything else derived exactly with GiNaC and
 // compiled into allocation-free tapes (ukdyn/symbolic/tape.hpp).
 //
-//   Subsystem:  bodies (mass, CoM position p(q), angular velocity ω(q, q̇) or rotation R(q),
-//   inertia)
+//   Subsystem:  bodies (mass, CoM position p(q), angular velocity ω(q, q̇) or rotation R(q), inertia)
 //               and gravity  →  T = Σ ½ m ṗ·ṗ + ½ ωᵀ I ω,  V = −Σ m g·p (+ an extra potential)
 //               →  M = ∂²T/∂q̇² (Eq. 5),  G = ∂V/∂q (Eq. 8),
 //                  C_ij = Σ_k ½ (∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k (Eq. 9),  C q̇.

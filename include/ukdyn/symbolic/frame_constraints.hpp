@@ -21,8 +21,8 @@
 //
 // FrameWrenchMap turns the multipliers λ_k of one such block into the wrench (force, moment about
 // the frame origin, in world and in the frame's own axes) that the constraint applies to each of
-// its two frames: Φ̇ = G_a [v_a; ω_a] + G_b [v_b; ω_b] (world twists), so A_kᵀλ_k = J_aᵀ (G_aᵀλ_k)
-// + J_bᵀ (G_bᵀλ_k) and w_a = G_aᵀλ_k, w_b = G_bᵀλ_k.
+// its two frames: Φ̇ = G_a [v_a; ω_a] + G_b [v_b; ω_b] (world twists), so
+//   A_kᵀλ_k = J_aᵀ (G_aᵀλ_k) + J_bᵀ (G_bᵀλ_k)  and  w_a = G_aᵀλ_k, w_b = G_bᵀλ_k.
 #pragma once
 
 #include <map>

@@ -1,8 +1,8 @@
 // A rigid body free in space in position + unit quaternion coordinates (docs/free-bodies.md):
 //   q = (x, y, z, qw, qx, qy, qz),  p = (x, y, z) the centre of mass in the world frame,
 //   R(q) = the rotation body → world of the quaternion (homogeneous form, orthonormal for |q| = 1),
-//   ω_body = 2 E(q) q̇_quat = vee(Rᵀ Ṙ) on |q| = 1, E = [−qx qw qz −qy; −qy −qz qw qx; −qz qy −qx
-//   qw]
+//   ω_body = 2 E(q) q̇_quat = vee(Rᵀ Ṙ) on |q| = 1,
+//   E = [−qx qw qz −qy; −qy −qz qw qx; −qz qy −qx qw]
 // ([Udwadia2010b]). M, C, G follow from T = ½ m ṗ·ṗ + ½ ωᵀ J ω and
 // V = −m g·p by the same derivation as every definition (definitions.hpp). M = diag(m I, 4 Eᵀ J E)
 // is singular (E q = 0): the unit-norm row qw² + qx² + qy² + qz² − 1 = 0
