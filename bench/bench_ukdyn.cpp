@@ -27,8 +27,7 @@ using ukdyn::Vec;
 // Solve problems: the paper's M (block-diagonal 6+6, SPD) at q0 with the spatial q̇0, and
 //   m6     : the 6 closure rows at q0 (full rank),
 //   m12r12 : the 12 rows of the paper's scenario at q0 (full rank 12),
-//   m12r10 : 12 rows of rank 10 (10 random rows, 2 rows that are combinations of them), b in
-//   range(A).
+//   m12r10 : 12 rows of rank 10 (10 random rows, 2 rows that are combinations of them), b in range(A).
 struct SolveProblem {
   Mat M, A;
   Vec b, Q;

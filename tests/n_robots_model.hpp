@@ -3,8 +3,8 @@
 // transport. Robot k is a 3R arm in the vertical x–z plane (coordinates r<k>_t1..t3, link lengths
 // 0.5, 0.4, 0.3, masses 2, 1.5, 1, slender-rod inertias) mounted at radius 1.2 around the origin at
 // angle α_k = 2πk/N; the load (L_x, L_z, L_phi: mass 3, inertia 0.2) is grasped by each arm's tip
-// at the load point 0.3 from its centre at angle α_k (2 rows per robot: tip = grasp point). With N
-// ≥ 2 the grasps are redundant (2N rows on 3 load coordinates). tools/n_robots.py writes the same
+// at the load point 0.3 from its centre at angle α_k (2 rows per robot: tip = grasp point). With
+// N ≥ 2 the grasps are redundant (2N rows on 3 load coordinates). tools/n_robots.py writes the same
 // model as a scenario with `instances:` (tests/test_uk_arrow.cpp compares the two).
 #pragma once
 

@@ -4,9 +4,10 @@
 // alone (positions of the centres of mass as functions of q) by automatic differentiation (Eigen's
 // unsupported AutoDiffScalar, nested for second derivatives):
 //   Jv_i = ∂p_i/∂q                                (AD)
-//   M    = Σ m_i Jv_iᵀ Jv_i + Σ Jω_kᵀ I_k Jω_k      (paper Eq. 5; the paper's scalar rotational
-//   model) G    = ∂V/∂q,  V = g Σ m_i z_i                  (AD; gravity along −Z) ∂M/∂q_k (nested
-//   AD of M) C q̇  = Ṁ q̇ − ∂T/∂q,  Ṁ = Σ_k ∂M/∂q_k q̇_k,  ∂T/∂q_k = ½ q̇ᵀ ∂M/∂q_k q̇   (Euler–Lagrange)
+//   M    = Σ m_i Jv_iᵀ Jv_i + Σ Jω_kᵀ I_k Jω_k      (paper Eq. 5; the paper's scalar rotational model)
+//   G    = ∂V/∂q,  V = g Σ m_i z_i                  (AD; gravity along −Z)
+//   ∂M/∂q_k                                         (nested AD of M)
+//   C q̇  = Ṁ q̇ − ∂T/∂q,  Ṁ = Σ_k ∂M/∂q_k q̇_k,  ∂T/∂q_k = ½ q̇ᵀ ∂M/∂q_k q̇   (Euler–Lagrange)
 //   C    = Christoffel symbols of M (paper Eq. 9)
 // The only inputs are the geometric description of the paper (see docs/paper-notes.md):
 // platform and joint r at the platform's (x, y); link k's CoM at horizontal radius

@@ -150,9 +150,9 @@ TEST(Constraints, CoordinateConstraintDerivativesByFiniteDifferences) {
   check_constraint(c1, 32);
 }
 
-// Closure against the reference kinematics: Φ = [p1 − p2 (x, y), z1 − z2 − Δz, δ1 − δ2 −
-// yaw_offset, θ3 − load1, θ6 − load2]; the x, y, z rows of A are J1 − J2 and b_xyz = −(J̇1 q̇1 − J̇2
-// q̇2), all by AD.
+// Closure against the reference kinematics:
+//   Φ = [p1 − p2 (x, y), z1 − z2 − Δz, δ1 − δ2 − yaw_offset, θ3 − load1, θ6 − load2];
+// the x, y, z rows of A are J1 − J2 and b_xyz = −(J̇1 q̇1 − J̇2 q̇2), all by AD.
 TEST(Constraints, ClosureEqualsReferenceKinematics) {
   std::mt19937_64 rng(41);
   const auto pl = uktest::random_params(rng);

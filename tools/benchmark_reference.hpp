@@ -101,8 +101,8 @@ class ExactPendulum {
 };
 
 /// IFToMM A01: a point mass on a massless rod of length L pivoted at the origin, gravity g along
-/// −y, released at rest from the horizontal with P1 = (+L, 0) (θ0 = π/2). P1(t) = L (sin θ, −cos
-/// θ).
+/// −y, released at rest from the horizontal with P1 = (+L, 0) (θ0 = π/2).
+///   P1(t) = L (sin θ, −cos θ).
 struct SimplePendulumReference {
   double L = 1.0, g = 9.81;
   ExactPendulum pendulum{std::sqrt(g / L), std::numbers::pi / 2, 0.0};
