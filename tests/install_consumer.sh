@@ -27,15 +27,20 @@ while IFS= read -r -d '' private; do
     fi
   done
 done < <(find "$source_dir/src" -name '*.hpp' -print0)
+# ccache when installed, with the temporary folder as its base: the same headers at the same
+# relative paths hit the cache from one run to the next.
+launcher=()
+if command -v ccache >/dev/null; then launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache); fi
+export CCACHE_BASEDIR=$tmp
 if [[ "$consumer" == header_check ]]; then
   cmake -S "$source_dir/examples/header_check" -B "$tmp/build" -DCMAKE_PREFIX_PATH="$tmp/prefix" \
         -DCMAKE_BUILD_TYPE=Release -DCMAKE_CXX_FLAGS="$cxx_flags" -DUKDYN_COMPONENTS="${1:-core;symbolic;io}" \
-        >/dev/null
+        "${launcher[@]}" >/dev/null
   cmake --build "$tmp/build" -j "${JOBS:-2}" >/dev/null
   for exe in "$tmp"/build/headers_*; do "$exe"; done
   exit 0
 fi
 cmake -S "$source_dir/examples/$consumer" -B "$tmp/build" -DCMAKE_PREFIX_PATH="$tmp/prefix" \
-      -DCMAKE_BUILD_TYPE=Release -DCMAKE_CXX_FLAGS="$cxx_flags" >/dev/null
+      -DCMAKE_BUILD_TYPE=Release -DCMAKE_CXX_FLAGS="$cxx_flags" "${launcher[@]}" >/dev/null
 cmake --build "$tmp/build" >/dev/null
 "$tmp/build/consumer" "$@"
