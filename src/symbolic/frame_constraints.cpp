@@ -3,7 +3,9 @@
 #include <cmath>
 #include <sstream>
 
+#include "symbolic/ex_helpers.hpp"
 #include "ukdyn/symbolic/expression.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -47,12 +49,6 @@ ex dot(const Vec3Ex& a, const Vec3Ex& b) { return a[0] * b[0] + a[1] * b[1] + a[
 
 Vec3Ex cross(const Vec3Ex& a, const Vec3Ex& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-
-std::string str(const ex& e) {
-  std::ostringstream os;
-  os << e;
-  return os.str();
 }
 
 double number(const ex& e, const GiNaC::exmap& values, const std::string& what) {
@@ -345,12 +341,9 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
     for (const ex& e : p->position) out.push_back(e.subs(values));
     for (const ex& e : p->rotation) out.push_back(e.subs(values));
   }
-  InputMap in;
+  const InputMap in = coordinate_inputs(symbols, system_coordinates, InputSet::q);
   std::vector<GiNaC::symbol> q;
-  for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-    q.push_back(coordinate_symbol(symbols, system_coordinates[i]));
-    in[q.back()] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-  }
+  for (const auto& c : system_coordinates) q.push_back(coordinate_symbol(symbols, c));
   // Twist Jacobians: v = Σ ∂p/∂q_j q̇_j, ω = Σ vee(∂R/∂q_j Rᵀ) q̇_j.
   for (const FramePose* p : {&f.a, &f.b}) {
     Mat3Ex R;
