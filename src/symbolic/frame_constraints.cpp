@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "symbolic/ex_helpers.hpp"
+#include "symbolic/mat3.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
@@ -12,38 +13,6 @@ namespace ukdyn::symbolic {
 namespace {
 
 using GiNaC::ex;
-
-Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * i + k] * b[3 * k + j];
-      r[3 * i + j] = s;
-    }
-  }
-  return r;
-}
-
-// aᵀ b
-Mat3Ex mul_tn(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * k + i] * b[3 * k + j];
-      r[3 * i + j] = s;
-    }
-  }
-  return r;
-}
-
-Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
-  Vec3Ex r;
-  for (std::size_t i = 0; i < 3; ++i)
-    r[i] = a[3 * i] * v[0] + a[3 * i + 1] * v[1] + a[3 * i + 2] * v[2];
-  return r;
-}
 
 ex dot(const Vec3Ex& a, const Vec3Ex& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
@@ -352,8 +321,7 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
     for (std::size_t j = 0; j < q.size(); ++j) {
       Mat3Ex dR;
       for (std::size_t k = 0; k < 9; ++k) dR[k] = R[k].diff(q[j]);
-      Mat3Ex Rt{R[0], R[3], R[6], R[1], R[4], R[7], R[2], R[5], R[8]};
-      const Mat3Ex W = mul(dR, Rt);
+      const Mat3Ex W = mul(dR, transposed(R));
       for (std::size_t k = 0; k < 3; ++k)
         Jv[k * q.size() + j] = p->position[k].subs(values).diff(q[j]);
       Jw[0 * q.size() + j] = W[7];
