@@ -16,7 +16,12 @@
 
 namespace ukdyn::symbolic {
 
-/// a b
+/// aᵀ
+inline Mat3Ex transposed(const Mat3Ex& a) {
+  return {a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]};
+}
+
+/// a b: r_ij = Σ_k a_ik b_kj (k = 0, 1, 2 in order)
 inline Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
   Mat3Ex r;
   for (std::size_t i = 0; i < 3; ++i) {
@@ -29,20 +34,7 @@ inline Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
   return r;
 }
 
-/// aᵀ b
-inline Mat3Ex mul_tn(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      GiNaC::ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * k + i] * b[3 * k + j];
-      r[3 * i + j] = s;
-    }
-  }
-  return r;
-}
-
-/// a v
+/// a v: r_i = a_i0 v_0 + a_i1 v_1 + a_i2 v_2
 inline Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
   Vec3Ex r;
   for (std::size_t i = 0; i < 3; ++i)
@@ -50,16 +42,10 @@ inline Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
   return r;
 }
 
-/// aᵀ v
-inline Vec3Ex mul_transposed(const Mat3Ex& a, const Vec3Ex& v) {
-  Vec3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) r[i] = a[i] * v[0] + a[3 + i] * v[1] + a[6 + i] * v[2];
-  return r;
-}
+/// aᵀ b (the same sums as mul of aᵀ)
+inline Mat3Ex mul_tn(const Mat3Ex& a, const Mat3Ex& b) { return mul(transposed(a), b); }
 
-/// aᵀ
-inline Mat3Ex transposed(const Mat3Ex& a) {
-  return {a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]};
-}
+/// aᵀ v (the same sums as mul of aᵀ)
+inline Vec3Ex mul_transposed(const Mat3Ex& a, const Vec3Ex& v) { return mul(transposed(a), v); }
 
 }  // namespace ukdyn::symbolic
