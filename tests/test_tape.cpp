@@ -8,6 +8,7 @@
 
 #include "helpers.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace {
 
@@ -57,6 +58,34 @@ TEST(SymbolicTape, EvaluatesLikeGiNaCAndSharesSubexpressions) {
   EXPECT_LE(twice.operations(), 5u);  // sin, cos, mul, mul_c, add_c
   (void)sins;
   EXPECT_THROW(sym::Tape({GiNaC::symbol("stranger")}, in), ukdyn::Error);
+}
+
+// coordinate_inputs: coordinate i reads q[i], its velocity q̇[i], the time symbol t; q binds the
+// coordinates alone; q_interned skips (and does not intern) a coordinate the table does not have.
+TEST(SymbolicTape, CoordinateInputsBindQQdotAndTime) {
+  sym::SymbolTable symbols;
+  const GiNaC::symbol a = sym::coordinate_symbol(symbols, "ci_a");
+  const GiNaC::symbol b = sym::coordinate_symbol(symbols, "ci_b");
+  const GiNaC::symbol ad = sym::velocity_symbol(symbols, "ci_a");
+  const GiNaC::symbol t = sym::time_symbol(symbols);
+  const sym::InputMap all = sym::coordinate_inputs(symbols, {"ci_a", "ci_b"});
+  const sym::Tape tape({a + 10 * b + 100 * ad + 1000 * t}, all);
+  const double q[2] = {1.0, 2.0}, qd[2] = {3.0, 4.0};
+  double out = 0.0;
+  tape.eval(5.0, q, qd, &out);
+  EXPECT_EQ(out, 1.0 + 20.0 + 300.0 + 5000.0);
+  EXPECT_EQ(all.size(), 5u);  // 2 coordinates, 2 velocities, t
+  const sym::InputMap pos = sym::coordinate_inputs(symbols, {"ci_a", "ci_b"}, sym::InputSet::q);
+  EXPECT_EQ(pos.size(), 2u);
+  EXPECT_THROW(sym::Tape({ad}, pos), ukdyn::Error);  // velocities are not bound
+  const std::size_t interned = symbols.size();
+  const sym::InputMap known =
+      sym::coordinate_inputs(symbols, {"ci_new", "ci_b"}, sym::InputSet::q_interned);
+  EXPECT_EQ(symbols.size(), interned);  // ci_new was not added
+  ASSERT_EQ(known.size(), 1u);
+  const sym::Tape tb({b}, known);
+  tb.eval(0.0, q, nullptr, &out);
+  EXPECT_EQ(out, 2.0);  // ci_b is q[1]
 }
 
 // Products used once are folded into their user (add, sub, mul): fewer instructions executed, the

@@ -1,12 +1,14 @@
 // Small dense kernels on raw column-major storage, shared by the U-K solve (uk_solve.cpp) and the
 // block-arrow solve (uk_arrow.cpp). Internal to ukdyn::core (not installed).
 // N > 0: the size is known at compile time (the loops unroll); N == 0: the runtime size n is used.
-// Every routine works for any size; it is tuned for the small blocks of multibody models.
+// Every routine works for any size; it is tuned for the small blocks of multibody models. Every
+// routine writes only the caller's storage (no allocation).
 #pragma once
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #include "ukdyn/core/types.hpp"
 
@@ -60,6 +62,123 @@ void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Ind
     for (Index k = i + 1; k < n; ++k) s -= L[k + i * ldl] * x[k];
     x[i] = s * inv_diag[i];
   }
+}
+
+// ---- The pivoted LDLᵀ and the library's rank rule: every rank decision of the U-K solves (the
+// dense W = A M⁻¹Aᵀ of uk_solve.cpp; each robot's S_k and the load's W_D of uk_arrow.cpp) is this
+// one kernel with this one rule.
+//
+// Factorisation: P W Pᵀ = L D Lᵀ of the symmetric positive semidefinite m × m matrix W (lower
+// triangle, leading dimension ldw), in place, by symmetric (diagonal) pivoting: step k takes as
+// pivot the largest diagonal entry of the remaining Schur complement S_k, D_k = max_i (S_k)_ii, so
+// D is non-increasing up to round-off and D_0 = max diag W. This is the outer-product pivoted
+// Cholesky of [Higham2002] §10.3 (LINPACK xCHDC; LAPACK xPSTRF, [Lucas2004]) without its square
+// roots; the pivots D_k approximate σ_k² of A M^{-1/2} (W = Xᵀ X).
+//
+// Rank rule. With τ the relative tolerance on singular values (UkSettings::rank_rel_tol), μ ≥ 0 a
+// shift already added to W's diagonal (regularized and damped solves, W + μ I) and s the scale of
+// the whole problem,
+//     s = max(D_0 − μ, s_ref)      (max diag of the unshifted W; s_ref: see RankRule::scale)
+//   - the factorisation stops at the first pivot D_k ≤ δ,  δ = max(μ/2, τ² s)  (τ² s dropped for
+//     RankRule::drop_by_tolerance = false): Higham's stopping criterion "stop when the largest
+//     remaining diagonal max_i (S_k)_ii falls to a tolerance relative to the largest diagonal of
+//     the matrix" (xPSTRF: stop when the pivot ≤ TOL), with the relative tolerance τ² on pivots,
+//     i.e. τ on singular values. What remains is round-off of redundant rows; they get λ = 0 in the
+//     basic solution (ldlt_basic_solve). μ/2 guards a shifted W against round-off: in exact
+//     arithmetic every pivot of W + μ I is ≥ μ.
+//   - a kept pivot counts in the rank when D_k − μ > τ² s (the unshifted pivot above the same
+//     threshold): for μ = 0 the rank is the number kept.
+// In the arrow solve the pieces S_k and W_D are Schur complements of the whole W = A M⁻¹Aᵀ (their
+// diagonals are ≤ W's), so s_ref = max diag W carries the dense solve's scale s = D_0 = max diag W
+// into them: each piece drops what the dense factorisation of W would.
+struct RankRule {
+  double tol2 = 0.0;   ///< τ²
+  double shift = 0.0;  ///< μ, already on W's diagonal
+  double scale = 0.0;  ///< s_ref: the whole problem's max diag W (0: W is the whole problem)
+  /// false: stop at μ/2 only (the regularized solve drops no direction by τ: all its pivots are
+  /// ≥ μ; τ then only sets the reported rank).
+  bool drop_by_tolerance = true;
+};
+
+struct LdltPivots {
+  Index kept = 0;      ///< pivots factored (the leading kept × kept of L and D are valid)
+  Index rank = 0;      ///< of those, the ones with D_k − μ > τ² s
+  double d_max = 0.0;  ///< max(D_0, 0)
+  double d_min_kept = std::numeric_limits<double>::infinity();  ///< smallest D_k − μ counted
+};
+
+// P W Pᵀ = L D Lᵀ with the rank rule above. piv (m) gets the transpositions (row k swapped with
+// piv[k], k < kept), W the unit lower L below its diagonal and D on it; t is scratch of m.
+// Always inlined: the dense solve's compile-time m must reach its loops (docs/performance.md).
+[[gnu::always_inline]] inline LdltPivots pivoted_ldlt(double* W, Index ldw, Index m, Index* piv,
+                                                      double* t, const RankRule& rule) {
+  LdltPivots pv;
+  double cutoff = 0.0, count_floor = 0.0;
+  for (Index k = 0; k < m; ++k) {
+    Index p = k;
+    double dp = W[k + k * ldw];
+    for (Index i = k + 1; i < m; ++i) {
+      if (W[i + i * ldw] > dp) {
+        dp = W[i + i * ldw];
+        p = i;
+      }
+    }
+    if (k == 0) {
+      pv.d_max = std::max(dp, 0.0);
+      count_floor = rule.tol2 * std::max(pv.d_max - rule.shift, rule.scale);  // τ² s
+      cutoff = std::max(0.5 * rule.shift, rule.drop_by_tolerance ? count_floor : 0.0);
+    }
+    if (!(pv.d_max > 0.0 && dp > cutoff)) break;
+    piv[k] = p;
+    if (p != k) {
+      // Symmetric swap of rows/columns k and p in lower storage.
+      for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
+      std::swap(W[k + k * ldw], W[p + p * ldw]);
+      for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
+      for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
+    }
+    const double inv_d = 1.0 / dp;
+    double* colk = W + k * ldw;
+    for (Index i = k + 1; i < m; ++i) {
+      t[i] = colk[i];
+      colk[i] *= inv_d;  // L_ik
+    }
+    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
+    for (Index j = k + 1; j < m; ++j) {
+      const double tj = t[j];
+      double* colj = W + j * ldw;
+      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
+    }
+    if (dp - rule.shift > count_floor) {
+      pv.d_min_kept = std::min(pv.d_min_kept, dp - rule.shift);
+      ++pv.rank;
+    }
+    ++pv.kept;
+  }
+  return pv;
+}
+
+// The basic solution of W λ = r from pivoted_ldlt's factors, in place (lam holds r on entry):
+// λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r, where only the leading kept × kept part of L and D enters and the
+// components past it are 0 (the basic solution of a rank-deficient system, [Golub2013] §5.5).
+// Stopping the factorisation early therefore changes nothing in it.
+[[gnu::always_inline]] inline void ldlt_basic_solve(const double* W, Index ldw, Index m, Index kept,
+                                                    const Index* piv, double* lam) {
+  for (Index k = 0; k < kept; ++k) std::swap(lam[k], lam[piv[k]]);
+  for (Index i = 0; i < kept; ++i) {
+    double s = lam[i];
+    for (Index k = 0; k < i; ++k) s -= W[i + k * ldw] * lam[k];
+    lam[i] = s;
+  }
+  for (Index i = 0; i < kept; ++i) lam[i] /= W[i + i * ldw];
+  for (Index i = kept; i < m; ++i) lam[i] = 0.0;
+  for (Index i = kept - 1; i >= 0; --i) {
+    double s = lam[i];
+    const double* coli = W + i * ldw;
+    for (Index k = i + 1; k < kept; ++k) s -= coli[k] * lam[k];
+    lam[i] = s;
+  }
+  for (Index k = kept - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
 }
 
 }  // namespace ukdyn::detail

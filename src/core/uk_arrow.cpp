@@ -106,53 +106,11 @@ ArrowWorkspace::ArrowWorkspace(const ArrowStructure& st, Index m) {
 
 namespace {
 
-// Pivoted LDLᵀ (symmetric diagonal pivoting, a pivoted Cholesky: [Higham2002] ch. 10) of the
-// lower triangle of the m × m matrix W (leading dimension ldw), in place, as in uk_solve.cpp: each
-// step takes the largest remaining diagonal; it stops at the first pivot ≤ tol2 · (largest pivot).
-// Returns the number kept; piv holds the transpositions, L below the diagonal, D on it.
-Index pivoted_ldlt(double* W, Index ldw, Index m, double tol2, double ref, Index* piv, double* t,
-                   double& d_max, double& d_min_kept) {
-  d_max = 0.0;
-  d_min_kept = std::numeric_limits<double>::infinity();
-  double cutoff = 0.0;
-  Index kept = 0;
-  for (Index k = 0; k < m; ++k) {
-    Index p = k;
-    double dp = W[k + k * ldw];
-    for (Index i = k + 1; i < m; ++i) {
-      if (W[i + i * ldw] > dp) {
-        dp = W[i + i * ldw];
-        p = i;
-      }
-    }
-    if (k == 0) {
-      d_max = std::max(dp, 0.0);
-      cutoff = tol2 * std::max(d_max, ref);
-    }
-    if (!(d_max > 0.0 && dp > cutoff)) break;
-    piv[k] = p;
-    if (p != k) {
-      for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
-      std::swap(W[k + k * ldw], W[p + p * ldw]);
-      for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
-      for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
-    }
-    const double inv_d = 1.0 / dp;
-    double* colk = W + k * ldw;
-    for (Index i = k + 1; i < m; ++i) {
-      t[i] = colk[i];
-      colk[i] *= inv_d;
-    }
-    for (Index j = k + 1; j < m; ++j) {
-      const double tj = t[j];
-      double* colj = W + j * ldw;
-      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
-    }
-    d_min_kept = std::min(d_min_kept, dp);
-    ++kept;
-  }
-  return kept;
-}
+// Every rank decision here is the pivoted LDLᵀ of dense_kernels.hpp with its rank rule, on the
+// scale of the whole W = A M⁻¹Aᵀ (RankRule::scale = max diag W): the dense solve's decision.
+using detail::LdltPivots;
+using detail::pivoted_ldlt;
+using detail::RankRule;
 
 // x ← L^{-1} x and x ← L^{-ᵀ} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
 void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
@@ -209,6 +167,8 @@ struct ArrowProblem {
         Ld(dws_.L.data()),
         idg(dws_.inv_diag.data()),
         tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
+  // The rank rule on the scale of the whole W (w_ref = max diag W, reduce_groups).
+  [[nodiscard]] RankRule rule(double w_ref) const { return RankRule{tol2, 0.0, w_ref}; }
   // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
   void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
   // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
@@ -228,11 +188,11 @@ struct ArrowProblem {
 struct ArrowPivots {
   Index rank = 0;
   double max = 0.0, min = std::numeric_limits<double>::infinity();
-  void add(Index kept, double d_max, double d_min) {
-    rank += kept;
-    if (kept > 0) {
-      max = std::max(max, d_max);
-      min = std::min(min, d_min);
+  void add(const LdltPivots& pv) {
+    rank += pv.rank;
+    if (pv.rank > 0) {
+      max = std::max(max, pv.d_max);
+      min = std::min(min, pv.d_min_kept);
     }
   }
 };
@@ -298,11 +258,11 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   auto& gb = ws.g[gi];
   const Index nL = P.nL;
   const Index mk = static_cast<Index>(P.st.groups[gi].rows.size());
-  double dmax = 0.0, dmin = 0.0;
-  gb.kept = pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, P.tol2, w_ref, gb.piv.data(), ws.tmp.data(),
-                         dmax, dmin);
+  const LdltPivots pv =
+      pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, gb.piv.data(), ws.tmp.data(), P.rule(w_ref));
+  gb.kept = pv.kept;
   const Index kp = gb.kept;
-  pivots.add(kp, dmax, dmin);
+  pivots.add(pv);
   // The same row order for C (into T), r and b (into z, lam as scratch).
   gb.T = gb.C;  // same size: no allocation
   for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
@@ -393,28 +353,6 @@ void ht_solve(const Mat& H, Index nL, double* x) {
   }
 }
 
-// Basic solution μ of W_D μ = r_D from W_D's pivoted LDLᵀ with keptD pivots (as in uk_solve.cpp).
-void basic_solution(const ArrowWorkspace& ws, Index mD, Index keptD, double* lam) {
-  const double* W = ws.WD.data();
-  const Index ldw = ws.WD.rows();
-  for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
-  for (Index k = 0; k < keptD; ++k) std::swap(lam[k], lam[ws.pivD[static_cast<std::size_t>(k)]]);
-  for (Index i = 0; i < keptD; ++i) {
-    double v = lam[i];
-    for (Index k = 0; k < i; ++k) v -= W[i + k * ldw] * lam[k];
-    lam[i] = v;
-  }
-  for (Index i = 0; i < keptD; ++i) lam[i] /= W[i + i * ldw];
-  for (Index i = keptD; i < mD; ++i) lam[i] = 0.0;
-  for (Index i = keptD - 1; i >= 0; --i) {
-    double v = lam[i];
-    for (Index k = i + 1; k < keptD; ++k) v -= W[k + i * ldw] * lam[k];
-    lam[i] = v;
-  }
-  for (Index k = keptD - 1; k >= 0; --k)
-    std::swap(lam[k], lam[ws.pivD[static_cast<std::size_t>(k)]]);
-}
-
 // The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
 // r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
 void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
@@ -434,12 +372,12 @@ void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivo
     ws.rD[i] = v;
   }
   lower_gram(ws.Dt, mD, nL, ws.WD);
-  double dmaxD = 0.0, dminD = 0.0;
-  const Index keptD = pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, P.tol2, w_ref, ws.pivD.data(),
-                                   ws.tmp.data(), dmaxD, dminD);
-  pivots.add(keptD, dmaxD, dminD);
+  const LdltPivots pv =
+      pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, ws.pivD.data(), ws.tmp.data(), P.rule(w_ref));
+  pivots.add(pv);
   double* lam = ws.lamD.data();
-  basic_solution(ws, mD, keptD, lam);
+  for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
+  detail::ldlt_basic_solve(ws.WD.data(), ws.WD.rows(), mD, pv.kept, ws.pivD.data(), lam);
   for (Index j = 0; j < nL; ++j) {
     double v = yH[j];
     for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];

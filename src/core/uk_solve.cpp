@@ -170,39 +170,6 @@ bool all_finite(const double* x, Index n) {
   return true;
 }
 
-// Residual ‖A q̈ − b‖, the consistency flag and the finiteness flag (allocation-free).
-void finish(const Mat& A, const Vec& b, const Vec& qdd, const Vec& Qc, const UkSettings& s,
-            Vec& scratch_m, UkResult& res) {
-  const Index m = A.rows(), n = A.cols();
-  if (m > 0) {
-    double* rr = scratch_m.data();
-    const double* Ad = A.data();
-    for (Index i = 0; i < m; ++i) rr[i] = -b[i];
-    for (Index j = 0; j < n; ++j) {
-      const double x = qdd[j];
-      const double* col = Ad + j * m;
-      for (Index i = 0; i < m; ++i) rr[i] += col[i] * x;
-    }
-    double r2 = 0.0, b2 = 0.0, q2 = 0.0;
-    for (Index i = 0; i < m; ++i) r2 += rr[i] * rr[i];
-    for (Index i = 0; i < m; ++i) b2 += b[i] * b[i];
-    for (Index j = 0; j < n; ++j) q2 += qdd[j] * qdd[j];
-    // ‖A‖_∞: the largest absolute row sum.
-    for (Index i = 0; i < m; ++i) rr[i] = 0.0;
-    for (Index j = 0; j < n; ++j) {
-      const double* col = Ad + j * m;
-      for (Index i = 0; i < m; ++i) rr[i] += std::abs(col[i]);
-    }
-    double a_inf = 0.0;
-    for (Index i = 0; i < m; ++i) a_inf = std::max(a_inf, rr[i]);
-    res.residual = std::sqrt(r2);
-    const double scale = std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0;
-    res.consistent = res.residual <= s.consistency_rel_tol * scale;
-  }
-  res.finite = all_finite(qdd.data(), qdd.size()) && all_finite(Qc.data(), Qc.size()) &&
-               std::isfinite(res.residual);
-}
-
 }  // namespace
 
 namespace {
@@ -429,76 +396,17 @@ double damping_weight(double rho, const UkSettings& s) {
   return x * x * (3.0 - 2.0 * x);
 }
 
-// Step 4: pivoted LDLᵀ of W in place, i.e. a pivoted Cholesky: P W Pᵀ = L D Lᵀ where every step
-// takes as pivot the largest remaining diagonal of the Schur complement, so D is non-increasing (up
-// to round-off) and D_0 = max diag W = max D ([Higham2002] ch. 10). The factorisation stops at the
-// first pivot not above the cut-off: what remains is round-off of redundant rows, and those rows
-// get λ = 0 in the basic solution. `kept` pivots are factored; `rank` counts those with
-// D_k − μ > rank_tol² (D_0 − μ), as the exact method would.
-struct Pivots {
-  Index kept = 0, rank = 0;
-  double d_max = 0.0;
-  double d_min_kept = std::numeric_limits<double>::infinity();  ///< smallest D_k − μ counted
-};
+// Step 4: the pivoted LDLᵀ of W in place with the rank rule of dense_kernels.hpp (pivoted_ldlt):
+// the exact and equilibrated solves drop pivots D_k ≤ rank_tol² D_0, D_0 = max diag W; the
+// regularized one keeps every pivot above μ/2; the damped adaptive one drops at
+// max(μ/2, rank_tol² s). `rank` counts the pivots with D_k − μ > rank_tol² s, as the exact method
+// would.
+using detail::LdltPivots;
+using detail::pivoted_ldlt;
+using detail::RankRule;
 
-enum class Cutoff {
-  relative,     ///< exact, equilibrated: rank_tol² D_0
-  half_shift,   ///< regularized: μ/2 (every pivot is ≥ μ in exact arithmetic)
-  max_of_both,  ///< adaptive: max(μ/2, rank_tol² D_0), continuous as μ → 0
-};
-
-[[gnu::always_inline]] inline Pivots pivoted_ldlt(double* W, Index ldw, Index m, Index* piv,
-                                                  double* t, double mu, double tol2, Cutoff rule) {
-  Pivots pv;
-  double cutoff = 0.0;
-  for (Index k = 0; k < m; ++k) {
-    Index p = k;
-    double dp = W[k + k * ldw];
-    for (Index i = k + 1; i < m; ++i) {
-      if (W[i + i * ldw] > dp) {
-        dp = W[i + i * ldw];
-        p = i;
-      }
-    }
-    if (k == 0) {
-      pv.d_max = std::max(dp, 0.0);
-      cutoff = rule == Cutoff::relative     ? tol2 * pv.d_max
-               : rule == Cutoff::half_shift ? (mu > 0.0 ? 0.5 * mu : tol2 * pv.d_max)
-                                            : std::max(0.5 * mu, tol2 * pv.d_max);
-    }
-    if (!(pv.d_max > 0.0 && dp > cutoff)) break;
-    piv[k] = p;
-    if (p != k) {
-      // Symmetric swap of rows/columns k and p in lower storage.
-      for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
-      std::swap(W[k + k * ldw], W[p + p * ldw]);
-      for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
-      for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
-    }
-    const double inv_d = 1.0 / dp;
-    double* colk = W + k * ldw;
-    for (Index i = k + 1; i < m; ++i) {
-      t[i] = colk[i];
-      colk[i] *= inv_d;  // L_ik
-    }
-    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
-    for (Index j = k + 1; j < m; ++j) {
-      const double tj = t[j];
-      double* colj = W + j * ldw;
-      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
-    }
-    if (dp - mu > tol2 * (pv.d_max - mu)) {
-      pv.d_min_kept = std::min(pv.d_min_kept, dp - mu);
-      ++pv.rank;
-    }
-    ++pv.kept;
-  }
-  return pv;
-}
-
-// Step 5: basic solution of W λ = r from step 4: λ = Pᵀ L^{-ᵀ} D⁺ L^{-1} P r (times D on both sides
-// when equilibrated). Only the leading kept × kept part of L and D enters (the components past it
-// are 0), so stopping the factorisation early changes nothing.
+// Step 5: basic solution of W λ = r from step 4 (ldlt_basic_solve), times D on both sides when
+// equilibrated: λ = D Ŵ⁺ D r.
 [[gnu::always_inline]] inline void basic_solve(const double* W, Index ldw, Index m, Index kept,
                                                const Index* piv, const double* r, const double* dsc,
                                                double* lam) {
@@ -507,21 +415,7 @@ enum class Cutoff {
   } else {
     for (Index i = 0; i < m; ++i) lam[i] = r[i];
   }
-  for (Index k = 0; k < kept; ++k) std::swap(lam[k], lam[piv[k]]);
-  for (Index i = 0; i < kept; ++i) {
-    double s = lam[i];
-    for (Index k = 0; k < i; ++k) s -= W[i + k * ldw] * lam[k];
-    lam[i] = s;
-  }
-  for (Index i = 0; i < kept; ++i) lam[i] /= W[i + i * ldw];
-  for (Index i = kept; i < m; ++i) lam[i] = 0.0;
-  for (Index i = kept - 1; i >= 0; --i) {
-    double s = lam[i];
-    const double* coli = W + i * ldw;
-    for (Index k = i + 1; k < kept; ++k) s -= coli[k] * lam[k];
-    lam[i] = s;
-  }
-  for (Index k = kept - 1; k >= 0; --k) std::swap(lam[k], lam[piv[k]]);
+  detail::ldlt_basic_solve(W, ldw, m, kept, piv, lam);
   if (dsc != nullptr) {
     for (Index i = 0; i < m; ++i) lam[i] *= dsc[i];
   }
@@ -551,7 +445,7 @@ template <int NB>
 }
 
 // Step 7: the honest residual ‖A q̈ − b‖ of the returned q̈, and the consistency and finiteness
-// flags (as finish(), with ‖A‖_∞ from step 1).
+// flags, with ‖A‖_∞ from step 1 (uk_solve_textbook too; r is read only when μ > 0).
 // Always inlined, so that a compile-time m and n (solve_impl<6, 2>) reach its loops.
 [[gnu::always_inline]] inline void residual_and_flags(const double* Ad, const Vec& b, Index m,
                                                       Index n, const double* q, const double* qc,
@@ -613,14 +507,16 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
   double mu = 0.0;
   const bool equilibrate = settings.method == UkMethod::equilibrated;
+  const bool regularized = settings.method == UkMethod::regularized;
   if (equilibrate) {
     equilibrate_W(W, ldw, m, settings.row_floor, ws.row_scale.data());
-  } else if (settings.method == UkMethod::regularized) {
+  } else if (regularized) {
     mu = shift_W(W, ldw, m, settings.regularization, 1.0);
   }
-  Pivots pv = pivoted_ldlt(
-      W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2,
-      settings.method == UkMethod::regularized ? Cutoff::half_shift : Cutoff::relative);
+  // The regularized solve drops no direction by rank_tol (only round-off under μ/2), unless there
+  // is no shift (μ = 0: regularization 0, or W = 0).
+  LdltPivots pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(),
+                               RankRule{tol2, mu, 0.0, !(regularized && mu > 0.0)});
   // Adaptive: the exact factorisation above decides. When its smallest kept singular value is
   // within adaptive_band · ε of the largest, W is rebuilt and refactored with the damping
   // μ = weight(ρ) ε² max diag W (damping_weight): exact to round-off away from singular positions,
@@ -629,7 +525,7 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   auto damp = [&](double weight) {
     build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
     mu = shift_W(W, ldw, m, settings.regularization, weight);
-    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), mu, tol2, Cutoff::max_of_both);
+    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), RankRule{tol2, mu});
     res.damping = weight * settings.regularization;
   };
   if (adaptive && pv.rank > 0 && pv.d_max > 0.0) {
@@ -667,7 +563,7 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
     double inv_l = 0.0;
     for (Index j = 0; j < n; ++j) inv_l = std::max(inv_l, std::abs(ws.inv_diag[j]));
     res.damped_acceleration = res.residual / std::max(res.sigma_min_kept, std::sqrt(mu)) * inv_l;
-    if (settings.method == UkMethod::regularized) res.damping = settings.regularization;
+    if (regularized) res.damping = settings.regularization;
   }
   return res;
 }
@@ -762,8 +658,17 @@ UkResult uk_solve_textbook(const Mat& M, const Mat& A, const Vec& b, const Vec& 
   res.rank = static_cast<int>(rank);
   res.sigma_max = s.size() > 0 ? s(0) : 0.0;
   res.sigma_min_kept = rank > 0 ? s(rank - 1) : 0.0;
-  Vec scratch(A.rows());
-  finish(A, b, qdd, Qc, settings, scratch, res);
+  // The residual, consistency and finiteness of the returned q̈ as the production solve's step 7.
+  const Index m = A.rows(), n = A.cols();
+  double a_inf = 0.0;  // ‖A‖_∞, the largest absolute row sum
+  for (Index i = 0; i < m; ++i) {
+    double row = 0.0;
+    for (Index j = 0; j < n; ++j) row += std::abs(A(i, j));
+    a_inf = std::max(a_inf, row);
+  }
+  Vec scratch(m);
+  residual_and_flags(A.data(), b, m, n, qdd.data(), Qc.data(), nullptr, a_inf, 0.0, settings,
+                     scratch.data(), res);
   return res;
 }
 

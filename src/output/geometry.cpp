@@ -10,6 +10,7 @@
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/tape.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn {
 
@@ -77,13 +78,9 @@ void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel&
                const std::vector<std::pair<std::string, std::string>>& edges, const System& sys) {
   namespace sym = symbolic;
   sym::SymbolTable& syms = model.def.symbols();
-  sym::InputMap in;
-  const auto& coords = sys.coordinate_names();
-  for (std::size_t i = 0; i < coords.size(); ++i) {
-    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
-    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
-                                                   static_cast<std::int32_t>(i)};
-  }
+  // Coordinates without a symbol are in none of the expressions (and not added).
+  const sym::InputMap in =
+      sym::coordinate_inputs(syms, sys.coordinate_names(), sym::InputSet::q_interned);
   const GiNaC::exmap values = model.def.parameter_values();
   std::vector<GeometryPoint> pts;
   std::vector<GiNaC::ex> ex;
@@ -126,13 +123,9 @@ void add_bodies(Geometry& g, const std::string& name,
                 const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
                 const System& sys, symbolic::SymbolTable& syms) {
   namespace sym = symbolic;
-  sym::InputMap in;
-  const auto& coords = sys.coordinate_names();
-  for (std::size_t i = 0; i < coords.size(); ++i) {
-    if (!syms.has_coordinate(coords[i])) continue;  // in none of the expressions (and not added)
-    in[sym::coordinate_symbol(syms, coords[i])] = {sym::TapeInput::Source::q,
-                                                   static_cast<std::int32_t>(i)};
-  }
+  // Coordinates without a symbol are in none of the expressions (and not added).
+  const sym::InputMap in =
+      sym::coordinate_inputs(syms, sys.coordinate_names(), sym::InputSet::q_interned);
   std::vector<GeometryPoint> pts;
   std::vector<GiNaC::ex> ex;
   for (const auto& [bn, com] : bodies) {

@@ -12,6 +12,7 @@
 #include "ukdyn/symbolic/free_body.hpp"
 #include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/symbolic/spline.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 #include "ukdyn/robot_files/urdf.hpp"
 
 namespace ukdyn::io_detail {
@@ -852,11 +853,8 @@ std::shared_ptr<const Constraint> load_constraint_kind(
       if (o.node.IsScalar() && o.node.Scalar() == "initial") {
         // p(q0) by a compiled tape (GiNaC's float evaluation would sum in its process-dependent
         // term order), kept as the exact value of that double.
-        sym::InputMap in;
-        for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-          in[sym::coordinate_symbol(def.symbols(), system_coordinates[i])] = {
-              sym::TapeInput::Source::q, static_cast<std::int32_t>(i)};
-        }
+        const sym::InputMap in =
+            sym::coordinate_inputs(def.symbols(), system_coordinates, sym::InputSet::q);
         for (std::size_t k = 0; k < 3; ++k) {
           double v = 0.0;
           try {

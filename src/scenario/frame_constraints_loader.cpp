@@ -4,6 +4,7 @@
 
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/expression.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -109,11 +110,8 @@ std::shared_ptr<const Constraint> load_frame_constraint(
     const Node ln = L.child(c, "length", true);
     if (ln.node.IsScalar() && ln.node.Scalar() == "initial") {
       // |p_a − p_b| at initial.q by compiled tapes, kept as the exact value of that double.
-      sym::InputMap in;
-      for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-        in[sym::coordinate_symbol(L.symbols(), system_coordinates[i])] = {
-            sym::TapeInput::Source::q, static_cast<std::int32_t>(i)};
-      }
+      const sym::InputMap in =
+          sym::coordinate_inputs(L.symbols(), system_coordinates, sym::InputSet::q);
       double d2 = 0.0;
       for (std::size_t k = 0; k < 3; ++k) {
         double v = 0.0;

@@ -6,6 +6,8 @@
 #include <set>
 #include <sstream>
 
+#include "symbolic/ex_helpers.hpp"
+#include "symbolic/mat3.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 
@@ -15,36 +17,17 @@ namespace {
 
 using GiNaC::ex;
 
-std::string str(const ex& e) {
-  std::ostringstream os;
-  os << e;
-  return os.str();
-}
-
 Mat3Ex identity3() { return {1, 0, 0, 0, 1, 0, 0, 0, 1}; }
 
-Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * i + k] * b[3 * k + j];
-      r[3 * i + j] = round_long_rationals(s);  // bounded numbers (canonical.hpp)
-    }
-  }
-  return r;
-}
-
-Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
-  Vec3Ex r;
-  for (std::size_t i = 0; i < 3; ++i)
-    r[i] = a[3 * i] * v[0] + a[3 * i + 1] * v[1] + a[3 * i + 2] * v[2];
-  return r;
-}
-
-Vec3Ex mul_transposed(const Mat3Ex& a, const Vec3Ex& v) {
-  Vec3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) r[i] = a[i] * v[0] + a[3 + i] * v[1] + a[6 + i] * v[2];
+// The product of two rotations along the chain (mat3.hpp's exact mul) with its numbers bounded:
+// every non-integer rational longer than 256 bits rounded to the exact rational of its double
+// (round_long_rationals, canonical.hpp). Composed exactly, the rotations by constant angles of a
+// chain (rpy of fixed joints: exact rationals of cos and sin, see axis_rotation) multiply out into
+// numbers whose length grows with every joint; the rounding is exact-number arithmetic, so the
+// result is the same in every process.
+Mat3Ex compose(const Mat3Ex& a, const Mat3Ex& b) {
+  Mat3Ex r = mul(a, b);
+  for (ex& e : r) e = round_long_rationals(e);  // bounded numbers (canonical.hpp)
   return r;
 }
 
@@ -107,9 +90,9 @@ Mat3Ex axis_rotation(const Vec3Ex& a, const ex& q) {
 Mat3Ex rpy_rotation(const Vec3Ex& rpy) {
   Mat3Ex R = identity3();
   // Rz(yaw) Ry(pitch) Rx(roll); skip zero angles to keep the expressions small.
-  if (!rpy[2].is_zero()) R = mul(R, axis_rotation({0, 0, 1}, rpy[2]));
-  if (!rpy[1].is_zero()) R = mul(R, axis_rotation({0, 1, 0}, rpy[1]));
-  if (!rpy[0].is_zero()) R = mul(R, axis_rotation({1, 0, 0}, rpy[0]));
+  if (!rpy[2].is_zero()) R = compose(R, axis_rotation({0, 0, 1}, rpy[2]));
+  if (!rpy[1].is_zero()) R = compose(R, axis_rotation({0, 1, 0}, rpy[1]));
+  if (!rpy[0].is_zero()) R = compose(R, axis_rotation({1, 0, 0}, rpy[0]));
   return R;
 }
 
@@ -170,7 +153,7 @@ Pose origin_frame(const Pose& P, const OriginDef& origin) {
     // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
     // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
     // the positions below took minutes.
-    jf.R = mul(P.R, rpy_rotation(origin.rpy));
+    jf.R = compose(P.R, rpy_rotation(origin.rpy));
     for (auto& e : jf.R) e = e.expand();
     jf.has_axis = false;
   }
@@ -249,7 +232,7 @@ void ChainBuilder::add_body(const std::string& name, const Pose& f, const Inerti
   b.mass = in.mass;
   b.com = add(f.p, mul(f.R, in.com));
   if (has_inertia) {
-    const Mat3Ex Rb = all_zero(in.rpy) ? f.R : mul(f.R, rpy_rotation(in.rpy));
+    const Mat3Ex Rb = all_zero(in.rpy) ? f.R : compose(f.R, rpy_rotation(in.rpy));
     b.inertia_kind = BodyDef::InertiaKind::tensor;
     b.inertia_tensor = in.inertia;
     b.inertia_frame = symbolic::Frame::body;
@@ -274,7 +257,7 @@ void ChainBuilder::place_base(const Pose& root, const Mat3Ex& Rm) {
   if (!B.yaw.empty()) {
     if (!has_coord(B.yaw))
       throw DefinitionError("mobile base: yaw '" + B.yaw + "' is not a coordinate of the chain");
-    f.R = mul(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(chain_.symbols(), B.yaw)));
+    f.R = compose(Rm, axis_rotation({0, 0, 1}, coordinate_symbol(chain_.symbols(), B.yaw)));
     f.Rpre = Rm;
     f.axis = {0, 0, 1};
     f.angle = coordinate_symbol(chain_.symbols(), B.yaw);
@@ -343,7 +326,7 @@ void ChainBuilder::apply_quaternion_joint(const JointDef& j, const std::string& 
   const std::size_t o = floating ? 3 : 0;
   if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
   const Mat3Ex Rq = quaternion_rotation(c[o], c[o + 1], c[o + 2], c[o + 3]);
-  jf.R = mul(jf.R, Rq);
+  jf.R = compose(jf.R, Rq);
   for (auto& e : jf.R) e = e.expand();
   jf.wb = add(mul_transposed(Rq, wj), quaternion_body_rate(c[o], c[o + 1], c[o + 2], c[o + 3], d[o],
                                                            d[o + 1], d[o + 2], d[o + 3]));
@@ -389,7 +372,7 @@ void ChainBuilder::apply_axis_joint(const JointDef& j, const std::string& where,
       jf.angle = v;
       jf.has_axis = true;
     }
-    jf.R = mul(jf.Rpre, axis_rotation(a, jf.angle));
+    jf.R = compose(jf.Rpre, axis_rotation(a, jf.angle));
     for (auto& e : jf.R) e = e.expand();
   } else {
     jf.p = add(jf.p, mul(jf.R, scale(a, v)));

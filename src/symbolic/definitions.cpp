@@ -7,7 +7,9 @@
 #include <set>
 #include <sstream>
 
+#include "symbolic/ex_helpers.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -20,12 +22,6 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
-}
-
-std::string str(const ex& e) {
-  std::ostringstream os;
-  os << e;
-  return os.str();
 }
 
 // Real numeric value of an expression without symbols, or nullopt.
@@ -500,28 +496,12 @@ SubsystemDerivation derive(const SubsystemDef& def) {
 
 // ------------------------------------------------------------------------------ DerivedSubsystem
 
-namespace {
-
-InputMap subsystem_inputs(SymbolTable& syms, const std::vector<std::string>& coords) {
-  InputMap in;
-  for (std::size_t i = 0; i < coords.size(); ++i) {
-    in[coordinate_symbol(syms, coords[i])] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-    in[velocity_symbol(syms, coords[i])] = {TapeInput::Source::qd, static_cast<std::int32_t>(i)};
-  }
-  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
-  return in;
-}
-
-ex numeric_form(const ex& e, const GiNaC::exmap& values) { return e.subs(values).expand(); }
-
-}  // namespace
-
 DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name)
     : d_(std::move(derivation)),
       name_(std::move(name)),
       n_(static_cast<Index>(d_.coordinates.size())) {
   const auto t0 = Clock::now();
-  const InputMap in = subsystem_inputs(*d_.symbols, d_.coordinates);
+  const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   const auto un = static_cast<unsigned>(n_);
   std::vector<ex> m, cqd, g, c;
@@ -843,15 +823,7 @@ ConstraintDerivation derive(const ConstraintDef& def) {
 
 DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
     : d_(std::move(derivation)), m_(static_cast<Index>(d_.row_names.size())) {
-  InputMap in;
-  SymbolTable& syms = *d_.symbols;
-  for (std::size_t i = 0; i < d_.coordinates.size(); ++i) {
-    in[coordinate_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::q,
-                                                      static_cast<std::int32_t>(i)};
-    in[velocity_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::qd,
-                                                    static_cast<std::int32_t>(i)};
-  }
-  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
+  const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   std::vector<ex> ab, phi, phid;
   for (unsigned r = 0; r < d_.A.rows(); ++r) {

@@ -4,17 +4,14 @@
 #include <cmath>
 #include <sstream>
 
+#include "symbolic/ex_helpers.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
+
 namespace ukdyn::symbolic {
 
 namespace {
 
 using GiNaC::ex;
-
-std::string str(const ex& e) {
-  std::ostringstream os;
-  os << e;
-  return os.str();
-}
 
 }  // namespace
 
@@ -157,23 +154,9 @@ ForceDerivation derive(const ForceDef& def) {
   return d;
 }
 
-namespace {
-// Parameters substituted, expanded: polynomials in the coordinates' functions with exact
-// coefficients, whose form does not depend on GiNaC's hash order (definitions.cpp does the same).
-ex numeric_form(const ex& e, const GiNaC::exmap& values) { return e.subs(values).expand(); }
-}  // namespace
-
 DerivedAppliedForce::DerivedAppliedForce(ForceDerivation derivation, std::string name)
     : d_(std::move(derivation)), name_(std::move(name)) {
-  InputMap in;
-  SymbolTable& syms = *d_.symbols;
-  for (std::size_t i = 0; i < d_.coordinates.size(); ++i) {
-    in[coordinate_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::q,
-                                                      static_cast<std::int32_t>(i)};
-    in[velocity_symbol(syms, d_.coordinates[i])] = {TapeInput::Source::qd,
-                                                    static_cast<std::int32_t>(i)};
-  }
-  in[time_symbol(syms)] = {TapeInput::Source::time, 0};
+  const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   std::vector<ex> out;
   for (unsigned i = 0; i < d_.Q.rows(); ++i) {

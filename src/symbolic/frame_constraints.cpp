@@ -3,7 +3,10 @@
 #include <cmath>
 #include <sstream>
 
+#include "symbolic/ex_helpers.hpp"
+#include "symbolic/mat3.hpp"
 #include "ukdyn/symbolic/expression.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -11,48 +14,10 @@ namespace {
 
 using GiNaC::ex;
 
-Mat3Ex mul(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * i + k] * b[3 * k + j];
-      r[3 * i + j] = s;
-    }
-  }
-  return r;
-}
-
-// aᵀ b
-Mat3Ex mul_tn(const Mat3Ex& a, const Mat3Ex& b) {
-  Mat3Ex r;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
-      ex s = 0;
-      for (std::size_t k = 0; k < 3; ++k) s += a[3 * k + i] * b[3 * k + j];
-      r[3 * i + j] = s;
-    }
-  }
-  return r;
-}
-
-Vec3Ex mul(const Mat3Ex& a, const Vec3Ex& v) {
-  Vec3Ex r;
-  for (std::size_t i = 0; i < 3; ++i)
-    r[i] = a[3 * i] * v[0] + a[3 * i + 1] * v[1] + a[3 * i + 2] * v[2];
-  return r;
-}
-
 ex dot(const Vec3Ex& a, const Vec3Ex& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 Vec3Ex cross(const Vec3Ex& a, const Vec3Ex& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-
-std::string str(const ex& e) {
-  std::ostringstream os;
-  os << e;
-  return os.str();
 }
 
 double number(const ex& e, const GiNaC::exmap& values, const std::string& what) {
@@ -345,12 +310,9 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
     for (const ex& e : p->position) out.push_back(e.subs(values));
     for (const ex& e : p->rotation) out.push_back(e.subs(values));
   }
-  InputMap in;
+  const InputMap in = coordinate_inputs(symbols, system_coordinates, InputSet::q);
   std::vector<GiNaC::symbol> q;
-  for (std::size_t i = 0; i < system_coordinates.size(); ++i) {
-    q.push_back(coordinate_symbol(symbols, system_coordinates[i]));
-    in[q.back()] = {TapeInput::Source::q, static_cast<std::int32_t>(i)};
-  }
+  for (const auto& c : system_coordinates) q.push_back(coordinate_symbol(symbols, c));
   // Twist Jacobians: v = Σ ∂p/∂q_j q̇_j, ω = Σ vee(∂R/∂q_j Rᵀ) q̇_j.
   for (const FramePose* p : {&f.a, &f.b}) {
     Mat3Ex R;
@@ -359,8 +321,7 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
     for (std::size_t j = 0; j < q.size(); ++j) {
       Mat3Ex dR;
       for (std::size_t k = 0; k < 9; ++k) dR[k] = R[k].diff(q[j]);
-      Mat3Ex Rt{R[0], R[3], R[6], R[1], R[4], R[7], R[2], R[5], R[8]};
-      const Mat3Ex W = mul(dR, Rt);
+      const Mat3Ex W = mul(dR, transposed(R));
       for (std::size_t k = 0; k < 3; ++k)
         Jv[k * q.size() + j] = p->position[k].subs(values).diff(q[j]);
       Jw[0 * q.size() + j] = W[7];

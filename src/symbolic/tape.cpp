@@ -8,6 +8,7 @@
 
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/spline.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -252,6 +253,20 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
   }
   memo_.emplace(e, id);
   return id;
+}
+
+InputMap coordinate_inputs(SymbolTable& table, const std::vector<std::string>& coordinates,
+                           InputSet set) {
+  InputMap in;
+  for (std::size_t i = 0; i < coordinates.size(); ++i) {
+    const std::string& c = coordinates[i];
+    if (set == InputSet::q_interned && !table.has_coordinate(c)) continue;
+    const auto index = static_cast<std::int32_t>(i);
+    in[coordinate_symbol(table, c)] = {TapeInput::Source::q, index};
+    if (set == InputSet::q_qd_time) in[velocity_symbol(table, c)] = {TapeInput::Source::qd, index};
+  }
+  if (set == InputSet::q_qd_time) in[time_symbol(table)] = {TapeInput::Source::time, 0};
+  return in;
 }
 
 Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {

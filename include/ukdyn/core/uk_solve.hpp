@@ -9,12 +9,13 @@
 // the range of A M^{-1/2}, and any λ with W λ = r gives the same Aᵀλ (null(W) = null(Aᵀ)).
 //
 // Rank: W is factored by an LDLᵀ with symmetric (diagonal) pivoting, i.e. a pivoted Cholesky
-// ([Higham2002] ch. 10, [Golub2013]). A
-// pivot D_k is kept when D_k > rel_tol² · max_j D_j; the pivots approximate σ_k² of A M^{-1/2}, so
-// rel_tol is a relative tolerance on its singular values (default 1e-7: pivots under 1e-14 of the
-// largest are round-off of a redundant row). Redundant but consistent rows are normal; an
-// inconsistent set shows as a residual ‖A q̈ − b‖ that is not round-off, reported in
-// UkResult::consistent.
+// ([Higham2002] §10.3, [Golub2013]); the one rank rule of the library (the arrow solve's too) is
+// documented with that kernel (src/core/dense_kernels.hpp, pivoted_ldlt). For the exact method a
+// pivot D_k is kept when D_k > rel_tol² · max_j D_j (max_j D_j = D_0 = max diag W); the pivots
+// approximate σ_k² of A M^{-1/2}, so rel_tol is a relative tolerance on its singular values
+// (default 1e-7: pivots under 1e-14 of the largest are round-off of a redundant row). Redundant but
+// consistent rows are normal; an inconsistent set shows as a residual ‖A q̈ − b‖ that is not
+// round-off, reported in UkResult::consistent.
 #pragma once
 
 #include <Eigen/Cholesky>
