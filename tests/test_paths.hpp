@@ -15,3 +15,14 @@ const char* cli();
 #ifdef UKDYN_TEST_HAVE_CLI
 #define UKDYN_CLI (::uktest_paths::cli())
 #endif
+
+// UKDYN_TEST_SANITIZED: built with AddressSanitizer or ThreadSanitizer, whose runtimes replace
+// malloc and keep freed memory in a quarantine. gcc says so with __SANITIZE_ADDRESS__ /
+// __SANITIZE_THREAD__, clang 14 only through __has_feature.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define UKDYN_TEST_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define UKDYN_TEST_SANITIZED 1
+#endif
+#endif

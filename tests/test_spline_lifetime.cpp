@@ -64,7 +64,7 @@ TEST(SplineLifetime, SplineDiesWithItsSystem) {
 
 TEST(SplineLifetime, ResidentMemoryFlatOverTenThousandSystems) {
   if (!std::ifstream("/proc/self/statm")) GTEST_SKIP() << "no /proc/self/statm";
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#ifdef UKDYN_TEST_SANITIZED
   GTEST_SKIP() << "a sanitizer's quarantine keeps freed memory resident (make sanitize)";
 #endif
   // 64-knot splines: about 2.6 kB of knots and coefficients each, so a registry keeping them would

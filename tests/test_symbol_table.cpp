@@ -104,7 +104,7 @@ long resident_bytes() {
 
 TEST(SymbolTable, ResidentMemoryFlatOverSystemsWithNewNames) {
   if (!std::ifstream("/proc/self/statm")) GTEST_SKIP() << "no /proc/self/statm";
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#ifdef UKDYN_TEST_SANITIZED
   GTEST_SKIP() << "a sanitizer's quarantine keeps freed memory resident (make sanitize)";
 #endif
   // Every system has coordinate names of its own (60 characters): a table kept beyond its system
