@@ -111,8 +111,8 @@ void Constraints_NRobots(benchmark::State& state) {
   for (auto _ : state) {
     for (std::size_t k = 0; k < cons.size(); ++k) {
       const Index r = cons[k]->rows();
-      cons[k]->evaluate_structural_with(data.constraint_slots(k), 0.0, c.q, c.qd,
-                                        data.A.block(offs[k], 0, r, n), data.b.segment(offs[k], r));
+      cons[k]->evaluate({0.0, data.constraint_slots(k), /*structural_only=*/true}, c.q, c.qd,
+                        data.A.block(offs[k], 0, r, n), data.b.segment(offs[k], r));
     }
     benchmark::DoNotOptimize(data.b.data());
   }

@@ -121,7 +121,7 @@ void dynamics(benchmark::State& state, Make make) {
   Mat M(6, 6);
   Vec c(6), g(6);
   for (auto _ : state) {
-    sub->dynamics(q, qd, M, c, g);  // what forward() calls
+    sub->dynamics({}, q, qd, M, c, g);  // what forward() calls
     benchmark::DoNotOptimize(M.data());
     benchmark::DoNotOptimize(c.data());
     benchmark::DoNotOptimize(g.data());
@@ -151,7 +151,7 @@ void closure(benchmark::State& state, const ukdyn::Constraint& c) {
   Vec b(6);
   for (auto _ : state) {
     A.setZero();
-    c.evaluate(0.0, q, qd, A, b);
+    c.evaluate({}, q, qd, A, b);
     benchmark::DoNotOptimize(A.data());
     benchmark::DoNotOptimize(b.data());
   }

@@ -50,9 +50,9 @@ TEST(Chain, DoublePendulumMatchesClosedForm) {
     const Vec q = random_vec(rng, 2, -3.2, 3.2), qd = random_vec(rng, 2, -3, 3);
     Mat M(2, 2), Mr(2, 2);
     Vec cqd(2), G(2), cqdr(2), Gr(2);
-    sub->mass(q, M);
-    sub->coriolis_times_qd(q, qd, cqd);
-    sub->gravity(q, G);
+    sub->mass({}, q, M);
+    sub->coriolis_times_qd({}, q, qd, cqd);
+    sub->gravity({}, q, G);
     const double c2 = std::cos(q(1)), s2 = std::sin(q(1)), h = -m2 * l1 * l2 * s2;
     Mr << m1 * l1 * l1 + m2 * (l1 * l1 + l2 * l2 + 2 * l1 * l2 * c2), m2 * (l2 * l2 + l1 * l2 * c2),
         m2 * (l2 * l2 + l1 * l2 * c2), m2 * l2 * l2;
@@ -86,8 +86,8 @@ TEST(Chain, RodPendulumWithInertiaTensor) {
   Mat M(1, 1);
   Vec G(1), q(1);
   q << 0.4;
-  sub->mass(q, M);
-  sub->gravity(q, G);
+  sub->mass({}, q, M);
+  sub->gravity({}, q, G);
   EXPECT_NEAR(M(0, 0), 1.0, 1e-15);
   EXPECT_NEAR(G(0), 3 * 10 * 0.5 * std::sin(0.4), 1e-14);
 }
@@ -113,7 +113,7 @@ TEST(Chain, MobileBaseWithYawAndPrismaticJoint) {
   for (int k = 0; k < 100; ++k) {
     const Vec q = random_vec(rng, 4, -2, 2), qd = random_vec(rng, 4, -2, 2);
     Mat Ms(4, 4), Mr(4, 4);
-    sub->mass(q, Ms);
+    sub->mass({}, q, Ms);
     const double s = std::sin(q(2)), co = std::cos(q(2)), r = q(3);
     Mr << M0 + m, 0, -m * r * s, m * co,  //
         0, M0 + m, m * r * co, m * s,     //
@@ -122,11 +122,11 @@ TEST(Chain, MobileBaseWithYawAndPrismaticJoint) {
     // Energy check of C q̇: d/dt T along q̈ = 0 equals q̇ᵀ(½ Ṁ q̇) ... use the identity q̇ᵀ C q̇ = ½ q̇ᵀ Ṁ
     // q̇.
     Vec cqd(4);
-    sub->coriolis_times_qd(q, qd, cqd);
+    sub->coriolis_times_qd({}, q, qd, cqd);
     const double eps = 1e-6;
     Mat Mp(4, 4), Mm(4, 4);
-    sub->mass(q + eps * qd, Mp);
-    sub->mass(q - eps * qd, Mm);
+    sub->mass({}, q + eps * qd, Mp);
+    sub->mass({}, q - eps * qd, Mm);
     const double half = 0.5 * qd.dot((Mp - Mm) / (2 * eps) * qd);
     EXPECT_NEAR(qd.dot(cqd), half, 1e-7 * (1 + std::abs(half)));
   }
@@ -152,8 +152,8 @@ TEST(Chain, TreeBranchesAreIndependent) {
   q << 0.3, -0.7;
   Mat M(2, 2);
   Vec G(2);
-  sub->mass(q, M);
-  sub->gravity(q, G);
+  sub->mass({}, q, M);
+  sub->gravity({}, q, G);
   EXPECT_NEAR(M(0, 1), 0.0, 1e-15);
   EXPECT_NEAR(M(0, 0), 1.0, 1e-15);
   EXPECT_NEAR(M(1, 1), 2.0, 1e-15);

@@ -268,10 +268,10 @@ TEST(ChainUrdf, OriginAndInertialRotations) {
     qd << 0.7;
     Mat Mu(1, 1), Mh(1, 1);
     Vec gu(1), gh(1);
-    su->mass(q, Mu);
-    sh->mass(q, Mh);
-    su->gravity(q, gu);
-    sh->gravity(q, gh);
+    su->mass({}, q, Mu);
+    sh->mass({}, q, Mh);
+    su->gravity({}, q, gu);
+    sh->gravity({}, q, gh);
     EXPECT_NEAR(Mu(0, 0), Mh(0, 0), 1e-14);
     EXPECT_NEAR(Mu(0, 0), 2 * 0.36 + 0.7, 1e-14);  // about y: m d^2 + I_yy
     EXPECT_NEAR(gu(0), gh(0), 1e-13);
@@ -292,9 +292,9 @@ TEST(ChainUrdf, PaperArmFromUrdfMatchesChain) {
     const Vec q = random_vec(rng, 6, -3.2, 3.2), qd = random_vec(rng, 6, -3, 3);
     Mat Ma(6, 6), Mb(6, 6), Mc(6, 6);
     Vec ga(6), gb(6), gc(6), ca(6), cb(6), cc(6);
-    a.mass(q, Ma), b.mass(q, Mb), c.mass(q, Mc);
-    a.gravity(q, ga), b.gravity(q, gb), c.gravity(q, gc);
-    a.coriolis_times_qd(q, qd, ca), b.coriolis_times_qd(q, qd, cb), c.coriolis_times_qd(q, qd, cc);
+    a.mass({}, q, Ma), b.mass({}, q, Mb), c.mass({}, q, Mc);
+    a.gravity({}, q, ga), b.gravity({}, q, gb), c.gravity({}, q, gc);
+    a.coriolis_times_qd({}, q, qd, ca), b.coriolis_times_qd({}, q, qd, cb), c.coriolis_times_qd({}, q, qd, cc);
     worst = std::max(
         {worst, rel(Ma, Mc), rel(Mb, Mc), rel(ga, gc), rel(gb, gc), rel(ca, cc), rel(cb, cc)});
   }

@@ -57,8 +57,8 @@ TEST(ChainConstraints, KindsGiveTheHandWrittenRows) {
     const double t = uktest::uniform(rng, 0, 5);
     Mat A1(2, 2), A2(2, 2);
     Vec b1(2), b2(2);
-    ck->evaluate(t, q, qd, A1, b1);
-    ch->evaluate(t, q, qd, A2, b2);
+    ck->evaluate({t}, q, qd, A1, b1);
+    ch->evaluate({t}, q, qd, A2, b2);
     worst = std::max({worst, rel(A1, A2), rel(b1, b2)});
   }
   EXPECT_LE(worst, 1e-13);

@@ -21,7 +21,7 @@ constexpr double kFdTol = 1e-7;  // relative, finite differences
 
 Vec residual(const Constraint& c, double t, const Vec& q) {
   Vec phi(c.rows());
-  c.position_residual(t, q, phi);
+  c.position_residual({t}, q, phi);
   return phi;
 }
 
@@ -86,10 +86,10 @@ void check_constraint(const Constraint& c, std::uint64_t seed) {
   for (int s = 0; s < kStates; ++s) {
     Motion mo{uktest::uniform(rng, 0.0, 2.0), random_q12(rng), random_v12(rng), random_v12(rng)};
     A.setZero();  // System::evaluate_constraints zeroes the rows before the call
-    c.evaluate(mo.t0, mo.q0, mo.v, A, b);
+    c.evaluate({mo.t0}, mo.q0, mo.v, A, b);
     const Mat Jfd = jacobian_fd(c, mo.t0, mo.q0);
     EXPECT_LE(rel_err(A, Jfd), kFdTol) << "state " << s << "\nA\n" << A << "\nFD\n" << Jfd;
-    c.velocity_residual(mo.t0, mo.q0, mo.v, phid);
+    c.velocity_residual({mo.t0}, mo.q0, mo.v, phid);
     const Vec d1 = dphi_fd(c, mo);
     EXPECT_LE(rel_err(phid, d1), kFdTol)
         << "state " << s << "\nphid " << phid.transpose() << "\nFD   " << d1.transpose();
@@ -100,7 +100,7 @@ void check_constraint(const Constraint& c, std::uint64_t seed) {
     // b does not depend on q̈, and A does not depend on q̇ (second-order form A(q, t) q̈ = b).
     Mat A2 = Mat::Zero(m, 12);
     Vec b2(m);
-    c.evaluate(mo.t0, mo.q0, mo.v + random_v12(rng), A2, b2);
+    c.evaluate({mo.t0}, mo.q0, mo.v + random_v12(rng), A2, b2);
     EXPECT_LE((A2 - A).norm(), 1e-15 * (A.norm() + 1.0));
   }
 }
@@ -168,7 +168,7 @@ TEST(Constraints, ClosureEqualsReferenceKinematics) {
     q(8) = q(2) - o.yaw_offset + uktest::uniform(rng, -0.5, 0.5);  // no 2π ambiguity in the yaw row
     const Vec qd = random_v12(rng);
     const Vector6d q1 = q.head<6>(), q2 = q.tail<6>(), v1 = qd.head<6>(), v2 = qd.tail<6>();
-    c->position_residual(0.0, q, phi);
+    c->position_residual({}, q, phi);
     const Eigen::Vector3d d = ukref::cut_point<double>(pl, q1) - ukref::cut_point<double>(pr, q2) -
                               Eigen::Vector3d(0, 0, o.dz);
     Vec phi_ref(6);
@@ -177,7 +177,7 @@ TEST(Constraints, ClosureEqualsReferenceKinematics) {
                                             << phi.transpose() << "\n"
                                             << phi_ref.transpose();
     A.setZero();
-    c->evaluate(0.0, q, qd, A, b);
+    c->evaluate({}, q, qd, A, b);
     Mat Aref = Mat::Zero(3, 12);
     Aref.leftCols(6) = ukref::cut_point_jacobian(pl, q1);
     Aref.rightCols(6) = -ukref::cut_point_jacobian(pr, q2);
@@ -208,12 +208,12 @@ TEST(Constraints, CutPointTrajectoryEqualsReferenceKinematics) {
     const Vec q = random_q12(rng), qd = random_v12(rng);
     const double t = uktest::uniform(rng, 0, 3);
     const Vector6d q2 = q.tail<6>(), v2 = qd.tail<6>();
-    c.position_residual(t, q, phi);
+    c.position_residual({t}, q, phi);
     const Eigen::Vector3d ft(f[0].eval(t), f[1].eval(t), f[2].eval(t));
     const Eigen::Vector3d ftdd(f[0].eval(t, 2), f[1].eval(t, 2), f[2].eval(t, 2));
     EXPECT_LE(rel_err(Vec(phi), Vec(ukref::cut_point<double>(p, q2) - origin - ft)), 1e-14);
     A.setZero();
-    c.evaluate(t, q, qd, A, b);
+    c.evaluate({t}, q, qd, A, b);
     EXPECT_EQ(A.leftCols(6).norm(), 0.0);
     EXPECT_LE(rel_err(Mat(A.rightCols(6)), Mat(ukref::cut_point_jacobian(p, q2))), 1e-14);
     EXPECT_LE(rel_err(Vec(b), Vec(ftdd - ukref::cut_point_jdot_qd(p, q2, v2))), 1e-13);
@@ -225,12 +225,12 @@ TEST(Constraints, PaperInitialStateSatisfiesClosure) {
   const auto c = two.add_closure();
   const Vec q0 = uktest::paper_q0();
   Vec phi(6), phid(6);
-  c->position_residual(0.0, q0, phi);
+  c->position_residual({}, q0, phi);
   EXPECT_LE(phi.cwiseAbs().maxCoeff(), 1e-15) << phi.transpose();
   // The cut point is at (0.8, 0, 1.2 − 0.4√3) (paper-notes).
   const Eigen::Vector3d p1 = two.left->cut_point(q0.head<6>());
   EXPECT_LE((p1 - Eigen::Vector3d(0.8, 0.0, 1.2 - 0.4 * std::sqrt(3.0))).norm(), 1e-15);
-  c->velocity_residual(0.0, q0, Vec::Zero(12), phid);
+  c->velocity_residual({}, q0, Vec::Zero(12), phid);
   EXPECT_EQ(phid.norm(), 0.0);
   // The trajectory rows are satisfied at t = 0 too.
   two.add_paper_trajectory(q0);
@@ -249,7 +249,7 @@ TEST(Constraints, PaperSpatialStartIsVelocityConsistent) {
       -0.10243493969032202, 0, 0.09956390871238911, 0.20906857928866182, 0.3238357241108272,
       -0.7333193364981856, -0.10243493969031958, 0;
   Vec phid(6);
-  c->velocity_residual(0.0, uktest::paper_q0(), qd0, phid);
+  c->velocity_residual({}, uktest::paper_q0(), qd0, phid);
   EXPECT_LE(phid.norm(), 1e-14) << phid.transpose();
 }
 
@@ -265,7 +265,7 @@ TEST(Constraints, SystemStacksBlocksByRows) {
   ukdyn::evaluate_constraints(*two.system, data, 0.7, q, qd);
   Mat A = Mat::Zero(6, 12);
   Vec b(6);
-  c->evaluate(0.7, q, qd, A, b);
+  c->evaluate({0.7}, q, qd, A, b);
   EXPECT_EQ((data.A.topRows(6) - A).norm(), 0.0);
   EXPECT_EQ((data.b.head(6) - b).norm(), 0.0);
   const auto& offs = two.system->constraint_row_offsets();
@@ -279,7 +279,7 @@ TEST(Constraints, SystemStacksBlocksByRows) {
   for (std::size_t k = 0; k < two.system->constraints().size(); ++k) {
     const auto& ck = two.system->constraints()[k];
     Vec v(ck->rows());
-    ck->velocity_residual(0.7, q, qd, v);
+    ck->velocity_residual({0.7}, q, qd, v);
     phid_ref.segment(offs[k], ck->rows()) = v;
   }
   EXPECT_EQ((phid - phid_ref).norm(), 0.0);
@@ -296,8 +296,8 @@ TEST(Constraints, EvaluateOverwritesPreviousContentsOfA) {
   for (const auto& c : two.system->constraints()) {
     Mat A0 = Mat::Zero(c->rows(), 12), A1 = Mat::Constant(c->rows(), 12, 7.0);
     Vec b0(c->rows()), b1 = Vec::Constant(c->rows(), 7.0);
-    c->evaluate(0.3, q, qd, A0, b0);
-    c->evaluate(0.3, q, qd, A1, b1);
+    c->evaluate({0.3}, q, qd, A0, b0);
+    c->evaluate({0.3}, q, qd, A1, b1);
     EXPECT_EQ((A1 - A0).norm(), 0.0) << c->row_names().front();
     EXPECT_EQ((b1 - b0).norm(), 0.0) << c->row_names().front();
   }

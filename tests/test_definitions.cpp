@@ -50,18 +50,18 @@ TEST(SymbolicSubsystem, DoublePendulumMatchesTextbook) {
     gref << (m1 + m2) * g * l1 * std::sin(q(0)), m2 * g * l2 * std::sin(q(1));
     Mat M(2, 2);
     Vec c(2), G(2);
-    sub->mass(q, M);
-    sub->coriolis_times_qd(q, qd, c);
-    sub->gravity(q, G);
+    sub->mass({}, q, M);
+    sub->coriolis_times_qd({}, q, qd, c);
+    sub->gravity({}, q, G);
     EXPECT_LT((M - Mref).norm(), 1e-13);
     EXPECT_LT((c - cref).norm(), 1e-13);
     EXPECT_LT((G - gref).norm(), 1e-13);
-    EXPECT_NEAR(sub->kinetic(q, qd), 0.5 * qd.dot(Mref * qd), 1e-13);
+    EXPECT_NEAR(sub->kinetic({}, q, qd), 0.5 * qd.dot(Mref * qd), 1e-13);
     // dynamics() (one combined tape, used by forward()) writes every entry and agrees with the
     // three separate tapes and with the textbook.
     Mat M3 = Mat::Constant(2, 2, 123.0);
     Vec c3 = Vec::Constant(2, 123.0), G3 = Vec::Constant(2, 123.0);
-    sub->dynamics(q, qd, M3, c3, G3);
+    sub->dynamics({}, q, qd, M3, c3, G3);
     EXPECT_LE((M3 - M).norm(), 1e-15 * (1.0 + M.norm()));
     EXPECT_LE((c3 - c).norm(), 1e-15 * (1.0 + c.norm()));
     EXPECT_LE((G3 - G).norm(), 1e-15 * (1.0 + G.norm()));
@@ -102,7 +102,7 @@ TEST(SymbolicSubsystem, RotationMatrixGivesExactRigidBodyInertia) {
     Vec q(2);
     q << 0.4, 0.7;
     Mat M(2, 2);
-    sub->mass(q, M);
+    sub->mass({}, q, M);
     const double expect = frame == sym::Frame::body ? 0.3 * std::cos(0.7) * std::cos(0.7) : 0.3;
     EXPECT_NEAR(M(0, 0), expect, 1e-14);
     EXPECT_NEAR(M(1, 1), 0.3, 1e-14);
@@ -146,20 +146,20 @@ TEST(SymbolicSubsystem, ChristoffelTermsAgreeWithFiniteDifferences) {
       qd(i) = uktest::uniform(rng, -2, 2);
     }
     Mat Mp(3, 3), Mm(3, 3), Mdot(3, 3), C(3, 3);
-    sub->mass(q + h * qd, Mp);
-    sub->mass(q - h * qd, Mm);
+    sub->mass({}, q + h * qd, Mp);
+    sub->mass({}, q - h * qd, Mm);
     Mdot = (Mp - Mm) / (2 * h);
     Vec dTdq(3), dVdq(3);
     for (int i = 0; i < 3; ++i) {
       Vec e = Vec::Zero(3);
       e(i) = h;
-      dTdq(i) = (sub->kinetic(q + e, qd) - sub->kinetic(q - e, qd)) / (2 * h);
-      dVdq(i) = (sub->potential(q + e) - sub->potential(q - e)) / (2 * h);
+      dTdq(i) = (sub->kinetic({}, q + e, qd) - sub->kinetic({}, q - e, qd)) / (2 * h);
+      dVdq(i) = (sub->potential({}, q + e) - sub->potential({}, q - e)) / (2 * h);
     }
     Vec cqd(3), G(3);
-    sub->coriolis_times_qd(q, qd, cqd);
-    sub->gravity(q, G);
-    sub->coriolis(q, qd, C);
+    sub->coriolis_times_qd({}, q, qd, cqd);
+    sub->gravity({}, q, G);
+    sub->coriolis({}, q, qd, C);
     EXPECT_LT((cqd - (Mdot * qd - dTdq)).norm(), 1e-7 * (1 + cqd.norm()));
     EXPECT_LT((C * qd - cqd).norm(), 1e-12 * (1 + cqd.norm()));
     EXPECT_LT((G - dVdq).norm(), 1e-7 * (1 + G.norm()));
@@ -244,14 +244,14 @@ void check_b_by_differences(const ukdyn::Constraint& c, Index n, std::mt19937_64
     const double t = uktest::uniform(rng, 0, 3);
     Mat A(m, n);
     Vec b(m), vp(m), vm(m), phid(m), pp(m), pm(m);
-    c.evaluate(t, q, qd, A, b);
-    c.velocity_residual(t + h, q + h * qd, qd, vp);
-    c.velocity_residual(t - h, q - h * qd, qd, vm);
+    c.evaluate({t}, q, qd, A, b);
+    c.velocity_residual({t + h}, q + h * qd, qd, vp);
+    c.velocity_residual({t - h}, q - h * qd, qd, vm);
     EXPECT_LT((b + (vp - vm) / (2 * h)).norm(), 1e-6 * (1 + b.norm()));
-    c.velocity_residual(t, q, qd, phid);
+    c.velocity_residual({t}, q, qd, phid);
     // Holonomic rows: Φ̇ = dΦ/dt along the path.
-    c.position_residual(t + h, q + h * qd, pp);
-    c.position_residual(t - h, q - h * qd, pm);
+    c.position_residual({t + h}, q + h * qd, pp);
+    c.position_residual({t - h}, q - h * qd, pm);
     (void)pp;
     (void)pm;
   }
@@ -272,9 +272,9 @@ TEST(SymbolicConstraint, HolonomicWithTimeMatchesHandDerivation) {
     const double t = uktest::uniform(rng, 0, 3);
     Mat A(1, 2);
     Vec b(1), phi(1), phid(1);
-    c->evaluate(t, q, qd, A, b);
-    c->position_residual(t, q, phi);
-    c->velocity_residual(t, q, qd, phid);
+    c->evaluate({t}, q, qd, A, b);
+    c->position_residual({t}, q, phi);
+    c->velocity_residual({t}, q, qd, phid);
     const double r = 1.5 + 0.1 * std::sin(2 * t), rd = 0.2 * std::cos(2 * t),
                  rdd = -0.4 * std::sin(2 * t);
     // Φ̈ = 2(ẋ² + ẏ² + x ẍ + y ÿ) − 2(ṙ² + r r̈) = 0 ⇒ A = 2[x y], b = −2(ẋ² + ẏ²) + 2(ṙ² + r r̈).
@@ -301,7 +301,7 @@ TEST(SymbolicConstraint, NonholonomicKnifeEdge) {
     }
     Mat A(1, 3);
     Vec b(1);
-    c->evaluate(0.0, q, qd, A, b);
+    c->evaluate({}, q, qd, A, b);
     EXPECT_NEAR(A(0, 0), std::sin(q(2)), 1e-15);
     EXPECT_NEAR(A(0, 1), -std::cos(q(2)), 1e-15);
     EXPECT_NEAR(A(0, 2), 0.0, 1e-15);

@@ -156,8 +156,8 @@ TEST(FloatingJoint, RigidChainEqualsFreeBodyOfCombinedInertia) {
     random_state(rng, q, qd);
     Mat Mc(7, 7), Mf(7, 7);
     Vec Cc(7), Cf(7), Gc(7), Gf(7);
-    ch.sub->dynamics(q, qd, Mc, Cc, Gc);
-    fsub->dynamics(q, qd, Mf, Cf, Gf);
+    ch.sub->dynamics({}, q, qd, Mc, Cc, Gc);
+    fsub->dynamics({}, q, qd, Mf, Cf, Gf);
     Mat radial = Mat::Zero(7, 7);
     radial.bottomRightCorner(4, 4) = k * q.tail(4) * q.tail(4).transpose();
     Mat P = Mat::Identity(7, 7);  // projector on the tangent space of |q| = 1
@@ -280,7 +280,7 @@ TEST(FloatingJoint, ArticulatedChainKeepsMomentumInFreeFlight) {
   V3 P0, L0;
   double T0 = 0;
   momenta(q0, qd0, P0, L0, T0);
-  ASSERT_NEAR(sub->kinetic(q0, qd0), T0, 1e-13 * T0);
+  ASSERT_NEAR(sub->kinetic({}, q0, qd0), T0, 1e-13 * T0);
   ukdyn::SimulationSettings s;
   s.t_end = 3.0;
   s.sample_dt = 0.05;

@@ -111,15 +111,15 @@ TEST(FrameConstraints, JacobianMatchesFiniteDifferencesOfPhi) {
       const Vec qd = random_vec(rng, 12, -1.0, 1.0);
       Mat A(m, 12);
       Vec b(m);
-      c->evaluate(0.0, q, qd, A, b);
+      c->evaluate({}, q, qd, A, b);
       Mat Afd(m, 12);
       const double h = 1e-6;
       for (Index j = 0; j < 12; ++j) {
         Vec qp = q, qm = q, pp(m), pm(m);
         qp(j) += h;
         qm(j) -= h;
-        c->position_residual(0.0, qp, pp);
-        c->position_residual(0.0, qm, pm);
+        c->position_residual({}, qp, pp);
+        c->position_residual({}, qm, pm);
         Afd.col(j) = (pp - pm) / (2 * h);
       }
       EXPECT_LT((A - Afd).cwiseAbs().maxCoeff(), 1e-8) << sym::to_string(kind);

@@ -117,7 +117,7 @@ TEST(FreeBody, KineticEnergyIsThatOfOmegaFromR) {
     const Eigen::Vector3d w(S(2, 1), S(0, 2), S(1, 0));
     const double T = 0.5 * 2.0 * qd.head(3).squaredNorm() +
                      0.5 * (1.0 * w(0) * w(0) + 2.5 * w(1) * w(1) + 3.5 * w(2) * w(2));
-    EXPECT_NEAR(b.sub->kinetic(q, qd), T, 1e-8 * T);
+    EXPECT_NEAR(b.sub->kinetic({}, q, qd), T, 1e-8 * T);
     EXPECT_LT((omega_body(q.tail(4), qd.tail(4)) - w).norm(), 1e-7);
   }
 }

@@ -108,9 +108,9 @@ void expect_agrees(const fs::path& scenario, const std::string& function) {
   ASSERT_EQ(v.size(), static_cast<std::size_t>(2 * n * n + n)) << why;
   ukdyn::Mat M(n, n), C(n, n);
   ukdyn::Vec G(n);
-  sub.mass(q, M);
-  sub.coriolis(q, qd, C);
-  sub.gravity(q, G);
+  sub.mass({}, q, M);
+  sub.coriolis({}, q, qd, C);
+  sub.gravity({}, q, G);
   std::size_t k = 0;
   auto near = [](double a, double b) { return std::abs(a - b) <= 1e-10 * (1 + std::abs(b)); };
   for (ukdyn::Index i = 0; i < n; ++i)

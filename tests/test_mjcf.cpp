@@ -67,9 +67,9 @@ TEST(Mjcf, MassMatrixAndBiasForcesMatchMuJoCo) {
     mj_fullM(m, full.data(), d->qM);
     for (int i = 0; i < 6; ++i)
       for (int j = 0; j < 6; ++j) Mmj(i, j) = full[static_cast<std::size_t>(6 * i + j)];
-    sub->mass(qv, M);
-    sub->coriolis_times_qd(qv, qd, Cqd);
-    sub->gravity(qv, G);
+    sub->mass({}, qv, M);
+    sub->coriolis_times_qd({}, qv, qd, Cqd);
+    sub->gravity({}, qv, G);
     Vec bias(6);
     for (int i = 0; i < 6; ++i) bias[i] = d->qfrc_bias[i];
     worst_M = std::max(worst_M, (M - Mmj).norm() / Mmj.norm());
@@ -157,9 +157,9 @@ TEST(Mjcf, FreeAndBallJointsMatchMuJoCo) {
     mj_fullM(m, full.data(), d->qM);
     for (int i = 0; i < nv; ++i)
       for (int j = 0; j < nv; ++j) Mmj(i, j) = full[static_cast<std::size_t>(nv * i + j)];
-    sub->mass(qv, M);
-    sub->coriolis_times_qd(qv, qd, Cqd);
-    sub->gravity(qv, G);
+    sub->mass({}, qv, M);
+    sub->coriolis_times_qd({}, qv, qd, Cqd);
+    sub->gravity({}, qv, G);
     Vec bias(nv);
     for (int i = 0; i < nv; ++i) bias[i] = d->qfrc_bias[i];
     const Mat Mv = H.transpose() * M * H;

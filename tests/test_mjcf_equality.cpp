@@ -148,8 +148,8 @@ TEST(MjcfEquality, RowsAndJacobianAndAccelerationMatchMuJoCo) {
     mj.equality(J, pos);
     ASSERT_EQ(J.rows(), 9);
     Vec pw(6), pb(3);
-    weld->position_residual(0.0, q, pw);
-    ball->position_residual(0.0, q, pb);
+    weld->position_residual({}, q, pw);
+    ball->position_residual({}, q, pb);
     worst_pos = std::max(worst_pos, (pw.head(3) - pos.head(3)).cwiseAbs().maxCoeff());
     worst_pos = std::max(worst_pos, (pb - pos.tail(3)).cwiseAbs().maxCoeff());
   }
@@ -157,8 +157,8 @@ TEST(MjcfEquality, RowsAndJacobianAndAccelerationMatchMuJoCo) {
 
   // 2. At qpos0: the rows vanish, and the row spaces agree.
   Vec pw(6), pb(3);
-  weld->position_residual(0.0, q0, pw);
-  ball->position_residual(0.0, q0, pb);
+  weld->position_residual({}, q0, pw);
+  ball->position_residual({}, q0, pb);
   EXPECT_LE(pw.cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(pb.cwiseAbs().maxCoeff(), 1e-12);
   mj.set(q0, Vec::Zero(12));

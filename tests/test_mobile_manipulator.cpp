@@ -23,23 +23,23 @@ constexpr double kTol = 1e-12;  // relative, closed form vs AD
 Matrix6d lib_mass(const ukdyn::MobileManipulator& arm, const Vector6d& q) {
   Matrix6d M;
   ukdyn::Mat Mx(6, 6);
-  arm.mass(q, Mx);
+  arm.mass({}, q, Mx);
   M = Mx;
   return M;
 }
 Matrix6d lib_coriolis(const ukdyn::MobileManipulator& arm, const Vector6d& q, const Vector6d& qd) {
   ukdyn::Mat C(6, 6);
-  arm.coriolis(q, qd, C);
+  arm.coriolis({}, q, qd, C);
   return C;
 }
 Vector6d lib_cqd(const ukdyn::MobileManipulator& arm, const Vector6d& q, const Vector6d& qd) {
   ukdyn::Vec c(6);
-  arm.coriolis_times_qd(q, qd, c);
+  arm.coriolis_times_qd({}, q, qd, c);
   return c;
 }
 Vector6d lib_gravity(const ukdyn::MobileManipulator& arm, const Vector6d& q) {
   ukdyn::Vec g(6);
-  arm.gravity(q, g);
+  arm.gravity({}, q, g);
   return g;
 }
 
@@ -169,11 +169,11 @@ TEST(MobileManipulator, GravityEqualsReference) {
       const double h = 1e-6;
       for (int i = 0; i < 6; ++i) {
         const Vector6d e = Vector6d::Unit(i) * h;
-        grad(i) = (arm->potential(q + e) - arm->potential(q - e)) / (2.0 * h);
+        grad(i) = (arm->potential({}, q + e) - arm->potential({}, q - e)) / (2.0 * h);
       }
       EXPECT_LE(rel_err(grad, Gref), 1e-8) << "state " << s;
       const Vector6d q2 = uktest::random_q(rng);
-      const double dV = arm->potential(q2) - arm->potential(q);
+      const double dV = arm->potential({}, q2) - arm->potential({}, q);
       const double dVref = ukref::potential<double>(p, q2) - ukref::potential<double>(p, q);
       EXPECT_NEAR(dV, dVref, 1e-12 * (std::abs(dVref) + 1.0)) << "state " << s;
     }
@@ -278,7 +278,7 @@ TEST(MobileManipulator, DynamicsMatchesSeparateCallsAndReference) {
       const Vector6d qd = uktest::random_qd(rng);
       ukdyn::Mat M = ukdyn::Mat::Constant(6, 6, 123.0);
       ukdyn::Vec cqd = ukdyn::Vec::Constant(6, 123.0), g = ukdyn::Vec::Constant(6, 123.0);
-      arm->dynamics(q, qd, M, cqd, g);
+      arm->dynamics({}, q, qd, M, cqd, g);
       EXPECT_LE(rel_err(M, lib_mass(*arm, q)), 1e-15) << "state " << s;
       EXPECT_LE(rel_err(cqd, lib_cqd(*arm, q, qd)), 1e-15) << "state " << s;
       EXPECT_LE(rel_err(g, lib_gravity(*arm, q)), 1e-15) << "state " << s;
@@ -296,16 +296,23 @@ class PlainPendulum final : public ukdyn::Subsystem {
   [[nodiscard]] ukdyn::Index dof() const override { return 1; }
   [[nodiscard]] const std::string& name() const override { return name_; }
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const override { return names_; }
-  void mass(ukdyn::CVecRef /*q*/, ukdyn::MatRef M) const override { M(0, 0) = 2.0; }
-  void coriolis(ukdyn::CVecRef /*q*/, ukdyn::CVecRef /*qd*/, ukdyn::MatRef C) const override {
+  void mass(const ukdyn::EvalContext& /*c*/, ukdyn::CVecRef /*q*/, ukdyn::MatRef M) const override {
+    M(0, 0) = 2.0;
+  }
+  void coriolis(const ukdyn::EvalContext& /*c*/, ukdyn::CVecRef /*q*/, ukdyn::CVecRef /*qd*/,
+                ukdyn::MatRef C) const override {
     C(0, 0) = 0.0;
   }
-  void coriolis_times_qd(ukdyn::CVecRef /*q*/, ukdyn::CVecRef qd,
+  void coriolis_times_qd(const ukdyn::EvalContext& /*c*/, ukdyn::CVecRef /*q*/, ukdyn::CVecRef qd,
                          ukdyn::VecRef Cqd) const override {
     Cqd(0) = 3.0 * qd(0);
   }
-  void gravity(ukdyn::CVecRef q, ukdyn::VecRef G) const override { G(0) = 5.0 * std::sin(q(0)); }
-  [[nodiscard]] double potential(ukdyn::CVecRef q) const override { return -5.0 * std::cos(q(0)); }
+  void gravity(const ukdyn::EvalContext& /*c*/, ukdyn::CVecRef q, ukdyn::VecRef G) const override {
+    G(0) = 5.0 * std::sin(q(0));
+  }
+  [[nodiscard]] double potential(const ukdyn::EvalContext& /*c*/, ukdyn::CVecRef q) const override {
+    return -5.0 * std::cos(q(0));
+  }
 
  private:
   std::string name_ = "pendulum";
@@ -319,7 +326,7 @@ TEST(Subsystem, DefaultDynamicsCallsMassCoriolisGravity) {
   q << 0.3;
   qd << -1.5;
   ukdyn::Mat M(1, 1);
-  pend.dynamics(q, qd, M, cqd, g);
+  pend.dynamics({}, q, qd, M, cqd, g);
   EXPECT_EQ(M(0, 0), 2.0);
   EXPECT_EQ(cqd(0), -4.5);
   EXPECT_EQ(g(0), 5.0 * std::sin(0.3));

@@ -76,9 +76,9 @@ TEST(ChainSpline, SplineTrajectoryDerivesExactly) {
     const double t = uktest::uniform(rng, -0.5, 4.5);
     Mat A(2, 2);
     Vec b(2), phi(2), phid(2);
-    c->evaluate(t, q, qd, A, b);
-    c->position_residual(t, q, phi);
-    c->velocity_residual(t, q, qd, phid);
+    c->evaluate({t}, q, qd, A, b);
+    c->position_residual({t}, q, phi);
+    c->velocity_residual({t}, q, qd, phid);
     EXPECT_NEAR(A(0, 0), 1.0, 1e-15);
     EXPECT_NEAR(b(0), s.eval(t, 2), 1e-12);
     EXPECT_NEAR(b(1), 2 * s.eval(t, 2), 1e-12);

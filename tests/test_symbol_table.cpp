@@ -70,7 +70,7 @@ TEST(SymbolTable, SubsystemAndConstraintOfOneSystemShareItsTable) {
   EXPECT_EQ(data.A(0, 0), 1.0);
   EXPECT_EQ(data.A(0, 1), 0.0);
   Vec phi(1);
-  system->constraints().front()->position_residual(0.0, q, phi);
+  system->constraints().front()->position_residual({}, q, phi);
   EXPECT_EQ(phi(0), 0.5 - 0.2);
 }
 

@@ -63,12 +63,12 @@ TEST(SymbolicScenario, ValidDefinitionsLoad) {
   const auto sc = ukdyn::load_scenario_text(pendulum_on_cart(), "s.yaml");
   EXPECT_EQ(sc.system->dof(), 2);
   Mat M(2, 2);
-  sc.system->subsystems()[0]->mass(sc.q0, M);
+  sc.system->subsystems()[0]->mass({}, sc.q0, M);
   EXPECT_NEAR(M(0, 0), 7.0, 1e-15);
   EXPECT_NEAR(M(1, 1), 2 * 0.64, 1e-15);
   EXPECT_NEAR(M(0, 1), 2 * 0.8 * std::cos(0.3), 1e-15);
   Vec G(2);
-  sc.system->subsystems()[0]->gravity(sc.q0, G);  // default gravity [0, 0, -9.8]
+  sc.system->subsystems()[0]->gravity({}, sc.q0, G);  // default gravity [0, 0, -9.8]
   EXPECT_NEAR(G(1), 2 * 9.8 * 0.8 * std::sin(0.3), 1e-14);
 }
 

@@ -83,14 +83,14 @@ struct Fixture {
   Mat A(const Vec& q) const {
     Mat a = Mat::Zero(6, 12);
     Vec b(6);
-    closure->evaluate(0.0, q, Vec::Zero(12), a, b);
+    closure->evaluate({}, q, Vec::Zero(12), a, b);
     return a;
   }
   /// Gauss–Newton projection of q onto the closure manifold Φ(q) = 0.
   Vec project(Vec q) const {
     Vec phi(6);
     for (int it = 0; it < 50; ++it) {
-      closure->position_residual(0.0, q, phi);
+      closure->position_residual({}, q, phi);
       if (phi.norm() < 1e-14) break;
       q -= A(q).completeOrthogonalDecomposition().solve(phi);
     }
@@ -127,9 +127,9 @@ TEST(SystemInvariants, ConstraintForceHasZeroPowerOnConsistentVelocities) {
     for (int s = 0; s < 50; ++s) {
       const auto [q, qd] = f.random_state(rng);
       Vec phi(6), phid(6);
-      f.closure->position_residual(0.0, q, phi);
+      f.closure->position_residual({}, q, phi);
       ASSERT_LE(phi.norm(), 1e-13);
-      f.closure->velocity_residual(0.0, q, qd, phid);
+      f.closure->velocity_residual({}, q, qd, phid);
       ASSERT_LE(phid.norm(), 1e-13);
       ukdyn::forward(*f.two.system, data, 0.0, q, qd, Vec::Zero(12));
       ASSERT_TRUE(data.result.finite);
@@ -222,7 +222,7 @@ TEST(SystemInvariants, ConservedAlongRk4Integration) {
     max_dP = std::max(max_dP, (it.P - i0.P).norm());
     max_dL = std::max(max_dL, std::abs(it.Lz - i0.Lz));
     Vec phi(6);
-    f.closure->position_residual(t, x.head(12), phi);
+    f.closure->position_residual({t}, x.head(12), phi);
     max_phi = std::max(max_phi, phi.norm());
   }
   EXPECT_LE(max_dE, 1e-9 * std::abs(i0.energy)) << "energy drift";

@@ -120,7 +120,7 @@ TEST(VaryingMass, PointMassOnASpringMatchesAnIndependentRk4) {
 }
 
 // (b) A double pendulum with m1(t), m2(t) and a rotational inertia I(t) on link 2: M q̈ + C q̇ + G
-// from dynamics_at() against d/dt ∂L/∂q̇ − ∂L/∂q by finite differences of the Lagrangian written
+// from dynamics() against d/dt ∂L/∂q̇ − ∂L/∂q by finite differences of the Lagrangian written
 // by hand here (∂/∂q̇ by central differences, exact for T quadratic in q̇; d/dt along the path
 // q + s q̇ + s²/2 q̈, h = 1e-4), and ∂L/∂t against a central difference in t.
 TEST(VaryingMass, LagrangeTermsMatchFiniteDifferencesOfTheLagrangian) {
@@ -184,35 +184,33 @@ TEST(VaryingMass, LagrangeTermsMatchFiniteDifferencesOfTheLagrangian) {
     Mat M(2, 2);
     Vec Cqd(2), G(2);
     double Lt = 0.0;
-    sub->dynamics_at({}, t, q, qd, M, Cqd, G, Lt);
+    Lt = sub->dynamics({t}, q, qd, M, Cqd, G);
     const Vec ours = M * qdd + Cqd + G;
     worst_eq = std::max(worst_eq, (ours - lhs).norm() / (1 + lhs.norm()));
     const double LtFd =
         ((T(q, qd, t + 1e-5) - V(q, t + 1e-5)) - (T(q, qd, t - 1e-5) - V(q, t - 1e-5))) / 2e-5;
     worst_lt = std::max(worst_lt, std::abs(Lt - LtFd) / (1 + std::abs(LtFd)));
-    worst_e = std::max({worst_e, std::abs(sub->kinetic_at(t, q, qd) - T(q, qd, t)),
-                        std::abs(sub->potential_at(t, q) - V(q, t))});
+    worst_e = std::max({worst_e, std::abs(sub->kinetic({t}, q, qd) - T(q, qd, t)),
+                        std::abs(sub->potential({t}, q) - V(q, t))});
     // ∂M/∂t q̇ by a difference of M in t (the part a constant-mass derivation would miss).
     Mat Mp(2, 2), Mm(2, 2);
     Vec c(2), gg(2);
-    double l = 0.0;
-    sub->dynamics_at({}, t + 1e-5, q, qd, Mp, c, gg, l);
-    sub->dynamics_at({}, t - 1e-5, q, qd, Mm, c, gg, l);
+    sub->dynamics({t + 1e-5}, q, qd, Mp, c, gg);
+    sub->dynamics({t - 1e-5}, q, qd, Mm, c, gg);
     mt_size = std::max(mt_size, (((Mp - Mm) / 2e-5) * qd).norm());
   }
   EXPECT_LT(worst_eq, 1e-6);
   EXPECT_LT(worst_lt, 1e-8);
   EXPECT_LT(worst_e, 1e-12);
   EXPECT_GT(mt_size, 0.5);  // the explicit-time term is large enough for worst_eq to see it
-  // The t-less methods are the values at t = 0.
+  // A default context is t = 0.
   Vec q(2), qd(2);
   q << 0.3, -0.7;
   qd << 1.1, 0.4;
   Mat M(2, 2), M0(2, 2);
   Vec c(2), g0(2), c0(2), gg0(2);
-  double Lt = 0.0;
-  sub->dynamics(q, qd, M, c, g0);
-  sub->dynamics_at({}, 0.0, q, qd, M0, c0, gg0, Lt);
+  sub->dynamics({}, q, qd, M, c, g0);
+  sub->dynamics({0.0}, q, qd, M0, c0, gg0);
   EXPECT_EQ(M, M0);
   EXPECT_EQ(c, c0);
   std::printf(
@@ -290,8 +288,8 @@ TEST(VaryingMass, ConstantMassIsNotTimeVarying) {
   Mat Ma(1, 1), Mb(1, 1);
   Vec ca(1), cb(1), ga(1), gb(1);
   double la = 1.0, lb = 1.0;
-  sa->dynamics_at({}, 2.5, q, qd, Ma, ca, ga, la);
-  sb->dynamics_at({}, 2.5, q, qd, Mb, cb, gb, lb);
+  la = sa->dynamics({2.5}, q, qd, Ma, ca, ga);
+  lb = sb->dynamics({2.5}, q, qd, Mb, cb, gb);
   EXPECT_EQ(Ma, Mb);
   EXPECT_EQ(ca, cb);
   EXPECT_EQ(ga, gb);

@@ -130,7 +130,7 @@ ForwardData::ForwardData(const System& system)
         state = state * 6364136223846793005ULL + 1442695040888963407ULL;  // LCG, Knuth MMIX
         q(i) = static_cast<double>(state >> 11) * 0x1.0p-52 - 1.0;
       }
-      subs[k]->mass(q, Mk);
+      subs[k]->mass({}, q, Mk);
       if (!Mk.allFinite()) {
         singular_everywhere = false;
         break;
@@ -179,11 +179,8 @@ void evaluate_dynamics(const System& system, ForwardData& data, double t, CVecRe
   for (std::size_t k = 0; k < subs.size(); ++k) {
     const Index s = L.start[k];
     const Index n = L.size[k];
-    double lt = 0.0;
-    subs[k]->dynamics_at(data.subsystem_slot(k), t, q.segment(s, n), qd.segment(s, n),
-                         data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n),
-                         lt);
-    Lt += lt;
+    Lt += subs[k]->dynamics({t, data.subsystem_slot(k)}, q.segment(s, n), qd.segment(s, n),
+                            data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n));
   }
   data.lagrangian_dt = Lt;
 }
@@ -195,8 +192,8 @@ void evaluate_constraints(const System& system, ForwardData& data, double t, CVe
   const Index n = system.dof();
   for (std::size_t c = 0; c < cons.size(); ++c) {
     const Index r = cons[c]->rows();
-    cons[c]->evaluate_with(data.constraint_slots(c), t, q, qd, data.A.block(offs[c], 0, r, n),
-                           data.b.segment(offs[c], r));
+    cons[c]->evaluate({t, data.constraint_slots(c)}, q, qd, data.A.block(offs[c], 0, r, n),
+                      data.b.segment(offs[c], r));
   }
 }
 
@@ -216,8 +213,8 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
     const Index n = system.dof();
     for (std::size_t c = 0; c < cons.size(); ++c) {
       const Index r = cons[c]->rows();
-      cons[c]->evaluate_structural_with(data.constraint_slots(c), t, q, qd,
-                                        data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
+      cons[c]->evaluate({t, data.constraint_slots(c), /*structural_only=*/true}, q, qd,
+                        data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
     }
   } else {
     evaluate_constraints(system, data, t, q, qd);
@@ -299,8 +296,8 @@ void position_residuals(const System& system, ForwardData& data, double t, CVecR
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
   for (std::size_t c = 0; c < cons.size(); ++c) {
-    cons[c]->position_residual_with(data.constraint_slots(c), t, q,
-                                    phi.segment(offs[c], cons[c]->rows()));
+    cons[c]->position_residual({t, data.constraint_slots(c)}, q,
+                               phi.segment(offs[c], cons[c]->rows()));
   }
 }
 
@@ -309,8 +306,8 @@ void velocity_residuals(const System& system, ForwardData& data, double t, CVecR
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
   for (std::size_t c = 0; c < cons.size(); ++c) {
-    cons[c]->velocity_residual_with(data.constraint_slots(c), t, q, qd,
-                                    phid.segment(offs[c], cons[c]->rows()));
+    cons[c]->velocity_residual({t, data.constraint_slots(c)}, q, qd,
+                               phid.segment(offs[c], cons[c]->rows()));
   }
 }
 
@@ -321,7 +318,7 @@ void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C) {
   for (std::size_t k = 0; k < subs.size(); ++k) {
     const Index s = L.start[k];
     const Index n = L.size[k];
-    subs[k]->coriolis(q.segment(s, n), qd.segment(s, n), C.block(s, s, n, n));
+    subs[k]->coriolis({}, q.segment(s, n), qd.segment(s, n), C.block(s, s, n, n));
   }
 }
 
@@ -329,7 +326,7 @@ void position_residuals(const System& system, double t, CVecRef q, VecRef phi) {
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
   for (std::size_t c = 0; c < cons.size(); ++c) {
-    cons[c]->position_residual(t, q, phi.segment(offs[c], cons[c]->rows()));
+    cons[c]->position_residual({t}, q, phi.segment(offs[c], cons[c]->rows()));
   }
 }
 
@@ -337,7 +334,7 @@ void velocity_residuals(const System& system, double t, CVecRef q, CVecRef qd, V
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
   for (std::size_t c = 0; c < cons.size(); ++c) {
-    cons[c]->velocity_residual(t, q, qd, phid.segment(offs[c], cons[c]->rows()));
+    cons[c]->velocity_residual({t}, q, qd, phid.segment(offs[c], cons[c]->rows()));
   }
 }
 
@@ -359,7 +356,7 @@ double potential_energy(const System& system, double t, CVecRef q) {
   const auto& subs = system.subsystems();
   double V = 0.0;
   for (std::size_t k = 0; k < subs.size(); ++k)
-    V += subs[k]->potential_at(t, q.segment(L.start[k], L.size[k]));
+    V += subs[k]->potential({t}, q.segment(L.start[k], L.size[k]));
   for (const auto& f : system.applied_forces()) V += f->potential(q);
   return V;
 }

@@ -27,12 +27,12 @@ ClosureConstraint::ClosureConstraint(std::shared_ptr<const MobileManipulator> le
     names_.push_back(opt_.prefix + s);
 }
 
-void ClosureConstraint::evaluate_with(const ConstraintSlots& slots, double /*t*/, CVecRef q,
+void ClosureConstraint::evaluate(const ConstraintContext& ctx, CVecRef q,
                                       CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J1, J2;
   Vec3 c1, c2;
-  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, slots.subsystem(lo_));
-  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, slots.subsystem(ro_));
+  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, ctx.slots.subsystem(lo_));
+  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, ctx.slots.subsystem(ro_));
   // Rows 1–3 of Eq. (15): the two cut points coincide; b from Eq. (16): b = −(J̇1 q̇1 − J̇2 q̇2).
   zero_rows(A);
   A.block(0, lo_, 3, 6) = J1;
@@ -46,10 +46,10 @@ void ClosureConstraint::evaluate_with(const ConstraintSlots& slots, double /*t*/
   b.tail<3>().setZero();
 }
 
-void ClosureConstraint::position_residual_with(const ConstraintSlots& slots, double /*t*/,
+void ClosureConstraint::position_residual(const ConstraintContext& ctx,
                                                CVecRef q, VecRef phi) const {
-  const Vec3 p1 = left_->cut_point(q.segment(lo_, 6), slots.subsystem(lo_));
-  const Vec3 p2 = right_->cut_point(q.segment(ro_, 6), slots.subsystem(ro_));
+  const Vec3 p1 = left_->cut_point(q.segment(lo_, 6), ctx.slots.subsystem(lo_));
+  const Vec3 p2 = right_->cut_point(q.segment(ro_, 6), ctx.slots.subsystem(ro_));
   phi(0) = p1(0) - p2(0);
   phi(1) = p1(1) - p2(1);
   // l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz  (Eq. (12) row 3)
@@ -59,12 +59,12 @@ void ClosureConstraint::position_residual_with(const ConstraintSlots& slots, dou
   phi(5) = q(ro_ + 5) - opt_.load_pitch2;
 }
 
-void ClosureConstraint::velocity_residual_with(const ConstraintSlots& slots, double /*t*/,
+void ClosureConstraint::velocity_residual(const ConstraintContext& ctx,
                                                CVecRef q, CVecRef qd, VecRef phid) const {
   Jac36 J1, J2;
   Vec3 c1, c2;
-  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, slots.subsystem(lo_));
-  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, slots.subsystem(ro_));
+  left_->cut_point_jacobian(q.segment(lo_, 6), qd.segment(lo_, 6), J1, c1, ctx.slots.subsystem(lo_));
+  right_->cut_point_jacobian(q.segment(ro_, 6), qd.segment(ro_, 6), J2, c2, ctx.slots.subsystem(ro_));
   phid.head<3>() = J1 * qd.segment(lo_, 6) - J2 * qd.segment(ro_, 6);
   phid(3) = qd(lo_ + 2) - qd(ro_ + 2);
   phid(4) = qd(lo_ + 5);
@@ -88,39 +88,39 @@ CutPointTrajectory::CutPointTrajectory(std::shared_ptr<const MobileManipulator> 
   if (axis_.empty()) throw Error("trajectory constraint '" + prefix + "': no axis given");
 }
 
-void CutPointTrajectory::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q,
+void CutPointTrajectory::evaluate(const ConstraintContext& ctx, CVecRef q,
                                        CVecRef qd, MatRef A, VecRef b) const {
   Jac36 J;
   Vec3 c;
   arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c,
-                           slots.subsystem(offset_));
+                           ctx.slots.subsystem(offset_));
   zero_rows(A);
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const auto r = static_cast<Index>(i);
     // p̈_axis = J q̈ + c = f''(t)  ⇒  A = J_axis, b = f''(t) − c_axis  (Eq. (20)).
     A.block(r, offset_, 1, 6) = J.row(axis_[i]);
-    b(r) = f_[i].eval(t, 2) - c(axis_[i]);
+    b(r) = f_[i].eval(ctx.t, 2) - c(axis_[i]);
   }
 }
 
-void CutPointTrajectory::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+void CutPointTrajectory::position_residual(const ConstraintContext& ctx, CVecRef q,
                                                 VecRef phi) const {
-  const Vec3 p = arm_->cut_point(q.segment(offset_, 6), slots.subsystem(offset_));
+  const Vec3 p = arm_->cut_point(q.segment(offset_, 6), ctx.slots.subsystem(offset_));
   for (std::size_t i = 0; i < axis_.size(); ++i) {
     const int a = axis_[i];
-    phi(static_cast<Index>(i)) = p(a) - origin_(a) - f_[i].eval(t, 0);
+    phi(static_cast<Index>(i)) = p(a) - origin_(a) - f_[i].eval(ctx.t, 0);
   }
 }
 
-void CutPointTrajectory::velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+void CutPointTrajectory::velocity_residual(const ConstraintContext& ctx, CVecRef q,
                                                 CVecRef qd, VecRef phid) const {
   Jac36 J;
   Vec3 c;
   arm_->cut_point_jacobian(q.segment(offset_, 6), qd.segment(offset_, 6), J, c,
-                           slots.subsystem(offset_));
+                           ctx.slots.subsystem(offset_));
   const Vec3 v = J * qd.segment(offset_, 6);
   for (std::size_t i = 0; i < axis_.size(); ++i) {
-    phid(static_cast<Index>(i)) = v(axis_[i]) - f_[i].eval(t, 1);
+    phid(static_cast<Index>(i)) = v(axis_[i]) - f_[i].eval(ctx.t, 1);
   }
 }
 
@@ -131,20 +131,20 @@ CoordinateConstraint::CoordinateConstraint(Index coordinate, TimeFunction f, std
   if (j_ < 0) throw Error("coordinate constraint '" + names_[0] + "': negative coordinate index");
 }
 
-void CoordinateConstraint::evaluate(double t, CVecRef /*q*/, CVecRef /*qd*/, MatRef A,
+void CoordinateConstraint::evaluate(const ConstraintContext& ctx, CVecRef /*q*/, CVecRef /*qd*/, MatRef A,
                                     VecRef b) const {
   zero_rows(A);
   A(0, j_) = 1.0;
-  b(0) = f_.eval(t, 2);
+  b(0) = f_.eval(ctx.t, 2);
 }
 
-void CoordinateConstraint::position_residual(double t, CVecRef q, VecRef phi) const {
-  phi(0) = q(j_) - f_.eval(t, 0);
+void CoordinateConstraint::position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const {
+  phi(0) = q(j_) - f_.eval(ctx.t, 0);
 }
 
-void CoordinateConstraint::velocity_residual(double t, CVecRef /*q*/, CVecRef qd,
+void CoordinateConstraint::velocity_residual(const ConstraintContext& ctx, CVecRef /*q*/, CVecRef qd,
                                              VecRef phid) const {
-  phid(0) = qd(j_) - f_.eval(t, 1);
+  phid(0) = qd(j_) - f_.eval(ctx.t, 1);
 }
 
 }  // namespace ukdyn

@@ -12,8 +12,8 @@ namespace {
 // ---- sin/cos of the four angles (δ, θ1, θ2, θ3), shared between dynamics() and the cut-point
 // kinematics of the constraints through this arm's data slot in ForwardData.
 //
-// forward() evaluates every arm's M, C q̇, G (dynamics_with()) and then the constraints, whose
-// cut-point Jacobians need the sin/cos of the same four angles of the same arms. dynamics_with()
+// forward() evaluates every arm's M, C q̇, G (dynamics()) and then the constraints, whose
+// cut-point Jacobians need the sin/cos of the same four angles of the same arms. dynamics()
 // computes them and records them in the arm's slot, next to the exact bit patterns of the angles;
 // kinematics() and cut_point() given that slot use it when the angles match and call sin/cos
 // otherwise. A hit returns bit-identical results to a recomputation: the slot changes the cost,
@@ -229,7 +229,9 @@ void MobileManipulator::mass_from(const Trig& t, MatRef M) const {
   M(4, 5) = M(5, 4) = a_[2] * l[1] * l[2] * t.c23;
 }
 
-void MobileManipulator::mass(CVecRef q, MatRef M) const { mass_from(trig(q), M); }
+void MobileManipulator::mass(const EvalContext& /*c*/, CVecRef q, MatRef M) const {
+  mass_from(trig(q), M);
+}
 
 // Coriolis matrix from the Christoffel symbols, paper Eq. (9) / appendix, corrected.
 void MobileManipulator::coriolis_from(const Trig& t, CVecRef qd, MatRef C) const {
@@ -275,7 +277,7 @@ void MobileManipulator::coriolis_from(const Trig& t, CVecRef qd, MatRef C) const
   C(5, 4) = -a_[2] * l[1] * l[2] * t.s23 * t2;
 }
 
-void MobileManipulator::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
+void MobileManipulator::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, MatRef C) const {
   coriolis_from(trig(q), qd, C);
 }
 
@@ -316,7 +318,8 @@ void MobileManipulator::coriolis_times_qd_from(const Trig& t, CVecRef qd, VecRef
   Cqd(5) = k3 * dd - e13 * t1s - e23 * t2s;
 }
 
-void MobileManipulator::coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const {
+void MobileManipulator::coriolis_times_qd(const EvalContext& /*c*/, CVecRef q, CVecRef qd,
+                                          VecRef Cqd) const {
   coriolis_times_qd_from(trig(q), qd, Cqd);
 }
 
@@ -329,31 +332,21 @@ void MobileManipulator::gravity_from(const std::array<double, 3>& c, VecRef G) c
   G(5) = a_[2] * g * c[2];
 }
 
-void MobileManipulator::gravity(CVecRef q, VecRef G) const {
+void MobileManipulator::gravity(const EvalContext& /*c*/, CVecRef q, VecRef G) const {
   const auto& l = p_.link_length;
   gravity_from({l[0] * std::cos(q(3)), l[1] * std::cos(q(4)), l[2] * std::cos(q(5))}, G);
 }
 
-void MobileManipulator::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
-  dynamics_with({}, q, qd, M, Cqd, G);
-}
-
-void MobileManipulator::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
-                                      VecRef G) const {
-  double Lt = 0.0;
-  dynamics_at(slot, 0.0, q, qd, M, Cqd, G, Lt);
-}
-
-void MobileManipulator::dynamics_at(Slot slot, double /*t*/, CVecRef q, CVecRef qd, MatRef M,
-                                    VecRef Cqd, VecRef G, double& Lt) const {
-  const Trig t = trig(q, slot);
+double MobileManipulator::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M,
+                                   VecRef Cqd, VecRef G) const {
+  const Trig t = trig(q, c.slot);
   mass_from(t, M);
   coriolis_times_qd_from(t, qd, Cqd);
   gravity_from(t.c, G);
-  Lt = 0.0;
+  return 0.0;
 }
 
-double MobileManipulator::potential(CVecRef q) const {
+double MobileManipulator::potential(const EvalContext& /*c*/, CVecRef q) const {
   const auto& m = p_.link_mass;
   const auto& l = p_.link_length;
   const double s1 = l[0] * std::sin(q(3)), s2 = l[1] * std::sin(q(4)), s3 = l[2] * std::sin(q(5));

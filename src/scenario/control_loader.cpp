@@ -40,10 +40,10 @@ ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const
   const Index m = c.rows();
   Vec p0(m), p(m), v(m);
   const Vec qd = Vec::Zero(q0.size());
-  c.position_residual(0.0, q0, p0);
+  c.position_residual({}, q0, p0);
   for (double t : {0.0, 0.37, 1.3, 2.9}) {  // a few unrelated times: Φ(q0, t) − Φ(q0, 0), Φ_t
-    c.position_residual(t, q0, p);
-    c.velocity_residual(t, q0, qd, v);
+    c.position_residual({t}, q0, p);
+    c.velocity_residual({t}, q0, qd, v);
     if ((p - p0).cwiseAbs().maxCoeff() > 1e-12 || v.cwiseAbs().maxCoeff() > 1e-12)
       return ConstraintRole::servo;
   }

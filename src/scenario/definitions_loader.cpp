@@ -194,20 +194,25 @@ std::unique_ptr<Def> start_definition(const Loader& L, const Node& s, const std:
 
 }  // namespace
 
-// What later constraints and the replay page (geometry.cpp) need of the subsystems loaded.
-struct DefinitionContext {
-  std::map<std::string, sym::ChainModel> chains;
-  sym::FrameTable frames;  // docs/frame-constraints.md
+}  // namespace ukdyn::io_detail
+
+// What later constraints and the replay page (geometry.cpp) need of the subsystems loaded; opaque
+// outside ukdyn::io (Scenario::definitions).
+struct ukdyn::LoadedDefinitions {
+  std::map<std::string, symbolic::ChainModel> chains;
+  symbolic::FrameTable frames;  // docs/frame-constraints.md
   /// Per chain: (parent link, child link) of every joint and (link, point) of every named point,
   /// for drawing (geometry.cpp).
   std::map<std::string, std::vector<std::pair<std::string, std::string>>> edges;
   /// Per chain: the coordinates that are lengths (the base's x, y; prismatic joints'), in order.
   std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
   /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
-  std::map<std::string, std::vector<std::pair<std::string, sym::Vec3Ex>>> bodies;
+  std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
   /// Per chain: the constraints between its links (an MJCF file's weld / connect equalities).
-  std::map<std::string, std::vector<sym::LinkConstraintDef>> link_constraints;
+  std::map<std::string, std::vector<symbolic::LinkConstraintDef>> link_constraints;
 };
+
+namespace ukdyn::io_detail {
 
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,

@@ -16,6 +16,10 @@
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 
+namespace ukdyn {
+struct LoadedDefinitions;  // below: the io_detail::DefinitionContext (opaque in Scenario)
+}  // namespace ukdyn
+
 namespace ukdyn::io_detail {
 
 /// One copy of a subsystem written once (`instances:`, docs/scenario-format.md): its coordinates
@@ -28,11 +32,12 @@ struct InstanceSpec {
   Node mount;                              ///< undefined: the template's
 };
 
-struct DefinitionContext;  // below
+/// What later constraints and the replay page need of the subsystems loaded (definitions_loader.cpp);
+/// the opaque ukdyn::LoadedDefinitions of Scenario::definitions.
+using DefinitionContext = ::ukdyn::LoadedDefinitions;
 
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
-struct DefinitionContext;
 /// ... its bodies' CoMs are recorded in `context` if given (for the replay page).
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
@@ -54,7 +59,6 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
     const std::vector<std::string>& system_coordinates);
 
 /// What later constraints may refer to: the named points of serial chains, by subsystem name.
-struct DefinitionContext;
 std::shared_ptr<DefinitionContext> make_definition_context();
 /// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
 const symbolic::FrameTable& frames_of(const DefinitionContext& context);

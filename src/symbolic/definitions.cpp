@@ -585,7 +585,7 @@ std::size_t symmetric_from_upper(const double* out, Index n, MatRef M) {
 }
 }  // namespace
 
-void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
+void DerivedSubsystem::mass(const EvalContext& ctx, CVecRef q, MatRef M) const {
   double buf[64 * 65 / 2];
   std::vector<double> big;
   double* out = buf;
@@ -593,28 +593,17 @@ void DerivedSubsystem::mass(CVecRef q, MatRef M) const {
     big.resize(mass_.outputs());  // only for subsystems of more than 64 coordinates
     out = big.data();
   }
-  mass_.eval(0.0, q.data(), nullptr, out);  // M(q, 0) for a time-varying subsystem
+  mass_.eval(ctx.t, q.data(), nullptr, out);
   symmetric_from_upper(out, n_, M);
-}
-
-void DerivedSubsystem::dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const {
-  double Lt = 0.0;
-  dynamics_at({}, 0.0, q, qd, M, Cqd, G, Lt);
 }
 
 Index DerivedSubsystem::slot_size() const {
   return static_cast<Index>(dyn_.outputs() + dyn_.work_size());
 }
 
-void DerivedSubsystem::dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
-                                     VecRef G) const {
-  double Lt = 0.0;
-  dynamics_at(slot, 0.0, q, qd, M, Cqd, G, Lt);
-}
-
-void DerivedSubsystem::dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
-                                   VecRef G, double& Lt) const {
-  if (slot.size() != static_cast<std::size_t>(slot_size())) {
+double DerivedSubsystem::dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M,
+                                  VecRef Cqd, VecRef G) const {
+  if (ctx.slot.size() != static_cast<std::size_t>(slot_size())) {
     constexpr std::size_t kStack = 32 * 33 / 2 + 2 * 32 + 1;
     double buf[kStack];
     std::vector<double> big;
@@ -623,60 +612,52 @@ void DerivedSubsystem::dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, M
       big.resize(dyn_.outputs());  // only for subsystems of more than 32 coordinates
       out = big.data();
     }
-    dyn_.eval(t, q.data(), qd.data(), out);
-    unpack_dynamics(out, M, Cqd, G, Lt);
-    return;
+    dyn_.eval(ctx.t, q.data(), qd.data(), out);
+    return unpack_dynamics(out, M, Cqd, G);
   }
-  double* out = slot.data();
-  dyn_.eval(t, q.data(), qd.data(), out, out + dyn_.outputs());
-  unpack_dynamics(out, M, Cqd, G, Lt);
+  double* out = ctx.slot.data();
+  dyn_.eval(ctx.t, q.data(), qd.data(), out, out + dyn_.outputs());
+  return unpack_dynamics(out, M, Cqd, G);
 }
 
-void DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G,
-                                       double& Lt) const {
+double DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd,
+                                         VecRef G) const {
   std::size_t k = symmetric_from_upper(out, n_, M);
   for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
   for (Index i = 0; i < n_; ++i) G(i) = out[k++];
-  Lt = d_.time_varying ? out[k] : 0.0;
+  return d_.time_varying ? out[k] : 0.0;
 }
 
-void DerivedSubsystem::coriolis(CVecRef q, CVecRef qd, MatRef C) const {
+void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const {
   // Row-major tape output into a column-major block: go through a transposed map.
   if (C.innerStride() == 1 && C.outerStride() == C.rows() && C.rows() == n_ && C.cols() == n_) {
-    cor_.eval(0.0, q.data(), qd.data(), C.data());
+    cor_.eval(ctx.t, q.data(), qd.data(), C.data());
     C.transposeInPlace();
     return;
   }
   Mat tmp(n_, n_);
-  cor_.eval(0.0, q.data(), qd.data(), tmp.data());
+  cor_.eval(ctx.t, q.data(), qd.data(), tmp.data());
   C = tmp.transpose();
 }
 
-void DerivedSubsystem::coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const {
-  cqd_.eval(0.0, q.data(), qd.data(), Cqd.data());
+void DerivedSubsystem::coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd,
+                                         VecRef Cqd) const {
+  cqd_.eval(ctx.t, q.data(), qd.data(), Cqd.data());
 }
 
-void DerivedSubsystem::gravity(CVecRef q, VecRef G) const {
-  grav_.eval(0.0, q.data(), nullptr, G.data());
+void DerivedSubsystem::gravity(const EvalContext& ctx, CVecRef q, VecRef G) const {
+  grav_.eval(ctx.t, q.data(), nullptr, G.data());
 }
 
-double DerivedSubsystem::potential(CVecRef q) const { return potential_at(0.0, q); }
-
-double DerivedSubsystem::potential_at(double t, CVecRef q) const {
+double DerivedSubsystem::potential(const EvalContext& ctx, CVecRef q) const {
   double v = 0.0;
-  pot_.eval(t, q.data(), nullptr, &v);
+  pot_.eval(ctx.t, q.data(), nullptr, &v);
   return v;
 }
 
-double DerivedSubsystem::kinetic_at(double t, CVecRef q, CVecRef qd) const {
+double DerivedSubsystem::kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const {
   double v = 0.0;
-  kin_.eval(t, q.data(), qd.data(), &v);
-  return v;
-}
-
-double DerivedSubsystem::kinetic(CVecRef q, CVecRef qd) const {
-  double v = 0.0;
-  kin_.eval(0.0, q.data(), qd.data(), &v);
+  kin_.eval(ctx.t, q.data(), qd.data(), &v);
   return v;
 }
 
@@ -687,7 +668,7 @@ std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def) {
 std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
   const Index n = sub.dof();
   Mat M(n, n);
-  sub.mass(q, M);
+  sub.mass({}, q, M);
   const auto& names = sub.coordinate_names();
   if (!M.allFinite()) return "the mass matrix is not finite";
   Eigen::SelfAdjointEigenSolver<Mat> es(M);
@@ -850,33 +831,30 @@ Index DerivedConstraint::slot_size() const {
 }
 
 // A, b from the tape: its outputs and work buffer in this constraint's slot, or (no slot: the
-// evaluations without data) in a local buffer, on the stack up to 512 outputs.
-void DerivedConstraint::eval_ab(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                                MatRef A, VecRef b, bool zero) const {
-  const Slot own = slots.own();
+// evaluations without data) in a local buffer, on the stack up to 512 outputs. With
+// ctx.structural_only only the structurally non-zero entries of A are written (no O(n) zeroing of
+// every row).
+void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
+                                 VecRef b) const {
+  const Slot own = ctx.slots.own();
   constexpr std::size_t kStack = 512;
   double buf[kStack];
   std::vector<double> big;
   double* out = own.data();
   if (own.size() == static_cast<std::size_t>(slot_size())) {
-    ab_.eval(t, q.data(), qd.data(), out, out + ab_.outputs());
+    ab_.eval(ctx.t, q.data(), qd.data(), out, out + ab_.outputs());
   } else {
     out = buf;
     if (ab_.outputs() > kStack) {
       big.resize(ab_.outputs());
       out = big.data();
     }
-    ab_.eval(t, q.data(), qd.data(), out);
+    ab_.eval(ctx.t, q.data(), qd.data(), out);
   }
-  if (zero) zero_rows(A);
+  if (!ctx.structural_only) zero_rows(A);
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) A(r, c) = out[k++];
   for (Index r = 0; r < m_; ++r) b(r) = out[k++];
-}
-
-void DerivedConstraint::evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                                      MatRef A, VecRef b) const {
-  eval_ab(slots, t, q, qd, A, b, true);
 }
 
 std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
@@ -886,29 +864,24 @@ std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
   return cols;
 }
 
-void DerivedConstraint::evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q,
-                                                 CVecRef qd, MatRef A, VecRef b) const {
-  eval_ab(slots, t, q, qd, A, b, false);
-}
-
-void DerivedConstraint::position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
-                                               VecRef phi) const {
-  const Slot own = slots.own();
+void DerivedConstraint::position_residual(const ConstraintContext& ctx, CVecRef q,
+                                          VecRef phi) const {
+  const Slot own = ctx.slots.own();
   if (own.size() != static_cast<std::size_t>(slot_size())) {
-    phi_.eval(t, q.data(), nullptr, phi.data());
+    phi_.eval(ctx.t, q.data(), nullptr, phi.data());
     return;
   }
-  phi_.eval(t, q.data(), nullptr, phi.data(), own.data());
+  phi_.eval(ctx.t, q.data(), nullptr, phi.data(), own.data());
 }
 
-void DerivedConstraint::velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
-                                               CVecRef qd, VecRef phid) const {
-  const Slot own = slots.own();
+void DerivedConstraint::velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                                          VecRef phid) const {
+  const Slot own = ctx.slots.own();
   if (own.size() != static_cast<std::size_t>(slot_size())) {
-    phid_.eval(t, q.data(), qd.data(), phid.data());
+    phid_.eval(ctx.t, q.data(), qd.data(), phid.data());
     return;
   }
-  phid_.eval(t, q.data(), qd.data(), phid.data(), own.data());
+  phid_.eval(ctx.t, q.data(), qd.data(), phid.data(), own.data());
 }
 
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def) {

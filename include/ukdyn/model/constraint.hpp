@@ -12,7 +12,7 @@ namespace ukdyn {
 
 /// What a constraint sees of one ForwardData's data slots (ForwardData::slots): its own slot
 /// (scratch, slot_size() doubles) and, read-only, the slots its subsystems filled in
-/// dynamics_with() earlier in the same forward(). A default-constructed view has no slots (every
+/// dynamics() earlier in the same forward(). A default-constructed view has no slots (every
 /// lookup is empty).
 class ConstraintSlots {
  public:
@@ -25,7 +25,7 @@ class ConstraintSlots {
   /// This constraint's slot (empty if it declared none).
   [[nodiscard]] Slot own() const { return own_; }
   /// The slot of the subsystem whose first coordinate is `first_coordinate` in q (empty if no
-  /// subsystem starts there). Its content is whatever that subsystem wrote in dynamics_with(): a
+  /// subsystem starts there). Its content is whatever that subsystem wrote in dynamics(): a
   /// reader must check that it belongs to the state it evaluates (MobileManipulator keeps the
   /// angles it was computed for next to the values).
   [[nodiscard]] ConstSlot subsystem(Index first_coordinate) const {
@@ -49,53 +49,46 @@ class ConstraintSlots {
   std::span<const Index> slot_start_;
 };
 
+/// What an evaluation of a constraint is given besides the state (q, q̇), and what is wanted:
+/// the time, the caller's data slots (its own and, read-only, its subsystems'), and whether only
+/// the structural entries of A are wanted. forward() and the drift control pass their ForwardData's
+/// slots; a default ConstraintContext (t = 0, no slots, every entry) asks for the values alone.
+struct ConstraintContext {
+  double t = 0.0;
+  ConstraintSlots slots{};
+  /// evaluate(): write only the entries of A listed by row_columns() (and b); the other entries of
+  /// its rows may be left untouched (they are 0 when only this constraint writes them), which is
+  /// O(non-zeros) instead of O(rows × n). A constraint may ignore it and write every entry.
+  bool structural_only = false;
+};
+
 /// A block of constraint rows acting on the whole system's coordinates q (size n).
 /// Holonomic rows also give their position residual Φ(q, t) and their velocity residual
 /// Φ̇ = A q̇ + ∂Φ/∂t, so that drift can be measured (CSV columns res_<name>) and corrected.
+/// One method per quantity, each given a ConstraintContext. With no slots in the context, the
+/// constraint computes what it would have read from a slot (the values are the same).
 class Constraint {
  public:
   virtual ~Constraint() = default;
   [[nodiscard]] virtual Index rows() const = 0;
   /// One name per row, used for CSV columns and error messages.
   [[nodiscard]] virtual const std::vector<std::string>& row_names() const = 0;
-  /// Overwrites its rows() rows of A (rows() × n, every entry) and of b.
-  virtual void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const = 0;
-  /// Position-level residual Φ(q, t) (rows()).
-  virtual void position_residual(double t, CVecRef q, VecRef phi) const = 0;
-  /// Velocity-level residual Φ̇(q, q̇, t) = A q̇ + ∂Φ/∂t (rows()).
-  virtual void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const = 0;
-
   /// Doubles of data slot this constraint uses (0: none); ForwardData holds one per constraint.
   [[nodiscard]] virtual Index slot_size() const { return 0; }
-  /// The three evaluations as forward() and the drift control call them, with the data slots of the
-  /// caller's ForwardData. Same values as the versions without; defaults call those.
-  virtual void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                             MatRef A, VecRef b) const {
-    (void)slots;
-    evaluate(t, q, qd, A, b);
-  }
-  virtual void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
-                                      VecRef phi) const {
-    (void)slots;
-    position_residual(t, q, phi);
-  }
-  virtual void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                                      VecRef phid) const {
-    (void)slots;
-    velocity_residual(t, q, qd, phid);
-  }
-
   /// Structural sparsity of A: for each row, the columns (coordinates of q, ascending) whose
   /// entries may be non-zero. Empty (the default): not known, every column may be. System uses it
   /// once, when the constraint is added, to find a block-arrow structure (ukdyn/core/uk_arrow.hpp).
   [[nodiscard]] virtual std::vector<std::vector<Index>> row_columns() const { return {}; }
-  /// As evaluate_with(), but writes only the entries of A listed by row_columns() (and b); the
-  /// other entries of its rows are left untouched (they are 0 when only this constraint writes
-  /// them). O(non-zeros) instead of O(rows × n). Default: evaluate_with().
-  virtual void evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q,
-                                        CVecRef qd, MatRef A, VecRef b) const {
-    evaluate_with(slots, t, q, qd, A, b);
-  }
+
+  /// Its rows() rows of A (rows() × n; every entry, or the structural ones when
+  /// c.structural_only) and of b, paper Eq. (2).
+  virtual void evaluate(const ConstraintContext& c, CVecRef q, CVecRef qd, MatRef A,
+                        VecRef b) const = 0;
+  /// Position-level residual Φ(q, t) (rows()).
+  virtual void position_residual(const ConstraintContext& c, CVecRef q, VecRef phi) const = 0;
+  /// Velocity-level residual Φ̇(q, q̇, t) = A q̇ + ∂Φ/∂t (rows()).
+  virtual void velocity_residual(const ConstraintContext& c, CVecRef q, CVecRef qd,
+                                 VecRef phid) const = 0;
 };
 
 /// Sets every entry of a block of constraint rows to 0 (for evaluate(), before writing the

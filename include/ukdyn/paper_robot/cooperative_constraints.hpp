@@ -8,7 +8,6 @@
 #include <vector>
 
 #include "ukdyn/model/constraint.hpp"
-#include "ukdyn/model/slot_constraint.hpp"
 #include "ukdyn/model/time_function.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
@@ -17,7 +16,7 @@ namespace ukdyn {
 /// Closure of the load cut at its centre, paper Eq. (12), with A, b from Eqs. (15)–(16):
 ///   x1 = x2, y1 = y2, l_r1 + ρ̂1 = l_r2 + ρ̂2 + Δz, δ1 − δ2 = yaw_offset (π), θ3 = load1, θ6 = load2.
 /// Row names: <prefix>_x, _y, _z, _yaw, _load1, _load2.
-class ClosureConstraint final : public SlotConstraint {
+class ClosureConstraint final : public Constraint {
  public:
   struct Options {
     double dz = 0.0;
@@ -33,12 +32,12 @@ class ClosureConstraint final : public SlotConstraint {
   [[nodiscard]] Index rows() const override { return 6; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
   /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
-  /// versions without (SlotConstraint) recompute them.
-  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+  /// evaluations without slots recompute them.
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                      VecRef b) const override;
-  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+  void position_residual(const ConstraintContext& ctx, CVecRef q,
                               VecRef phi) const override;
-  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                               VecRef phid) const override;
 
  private:
@@ -50,7 +49,7 @@ class ClosureConstraint final : public SlotConstraint {
 
 /// The cut point of one arm follows a trajectory along chosen axes, paper Eq. (19) rows 1–3, with
 /// A, b from Eq. (20):  p_axis(q) = origin_axis + f_axis(t). Unused axes are skipped.
-class CutPointTrajectory final : public SlotConstraint {
+class CutPointTrajectory final : public Constraint {
  public:
   CutPointTrajectory(std::shared_ptr<const MobileManipulator> arm, Index offset,
                      std::array<std::optional<TimeFunction>, 3> axes, Vec3 origin,
@@ -59,12 +58,12 @@ class CutPointTrajectory final : public SlotConstraint {
   [[nodiscard]] Index rows() const override { return static_cast<Index>(axis_.size()); }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
   /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
-  /// versions without (SlotConstraint) recompute them.
-  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
+  /// evaluations without slots recompute them.
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                      VecRef b) const override;
-  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
+  void position_residual(const ConstraintContext& ctx, CVecRef q,
                               VecRef phi) const override;
-  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                               VecRef phid) const override;
 
  private:
@@ -83,9 +82,9 @@ class CoordinateConstraint final : public Constraint {
   CoordinateConstraint(Index coordinate, TimeFunction f, std::string name);
   [[nodiscard]] Index rows() const override { return 1; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
-  void evaluate(double t, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
-  void position_residual(double t, CVecRef q, VecRef phi) const override;
-  void velocity_residual(double t, CVecRef q, CVecRef qd, VecRef phid) const override;
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd, VecRef phid) const override;
 
  private:
   Index j_;

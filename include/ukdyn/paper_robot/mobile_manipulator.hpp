@@ -46,26 +46,22 @@ class MobileManipulator final : public Subsystem {
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const override { return names_; }
   [[nodiscard]] const MobileManipulatorParams& params() const { return p_; }
 
-  void mass(CVecRef q, MatRef M) const override;
-  void coriolis(CVecRef q, CVecRef qd, MatRef C) const override;
-  void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const override;
-  void gravity(CVecRef q, VecRef G) const override;
-  /// M, C q̇ and G from one set of sin/cos (4 angles, the differences by identities).
-  void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
+  void mass(const EvalContext& c, CVecRef q, MatRef M) const override;
+  void coriolis(const EvalContext& c, CVecRef q, CVecRef qd, MatRef C) const override;
+  void coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd, VecRef Cqd) const override;
+  void gravity(const EvalContext& c, CVecRef q, VecRef G) const override;
   /// Data slot (kSlotSize doubles): [filled, δ, θ1, θ2, θ3, cos ×4, sin ×4] — the sin/cos of the
-  /// four angles, next to the angles they belong to. dynamics_with() writes it; the constraints'
+  /// four angles, next to the angles they belong to. dynamics() writes it; the constraints'
   /// cut-point kinematics (below, given the slot) read it when the angles match bit for bit and
   /// compute the sin/cos otherwise. The values are a pure function of the angles, so the slot
   /// changes the cost (one sin/cos per arm and forward()), never a value.
   static constexpr Index kSlotSize = 13;
   [[nodiscard]] Index slot_size() const override { return kSlotSize; }
-  void dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
-                     VecRef G) const override;
-  /// Time-invariant: dynamics_with() and ∂L/∂t = 0, as the default, without its second virtual
-  /// call and argument copies (forward() calls this one).
-  void dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G,
-                   double& Lt) const override;
-  [[nodiscard]] double potential(CVecRef q) const override;
+  /// M, C q̇ and G from one set of sin/cos (4 angles, the differences by identities), recorded in
+  /// the slot of `c` if it has one. Time-invariant: returns ∂L/∂t = 0.
+  double dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                  VecRef G) const override;
+  [[nodiscard]] double potential(const EvalContext& c, CVecRef q) const override;
 
   /// ĉ, ŝ, κ̂, ρ̂, ζ̂, ψ̂, γ̂ of this arm; q, qd are this subsystem's 6 coordinates. `slot`: this
   /// arm's data slot from the same ForwardData (optional; see kSlotSize).
@@ -91,7 +87,7 @@ class MobileManipulator final : public Subsystem {
     double s12 = 0, s13 = 0, s23 = 0;  ///< sin(θ1 − θ2), sin(θ1 − θ3), sin(θ2 − θ3)
   };
   /// record: also store the angles' sin/cos in this slot for the constraints' cut-point kinematics
-  /// (done by dynamics_with() only).
+  /// (done by dynamics() only).
   [[nodiscard]] Trig trig(CVecRef q, Slot record = {}) const;
   void mass_from(const Trig& t, MatRef M) const;
   void coriolis_from(const Trig& t, CVecRef qd, MatRef C) const;

@@ -13,9 +13,9 @@
 
 namespace ukdyn {
 
-namespace io_detail {
-struct DefinitionContext;
-}
+/// What the scenario loader keeps of the serial chains and definitions bodies it loaded (link poses,
+/// named points, frames) for the replay page and the run's columns: opaque outside ukdyn::io.
+struct LoadedDefinitions;
 
 /// An error in a scenario file; what() reads "FILE:LINE:COL: key 'KEY': message".
 class ScenarioError : public Error {
@@ -44,8 +44,8 @@ struct Scenario {
   double initial_tolerance = 1e-9;  ///< |Φ(q0, t0)| and |Φ̇(q0, q̇0, t0)| must stay under this
   std::vector<bool> held;           ///< coordinates kept fixed by assembly (initial.hold)
   /// The serial chains' link poses and points, as loaded (what the replay page draws:
-  /// io/geometry.hpp). Internal to ukdyn::io.
-  std::shared_ptr<const io_detail::DefinitionContext> definitions;
+  /// ukdyn/output/geometry.hpp); opaque.
+  std::shared_ptr<const LoadedDefinitions> definitions;
   /// docs/control.md: the role of every block of system->constraints() (physical or servo), the
   /// actuators (`actuators:`, count 0 if none) and the `control:` section (null if none).
   std::vector<ConstraintRole> constraint_roles;

@@ -28,7 +28,6 @@
 #include <vector>
 
 #include "ukdyn/model/constraint.hpp"
-#include "ukdyn/model/slot_constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/symbolic/expression.hpp"
@@ -154,25 +153,22 @@ class DerivedSubsystem final : public Subsystem {
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
     return d_.coordinates;
   }
-  void mass(CVecRef q, MatRef M) const override;
-  void coriolis(CVecRef q, CVecRef qd, MatRef C) const override;
-  void coriolis_times_qd(CVecRef q, CVecRef qd, VecRef Cqd) const override;
-  void gravity(CVecRef q, VecRef G) const override;
-  /// M, C q̇ and G from one tape (shared subexpressions computed once), for forward().
-  void dynamics(CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G) const override;
+  /// A mass of t (docs/definitions.md, "Time-varying masses"): every quantity at the context's t.
+  [[nodiscard]] bool time_varying() const override { return d_.time_varying; }
+  void mass(const EvalContext& ctx, CVecRef q, MatRef M) const override;
+  void coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const override;
+  void coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd,
+                         VecRef Cqd) const override;
+  void gravity(const EvalContext& ctx, CVecRef q, VecRef G) const override;
+  [[nodiscard]] double potential(const EvalContext& ctx, CVecRef q) const override;
   /// Data slot: the dynamics tape's outputs and its work buffer (allocation-free at any size).
   [[nodiscard]] Index slot_size() const override;
-  void dynamics_with(Slot slot, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
-                     VecRef G) const override;
-  [[nodiscard]] double potential(CVecRef q) const override;
+  /// M, C q̇, G (and ∂L/∂t, returned) from one tape (shared subexpressions computed once), in the
+  /// context's slot if it has one.
+  double dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                  VecRef G) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
-  [[nodiscard]] double kinetic(CVecRef q, CVecRef qd) const;
-  // A mass of t: the methods above are the values at t = 0; these take t.
-  [[nodiscard]] bool time_varying() const override { return d_.time_varying; }
-  void dynamics_at(Slot slot, double t, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd, VecRef G,
-                   double& Lt) const override;
-  [[nodiscard]] double potential_at(double t, CVecRef q) const override;
-  [[nodiscard]] double kinetic_at(double t, CVecRef q, CVecRef qd) const;
+  [[nodiscard]] double kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const;
   /// A mass of t must stay >= 0 (derive() checks it at t = 0 only): evaluates every mass of t at
   /// `samples` evenly spaced times from t0 to t1 (both included; samples >= 2) and returns, for the
   /// first time and body where the mass is negative or not finite, "body 'B': the mass is m at
@@ -187,7 +183,8 @@ class DerivedSubsystem final : public Subsystem {
   }
 
  private:
-  void unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G, double& Lt) const;
+  /// M, C q̇, G from the dynamics tape's outputs; returns ∂L/∂t (0 unless time-varying).
+  double unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G) const;
 
   SubsystemDerivation d_;
   std::string name_;
@@ -255,25 +252,23 @@ struct ConstraintDerivation {
 /// q̇, rows that involve no coordinate.
 ConstraintDerivation derive(const ConstraintDef& def);
 
-class DerivedConstraint final : public SlotConstraint {
+class DerivedConstraint final : public Constraint {
  public:
   explicit DerivedConstraint(ConstraintDerivation derivation);
   [[nodiscard]] Index rows() const override { return m_; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return d_.row_names; }
   /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes. Without it
-  /// (the evaluations without data, SlotConstraint) the tapes run on a local buffer.
+  /// (the evaluations without data) the tapes run on a local buffer.
   [[nodiscard]] Index slot_size() const override;
-  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
-                     VecRef b) const override;
-  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
-                              VecRef phi) const override;
-  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                              VecRef phid) const override;
+  /// With ctx.structural_only, writes only the structurally non-zero entries of A (and b): no
+  /// O(n) zeroing of every row.
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
+                VecRef b) const override;
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                         VecRef phid) const override;
   /// The structurally non-zero entries of the derived A (GiNaC zeros excluded), per row.
   [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override;
-  /// Writes only those entries of A (and b): no O(n) zeroing of every row.
-  void evaluate_structural_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                                MatRef A, VecRef b) const override;
   [[nodiscard]] const ConstraintDerivation& derivation() const { return d_; }
   [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
 
@@ -282,8 +277,6 @@ class DerivedConstraint final : public SlotConstraint {
   Index m_;
   std::vector<std::pair<Index, Index>> nz_;  // (row, column) of each structurally nonzero A entry
   Tape ab_, phi_, phid_;
-  void eval_ab(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A, VecRef b,
-               bool zero) const;
 };
 
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def);

@@ -127,7 +127,7 @@ class FrameWrenchMap {
 
 /// A derived constraint block that also knows the wrenches on its frames (what the io layer's
 /// constraint_force_output writes). Every evaluation is the DerivedConstraint's.
-class FrameConstraint final : public SlotConstraint {
+class FrameConstraint final : public Constraint {
  public:
   FrameConstraint(std::shared_ptr<const DerivedConstraint> derived,
                   std::shared_ptr<const FrameWrenchMap> wrench)
@@ -137,17 +137,18 @@ class FrameConstraint final : public SlotConstraint {
     return d_->row_names();
   }
   [[nodiscard]] Index slot_size() const override { return d_->slot_size(); }
-  void evaluate_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd, MatRef A,
-                     VecRef b) const override {
-    d_->evaluate_with(slots, t, q, qd, A, b);
+  // No row_columns(): a frame constraint declares no structural sparsity (every column may be
+  // non-zero), so it is always evaluated whole.
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
+                VecRef b) const override {
+    d_->evaluate(ctx, q, qd, A, b);
   }
-  void position_residual_with(const ConstraintSlots& slots, double t, CVecRef q,
-                              VecRef phi) const override {
-    d_->position_residual_with(slots, t, q, phi);
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
+    d_->position_residual(ctx, q, phi);
   }
-  void velocity_residual_with(const ConstraintSlots& slots, double t, CVecRef q, CVecRef qd,
-                              VecRef phid) const override {
-    d_->velocity_residual_with(slots, t, q, qd, phid);
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                         VecRef phid) const override {
+    d_->velocity_residual(ctx, q, qd, phid);
   }
   [[nodiscard]] const DerivedConstraint& derived() const { return *d_; }
   [[nodiscard]] const FrameWrenchMap& wrench() const { return *w_; }
