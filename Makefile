@@ -71,7 +71,7 @@ sanitize:
 tsan:
 	@bash scripts/tsan.sh
 
-# No thread_local and no mutable static in ukdyn/ (also a ctest entry: Lint.NoHiddenState), and no
+# No thread_local and no mutable static in include/, src/, apps/, tools/ and python/src/ (also a ctest entry: Lint.NoHiddenState), and no
 # function over 120 lines without a reason in its file (Lint.FunctionLength).
 check-state:
 	@bash scripts/check-no-hidden-state.sh

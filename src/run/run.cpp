@@ -185,7 +185,7 @@ void write_final_summary(const OutputDir& out, const nlohmann::json& summary, Ru
   rep.summary.clear();
 }
 
-// The rows and extrema come from the SampleRecorder shared with the sweep (io/run_observer.hpp).
+// The rows and extrema come from the SampleRecorder shared with the sweep (src/run/run_observer.hpp).
 struct Observer {
   io_detail::SampleRecorder recorder;
   RunReport& rep;

@@ -106,7 +106,7 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc,
 // its control and actuators sections) with the listed values changed, each {path, value} or
 // {path, scale} (the number there times scale) or {path, expression} (the text of an expression
 // put there, e.g. a load mass of t: docs/control.md "A time-varying load mass"). Paths as in
-// sweeps (io/yaml_paths.hpp).
+// sweeps (src/scenario/yaml_paths.hpp).
 std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, const Node& set,
                                           const Node* plant_file, const Scenario& sc) {
   if (!set.node.IsSequence() || set.node.size() == 0)

@@ -1,6 +1,6 @@
 // The 3D replay page of a run (docs/replay.md): OUT/replay.html, one self-contained HTML file with
 // three.js (from npm, embedded into ukdyn at build time) inlined, the model drawn from its geometry
-// (io/geometry.hpp) at every output sample, and plots of the CSV's columns.
+// (ukdyn/output/geometry.hpp) at every output sample, and plots of the CSV's columns.
 #pragma once
 
 #include <cstddef>

@@ -58,7 +58,7 @@ class ControlLaw {
 ///               [Udwadia2008]);
 ///  robust:      v = −λ ė − κ β − ρ γ μ with β = ė + λ e, μ = ρ β, γ = 1/‖μ‖ if ‖μ‖ > ε else 1/ε
 ///               (the nominal term, the feedback on β and the smoothed robust term of [Chen1998],
-///               [Zhao2016]); ρ = 0 is the feedback-only baseline.
+///               [Zhao2018]); ρ = 0 is the feedback-only baseline.
 /// e = Φ_s(q, t), ė = Φ̇_s = A_s q̇ + ∂Φ_s/∂t (the servo rows' residuals).
 enum class ControlLawKind { feedforward, stabilized, robust };
 std::string to_string(ControlLawKind kind);
