@@ -1,5 +1,5 @@
 // Paths into a scenario's YAML tree, `a.b[2].c[left]` (keys separated by dots, list elements by
-// [index] or by [name], the element whose `name:` is that): used by the sweep (io/sweep.cpp, its
+// [index] or by [name], the element whose `name:` is that): used by the sweep (src/sweep/, its
 // parameters' `path:`) and by control.plant_set (io/control_loader.cpp). Internal to ukdyn::io.
 #pragma once
 
