@@ -11,6 +11,7 @@
 #include <optional>
 #include <set>
 
+#include "core/fnv1a.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "scenario/yaml_paths.hpp"
 #include "sweep/sampling.hpp"
@@ -34,15 +35,6 @@ using sweep_detail::normal_cdf;
 using sweep_detail::plant_path;
 using sweep_detail::plant_tree;
 using sweep_detail::read_text;
-
-std::string hash_hex(const std::string& bytes) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char ch : bytes) {
-    h ^= ch;
-    h *= 1099511628211ull;
-  }
-  return fmt::format("{:016x}", h);
-}
 
 std::vector<double> load_values(const Loader& L, const Node& p) {
   std::vector<double> vals;
@@ -433,7 +425,13 @@ Sweep load_sweep(const std::filesystem::path& path) {
   const YAML::Node& doc = *trees.doc;
   const YAML::Node* plant = trees.plant ? &*trees.plant : nullptr;
   sw.base_doc = trees.doc;
-  sw.hash = hash_hex(std::string(version()) + "\n" + text + "\n" + sw.base_text);
+  sw.hash = detail::Fnv1a64(detail::kUkdynHashBasis)
+                .add(version())
+                .add("\n")
+                .add(text)
+                .add("\n")
+                .add(sw.base_text)
+                .hex();
 
   sw.mode = load_mode(L, root);
   load_seed(L, root, sw);
