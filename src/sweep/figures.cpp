@@ -13,7 +13,6 @@ namespace ukdyn {
 
 using sweep_detail::num;
 using sweep_detail::parse_cell;
-using sweep_detail::split_csv;
 
 void sweep_detail::draw_figures(const OutputDir& out, const Sweep& sw, const Table& t,
                                 SweepReport& rep, const std::atomic<bool>* cancel) {
@@ -30,7 +29,7 @@ void sweep_detail::draw_figures(const OutputDir& out, const Sweep& sw, const Tab
   for (std::size_t c : metrics) {
     std::vector<double> v;
     for (const auto& [k, line] : t.rows) {
-      const auto cells = split_csv(line);
+      const auto cells = io_detail::split_csv_line(line);
       if (cells.size() == t.header.size() && cells[st] == "completed") {
         const double x = parse_cell(cells[c]);
         if (std::isfinite(x)) v.push_back(x);

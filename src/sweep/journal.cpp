@@ -9,7 +9,9 @@
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
+#include <sstream>
 
+#include "output/csv_reader.hpp"
 #include "sweep/table.hpp"
 
 namespace ukdyn::sweep_detail {
@@ -31,15 +33,12 @@ std::map<long, std::string> read_journal(const OutputDir& out, const std::string
     while ((got = ::read(fd, buf, sizeof buf)) > 0) text.append(buf, static_cast<std::size_t>(got));
   }
   ::close(fd);
-  std::size_t pos = text.find('\n');
-  if (pos == std::string::npos || text.substr(0, pos) != head) return rows;
-  ++pos;
-  while (pos < text.size()) {
-    const auto end = text.find('\n', pos);
-    if (end == std::string::npos) break;  // a torn last line: recomputed
-    const std::string line = text.substr(pos, end - pos);
-    pos = end + 1;
-    const auto cells = split_csv(line);
+  std::istringstream is(text);
+  io_detail::CsvLines lines(is, true);  // whole lines only: a torn last one is recomputed
+  std::string line;
+  if (!lines.next(line) || line != head) return rows;
+  while (lines.next(line)) {
+    const auto cells = io_detail::split_csv_line(line);
     if (cells.size() != columns) continue;
     char* e = nullptr;
     const long k = std::strtol(cells[0].c_str(), &e, 10);

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <thread>
 
+#include "output/csv_reader.hpp"
 #include "sweep/journal.hpp"
 #include "sweep/report.hpp"
 #include "sweep/sample.hpp"
@@ -125,11 +126,10 @@ bool gather_rows(SweepComm& comm, int rank, const std::vector<std::string>& rows
   const auto all = comm.gather(mine);
   if (rank != 0) return false;
   for (const auto& blob : all) {
-    std::size_t pos = 0;
-    while (pos < blob.size()) {
-      const auto end = blob.find('\n', pos);
-      const std::string line = blob.substr(pos, end - pos);
-      pos = end + 1;
+    std::istringstream is(blob);
+    io_detail::CsvLines lines(is);
+    std::string line;
+    while (lines.next(line)) {
       t.rows[std::strtol(line.c_str(), nullptr, 10)] = line;
       ++rep.computed;
     }
@@ -229,13 +229,13 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
     if (shards >= 0 && n != shards) throw ScenarioError(where + ": shards of different splits");
     shards = n;
     if (!seen.insert(i).second) throw ScenarioError(where + ": shard " + sh + " given twice");
-    const std::string text = read_text(d / kTable, "shard table");
-    std::istringstream is(text);
+    std::istringstream is(read_text(d / kTable, "shard table"));
+    io_detail::CsvLines lines(is);
     std::string line;
-    std::getline(is, line);
+    lines.next(line);
     if (line != header_line(header))
       throw ScenarioError(printable((d / kTable).string()) + ": another header");
-    while (std::getline(is, line)) {
+    while (lines.next(line)) {
       const long k = std::strtol(line.c_str(), nullptr, 10);
       if (k % n != i)
         throw ScenarioError(printable((d / kTable).string()) + ": a row of another shard");

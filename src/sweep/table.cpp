@@ -14,45 +14,10 @@
 
 namespace ukdyn::sweep_detail {
 
-std::vector<std::string> split_csv(const std::string& line) {
-  std::vector<std::string> out;
-  std::string cur;
-  bool quoted = false;
-  for (std::size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (quoted) {
-      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-        cur += '"';
-        ++i;
-      } else if (c == '"') {
-        quoted = false;
-      } else {
-        cur += c;
-      }
-    } else if (c == '"') {
-      quoted = true;
-    } else if (c == ',') {
-      out.push_back(cur);
-      cur.clear();
-    } else {
-      cur += c;
-    }
-  }
-  out.push_back(cur);
-  return out;
-}
-
 std::string header_line(const std::vector<std::string>& h) {
   std::string s;
   for (std::size_t i = 0; i < h.size(); ++i) s += (i ? "," : "") + csv_field(h[i]);
   return s;
-}
-
-double parse_cell(const std::string& s) {
-  if (s.empty()) return NAN;
-  char* end = nullptr;
-  const double v = std::strtod(s.c_str(), &end);
-  return *end == '\0' ? v : NAN;
 }
 
 namespace {
@@ -91,7 +56,7 @@ nlohmann::json summary_json(const Sweep& sw, const Table& t, const SweepOptions*
   std::map<std::string, long> by_status;
   std::vector<std::vector<double>> cols(t.header.size());
   for (const auto& [k, line] : t.rows) {
-    const auto cells = split_csv(line);
+    const auto cells = io_detail::split_csv_line(line);
     if (cells.size() != t.header.size()) continue;
     const std::string& status = cells[st];
     ++by_status[status];

@@ -4,10 +4,13 @@
 
 #include <atomic>
 #include <cstddef>
+#include <limits>
 #include <map>
 #include <string>
+#include <string_view>
 #include <vector>
 
+#include "output/csv_reader.hpp"
 #include "ukdyn/output/output_dir.hpp"
 #include "ukdyn/sweep/sweep.hpp"
 
@@ -25,10 +28,12 @@ struct Table {
 /// The first metric column (after sample, parameters, status, reason, t_reached, steps).
 inline std::size_t first_metric(const Sweep& sw) { return 1 + sw.parameters.size() + 4; }
 
-/// The cells of one line of the table (quoted fields unquoted).
-std::vector<std::string> split_csv(const std::string& line);
-/// A cell as a number; NaN if it is empty or not a number.
-double parse_cell(const std::string& s);
+/// A cell of the table as a number; NaN if it is empty or not a number.
+inline double parse_cell(std::string_view cell) {
+  double v = std::numeric_limits<double>::quiet_NaN();
+  io_detail::parse_csv_number(cell, v);  // v unchanged if it is not a number
+  return v;
+}
 /// The header as a line of the table (without its newline).
 std::string header_line(const std::vector<std::string>& h);
 
