@@ -7,9 +7,11 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <iterator>
 #include <limits>
 #include <optional>
 #include <set>
+#include <utility>
 
 #include "core/fnv1a.hpp"
 #include "scenario/yaml_loader.hpp"
@@ -138,6 +140,16 @@ std::vector<SweepTarget> load_targets(const Loader& L, const Node& p, const YAML
   return out;
 }
 
+// The metrics named by a word, each a flag of SweepMetrics.
+constexpr std::pair<const char*, bool SweepMetrics::*> kMetricFlags[] = {
+    {"max_residual", &SweepMetrics::max_residual},
+    {"energy_drift", &SweepMetrics::energy_drift},
+    {"energy_balance_drift", &SweepMetrics::energy_balance_drift},
+    {"max_abs_Qc", &SweepMetrics::max_abs_qc},
+    {"final_state", &SweepMetrics::final_state},
+    {"control", &SweepMetrics::control},
+    {"squeeze_force", &SweepMetrics::squeeze}};
+
 void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
   if (!m.node.IsSequence()) L.fail(m, "expected a list of metrics");
   mx.max_residual = false;
@@ -147,20 +159,10 @@ void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
     if (e.node.IsScalar()) {
       const std::string s = e.node.Scalar();
       if (!seen.insert(s).second) L.fail(e, "duplicate metric '" + s + "'");
-      if (s == "max_residual") {
-        mx.max_residual = true;
-      } else if (s == "energy_drift") {
-        mx.energy_drift = true;
-      } else if (s == "energy_balance_drift") {
-        mx.energy_balance_drift = true;
-      } else if (s == "max_abs_Qc") {
-        mx.max_abs_qc = true;
-      } else if (s == "final_state") {
-        mx.final_state = true;
-      } else if (s == "control") {
-        mx.control = true;
-      } else if (s == "squeeze_force") {
-        mx.squeeze = true;
+      const auto* flag = std::find_if(std::begin(kMetricFlags), std::end(kMetricFlags),
+                                      [&s](const auto& f) { return s == f.first; });
+      if (flag != std::end(kMetricFlags)) {
+        mx.*(flag->second) = true;
       } else {
         L.fail(e, "unknown metric '" + s +
                       "' (expected max_residual, energy_drift, energy_balance_drift, "
