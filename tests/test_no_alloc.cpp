@@ -22,6 +22,7 @@
 #include "ukdyn/simulate/simulate.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "control_systems.hpp"
+#include "ukdyn/output/constraint_force_output.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/forces.hpp"
@@ -395,6 +396,32 @@ TEST(NoAlloc, ControlColumnsAllocateNothingPerSample) {
   }
 }
 
+// The frame constraints' columns (ukdyn/output/constraint_force_output.hpp): the split of Qc by
+// block (split_constraint_force() in its workspace) and the wrenches (FrameWrenchMap::evaluate() in
+// its workspace), the same numbers as the allocating functions.
+TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3_weld.yaml");
+  const ukdyn::System& sys = *sc.system;
+  ukdyn::ConstraintForceColumns cols(sc);
+  ASSERT_FALSE(cols.empty());
+  ukdyn::ForwardData d(sys);
+  ukdyn::forward(sys, d, sc.sim.t0, sc.q0, sc.qd0, sc.tau);
+  std::vector<double> out(cols.header().size());
+  cols.fill(sc.q0, d, out.data());
+  const long count = allocations_in([&] {
+    for (int k = 0; k < 10; ++k) cols.fill(sc.q0, d, out.data());
+  });
+  EXPECT_EQ(count, 0) << count << " allocations in 10 samples";
+  // λ bit for bit Eigen's own least-norm solve (what split_constraint_force() did before its
+  // workspace).
+  ukdyn::ConstraintForceWorkspace ws(sys.rows(), sys.dof(), sys.constraint_row_offsets());
+  ukdyn::split_constraint_force(d.A, d.Qc, ws);
+  Eigen::CompleteOrthogonalDecomposition<ukdyn::Mat> cod(d.A.transpose());
+  cod.setThreshold(cod.maxPivot() > 0 ? 1e-10 : 1.0);
+  const Vec lambda = cod.solve(d.Qc);
+  EXPECT_EQ(ws.result.lambda, lambda);
+}
 #endif
 
 }  // namespace
