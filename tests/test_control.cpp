@@ -628,7 +628,7 @@ TEST(Control, WorkspaceLawIsBitIdenticalToTheAllocatingOne) {
 // force F0 = −P n at robot 1's cut point (n: platform 1 → platform 2): the platforms are pushed
 // towards each other with P (τ_dx1 = +P n_x, τ_dx2 = −P n_x) and the joints hold. Statics: q̈ = 0,
 // and the closure must carry exactly F0, so the reported squeeze is +P (compression), and −P when
-// the platforms pull apart. Independent of how the sign was derived in control_output.cpp.
+// the platforms pull apart. Independent of how the sign was derived in control_forces.cpp.
 TEST(Control, SqueezeSignFromAStaticHold) {
   const auto sc =
       ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_control.yaml");

@@ -22,6 +22,7 @@
 #include "ukdyn/simulate/simulate.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "control_systems.hpp"
+#include "ukdyn/output/constraint_force_output.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/forces.hpp"
@@ -357,6 +358,72 @@ TEST(NoAlloc, ControlRightHandSideAllocatesNothing) {
     EXPECT_EQ(r.rank, 1);
     EXPECT_GT(run->loop->u.norm(), 0.0);
   }
+}
+// The control columns of trajectory.csv (ukdyn/output/control_output.hpp) over ControlForces
+// (ukdyn/simulate/control_forces.hpp): the split by role, u (inverse dynamics of the model, or the
+// law's), the servo errors and ‖δ‖, and on the paper's plant the closure and squeeze force. The
+// first sample is left out (a split found not unique there keeps its redundant rows once).
+TEST(NoAlloc, ControlColumnsAllocateNothingPerSample) {
+  struct Case {
+    std::string name, yaml_or_file;
+    bool file;
+  };
+  const std::vector<Case> cases{
+      {"inverse dynamics", uktest::pendulum_servo_yaml(), false},
+      {"stabilized law", uktest::pendulum_servo_yaml(1.0, "control:\n  law: stabilized\n"), false},
+      {"robust law", uktest::pendulum_servo_yaml(1.0, "control:\n  law: robust\n  rho: 2\n"),
+       false},
+      {"the paper's control run (closure, squeeze)",
+       std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_control.yaml", true}};
+  for (const Case& c : cases) {
+    const auto sc = c.file ? ukdyn::load_scenario(c.yaml_or_file)
+                           : ukdyn::load_scenario_text(c.yaml_or_file, "na_columns.yaml");
+    const auto run = ukdyn::make_control_run(sc);
+    const ukdyn::System& sys = run ? *run->plant : *sc.system;
+    ukdyn::ControlColumns cols(sc, run ? run->loop.get() : nullptr);
+    if (run) cols.set_plant(*run->plant);
+    ASSERT_FALSE(cols.empty()) << c.name;
+    const Vec q = run ? run->q0 : sc.q0;
+    const Vec qd = run ? run->qd0 : sc.qd0;
+    ukdyn::ForwardData d(sys);
+    ukdyn::forward(sys, d, sc.sim.t0, q, qd, Vec::Zero(sys.dof()));
+    std::vector<double> out(cols.header().size());
+    cols.fill(sc.sim.t0, q, qd, d, out.data());
+    const long count = allocations_in([&] {
+      for (int k = 1; k <= 10; ++k) cols.fill(sc.sim.t0 + 0.01 * k, q, qd, d, out.data());
+    });
+    EXPECT_EQ(count, 0) << c.name << ": " << count << " allocations in 10 samples";
+    if (c.file) {
+      EXPECT_TRUE(cols.peaks().closure);
+    }
+  }
+}
+
+// The frame constraints' columns (ukdyn/output/constraint_force_output.hpp): the split of Qc by
+// block (split_constraint_force() in its workspace) and the wrenches (FrameWrenchMap::evaluate() in
+// its workspace), the same numbers as the allocating functions.
+TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3_weld.yaml");
+  const ukdyn::System& sys = *sc.system;
+  ukdyn::ConstraintForceColumns cols(sc);
+  ASSERT_FALSE(cols.empty());
+  ukdyn::ForwardData d(sys);
+  ukdyn::forward(sys, d, sc.sim.t0, sc.q0, sc.qd0, sc.tau);
+  std::vector<double> out(cols.header().size());
+  cols.fill(sc.q0, d, out.data());
+  const long count = allocations_in([&] {
+    for (int k = 0; k < 10; ++k) cols.fill(sc.q0, d, out.data());
+  });
+  EXPECT_EQ(count, 0) << count << " allocations in 10 samples";
+  // λ bit for bit Eigen's own least-norm solve (what split_constraint_force() did before its
+  // workspace).
+  ukdyn::ConstraintForceWorkspace ws(sys.rows(), sys.dof(), sys.constraint_row_offsets());
+  ukdyn::split_constraint_force(d.A, d.Qc, ws);
+  Eigen::CompleteOrthogonalDecomposition<ukdyn::Mat> cod(d.A.transpose());
+  cod.setThreshold(cod.maxPivot() > 0 ? 1e-10 : 1.0);
+  const Vec lambda = cod.solve(d.Qc);
+  EXPECT_EQ(ws.result.lambda, lambda);
 }
 #endif
 

@@ -6,6 +6,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "core/fnv1a.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
@@ -79,6 +80,22 @@ FreeRun run_free(const std::string& file) {
   return r;
 }
 
+
+// The one FNV-1a of the library (src/core/fnv1a.hpp): the published test vectors, bytes added in
+// pieces hash as their concatenation, and Scenario::hash is it with ukdyn's basis over the file.
+TEST(ContentHash, Fnv1a64OfTheScenarioFile) {
+  using detail::Fnv1a64;
+  static_assert(Fnv1a64().add("").value() == 0xcbf29ce484222325ull);
+  EXPECT_EQ(Fnv1a64().add("a").value(), 0xaf63dc4c8601ec8cull);
+  EXPECT_EQ(Fnv1a64().add("foobar").hex(), "85944171f73967e8");
+  EXPECT_EQ(Fnv1a64().add("foo").add("").add("bar").hex(), "85944171f73967e8");
+  EXPECT_EQ(Fnv1a64(detail::kUkdynHashBasis).add("foobar").hex(), "88fad7c0a8ff07f2");
+  const auto path = kSource / "scenarios" / "paper.yaml";
+  std::ifstream in(path, std::ios::binary);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(load_scenario_text(text, path).hash,
+            Fnv1a64(detail::kUkdynHashBasis).add(text).hex());
+}
 TEST(PaperScenario, ResidualsStayBelow1e12AndRankIs12) {
   const Scenario sc = load_scenario(kSource / "scenarios" / "paper.yaml");
   ASSERT_EQ(sc.system->dof(), 12);

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "cli_run.hpp"
+#include "output/csv_reader.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/sweep/sweep.hpp"
 
@@ -36,21 +37,7 @@ std::vector<std::string> lines(const std::string& text) {
 }
 
 std::vector<std::string> cells(const std::string& line) {
-  std::vector<std::string> out;
-  std::string cur;
-  bool q = false;
-  for (char c : line) {
-    if (c == '"') {
-      q = !q;
-    } else if (c == ',' && !q) {
-      out.push_back(cur);
-      cur.clear();
-    } else {
-      cur += c;
-    }
-  }
-  out.push_back(cur);
-  return out;
+  return ukdyn::io_detail::split_csv_line(line);
 }
 
 std::size_t column(const std::vector<std::string>& header, const std::string& name) {

@@ -4,6 +4,8 @@
 #include <Eigen/QR>
 #include <Eigen/SVD>
 
+#include "core/cod_solve.hpp"
+
 namespace ukdyn {
 
 namespace {
@@ -21,30 +23,60 @@ Mat pinv(const Mat& X, double rel_tol = 1e-12) {
 
 }  // namespace
 
-ConstraintForceSplit split_constraint_force(const Mat& A, const Vec& Qc,
-                                            const std::vector<Index>& row_offsets, double rel_tol) {
-  ConstraintForceSplit s;
-  const Index m = A.rows(), n = A.cols();
-  if (m == 0) {
-    s.lambda = Vec::Zero(0);
-    return s;
-  }
-  Eigen::CompleteOrthogonalDecomposition<Mat> cod(A.transpose());
-  const double top = cod.maxPivot();
-  cod.setThreshold(top > 0 ? rel_tol : 1.0);
-  s.rank = static_cast<int>(cod.rank());
-  s.unique = s.rank == m;
-  s.lambda = cod.solve(Qc);  // least-norm least-squares solution
-  s.residual = (A.transpose() * s.lambda - Qc).norm();
+ConstraintForceWorkspace::ConstraintForceWorkspace(Index m, Index n, std::vector<Index> offsets)
+    : row_offsets(std::move(offsets)),
+      At(n, m),
+      cod(n, m),
+      r(n),
+      c(n),
+      y(m),
+      z_temp(std::max<Index>(n, 1)),
+      hh(1) {
+  result.lambda = Vec::Zero(m);
+  if (m == 0) return;  // no rows: no blocks
   for (std::size_t k = 0; k < row_offsets.size(); ++k) {
     const Index r0 = row_offsets[k];
     const Index r1 = k + 1 < row_offsets.size() ? row_offsets[k + 1] : m;
-    const Vec lk = s.lambda.segment(r0, r1 - r0);
-    s.block_lambda.push_back(lk);
-    s.block_force.push_back(r1 > r0 ? Vec(A.middleRows(r0, r1 - r0).transpose() * lk)
-                                    : Vec(Vec::Zero(n)));
+    result.block_lambda.push_back(Vec::Zero(r1 - r0));
+    result.block_force.push_back(Vec::Zero(n));
   }
-  return s;
+}
+
+void split_constraint_force(const Mat& A, const Vec& Qc, ConstraintForceWorkspace& ws,
+                            double rel_tol) {
+  ConstraintForceSplit& s = ws.result;
+  const Index m = A.rows();
+  if (m == 0) return;
+  ws.At = A.transpose();
+  ws.cod.setThreshold(Eigen::Default);  // a fresh decomposition's rank at compute()
+  ws.cod.compute(ws.At);
+  const double top = ws.cod.maxPivot();
+  ws.cod.setThreshold(top > 0 ? rel_tol : 1.0);
+  s.rank = static_cast<int>(ws.cod.rank());
+  s.unique = s.rank == m;
+  // The least-norm least-squares solution, cod.solve(Qc) without its temporaries.
+  core_detail::cod_solve_into(ws.cod, Qc, s.lambda, ws.c, ws.y, ws.z_temp, ws.hh);
+  ws.r.noalias() = A.transpose() * s.lambda;  // (a buffer: Aᵀλ − Qc in one expression allocates)
+  ws.r -= Qc;
+  s.residual = ws.r.norm();
+  for (std::size_t k = 0; k < ws.row_offsets.size(); ++k) {
+    const Index r0 = ws.row_offsets[k];
+    const Index r1 = k + 1 < ws.row_offsets.size() ? ws.row_offsets[k + 1] : m;
+    Vec& lk = s.block_lambda[k];
+    lk = s.lambda.segment(r0, r1 - r0);
+    if (r1 > r0) {
+      s.block_force[k].noalias() = A.middleRows(r0, r1 - r0).transpose() * lk;
+    } else {
+      s.block_force[k].setZero();
+    }
+  }
+}
+
+ConstraintForceSplit split_constraint_force(const Mat& A, const Vec& Qc,
+                                            const std::vector<Index>& row_offsets, double rel_tol) {
+  ConstraintForceWorkspace ws(A.rows(), A.cols(), row_offsets);
+  split_constraint_force(A, Qc, ws, rel_tol);
+  return std::move(ws.result);
 }
 
 Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference) {

@@ -4,7 +4,11 @@
 #include <Eigen/SVD>
 #include <algorithm>
 
+#include "core/cod_solve.hpp"
+
 namespace ukdyn {
+
+using core_detail::cod_solve_into;
 
 Mat select_rows(const Mat& A, const std::vector<bool>& row_servo, bool servo) {
   Index k = 0;
@@ -16,31 +20,44 @@ Mat select_rows(const Mat& A, const std::vector<bool>& row_servo, bool servo) {
   return out;
 }
 
-RoleForceSplit split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
-                             double rel_tol) {
-  RoleForceSplit s;
-  const Index m = A.rows(), n = A.cols();
-  s.Qp = Vec::Zero(n);
-  s.Qs = Vec::Zero(n);
+RoleSplitWorkspace::RoleSplitWorkspace(Index m, Index n)
+    : At(n, m), svd(n, m, Eigen::ComputeFullU | Eigen::ComputeFullV), r(n) {
+  result.lambda = Vec::Zero(m);
+  result.Qp = Vec::Zero(n);
+  result.Qs = Vec::Zero(n);
+  result.redundant_rows.reserve(static_cast<std::size_t>(m));
+}
+
+void split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
+                   RoleSplitWorkspace& ws, double rel_tol) {
+  RoleForceSplit& s = ws.result;
+  const Index m = A.rows();
+  s.Qp.setZero();
+  s.Qs.setZero();
+  s.rank = 0;
+  s.unique = true;
+  s.redundant_rows.clear();
   if (m == 0) {
-    s.lambda = Vec::Zero(0);
     s.residual = Qc.norm();
-    return s;
+    return;
   }
   // λ = (Aᵀ)⁺ Qc by an SVD of Aᵀ (n × m): V's columns past the rank span null(Aᵀ) ⊂ R^m.
-  Eigen::JacobiSVD<Mat> svd(A.transpose(), Eigen::ComputeFullU | Eigen::ComputeFullV);
-  const Vec& sv = svd.singularValues();
+  ws.At = A.transpose();
+  ws.svd.compute(ws.At, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Vec& sv = ws.svd.singularValues();
   const double top = sv.size() > 0 ? sv(0) : 0.0;
   int rank = 0;
   for (Index i = 0; i < sv.size(); ++i)
     if (sv(i) > rel_tol * top && top > 0) ++rank;
   s.rank = rank;
   s.unique = rank == m;
-  const Mat& U = svd.matrixU();
-  const Mat& V = svd.matrixV();
-  s.lambda = Vec::Zero(m);
+  const Mat& U = ws.svd.matrixU();
+  const Mat& V = ws.svd.matrixV();
+  s.lambda.setZero();
   for (int i = 0; i < rank; ++i) s.lambda += V.col(i) * (U.col(i).dot(Qc) / sv(i));
-  s.residual = (A.transpose() * s.lambda - Qc).norm();
+  ws.r.noalias() = A.transpose() * s.lambda;  // (a buffer: Aᵀλ − Qc in one expression allocates)
+  ws.r -= Qc;
+  s.residual = ws.r.norm();
   if (!s.unique) {
     for (Index i = 0; i < m; ++i) {
       double share = 0.0;
@@ -51,7 +68,13 @@ RoleForceSplit split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool
   for (Index i = 0; i < m; ++i) {
     (row_servo[static_cast<std::size_t>(i)] ? s.Qs : s.Qp) += A.row(i).transpose() * s.lambda(i);
   }
-  return s;
+}
+
+RoleForceSplit split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
+                             double rel_tol) {
+  RoleSplitWorkspace ws(A.rows(), A.cols());
+  split_by_role(A, Qc, row_servo, ws, rel_tol);
+  return std::move(ws.result);
 }
 
 Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel_tol,
@@ -78,71 +101,6 @@ Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel
   a.underactuated = a.residual > rel_tol_residual * (a.scale + 1.0);
   return a;
 }
-
-namespace {
-
-// x = cod⁺ rhs as CompleteOrthogonalDecomposition::_solve_impl (Eigen 3.4) computes it, with the
-// caller's buffers: c = Qᵀ rhs, T z = c(0:r), y = Zᵀ [z; 0], x = P y. The same operations in the
-// same order as cod.solve(rhs), so the same bits; the copies replace Eigen's per-call temporaries
-// (c, the Householder workspace, Z's temp and the in-place permutation's mask).
-template <typename Rhs, typename Dst, typename Work>
-void cod_solve_into(const Eigen::CompleteOrthogonalDecomposition<Mat>& cod, const Rhs& rhs,
-                    Dst& dst, Dst& c, Dst& y, Vec& z_temp, Work& hh_work) {
-  // c: as rhs (cod.rows() rows); y, dst: cod.cols() rows.
-  const Index rank = cod.rank();
-  if (rank == 0) {
-    dst.setZero();
-    return;
-  }
-  c = rhs;
-  // c = Qᵀ c: HouseholderSequence::applyThisOnTheLeft (Eigen 3.4, unblocked path) for the adjoint
-  // of Q = H_0 ⋯ H_{r−1} (H_0 first), written out with the same types and operations so that the
-  // bits are Eigen's; the one change is τ v, which Eigen's outer product evaluates into a heap
-  // temporary, is evaluated into z_temp (free until the Z step below).
-  const auto hq = cod.householderQ();
-  hh_work.resize(c.cols());  // no-op once sized (as Eigen's workspace.resize)
-  for (Index k = 0; k < rank; ++k) {
-    const Index rows_k = hq.rows() - k;
-    Eigen::Block<Dst, Eigen::Dynamic, Eigen::Dynamic> sub(c, k, 0, rows_k, c.cols());
-    const double tau = cod.hCoeffs().coeff(k);  // Q's coefficients (real: not conjugated)
-    if (rows_k == 1) {                          // MatrixBase::applyHouseholderOnTheLeft
-      sub *= 1.0 - tau;
-    } else if (tau != 0.0) {
-      const auto essential = hq.essentialVector(k);
-      Eigen::Map<Eigen::Matrix<double, 1, Eigen::Dynamic>> tmp(hh_work.data(), sub.cols());
-      Eigen::Block<decltype(sub), Eigen::Dynamic, Eigen::Dynamic> bottom(sub, 1, 0, rows_k - 1,
-                                                                         sub.cols());
-      tmp.noalias() = essential.adjoint() * bottom;
-      tmp += sub.row(0);
-      sub.row(0) -= tau * tmp;
-      auto tau_v = z_temp.head(rows_k - 1);
-      tau_v = tau * essential;
-      for (Index j = 0; j < sub.cols(); ++j) bottom.col(j) -= tmp(j) * tau_v;
-    }
-  }
-  y.topRows(rank) = cod.matrixT()
-                        .topLeftCorner(rank, rank)
-                        .template triangularView<Eigen::Upper>()
-                        .solve(c.topRows(rank));
-  const Index cols = cod.cols();
-  if (rank < cols) {
-    y.bottomRows(cols - rank).setZero();
-    // applyZAdjointOnTheLeftInPlace (a protected member of Eigen's COD), with z_temp.
-    const Mat& qtz = cod.matrixQTZ();
-    for (Index k = 0; k < rank; ++k) {
-      if (k != rank - 1) y.row(k).swap(y.row(rank - 1));
-      y.middleRows(rank - 1, cols - rank + 1)
-          .applyHouseholderOnTheLeft(qtz.row(k).tail(cols - rank).adjoint(), cod.zCoeffs()(k),
-                                     &z_temp(0));
-      if (k != rank - 1) y.row(k).swap(y.row(rank - 1));
-    }
-  }
-  // x = P y out of place (Eigen's in-place permutation would allocate its mask).
-  const auto& perm = cod.colsPermutation().indices();
-  for (Index i = 0; i < perm.size(); ++i) dst.row(perm(i)) = y.row(i);
-}
-
-}  // namespace
 
 ActuationWorkspace::ActuationWorkspace(Index n, Index k, Index mp)
     : Ap(Mat::Zero(mp, n)),

@@ -58,21 +58,24 @@ ConstraintForceColumns::ConstraintForceColumns(const Scenario& sc) : sc_(&sc) {
     for (const char* w : kW) header_.push_back("Wg_" + map->name() + "_" + w);
     figures_.push_back(fig);
     figure_names_.push_back("wrench_" + map->name());
+    wrench_ws_.push_back(map->workspace());
   }
   header_.push_back("split_unique");
+  split_.emplace(sys.rows(), sys.dof(), sys.constraint_row_offsets());
 }
 
-bool ConstraintForceColumns::fill(CVecRef q, const ForwardData& d, double* out) const {
+bool ConstraintForceColumns::fill(CVecRef q, const ForwardData& d, double* out) {
   if (header_.empty()) return true;
-  const System& sys = *sc_->system;
-  const auto split = split_constraint_force(d.A, d.Qc, sys.constraint_row_offsets());
+  split_constraint_force(d.A, d.Qc, *split_);
+  const ConstraintForceSplit& split = split_->result;
   std::size_t k = 0;
   for (std::size_t c = 0; c < block_coords_.size(); ++c) {
     for (Index j : block_coords_[c]) out[k++] = split.block_force[c](j);
   }
-  const Vec qv = q;
-  for (const auto& [c, map] : frames_) {
-    const auto w = map->evaluate(qv, split.block_lambda[c]);
+  for (std::size_t fi = 0; fi < frames_.size(); ++fi) {
+    const auto& [c, map] = frames_[fi];
+    map->evaluate(q, split.block_lambda[c], wrench_ws_[fi], wrench_);
+    const symbolic::FrameWrench& w = wrench_;
     const bool b = map->has_b();
     const Vec3 f = b ? w.force_b : w.force_a, m = b ? w.moment_b : w.moment_a;
     const Vec3 fl = b ? w.force_b_local : w.force_a_local;

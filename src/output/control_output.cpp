@@ -10,17 +10,19 @@
 
 namespace ukdyn {
 
-ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop) : sc_(&sc), loop_(loop) {
+ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop)
+    : sc_(&sc),
+      forces_(ControlModel{sc.system, servo_row_flags(*sc.system, sc.constraint_roles),
+                           sc.actuators, sc.tau, sc.sim.uk},
+              loop) {
   const System& sys = *sc.system;
-  servo_ = servo_row_flags(sys, sc.constraint_roles);
-  model_ = ControlModel{sc.system, servo_, sc.actuators, sc.tau, sc.sim.uk};
+  const std::vector<bool>& servo = forces_.model().row_servo;
   row_names_ = sys.constraint_row_names();
-  for (std::size_t i = 0; i < servo_.size(); ++i)
-    if (servo_[i]) servo_names_.push_back(row_names_[i]);
-  split_ = !servo_names_.empty();
+  for (std::size_t i = 0; i < servo.size(); ++i)
+    if (servo[i]) servo_names_.push_back(row_names_[i]);
   t0_ = sc.sim.t0;
   t_half_ = 0.5 * (sc.sim.t0 + sc.sim.t_end);
-  if (split_) {
+  if (forces_.has_split()) {
     for (const auto& c : sys.coordinate_names()) header_.push_back("Qp_" + c);
     for (const auto& c : sys.coordinate_names()) header_.push_back("Qs_" + c);
     header_.push_back("role_split_unique");
@@ -29,122 +31,24 @@ ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop) : sc_(&sc),
     for (const auto& a : sc.actuators.names) header_.push_back("u_" + a);
     header_.push_back("act_residual");
   }
-  if (loop_ != nullptr) {
+  if (loop != nullptr) {
     for (const auto& r : servo_names_) header_.push_back("e_" + r);
     for (const auto& r : servo_names_) header_.push_back("ed_" + r);
-    servo_law_ = dynamic_cast<const ServoLaw*>(&loop_->law);
-    if (servo_law_ != nullptr) header_.push_back("servo_uncertainty");
+    if (forces_.servo_law() != nullptr) header_.push_back("servo_uncertainty");
   }
   u_prev_ = Vec::Zero(sc.actuators.count());
 }
 
 void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d, double* out) {
-  std::size_t k = 0;
-  const ForwardData* md = &d;
-  if (loop_ != nullptr) {
-    loop_->evaluate(t, q, qd);  // the law at the sample: the same u as the integrator's
-    md = &loop_->model_data;
-  }
-  if (split_) {
-    const RoleForceSplit s = split_by_role(md->A, md->Qc, servo_);
-    for (Index i = 0; i < s.Qp.size(); ++i) out[k++] = s.Qp(i);
-    for (Index i = 0; i < s.Qs.size(); ++i) out[k++] = s.Qs(i);
-    out[k++] = s.unique ? 1.0 : 0.0;
-    if (!s.unique && split_unique_) {
-      split_unique_ = false;
-      split_t_ = t;
-      redundant_ = s.redundant_rows;
-    }
-  }
-  if (sc_->actuators.count() > 0) {
-    Vec u;
-    double residual = 0.0;
-    if (loop_ != nullptr) {
-      u = loop_->u;
-      if (const auto* law = dynamic_cast<const ServoLaw*>(&loop_->law))
-        residual = law->last_actuation().residual;
-      else  // a user's law (MemoryRunOptions::law): no actuation solve of ukdyn's to report
-        residual = std::numeric_limits<double>::quiet_NaN();
-      const bool under = dynamic_cast<const ServoLaw*>(&loop_->law) != nullptr &&
-                         static_cast<const ServoLaw&>(loop_->law).last_actuation().underactuated;
-      if (under && !underactuated_) {
-        underactuated_ = true;
-        residual_t_ = t;
-      }
-      if (loop_->saturated) {
-        double over = 0.0;
-        for (Index j = 0; j < u.size(); ++j)
-          over = std::max(over, std::abs(loop_->u_raw(j)) - sc_->actuators.limit(j));
-        if (!saturated_) sat_t_ = t;
-        if (!first_ && t > t_prev_) peaks_.saturation_time += t - t_prev_;
-        saturated_ = true;
-        sat_over_ = std::max(sat_over_, over);
-      }
-    } else {
-      const Actuation a = actuation_for(model_, d);
-      u = a.u;
-      residual = a.residual;
-      if (a.underactuated && !underactuated_) {
-        underactuated_ = true;
-        residual_t_ = t;
-      }
-    }
-    max_residual_ = std::max(max_residual_, residual);
-    for (Index j = 0; j < u.size(); ++j) out[k++] = u(j);
-    out[k++] = residual;
-    max_u_ = std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0);
-    if (!first_ && t > t_prev_ && u.size())
-      max_udot_ = std::max(max_udot_, (u - u_prev_).cwiseAbs().maxCoeff() / (t - t_prev_));
-    u_prev_ = u;
-  }
-  if (loop_ != nullptr) {
-    Vec e, ed;
-    servo_errors(loop_->model, t, q, qd, e, ed);
-    for (Index i = 0; i < e.size(); ++i) out[k++] = e(i);
-    for (Index i = 0; i < ed.size(); ++i) out[k++] = ed(i);
-    const double em = e.size() ? e.cwiseAbs().maxCoeff() : 0.0;
-    max_e_ = std::max(max_e_, em);
-    if (t >= t_half_) max_e_half_ = std::max(max_e_half_, em);
-    if (servo_law_ != nullptr) {
-      // δ = A_s q̈_plant − (b_s + v): d is the plant's forward() at this sample under the u of the
-      // evaluate() above (the same state, so the same u as the integrator's).
-      const double delta = servo_law_->servo_uncertainty(loop_->model, d.qdd);
-      out[k++] = delta;
-      if (delta > max_delta_ || first_) {
-        max_delta_ = delta;
-        max_delta_t_ = t;
-      }
-      const ServoLawSettings& ls = servo_law_->settings();
-      if (ls.kind == ControlLawKind::robust && ls.rho > 0.0 && delta > ls.rho) {
-        if (!rho_exceeded_) {
-          rho_exceeded_ = true;
-          rho_exceeded_t_ = t;
-        }
-        rho_exceeded_delta_ = std::max(rho_exceeded_delta_, delta);
-      }
-    }
-  }
+  forces_.evaluate(t, q, qd, d);
+  if (forces_.has_split()) out = fill_split(t, out);
+  if (forces_.actuated()) out = fill_actuators(t, out);
+  if (forces_.loop() != nullptr) fill_servo(t, out);
   if (peaks_.closure) {
-    // The plant's multipliers: the least-norm λ with A_pᵀλ = Qc (its rows are all physical).
-    // λ_{x,y,z} of Φ = p1 − p2 is the force (world axes) the closure applies at robot 1's cut
-    // point, −λ at robot 2's (Qc = J1ᵀλ on robot 1's coordinates). The squeeze is its component
-    // against n, the horizontal unit vector from platform 1 to platform 2 (world x without the
-    // paper's dx1, dy1, dx2, dy2): compression > 0 (docs/control.md, "The squeeze force").
-    const RoleForceSplit s = split_by_role(d.A, d.Qc, std::vector<bool>(d.A.rows(), false));
-    const double fx = s.lambda(cx_), fy = s.lambda(cy_), fz = s.lambda(cz_);
-    double nx = 1.0, ny = 0.0;
-    if (px1_ >= 0) {
-      const double ax = q(px2_) - q(px1_), ay = q(py2_) - q(py1_), l = std::hypot(ax, ay);
-      if (l > 0.0) {
-        nx = ax / l;
-        ny = ay / l;
-      }
-    }
-    const double f = std::sqrt(fx * fx + fy * fy + fz * fz);
-    const double squeeze = -(fx * nx + fy * ny);
-    peaks_.max_closure_force = io_detail::nanmax(peaks_.max_closure_force, f);
+    const ClosureForce& c = forces_.closure();
+    peaks_.max_closure_force = io_detail::nanmax(peaks_.max_closure_force, c.magnitude);
     peaks_.max_squeeze_force =
-        first_ ? squeeze : io_detail::nanmax(peaks_.max_squeeze_force, squeeze);
+        first_ ? c.squeeze : io_detail::nanmax(peaks_.max_squeeze_force, c.squeeze);
   }
   peaks_.max_abs_e = max_e_;
   peaks_.max_abs_e_second_half = max_e_half_;
@@ -155,26 +59,75 @@ void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d,
   t_prev_ = t;
 }
 
+// Qp_, Qs_, role_split_unique; returns where the next columns go.
+double* ControlColumns::fill_split(double t, double* out) {
+  const RoleForceSplit& s = forces_.split();
+  for (Index i = 0; i < s.Qp.size(); ++i) *out++ = s.Qp(i);
+  for (Index i = 0; i < s.Qs.size(); ++i) *out++ = s.Qs(i);
+  *out++ = s.unique ? 1.0 : 0.0;
+  if (!s.unique && split_unique_) {
+    split_unique_ = false;
+    split_t_ = t;
+    redundant_ = s.redundant_rows;
+  }
+  return out;
+}
+
+// u_, act_residual; returns where the next columns go.
+double* ControlColumns::fill_actuators(double t, double* out) {
+  const Vec& u = forces_.u();
+  const double residual = forces_.actuation_residual();
+  if (forces_.underactuated() && !underactuated_) {
+    underactuated_ = true;
+    residual_t_ = t;
+  }
+  if (forces_.saturated()) {
+    if (!saturated_) sat_t_ = t;
+    if (!first_ && t > t_prev_) peaks_.saturation_time += t - t_prev_;
+    saturated_ = true;
+    sat_over_ = std::max(sat_over_, forces_.over_limit());
+  }
+  max_residual_ = std::max(max_residual_, residual);
+  for (Index j = 0; j < u.size(); ++j) *out++ = u(j);
+  *out++ = residual;
+  max_u_ = std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0);
+  if (!first_ && t > t_prev_ && u.size())
+    max_udot_ = std::max(max_udot_, (u - u_prev_).cwiseAbs().maxCoeff() / (t - t_prev_));
+  u_prev_ = u;
+  return out;
+}
+
+// e_, ed_, servo_uncertainty; returns where the next columns go.
+double* ControlColumns::fill_servo(double t, double* out) {
+  const Vec& e = forces_.e();
+  const Vec& ed = forces_.ed();
+  for (Index i = 0; i < e.size(); ++i) *out++ = e(i);
+  for (Index i = 0; i < ed.size(); ++i) *out++ = ed(i);
+  const double em = e.size() ? e.cwiseAbs().maxCoeff() : 0.0;
+  max_e_ = std::max(max_e_, em);
+  if (t >= t_half_) max_e_half_ = std::max(max_e_half_, em);
+  const ServoLaw* law = forces_.servo_law();
+  if (law == nullptr) return out;
+  const double delta = forces_.uncertainty();
+  *out++ = delta;
+  if (delta > max_delta_ || first_) {
+    max_delta_ = delta;
+    max_delta_t_ = t;
+  }
+  const ServoLawSettings& ls = law->settings();
+  if (ls.kind == ControlLawKind::robust && ls.rho > 0.0 && delta > ls.rho) {
+    if (!rho_exceeded_) {
+      rho_exceeded_ = true;
+      rho_exceeded_t_ = t;
+    }
+    rho_exceeded_delta_ = std::max(rho_exceeded_delta_, delta);
+  }
+  return out;
+}
+
 void ControlColumns::set_plant(const System& plant) {
-  const auto& rows = plant.constraint_row_names();
-  const auto row = [&rows](const char* n) {
-    const auto it = std::find(rows.begin(), rows.end(), n);
-    return it == rows.end() ? Index{-1} : static_cast<Index>(it - rows.begin());
-  };
-  cx_ = row("closure_x");
-  cy_ = row("closure_y");
-  cz_ = row("closure_z");
-  peaks_.closure = loop_ != nullptr && cx_ >= 0 && cy_ >= 0 && cz_ >= 0;
-  const auto& names = plant.coordinate_names();
-  const auto coord = [&names](const char* n) {
-    const auto it = std::find(names.begin(), names.end(), n);
-    return it == names.end() ? Index{-1} : static_cast<Index>(it - names.begin());
-  };
-  px1_ = coord("dx1");
-  py1_ = coord("dy1");
-  px2_ = coord("dx2");
-  py2_ = coord("dy2");
-  if (px1_ < 0 || py1_ < 0 || px2_ < 0 || py2_ < 0) px1_ = -1;
+  forces_.set_plant(plant);
+  peaks_.closure = forces_.has_closure();
 }
 
 std::vector<RunWarning> ControlColumns::warnings() const {
@@ -196,7 +149,7 @@ std::vector<RunWarning> ControlColumns::warnings() const {
                              rows, max_residual_)});
   }
   if (rho_exceeded_) {
-    const double rho = servo_law_->settings().rho;
+    const double rho = forces_.servo_law()->settings().rho;
     w.push_back(
         {rho_exceeded_t_, "rho_bound_exceeded",
          fmt::format("the plant's uncertainty ‖δ‖ = ‖A_s q̈ − (b_s + v)‖ exceeded the "
@@ -224,18 +177,19 @@ nlohmann::json ControlColumns::summary() const {
     j["max_actuation_residual"] = max_residual_;
     j["underactuated"] = underactuated_;
   }
-  if (loop_ != nullptr) {
-    const bool user = dynamic_cast<const ServoLaw*>(&loop_->law) == nullptr;
+  if (forces_.loop() != nullptr) {
+    const ServoLaw* law = forces_.servo_law();
+    const bool user = law == nullptr;
     j["law"] = user ? std::string("user") : to_string(sc_->control->law.kind);
     if (user) j["max_actuation_residual"] = nullptr;  // not known: the user's law solved for u
     j["plant"] = sc_->control->plant ? sc_->control->plant->name : sc_->name;
     j["max_abs_e"] = max_e_;
     j["max_abs_e_second_half"] = max_e_half_;
     j["saturated"] = saturated_;
-    if (servo_law_ != nullptr) {
+    if (law != nullptr) {
       j["max_uncertainty"] = max_delta_;
       j["max_uncertainty_t"] = max_delta_t_;
-      const ServoLawSettings& ls = servo_law_->settings();
+      const ServoLawSettings& ls = law->settings();
       if (ls.kind == ControlLawKind::robust) {
         j["rho"] = ls.rho;
         if (ls.rho > 0.0) j["uncertainty_over_rho"] = max_delta_ / ls.rho;
@@ -258,7 +212,7 @@ nlohmann::json ControlColumns::summary() const {
 std::vector<std::pair<std::string, std::vector<std::string>>> ControlColumns::figures() const {
   std::vector<std::pair<std::string, std::vector<std::string>>> f;
   const auto& names = sc_->system->coordinate_names();
-  if (split_) {
+  if (forces_.has_split()) {
     std::vector<std::string> p, s;
     for (const auto& c : names) p.push_back("Qp_" + c);
     for (const auto& c : names) s.push_back("Qs_" + c);
@@ -270,7 +224,7 @@ std::vector<std::pair<std::string, std::vector<std::string>>> ControlColumns::fi
     for (const auto& a : sc_->actuators.names) u.push_back("u_" + a);
     f.push_back({"actuators", u});
   }
-  if (loop_ != nullptr) {
+  if (forces_.loop() != nullptr) {
     std::vector<std::string> e;
     for (const auto& r : servo_names_) e.push_back("e_" + r);
     f.push_back({"servo_error", e});

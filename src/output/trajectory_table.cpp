@@ -3,11 +3,10 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <fstream>
-#include <limits>
 
+#include "output/csv_reader.hpp"
 #include "ukdyn/core/types.hpp"
 
 namespace ukdyn {
@@ -20,17 +19,7 @@ std::ifstream open_csv(const std::filesystem::path& csv) {
   return in;
 }
 
-std::vector<std::string> split_header(const std::string& line) {
-  std::vector<std::string> h;
-  std::size_t pos = 0;
-  while (true) {
-    const auto c = line.find(',', pos);
-    h.push_back(line.substr(pos, c == std::string::npos ? std::string::npos : c - pos));
-    if (c == std::string::npos) break;
-    pos = c + 1;
-  }
-  return h;
-}
+using io_detail::CsvLines;
 
 // One row of `n` numbers ("nan", "inf" and "-inf" included, as {:.17g} writes them).
 void parse_row(const std::string& line, std::size_t n, std::vector<double>& out,
@@ -41,21 +30,10 @@ void parse_row(const std::string& line, std::size_t n, std::vector<double>& out,
   const char* stop = p;
   for (std::size_t k = 0; k < n; ++k) {
     stop = std::find(p, end, ',');
-    double v = 0.0;
-    const auto r = std::from_chars(p, stop, v);
-    if (r.ec != std::errc() || r.ptr != stop) {
-      const std::string cell(p, stop);
-      if (cell == "nan" || cell == "-nan") {
-        v = std::numeric_limits<double>::quiet_NaN();
-      } else if (cell == "inf") {
-        v = std::numeric_limits<double>::infinity();
-      } else if (cell == "-inf") {
-        v = -std::numeric_limits<double>::infinity();
-      } else {
-        throw Error(fmt::format("{}:{}: column {}: not a number", csv.string(), line_no, k + 1));
-      }
+    if (!io_detail::parse_csv_number(std::string_view(p, static_cast<std::size_t>(stop - p)),
+                                     out[k])) {
+      throw Error(fmt::format("{}:{}: column {}: not a number", csv.string(), line_no, k + 1));
     }
-    out[k] = v;
     if (k + 1 < n && stop == end) {
       throw Error(fmt::format("{}:{}: {} values, expected {}", csv.string(), line_no, k + 1, n));
     }
@@ -70,9 +48,10 @@ void parse_row(const std::string& line, std::size_t n, std::vector<double>& out,
 
 std::size_t count_csv_rows(const std::filesystem::path& csv) {
   auto in = open_csv(csv);
+  CsvLines lines_in(in);
   std::size_t lines = 0;
   std::string line;
-  while (std::getline(in, line)) {
+  while (lines_in.next(line)) {
     if (!line.empty()) ++lines;
   }
   return lines > 0 ? lines - 1 : 0;
@@ -82,17 +61,17 @@ TrajectoryTable read_trajectory(const std::filesystem::path& csv, std::size_t st
   stride = std::max<std::size_t>(stride, 1);
   const std::size_t total = count_csv_rows(csv);
   auto in = open_csv(csv);
+  CsvLines lines(in);
   TrajectoryTable t;
   std::string line;
-  if (!std::getline(in, line)) throw Error(fmt::format("{}: empty (no header)", csv.string()));
-  t.header = split_header(line);
+  if (!lines.next(line)) throw Error(fmt::format("{}: empty (no header)", csv.string()));
+  t.header = io_detail::split_csv_line(line);
   std::vector<double> row;
-  std::size_t i = 0, line_no = 1;
-  while (std::getline(in, line)) {
-    ++line_no;
+  std::size_t i = 0;
+  while (lines.next(line)) {
     if (line.empty()) continue;
     if (i % stride == 0 || i + 1 == total) {
-      parse_row(line, t.header.size(), row, csv, line_no);
+      parse_row(line, t.header.size(), row, csv, lines.line_no());
       t.rows.push_back(row);
     }
     ++i;
@@ -106,14 +85,15 @@ TrajectoryTable read_trajectory_minmax(const std::filesystem::path& csv, std::si
   const std::size_t total = count_csv_rows(csv);
   if (total <= 2 * buckets) return read_trajectory(csv, 1);
   auto in = open_csv(csv);
+  CsvLines lines(in);
   TrajectoryTable t;
   std::string line;
-  std::getline(in, line);
-  t.header = split_header(line);
+  lines.next(line);
+  t.header = io_detail::split_csv_line(line);
   const std::size_t n = t.header.size();
   std::vector<double> row, lo(n), hi(n), first(n);
   std::vector<std::size_t> at_lo(n), at_hi(n);
-  std::size_t i = 0, line_no = 1, bucket = 0, in_bucket = 0;
+  std::size_t i = 0, bucket = 0, in_bucket = 0;
   auto flush = [&](double t_last) {
     std::vector<double> a(n), b(n);
     a[0] = first[0];
@@ -127,10 +107,9 @@ TrajectoryTable read_trajectory_minmax(const std::filesystem::path& csv, std::si
     t.rows.push_back(std::move(b));
   };
   double t_last = 0.0;
-  while (std::getline(in, line)) {
-    ++line_no;
+  while (lines.next(line)) {
     if (line.empty()) continue;
-    parse_row(line, n, row, csv, line_no);
+    parse_row(line, n, row, csv, lines.line_no());
     // Row i belongs to bucket floor(i · buckets / total).
     const std::size_t b = i * buckets / total;
     if (b != bucket && in_bucket > 0) {

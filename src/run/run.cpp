@@ -9,13 +9,13 @@
 #include <optional>
 #include <ostream>
 
+#include "run/run_observer.hpp"
+#include "scenario/definitions_loader.hpp"
 #include "ukdyn/output/constraint_force_output.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/output/csv_writer.hpp"
-#include "scenario/definitions_loader.hpp"
 #include "ukdyn/output/plots.hpp"
 #include "ukdyn/output/replay.hpp"
-#include "run/run_observer.hpp"
 #include "ukdyn/output/safe_text.hpp"
 
 namespace ukdyn {
@@ -192,11 +192,11 @@ struct Observer {
   CsvWriter* csv;  ///< the rows go here, or (if null) into `memory`
   Progress& progress;
   const std::atomic<bool>* cancel;
-  const ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
-  ControlColumns* control = nullptr;               // after those (docs/control.md), if any
-  bool split_unique = true;                        // the force split was unique at every sample
-  double split_t = 0.0;                            // the first sample where it was not
-  std::vector<double>* memory = nullptr;  ///< run_scenario_in_memory(): the rows, back to back
+  ConstraintForceColumns* forces = nullptr;  // the last columns of the row, if any
+  ControlColumns* control = nullptr;         // after those (docs/control.md), if any
+  bool split_unique = true;                  // the force split was unique at every sample
+  double split_t = 0.0;                      // the first sample where it was not
+  std::vector<double>* memory = nullptr;     ///< run_scenario_in_memory(): the rows, back to back
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     std::size_t k = recorder.record(t, q, qd, d);
@@ -323,7 +323,7 @@ struct RunSetup {
   const RunOptions& options;
   const ControlRun* ctl;  // docs/control.md: the plant and its loop, or null
   const System& sys;      // the plant with `control:`, else the scenario's system
-  const ConstraintForceColumns& force_columns;
+  ConstraintForceColumns& force_columns;
   ControlColumns& control_columns;
   const std::vector<std::string>& header;
 };
@@ -536,7 +536,7 @@ RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
 
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
-  const ConstraintForceColumns force_columns(sc);                       // frame constraints only
+  ConstraintForceColumns force_columns(sc);                             // frame constraints only
   ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // docs/control.md
   if (ctl) control_columns.set_plant(*ctl->plant);  // the closure / squeeze force
   const std::vector<std::string> header =
@@ -602,7 +602,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   const bool balance = sc.sim.energy_balance;
   rep.energy_balance = balance;
   run.header = trajectory_header(sys, balance);
-  const ConstraintForceColumns force_columns(sc);  // frame constraints only, as run_scenario's
+  ConstraintForceColumns force_columns(sc);  // frame constraints only, as run_scenario's
   if (!ctl) {
     run.header.insert(run.header.end(), force_columns.header().begin(),
                       force_columns.header().end());

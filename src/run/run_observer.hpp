@@ -1,7 +1,8 @@
 // Internal to ukdyn::io: what every output sample of a run contributes, written once for
 // run_scenario(), run_scenario_in_memory() (src/run/run.cpp) and the rows of `ukdyn sweep`
-// (src/sweep/): the trajectory.csv row (the columns of trajectory_header()) and the extrema of
-// the run report (residuals, energy drift, energy balance, rank, smallest kept singular value).
+// (src/sweep/sample.cpp): the trajectory.csv row (the columns of trajectory_header()) and the
+// extrema of the run report (residuals, energy drift, energy balance, rank, smallest kept singular
+// value).
 #pragma once
 
 #include <algorithm>

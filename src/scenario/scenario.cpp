@@ -11,6 +11,7 @@
 #include <set>
 #include <sstream>
 
+#include "core/fnv1a.hpp"
 #include "scenario/control_loader.hpp"
 #include "scenario/definitions_loader.hpp"
 #include "scenario/forces_loader.hpp"
@@ -29,20 +30,6 @@ using io_detail::Node;
 
 constexpr std::size_t kMaxFileBytes = 4u << 20;  // 4 MiB: a scenario is a small text file
 constexpr Index kMaxDof = 10'000;
-
-std::string hash_hex(const std::string& bytes) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char ch : bytes) {
-    h ^= ch;
-    h *= 1099511628211ull;
-  }
-  std::ostringstream os;
-  os << std::hex;
-  os.width(16);
-  os.fill('0');
-  os << h;
-  return os.str();
-}
 
 MobileManipulatorParams load_mm_params(const Loader& L, const Node& n, double gravity) {
   MobileManipulatorParams p;
@@ -882,7 +869,8 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
 Scenario load_scenario_text(const std::string& text, const std::filesystem::path& path,
                             const LoadOptions& options) {
   try {
-    return load_scenario_unguarded(parse_yaml(text, path), hash_hex(text), path, options);
+    return load_scenario_unguarded(parse_yaml(text, path), io_detail::scenario_text_hash(text),
+                                   path, options);
   } catch (const ScenarioError&) {
     throw;
   } catch (const std::exception& e) {  // a last resort: yaml-cpp or GiNaC errors not caught where
@@ -896,7 +884,9 @@ YAML::Node io_detail::parse_scenario_yaml(const std::string& text,
   return parse_yaml(text, path);
 }
 
-std::string io_detail::scenario_text_hash(const std::string& text) { return hash_hex(text); }
+std::string io_detail::scenario_text_hash(const std::string& text) {
+  return detail::Fnv1a64(detail::kUkdynHashBasis).add(text).hex();
+}
 
 Scenario io_detail::load_scenario_yaml(const YAML::Node& root, const std::string& hash,
                                        const std::filesystem::path& path,

@@ -243,7 +243,7 @@ class Loader {
 };
 
 /// load_scenario_text() of an already parsed document (the sweep parses its base scenario once,
-/// src/sweep/). `hash` becomes Scenario::hash; path is used in messages only. The document is
+/// src/sweep/sample.cpp). `hash` becomes Scenario::hash; path is used in messages only. The document is
 /// only read (yaml-cpp's const access), so it must not be shared with a thread that writes it.
 Scenario load_scenario_yaml(const YAML::Node& root, const std::string& hash,
                             const std::filesystem::path& path, const LoadOptions& options = {});

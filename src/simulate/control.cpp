@@ -5,8 +5,8 @@
 #include <cmath>
 #include <utility>
 
-#include "ukdyn/core/types.hpp"
 #include "model/solve_stages.hpp"
+#include "ukdyn/core/types.hpp"
 
 namespace ukdyn {
 
@@ -50,6 +50,20 @@ Actuation actuation_for(const ControlModel& model, const ForwardData& d) {
   return solve_actuation(model.actuators.B, Ap, d.Qc);
 }
 
+ActuationWorkspace actuation_workspace(const ControlModel& model) {
+  Index mp = 0;
+  for (bool s : model.row_servo) mp += s ? 0 : 1;
+  return ActuationWorkspace(model.system->dof(), model.actuators.count(), mp);
+}
+
+void actuation_for(const ControlModel& model, const ForwardData& d, ActuationWorkspace& ws) {
+  // The physical rows into the workspace (select_rows() without its allocation).
+  Index r = 0;
+  for (Index i = 0; i < d.A.rows(); ++i)
+    if (!model.row_servo[static_cast<std::size_t>(i)]) ws.Ap.row(r++) = d.A.row(i);
+  solve_actuation(model.actuators.B, d.Qc, ws);
+}
+
 void servo_errors(const ControlModel& model, double t, CVecRef q, CVecRef qd, Vec& e, Vec& ed) {
   const System& sys = *model.system;
   Vec phi(sys.rows()), phid(sys.rows());
@@ -73,11 +87,7 @@ ServoLaw::ServoLaw(const ControlModel& model, ServoLawSettings settings)
       phi_(model.system->rows()),
       phid_(model.system->rows()),
       b_(model.system->rows()),
-      act_(model.system->dof(), model.actuators.count(), [&model] {
-        Index mp = 0;
-        for (bool s : model.row_servo) mp += s ? 0 : 1;
-        return mp;
-      }()) {}
+      act_(actuation_workspace(model)) {}
 
 double ServoLaw::servo_uncertainty(const ControlModel& model, CVecRef qdd) const {
   // ë = A_s q̈ − b_s on any trajectory (b_s: the servo rows' U-K right-hand side at the state), and
@@ -130,11 +140,7 @@ void ServoLaw::control(const ControlModel& model, double t, CVecRef q, CVecRef q
   work_.A = md.A;
   work_.Q = md.Q;
   uk_solve_dispatch(work_, b_, work_.Q, work_.qdd, work_.Qc, model.uk);
-  // The physical rows into the workspace (select_rows() without its allocation).
-  Index r = 0;
-  for (Index i = 0; i < m; ++i)
-    if (!model.row_servo[static_cast<std::size_t>(i)]) act_.Ap.row(r++) = work_.A.row(i);
-  solve_actuation(model.actuators.B, work_.Qc, act_);
+  actuation_for(model, work_, act_);
   u = act_.result.u;
 }
 

@@ -5,6 +5,7 @@
 #include <sstream>
 #include <string>
 
+#include "core/fnv1a.hpp"
 #include "ukdyn/core/types.hpp"
 
 namespace ukdyn::symbolic {
@@ -33,15 +34,6 @@ std::uint64_t mix(std::uint64_t h, std::uint64_t x) {  // splitmix64 finaliser o
   z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
   return z ^ (z >> 31);
-}
-
-std::uint64_t fnv(const std::string& s) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : s) {
-    h ^= c;
-    h *= 1099511628211ull;
-  }
-  return h;
 }
 
 std::string printed(const ex& e) {
@@ -107,7 +99,7 @@ ex round_long_rationals(const ex& e, long max_bits) {
 std::uint64_t StructuralOrder::hash(const ex& e) {
   if (auto it = memo_.find(e); it != memo_.end()) return it->second;
   const int t = tag(e);
-  std::uint64_t h = mix(static_cast<std::uint64_t>(t), fnv(label(e)));
+  std::uint64_t h = mix(static_cast<std::uint64_t>(t), detail::ukdyn_hash(label(e)));
   if (commutative(t)) {
     std::vector<std::uint64_t> hs;
     hs.reserve(e.nops());

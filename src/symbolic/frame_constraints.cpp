@@ -358,16 +358,21 @@ void FrameWrenchMap::jacobians(const Vec& q, Mat& Ja, Mat& Jb) const {
   }
 }
 
-FrameWrench FrameWrenchMap::evaluate(const Vec& q, const Vec& lambda) const {
-  std::vector<double> out(tape_.outputs());
-  tape_.eval(0.0, q.data(), nullptr, out.data());
-  Mat Ga(m_, 6), Gb(m_, 6);
+FrameWrenchMap::Workspace FrameWrenchMap::workspace() const {
+  return Workspace{std::vector<double>(tape_.outputs()), std::vector<double>(tape_.work_size()),
+                   Mat(m_, 6), Mat(m_, 6)};
+}
+
+void FrameWrenchMap::evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const {
+  std::vector<double>& out = ws.out;
+  tape_.eval(0.0, q.data(), nullptr, out.data(), ws.work.data());
+  Mat& Ga = ws.Ga;
+  Mat& Gb = ws.Gb;
   std::size_t k = 0;
   for (Index i = 0; i < m_; ++i)
     for (Index j = 0; j < 6; ++j) Ga(i, j) = out[k++];
   for (Index i = 0; i < m_; ++i)
     for (Index j = 0; j < 6; ++j) Gb(i, j) = out[k++];
-  FrameWrench w;
   for (auto [p, R] : {std::pair{&w.position_a, &w.rotation_a}, {&w.position_b, &w.rotation_b}}) {
     for (Index i = 0; i < 3; ++i) (*p)(i) = out[k++];
     for (Index i = 0; i < 3; ++i)
@@ -383,6 +388,12 @@ FrameWrench FrameWrenchMap::evaluate(const Vec& q, const Vec& lambda) const {
   w.moment_a_local = w.rotation_a.transpose() * w.moment_a;
   w.force_b_local = w.rotation_b.transpose() * w.force_b;
   w.moment_b_local = w.rotation_b.transpose() * w.moment_b;
+}
+
+FrameWrench FrameWrenchMap::evaluate(const Vec& q, const Vec& lambda) const {
+  Workspace ws = workspace();
+  FrameWrench w;
+  evaluate(q, lambda, ws, w);
   return w;
 }
 

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <string>
 
+#include "core/fnv1a.hpp"
 #include "ukdyn/core/types.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 
@@ -96,20 +97,13 @@ int CubicSpline::compare(const CubicSpline& o) const {
 }
 
 std::uint64_t CubicSpline::fingerprint() const {
-  std::uint64_t h = 14695981039346656037ULL;  // FNV-1a, 64 bit
-  auto mix = [&](double v) {
-    auto b = std::bit_cast<std::uint64_t>(v);
-    for (int i = 0; i < 8; ++i) {
-      h ^= b & 0xffU;
-      h *= 1099511628211ULL;
-      b >>= 8;
-    }
-  };
-  for (double v : t_) mix(v);
+  // FNV-1a, 64 bit, over the bytes of every knot and coefficient (little-endian).
+  detail::Fnv1a64 h;
+  for (double v : t_) h.add_le64(std::bit_cast<std::uint64_t>(v));
   for (const auto& c : c_) {
-    for (double v : c) mix(v);
+    for (double v : c) h.add_le64(std::bit_cast<std::uint64_t>(v));
   }
-  return h;
+  return h.value();
 }
 
 }  // namespace ukdyn::symbolic

@@ -17,6 +17,7 @@
 // Both internal parts lie in null(G): G w_int = 0.
 #pragma once
 
+#include <Eigen/QR>
 #include <vector>
 
 #include "ukdyn/core/types.hpp"
@@ -37,6 +38,23 @@ struct ConstraintForceSplit {
 ConstraintForceSplit split_constraint_force(const Mat& A, const Vec& Qc,
                                             const std::vector<Index>& row_offsets,
                                             double rel_tol = 1e-10);
+
+/// The buffers of split_constraint_force() for A: m × n with blocks starting at `row_offsets`,
+/// allocated once.
+struct ConstraintForceWorkspace {
+  ConstraintForceWorkspace(Index m, Index n, std::vector<Index> row_offsets);
+  std::vector<Index> row_offsets;
+  Mat At;  ///< n × m: Aᵀ
+  Eigen::CompleteOrthogonalDecomposition<Mat> cod;
+  Vec r, c, y, z_temp;  ///< Aᵀλ − Qc; the solve's buffers
+  Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor> hh;
+  ConstraintForceSplit result;  ///< λ, λ_k and A_kᵀλ_k sized once
+};
+
+/// split_constraint_force() into ws.result: the same numbers, and no heap allocation once ws
+/// exists (tests/test_no_alloc.cpp).
+void split_constraint_force(const Mat& A, const Vec& Qc, ConstraintForceWorkspace& ws,
+                            double rel_tol = 1e-10);
 
 /// G (6 × 6N) for grasp points p_k and reference point r.
 Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference);

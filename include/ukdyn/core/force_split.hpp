@@ -22,6 +22,7 @@
 #pragma once
 
 #include <Eigen/QR>
+#include <Eigen/SVD>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,20 @@ struct RoleForceSplit {
 /// as zero. Allocates.
 RoleForceSplit split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
                              double rel_tol = 1e-10);
+
+/// The buffers of split_by_role() for A: m × n, allocated once.
+struct RoleSplitWorkspace {
+  RoleSplitWorkspace(Index m, Index n);
+  Mat At;  ///< n × m: Aᵀ
+  Eigen::JacobiSVD<Mat> svd;
+  Vec r;                  ///< n: Aᵀλ − Qc
+  RoleForceSplit result;  ///< λ (m), Qp, Qs (n); room for m redundant rows
+};
+
+/// split_by_role() into ws.result: the same numbers, and no heap allocation once ws exists
+/// (tests/test_no_alloc.cpp).
+void split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
+                   RoleSplitWorkspace& ws, double rel_tol = 1e-10);
 
 /// The rows of A whose flag is `servo` (or not).
 Mat select_rows(const Mat& A, const std::vector<bool>& row_servo, bool servo);

@@ -8,12 +8,14 @@
 //                             least-norm λ is reported)
 #pragma once
 
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
-#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn {
@@ -24,8 +26,10 @@ class ConstraintForceColumns {
   explicit ConstraintForceColumns(const Scenario& scenario);
   [[nodiscard]] bool empty() const { return header_.empty(); }
   [[nodiscard]] const std::vector<std::string>& header() const { return header_; }
-  /// Writes header().size() values from out[0]. Returns false if the split is not unique.
-  bool fill(CVecRef q, const ForwardData& d, double* out) const;
+  /// Writes header().size() values from out[0]. Returns false if the split is not unique. The
+  /// forces are split_constraint_force()'s and the wrenches FrameWrenchMap::evaluate()'s, into
+  /// buffers allocated at construction: allocates nothing.
+  bool fill(CVecRef q, const ForwardData& d, double* out);
   /// One figure per frame constraint (its world wrench) and one per block (its force).
   /// (By reference: run.cpp indexes them, `figure_columns()[f]`; a copy would dangle.)
   [[nodiscard]] const std::vector<std::vector<std::string>>& figure_columns() const {
@@ -40,6 +44,10 @@ class ConstraintForceColumns {
   std::vector<std::vector<Index>> block_coords_;  // per block: the coordinates written
   std::vector<std::vector<std::string>> figures_;
   std::vector<std::string> figure_names_;
+  // the buffers of fill()
+  std::optional<ConstraintForceWorkspace> split_;
+  std::vector<symbolic::FrameWrenchMap::Workspace> wrench_ws_;  // per frame constraint
+  symbolic::FrameWrench wrench_;
 };
 
 }  // namespace ukdyn

@@ -13,9 +13,12 @@
 
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/control.hpp"
+#include "ukdyn/simulate/control_forces.hpp"
 
 namespace ukdyn {
 
+/// The columns and the run's extrema; the forces themselves are ControlForces'
+/// (ukdyn/simulate/control_forces.hpp), computed into buffers allocated once.
 class ControlColumns {
  public:
   /// loop: the closed loop of a control run (then u is the law's), or null (inverse dynamics of the
@@ -24,6 +27,7 @@ class ControlColumns {
   [[nodiscard]] bool empty() const { return header_.empty(); }
   [[nodiscard]] const std::vector<std::string>& header() const { return header_; }
   /// Writes header().size() values from out[0]; d: the simulated system's data at (t, q, q̇).
+  /// Allocates nothing (but the first time the role split is found not unique).
   void fill(double t, CVecRef q, CVecRef qd, const ForwardData& d, double* out);
   /// Warnings of the run (role_force_split, underactuated, saturation), once each.
   [[nodiscard]] std::vector<RunWarning> warnings() const;
@@ -46,12 +50,13 @@ class ControlColumns {
   [[nodiscard]] const Peaks& peaks() const { return peaks_; }
 
  private:
+  double* fill_split(double t, double* out);
+  double* fill_actuators(double t, double* out);
+  double* fill_servo(double t, double* out);
+
   const Scenario* sc_;
-  ClosedLoop* loop_;
-  ControlModel model_;  // the scenario's system as the model (no loop)
-  std::vector<bool> servo_;
+  ControlForces forces_;  // the scenario's system as the model; the loop, if any
   std::vector<std::string> header_, row_names_, servo_names_;
-  bool split_ = false;
   double t0_ = 0.0, t_half_ = 0.0;
   // accumulated
   bool split_unique_ = true;
@@ -63,17 +68,13 @@ class ControlColumns {
   bool saturated_ = false;
   double sat_t_ = 0.0, sat_over_ = 0.0;
   // the uncertainty the robust term must dominate (docs/control.md "The uncertainty bound ρ")
-  const ServoLaw* servo_law_ = nullptr;
   double max_delta_ = 0.0, max_delta_t_ = 0.0;
   bool rho_exceeded_ = false;
   double rho_exceeded_t_ = 0.0, rho_exceeded_delta_ = 0.0;
   Vec u_prev_;
   double t_prev_ = 0.0;
   bool first_ = true;
-  // the closure force (set_plant)
   Peaks peaks_;
-  Index cx_ = -1, cy_ = -1, cz_ = -1;                // rows closure_x, _y, _z of the plant
-  Index px1_ = -1, py1_ = -1, px2_ = -1, py2_ = -1;  // coordinates dx1, dy1, dx2, dy2
 };
 
 }  // namespace ukdyn

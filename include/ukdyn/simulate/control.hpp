@@ -97,6 +97,13 @@ class ServoLaw : public ControlLaw {
 /// (model_data after forward()). Allocates.
 Actuation actuation_for(const ControlModel& model, const ForwardData& model_data);
 
+/// The buffers of actuation_for() for the model: n coordinates, k actuators, its physical rows.
+ActuationWorkspace actuation_workspace(const ControlModel& model);
+/// actuation_for() into ws.result (ws from actuation_workspace(model)): the physical rows of
+/// model_data.A into ws.Ap, then solve_actuation() in ws. Allocates nothing.
+void actuation_for(const ControlModel& model, const ForwardData& model_data,
+                   ActuationWorkspace& ws);
+
 /// Servo residuals e = Φ_s, ė = Φ̇_s of the model at (t, q, q̇) (allocates).
 void servo_errors(const ControlModel& model, double t, CVecRef q, CVecRef qd, Vec& e, Vec& ed);
 

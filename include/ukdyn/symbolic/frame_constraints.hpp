@@ -112,6 +112,15 @@ class FrameWrenchMap {
   [[nodiscard]] bool has_b() const { return has_b_; }
   /// w = G_aᵀλ, G_bᵀλ at q for the multipliers λ (rows()) of this block. Allocates.
   [[nodiscard]] FrameWrench evaluate(const Vec& q, const Vec& lambda) const;
+  /// The buffers of evaluate() for this map (the tape's outputs and work, G_a, G_b).
+  struct Workspace {
+    std::vector<double> out, work;
+    Mat Ga, Gb;
+  };
+  [[nodiscard]] Workspace workspace() const;
+  /// evaluate() into w with the buffers of ws (from workspace()): the same numbers, and no heap
+  /// allocation.
+  void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const;
   /// G_a, G_b (m × 6 each) at q.
   void maps(const Vec& q, Mat& Ga, Mat& Gb) const;
   /// Twist Jacobians of the frames a and b (6 × n) at q.
