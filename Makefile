@@ -77,7 +77,7 @@ check-state:
 	@bash scripts/check-no-hidden-state.sh
 	@python3 scripts/check-function-length.py
 
-# libFuzzer on the scenario loader for FUZZ_SECONDS (build/fuzz, clang-14).
+# libFuzzer on the scenario loader for FUZZ_SECONDS (build/asan, the instrumented clang-14 build make sanitize uses).
 fuzz:
 	@bash scripts/fuzz.sh $(FUZZ_SECONDS)
 

@@ -27,7 +27,7 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$PWD/scripts/lsan.supp:print_suppressions=0}
 
 # fuzz TARGET WHAT SECONDS MAX_LEN DICT SEEDS...: runs one libFuzzer target for SECONDS with new
-# inputs in build/fuzz/corpus_TARGET and reproducers in build/fuzz/artifacts_TARGET/; exits the
+# inputs in build/asan/corpus_TARGET and reproducers in build/asan/artifacts_TARGET/; exits the
 # script non-zero on a finding.
 fuzz() {
   local target=$1 what=$2 secs=$3 max_len=$4 dict=$5
