@@ -61,7 +61,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     options.check_initial = false;
     const ukdyn::Scenario sc = ukdyn::load_scenario_text(text, "fuzz.yaml", options);
     ukdyn::Mat M(2, 2);
-    sc.system->subsystems()[0]->mass(sc.q0, M);
+    sc.system->subsystems()[0]->mass({}, sc.q0, M);
     for (auto f : {ukdyn::symbolic::Format::latex, ukdyn::symbolic::Format::c,
                    ukdyn::symbolic::Format::matlab, ukdyn::symbolic::Format::text}) {
       (void)ukdyn::symbolic::format_system(*sc.system, f);
