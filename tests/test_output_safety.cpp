@@ -17,10 +17,11 @@
 #include "cli_run.hpp"
 
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/run/eval_protocol.hpp"
+#include "run/run_faults.hpp"
 #include "ukdyn/output/plots.hpp"
-#include "ukdyn/run/run.hpp"
 #include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
+#include "ukdyn/run/run.hpp"
 
 extern char** environ;
 
@@ -457,8 +458,7 @@ class InjectedFailure : public ::testing::Test {
     const ukdyn::Scenario sc = ukdyn::load_scenario(short_scenario());
     ukdyn::RunOptions opt;
     opt.figures = false;
-    opt.write_failure = hook;
-    return ukdyn::run_scenario(sc, out, opt);
+    return ukdyn::io_detail::run_scenario_with_write_failures(sc, out, opt, hook);
   }
 };
 
