@@ -19,9 +19,9 @@
 #ifdef UKDYN_HAVE_IO
 #include "run/run_faults.hpp"
 #include "ukdyn/output/plots.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 extern char** environ;
 

@@ -17,7 +17,7 @@
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/plots.hpp"
 #include "ukdyn/output/replay.hpp"
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

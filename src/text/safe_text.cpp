@@ -1,4 +1,4 @@
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 #include <fmt/format.h>
 
