@@ -27,13 +27,13 @@
 #include <vector>
 
 #include "apps/sweep_mpi.hpp"
-#include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/output/replay.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/run.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/sweep/sweep.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace {
 

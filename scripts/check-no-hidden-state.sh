@@ -19,8 +19,9 @@ allow=(
   "include/ukdyn/model/time_function.hpp:static TimeFunction make_|static member functions (named constructors), no state"
   "include/ukdyn/core/uk_solve.hpp:static BlockLayout single|static member function (a named constructor), no state"
   "src/scenario/yaml_loader.hpp:static bool parse_number|static member function, no state"
-  "src/scenario/yaml_loader.hpp:static std::string printable|static member function, no state"
   "include/ukdyn/output/csv_writer.hpp:static std::string incomplete_name|static member function, no state"
+  "src/output/write_faults.hpp:static void set_hook|static member function, no state"
+  "src/output/write_faults.hpp:static bool inject|static member function, no state"
   "src/symbolic/spline.cpp:static bool struct_is_equal|static member function (GiNaC comparison policy), no state"
   "src/symbolic/spline.cpp:static int struct_compare|static member function (GiNaC comparison policy), no state"
   'src/symbolic/expression.cpp:"sizeof", "static", "struct"|a string in the table of C keywords, not a declaration'

@@ -12,15 +12,17 @@
 
 #include <chrono>
 #include <nlohmann/json.hpp>
+#include <random>
 #include <thread>
 
 #include "cli_run.hpp"
 
 #ifdef UKDYN_HAVE_IO
-#include "ukdyn/run/eval_protocol.hpp"
+#include "run/run_faults.hpp"
 #include "ukdyn/output/plots.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/run.hpp"
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 extern char** environ;
 
@@ -457,8 +459,7 @@ class InjectedFailure : public ::testing::Test {
     const ukdyn::Scenario sc = ukdyn::load_scenario(short_scenario());
     ukdyn::RunOptions opt;
     opt.figures = false;
-    opt.write_failure = hook;
-    return ukdyn::run_scenario(sc, out, opt);
+    return ukdyn::io_detail::run_scenario_with_write_failures(sc, out, opt, hook);
   }
 };
 
@@ -569,6 +570,40 @@ TEST(SafeText, PrintableEscapesControlsAndKeepsUtf8) {
   EXPECT_EQ(ukdyn::printable("l1\nl2"), "l1\\x0al2");
   EXPECT_EQ(ukdyn::file_stem("../a b/\n"), "_.._a_b__");
   EXPECT_EQ(ukdyn::csv_field("a,\"b\""), "\"a,\"\"b\"\"\"");
+}
+
+// The scenario loader's narrower escape: C0 controls and DEL only, every other byte kept; what
+// reaches a terminal then goes through printable() as well, and reads exactly as printable() alone.
+TEST(SafeText, EscapeControlsEscapesOnlyC0AndDelAndPrintableStillCatchesTheRest) {
+  EXPECT_EQ(ukdyn::escape_controls("a\x1b[31m\tb\x7f"), "a\\x1b[31m\\x09b\\x7f");
+  EXPECT_EQ(ukdyn::escape_controls("l1\nl2"), "l1\\x0al2");
+  EXPECT_EQ(ukdyn::escape_controls("\xc2\x9b \xff Φ\\x"), "\xc2\x9b \xff Φ\\x");  // not checked
+  // ASCII, controls, C1, valid UTF-8 of 2 to 4 bytes, and bytes that are not UTF-8 (a lone lead or
+  // continuation byte, a truncated sequence, a surrogate).
+  const std::vector<std::string> pieces{"a",
+                                        "\\",
+                                        "\n",
+                                        "\t",
+                                        "\x1b",
+                                        "\x7f",
+                                        "\xc2\x9b",
+                                        "\xc2\xa0",
+                                        "Φ",
+                                        "\xe2\x82\xac",
+                                        "\xf0\x9f\x98\x80",
+                                        "\xff",
+                                        "\xc2",
+                                        "\xe2\x82",
+                                        "\x80",
+                                        "\xed\xa0\x80"};
+  std::mt19937 rng(15);
+  std::uniform_int_distribution<std::size_t> pick(0, pieces.size() - 1), count(0, 12);
+  for (int k = 0; k < 20000; ++k) {
+    std::string s;
+    for (std::size_t n = count(rng); n > 0; --n) s += pieces[pick(rng)];
+    ASSERT_EQ(ukdyn::printable(ukdyn::escape_controls(s), true), ukdyn::printable(s))
+        << ukdyn::printable(s);
+  }
 }
 
 TEST(Figures, ThousandsOfRowsDrawABoundedNumberOfFigures) {

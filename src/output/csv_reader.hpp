@@ -1,7 +1,7 @@
 // Internal to ukdyn::io: the one reader of the CSV files ukdyn writes, for a run's trajectory.csv
 // (trajectory_table.cpp) and a sweep's results.csv and journal.csv (src/sweep/): the lines of a
-// file or text, the cells of a line (quoted as csv_field() writes them, safe_text.hpp) and numbers
-// as {:.17g} and fmt's {} write them.
+// file or text, the cells of a line (quoted as csv_field() writes them, ukdyn/text/safe_text.hpp)
+// and numbers as {:.17g} and fmt's {} write them.
 #pragma once
 
 #include <cstddef>

@@ -2,7 +2,7 @@
 
 #include <fmt/format.h>
 
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

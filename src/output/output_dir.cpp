@@ -9,6 +9,8 @@
 #include <cstring>
 #include <string>
 
+#include "output/write_faults.hpp"
+
 namespace ukdyn {
 
 namespace fs = std::filesystem;
@@ -68,8 +70,7 @@ void check_output_folder(const fs::path& dir) {
 
 // ------------------------------------------------------------------------------------ OutputDir
 
-OutputDir::OutputDir(const fs::path& dir, WriteFailureHook hook)
-    : path_(dir), hook_(std::move(hook)) {
+OutputDir::OutputDir(const fs::path& dir) : path_(dir) {
   check_output_folder(dir);
   std::error_code ec;
   fs::create_directories(dir, ec);
@@ -150,8 +151,13 @@ OutputDir::~OutputDir() {
 
 std::string OutputDir::display(const std::string& rel) const { return (path_ / rel).string(); }
 
-bool OutputDir::inject_failure(std::string_view name, std::size_t bytes) const {
-  if (hook_ && hook_(name, bytes)) {
+void io_detail::WriteFaults::set_hook(OutputDir& dir, WriteFailureHook hook) {
+  dir.faults_ = hook ? std::make_unique<WriteFaults>(WriteFaults{std::move(hook)}) : nullptr;
+}
+
+bool io_detail::WriteFaults::inject(const OutputDir& dir, std::string_view name,
+                                    std::size_t bytes) {
+  if (dir.faults_ && dir.faults_->hook(name, bytes)) {
     errno = ENOSPC;
     return true;
   }
@@ -252,7 +258,7 @@ void AtomicFile::write(std::string_view bytes) {
 }
 
 void AtomicFile::write_all(const char* p, std::size_t n) {
-  if (dir_.inject_failure(prefix_ + name_, n)) {
+  if (io_detail::WriteFaults::inject(dir_, prefix_ + name_, n)) {
     throw WriteFailed(dir_.display(prefix_ + part_) + ": write failed: " + errno_text(ENOSPC) +
                       " (injected)");
   }

@@ -15,8 +15,8 @@
 #include <set>
 #include <thread>
 
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/output/trajectory_table.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 extern char** environ;  // NOLINT: POSIX, for posix_spawnp
 

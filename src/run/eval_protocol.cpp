@@ -8,7 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <ostream>
 
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

@@ -9,6 +9,7 @@
 #include <optional>
 #include <ostream>
 
+#include "run/run_faults.hpp"
 #include "run/run_observer.hpp"
 #include "scenario/definitions_loader.hpp"
 #include "ukdyn/output/constraint_force_output.hpp"
@@ -16,7 +17,7 @@
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/plots.hpp"
 #include "ukdyn/output/replay.hpp"
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 
@@ -522,10 +523,18 @@ WorstResidual worst_position_residual(const System& system, const RunReport& rep
 
 RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
                        const RunOptions& options) {
+  return io_detail::run_scenario_with_write_failures(sc, out_dir, options, {});
+}
+
+RunReport io_detail::run_scenario_with_write_failures(const Scenario& sc,
+                                                      const std::filesystem::path& out_dir,
+                                                      const RunOptions& options,
+                                                      WriteFailureHook write_failure) {
   // docs/control.md: with `control:` the plant (physical rows only, τ = B u) is integrated.
   const std::unique_ptr<ControlRun> ctl = make_control_run(sc);
   const System& sys = ctl ? *ctl->plant : *sc.system;
-  OutputDir out(out_dir, options.write_failure);
+  OutputDir out(out_dir);
+  WriteFaults::set_hook(out, std::move(write_failure));
   clear_previous_outputs(out);
 
   RunReport rep = start_report(sys, ctl.get(), out_dir);

@@ -6,8 +6,8 @@
 #include <limits>
 #include <set>
 
-#include "ukdyn/scenario/scenario_file.hpp"
 #include "scenario/yaml_paths.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -159,7 +159,7 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
     } else {
       double old = 0.0;
       if (!Loader::parse_number(at->Scalar(), old) || !std::isfinite(old))
-        L.fail(pn, "'" + path + "' holds '" + Loader::printable(at->Scalar()) +
+        L.fail(pn, "'" + path + "' holds '" + escape_controls(at->Scalar()) +
                        "', not a number: 'scale' needs one (give 'value')");
       v = old * L.number(sn);
     }

@@ -6,14 +6,14 @@
 #include <map>
 #include <sstream>
 
+#include "ukdyn/robot_files/mjcf.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
-#include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
-#include "ukdyn/robot_files/urdf.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -36,7 +36,7 @@ namespace sym = ukdyn::symbolic;
       static_cast<std::size_t>(mark.column) + 1 + (one_line ? offset + (quoted ? 1 : 0) : 0);
   os << L.path().string() << ":" << (mark.line + 1) << ":" << col << ": key '" << n.key
      << "': " << message;
-  throw ScenarioError(Loader::printable(os.str()));
+  throw ScenarioError(escape_controls(os.str()));
 }
 
 // The text of an expression node: a string or a plain number.

@@ -843,7 +843,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   sc.hash = hash;
   const Node root{root_node, ""};
   if (!root_node.IsMap()) {
-    throw ScenarioError(Loader::printable(path.string()) +
+    throw ScenarioError(escape_controls(path.string()) +
                         ": the scenario must be a YAML mapping (see docs/scenario-format.md)");
   }
   const double gravity = load_header(L, root, sc);
@@ -875,7 +875,7 @@ Scenario load_scenario_text(const std::string& text, const std::filesystem::path
     throw;
   } catch (const std::exception& e) {  // a last resort: yaml-cpp or GiNaC errors not caught where
                                        // they arose still name the file and exit as bad input
-    throw ScenarioError(Loader::printable(path.string() + ": " + e.what()));
+    throw ScenarioError(escape_controls(path.string() + ": " + e.what()));
   }
 }
 
@@ -896,7 +896,7 @@ Scenario io_detail::load_scenario_yaml(const YAML::Node& root, const std::string
   } catch (const ScenarioError&) {
     throw;
   } catch (const std::exception& e) {  // as load_scenario_text
-    throw ScenarioError(Loader::printable(path.string() + ": " + e.what()));
+    throw ScenarioError(escape_controls(path.string() + ": " + e.what()));
   }
 }
 
@@ -905,17 +905,17 @@ Scenario load_scenario(const std::filesystem::path& path, const LoadOptions& opt
   if (!std::filesystem::is_regular_file(path, ec)) {
     // A FIFO, a directory or a device is not "missing": say what it is (never open a FIFO).
     const bool exists = std::filesystem::exists(path, ec);
-    throw ScenarioError(Loader::printable(path.string()) +
+    throw ScenarioError(escape_controls(path.string()) +
                         (exists ? ": not a regular file (a directory, FIFO or device)"
                                 : ": no such scenario file"));
   }
   const auto size = std::filesystem::file_size(path, ec);
   if (ec || size > kMaxFileBytes) {
-    throw ScenarioError(Loader::printable(path.string()) +
+    throw ScenarioError(escape_controls(path.string()) +
                         ": not a readable scenario (larger than 4 MiB?)");
   }
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw ScenarioError(Loader::printable(path.string()) + ": cannot open");
+  if (!in) throw ScenarioError(escape_controls(path.string()) + ": cannot open");
   std::ostringstream os;
   os << in.rdbuf();
   return load_scenario_text(os.str(), path, options);

@@ -8,7 +8,7 @@
 #include <cstring>
 #include <string>
 
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

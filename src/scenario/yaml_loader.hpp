@@ -17,6 +17,7 @@
 
 #include "ukdyn/core/types.hpp"
 #include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn::symbolic {
 class SymbolTable;
@@ -44,25 +45,9 @@ class Loader {
     const YAML::Mark mark = at.node.IsDefined() ? at.node.Mark() : YAML::Mark::null_mark();
     if (mark.line >= 0) os << ":" << (mark.line + 1) << ":" << (mark.column + 1);
     os << ": key '" << at.key << "': " << message;
-    throw ScenarioError(printable(os.str()));
-  }
-
-  // The text with every control byte (and DEL) shown as \xNN: a key or a name quoted in a message
-  // never reaches the terminal raw.
-  static std::string printable(const std::string& s) {
-    static const char* const hex = "0123456789abcdef";
-    std::string out;
-    for (char ch : s) {
-      const auto u = static_cast<unsigned char>(ch);
-      if (u < 0x20 || u == 0x7f) {
-        out += "\\x";
-        out += hex[u >> 4];
-        out += hex[u & 15];
-      } else {
-        out += ch;
-      }
-    }
-    return out;
+    // Every control byte (and DEL) shown as \xNN: a key or a name quoted in a message never
+    // reaches the terminal raw (ukdyn/text/safe_text.hpp).
+    throw ScenarioError(escape_controls(os.str()));
   }
 
   Node child(const Node& parent, const std::string& key, bool required) const {

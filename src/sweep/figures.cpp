@@ -7,7 +7,7 @@
 #include "sweep/scenario_tree.hpp"
 #include "sweep/table.hpp"
 #include "ukdyn/output/plots.hpp"
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

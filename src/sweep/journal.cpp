@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "output/csv_reader.hpp"
+#include "output/write_faults.hpp"
 #include "sweep/table.hpp"
 
 namespace ukdyn::sweep_detail {
@@ -76,7 +77,7 @@ void Journal::append(const std::string& line) {
   if (!error_.empty()) return;
   std::size_t done = 0;
   while (done < s.size()) {
-    if (out_.inject_failure(kJournal, s.size())) {
+    if (io_detail::WriteFaults::inject(out_, kJournal, s.size())) {
       error_ = out_.display(kJournal) + ": write failed: No space left on device";
       return;
     }

@@ -8,8 +8,8 @@
 #include <ostream>
 #include <string>
 
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

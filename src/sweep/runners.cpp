@@ -19,9 +19,9 @@
 #include "sweep/sample.hpp"
 #include "sweep/scenario_tree.hpp"
 #include "sweep/table.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/sweep/sweep.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

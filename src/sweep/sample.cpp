@@ -10,9 +10,9 @@
 #include "run/run_observer.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "sweep/scenario_tree.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

@@ -10,8 +10,8 @@
 #include <sstream>
 
 #include "scenario/yaml_paths.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

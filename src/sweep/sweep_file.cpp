@@ -19,10 +19,10 @@
 #include "sweep/sampling.hpp"
 #include "sweep/scenario_tree.hpp"
 #include "ukdyn/output/control_output.hpp"
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/sweep/sweep.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
 

@@ -9,8 +9,8 @@
 #include <cstdlib>
 #include <nlohmann/json.hpp>
 
-#include "ukdyn/output/safe_text.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn::sweep_detail {
 

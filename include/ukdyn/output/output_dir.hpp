@@ -15,7 +15,7 @@
 #include <atomic>
 #include <cstddef>
 #include <filesystem>
-#include <functional>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -37,16 +37,15 @@ class WriteFailed : public Error {
   using Error::Error;
 };
 
-/// Test hook: called before every write(2) into the output folder with the file's name (relative
-/// to the output folder, e.g. "trajectory.csv") and the number of bytes; returning true makes that
-/// write fail as a full disk would (ENOSPC). Empty: no injection.
-using WriteFailureHook = std::function<bool(std::string_view name, std::size_t bytes)>;
-
 /// Throws OutputRefused if `dir` (resolved through symbolic links as far as it exists) is a
 /// filesystem root: `/`, a direct child of `/`, or a mount point.
 void check_output_folder(const std::filesystem::path& dir);
 
 class OutputDir;
+
+namespace io_detail {
+struct WriteFaults;  // private to ukdyn::io (src/output/write_faults.hpp)
+}
 
 /// One file written as `<name>.part` and renamed onto `<name>` by commit(). Destroyed without
 /// commit(), the temporary is removed. Writes are buffered; a failed write throws WriteFailed and
@@ -74,7 +73,7 @@ class AtomicFile {
   void write_all(const char* p, std::size_t n);
   const OutputDir& dir_;
   int dirfd_;
-  std::string prefix_;  ///< "" or "figures/" for messages and the hook
+  std::string prefix_;  ///< "" or "figures/" for messages and injected failures
   std::string name_, part_;
   int fd_ = -1;
   std::string buffer_;
@@ -85,7 +84,7 @@ class OutputDir {
  public:
   /// Checks the folder rule, creates the folder if needed, opens it and takes its lock.
   /// Throws OutputRefused (root, busy, not a folder, cannot create).
-  explicit OutputDir(const std::filesystem::path& dir, WriteFailureHook hook = {});
+  explicit OutputDir(const std::filesystem::path& dir);
   ~OutputDir();  ///< removes the lock file and releases the lock
   OutputDir(const OutputDir&) = delete;
   OutputDir& operator=(const OutputDir&) = delete;
@@ -109,17 +108,17 @@ class OutputDir {
   /// Makes the renames done so far durable (fsync of the folder). Never throws.
   void sync() const noexcept;
 
-  /// True (with errno ENOSPC) if the hook asks this write to fail.
-  [[nodiscard]] bool inject_failure(std::string_view name, std::size_t bytes) const;
   /// path()/rel as text, for messages.
   [[nodiscard]] std::string display(const std::string& rel) const;
 
  private:
+  friend struct io_detail::WriteFaults;
   void lock();
   std::filesystem::path path_;
   int fd_ = -1;
   int lock_fd_ = -1;
-  WriteFailureHook hook_;
+  /// Write failures injected by ukdyn's own tests (src/output/write_faults.hpp); null otherwise.
+  std::unique_ptr<io_detail::WriteFaults> faults_;
 };
 
 /// Name of the lock file inside an output folder.

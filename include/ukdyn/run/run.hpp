@@ -27,8 +27,6 @@ struct RunOptions {
   /// If set and it becomes true (e.g. from a SIGINT handler), the run stops after the current
   /// integration step and its results so far are kept (status `stopped`).
   const std::atomic<bool>* cancel = nullptr;
-  /// Test hook: makes chosen writes into the output folder fail as on a full disk.
-  WriteFailureHook write_failure;
 };
 
 struct RunReport {

@@ -1,4 +1,4 @@
-#include "ukdyn/output/safe_text.hpp"
+#include "ukdyn/text/safe_text.hpp"
 
 #include <fmt/format.h>
 
@@ -39,9 +39,10 @@ std::size_t utf8_length(std::string_view s, std::size_t i) {
   return len;
 }
 
-}  // namespace
-
-std::string printable(std::string_view s, bool keep_newlines) {
+// The one escape behind printable() and escape_controls(): C0 control bytes and DEL (and '\n'
+// unless keep_newlines) as \xNN; with check_utf8 also every byte that does not start a valid UTF-8
+// sequence of a character other than a C1 control; every other byte as it is.
+std::string escape(std::string_view s, bool keep_newlines, bool check_utf8) {
   std::string out;
   out.reserve(s.size());
   for (std::size_t i = 0; i < s.size();) {
@@ -51,12 +52,7 @@ std::string printable(std::string_view s, bool keep_newlines) {
       ++i;
       continue;
     }
-    if (c < 0x20 || c == 0x7F) {
-      out += fmt::format("\\x{:02x}", c);
-      ++i;
-      continue;
-    }
-    const std::size_t len = utf8_length(s, i);
+    const std::size_t len = c < 0x20 || c == 0x7F ? 0 : check_utf8 ? utf8_length(s, i) : 1;
     if (len == 0) {
       out += fmt::format("\\x{:02x}", c);
       ++i;
@@ -67,6 +63,14 @@ std::string printable(std::string_view s, bool keep_newlines) {
   }
   return out;
 }
+
+}  // namespace
+
+std::string printable(std::string_view s, bool keep_newlines) {
+  return escape(s, keep_newlines, true);
+}
+
+std::string escape_controls(std::string_view s) { return escape(s, false, false); }
 
 std::string gnuplot_string(std::string_view s) {
   std::string out = "\"";

@@ -13,6 +13,14 @@ namespace ukdyn {
 /// (multi-line messages); otherwise it is escaped too.
 std::string printable(std::string_view text, bool keep_newlines = false);
 
+/// The narrower escape of the scenario loader's messages (ScenarioError, the sweep file's errors):
+/// only the C0 control bytes ('\n' among them) and DEL are written as \xNN; every other byte stays
+/// as it is (UTF-8 is not checked: a C1 control or a byte that is not UTF-8 passes). It is the same
+/// escape as printable() with fewer bytes escaped, and what reaches a terminal still goes through
+/// printable() (the CLI prints every error that way): printable(escape_controls(s), true) ==
+/// printable(s) for every s.
+std::string escape_controls(std::string_view text);
+
 /// A gnuplot string literal that holds exactly `text` and nothing else: double-quoted, with '"' and
 /// '\' backslash-escaped and every control byte, backquote, '@' and single quote written as an
 /// octal escape \ooo. So the literal holds no raw byte that could end the command line (a newline,
