@@ -39,3 +39,21 @@ TEST(SymbolicFormat, PrintsLatexCAndMatlab) {
 }
 
 }  // namespace
+
+namespace {
+
+// A row with acos(t): its b holds (1 − t²)^(−3/2), which GiNaC cannot collect as a polynomial in
+// t (it throws "undefined degree because of non-integer exponent"); every format still prints it
+// (the fuzzer's finding, fuzz/expression_seeds/noninteger_exponent_of_t.txt).
+TEST(SymbolicFormat, PrintsNonIntegerPowersOfTime) {
+  sym::ConstraintDef d("c", sym::ConstraintDef::Kind::holonomic, {"fx", "fy"});
+  d.add_row("r", d.parse("log(2 + acos(t)) - fx"));
+  const auto der = sym::derive(d);
+  for (auto f : {sym::Format::latex, sym::Format::c, sym::Format::matlab, sym::Format::text}) {
+    std::string out;
+    EXPECT_NO_THROW(out = sym::format_derivation(der, "c", f));
+    EXPECT_NE(out.find("acos"), std::string::npos) << out;
+  }
+}
+
+}  // namespace

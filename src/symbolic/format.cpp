@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/tree/tree.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn::symbolic {
@@ -35,7 +36,14 @@ ex collected(const ex& e) {
   }
   for (const ex& s : syms) vars.append(s);
   if (vars.nops() == 0) return e;
-  return e.collect(vars, true);
+  // Collecting is cosmetic: GiNaC refuses to collect a polynomial in t or a velocity that the
+  // expression holds with a non-integer exponent (sqrt(1 − t²) from d/dt acos(t): "mul::ldegree()
+  // undefined degree because of non-integer exponent"); the expression is then printed as it is.
+  try {
+    return e.collect(vars, true);
+  } catch (const std::exception&) {
+    return e;
+  }
 }
 
 // Printable ASCII only: a control byte (CR, LF, ...) is shown as '?'.
@@ -344,6 +352,10 @@ std::string format_system(const System& system, Format f) {
       }
       os << format_derivation(dv, d->name(), f);
       if (f == Format::c) os << "}\n";
+    } else if (dynamic_cast<const tree::TreeSubsystem*>(subs[k].get()) != nullptr) {
+      os << comment_line(f, "subsystem '" + subs[k]->name() +
+                                "': dynamics: tree (recursive algorithms, docs/tree-algorithms.md), "
+                                "not derived; dynamics: auto or symbolic derives it");
     } else {
       os << comment_line(
           f, "subsystem '" + subs[k]->name() + "': built-in closed-form model, not derived");
