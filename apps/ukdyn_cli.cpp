@@ -270,6 +270,7 @@ int main(int argc, char** argv) {
     const bool assembling = *asmb || (*sim && do_assemble);
     ukdyn::LoadOptions lopt;
     lopt.check_initial = !assembling;
+    lopt.symbolic_chains = static_cast<bool>(*drv);  // derive prints the chains' M, C, G
     ukdyn::Scenario sc = ukdyn::load_scenario_file(scenario, lopt);
     if (assembling) {
       const auto a = ukdyn::assemble(*sc.system, sc.sim.t0, sc.q0, sc.qd0, sc.held);

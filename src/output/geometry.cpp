@@ -5,12 +5,13 @@
 #include <memory>
 
 #include "scenario/definitions_loader.hpp"
-#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/tape.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace ukdyn {
 
@@ -118,6 +119,64 @@ void add_chain(Geometry& g, const std::string& name, const symbolic::ChainModel&
              });
 }
 
+// A chain on the tree algorithms whose symbolic kinematics nothing built (docs/tree-algorithms.md):
+// the same points as add_chain — the root or base, every link origin, the named points, the CoM of
+// every link with mass — from the tree's link poses at q (the base's intermediate x / y links,
+// named BASE/x, BASE/y, are not drawn).
+void add_tree_chain(Geometry& g, const std::string& name,
+                    std::shared_ptr<const tree::TreeSubsystem> t,
+                    const std::vector<std::pair<std::string, std::string>>& edges, Index offset) {
+  const tree::Model& m = t->model();
+  struct Where {
+    int link;  // −1: the root frame
+    Vec3 xyz;  // in the link frame
+  };
+  std::vector<GeometryPoint> pts;
+  std::vector<Where> where;
+  std::map<std::string, std::size_t> index;
+  auto add = [&](const std::string& n, const std::string& kind, int link, const Vec3& xyz) {
+    index[n] = pts.size();
+    pts.push_back({name + "." + n, kind});
+    where.push_back({link, xyz});
+  };
+  if (!m.root_name.empty()) add(m.root_name, "joint", -1, Vec3::Zero());
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    if (m.links[i].name.find('/') == std::string::npos)
+      add(m.links[i].name, "joint", static_cast<int>(i), Vec3::Zero());
+  }
+  if (!edges.empty() && index.count(edges.front().first))
+    pts[index[edges.front().first]].kind = "platform";  // the root link (or the mobile base)
+  for (const auto& p : m.points) {
+    if (!index.count(p.name)) add(p.name, p.name == "cut" ? "cut" : "point", p.link, p.xyz);
+  }
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    if (m.links[i].mass > 0.0) {
+      pts.push_back({name + "." + m.links[i].name + ".com", "com"});
+      where.push_back({static_cast<int>(i), m.links[i].com});
+    }
+  }
+  std::vector<GeometrySegment> segs;
+  for (const auto& [a, b] : edges) {
+    auto ia = index.find(a), ib = index.find(b);
+    if (ia != index.end() && ib != index.end()) segs.push_back({ia->second, ib->second, "link"});
+  }
+  const Index n = t->dof();
+  g.add_part(std::move(pts), std::move(segs),
+             [t, where, offset, n](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+               std::vector<Eigen::Matrix3d> R;
+               std::vector<Eigen::Vector3d> p;
+               t->link_poses(q.segment(offset, n), R, p);
+               const tree::Model& mm = t->model();
+               for (std::size_t k = 0; k < where.size(); ++k) {
+                 const int l = where[k].link;
+                 out[first + k] = l < 0
+                                      ? Vec3(mm.root_translation + mm.root_rotation * where[k].xyz)
+                                      : Vec3(p[static_cast<std::size_t>(l)] +
+                                             R[static_cast<std::size_t>(l)] * where[k].xyz);
+               }
+             });
+}
+
 // A definitions subsystem: the CoM of every body (no segments: the file says nothing of links).
 void add_bodies(Geometry& g, const std::string& name,
                 const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
@@ -156,6 +215,9 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
       add_mobile_manipulator(g, info.name, arm, info.offset);
     } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
       add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
+    } else if (auto tr = std::dynamic_pointer_cast<const tree::TreeSubsystem>(sub)) {
+      add_tree_chain(g, info.name, tr, io_detail::chain_edges(sc.definitions.get(), info.name),
+                     info.offset);
     } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
                !bodies.empty() &&
                std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {

@@ -4,11 +4,13 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/robot_files/urdf.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/chain_tree.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
@@ -210,6 +212,11 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
   /// Per chain: the constraints between its links (an MJCF file's weld / connect equalities).
   std::map<std::string, std::vector<symbolic::LinkConstraintDef>> link_constraints;
+  /// LoadOptions::symbolic_chains: `dynamics: auto` chains derived symbolically.
+  bool symbolic_chains = false;
+  /// Chains on the tree algorithms whose symbolic kinematics (a ChainModel in `chains`, their
+  /// frames in `frames`) nothing has needed yet (require_chain).
+  std::map<std::string, std::shared_ptr<const symbolic::ChainDef>> pending;
 };
 
 namespace ukdyn::io_detail {
@@ -426,7 +433,24 @@ std::shared_ptr<DefinitionContext> make_definition_context() {
   return std::make_shared<DefinitionContext>();
 }
 
-const sym::FrameTable& frames_of(const DefinitionContext& context) { return context.frames; }
+void require_chain(DefinitionContext& context, const std::string& name) {
+  auto it = context.pending.find(name);
+  if (it == context.pending.end()) return;
+  sym::ChainModel model = sym::build_chain(*it->second);
+  context.frames.add_chain(name, model, it->second.get());
+  context.chains.emplace(name, std::move(model));
+  context.pending.erase(it);
+}
+
+const sym::FramePose& find_frame(DefinitionContext& context, const std::string& name) {
+  if (const auto dot = name.find('.'); dot != std::string::npos)
+    require_chain(context, name.substr(0, dot));
+  return context.frames.find(name);
+}
+
+void set_symbolic_chains(DefinitionContext& context, bool symbolic) {
+  context.symbolic_chains = symbolic;
+}
 
 std::vector<sym::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,
                                                            const std::string& name) {
@@ -659,24 +683,30 @@ void load_points(const Loader& L, const Node& s, sym::ChainDef& def) {
   }
 }
 
-// What later constraints and the replay page need of a chain built (DefinitionContext).
-void record_chain(DefinitionContext& context, const std::string& name, const sym::ChainDef& def,
-                  sym::ChainModel model) {
-  context.frames.add_chain(name, model, &def);  // frame constraints
-  context.chains.emplace(name, std::move(model));
-  if (!def.link_constraints.empty()) context.link_constraints[name] = def.link_constraints;
+// What later constraints and the replay page need of a chain (DefinitionContext): its link tree,
+// coordinates and link constraints; its symbolic kinematics (`model`) now, or on first use when
+// it runs on the tree algorithms (pending, require_chain).
+void record_chain(DefinitionContext& context, const std::string& name,
+                  std::shared_ptr<const sym::ChainDef> def, std::optional<sym::ChainModel> model) {
+  if (!def->link_constraints.empty()) context.link_constraints[name] = def->link_constraints;
   // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
   auto& edges = context.edges[name];
-  std::string last = def.base.enabled ? def.base.link : def.root_link;
-  for (const auto& j : def.joints) {
+  std::string last = def->base.enabled ? def->base.link : def->root_link;
+  for (const auto& j : def->joints) {
     edges.emplace_back(j.parent.empty() ? last : j.parent, j.link);
     last = j.link;
   }
-  for (const auto& pt : def.points) edges.emplace_back(pt.link, pt.name);
-  if (def.base.enabled) context.base_coordinates[name] = {def.base.x, def.base.y};
-  for (const auto& j : def.joints) {
+  for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
+  if (def->base.enabled) context.base_coordinates[name] = {def->base.x, def->base.y};
+  for (const auto& j : def->joints) {
     if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
       context.prismatic_coordinates[name].push_back(j.coordinate);
+  }
+  if (model) {
+    context.frames.add_chain(name, *model, def.get());  // frame constraints
+    context.chains.emplace(name, std::move(*model));
+  } else {
+    context.pending.emplace(name, std::move(def));
   }
 }
 
@@ -689,7 +719,11 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                                                       const InstanceSpec* instance) {
   L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "gravity", "potential",
                   "mount", "base", "joints", "urdf", "mjcf", "joint_values", "points", "instances",
-                  "floating_root"});
+                  "floating_root", "dynamics"});
+  const Node dyn = L.child(s, "dynamics", false);
+  const std::string dynamics = dyn.node.IsDefined() ? L.string(dyn) : "auto";
+  if (dynamics != "auto" && dynamics != "tree" && dynamics != "symbolic")
+    L.fail(dyn, "unknown dynamics '" + dynamics + "' (expected auto, tree or symbolic)");
   auto def = start_definition<sym::ChainDef>(L, s, name, coordinates, gravity, instance);
   load_mount(L, s, instance, *def);
   const ChainCoordinateNames coordinate_name{L, coordinates, instance};
@@ -697,9 +731,23 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   load_links(L, s, coordinate_name, *def);
   load_points(L, s, *def);
   try {
+    // The recursive algorithms when every number is known (docs/tree-algorithms.md); the
+    // symbolic kinematics (points, frames) then only when something needs them (require_chain).
+    if (dynamics == "tree" || (dynamics == "auto" && !context.symbolic_chains)) {
+      sym::ChainTree t = sym::chain_tree(*def);
+      if (t.model) {
+        auto sub = tree::make_subsystem(std::move(*t.model));
+        record_chain(context, name, std::move(def), std::nullopt);
+        return sub;
+      }
+      if (dynamics == "tree") {
+        L.fail(dyn, "the tree algorithms cannot take this chain: " + t.reason +
+                        " (use dynamics: auto or symbolic)");
+      }
+    }
     sym::ChainModel model = sym::build_chain(*def);
     auto sub = sym::make_subsystem(model.def);
-    record_chain(context, name, *def, std::move(model));
+    record_chain(context, name, std::move(def), std::move(model));
     return sub;
   } catch (const Error& e) {
     L.fail(s, e.what());
@@ -718,13 +766,20 @@ namespace {
 
 // A point: "subsystem.point" (a serial chain's named point) or [x, y, z] expressions.
 sym::Vec3Ex load_point(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
-                       const DefinitionContext& context) {
+                       DefinitionContext& context) {
   if (n.node.IsSequence()) return parse_list<3>(L, scope, n);
   const std::string ref = L.string(n);
   const auto dot = ref.find('.');
   if (dot == std::string::npos)
     L.fail(n, "expected SUBSYSTEM.POINT (e.g. left.end) or a list of 3 expressions");
   const std::string sub = ref.substr(0, dot), point = ref.substr(dot + 1);
+  try {
+    require_chain(context, sub);  // a chain on the tree algorithms: its symbolic kinematics now
+  } catch (const Error& e) {
+    L.fail(n, "the kinematics of chain '" + sub + "' for this point: " + e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(n, std::string("cannot evaluate: ") + e.what());
+  }
   auto it = context.chains.find(sub);
   if (it == context.chains.end())
     L.fail(n, "no serial_chain subsystem named '" + sub + "' (defined before this constraint)");
@@ -824,8 +879,7 @@ ex load_time_expression(const Loader& L, const Node& n, const sym::DefinitionSco
 
 std::shared_ptr<const Constraint> load_constraint_kind(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
-    const Vec& q0) {
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context, const Vec& q0) {
   sym::ConstraintDef def(name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
                          L.symbol_table());
   static const char* const kAxis[3] = {"x", "y", "z"};
@@ -929,7 +983,7 @@ void load_parameters(const Loader& L, const Node& parent, sym::DefinitionScope& 
 }
 
 sym::Vec3Ex load_point_expression(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
-                                  const DefinitionContext& context) {
+                                  DefinitionContext& context) {
   return load_point(L, n, scope, context);
 }
 

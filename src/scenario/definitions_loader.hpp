@@ -60,8 +60,18 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 
 /// What later constraints may refer to: the named points of serial chains, by subsystem name.
 std::shared_ptr<DefinitionContext> make_definition_context();
+/// LoadOptions::symbolic_chains: serial chains with `dynamics: auto` derived symbolically.
+void set_symbolic_chains(DefinitionContext& context, bool symbolic);
 /// The frames of the chains and definition bodies loaded so far (docs/frame-constraints.md).
-const symbolic::FrameTable& frames_of(const DefinitionContext& context);
+/// The frame SUBSYSTEM.FRAME (or world) of the chains and definition bodies loaded so far
+/// (docs/frame-constraints.md); a chain on the tree algorithms gets its symbolic kinematics built
+/// first (require_chain). Throws DefinitionError naming the frame, or what build_chain throws.
+const symbolic::FramePose& find_frame(DefinitionContext& context, const std::string& name);
+/// Builds the symbolic kinematics (link poses, points, frames: symbolic::build_chain) of serial
+/// chain `name` if it runs on the tree algorithms and they have not been built yet: only a
+/// constraint, force or frame on its points needs them (a 30-link chain's expanded poses would take
+/// minutes). Nothing for other names. Throws what build_chain throws.
+void require_chain(DefinitionContext& context, const std::string& name);
 /// The constraints between the links of serial_chain subsystem `name` (its MJCF file's weld and
 /// connect equalities; empty if none, or no context).
 std::vector<symbolic::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,
@@ -94,8 +104,7 @@ bool is_constraint_kind(const std::string& type);
 /// A constraint node of one of the kinds above; `q0` is the initial state (origin: initial).
 std::shared_ptr<const Constraint> load_constraint_kind(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
-    const Vec& q0);
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context, const Vec& q0);
 
 /// Fails at `s` if the subsystem's mass matrix is not positive definite at q (names the
 /// coordinate).
@@ -107,7 +116,7 @@ GiNaC::ex parse_expression(const Loader& L, const symbolic::DefinitionScope& sco
 void load_parameters(const Loader& L, const Node& parent, symbolic::DefinitionScope& scope);
 symbolic::Vec3Ex load_point_expression(const Loader& L, const Node& n,
                                        const symbolic::DefinitionScope& scope,
-                                       const DefinitionContext& context);
+                                       DefinitionContext& context);
 GiNaC::ex load_time_function_expression(const Loader& L, const Node& n,
                                         const symbolic::DefinitionScope& scope);
 

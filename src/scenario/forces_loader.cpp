@@ -10,7 +10,7 @@ namespace sym = ukdyn::symbolic;
 
 std::shared_ptr<const AppliedForce> load_applied_forces(
     const Loader& L, const Node& forces, const std::vector<std::string>& system_coordinates,
-    const DefinitionContext& context) {
+    DefinitionContext& context) {
   const Node gen = L.child(forces, "generalized", false);
   const Node els = L.child(forces, "elements", false);
   if (!gen.node.IsDefined() && !els.node.IsDefined()) {

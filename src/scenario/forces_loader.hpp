@@ -16,6 +16,6 @@ namespace ukdyn::io_detail {
 /// `system_coordinates` are all coordinates in order; `context` has the serial chains' points.
 std::shared_ptr<const AppliedForce> load_applied_forces(
     const Loader& L, const Node& forces, const std::vector<std::string>& system_coordinates,
-    const DefinitionContext& context);
+    DefinitionContext& context);
 
 }  // namespace ukdyn::io_detail

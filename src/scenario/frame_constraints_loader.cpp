@@ -23,7 +23,7 @@ sym::Vec3Ex vec3(const Loader& L, const Node& n, const sym::DefinitionScope& sco
 
 // A frame: "SUBSYSTEM.FRAME" or {frame: SUBSYSTEM.FRAME, xyz: [...], rpy: [...]}.
 sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
-                          const DefinitionContext& context, std::string& name) {
+                          DefinitionContext& context, std::string& name) {
   // (Bound once: assigning a YAML::Node would overwrite the node it refers to.)
   const bool mapping = n.node.IsMap();
   if (mapping) L.only_keys(n, {"frame", "xyz", "rpy"});
@@ -41,14 +41,16 @@ sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionS
            "expected SUBSYSTEM.FRAME (a link, body or point, e.g. left.link3) or world, got '" +
                name + "'");
   try {
-    const sym::FramePose& f = frames_of(context).find(name);
+    const sym::FramePose& f = find_frame(context, name);
     sym::OriginDef values = offset;
     const GiNaC::exmap pv = scope.parameter_values();
     for (auto& e : values.xyz) e = e.subs(pv);
     for (auto& e : values.rpy) e = e.subs(pv);
     return sym::offset_frame(f, values);
-  } catch (const sym::DefinitionError& e) {
+  } catch (const Error& e) {  // no such frame; a chain's kinematics that cannot be built
     L.fail(ref, std::string(e.what()) + " (frame '" + name + "')");
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(ref, std::string("cannot evaluate: ") + e.what() + " (frame '" + name + "')");
   }
 }
 
@@ -61,8 +63,7 @@ bool is_frame_constraint(const std::string& type) {
 
 std::shared_ptr<const Constraint> load_frame_constraint(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
-    const Vec& q0) {
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context, const Vec& q0) {
   using K = sym::FrameConstraintDef::Kind;
   sym::FrameConstraintDef f;
   f.name = name;
@@ -146,7 +147,7 @@ std::shared_ptr<const Constraint> load_frame_constraint(
 
 std::shared_ptr<const Constraint> make_link_constraint(
     const std::string& subsystem, const sym::LinkConstraintDef& lc,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context,
     std::shared_ptr<sym::SymbolTable> symbols) {
   using K = sym::FrameConstraintDef::Kind;
   sym::FrameConstraintDef f;
@@ -156,8 +157,8 @@ std::shared_ptr<const Constraint> make_link_constraint(
   f.frame_b = subsystem + "." + lc.link_b;
   const std::string what = std::string(sym::to_string(f.kind)) + " '" + lc.name + "'";
   try {
-    f.a = sym::offset_frame(frames_of(context).find(f.frame_a), lc.offset_a);
-    f.b = sym::offset_frame(frames_of(context).find(f.frame_b), lc.offset_b);
+    f.a = sym::offset_frame(find_frame(context, f.frame_a), lc.offset_a);
+    f.b = sym::offset_frame(find_frame(context, f.frame_b), lc.offset_b);
     sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates,
                            std::move(symbols));
     sym::add_frame_constraint(def, f);

@@ -19,7 +19,7 @@ bool is_frame_constraint(const std::string& type);
 /// state (length: initial).
 std::shared_ptr<const Constraint> load_frame_constraint(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context,
     const Vec& q0);
 
 /// The weld / ball constraint of a chain's link constraint (an MJCF equality), named
@@ -28,7 +28,7 @@ std::shared_ptr<const Constraint> load_frame_constraint(
 /// was derived with (the scenario's).
 std::shared_ptr<const Constraint> make_link_constraint(
     const std::string& subsystem, const symbolic::LinkConstraintDef& lc,
-    const std::vector<std::string>& system_coordinates, const DefinitionContext& context,
+    const std::vector<std::string>& system_coordinates, DefinitionContext& context,
     std::shared_ptr<symbolic::SymbolTable> symbols);
 
 }  // namespace ukdyn::io_detail

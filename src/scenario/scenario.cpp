@@ -848,6 +848,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   }
   const double gravity = load_header(L, root, sc);
   Loading st;
+  io_detail::set_symbolic_chains(*st.definition_context, options.symbolic_chains);
   load_subsystems(L, root, gravity, sc, st);
   sc.definitions = st.definition_context;
   load_initial(L, root, sc, st);

@@ -66,6 +66,9 @@ struct ControlSpec {
 struct LoadOptions {
   /// Check that (q0, q̇0) satisfies the constraints at t0. Off for `assemble`, which repairs them.
   bool check_initial = true;
+  /// Serial chains, URDF and MJCF arms with `dynamics: auto` derived symbolically instead of run
+  /// by the tree algorithms (docs/tree-algorithms.md): `ukdyn derive` prints their M, C, G.
+  bool symbolic_chains = false;
 };
 
 /// Loads and validates a scenario. Throws ScenarioError naming file, line, column and key.

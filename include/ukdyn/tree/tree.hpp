@@ -1,0 +1,120 @@
+// Rigid-body trees of numbers: the recursive algorithms of Featherstone, "Rigid Body Dynamics
+// Algorithms" (Springer 2008) — the composite-rigid-body algorithm for M(q) (§6.2) and the
+// recursive Newton–Euler algorithm for C(q, q̇) q̇ (§5.3) — over a tree of revolute, prismatic and
+// fixed joints. A serial_chain, URDF or MJCF arm whose numbers are all known goes here instead of
+// the symbolic derivation (docs/tree-algorithms.md): O(n) to O(n²) per evaluation, no derivation.
+//
+// Spatial vectors are written in world coordinates about the world origin (Featherstone §2.9,
+// "absolute coordinates"): a motion vector (ω, v_O) with v_O the velocity of the body point at the
+// world origin, a force vector (n_O, f). Joint k's motion axis is S_k = (z_k, p_k × z_k) for a
+// revolute joint about the world axis z_k through p_k, S_k = (0, z_k) for a prismatic one.
+//
+// Joint variables: each movable joint's variable is affine in the subsystem's coordinates,
+// θ_k = offset_k + Σ_j c_kj q_j (a coordinate, or the paper's relative angle θ2 − θ1), θ = T q + c.
+// Lagrange's equations in q are Tᵀ times those in θ, so M_q = Tᵀ M_θ T, (C q̇)_q = Tᵀ (C θ̇)_θ,
+// G_q = Tᵀ G_θ (T constant).
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "ukdyn/model/subsystem.hpp"
+
+namespace ukdyn::tree {
+
+enum class JointType { revolute, prismatic, fixed };
+
+/// One term c · q_coordinate of a joint variable.
+struct Term {
+  Index coordinate = 0;
+  double coefficient = 1.0;
+};
+
+/// A joint and the link it moves (its child).
+struct Link {
+  std::string name;   ///< the link's name (unique in the model)
+  std::string joint;  ///< the joint's name
+  int parent = -1;    ///< index of the parent link in Model::links (earlier), −1: the root frame
+  JointType type = JointType::fixed;
+  /// Parent link frame → joint frame: x_joint = origin_rotation x + origin_translation.
+  Eigen::Matrix3d origin_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d origin_translation = Eigen::Vector3d::Zero();
+  Eigen::Vector3d axis{0.0, 0.0, 1.0};  ///< unit, in the joint frame
+  double offset = 0.0;                  ///< θ = offset + Σ terms
+  std::vector<Term> terms;              ///< empty for a fixed joint
+  double mass = 0.0;
+  Eigen::Vector3d com = Eigen::Vector3d::Zero();      ///< in the link frame
+  Eigen::Matrix3d inertia = Eigen::Matrix3d::Zero();  ///< about the CoM, in the link frame
+};
+
+/// A named point fixed in a link (a chain's `points:` and `end`).
+struct Point {
+  std::string name;
+  int link = -1;                                  ///< index in Model::links, −1: the root frame
+  Eigen::Vector3d xyz = Eigen::Vector3d::Zero();  ///< in the link frame
+};
+
+/// A tree: constant after make_subsystem().
+struct Model {
+  std::string name;
+  std::vector<std::string> coordinates;
+  std::string root_name = "root";
+  /// World → root frame (the mount).
+  Eigen::Matrix3d root_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d root_translation = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gravity = Eigen::Vector3d::Zero();  ///< gravitational acceleration (0, 0, −9.81)
+  std::vector<Link> links;                            ///< a parent before its children
+  std::vector<Point> points;
+};
+
+/// Throws ukdyn::Error naming the link at fault: a parent that is not an earlier link, a
+/// non-unit axis, a term naming no coordinate, a movable joint without terms, a negative or
+/// non-finite mass, an inertia that is not symmetric positive semi-definite, a non-finite number.
+void validate(const Model& model);
+
+/// The subsystem of a tree (validated first). Slot: its workspace, so that forward() allocates
+/// nothing.
+class TreeSubsystem : public Subsystem {
+ public:
+  explicit TreeSubsystem(Model model);
+  [[nodiscard]] Index dof() const override { return static_cast<Index>(model_.coordinates.size()); }
+  [[nodiscard]] const std::string& name() const override { return model_.name; }
+  [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
+    return model_.coordinates;
+  }
+  [[nodiscard]] Index slot_size() const override { return slot_size_; }
+  void mass(const EvalContext& c, CVecRef q, MatRef M) const override;
+  /// The Christoffel matrix C_ij = Σ_k ½(∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k (Ṁ − 2C
+  /// skew-symmetric), with ∂M/∂θ_k by forward-mode automatic differentiation of the
+  /// composite-rigid-body algorithm (Eigen's AutoDiffScalar): one pass per joint, allocates.
+  void coriolis(const EvalContext& c, CVecRef q, CVecRef qd, MatRef C) const override;
+  void coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd, VecRef Cqd) const override;
+  void gravity(const EvalContext& c, CVecRef q, VecRef G) const override;
+  [[nodiscard]] double potential(const EvalContext& c, CVecRef q) const override;
+  double dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
+                  VecRef G) const override;
+
+  [[nodiscard]] const Model& model() const { return model_; }
+  /// Index of a link by name (−1: the root frame), or −2 if there is none.
+  [[nodiscard]] int link_index(const std::string& name) const;
+  /// World pose of link `link` (−1: the root frame) at q: x_world = R x_link + p.
+  void link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Vector3d& p) const;
+  /// World poses of every link at q (R[i], p[i] for Model::links[i]).
+  void link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
+                  std::vector<Eigen::Vector3d>& p) const;
+  /// Number of movable joints (the joint variables θ).
+  [[nodiscard]] Index joint_variables() const { return n_theta_; }
+
+ private:
+  Model model_;
+  std::vector<int> theta_index_;  // per link: its joint variable's index, −1 for a fixed joint
+  Index n_theta_ = 0;
+  Index slot_size_ = 0;
+};
+
+/// The tree's subsystem (validate() first).
+std::shared_ptr<const TreeSubsystem> make_subsystem(Model model);
+
+}  // namespace ukdyn::tree
