@@ -198,11 +198,15 @@ void attach_root(ChainDef& chain, const urdf::Link& root) {
   }
 }
 
-// A link's <inertial> block, checked: finite, mass >= 0, inertia diagonal >= 0.
+// A link's <inertial> block, checked: finite, mass >= 0, inertia diagonal >= 0. A link without
+// one is massless, as the URDF specification makes <inertial> optional and as published robot
+// files leave it out of base, flange and tool frames (ROS's ur_description, franka_description);
+// a mass matrix this leaves singular is refused with the constraints (docs/free-bodies.md,
+// "Singular mass matrices").
 void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in) {
   if (!link.inertial) {
-    throw DefinitionError(path + ": link '" + link.name +
-                          "' has no <inertial> block (give mass, origin and inertia)");
+    in = InertialDef{};
+    return;
   }
   const urdf::Inertial& I = *link.inertial;
   const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
