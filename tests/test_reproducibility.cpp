@@ -43,13 +43,17 @@ std::vector<std::string> shipped_scenarios() {
   return list;
 }
 
-// The scenario tree copied (URDF files and all, which scenarios name by relative path) into a
-// folder of this test's own, with the t_end of `scenario` shortened; returns the copy's path.
+// The scenario tree copied (URDF files and all, which scenarios name by relative path, and the
+// robots/ folder beside it, which scenarios name as ../robots/) into a folder of this test's own,
+// with the t_end of `scenario` shortened; returns the path of the scenarios' copy.
 fs::path short_copy(const std::string& scenario, const std::string& tag) {
-  const fs::path dir =
+  const fs::path root =
       fs::temp_directory_path() / ("ukdyn_repro_" + std::to_string(::getpid()) + "_" + tag);
-  fs::remove_all(dir);
+  fs::remove_all(root);
+  const fs::path dir = root / "scenarios";
+  fs::create_directories(root);
   fs::copy(kSource / "scenarios", dir, fs::copy_options::recursive);
+  fs::copy(kSource / "robots", root / "robots", fs::copy_options::recursive);
   const fs::path file = dir / scenario;
   const ukdyn::Scenario sc = ukdyn::load_scenario(file);
   const double span = std::min(sc.sim.t_end - sc.sim.t0, std::max(0.05, 3 * sc.sim.sample_dt));
@@ -125,7 +129,7 @@ TEST_P(Reproducibility, SameBytesInTwoProcesses) {
     eval[k] = slurp(out);
   }
   EXPECT_TRUE(eval[0] == eval[1]) << stem << ": eval output differs between two processes";
-  fs::remove_all(dir);
+  fs::remove_all(dir.parent_path());
 }
 
 INSTANTIATE_TEST_SUITE_P(Shipped, Reproducibility, ::testing::ValuesIn(shipped_scenarios()),
