@@ -43,7 +43,7 @@ Grasps grasp_wrenches(const ukdyn::Scenario& sc, const ForwardData& d, const Vec
   const auto& sys = *sc.system;
   const auto split = ukdyn::split_constraint_force(d.A, d.Qc, sys.constraint_row_offsets());
   EXPECT_TRUE(split.unique);
-  std::vector<const ukdyn::symbolic::FrameWrenchMap*> maps;
+  std::vector<const ukdyn::symbolic::FrameWrenches*> maps;
   std::vector<std::size_t> blocks;
   for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
     if (const auto* fc =

@@ -357,3 +357,95 @@ TEST(TreeScenario, DynamicsKey) {
 
 }  // namespace
 #endif
+
+#ifdef UKDYN_HAVE_IO
+#include "ukdyn/symbolic/frame_constraints.hpp"
+
+namespace {
+
+// Every kind of frame constraint on the frames of a chain, evaluated in numbers on the tree
+// (symbolic/numeric_frame_constraint.cpp) against the same constraint derived from the chain's
+// symbolic link poses (dynamics: symbolic): Φ, Φ̇, A, b, the wrench maps G and the frames' twist
+// Jacobians, at random states off the constraint manifold (the free body's quaternion not unit).
+TEST(TreeScenario, NumericFrameConstraintsMatchTheDerivedOnes) {
+  const std::string chain =
+      "  - name: arm\n    type: serial_chain\n    coordinates: [x, y, yaw, q1, q2, q3, d4]\n"
+      "    DYNAMICS"
+      "    mount: {xyz: [0.1, -0.2, 0.3], rpy: [0, 0, 0.2]}\n"
+      "    base: {x: x, y: y, yaw: yaw, mass: 20, inertia: [1, 1.5, 2]}\n"
+      "    joints:\n"
+      "      - {name: j1, type: revolute, link: l1, axis: [0, 0, 1], origin: {xyz: [0.2, 0.1, "
+      "0.4]},"
+      " coordinate: q1, mass: 3, com: [0.01, 0.02, 0.1], inertia: [0.03, 0.04, 0.02]}\n"
+      "      - {name: j2, type: revolute, link: l2, axis: [0, 1, 0], origin: {xyz: [0, 0.05, 0.2], "
+      "rpy: [0.3, 0, 0]}, coordinate: q2, mass: 2, com: [0.2, 0, 0], inertia: [0.01, 0.05, 0.05]}\n"
+      "      - {name: j3, type: revolute, link: l3, axis: [1, 2, 2], origin: {xyz: [0.45, 0, 0]},"
+      " value: q3 - q2, mass: 1.5, com: [0.1, 0, 0], inertia: [0.02, 0.03, 0.01]}\n"
+      "      - {name: j4, type: prismatic, link: l4, axis: [1, 0, 0], origin: {xyz: [0.3, 0, 0]},"
+      " coordinate: d4, mass: 0.9, inertia: [0.002, 0.004, 0.004]}\n"
+      "    points:\n      tip: {link: l4, xyz: [0.1, 0.02, 0]}\n";
+  const std::string rest =
+      "  - name: body\n    type: free_body\n    mass: 2\n    inertia: [0.1, 0.2, 0.3]\n"
+      "constraints:\n"
+      "  - {type: weld, name: w, a: {frame: arm.tip, xyz: [0.01, 0.02, 0.03], rpy: [0.1, 0.2, "
+      "0.3]},"
+      " b: {frame: body.body, xyz: [0.2, 0, 0], rpy: [0, 0, 3.0]}}\n"
+      "  - {type: ball, name: bl, a: arm.l3, b: {frame: world, xyz: [1, 2, 3]}}\n"
+      "  - {type: hinge, name: h, a: arm.l3, b: body.body, axis: [0, 1, 1]}\n"
+      "  - {type: level, name: lh, a: arm.l2, axis: [1, 0, 0]}\n"
+      "  - {type: level, name: lv, a: arm.l4, axis: [0, 0, 1], orientation: vertical}\n"
+      "  - {type: distance, name: dd, a: arm.tip, b: body.body, length: 0.7}\n"
+      "  - {type: weld, name: ww, a: arm.l1, b: {frame: arm.l4, rpy: [0.5, 0, 0]}}\n"
+      "initial: {q: [0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0]}\n"
+      "simulation: {t_end: 1, sample_dt: 0.1}\n";
+  auto text = [&](const std::string& dyn) {
+    std::string c = chain;
+    c.replace(c.find("    DYNAMICS"), 12, dyn);
+    return "ukdyn: 1\nname: frames\nsubsystems:\n" + c + rest;
+  };
+  ukdyn::LoadOptions opt;
+  opt.check_initial = false;
+  const ukdyn::Scenario num = ukdyn::load_scenario_text(text(""), "n.yaml", opt);
+  const ukdyn::Scenario sym_sc =
+      ukdyn::load_scenario_text(text("    dynamics: symbolic\n"), "s.yaml", opt);
+  const auto& cn = num.system->constraints();
+  const auto& cs = sym_sc.system->constraints();
+  ASSERT_EQ(cn.size(), cs.size());
+  const Index n = num.system->dof();
+  std::mt19937_64 rng(17);
+  double worst = 0.0;
+  for (int k = 0; k < 20; ++k) {
+    const Vec q = random_vec(rng, n, -1.5, 1.5), qd = random_vec(rng, n, -2, 2);
+    for (std::size_t c = 0; c < cn.size(); ++c) {
+      const auto* fn = dynamic_cast<const sym::FrameConstraint*>(cn[c].get());
+      const auto* fs = dynamic_cast<const sym::FrameConstraint*>(cs[c].get());
+      ASSERT_EQ(fn == nullptr, fs == nullptr);
+      if (fn == nullptr) continue;        // the free body's unit-norm row
+      EXPECT_EQ(fn->derived(), nullptr);  // the numeric rows
+      ASSERT_NE(fs->derived(), nullptr);  // the derived ones
+      ASSERT_EQ(cn[c]->row_names(), cs[c]->row_names());
+      const Index m = cn[c]->rows();
+      Mat An(m, n), Asym(m, n);
+      Vec bn(m), bs(m), pn(m), ps(m), vn(m), vs(m);
+      cn[c]->evaluate({}, q, qd, An, bn);
+      cs[c]->evaluate({}, q, qd, Asym, bs);
+      cn[c]->position_residual({}, q, pn);
+      cs[c]->position_residual({}, q, ps);
+      cn[c]->velocity_residual({}, q, qd, vn);
+      cs[c]->velocity_residual({}, q, qd, vs);
+      Mat Gan, Gbn, Gas, Gbs, Jan, Jbn, Jas, Jbs;
+      fn->wrench().maps(q, Gan, Gbn);
+      fs->wrench().maps(q, Gas, Gbs);
+      fn->wrench().jacobians(q, Jan, Jbn);
+      fs->wrench().jacobians(q, Jas, Jbs);
+      const double e = std::max({rel(An, Asym), rel(bn, bs), rel(pn, ps), rel(vn, vs),
+                                 rel(Gan, Gas), rel(Gbn, Gbs), rel(Jan, Jas), rel(Jbn, Jbs)});
+      EXPECT_LE(e, 1e-11) << cn[c]->row_names()[0];
+      worst = std::max(worst, e);
+    }
+  }
+  RecordProperty("worst_rel", ::testing::PrintToString(worst));
+}
+
+}  // namespace
+#endif

@@ -1,5 +1,6 @@
 #include "scenario/definitions_loader.hpp"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -217,6 +218,8 @@ struct ukdyn::LoadedDefinitions {
   /// Chains on the tree algorithms whose symbolic kinematics (a ChainModel in `chains`, their
   /// frames in `frames`) nothing has needed yet (require_chain).
   std::map<std::string, std::shared_ptr<const symbolic::ChainDef>> pending;
+  /// The chains on the tree algorithms, by name (their frames' numeric constraints).
+  std::map<std::string, std::shared_ptr<const tree::TreeSubsystem>> trees;
 };
 
 namespace ukdyn::io_detail {
@@ -440,6 +443,69 @@ void require_chain(DefinitionContext& context, const std::string& name) {
   context.frames.add_chain(name, model, it->second.get());
   context.chains.emplace(name, std::move(model));
   context.pending.erase(it);
+}
+
+namespace {
+
+// A number from an offset expression, or nullopt.
+std::optional<double> offset_number(const ex& e, const GiNaC::exmap& values) {
+  const ex v = e.subs(values).evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real())
+    return std::nullopt;
+  const double d = GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+  if (!std::isfinite(d)) return std::nullopt;
+  return d;
+}
+
+}  // namespace
+
+std::optional<sym::NumericFrameEnd> tree_frame_end(const DefinitionContext& context,
+                                                   const std::string& name,
+                                                   const sym::OriginDef& offset,
+                                                   const GiNaC::exmap& values,
+                                                   const std::vector<std::string>& coordinates) {
+  const auto dot = name.find('.');
+  if (dot == std::string::npos) return std::nullopt;
+  auto it = context.trees.find(name.substr(0, dot));
+  if (it == context.trees.end()) return std::nullopt;
+  double o[6];
+  for (int k = 0; k < 6; ++k) {
+    const auto v = offset_number(k < 3 ? offset.xyz[static_cast<std::size_t>(k)]
+                                       : offset.rpy[static_cast<std::size_t>(k - 3)],
+                                 values);
+    if (!v) return std::nullopt;
+    o[k] = *v;
+  }
+  const tree::TreeSubsystem& t = *it->second;
+  const std::string frame = name.substr(dot + 1);
+  sym::NumericFrameEnd e;
+  e.kind = sym::NumericFrameEnd::Kind::tree;
+  e.tree = it->second;
+  e.link = t.link_index(frame);
+  Eigen::Vector3d base = Eigen::Vector3d::Zero();
+  if (e.link == -2) {  // a named point, in its link's axes
+    const auto& pts = t.model().points;
+    const auto pt =
+        std::find_if(pts.begin(), pts.end(), [&](const tree::Point& p) { return p.name == frame; });
+    if (pt == pts.end()) {
+      std::string known = t.model().root_name;
+      for (const auto& l : t.model().links) {
+        if (l.name.find('/') == std::string::npos) known += (known.empty() ? "" : ", ") + l.name;
+      }
+      for (const auto& p : pts) known += ", " + p.name;
+      throw sym::DefinitionError("no frame '" + name + "' (known: " + known + ")");
+    }
+    e.link = pt->link;
+    base = pt->xyz;
+  }
+  e.offset_p = base + Eigen::Vector3d(o[0], o[1], o[2]);
+  e.offset_R = (Eigen::AngleAxisd(o[5], Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(o[4], Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(o[3], Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  const auto first = std::find(coordinates.begin(), coordinates.end(), t.coordinate_names()[0]);
+  e.first_coordinate = static_cast<Index>(first - coordinates.begin());
+  return e;
 }
 
 const sym::FramePose& find_frame(DefinitionContext& context, const std::string& name) {
@@ -737,6 +803,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
       sym::ChainTree t = sym::chain_tree(*def);
       if (t.model) {
         auto sub = tree::make_subsystem(std::move(*t.model));
+        context.trees[name] = sub;
         record_chain(context, name, std::move(def), std::nullopt);
         return sub;
       }

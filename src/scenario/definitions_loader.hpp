@@ -6,6 +6,7 @@
 
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -15,6 +16,7 @@
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
+#include "ukdyn/symbolic/numeric_frame_constraint.hpp"
 
 namespace ukdyn {
 struct LoadedDefinitions;  // below: the io_detail::DefinitionContext (opaque in Scenario)
@@ -72,6 +74,14 @@ const symbolic::FramePose& find_frame(DefinitionContext& context, const std::str
 /// constraint, force or frame on its points needs them (a 30-link chain's expanded poses would take
 /// minutes). Nothing for other names. Throws what build_chain throws.
 void require_chain(DefinitionContext& context, const std::string& name);
+/// The numeric end (symbolic/numeric_frame_constraint.hpp) of frame SUBSYSTEM.FRAME moved by
+/// `offset` (its parameters given by `values`) when SUBSYSTEM is a serial chain on the tree
+/// algorithms and the offset is numbers (docs/tree-algorithms.md); nullopt otherwise (the frame
+/// is then found by find_frame). FRAME is a link of the chain or one of its named points (with
+/// its link's axes). Throws DefinitionError naming the known frames if there is no such frame.
+std::optional<symbolic::NumericFrameEnd> tree_frame_end(
+    const DefinitionContext& context, const std::string& name, const symbolic::OriginDef& offset,
+    const GiNaC::exmap& values, const std::vector<std::string>& system_coordinates);
 /// The constraints between the links of serial_chain subsystem `name` (its MJCF file's weld and
 /// connect equalities; empty if none, or no context).
 std::vector<symbolic::LinkConstraintDef> chain_link_constraints(const DefinitionContext* context,

@@ -1,6 +1,8 @@
 #include "scenario/frame_constraints_loader.hpp"
 
+#include <Eigen/Geometry>
 #include <cmath>
+#include <optional>
 
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/expression.hpp"
@@ -21,9 +23,14 @@ sym::Vec3Ex vec3(const Loader& L, const Node& n, const sym::DefinitionScope& sco
   return v;
 }
 
-// A frame: "SUBSYSTEM.FRAME" or {frame: SUBSYSTEM.FRAME, xyz: [...], rpy: [...]}.
+// A frame: "SUBSYSTEM.FRAME" or {frame: SUBSYSTEM.FRAME, xyz: [...], rpy: [...]}. A frame of a
+// chain on the tree algorithms (with a numeric offset) comes back as `tree_end`, its pose left
+// empty: the constraint is then numeric (symbolic/numeric_frame_constraint.hpp), and the chain's
+// link poses are never written out as expressions.
 sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionScope& scope,
-                          DefinitionContext& context, std::string& name) {
+                          DefinitionContext& context, std::string& name,
+                          const std::vector<std::string>& coordinates,
+                          std::optional<sym::NumericFrameEnd>& tree_end) {
   // (Bound once: assigning a YAML::Node would overwrite the node it refers to.)
   const bool mapping = n.node.IsMap();
   if (mapping) L.only_keys(n, {"frame", "xyz", "rpy"});
@@ -41,9 +48,11 @@ sym::FramePose load_frame(const Loader& L, const Node& n, const sym::DefinitionS
            "expected SUBSYSTEM.FRAME (a link, body or point, e.g. left.link3) or world, got '" +
                name + "'");
   try {
+    const GiNaC::exmap pv = scope.parameter_values();
+    tree_end = tree_frame_end(context, name, offset, pv, coordinates);
+    if (tree_end) return {};
     const sym::FramePose& f = find_frame(context, name);
     sym::OriginDef values = offset;
-    const GiNaC::exmap pv = scope.parameter_values();
     for (auto& e : values.xyz) e = e.subs(pv);
     for (auto& e : values.rpy) e = e.subs(pv);
     return sym::offset_frame(f, values);
@@ -60,6 +69,88 @@ bool is_frame_constraint(const std::string& type) {
   return type == "weld" || type == "ball" || type == "hinge" || type == "level" ||
          type == "distance";
 }
+
+namespace {
+
+// A number of an expression of the constraint's parameters, or a failure at `at`.
+double number_at(const Loader& L, const Node& at, const ex& e, const GiNaC::exmap& values,
+                 const char* what) {
+  const ex v = e.subs(values).evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real())
+    L.fail(at, std::string(what) + " must be a constant");
+  return GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+}
+
+Eigen::Vector3d unit_at(const Loader& L, const Node& at, const sym::Vec3Ex& v,
+                        const GiNaC::exmap& values, const char* what) {
+  const Eigen::Vector3d u(number_at(L, at, v[0], values, what),
+                          number_at(L, at, v[1], values, what),
+                          number_at(L, at, v[2], values, what));
+  if (!(u.norm() > 0.0) || !u.allFinite())
+    L.fail(at, std::string(what) + " must be a nonzero vector");
+  return u / u.norm();
+}
+
+// A frame constraint with a frame of a chain on the tree algorithms: numeric rows
+// (symbolic/numeric_frame_constraint.hpp); the other frame by its expressions (a body, the world)
+// or on its tree.
+std::shared_ptr<const Constraint> numeric_frame_constraint(
+    const Loader& L, const Node& c, const sym::FrameConstraintDef& f, const sym::ConstraintDef& def,
+    std::optional<sym::NumericFrameEnd> ta, std::optional<sym::NumericFrameEnd> tb,
+    const std::vector<std::string>& system_coordinates, const Vec& q0, const Node& axis_node) {
+  using K = sym::FrameConstraintDef::Kind;
+  const GiNaC::exmap values = def.parameter_values();
+  sym::NumericFrameSpec spec;
+  spec.kind = f.kind;
+  spec.name = f.name;
+  spec.frame_a = f.frame_a;
+  spec.frame_b = f.frame_b;
+  if (f.kind == K::hinge) spec.axis = unit_at(L, axis_node, f.axis, values, "the hinge axis");
+  if (f.kind == K::level) {
+    spec.axis = unit_at(L, axis_node, f.axis, values, "the level axis");
+    spec.up = unit_at(L, c, f.up, values, "the level up direction");
+    spec.vertical = f.vertical;
+  }
+  auto end_of = [](std::optional<sym::NumericFrameEnd>& t, const sym::FramePose& pose) {
+    if (t) return std::move(*t);
+    sym::NumericFrameEnd e;
+    e.kind = sym::NumericFrameEnd::Kind::expressions;
+    e.pose = pose;
+    return e;
+  };
+  sym::NumericFrameEnd a = end_of(ta, f.a);
+  sym::NumericFrameEnd b = f.kind == K::level ? sym::NumericFrameEnd{} : end_of(tb, f.b);
+  bool initial_length = false;
+  Node ln = c;
+  if (f.kind == K::distance) {
+    ln = L.child(c, "length", true);
+    initial_length = ln.node.IsScalar() && ln.node.Scalar() == "initial";
+    spec.length = initial_length ? 1.0
+                                 : number_at(L, ln, parse_expression(L, def, ln), values,
+                                             "the distance length");
+    if (!initial_length && !(spec.length > 0.0)) L.fail(ln, "the distance length must be positive");
+  }
+  try {
+    auto con = sym::make_numeric_frame_constraint(spec, a, b, system_coordinates, L.symbol_table());
+    if (initial_length) {  // |p_a − p_b| at initial.q: Φ = ½(d² − 1) with length 1
+      Vec phi(1);
+      con->position_residual({}, q0, phi);
+      const double d2 = 2.0 * phi(0) + 1.0;
+      if (!std::isfinite(d2) || !(d2 > 0.0))
+        L.fail(ln, "the frames coincide (or are not finite) at initial.q: no positive length");
+      spec.length = std::sqrt(d2);
+      con = sym::make_numeric_frame_constraint(spec, std::move(a), std::move(b), system_coordinates,
+                                               L.symbol_table());
+    }
+    return con;
+  } catch (const Error& e) {
+    L.fail(c, e.what());
+  } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)
+    L.fail(c, std::string("cannot evaluate: ") + e.what());
+  }
+}
+
+}  // namespace
 
 std::shared_ptr<const Constraint> load_frame_constraint(
     const Loader& L, const Node& c, const std::string& name, const std::string& type,
@@ -84,10 +175,11 @@ std::shared_ptr<const Constraint> load_frame_constraint(
                          L.symbol_table());
   load_parameters(L, c, def);
   const Node an = L.child(c, "a", true);
-  f.a = load_frame(L, an, def, context, f.frame_a);
+  std::optional<sym::NumericFrameEnd> ta, tb;
+  f.a = load_frame(L, an, def, context, f.frame_a, system_coordinates, ta);
   const Node bn = f.kind != K::level ? L.child(c, "b", true) : an;  // (bound once, see above)
   if (f.kind != K::level) {
-    f.b = load_frame(L, bn, def, context, f.frame_b);
+    f.b = load_frame(L, bn, def, context, f.frame_b, system_coordinates, tb);
     if (f.frame_a == f.frame_b && !an.node.IsMap() && !bn.node.IsMap())
       L.fail(bn, "a and b are the same frame '" + f.frame_a + "'");
   }
@@ -107,6 +199,9 @@ std::shared_ptr<const Constraint> load_frame_constraint(
     }
     if (Node u = L.child(c, "up", false); u.node.IsDefined()) f.up = vec3(L, u, def);
   }
+  if (ta || tb)
+    return numeric_frame_constraint(L, c, f, def, std::move(ta), std::move(tb), system_coordinates,
+                                    q0, axis_node);
   if (f.kind == K::distance) {
     const Node ln = L.child(c, "length", true);
     if (ln.node.IsScalar() && ln.node.Scalar() == "initial") {
@@ -157,6 +252,17 @@ std::shared_ptr<const Constraint> make_link_constraint(
   f.frame_b = subsystem + "." + lc.link_b;
   const std::string what = std::string(sym::to_string(f.kind)) + " '" + lc.name + "'";
   try {
+    auto ta = tree_frame_end(context, f.frame_a, lc.offset_a, {}, system_coordinates);
+    auto tb = tree_frame_end(context, f.frame_b, lc.offset_b, {}, system_coordinates);
+    if (ta && tb) {  // a chain on the tree algorithms: numeric rows
+      sym::NumericFrameSpec spec;
+      spec.kind = f.kind;
+      spec.name = f.name;
+      spec.frame_a = f.frame_a;
+      spec.frame_b = f.frame_b;
+      return sym::make_numeric_frame_constraint(spec, std::move(*ta), std::move(*tb),
+                                                system_coordinates, std::move(symbols));
+    }
     f.a = sym::offset_frame(find_frame(context, f.frame_a), lc.offset_a);
     f.b = sym::offset_frame(find_frame(context, f.frame_b), lc.offset_b);
     sym::ConstraintDef def(f.name, sym::ConstraintDef::Kind::holonomic, system_coordinates,

@@ -366,7 +366,7 @@ std::string format_system(const System& system, Format f) {
   for (std::size_t k = 0; k < cons.size(); ++k) {
     const auto& rn = cons[k]->row_names();
     const auto* d = dynamic_cast<const DerivedConstraint*>(cons[k].get());
-    if (const auto* fc = dynamic_cast<const FrameConstraint*>(cons[k].get())) d = &fc->derived();
+    if (const auto* fc = dynamic_cast<const FrameConstraint*>(cons[k].get())) d = fc->derived();
     if (d != nullptr) {
       std::string name = rn.size() == 1 ? rn[0] : rn[0].substr(0, rn[0].rfind('_'));
       for (const auto& r : rn) {

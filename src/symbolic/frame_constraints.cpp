@@ -288,15 +288,24 @@ void add_frame_constraint(ConstraintDef& def, const FrameConstraintDef& f) {
 
 // ------------------------------------------------------------------------------ wrenches
 
+namespace {
+
+// The number of rows of f (the rows on symbolic poses).
+Index row_count(const FrameConstraintDef& f, const GiNaC::exmap& values) {
+  const SymbolPose sa, sb;
+  return static_cast<Index>(
+      rows_for(f, sa.pose(f.a.has_rotation), sb.pose(f.b.has_rotation), values).size());
+}
+
+}  // namespace
+
 FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
                                const std::vector<std::string>& system_coordinates,
                                SymbolTable& symbols, const GiNaC::exmap& values)
-    : name_(f.name), frame_a_(f.frame_a), frame_b_(f.frame_b), kind_(f.kind) {
-  has_b_ = f.kind != FrameConstraintDef::Kind::level;
+    : FrameWrenches(f.name, f.frame_a, f.frame_b, f.kind, row_count(f, values)) {
   n_ = static_cast<Index>(system_coordinates.size());
   const SymbolPose sa, sb;
   const auto rows = rows_for(f, sa.pose(f.a.has_rotation), sb.pose(f.b.has_rotation), values);
-  m_ = static_cast<Index>(rows.size());
   GiNaC::exmap real = values;
   sa.substitution(f.a, real);
   sb.substitution(f.b, real);
@@ -338,19 +347,20 @@ FrameWrenchMap::FrameWrenchMap(const FrameConstraintDef& f,
 void FrameWrenchMap::maps(const Vec& q, Mat& Ga, Mat& Gb) const {
   std::vector<double> out(tape_.outputs());
   tape_.eval(0.0, q.data(), nullptr, out.data());
-  Ga.resize(m_, 6);
-  Gb.resize(m_, 6);
+  const Index m = rows();
+  Ga.resize(m, 6);
+  Gb.resize(m, 6);
   std::size_t k = 0;
-  for (Index i = 0; i < m_; ++i)
+  for (Index i = 0; i < m; ++i)
     for (Index j = 0; j < 6; ++j) Ga(i, j) = out[k++];
-  for (Index i = 0; i < m_; ++i)
+  for (Index i = 0; i < m; ++i)
     for (Index j = 0; j < 6; ++j) Gb(i, j) = out[k++];
 }
 
 void FrameWrenchMap::jacobians(const Vec& q, Mat& Ja, Mat& Jb) const {
   std::vector<double> out(tape_.outputs());
   tape_.eval(0.0, q.data(), nullptr, out.data());
-  std::size_t k = static_cast<std::size_t>(12 * m_ + 24);
+  std::size_t k = static_cast<std::size_t>(12 * rows() + 24);
   for (Mat* J : {&Ja, &Jb}) {
     J->resize(6, n_);
     for (Index r = 0; r < 6; ++r)
@@ -360,7 +370,7 @@ void FrameWrenchMap::jacobians(const Vec& q, Mat& Ja, Mat& Jb) const {
 
 FrameWrenchMap::Workspace FrameWrenchMap::workspace() const {
   return Workspace{std::vector<double>(tape_.outputs()), std::vector<double>(tape_.work_size()),
-                   Mat(m_, 6), Mat(m_, 6)};
+                   Mat(rows(), 6), Mat(rows(), 6)};
 }
 
 void FrameWrenchMap::evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const {
@@ -368,16 +378,21 @@ void FrameWrenchMap::evaluate(CVecRef q, const Vec& lambda, Workspace& ws, Frame
   tape_.eval(0.0, q.data(), nullptr, out.data(), ws.work.data());
   Mat& Ga = ws.Ga;
   Mat& Gb = ws.Gb;
+  const Index m = rows();
   std::size_t k = 0;
-  for (Index i = 0; i < m_; ++i)
+  for (Index i = 0; i < m; ++i)
     for (Index j = 0; j < 6; ++j) Ga(i, j) = out[k++];
-  for (Index i = 0; i < m_; ++i)
+  for (Index i = 0; i < m; ++i)
     for (Index j = 0; j < 6; ++j) Gb(i, j) = out[k++];
   for (auto [p, R] : {std::pair{&w.position_a, &w.rotation_a}, {&w.position_b, &w.rotation_b}}) {
     for (Index i = 0; i < 3; ++i) (*p)(i) = out[k++];
     for (Index i = 0; i < 3; ++i)
       for (Index j = 0; j < 3; ++j) (*R)(i, j) = out[k++];
   }
+  wrench_from_maps(Ga, Gb, lambda, w);
+}
+
+void wrench_from_maps(const Mat& Ga, const Mat& Gb, const Vec& lambda, FrameWrench& w) {
   const Eigen::Matrix<double, 6, 1> wa = Ga.transpose() * lambda;
   const Eigen::Matrix<double, 6, 1> wb = Gb.transpose() * lambda;
   w.force_a = wa.head<3>();
@@ -390,7 +405,7 @@ void FrameWrenchMap::evaluate(CVecRef q, const Vec& lambda, Workspace& ws, Frame
   w.moment_b_local = w.rotation_b.transpose() * w.moment_b;
 }
 
-FrameWrench FrameWrenchMap::evaluate(const Vec& q, const Vec& lambda) const {
+FrameWrench FrameWrenches::evaluate(const Vec& q, const Vec& lambda) const {
   Workspace ws = workspace();
   FrameWrench w;
   evaluate(q, lambda, ws, w);
@@ -399,10 +414,12 @@ FrameWrench FrameWrenchMap::evaluate(const Vec& q, const Vec& lambda) const {
 
 std::shared_ptr<FrameConstraint> make_frame_constraint(const ConstraintDef& def,
                                                        const FrameConstraintDef& f) {
+  auto derived = make_constraint(def);
   return std::make_shared<FrameConstraint>(
-      make_constraint(def),
+      derived,
       std::make_shared<FrameWrenchMap>(f, def.system_coordinates(), def.symbols(),
-                                       def.parameter_values()));
+                                       def.parameter_values()),
+      derived);
 }
 
 }  // namespace ukdyn::symbolic

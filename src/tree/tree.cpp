@@ -7,6 +7,7 @@
 #include "ukdyn/tree/tree.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <cmath>
 #include <new>
 #include <set>
@@ -490,6 +491,65 @@ void TreeSubsystem::link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
     R[i] = ws[i].R;
     p[i] = ws[i].p;
   }
+}
+
+namespace {
+
+Eigen::Matrix3d skew(const Eigen::Vector3d& w) {
+  Eigen::Matrix3d S;
+  S << 0.0, -w.z(), w.y(), w.z(), 0.0, -w.x(), -w.y(), w.x(), 0.0;
+  return S;
+}
+
+}  // namespace
+
+// A point p fixed in link i moves with the link's twist (ω, v_O) about the world origin:
+// ṗ = v_O + ω × p, Ṙ = [ω]× R; at q̈ = 0 its acceleration is the velocity-product one,
+// p̈ = a_O + α × p + ω × ṗ, R̈ = ([α]× + [ω]×[ω]×) R, with (α, a_O) the link's spatial
+// acceleration of the RNEA's forward pass (velocity_products). Each joint k above the link moves
+// it by ∂p/∂θ_k = s_v + s_w × p, ∂R/∂θ_k = [s_w]× R (S_k = (s_w, s_v)); through θ = T q + c,
+// ∂/∂q_j = Σ_k T_kj ∂/∂θ_k.
+void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
+                                const Eigen::Vector3d& x_offset, Slot scratch,
+                                FrameState& out) const {
+  with_workspace(scratch, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(model_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
+    place(model_, theta_index_, w.theta, w.links);
+    velocity_products(model_, theta_index_, w.thetad, w.links, w.tau);
+    Eigen::Matrix3d Rl = model_.root_rotation;
+    Eigen::Vector3d pl = model_.root_translation, vw = Eigen::Vector3d::Zero(),
+                    vv = Eigen::Vector3d::Zero(), aw = Eigen::Vector3d::Zero(),
+                    av = Eigen::Vector3d::Zero();
+    if (link >= 0) {
+      const LinkState<double>& L = w.links[link];
+      Rl = L.R;
+      pl = L.p;
+      vw = L.vw;
+      vv = L.vv;
+      aw = L.aw;
+      av = L.av;
+    }
+    out.p = pl + Rl * x_offset;
+    out.R = Rl * R_offset;
+    out.pd = vv + vw.cross(out.p);
+    out.pdd = av + aw.cross(out.p) + vw.cross(out.pd);
+    const Eigen::Matrix3d W = skew(vw);
+    out.Rd = W * out.R;
+    out.Rdd = (skew(aw) + W * W) * out.R;
+    out.dp.setZero();
+    out.dR.setZero();
+    for (int j = link; j >= 0; j = model_.links[static_cast<std::size_t>(j)].parent) {
+      const auto ju = static_cast<std::size_t>(j);
+      if (theta_index_[ju] < 0) continue;
+      const Eigen::Vector3d sw = w.links[ju].sw, sv = w.links[ju].sv;
+      const Eigen::Vector3d dp = sv + sw.cross(out.p);
+      const Eigen::Matrix3d dR = skew(sw) * out.R;
+      for (const Term& t : model_.links[ju].terms) {
+        out.dp.col(t.coordinate) += t.coefficient * dp;
+        for (int r = 0; r < 9; ++r) out.dR(r, t.coordinate) += t.coefficient * dR(r / 3, r % 3);
+      }
+    }
+  });
 }
 
 std::shared_ptr<const TreeSubsystem> make_subsystem(Model model) {

@@ -39,14 +39,14 @@ class ConstraintForceColumns {
 
  private:
   const Scenario* sc_ = nullptr;
-  std::vector<std::pair<std::size_t, const symbolic::FrameWrenchMap*>> frames_;  // block, map
+  std::vector<std::pair<std::size_t, const symbolic::FrameWrenches*>> frames_;  // block, map
   std::vector<std::string> header_;
   std::vector<std::vector<Index>> block_coords_;  // per block: the coordinates written
   std::vector<std::vector<std::string>> figures_;
   std::vector<std::string> figure_names_;
   // the buffers of fill()
   std::optional<ConstraintForceWorkspace> split_;
-  std::vector<symbolic::FrameWrenchMap::Workspace> wrench_ws_;  // per frame constraint
+  std::vector<symbolic::FrameWrenches::Workspace> wrench_ws_;  // per frame constraint
   symbolic::FrameWrench wrench_;
 };
 

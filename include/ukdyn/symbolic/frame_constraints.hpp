@@ -97,74 +97,111 @@ struct FrameWrench {
   Eigen::Matrix3d rotation_a, rotation_b;
 };
 
-/// G_a, G_b of one frame constraint compiled over the system coordinates, and the frames' poses
-/// and twist Jacobians J (6 × n: [v; ω] = J q̇, world).
-class FrameWrenchMap {
+/// What the output needs of a frame constraint block: G_a, G_b (rows × 6: Φ̇ = G_a [v_a; ω_a] +
+/// G_b [v_b; ω_b], world twists), the frames' poses and twist Jacobians J (6 × n: [v; ω] = J q̇),
+/// and from them the wrench its multipliers λ apply to each frame. Two implementations: compiled
+/// from the frames' expressions (FrameWrenchMap), and numeric on the recursive tree algorithms
+/// (numeric_frame_constraint.cpp, frames of chains that run on trees).
+class FrameWrenches {
  public:
-  /// `symbols`: the table of the frames' expressions (their coordinates).
-  FrameWrenchMap(const FrameConstraintDef& f, const std::vector<std::string>& system_coordinates,
-                 SymbolTable& symbols, const GiNaC::exmap& values = {});
+  virtual ~FrameWrenches() = default;
   [[nodiscard]] const std::string& name() const { return name_; }
   [[nodiscard]] const std::string& frame_a() const { return frame_a_; }
   [[nodiscard]] const std::string& frame_b() const { return frame_b_; }
   [[nodiscard]] FrameConstraintDef::Kind kind() const { return kind_; }
   [[nodiscard]] Index rows() const { return m_; }
   [[nodiscard]] bool has_b() const { return has_b_; }
-  /// w = G_aᵀλ, G_bᵀλ at q for the multipliers λ (rows()) of this block. Allocates.
-  [[nodiscard]] FrameWrench evaluate(const Vec& q, const Vec& lambda) const;
-  /// The buffers of evaluate() for this map (the tape's outputs and work, G_a, G_b).
+  /// The buffers of evaluate() (an implementation's outputs and work, G_a, G_b).
   struct Workspace {
     std::vector<double> out, work;
     Mat Ga, Gb;
   };
-  [[nodiscard]] Workspace workspace() const;
-  /// evaluate() into w with the buffers of ws (from workspace()): the same numbers, and no heap
-  /// allocation.
-  void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const;
+  [[nodiscard]] virtual Workspace workspace() const = 0;
+  /// w = G_aᵀλ, G_bᵀλ at q for the multipliers λ (rows()) of this block, with the buffers of ws
+  /// (from workspace()): no heap allocation.
+  virtual void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const = 0;
+  /// The same, allocating its buffers.
+  [[nodiscard]] FrameWrench evaluate(const Vec& q, const Vec& lambda) const;
   /// G_a, G_b (m × 6 each) at q.
-  void maps(const Vec& q, Mat& Ga, Mat& Gb) const;
+  virtual void maps(const Vec& q, Mat& Ga, Mat& Gb) const = 0;
   /// Twist Jacobians of the frames a and b (6 × n) at q.
-  void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const;
+  virtual void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const = 0;
+
+ protected:
+  FrameWrenches(std::string name, std::string frame_a, std::string frame_b,
+                FrameConstraintDef::Kind kind, Index rows)
+      : name_(std::move(name)),
+        frame_a_(std::move(frame_a)),
+        frame_b_(std::move(frame_b)),
+        kind_(kind),
+        m_(rows),
+        has_b_(kind != FrameConstraintDef::Kind::level) {}
 
  private:
   std::string name_, frame_a_, frame_b_;
   FrameConstraintDef::Kind kind_;
-  Index m_ = 0, n_ = 0;
+  Index m_ = 0;
   bool has_b_ = true;
+};
+
+/// w from G_a, G_b, λ and the poses already in w: w_a = G_aᵀλ, w_b = G_bᵀλ (force, moment about
+/// the frame origin; in world axes and in the frame's own).
+void wrench_from_maps(const Mat& Ga, const Mat& Gb, const Vec& lambda, FrameWrench& w);
+
+/// FrameWrenches compiled from the frames' expressions over the system coordinates.
+class FrameWrenchMap final : public FrameWrenches {
+ public:
+  /// `symbols`: the table of the frames' expressions (their coordinates).
+  FrameWrenchMap(const FrameConstraintDef& f, const std::vector<std::string>& system_coordinates,
+                 SymbolTable& symbols, const GiNaC::exmap& values = {});
+  using FrameWrenches::evaluate;
+  [[nodiscard]] Workspace workspace() const override;
+  void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const override;
+  void maps(const Vec& q, Mat& Ga, Mat& Gb) const override;
+  void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const override;
+
+ private:
+  Index n_ = 0;
   Tape tape_;  // Ga (m×6), Gb (m×6), pa, Ra, pb, Rb, Ja (6×n), Jb (6×n)
 };
 
-/// A derived constraint block that also knows the wrenches on its frames (what the io layer's
-/// constraint_force_output writes). Every evaluation is the DerivedConstraint's.
+/// A constraint block between two frames that also knows the wrenches on its frames (what the
+/// io layer's constraint_force_output writes). Its rows are a DerivedConstraint's (derived from
+/// the frames' expressions) or the numeric ones of frames on trees; every evaluation is theirs.
 class FrameConstraint final : public Constraint {
  public:
-  FrameConstraint(std::shared_ptr<const DerivedConstraint> derived,
-                  std::shared_ptr<const FrameWrenchMap> wrench)
-      : d_(std::move(derived)), w_(std::move(wrench)) {}
-  [[nodiscard]] Index rows() const override { return d_->rows(); }
+  /// `derived`: the derivation of the rows, if they were derived (for `ukdyn derive`), else null.
+  FrameConstraint(std::shared_ptr<const Constraint> rows,
+                  std::shared_ptr<const FrameWrenches> wrench,
+                  std::shared_ptr<const DerivedConstraint> derived = nullptr)
+      : c_(std::move(rows)), w_(std::move(wrench)), d_(std::move(derived)) {}
+  [[nodiscard]] Index rows() const override { return c_->rows(); }
   [[nodiscard]] const std::vector<std::string>& row_names() const override {
-    return d_->row_names();
+    return c_->row_names();
   }
-  [[nodiscard]] Index slot_size() const override { return d_->slot_size(); }
-  // No row_columns(): a frame constraint declares no structural sparsity (every column may be
-  // non-zero), so it is always evaluated whole.
+  [[nodiscard]] Index slot_size() const override { return c_->slot_size(); }
+  [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override {
+    return c_->row_columns();
+  }
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override {
-    d_->evaluate(ctx, q, qd, A, b);
+    c_->evaluate(ctx, q, qd, A, b);
   }
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
-    d_->position_residual(ctx, q, phi);
+    c_->position_residual(ctx, q, phi);
   }
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                          VecRef phid) const override {
-    d_->velocity_residual(ctx, q, qd, phid);
+    c_->velocity_residual(ctx, q, qd, phid);
   }
-  [[nodiscard]] const DerivedConstraint& derived() const { return *d_; }
-  [[nodiscard]] const FrameWrenchMap& wrench() const { return *w_; }
+  /// The derivation of the rows (null for the numeric rows of frames on trees).
+  [[nodiscard]] const DerivedConstraint* derived() const { return d_.get(); }
+  [[nodiscard]] const FrameWrenches& wrench() const { return *w_; }
 
  private:
+  std::shared_ptr<const Constraint> c_;
+  std::shared_ptr<const FrameWrenches> w_;
   std::shared_ptr<const DerivedConstraint> d_;
-  std::shared_ptr<const FrameWrenchMap> w_;
 };
 
 /// make_constraint(def) (def holding the rows of f, add_frame_constraint) with f's wrench map.

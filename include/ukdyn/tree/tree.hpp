@@ -74,6 +74,20 @@ struct Model {
 /// non-finite mass, an inertia that is not symmetric positive semi-definite, a non-finite number.
 void validate(const Model& model);
 
+/// What a frame fixed in a link does at (q, q̇) (the numeric frame constraints,
+/// docs/frame-constraints.md): its origin p and rotation R (frame → world), their rates, their
+/// accelerations at q̈ = 0 (the velocity-product terms J̇ q̇), and their derivatives by each of the
+/// subsystem's coordinates (dp: 3 × dof; dR: 9 × dof, R row-major).
+/// dp and dR are views of the caller's storage (3 × cols and 9 × cols doubles, column-major).
+struct FrameState {
+  FrameState(double* dp_data, double* dR_data, Index cols)
+      : dp(dp_data, 3, cols), dR(dR_data, 9, cols) {}
+  Eigen::Vector3d p, pd, pdd;
+  Eigen::Matrix3d R, Rd, Rdd;
+  Eigen::Map<Eigen::Matrix<double, 3, Eigen::Dynamic>> dp;
+  Eigen::Map<Eigen::Matrix<double, 9, Eigen::Dynamic>> dR;
+};
+
 /// The subsystem of a tree (validated first). Slot: its workspace, so that forward() allocates
 /// nothing.
 class TreeSubsystem : public Subsystem {
@@ -104,6 +118,11 @@ class TreeSubsystem : public Subsystem {
   /// World poses of every link at q (R[i], p[i] for Model::links[i]).
   void link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
                   std::vector<Eigen::Vector3d>& p) const;
+  /// The state of the frame (R_offset, x_offset) of link `link` (−1: the root frame) at (q, q̇):
+  /// p = p_link + R_link x_offset, R = R_link R_offset. `scratch`: slot_size() doubles (none:
+  /// a buffer of its own); `out.dp`, `out.dR` have dof() columns.
+  void frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
+                   const Eigen::Vector3d& x_offset, Slot scratch, FrameState& out) const;
   /// Number of movable joints (the joint variables θ).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
 

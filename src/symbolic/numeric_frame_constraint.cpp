@@ -1,0 +1,503 @@
+// Numeric frame constraints (ukdyn/symbolic/numeric_frame_constraint.hpp): the rows of
+// frame_rows() evaluated from the frames' states, A and b by the chain rule.
+#include "ukdyn/symbolic/numeric_frame_constraint.hpp"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <set>
+
+#include "symbolic/ex_helpers.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
+
+namespace ukdyn::symbolic {
+
+namespace {
+
+using GiNaC::ex;
+using K = FrameConstraintDef::Kind;
+using tree::FrameState;
+
+constexpr int kMaxRows = 6;
+
+// Φ, D = ∂Φ/∂x and the second-order term Q = ẋᵀ H ẋ of the rows, x = (p_a, R_a, p_b, R_b):
+// columns 0-2 p_a, 3-11 R_a (row-major, R(i, j) at 3 i + j), 12-14 p_b, 15-23 R_b.
+struct RowValues {
+  int m = 0;
+  Eigen::Matrix<double, kMaxRows, 1> phi, Q;
+  Eigen::Matrix<double, kMaxRows, 24> D;
+};
+
+constexpr int kPa = 0, kRa = 3, kPb = 12, kRb = 15;
+
+void position_rows(const FrameState& a, const FrameState& b, RowValues& r) {
+  for (int k = 0; k < 3; ++k) {
+    r.phi(r.m) = a.p(k) - b.p(k);
+    r.D(r.m, kPa + k) = 1.0;
+    r.D(r.m, kPb + k) = -1.0;
+    ++r.m;
+  }
+}
+
+// Φ = ½ (X_ij − X_ji), X = R_aᵀ R_b (X_ij = Σ_k Ra_ki Rb_kj).
+void weld_row(const FrameState& a, const FrameState& b, int i, int j, RowValues& r) {
+  const double Xij = a.R.col(i).dot(b.R.col(j)), Xji = a.R.col(j).dot(b.R.col(i));
+  r.phi(r.m) = 0.5 * (Xij - Xji);
+  for (int k = 0; k < 3; ++k) {
+    r.D(r.m, kRa + 3 * k + i) += 0.5 * b.R(k, j);
+    r.D(r.m, kRa + 3 * k + j) -= 0.5 * b.R(k, i);
+    r.D(r.m, kRb + 3 * k + j) += 0.5 * a.R(k, i);
+    r.D(r.m, kRb + 3 * k + i) -= 0.5 * a.R(k, j);
+  }
+  // ẋᵀHẋ: ½ (Z_ij − Z_ji) with Z = 2 Ṙ_aᵀ Ṙ_b.
+  r.Q(r.m) = a.Rd.col(i).dot(b.Rd.col(j)) - a.Rd.col(j).dot(b.Rd.col(i));
+  ++r.m;
+}
+
+// Φ = (R_a u)·(R_b n).
+void hinge_row(const FrameState& a, const FrameState& b, const Eigen::Vector3d& u,
+               const Eigen::Vector3d& n, RowValues& r) {
+  const Eigen::Vector3d ua = a.R * u, nb = b.R * n;
+  r.phi(r.m) = ua.dot(nb);
+  for (int k = 0; k < 3; ++k) {
+    for (int i = 0; i < 3; ++i) {
+      r.D(r.m, kRa + 3 * k + i) = u(i) * nb(k);
+      r.D(r.m, kRb + 3 * k + i) = ua(k) * n(i);
+    }
+  }
+  r.Q(r.m) = 2.0 * (a.Rd * u).dot(b.Rd * n);
+  ++r.m;
+}
+
+// Φ = (R_a u)·e.
+void level_row(const FrameState& a, const Eigen::Vector3d& u, const Eigen::Vector3d& e,
+               RowValues& r) {
+  r.phi(r.m) = (a.R * u).dot(e);
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 3; ++i) r.D(r.m, kRa + 3 * k + i) = e(k) * u(i);
+  ++r.m;
+}
+
+// The rows of frame_rows() (frame_constraints.cpp, rows_for) in the same order.
+void row_values(const NumericFrameSpec& f, const FrameState& a, const FrameState& b, RowValues& r) {
+  r.m = 0;
+  r.phi.setZero();
+  r.Q.setZero();
+  r.D.setZero();
+  switch (f.kind) {
+    case K::weld:
+      position_rows(a, b, r);
+      weld_row(a, b, 2, 1, r);  // (R[7] − R[5]) / 2
+      weld_row(a, b, 0, 2, r);  // (R[2] − R[6]) / 2
+      weld_row(a, b, 1, 0, r);  // (R[3] − R[1]) / 2
+      break;
+    case K::ball:
+      position_rows(a, b, r);
+      break;
+    case K::hinge: {
+      position_rows(a, b, r);
+      const auto [n1, n2] = perpendicular_pair(f.axis);
+      hinge_row(a, b, f.axis, n1, r);
+      hinge_row(a, b, f.axis, n2, r);
+      break;
+    }
+    case K::level:
+      if (f.vertical) {
+        const auto [e1, e2] = perpendicular_pair(f.up);
+        level_row(a, f.axis, e1, r);
+        level_row(a, f.axis, e2, r);
+      } else {
+        level_row(a, f.axis, f.up, r);
+      }
+      break;
+    case K::distance: {
+      const Eigen::Vector3d d = a.p - b.p, dd = a.pd - b.pd;
+      r.phi(0) = 0.5 * (d.dot(d) - f.length * f.length);
+      for (int k = 0; k < 3; ++k) {
+        r.D(0, kPa + k) = d(k);
+        r.D(0, kPb + k) = -d(k);
+      }
+      r.Q(0) = dd.dot(dd);
+      r.m = 1;
+      break;
+    }
+  }
+}
+
+std::vector<std::string> row_names(const NumericFrameSpec& f) {
+  const std::string& p = f.name;
+  std::vector<std::string> n;
+  auto position = [&] {
+    for (const char* a : {"_x", "_y", "_z"}) n.push_back(p + a);
+  };
+  switch (f.kind) {
+    case K::weld:
+      position();
+      for (const char* a : {"_rx", "_ry", "_rz"}) n.push_back(p + a);
+      break;
+    case K::ball:
+      position();
+      break;
+    case K::hinge:
+      position();
+      n.push_back(p + "_n1");
+      n.push_back(p + "_n2");
+      break;
+    case K::level:
+      if (f.vertical) {
+        n.push_back(p + "_v1");
+        n.push_back(p + "_v2");
+      } else {
+        n.push_back(p);
+      }
+      break;
+    case K::distance:
+      n.push_back(p);
+      break;
+  }
+  return n;
+}
+
+// One end, ready to evaluate: its columns in q and, for an expressions end, its tape:
+// p (3), R (9), ∂p/∂q_c (3 per column), ∂R/∂q_c (9 per column), p̈|q̈=0 (3), R̈|q̈=0 (9).
+struct End {
+  NumericFrameEnd spec;
+  std::vector<Index> cols;
+  Tape tape;
+  Index scratch = 0;  // doubles of slot it needs besides dp, dR: tree workspace or tape work+out
+};
+
+End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTable& table,
+             const std::string& frame) {
+  End end;
+  end.spec = std::move(e);
+  const NumericFrameEnd& s = end.spec;
+  if (s.kind == NumericFrameEnd::Kind::tree) {
+    for (Index j = 0; j < s.tree->dof(); ++j) end.cols.push_back(s.first_coordinate + j);
+    end.scratch = s.tree->slot_size();
+  } else if (s.kind == NumericFrameEnd::Kind::expressions) {
+    const InputMap in = coordinate_inputs(table, coords, InputSet::q_qd_time);
+    std::vector<ex> x;
+    for (const ex& v : s.pose.position) x.push_back(v);
+    for (const ex& v : s.pose.rotation) x.push_back(v);
+    const GiNaC::symbol t = time_symbol(table);
+    for (const ex& v : x) {
+      if (v.has(t)) throw DefinitionError("frame '" + frame + "' moves with t: not supported here");
+    }
+    std::vector<GiNaC::symbol> q, qd;
+    for (std::size_t j = 0; j < coords.size(); ++j) {
+      const GiNaC::symbol qj = coordinate_symbol(table, coords[j]);
+      if (std::any_of(x.begin(), x.end(), [&](const ex& v) { return v.has(qj); })) {
+        end.cols.push_back(static_cast<Index>(j));
+        q.push_back(qj);
+        qd.push_back(velocity_symbol(table, coords[j]));
+      }
+    }
+    std::vector<ex> out = x;
+    std::vector<std::vector<ex>> dx(q.size());
+    for (std::size_t c = 0; c < q.size(); ++c) {
+      for (const ex& v : x) dx[c].push_back(v.diff(q[c]));
+      out.insert(out.end(), dx[c].begin(), dx[c].end());
+    }
+    // ẍ|q̈=0 = Σ_c (Σ_d ∂²x/∂q_c∂q_d q̇_d) q̇_c.
+    for (std::size_t i = 0; i < x.size(); ++i) {
+      ex acc = 0;
+      for (std::size_t c = 0; c < q.size(); ++c) {
+        ex rate = 0;
+        for (std::size_t d = 0; d < q.size(); ++d) rate += dx[c][i].diff(q[d]) * qd[d];
+        acc += rate * qd[c];
+      }
+      out.push_back(acc.expand());
+    }
+    end.tape = Tape(out, in);
+    end.scratch = static_cast<Index>(end.tape.work_size() + end.tape.outputs());
+  }
+  return end;
+}
+
+// The ends' state at (q, q̇), with `scratch` (End::scratch doubles) for the tree or the tape.
+void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState& s) {
+  const NumericFrameEnd& spec = e.spec;
+  switch (spec.kind) {
+    case NumericFrameEnd::Kind::fixed:
+      s.p = spec.offset_p;
+      s.R = spec.offset_R;
+      s.pd.setZero();
+      s.pdd.setZero();
+      s.Rd.setZero();
+      s.Rdd.setZero();
+      return;
+    case NumericFrameEnd::Kind::tree: {
+      const Index n = spec.tree->dof();
+      spec.tree->frame_state(q.segment(spec.first_coordinate, n),
+                             qd.segment(spec.first_coordinate, n), spec.link, spec.offset_R,
+                             spec.offset_p, Slot(scratch, static_cast<std::size_t>(e.scratch)), s);
+      return;
+    }
+    case NumericFrameEnd::Kind::expressions: {
+      double* out = scratch + e.tape.work_size();
+      e.tape.eval(0.0, q.data(), qd.data(), out, scratch);
+      const auto nc = static_cast<Index>(e.cols.size());
+      for (int i = 0; i < 3; ++i) s.p(i) = out[i];
+      for (int i = 0; i < 9; ++i) s.R(i / 3, i % 3) = out[3 + i];
+      s.pd.setZero();
+      s.Rd.setZero();
+      for (Index c = 0; c < nc; ++c) {
+        const double* d = out + 12 * (c + 1);
+        const double v = qd(e.cols[static_cast<std::size_t>(c)]);
+        for (int i = 0; i < 3; ++i) s.dp(i, c) = d[i];
+        for (int i = 0; i < 9; ++i) s.dR(i, c) = d[3 + i];
+        for (int i = 0; i < 3; ++i) s.pd(i) += d[i] * v;
+        for (int i = 0; i < 9; ++i) s.Rd(i / 3, i % 3) += d[3 + i] * v;
+      }
+      const double* acc = out + 12 * (nc + 1);
+      for (int i = 0; i < 3; ++i) s.pdd(i) = acc[i];
+      for (int i = 0; i < 9; ++i) s.Rdd(i / 3, i % 3) = acc[3 + i];
+      return;
+    }
+  }
+}
+
+// G (m × 6) of one end: [∂Φ/∂p, Σ_rc ∂Φ/∂R_rc ([e_k]× R)_rc].
+void twist_map(const RowValues& r, const Eigen::Matrix3d& R, int p0, int r0, MatRef G) {
+  for (int i = 0; i < r.m; ++i) {
+    for (int k = 0; k < 3; ++k) G(i, k) = r.D(i, p0 + k);
+    for (int k = 0; k < 3; ++k) {
+      Eigen::Vector3d e = Eigen::Vector3d::Zero();
+      e(k) = 1.0;
+      Eigen::Matrix3d E;
+      E << 0.0, -e.z(), e.y(), e.z(), 0.0, -e.x(), -e.y(), e.x(), 0.0;
+      const Eigen::Matrix3d ER = E * R;
+      double s = 0.0;
+      for (int c = 0; c < 9; ++c) s += r.D(i, r0 + c) * ER(c / 3, c % 3);
+      G(i, 3 + k) = s;
+    }
+  }
+}
+
+// [v; ω] = J q̇ of one end over all n coordinates: ω from ∂R/∂q_c Rᵀ = [ω_c]×.
+void twist_jacobian(const FrameState& s, const std::vector<Index>& cols, Index n, Mat& J) {
+  J.setZero(6, n);
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    Eigen::Matrix3d dR;
+    for (int i = 0; i < 9; ++i) dR(i / 3, i % 3) = s.dR(i, ci);
+    const Eigen::Matrix3d W = dR * s.R.transpose();
+    J.block<3, 1>(0, cols[c]) = s.dp.col(ci);
+    J(3, cols[c]) = W(2, 1);
+    J(4, cols[c]) = W(0, 2);
+    J(5, cols[c]) = W(1, 0);
+  }
+}
+
+// A(:, cols) += D_end ∂x_end/∂q over one end's columns.
+void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues& r, int p0,
+                 int r0, MatRef A) {
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    for (int i = 0; i < r.m; ++i) {
+      double v = 0.0;
+      for (int k = 0; k < 3; ++k) v += r.D(i, p0 + k) * s.dp(k, ci);
+      for (int k = 0; k < 9; ++k) v += r.D(i, r0 + k) * s.dR(k, ci);
+      A(i, cols[c]) += v;
+    }
+  }
+}
+
+// What the constraint and its wrench map share: the spec, the two ends and the slot layout.
+class Core {
+ public:
+  Core(NumericFrameSpec f, End a, End b) : f_(std::move(f)), a_(std::move(a)), b_(std::move(b)) {
+    names_ = row_names(f_);
+    std::set<Index> all(a_.cols.begin(), a_.cols.end());
+    all.insert(b_.cols.begin(), b_.cols.end());
+    cols_.assign(all.begin(), all.end());
+  }
+  [[nodiscard]] const NumericFrameSpec& spec() const { return f_; }
+  [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
+  [[nodiscard]] const std::vector<Index>& columns() const { return cols_; }
+  [[nodiscard]] Index slot_size() const {
+    return a_.scratch + b_.scratch + 12 * static_cast<Index>(a_.cols.size() + b_.cols.size());
+  }
+
+  // The two ends' states and the rows at (q, q̇) with `slot` (slot_size() doubles); f gets
+  // (a, b, rows).
+  template <class F>
+  void with(CVecRef q, CVecRef qd, Slot slot, F&& f) const {
+    std::vector<double> own;
+    double* base = slot.data();
+    if (static_cast<Index>(slot.size()) < slot_size()) {
+      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+      base = own.data();
+    }
+    const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
+    double* sa = base;
+    double* sb = sa + a_.scratch;
+    double* da = sb + b_.scratch;
+    double* db = da + 12 * na;
+    FrameState A(da, da + 3 * na, na), B(db, db + 3 * nb, nb);
+    end_state(a_, q, qd, sa, A);
+    end_state(b_, q, qd, sb, B);
+    RowValues r;
+    row_values(f_, A, B, r);
+    f(A, B, r);
+  }
+
+  // A = D ∂x/∂q over the ends' columns (rows of A zeroed first).
+  void jacobian(const FrameState& a, const FrameState& b, const RowValues& r, MatRef A) const {
+    zero_rows(A);
+    add_columns(a, a_.cols, r, kPa, kRa, A);
+    add_columns(b, b_.cols, r, kPb, kRb, A);
+  }
+
+  [[nodiscard]] const End& a() const { return a_; }
+  [[nodiscard]] const End& b() const { return b_; }
+
+ private:
+  NumericFrameSpec f_;
+  End a_, b_;
+  std::vector<std::string> names_;
+  std::vector<Index> cols_;
+};
+
+// ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
+Eigen::Matrix<double, 24, 1> rates(const FrameState& a, const FrameState& b, bool second) {
+  Eigen::Matrix<double, 24, 1> x;
+  const Eigen::Vector3d& pa = second ? a.pdd : a.pd;
+  const Eigen::Vector3d& pb = second ? b.pdd : b.pd;
+  const Eigen::Matrix3d& Ra = second ? a.Rdd : a.Rd;
+  const Eigen::Matrix3d& Rb = second ? b.Rdd : b.Rd;
+  for (int k = 0; k < 3; ++k) {
+    x(kPa + k) = pa(k);
+    x(kPb + k) = pb(k);
+  }
+  for (int k = 0; k < 9; ++k) {
+    x(kRa + k) = Ra(k / 3, k % 3);
+    x(kRb + k) = Rb(k / 3, k % 3);
+  }
+  return x;
+}
+
+class NumericFrameRows final : public Constraint {
+ public:
+  explicit NumericFrameRows(std::shared_ptr<const Core> core) : core_(std::move(core)) {}
+  [[nodiscard]] Index rows() const override { return static_cast<Index>(core_->names().size()); }
+  [[nodiscard]] const std::vector<std::string>& row_names() const override {
+    return core_->names();
+  }
+  [[nodiscard]] Index slot_size() const override { return core_->slot_size(); }
+  [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override {
+    return std::vector<std::vector<Index>>(static_cast<std::size_t>(rows()), core_->columns());
+  }
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
+                VecRef b) const override {
+    core_->with(q, qd, ctx.slots.own(),
+                [&](const FrameState& sa, const FrameState& sb, const RowValues& r) {
+                  core_->jacobian(sa, sb, r, A);
+                  b = -(r.D.topRows(r.m) * rates(sa, sb, true) + r.Q.head(r.m));
+                });
+  }
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
+    // The rates are not used: q stands in for q̇.
+    core_->with(
+        q, q, ctx.slots.own(),
+        [&](const FrameState&, const FrameState&, const RowValues& r) { phi = r.phi.head(r.m); });
+  }
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                         VecRef phid) const override {
+    core_->with(q, qd, ctx.slots.own(),
+                [&](const FrameState& sa, const FrameState& sb, const RowValues& r) {
+                  phid = r.D.topRows(r.m) * rates(sa, sb, false);
+                });
+  }
+
+ private:
+  std::shared_ptr<const Core> core_;
+};
+
+class NumericFrameWrenches final : public FrameWrenches {
+ public:
+  NumericFrameWrenches(std::shared_ptr<const Core> core, Index n)
+      : FrameWrenches(core->spec().name, core->spec().frame_a, core->spec().frame_b,
+                      core->spec().kind, static_cast<Index>(core->names().size())),
+        core_(std::move(core)),
+        n_(n) {}
+  using FrameWrenches::evaluate;
+  [[nodiscard]] Workspace workspace() const override {
+    return Workspace{std::vector<double>(static_cast<std::size_t>(core_->slot_size())),
+                     {},
+                     Mat(rows(), 6),
+                     Mat(rows(), 6)};
+  }
+  void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const override {
+    core_->with(q, q, Slot(ws.out),
+                [&](const FrameState& a, const FrameState& b, const RowValues& r) {
+                  twist_map(r, a.R, kPa, kRa, ws.Ga);
+                  twist_map(r, b.R, kPb, kRb, ws.Gb);
+                  w.position_a = a.p;
+                  w.rotation_a = a.R;
+                  w.position_b = b.p;
+                  w.rotation_b = b.R;
+                });
+    wrench_from_maps(ws.Ga, ws.Gb, lambda, w);
+  }
+  void maps(const Vec& q, Mat& Ga, Mat& Gb) const override {
+    Ga.resize(rows(), 6);
+    Gb.resize(rows(), 6);
+    core_->with(q, q, {}, [&](const FrameState& a, const FrameState& b, const RowValues& r) {
+      twist_map(r, a.R, kPa, kRa, Ga);
+      twist_map(r, b.R, kPb, kRb, Gb);
+    });
+  }
+  void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const override {
+    core_->with(q, q, {}, [&](const FrameState& a, const FrameState& b, const RowValues&) {
+      twist_jacobian(a, core_->a().cols, n_, Ja);
+      twist_jacobian(b, core_->b().cols, n_, Jb);
+    });
+  }
+
+ private:
+  std::shared_ptr<const Core> core_;
+  Index n_;
+};
+
+}  // namespace
+
+std::pair<Eigen::Vector3d, Eigen::Vector3d> perpendicular_pair(const Eigen::Vector3d& u) {
+  int k = 0;
+  double best = 2.0;
+  for (int i = 0; i < 3; ++i) {
+    const double c = std::abs(u(i));
+    if (c < best - 1e-12) {
+      best = c;
+      k = i;
+    }
+  }
+  Eigen::Vector3d e = Eigen::Vector3d::Zero();
+  e(k) = 1.0;
+  const Eigen::Vector3d n1 = u.cross(e).normalized();
+  return {n1, u.cross(n1)};
+}
+
+std::shared_ptr<FrameConstraint> make_numeric_frame_constraint(
+    const NumericFrameSpec& f, NumericFrameEnd a, NumericFrameEnd b,
+    const std::vector<std::string>& system_coordinates, std::shared_ptr<SymbolTable> symbols) {
+  const bool needs_rotation = f.kind == K::weld || f.kind == K::hinge || f.kind == K::level;
+  for (const auto* e : {&a, &b}) {
+    if (needs_rotation && e->kind == NumericFrameEnd::Kind::expressions && !e->pose.has_rotation &&
+        (e == &a || f.kind != K::level)) {
+      throw DefinitionError(std::string("a ") + to_string(f.kind) +
+                            " needs the orientation of frame '" +
+                            (e == &a ? f.frame_a : f.frame_b) +
+                            "', but it has none (a body without `rotation`: use ball or distance, "
+                            "or give the body a rotation)");
+    }
+  }
+  End ea = make_end(std::move(a), system_coordinates, *symbols, f.frame_a);
+  End eb = make_end(std::move(b), system_coordinates, *symbols, f.frame_b);
+  auto core = std::make_shared<const Core>(f, std::move(ea), std::move(eb));
+  return std::make_shared<FrameConstraint>(
+      std::make_shared<NumericFrameRows>(core),
+      std::make_shared<NumericFrameWrenches>(core, static_cast<Index>(system_coordinates.size())));
+}
+
+}  // namespace ukdyn::symbolic
