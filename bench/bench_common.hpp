@@ -47,6 +47,9 @@ struct ViolationRow {
 
 /// ukdyn benchmarks (bench_ukdyn.cpp).
 void register_ukdyn_benchmarks();
+/// Real arms on the tree algorithms, long chains, and the shipped multi-arm scenarios
+/// (bench_tree.cpp).
+void register_tree_benchmarks();
 /// Runs the 4 s closure-only free motions of ukdyn; also fills the reference state at t = 0.5 s.
 std::vector<ViolationRow> ukdyn_violation_rows(bool spatial, std::vector<double>& q_ref_05);
 

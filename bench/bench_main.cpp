@@ -196,6 +196,16 @@ void print_summary(const Timings& ts) {
   print_ratio(ts, "model only: closure A, b from definitions / closed form",
               "Symbolic_ClosureDerived", "Symbolic_ClosureClosedForm");
 
+  for (const std::string robot : {"panda", "ur5e"}) {
+    print_ratio(ts, robot + ": mj_forward / ukdyn tree forward (same MJCF)",
+                "mujoco/" + robot + "_mj_forward", "tree/" + robot + "_forward", 2.0);
+  }
+  for (const std::string n : {"15", "30", "60"}) {
+    print_ratio(ts, "chain " + n + " / 7 links: M (CRBA)", "tree/chain_" + n + "_mass",
+                "tree/chain_7_mass");
+    print_ratio(ts, "chain " + n + " / 7 links: C qd + G (RNEA)", "tree/chain_" + n + "_bias",
+                "tree/chain_7_bias");
+  }
   if (const Timing* f = find(ts, "forward/closure"))
     std::printf("  %-64s %s (target <= 1 us: %s)\n", "ukdyn forward (closure), absolute",
                 fmt_time(f->median).c_str(), f->median <= 1e3 ? "met" : "NOT met");
@@ -275,6 +285,7 @@ int main(int argc, char** argv) {
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
 
   ukbench::register_ukdyn_benchmarks();
+  ukbench::register_tree_benchmarks();
 #ifdef UKDYN_BENCH_HAVE_MUJOCO
   ukbench::register_mujoco_benchmarks();
 #endif

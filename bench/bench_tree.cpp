@@ -1,0 +1,198 @@
+// Real arms on the recursive tree algorithms (docs/tree-algorithms.md), side by side with MuJoCo
+// on the same MJCF file (robots/panda.xml, robots/ur5e.xml):
+//   tree/<robot>_dynamics      M, C q̇, G (TreeSubsystem::dynamics, the caller's slot)
+//   tree/<robot>_forward       q̈ of the unconstrained arm (forward(): dynamics + solve)
+//   mujoco/<robot>_mj_forward  mj_forward on the same file (MuJoCo's CRB + RNE + factorisation)
+//   tree/chain_<N>_mass, _bias M and C q̇ + G of an N-link spatial chain (cost against N)
+//   scenario/<name>_forward    forward() of a shipped scenario at its initial state (the arms on
+//                              trees, their welds to the load numeric), when built with io
+#include <benchmark/benchmark.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "bench_common.hpp"
+#include "ukdyn/model/system.hpp"
+#include "ukdyn/robot_files/mjcf.hpp"
+#include "ukdyn/symbolic/chain_tree.hpp"
+#include "ukdyn/tree/tree.hpp"
+
+#ifdef UKDYN_BENCH_HAVE_MUJOCO
+#include <mujoco/mujoco.h>
+#endif
+#ifdef UKDYN_BENCH_HAVE_IO
+#include "ukdyn/scenario/scenario.hpp"
+#endif
+
+namespace ukbench {
+namespace {
+
+namespace sym = ukdyn::symbolic;
+using ukdyn::Index;
+using ukdyn::Mat;
+using ukdyn::Vec;
+
+std::string robot_file(const std::string& robot, const char* ext) {
+  return std::string(UKDYN_BENCH_SOURCE_DIR) + "/robots/" + robot + "." + ext;
+}
+
+std::shared_ptr<const ukdyn::tree::TreeSubsystem> robot_tree(const std::string& robot, int dof) {
+  std::vector<std::string> q;
+  for (int i = 1; i <= dof; ++i) q.push_back("q" + std::to_string(i));
+  sym::ChainDef c(robot, q);
+  sym::append_mjcf(c, robot_file(robot, "xml"), /*gravity=*/true);
+  sym::ChainTree t = sym::chain_tree(c);
+  if (!t.model) throw ukdyn::Error(robot + ": " + t.reason);
+  return ukdyn::tree::make_subsystem(std::move(*t.model));
+}
+
+// A state away from every symmetry.
+void state(Index n, Vec& q, Vec& qd) {
+  q.resize(n);
+  qd.resize(n);
+  for (Index i = 0; i < n; ++i) {
+    q[i] = 0.3 + 0.17 * static_cast<double>(i);
+    qd[i] = 0.5 - 0.11 * static_cast<double>(i);
+  }
+}
+
+void register_robot(const std::string& robot, int dof) {
+  benchmark::RegisterBenchmark(("tree/" + robot + "_dynamics").c_str(),
+                               [robot, dof](benchmark::State& st) {
+                                 const auto t = robot_tree(robot, dof);
+                                 Vec q, qd, Cqd(dof), G(dof);
+                                 state(dof, q, qd);
+                                 Mat M(dof, dof);
+                                 std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+                                 for (auto _ : st) {
+                                   t->dynamics({0.0, ukdyn::Slot(slot)}, q, qd, M, Cqd, G);
+                                   benchmark::DoNotOptimize(M.data());
+                                   benchmark::DoNotOptimize(Cqd.data());
+                                 }
+                               });
+  benchmark::RegisterBenchmark(("tree/" + robot + "_forward").c_str(),
+                               [robot, dof](benchmark::State& st) {
+                                 ukdyn::System sys;
+                                 sys.add_subsystem(robot_tree(robot, dof));
+                                 ukdyn::ForwardData data(sys);
+                                 Vec q, qd;
+                                 state(dof, q, qd);
+                                 const Vec tau = Vec::Zero(dof);
+                                 for (auto _ : st) {
+                                   ukdyn::forward(sys, data, 0.0, q, qd, tau);
+                                   benchmark::DoNotOptimize(data.qdd.data());
+                                 }
+                               });
+#ifdef UKDYN_BENCH_HAVE_MUJOCO
+  benchmark::RegisterBenchmark(("mujoco/" + robot + "_mj_forward").c_str(),
+                               [robot, dof](benchmark::State& st) {
+                                 char err[1000] = "";
+                                 const std::string f = robot_file(robot, "xml");
+                                 mjModel* m = mj_loadXML(f.c_str(), nullptr, err, sizeof err);
+                                 if (m == nullptr) {
+                                   st.SkipWithError(err);
+                                   return;
+                                 }
+                                 mjData* d = mj_makeData(m);
+                                 Vec q, qd;
+                                 state(dof, q, qd);
+                                 for (int i = 0; i < dof; ++i) {
+                                   d->qpos[i] = q[i];
+                                   d->qvel[i] = qd[i];
+                                 }
+                                 for (auto _ : st) {
+                                   mj_forward(m, d);
+                                   benchmark::DoNotOptimize(d->qacc);
+                                 }
+                                 mj_deleteData(d);
+                                 mj_deleteModel(m);
+                               });
+#endif
+}
+
+// An N-link spatial chain: revolute joints about z and y in turn, 0.3 m apart along x.
+std::shared_ptr<const ukdyn::tree::TreeSubsystem> chain(int n) {
+  ukdyn::tree::Model m;
+  m.name = "chain";
+  m.gravity = {0, 0, -9.81};
+  for (int i = 0; i < n; ++i) {
+    m.coordinates.push_back("q" + std::to_string(i));
+    ukdyn::tree::Link l;
+    l.name = "l" + std::to_string(i);
+    l.joint = "j" + std::to_string(i);
+    l.parent = i - 1;
+    l.type = ukdyn::tree::JointType::revolute;
+    l.axis = i % 2 == 0 ? Eigen::Vector3d::UnitZ() : Eigen::Vector3d::UnitY();
+    l.origin_translation = {i == 0 ? 0.0 : 0.3, 0, 0};
+    l.terms = {{i, 1.0}};
+    l.mass = 1.0;
+    l.com = {0.15, 0, 0};
+    l.inertia = Eigen::Vector3d(0.01, 0.02, 0.02).asDiagonal();
+    m.links.push_back(l);
+  }
+  return ukdyn::tree::make_subsystem(std::move(m));
+}
+
+void register_chains() {
+  for (int n : {7, 15, 30, 60}) {
+    benchmark::RegisterBenchmark(("tree/chain_" + std::to_string(n) + "_mass").c_str(),
+                                 [n](benchmark::State& st) {
+                                   const auto t = chain(n);
+                                   Vec q, qd;
+                                   state(n, q, qd);
+                                   Mat M(n, n);
+                                   std::vector<double> slot(
+                                       static_cast<std::size_t>(t->slot_size()));
+                                   for (auto _ : st) {
+                                     t->mass({0.0, ukdyn::Slot(slot)}, q, M);
+                                     benchmark::DoNotOptimize(M.data());
+                                   }
+                                 });
+    benchmark::RegisterBenchmark(("tree/chain_" + std::to_string(n) + "_bias").c_str(),
+                                 [n](benchmark::State& st) {
+                                   const auto t = chain(n);
+                                   Vec q, qd, c(n), G(n);
+                                   state(n, q, qd);
+                                   std::vector<double> slot(
+                                       static_cast<std::size_t>(t->slot_size()));
+                                   for (auto _ : st) {
+                                     t->coriolis_times_qd({0.0, ukdyn::Slot(slot)}, q, qd, c);
+                                     t->gravity({0.0, ukdyn::Slot(slot)}, q, G);
+                                     benchmark::DoNotOptimize(c.data());
+                                   }
+                                 });
+  }
+}
+
+#ifdef UKDYN_BENCH_HAVE_IO
+void register_scenarios() {
+  for (const std::string name : {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld"}) {
+    benchmark::RegisterBenchmark(
+        ("scenario/" + name + "_forward").c_str(), [name](benchmark::State& st) {
+          const ukdyn::Scenario sc = ukdyn::load_scenario(std::string(UKDYN_BENCH_SOURCE_DIR) +
+                                                          "/scenarios/" + name + ".yaml");
+          const ukdyn::System& sys = *sc.system;
+          ukdyn::ForwardData data(sys);
+          const Vec tau = Vec::Zero(sys.dof());
+          for (auto _ : st) {
+            ukdyn::forward(sys, data, sc.sim.t0, sc.q0, sc.qd0, tau, sc.sim.uk);
+            benchmark::DoNotOptimize(data.qdd.data());
+          }
+        });
+  }
+}
+#endif
+
+}  // namespace
+
+void register_tree_benchmarks() {
+  register_robot("panda", 7);
+  register_robot("ur5e", 6);
+  register_chains();
+#ifdef UKDYN_BENCH_HAVE_IO
+  register_scenarios();
+#endif
+}
+
+}  // namespace ukbench
