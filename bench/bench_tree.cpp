@@ -8,6 +8,8 @@
 //                              trees, their welds to the load numeric), when built with io
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <memory>
 #include <string>
 #include <vector>
@@ -136,42 +138,56 @@ std::shared_ptr<const ukdyn::tree::TreeSubsystem> chain(int n) {
 
 void register_chains() {
   for (int n : {7, 15, 30, 60}) {
-    benchmark::RegisterBenchmark(("tree/chain_" + std::to_string(n) + "_mass").c_str(),
-                                 [n](benchmark::State& st) {
-                                   const auto t = chain(n);
-                                   Vec q, qd;
-                                   state(n, q, qd);
-                                   Mat M(n, n);
-                                   std::vector<double> slot(
-                                       static_cast<std::size_t>(t->slot_size()));
-                                   for (auto _ : st) {
-                                     t->mass({0.0, ukdyn::Slot(slot)}, q, M);
-                                     benchmark::DoNotOptimize(M.data());
-                                   }
-                                 });
-    benchmark::RegisterBenchmark(("tree/chain_" + std::to_string(n) + "_bias").c_str(),
-                                 [n](benchmark::State& st) {
-                                   const auto t = chain(n);
-                                   Vec q, qd, c(n), G(n);
-                                   state(n, q, qd);
-                                   std::vector<double> slot(
-                                       static_cast<std::size_t>(t->slot_size()));
-                                   for (auto _ : st) {
-                                     t->coriolis_times_qd({0.0, ukdyn::Slot(slot)}, q, qd, c);
-                                     t->gravity({0.0, ukdyn::Slot(slot)}, q, G);
-                                     benchmark::DoNotOptimize(c.data());
-                                   }
-                                 });
+    benchmark::RegisterBenchmark(
+        ("tree/chain_" + std::to_string(n) + "_mass").c_str(), [n](benchmark::State& st) {
+          const auto t = chain(n);
+          Vec q, qd;
+          state(n, q, qd);
+          Mat M(n, n);
+          std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+          for (auto _ : st) {
+            t->mass({0.0, ukdyn::Slot(slot)}, q, M);
+            benchmark::DoNotOptimize(M.data());
+          }
+        });
+    benchmark::RegisterBenchmark(
+        ("tree/chain_" + std::to_string(n) + "_bias").c_str(), [n](benchmark::State& st) {
+          const auto t = chain(n);
+          Vec q, qd, c(n), G(n);
+          state(n, q, qd);
+          std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+          for (auto _ : st) {
+            t->coriolis_times_qd({0.0, ukdyn::Slot(slot)}, q, qd, c);
+            t->gravity({0.0, ukdyn::Slot(slot)}, q, G);
+            benchmark::DoNotOptimize(c.data());
+          }
+        });
   }
 }
 
 #ifdef UKDYN_BENCH_HAVE_IO
+// The shipped multi-arm scenarios, and the files listed in UKDYN_BENCH_SCENARIOS (paths separated
+// by ':'; e.g. tools/n_robots.py 64 --weld > /tmp/n64.yaml for the N-robot scaling).
 void register_scenarios() {
-  for (const std::string name : {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld"}) {
+  std::vector<std::pair<std::string, std::string>> files;
+  for (const std::string name : {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld"})
+    files.emplace_back(name, std::string(UKDYN_BENCH_SOURCE_DIR) + "/scenarios/" + name + ".yaml");
+  if (const char* extra = std::getenv("UKDYN_BENCH_SCENARIOS")) {
+    std::string list = extra;
+    for (std::size_t a = 0; a < list.size();) {
+      const std::size_t b = std::min(list.find(':', a), list.size());
+      const std::string path = list.substr(a, b - a);
+      if (!path.empty()) {
+        const std::size_t slash = path.find_last_of('/');
+        files.emplace_back(path.substr(slash == std::string::npos ? 0 : slash + 1), path);
+      }
+      a = b + 1;
+    }
+  }
+  for (const auto& [name, path] : files) {
     benchmark::RegisterBenchmark(
-        ("scenario/" + name + "_forward").c_str(), [name](benchmark::State& st) {
-          const ukdyn::Scenario sc = ukdyn::load_scenario(std::string(UKDYN_BENCH_SOURCE_DIR) +
-                                                          "/scenarios/" + name + ".yaml");
+        ("scenario/" + name + "_forward").c_str(), [path](benchmark::State& st) {
+          const ukdyn::Scenario sc = ukdyn::load_scenario(path);
           const ukdyn::System& sys = *sc.system;
           ukdyn::ForwardData data(sys);
           const Vec tau = Vec::Zero(sys.dof());

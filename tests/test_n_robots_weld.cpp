@@ -9,12 +9,14 @@
 #include <gtest/gtest.h>
 
 #ifdef UKDYN_HAVE_IO
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <random>
 
 #include "ukdyn/core/constraint_forces.hpp"
-#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 #ifdef UKDYN_CLI
@@ -140,6 +142,44 @@ TEST(NRobotsWeld, GraspWrenchesObeyNewtonEulerAndDoNotSqueeze) {
     EXPECT_LE(c.weighted, 1e-9 * kMass * kG) << file;
     EXPECT_LE(c.null_walker, 1e-10) << file;
     EXPECT_LE(c.null_weighted, 1e-10) << file;
+  }
+}
+
+// The free-body load's quaternion block of M is singular at every state; forward() takes the O(N)
+// block-arrow solve in the augmented form (core/uk_singular.hpp, augment_singular_blocks) and puts
+// M and Q back. Against the dense singular solve of the same (M, A, b, Q): the same q̈ and Qc.
+TEST(NRobotsWeld, ArrowSolveOfTheSingularLoadMatchesTheDenseSolve) {
+  for (const char* file : {"n_robots_3_weld.yaml", "n_robots_4_weld.yaml"}) {
+    const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + file);
+    const auto& sys = *sc.system;
+    ASSERT_NE(sys.arrow(), nullptr) << file;
+    ForwardData d(sys);
+    ASSERT_TRUE(d.singular.any_structural) << file;
+    std::mt19937_64 rng(5);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int k = 0; k < 5; ++k) {
+      Vec qd(sys.dof()), tau(sys.dof());
+      for (Index i = 0; i < sys.dof(); ++i) {
+        qd(i) = u(rng);
+        tau(i) = 5.0 * u(rng);
+      }
+      ukdyn::forward(sys, d, 0.0, sc.q0, qd, tau, sc.sim.uk);
+      EXPECT_TRUE(d.used_arrow) << file;
+      EXPECT_TRUE(d.singular.active) << file;
+      // The dense singular solve on what forward() left in d (M and Q as evaluated: put back).
+      ukdyn::UkWorkspace ws(sys.layout(), sys.rows());
+      ukdyn::UkSingularWorkspace sw(sys.layout(), sys.rows());
+      sw.structural = d.singular.structural;
+      sw.any_structural = true;
+      Vec qdd(sys.dof()), Qc(sys.dof());
+      const auto r = ukdyn::uk_solve_singular(d.M, d.A, d.b, d.Q, ws, sw, qdd, Qc, sc.sim.uk);
+      ASSERT_TRUE(r.finite) << file;
+      EXPECT_LE((qdd - d.qdd).norm(), 1e-10 * std::max(1.0, qdd.norm())) << file;
+      EXPECT_LE((Qc - d.Qc).norm(), 1e-10 * std::max(1.0, Qc.norm())) << file;
+      // M is the subsystems' (block-diagonal, the load's block singular), not the augmented one.
+      Mat Mk = d.M.bottomRightCorner(7, 7);
+      EXPECT_LT(Eigen::SelfAdjointEigenSolver<Mat>(Mk).eigenvalues()(0), 1e-10);
+    }
   }
 }
 

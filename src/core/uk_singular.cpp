@@ -13,6 +13,7 @@ UkSingularWorkspace::UkSingularWorkspace(const BlockLayout& layout, Index m)
       Qa(Vec::Zero(layout.dof())),
       scratch(Mat::Zero(layout.dof(), layout.dof())),
       row_block(static_cast<std::size_t>(m), -1),
+      own_rows(layout.blocks()),
       structural(layout.blocks(), 0),
       dense(BlockLayout::single(layout.dof()), m) {}
 
@@ -157,6 +158,48 @@ UkResult uk_solve_singular(const Mat& M, const Mat& A, const Vec& b, const Vec& 
   sw.cond_block = 0;
   sw.cond_estimate = mass_condition_estimate(sw.Ma, sw.dense);
   return uk_solve_factored(A, b, sw.Qa, sw.dense, qdd, Qc, settings);
+}
+
+void augmented_blocks(const BlockLayout& lay, const Mat& A, const Vec& b,
+                      const UkSingularWorkspace& sw, Mat& M, Vec& Q) {
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    if (!sw.structural[k]) continue;
+    const Index s = lay.start[k], nk = lay.size[k];
+    double scale = max_diagonal(M, s, nk);
+    if (!(scale > 0.0)) scale = 1.0;
+    for (const Index i : sw.own_rows[k]) augment_row(A, b, i, s, nk, scale, M, Q);
+  }
+}
+
+bool augment_singular_blocks(const BlockLayout& lay, const Mat& A, const Vec& b, Mat& M, Vec& Q,
+                             UkSingularWorkspace& sw) {
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    if (!sw.structural[k]) continue;
+    const Index s = lay.start[k], nk = lay.size[k];
+    sw.scratch.block(s, s, nk, nk) = M.block(s, s, nk, nk);
+    sw.Qa.segment(s, nk) = Q.segment(s, nk);
+  }
+  augmented_blocks(lay, A, b, sw, M, Q);
+  bool ok = true;
+  for (std::size_t k = 0; k < lay.blocks() && ok; ++k) {
+    if (!sw.structural[k]) continue;
+    const Index s = lay.start[k], nk = lay.size[k];
+    // A block with no row of its own stays singular. (sw.Ma as the trial factor's scratch: the
+    // dense path sets it again before using it.)
+    ok = !sw.own_rows[k].empty() && trial_factor(M, sw.Ma, s, nk) >= kSingularPivot;
+  }
+  if (!ok) restore_singular_blocks(lay, M, Q, sw);
+  return ok;
+}
+
+void restore_singular_blocks(const BlockLayout& lay, Mat& M, Vec& Q,
+                             const UkSingularWorkspace& sw) {
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    if (!sw.structural[k]) continue;
+    const Index s = lay.start[k], nk = lay.size[k];
+    M.block(s, s, nk, nk) = sw.scratch.block(s, s, nk, nk);
+    Q.segment(s, nk) = sw.Qa.segment(s, nk);
+  }
 }
 
 std::string undetermined_direction(const Mat& M, const Mat& A,

@@ -6,6 +6,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+
 #include "model/solve_stages.hpp"
 
 namespace ukdyn {
@@ -141,6 +142,14 @@ ForwardData::ForwardData(const System& system)
     singular.structural[k] = singular_everywhere ? 1 : 0;
     singular.any_structural = singular.any_structural || singular_everywhere;
   }
+  // The rows in one block alone, for the arrow solve of a singular block (augment_singular_blocks).
+  if (system.arrow()) {
+    const auto& rb = system.row_blocks();
+    for (std::size_t i = 0; i < rb.size(); ++i) {
+      if (rb[i].size() == 1)
+        singular.own_rows[static_cast<std::size_t>(rb[i][0])].push_back(static_cast<Index>(i));
+    }
+  }
 }
 
 Slot ForwardData::subsystem_slot(std::size_t k) {
@@ -223,7 +232,7 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
 }
 
 bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings) {
-  return system.arrow() && data.arrow.built() && !data.singular.any_structural &&
+  return system.arrow() && data.arrow.built() &&
          (settings.method == UkMethod::exact || settings.method == UkMethod::adaptive);
 }
 
@@ -232,18 +241,32 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
   // solve stays the fallback (other methods, H or M not positive definite). The adaptive method's
   // damping lives in the dense solve: an arrow result whose smallest kept pivot falls inside the
   // adaptive band is redone densely (the pivots of the pieces stand for the singular values).
+  // Structurally singular blocks (a free-body load's quaternion block) take the arrow solve in
+  // the augmented form (core/uk_singular.hpp, augment_singular_blocks), M and Q put back after.
   data.used_arrow = false;
-  if (arrow_applies(system, data, settings) && factor_mass(data.M, data.uk) &&
-      mass_factor_regular(data.M, data.uk) &&
-      uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow, data.qdd,
-                     data.Qc, settings, data.result)) {
-    const bool in_band =
-        settings.method == UkMethod::adaptive &&
-        data.result.sigma_min_kept <
-            settings.adaptive_band * settings.regularization * data.result.sigma_max;
-    if (!in_band) {
+  UkSingularWorkspace& sw = data.singular;
+  const bool augment = sw.any_structural;
+  if (arrow_applies(system, data, settings) &&
+      (!augment || augment_singular_blocks(system.layout(), data.A, data.b, data.M, data.Q, sw))) {
+    bool done = false;
+    if (factor_mass(data.M, data.uk) && mass_factor_regular(data.M, data.uk) &&
+        uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow,
+                       data.qdd, data.Qc, settings, data.result)) {
+      const bool in_band =
+          settings.method == UkMethod::adaptive &&
+          data.result.sigma_min_kept <
+              settings.adaptive_band * settings.regularization * data.result.sigma_max;
+      done = !in_band;
+    }
+    if (augment) {
+      if (done) sw.cond_estimate = mass_condition_estimate(data.M, data.uk, &sw.cond_block);
+      restore_singular_blocks(system.layout(), data.M, data.Q, sw);
+    }
+    if (done) {
       data.used_arrow = true;
-      data.singular.active = false;
+      sw.active = augment;  // mass_condition() then reports the augmented blocks' estimate
+      sw.dense_used = false;
+      sw.rank_deficient = false;
       return;
     }
   }
@@ -269,6 +292,15 @@ double mass_condition(const ForwardData& data, std::size_t* block) {
                                         : data.singular.cond_estimate;
   }
   return mass_condition_estimate(data.M, data.uk, block);
+}
+
+Mat solved_mass(const System& system, const ForwardData& data) {
+  if (!data.singular.active) return data.M;
+  if (!data.used_arrow) return data.singular.Ma;
+  Mat Ma = data.M;
+  Vec Qa = data.Q;
+  augmented_blocks(system.layout(), data.A, data.b, data.singular, Ma, Qa);
+  return Ma;
 }
 
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,

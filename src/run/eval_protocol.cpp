@@ -109,7 +109,8 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   if (data.singular.rank_deficient) {
     throw Error(undetermined_direction(data.M, data.A, sys.coordinate_names()));
   }
-  const Eigen::LLT<Mat> llt(data.singular.active ? data.singular.Ma : data.M);
+  const Mat Ms = solved_mass(sys, data);  // M, or the augmented M_a the solve used
+  const Eigen::LLT<Mat> llt(Ms);
   if (llt.info() != Eigen::Success) {
     throw Error("the mass matrix M is singular (not positive definite) at this state");
   }
@@ -140,7 +141,7 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   out["consistent"] = data.result.consistent;
   if (sys.rows() > 0) {
     const Vec sv =  // of M_a = M + A^T alpha A when M is singular (core/uk_singular.hpp)
-        singular_values_A_Minvhalf(data.singular.active ? data.singular.Ma : data.M, data.A);
+        singular_values_A_Minvhalf(Ms, data.A);
     if (!all_finite(sv)) throw Error("non-finite singular values of A M^-1/2 at this state");
     out["singular_values"] = vec_of(sv);
   }

@@ -70,7 +70,7 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   row[k++] = static_cast<double>(n - d.result.rank);
   if (m > 0 && needs_.sigma) {
     // M singular (core/uk_singular.hpp): of the augmented M_a = M + A^T alpha A it solved with.
-    const Vec sv = singular_values_A_Minvhalf(d.singular.active ? d.singular.Ma : d.M, d.A);
+    const Vec sv = singular_values_A_Minvhalf(solved_mass(sys_, d), d.A);
     row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
   } else {
     row[k++] = 0.0;

@@ -43,6 +43,9 @@ struct UkSingularWorkspace {
   Vec Qa;                        ///< n: Q + Aᵀ α b
   Mat scratch;                   ///< n × n: trial factors
   std::vector<Index> row_block;  ///< m: the block holding all of row i's entries, or −1
+  /// Per block: the rows whose structural entries lie in that block alone (a free body's
+  /// unit-norm row), known when the system declared its sparsity: augment_singular_blocks().
+  std::vector<std::vector<Index>> own_rows;
   /// Per block: M_k is singular at every state (a free body's quaternion block, a massless link),
   /// found by ForwardData at three fixed pseudo-random states; such a block always takes the
   /// singular solve (a round-off pivot of an exactly singular M can pass any pivot threshold).
@@ -70,6 +73,23 @@ double mass_condition_estimate(const Mat& M, const UkWorkspace& ws, std::size_t*
 UkResult uk_solve_singular(const Mat& M, const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws,
                            UkSingularWorkspace& sw, Vec& qdd, Vec& Qc,
                            const UkSettings& settings = {});
+
+/// The block-arrow solve with structurally singular blocks (a free-body load on N robots,
+/// uk_arrow.hpp): each structural block k augmented in place with the rows that lie in it alone
+/// (sw.own_rows[k]), M_kk += A_kᵀ α A_k and Q_k += A_kᵀ α b — the augmented form above, which
+/// keeps M block-diagonal, so the arrow solve of (M_a, Q_a) gives the q̈ and Qc of (M, Q). The
+/// blocks' originals are kept in sw (sw.scratch, sw.Qa) for restore_singular_blocks(). Returns
+/// false, with M and Q unchanged, if a block has no such row or stays singular (the caller then
+/// takes uk_solve_singular). O(Σ n_k²) over the structural blocks; allocation-free.
+bool augment_singular_blocks(const BlockLayout& layout, const Mat& A, const Vec& b, Mat& M, Vec& Q,
+                             UkSingularWorkspace& sw);
+/// M_kk + A_kᵀ α A_k and Q_k + A_kᵀ α b on the structural blocks with their own rows, as
+/// augment_singular_blocks() forms them (no checks, nothing saved).
+void augmented_blocks(const BlockLayout& layout, const Mat& A, const Vec& b,
+                      const UkSingularWorkspace& sw, Mat& M, Vec& Q);
+/// Puts back the blocks of M and Q that augment_singular_blocks() changed.
+void restore_singular_blocks(const BlockLayout& layout, Mat& M, Vec& Q,
+                             const UkSingularWorkspace& sw);
 
 /// Empty if [M; A] has full column rank (smallest eigenvalue of M + Aᵀ α A above kSingularPivot of
 /// its largest); otherwise a message naming the coordinates of the undetermined direction.

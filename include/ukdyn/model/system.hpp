@@ -50,6 +50,9 @@ class System {
   /// (Constraint::row_columns()) as they are added; nullptr when A does not have one (or a
   /// constraint does not declare its sparsity). forward() then solves in O(N).
   [[nodiscard]] const ArrowStructure* arrow() const { return arrow_ ? &*arrow_ : nullptr; }
+  /// The blocks each constraint row touches (from Constraint::row_columns(), ascending); empty when
+  /// a constraint does not declare its sparsity.
+  [[nodiscard]] const std::vector<std::vector<Index>>& row_blocks() const { return row_blocks_; }
 
  private:
   std::vector<std::shared_ptr<const Subsystem>> subsystems_;
@@ -130,13 +133,17 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
 /// Largest Cholesky-pivot estimate of cond(M_k) over the blocks of the last solve in data (of M_a
 /// after a singular solve); `block` gets the worst block (docs/free-bodies.md).
 double mass_condition(const ForwardData& data, std::size_t* block = nullptr);
+/// The mass matrix the last solve used, for the singular values of A M^{-1/2} (the `sigma_min`
+/// column, `ukdyn eval`): M, or when M is singular the augmented M_a = M + Aᵀ α A it solved with
+/// (core/uk_singular.hpp; rebuilt from M when the arrow solve took the augmented blocks).
+/// Allocates (per output sample, not per forward call).
+Mat solved_mass(const System& system, const ForwardData& data);
 
 /// Stage: data.Q = τ + Σ Q_a(t, q, q̇) − C q̇ − G (C q̇ and G already in data) and
 /// data.applied_power. Like the other stages below it does not check sizes (forward() does, once,
 /// at the edge): q, qd, tau must have n entries and data be built for this system.
 void generalized_forces(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         CVecRef tau);
-
 
 /// Stage 1 only: M, C q̇, G (no constraints) at time t, into data (and the subsystems' data
 /// slots), and data.lagrangian_dt. t matters only for a time_varying() subsystem.
