@@ -101,6 +101,12 @@ void place(const Model& m, const std::vector<int>& ti, const S* theta, LinkState
       w.R = Rj;
       w.p = pj;
     }
+    if (L.mass == 0.0 && L.inertia.isZero(0.0)) {  // a massless frame (flange, tool0)
+      w.m_own = S(0.0);
+      w.h_own.setZero();
+      w.I_own.setZero();
+      continue;
+    }
     const V3<S> c = w.p + w.R * L.com.cast<S>();
     w.m_own = S(L.mass);
     w.h_own = c * w.m_own;
@@ -185,6 +191,12 @@ void velocity_products(const Model& m, const std::vector<int>& ti, const S* thet
       w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd;
       w.vw += w.sw * qd;
       w.vv += w.sv * qd;
+    }
+    const Link& L = m.links[i];
+    if (L.mass == 0.0 && L.inertia.isZero(0.0)) {  // a massless frame: no force of its own
+      w.fn.setZero();
+      w.ff.setZero();
+      continue;
     }
     V3<S> n1, f1, n2, f2;
     apply_inertia(w.m_own, w.h_own, w.I_own, w.vw, w.vv, n1, f1);  // momentum I v
