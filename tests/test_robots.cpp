@@ -94,6 +94,64 @@ TEST(Robots, MjcfOnTheTreeMatchesMuJoCo) {
     RecordProperty(std::string(r.name) + "_worst_bias_rel", ::testing::PrintToString(worst_b));
   }
 }
+
+// The frames' kinematics the numeric frame constraints use (TreeSubsystem::frame_state: the pose,
+// and the twist Jacobian from ∂p/∂q and ∂R/∂q Rᵀ) against MuJoCo's xpos / xmat and mj_jac, for
+// every body of both arms and a point offset in it, at 20 random states.
+TEST(Robots, FrameJacobiansMatchMuJoCo) {
+  for (const Robot& r : kRobots) {
+    SCOPED_TRACE(r.name);
+    const std::string file = robot_file(r, "xml");
+    sym::ChainDef c(r.name, coordinates(r));
+    sym::append_mjcf(c, file, /*gravity=*/true);
+    const auto t = tree_of(c);
+    char err[1000] = "";
+    mjModel* m = mj_loadXML(file.c_str(), nullptr, err, sizeof err);
+    ASSERT_NE(m, nullptr) << err;
+    mjData* d = mj_makeData(m);
+    const Index n = r.dof;
+    std::mt19937 rng(9u);
+    std::uniform_real_distribution<double> u(-3.0, 3.0);
+    std::vector<double> dp(static_cast<std::size_t>(3 * n)), dR(static_cast<std::size_t>(9 * n));
+    std::vector<mjtNum> jp(static_cast<std::size_t>(3 * n)), jr(static_cast<std::size_t>(3 * n));
+    double worst = 0.0;
+    int bodies = 0;
+    for (int k = 0; k < 20; ++k) {
+      Vec q(n), qd = Vec::Zero(n);
+      for (Index i = 0; i < n; ++i) d->qpos[i] = q[i] = u(rng);
+      mj_forward(m, d);
+      for (int b = 1; b < m->nbody; ++b) {
+        const int link = t->link_index(mj_id2name(m, mjOBJ_BODY, b));
+        if (link == -2) continue;  // a body the tree holds as its root frame
+        ++bodies;
+        const Eigen::Vector3d off(0.03, -0.02, 0.05);
+        tree::FrameState fs(dp.data(), dR.data(), n);
+        t->frame_state(q, qd, link, Eigen::Matrix3d::Identity(), off, {}, fs);
+        Eigen::Matrix3d Rm;
+        for (int i = 0; i < 9; ++i) Rm(i / 3, i % 3) = d->xmat[9 * b + i];
+        const Eigen::Vector3d pm = Eigen::Vector3d(d->xpos + 3 * b) + Rm * off;
+        worst = std::max({worst, (fs.p - pm).norm(), (fs.R - Rm).norm()});
+        mj_jac(m, d, jp.data(), jr.data(), pm.data(), b);
+        for (Index j = 0; j < n; ++j) {
+          Eigen::Matrix3d dRj;
+          for (int i = 0; i < 9; ++i) dRj(i / 3, i % 3) = fs.dR(i, j);
+          const Eigen::Matrix3d W = dRj * fs.R.transpose();  // [ω_j]×
+          const Eigen::Vector3d w(W(2, 1), W(0, 2), W(1, 0));
+          for (int i = 0; i < 3; ++i) {
+            worst =
+                std::max(worst, std::abs(fs.dp(i, j) - jp[static_cast<std::size_t>(i * n + j)]));
+            worst = std::max(worst, std::abs(w(i) - jr[static_cast<std::size_t>(i * n + j)]));
+          }
+        }
+      }
+    }
+    mj_deleteData(d);
+    mj_deleteModel(m);
+    EXPECT_GT(bodies, 20 * (r.dof - 1));
+    EXPECT_LE(worst, 1e-13);
+    RecordProperty(std::string(r.name) + "_frame_worst", ::testing::PrintToString(worst));
+  }
+}
 #endif
 
 TEST(Robots, UrdfAndMjcfTwinsAgree) {
