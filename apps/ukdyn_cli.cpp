@@ -5,13 +5,16 @@
 //   ukdyn assemble SCENARIO
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
+//   ukdyn linearize SCENARIO       (exact derivatives of q̈ and Qc at the initial state, JSON;
+//   docs/derivatives.md)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
 //   docs/definitions.md)
 //   ukdyn sweep SWEEP [--out DIR] [--threads N] [--shard i/N] [--extract K]   (docs/sweeps.md;
 //   also under mpirun)
 //   ukdyn sweep merge SWEEP --out DIR SHARD_DIR...
-// Exit codes: 0 success; 1 run incomplete (stopped, interrupted, a write failed) or some eval lines
-// failed; 2 bad input: a usage error, a bad scenario, an output folder ukdyn refuses or one in use.
+// Exit codes: 0 success; 1 run incomplete (stopped, interrupted, a write failed), some eval lines
+// failed, or linearize could not vouch for its derivatives; 2 bad input: a usage error, a bad
+// scenario, an output folder ukdyn refuses or one in use.
 #include <fmt/format.h>
 #include <unistd.h>
 
@@ -200,6 +203,11 @@ int main(int argc, char** argv) {
       "Read JSON lines {t, q, qd, tau} on stdin; write M, C, G, A, b, Qc, qdd as JSON lines");
   ev->add_option("scenario", scenario, "scenario file (YAML)")->required();
 
+  auto* lin = app.add_subcommand(
+      "linearize",
+      "Print the exact derivatives of q'' and Qc at the scenario's initial state as JSON");
+  lin->add_option("scenario", scenario, "scenario file (YAML)")->required();
+
   auto* chk =
       app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
   chk->add_option("scenario", scenario, "scenario file (YAML)")->required();
@@ -301,6 +309,9 @@ int main(int argc, char** argv) {
     if (*ev) {
       const auto counts = ukdyn::run_eval_protocol(sc, std::cin, std::cout, &std::cerr);
       return counts.failures == 0 ? 0 : 1;
+    }
+    if (*lin) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
+      return ukdyn::write_linearization(sc, sc.sim.t0, sc.q0, sc.qd0, sc.tau, std::cout) ? 0 : 1;
     }
     if (*drv) {
       std::cout << ukdyn::symbolic::format_system(*sc.system,

@@ -2,14 +2,17 @@
 // in-process.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "core/fnv1a.hpp"
+#include "ukdyn/core/uk_solve.hpp"
+#include "ukdyn/model/system.hpp"
+#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
-#include "ukdyn/paper_robot/mobile_manipulator.hpp"
 
 namespace {
 
@@ -80,7 +83,6 @@ FreeRun run_free(const std::string& file) {
   return r;
 }
 
-
 // The one FNV-1a of the library (src/core/fnv1a.hpp): the published test vectors, bytes added in
 // pieces hash as their concatenation, and Scenario::hash is it with ukdyn's basis over the file.
 TEST(ContentHash, Fnv1a64OfTheScenarioFile) {
@@ -93,8 +95,7 @@ TEST(ContentHash, Fnv1a64OfTheScenarioFile) {
   const auto path = kSource / "scenarios" / "paper.yaml";
   std::ifstream in(path, std::ios::binary);
   const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  EXPECT_EQ(load_scenario_text(text, path).hash,
-            Fnv1a64(detail::kUkdynHashBasis).add(text).hex());
+  EXPECT_EQ(load_scenario_text(text, path).hash, Fnv1a64(detail::kUkdynHashBasis).add(text).hex());
 }
 TEST(PaperScenario, ResidualsStayBelow1e12AndRankIs12) {
   const Scenario sc = load_scenario(kSource / "scenarios" / "paper.yaml");
@@ -195,3 +196,66 @@ TEST(PaperFreeSpatial, YawReallySwings) {
 }
 
 }  // namespace
+
+namespace {
+
+// The column `name` of a run kept in memory.
+std::vector<double> memory_column(const ukdyn::MemoryRun& run, const std::string& name) {
+  const auto it = std::find(run.header.begin(), run.header.end(), name);
+  EXPECT_NE(it, run.header.end()) << name;
+  const std::size_t c = static_cast<std::size_t>(it - run.header.begin()), w = run.header.size();
+  std::vector<double> out;
+  for (std::size_t r = 0; r * w < run.values.size(); ++r) out.push_back(run.values[r * w + c]);
+  return out;
+}
+
+}  // namespace
+
+// The sigma_min column: by default the solve's pivot estimate, which (exact solve) is never below
+// the smallest kept singular value of A M^-1/2 and within a small factor of it; with
+// simulation.sigma_min: svd, that singular value itself, checked here against an SVD of A M^-1/2
+// computed from the row's own state.
+TEST(PaperScenario, SigmaMinColumnIsTheSolvesEstimateOrTheSvd) {
+  Scenario sc = load_scenario(kSource / "scenarios" / "paper.yaml");
+  sc.sim.t_end = 0.5;
+  ASSERT_FALSE(sc.sim.sigma_min_svd);
+  const MemoryRun est = run_scenario_in_memory(sc);
+  sc.sim.sigma_min_svd = true;
+  const MemoryRun svd = run_scenario_in_memory(sc);
+  ASSERT_EQ(est.report.stats.status, RunStatus::completed);
+  ASSERT_EQ(svd.report.stats.status, RunStatus::completed);
+  const std::vector<double> e = memory_column(est, "sigma_min"),
+                            s = memory_column(svd, "sigma_min");
+  ASSERT_EQ(e.size(), s.size());
+  ASSERT_GT(e.size(), 10u);
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  ForwardData d(sys);
+  const std::size_t w = svd.header.size();
+  for (std::size_t r = 0; r < s.size(); r += 7) {
+    EXPECT_GE(e[r], s[r] * (1 - 1e-12)) << "row " << r;
+    EXPECT_LE(e[r], 10 * s[r]) << "row " << r;
+    const double t = svd.values[r * w];
+    const Eigen::Map<const Vec> q(&svd.values[r * w + 1], n), qd(&svd.values[r * w + 1 + n], n);
+    evaluate_dynamics(sys, d, t, q, qd);
+    evaluate_constraints(sys, d, t, q, qd);
+    const Vec sv = singular_values_A_Minvhalf(d.M, d.A);
+    EXPECT_NEAR(s[r], sv(sv.size() - 1), 1e-12 * sv(0)) << "row " << r;
+  }
+  // The key and its values.
+  const std::string base = "\n  sample_dt: 0.01\n";
+  std::ifstream in(kSource / "scenarios" / "paper.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto at = text.find(base);
+  ASSERT_NE(at, std::string::npos);
+  std::string good = text, bad = text;
+  good.replace(at, base.size(), base + "  sigma_min: svd\n");
+  bad.replace(at, base.size(), base + "  sigma_min: exact\n");
+  EXPECT_TRUE(load_scenario_text(good, kSource / "scenarios" / "paper.yaml").sim.sigma_min_svd);
+  try {
+    (void)load_scenario_text(bad, kSource / "scenarios" / "paper.yaml");
+    ADD_FAILURE() << "sigma_min: exact was accepted";
+  } catch (const std::exception& ex) {
+    EXPECT_NE(std::string(ex.what()).find("simulation.sigma_min"), std::string::npos) << ex.what();
+  }
+}

@@ -225,7 +225,7 @@ TEST(SweepCli, ExtractedSamplesRerunToTheSameNumbers) {
     auto s = run_cli(kCli, dir.path,
                      "simulate " + sh(sc.string()) + " --no-figures -q -o " + sh(out.string()));
     ASSERT_EQ(s.exit_code, 0) << s.err;
-    // trajectory.csv prints 17 significant digits, which read back to the same double.
+    // trajectory.csv prints each number in its shortest round-trip form: the same double.
     const auto tl = lines(slurp(out / "trajectory.csv"));
     const auto th = cells(tl[0]);
     const auto last = cells(tl.back());

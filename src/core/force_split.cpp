@@ -21,12 +21,49 @@ Mat select_rows(const Mat& A, const std::vector<bool>& row_servo, bool servo) {
 }
 
 RoleSplitWorkspace::RoleSplitWorkspace(Index m, Index n)
-    : At(n, m), svd(n, m, Eigen::ComputeFullU | Eigen::ComputeFullV), r(n) {
+    : At(n, m),
+      cod(n, m),
+      svd(n, m, Eigen::ComputeThinU | Eigen::ComputeFullV),
+      r(n),
+      c(n),
+      y(m),
+      z_temp(std::max<Index>(n, 1)),
+      hh(1) {
   result.lambda = Vec::Zero(m);
   result.Qp = Vec::Zero(n);
   result.Qs = Vec::Zero(n);
   result.redundant_rows.reserve(static_cast<std::size_t>(m));
 }
+
+namespace {
+
+// λ = (Aᵀ)⁺ Qc by an SVD of Aᵀ (n × m): V's columns past the rank span null(Aᵀ) ⊂ R^m, whose
+// rows name the redundant constraint rows.
+void split_by_svd(const Vec& Qc, RoleSplitWorkspace& ws, double rel_tol) {
+  RoleForceSplit& s = ws.result;
+  const Index m = ws.At.cols();
+  ws.svd.compute(ws.At, Eigen::ComputeThinU | Eigen::ComputeFullV);  // U: its first rank columns
+  const Vec& sv = ws.svd.singularValues();
+  const double top = sv.size() > 0 ? sv(0) : 0.0;
+  int rank = 0;
+  for (Index i = 0; i < sv.size(); ++i)
+    if (sv(i) > rel_tol * top && top > 0) ++rank;
+  s.rank = rank;
+  s.unique = rank == m;
+  const Mat& U = ws.svd.matrixU();
+  const Mat& V = ws.svd.matrixV();
+  s.lambda.setZero();
+  for (int i = 0; i < rank; ++i) s.lambda += V.col(i) * (U.col(i).dot(Qc) / sv(i));
+  if (!s.unique) {
+    for (Index i = 0; i < m; ++i) {
+      double share = 0.0;
+      for (Index k = rank; k < m; ++k) share = std::max(share, std::abs(V(i, k)));
+      if (share > 1e-8) s.redundant_rows.push_back(i);
+    }
+  }
+}
+
+}  // namespace
 
 void split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_servo,
                    RoleSplitWorkspace& ws, double rel_tol) {
@@ -41,30 +78,28 @@ void split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool>& row_ser
     s.residual = Qc.norm();
     return;
   }
-  // λ = (Aᵀ)⁺ Qc by an SVD of Aᵀ (n × m): V's columns past the rank span null(Aᵀ) ⊂ R^m.
   ws.At = A.transpose();
-  ws.svd.compute(ws.At, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  const Vec& sv = ws.svd.singularValues();
-  const double top = sv.size() > 0 ? sv(0) : 0.0;
-  int rank = 0;
-  for (Index i = 0; i < sv.size(); ++i)
-    if (sv(i) > rel_tol * top && top > 0) ++rank;
-  s.rank = rank;
-  s.unique = rank == m;
-  const Mat& U = ws.svd.matrixU();
-  const Mat& V = ws.svd.matrixV();
-  s.lambda.setZero();
-  for (int i = 0; i < rank; ++i) s.lambda += V.col(i) * (U.col(i).dot(Qc) / sv(i));
+  // Rows independent with a margin (the column-pivoted QR's smallest pivot 1e3 times above the
+  // cut-off): λ is unique, the least-squares solution of the complete orthogonal decomposition
+  // (a QR: several times cheaper than the SVD, which this once took at every output sample).
+  // Otherwise, or near the cut-off, the SVD decides the rank and names the redundant rows.
+  ws.cod.setThreshold(Eigen::Default);
+  ws.cod.compute(ws.At);
+  const double top = ws.cod.maxPivot();
+  const auto& T = ws.cod.matrixQTZ();
+  double smallest = top;
+  for (Index i = 0; i < std::min(T.rows(), T.cols()); ++i)
+    smallest = std::min(smallest, std::abs(T(i, i)));
+  if (top > 0.0 && m <= A.cols() && smallest > 1e3 * rel_tol * top) {
+    ws.cod.setThreshold(rel_tol);
+    s.rank = static_cast<int>(m);
+    core_detail::cod_solve_into(ws.cod, Qc, s.lambda, ws.c, ws.y, ws.z_temp, ws.hh);
+  } else {
+    split_by_svd(Qc, ws, rel_tol);
+  }
   ws.r.noalias() = A.transpose() * s.lambda;  // (a buffer: Aᵀλ − Qc in one expression allocates)
   ws.r -= Qc;
   s.residual = ws.r.norm();
-  if (!s.unique) {
-    for (Index i = 0; i < m; ++i) {
-      double share = 0.0;
-      for (Index k = rank; k < m; ++k) share = std::max(share, std::abs(V(i, k)));
-      if (share > 1e-8) s.redundant_rows.push_back(i);
-    }
-  }
   for (Index i = 0; i < m; ++i) {
     (row_servo[static_cast<std::size_t>(i)] ? s.Qs : s.Qp) += A.row(i).transpose() * s.lambda(i);
   }

@@ -1,6 +1,7 @@
 #include "ukdyn/output/csv_writer.hpp"
 
-#include <fmt/format.h>
+#include <charconv>
+#include <system_error>
 
 #include "ukdyn/text/safe_text.hpp"
 
@@ -20,10 +21,16 @@ CsvWriter::CsvWriter(const OutputDir& dir, std::string name, const std::vector<s
 
 void CsvWriter::row(const std::vector<double>& values) {
   if (values.size() != columns_) throw Error("CsvWriter: row has the wrong number of columns");
+  // Each number in its shortest form that reads back to the same double (std::to_chars without a
+  // precision: Ryū's shortest round trip, several times faster than 17 fixed significant digits,
+  // and exact: the CSV holds the run's doubles bit for bit).
   buffer_.clear();
+  char num[32];
   for (std::size_t i = 0; i < values.size(); ++i) {
     if (i) buffer_ += ',';
-    fmt::format_to(std::back_inserter(buffer_), "{:.17g}", values[i]);
+    const auto r = std::to_chars(num, num + sizeof num, values[i]);
+    if (r.ec != std::errc{}) throw Error("CsvWriter: a number does not fit 32 characters");
+    buffer_.append(num, r.ptr);
   }
   buffer_ += '\n';
   file_.write(buffer_);

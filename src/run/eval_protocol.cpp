@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <ostream>
 
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
@@ -76,6 +77,26 @@ bool read_line(std::istream& in, std::string& line, std::size_t max, bool& too_l
   }
 }
 
+// The derivatives of one state as JSON (docs/derivatives.md, "From the command line").
+json linearization_json(const System& sys, const Linearization& lin) {
+  json out;
+  json kept = json::array();
+  for (Index r : lin.kept_rows)
+    kept.push_back(sys.constraint_row_names()[static_cast<std::size_t>(r)]);
+  out["trusted"] = lin.trusted;
+  out["message"] = lin.message;
+  out["rank"] = lin.rank;
+  out["kept_rows"] = kept;
+  out["kkt_agreement"] = lin.kkt_agreement;
+  out["dqdd_dq"] = rows_of(lin.dqdd_dq);
+  out["dqdd_dqd"] = rows_of(lin.dqdd_dqd);
+  out["dqdd_dtau"] = rows_of(lin.dqdd_dtau);
+  out["dQc_dq"] = rows_of(lin.dQc_dq);
+  out["dQc_dqd"] = rows_of(lin.dQc_dqd);
+  out["dQc_dtau"] = rows_of(lin.dQc_dtau);
+  return out;
+}
+
 // The answer to one request, or throws ukdyn::Error saying why there is none.
 json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& line,
             const EvalOptions& opt) {
@@ -89,8 +110,9 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   }
   if (!in.is_object()) throw Error(R"(expected a JSON object {"t", "q", "qd", "tau"})");
   for (const auto& [key, value] : in.items()) {
-    if (key != "t" && key != "q" && key != "qd" && key != "tau") {
-      throw Error(fmt::format("unknown key '{}' (the keys are t, q, qd, tau)", printable(key)));
+    if (key != "t" && key != "q" && key != "qd" && key != "tau" && key != "derivatives") {
+      throw Error(fmt::format("unknown key '{}' (the keys are t, q, qd, tau, derivatives)",
+                              printable(key)));
     }
   }
   double t = 0.0;
@@ -102,6 +124,11 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
   const Vec q = read_vec(in, "q", n, true);
   const Vec qd = read_vec(in, "qd", n, true);
   const Vec tau = read_vec(in, "tau", n, false);
+  bool derivatives = false;
+  if (const auto it = in.find("derivatives"); it != in.end()) {
+    if (!it->is_boolean()) throw Error("key 'derivatives': expected true or false");
+    derivatives = it->get<bool>();
+  }
   forward(sys, data, t, q, qd, tau, sc.sim.uk);
   if (!all_finite(data.M)) throw Error("the mass matrix M is not finite at this state");
   // A singular M is fine when [M; A] has full column rank (core/uk_singular.hpp): then the
@@ -145,10 +172,33 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
     if (!all_finite(sv)) throw Error("non-finite singular values of A M^-1/2 at this state");
     out["singular_values"] = vec_of(sv);
   }
+  if (derivatives)
+    out["derivatives"] = linearization_json(sys, linearize(sys, t, q, qd, tau, sc.sim.uk));
   return out;
 }
 
 }  // namespace
+
+bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                         std::ostream& out) {
+  const System& sys = *sc.system;
+  const Linearization lin = linearize(sys, t, q, qd, tau, sc.sim.uk);
+  Mat F, G;
+  state_space(lin, F, G);
+  json j;
+  j["t"] = t;
+  j["coordinates"] = sys.coordinate_names();
+  j["q"] = vec_of(q);
+  j["qd"] = vec_of(qd);
+  j["tau"] = vec_of(tau);
+  j["qdd"] = vec_of(lin.qdd);
+  j["Qc"] = vec_of(lin.Qc);
+  j["derivatives"] = linearization_json(sys, lin);
+  j["F"] = rows_of(F);
+  j["G"] = rows_of(G);
+  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
+  return lin.trusted;
+}
 
 EvalCounts run_eval_protocol(const Scenario& sc, std::istream& in, std::ostream& out,
                              std::ostream* err, const EvalOptions& opt) {

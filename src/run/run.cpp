@@ -362,7 +362,11 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
   const Scenario& sc = s.sc;
   const ControlRun* ctl = s.ctl;
   Observer observer{
-      {s.sys, rep, sc.sim.energy_balance, s.header.size()}, rep, &csv, progress, s.options.cancel};
+      {s.sys, rep, sc.sim.energy_balance, s.header.size(), {true, true, sc.sim.sigma_min_svd}},
+      rep,
+      &csv,
+      progress,
+      s.options.cancel};
   observer.forces = ctl ? nullptr : &s.force_columns;
   observer.control = &s.control_columns;
   const ForceFunction tau =
@@ -627,7 +631,11 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
     run.values.reserve(static_cast<std::size_t>(samples) * cols);
   }
   Progress progress(nullptr, sc.sim.t0, sc.sim.t_end);
-  Observer observer{{sys, rep, balance, cols}, rep, nullptr, progress, options.cancel};
+  Observer observer{{sys, rep, balance, cols, {true, true, sc.sim.sigma_min_svd}},
+                    rep,
+                    nullptr,
+                    progress,
+                    options.cancel};
   observer.memory = &run.values;
   observer.forces = ctl ? nullptr : &force_columns;
   observer.control = &control_columns;

@@ -64,16 +64,17 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   row[k++] = T;
   row[k++] = V;
   row[k++] = E;
-  // Diagnostics: rank of A, free DOF n − rank, smallest kept singular value of A M^{-1/2}
-  // (exact, by SVD at the sample), ‖A q̈ − b‖.
+  // Diagnostics: rank of A, free DOF n − rank, the smallest kept singular value of A M^{-1/2}
+  // (the solve's estimate: the square root of its smallest kept pivot; exact by an SVD at the
+  // sample with Needs::sigma_svd), ‖A q̈ − b‖.
   row[k++] = d.result.rank;
   row[k++] = static_cast<double>(n - d.result.rank);
-  if (m > 0 && needs_.sigma) {
+  if (m > 0 && d.result.rank > 0 && needs_.sigma_svd) {
     // M singular (core/uk_singular.hpp): of the augmented M_a = M + A^T alpha A it solved with.
     const Vec sv = singular_values_A_Minvhalf(solved_mass(sys_, d), d.A);
-    row[k++] = d.result.rank > 0 ? sv(d.result.rank - 1) : 0.0;
+    row[k++] = sv(d.result.rank - 1);
   } else {
-    row[k++] = 0.0;
+    row[k++] = m > 0 && d.result.rank > 0 ? d.result.sigma_min_kept : 0.0;
   }
   row[k++] = d.result.residual;
   if (balance_) {

@@ -26,7 +26,8 @@ class SampleRecorder {
   struct Needs {
     bool row = true;                 ///< fill row() with the trajectory_header() columns
     bool velocity_residuals = true;  ///< rep.max_abs_velocity_residual
-    bool sigma = true;               ///< the sigma_min column (an SVD per sample; row only)
+    bool sigma_svd = false;  ///< the sigma_min column by an SVD per sample (row only); else the
+                             ///< solve's pivot estimate
   };
   /// Prepares `rep` (extrema reset, energy_balance set) and the buffers; `row_size` ≥ the
   /// trajectory_header(system, balance) size (more: room for the caller's own columns after it).

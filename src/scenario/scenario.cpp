@@ -641,7 +641,7 @@ bool load_forces(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
   const Node s = L.child(root, "simulation", true);
   L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                  "step", "initial_tolerance", "drift", "energy_balance"});
+                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min"});
   auto& sim = sc.sim;
   sim.t0 = L.number_or(s, "t0", 0.0);
   const Node te = L.child(s, "t_end", true);
@@ -691,6 +691,12 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     const std::string v = L.string(eb);
     if (v != "true" && v != "false") L.fail(eb, "expected true or false");
     sim.energy_balance = v == "true";
+  }
+  // The sigma_min column: the solve's pivot estimate, or an SVD per sample (simulate.hpp).
+  if (Node sm = L.child(s, "sigma_min", false); sm.node.IsDefined()) {
+    const std::string v = L.string(sm);
+    if (v != "estimate" && v != "svd") L.fail(sm, "expected estimate or svd");
+    sim.sigma_min_svd = v == "svd";
   }
   if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
     L.only_keys(dr, {"method", "alpha", "beta", "branch_factor", "on_branch_switch"});

@@ -204,7 +204,8 @@ bool SampleRunner::prepare_initial_state(Scenario& sc, SampleOutcome& out) const
   return true;
 }
 
-// The trajectory row's index of each column metric; need_sigma: one of them is sigma_min.
+// The trajectory row's index of each column metric; need_sigma: one of them is sigma_min (an SVD
+// per sample only with simulation.sigma_min: svd).
 std::vector<std::size_t> SampleRunner::metric_column_indices(const std::vector<std::string>& th,
                                                              bool& need_sigma) const {
   std::vector<std::size_t> cols;
@@ -243,7 +244,7 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
   std::vector<std::size_t> cols = metric_column_indices(th, need_sigma);
   const Vec& q0 = ctl ? ctl->q0 : sc.q0;
   const Vec& qd0 = ctl ? ctl->qd0 : sc.qd0;
-  out.obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma);
+  out.obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma && sc.sim.sigma_min_svd);
   out.obs->q_last = q0;
   out.obs->qd_last = qd0;
   out.obs->control = cc ? &*cc : nullptr;

@@ -9,6 +9,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdint>
 #include <new>
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
@@ -227,6 +228,53 @@ void gravity_forces(const Model& m, const std::vector<int>& ti, const LinkState<
   }
 }
 
+// The inverse dynamics τ = M(θ) θ̈ + C(θ, θ̇) θ̇ + G(θ) by the RNEA with θ̈ (Featherstone Table 5.1
+// in world coordinates), gravity as the fictitious base acceleration a_0 = (0, −g) (§5.3):
+// v_i = v_p + S_i θ̇_i, a_i = a_p + S_i θ̈_i + (v_p × S_i) θ̇_i, f_i = I_i a_i + v_i ×* I_i v_i,
+// τ_i = S_iᵀ f_i with f summed into the parent. Run on dual numbers it gives the exact
+// directional derivatives of τ (the derivatives of the dynamics, docs/derivatives.md).
+template <class S>
+void inverse_dynamics(const Model& m, const std::vector<int>& ti, const S* thetad, const S* thetadd,
+                      LinkState<S>* ws, S* tau) {
+  const std::size_t n = m.links.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    LinkState<S>& w = ws[i];
+    const int p = m.links[i].parent;
+    if (p < 0) {
+      w.vw.setZero();
+      w.vv.setZero();
+      w.aw.setZero();
+      w.av = -m.gravity.cast<S>();
+    } else {
+      w.vw = ws[p].vw;
+      w.vv = ws[p].vv;
+      w.aw = ws[p].aw;
+      w.av = ws[p].av;
+    }
+    if (ti[i] >= 0) {
+      const S qd = thetad[ti[i]], qdd = thetadd[ti[i]];
+      w.aw += w.vw.cross(w.sw) * qd + w.sw * qdd;
+      w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd + w.sv * qdd;
+      w.vw += w.sw * qd;
+      w.vv += w.sv * qd;
+    }
+    V3<S> n1, f1, n2, f2;
+    apply_inertia(w.m_own, w.h_own, w.I_own, w.vw, w.vv, n1, f1);
+    apply_inertia(w.m_own, w.h_own, w.I_own, w.aw, w.av, n2, f2);
+    w.fn = n2 + w.vw.cross(n1) + w.vv.cross(f1);
+    w.ff = f2 + w.vw.cross(f1);
+  }
+  for (std::size_t i = n; i-- > 0;) {
+    LinkState<S>& w = ws[i];
+    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw, w.fn) + dot3(w.sv, w.ff);
+    const int p = m.links[i].parent;
+    if (p >= 0) {
+      ws[p].fn += w.fn;
+      ws[p].ff += w.ff;
+    }
+  }
+}
+
 bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
 
 }  // namespace
@@ -313,13 +361,39 @@ Workspace map_workspace(double* data, std::size_t links, Index nt) {
 
 }  // namespace
 
+// ------------------------------------------------------------------------------ derivatives
+
+namespace {
+
+// One tangent direction: value and directional derivative (Eigen's forward-mode scalar with a
+// fixed one-entry derivative: no heap, trivially copyable into a slot of doubles).
+using Dual = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+// Eigen aligns fixed-size vectors of 16 bytes' multiples (LinkState<Dual>) to 16: the workspace
+// starts at the first 16-aligned double of its part of the slot (one double of room).
+static_assert(sizeof(LinkState<Dual>) % sizeof(double) == 0 && alignof(LinkState<Dual>) <= 16,
+              "LinkState<Dual> must live in a slot of doubles");
+constexpr Index kDualLinkDoubles = static_cast<Index>(sizeof(LinkState<Dual>) / sizeof(double));
+constexpr Index kDualDoubles = static_cast<Index>(sizeof(Dual) / sizeof(double));
+
+Dual dual(double value, double tangent) {
+  return Dual(value, Eigen::Matrix<double, 1, 1>::Constant(tangent));
+}
+
+Index tangent_workspace_doubles(std::size_t links, Index nt) {
+  return static_cast<Index>(links) * kDualLinkDoubles + 4 * nt * kDualDoubles + 1;
+}
+
+}  // namespace
+
 TreeSubsystem::TreeSubsystem(Model model) : model_(std::move(model)) {
   validate(model_);
   theta_index_.assign(model_.links.size(), -1);
   for (std::size_t i = 0; i < model_.links.size(); ++i) {
     if (model_.links[i].type != JointType::fixed) theta_index_[i] = static_cast<int>(n_theta_++);
   }
-  slot_size_ = workspace_doubles(model_.links.size(), n_theta_);
+  // The forward workspace, then the derivatives' (dual numbers, inverse_dynamics_tangent()).
+  slot_size_ = workspace_doubles(model_.links.size(), n_theta_) +
+               tangent_workspace_doubles(model_.links.size(), n_theta_);
 }
 
 int TreeSubsystem::link_index(const std::string& name) const {
@@ -562,6 +636,59 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Ma
       }
     }
   });
+}
+
+// dID = Tᵀ dτ_θ with τ_θ = RNEA(θ, θ̇, θ̈) run once on dual numbers seeded with dθ = T dq,
+// dθ̇ = T dq̇ (θ̈ = T q̈ held): the exact directional derivative (forward-mode automatic
+// differentiation, Griewank & Walther 2008, ch. 3) of the inverse dynamics at fixed q̈.
+bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd,
+                                             CVecRef qdd, CVecRef dq, CVecRef dqd,
+                                             VecRef dID) const {
+  const std::size_t nl = model_.links.size();
+  const Index nt = n_theta_;
+  const Index need = tangent_workspace_doubles(nl, nt);
+  std::vector<double> own;
+  double* base = nullptr;
+  if (static_cast<Index>(c.slot.size()) >= slot_size_) {
+    base = c.slot.data() + (slot_size_ - need);
+  } else {
+    own.resize(static_cast<std::size_t>(need));
+    base = own.data();
+  }
+  if (reinterpret_cast<std::uintptr_t>(base) % 16 != 0) ++base;  // (doubles are 8-aligned)
+  auto* ws = reinterpret_cast<LinkState<Dual>*>(base);
+  for (std::size_t i = 0; i < nl; ++i) new (&ws[i]) LinkState<Dual>;
+  auto* th = reinterpret_cast<Dual*>(base + static_cast<Index>(nl) * kDualLinkDoubles);
+  for (Index k = 0; k < 4 * nt; ++k) new (&th[k]) Dual;
+  Dual* thd = th + nt;
+  Dual* thdd = thd + nt;
+  Dual* tau = thdd + nt;
+  for (std::size_t i = 0; i < nl; ++i) {
+    if (theta_index_[i] < 0) continue;
+    const Link& L = model_.links[i];
+    double v = L.offset, dv = 0.0, w = 0.0, dw = 0.0, a = 0.0;
+    for (const Term& t : L.terms) {
+      v += t.coefficient * q(t.coordinate);
+      dv += t.coefficient * dq(t.coordinate);
+      w += t.coefficient * qd(t.coordinate);
+      dw += t.coefficient * dqd(t.coordinate);
+      a += t.coefficient * qdd(t.coordinate);
+    }
+    const auto k = static_cast<std::size_t>(theta_index_[i]);
+    th[k] = dual(v, dv);
+    thd[k] = dual(w, dw);
+    thdd[k] = dual(a, 0.0);
+  }
+  place(model_, theta_index_, th, ws);
+  inverse_dynamics(model_, theta_index_, thd, thdd, ws, tau);
+  dID.setZero();
+  for (std::size_t i = 0; i < nl; ++i) {
+    if (theta_index_[i] < 0) continue;
+    const Dual& ti = tau[theta_index_[i]];
+    const double d = ti.derivatives().size() > 0 ? ti.derivatives()(0) : 0.0;
+    for (const Term& t : model_.links[i].terms) dID(t.coordinate) += t.coefficient * d;
+  }
+  return true;
 }
 
 std::shared_ptr<const TreeSubsystem> make_subsystem(Model model) {

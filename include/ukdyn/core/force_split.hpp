@@ -53,9 +53,12 @@ RoleForceSplit split_by_role(const Mat& A, const Vec& Qc, const std::vector<bool
 /// The buffers of split_by_role() for A: m × n, allocated once.
 struct RoleSplitWorkspace {
   RoleSplitWorkspace(Index m, Index n);
-  Mat At;  ///< n × m: Aᵀ
-  Eigen::JacobiSVD<Mat> svd;
-  Vec r;                  ///< n: Aᵀλ − Qc
+  Mat At;                                           ///< n × m: Aᵀ
+  Eigen::CompleteOrthogonalDecomposition<Mat> cod;  ///< of Aᵀ: λ when the rows are independent
+  Eigen::JacobiSVD<Mat> svd;                        ///< of Aᵀ: the rank and λ otherwise
+  Vec r;                                            ///< n: Aᵀλ − Qc
+  Vec c, y, z_temp;                                 ///< the COD solve's buffers (n, m, n)
+  Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor> hh;  ///< its Householder workspace
   RoleForceSplit result;  ///< λ (m), Qp, Qs (n); room for m redundant rows
 };
 

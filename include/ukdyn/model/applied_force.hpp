@@ -21,6 +21,15 @@ class AppliedForce {
   virtual double add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const = 0;
   /// The potential V_a(q) of the conservative part (0 if it has none).
   [[nodiscard]] virtual double potential(CVecRef q) const = 0;
+  /// Exact derivatives (docs/derivatives.md): whether add_tangent() is implemented.
+  [[nodiscard]] virtual bool has_derivatives() const { return false; }
+  /// Adds the directional derivative of Q_a along (dq, dqd) at fixed t to dQ, exact. Returns false
+  /// when this force has no exact derivatives (the default).
+  virtual bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                           VecRef dQ) const {
+    (void)t, (void)q, (void)qd, (void)dq, (void)dqd, (void)dQ;
+    return false;
+  }
 };
 
 }  // namespace ukdyn

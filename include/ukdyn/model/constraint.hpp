@@ -89,6 +89,19 @@ class Constraint {
   /// Velocity-level residual Φ̇(q, q̇, t) = A q̇ + ∂Φ/∂t (rows()).
   virtual void velocity_residual(const ConstraintContext& c, CVecRef q, CVecRef qd,
                                  VecRef phid) const = 0;
+
+  /// Exact derivatives (docs/derivatives.md): whether tangent() is implemented.
+  [[nodiscard]] virtual bool has_derivatives() const { return false; }
+  /// Directional derivatives along (dq, dqd) (n each) at fixed q̈ (n) and multipliers λ (rows()):
+  /// d_residual = d(A q̈ − b) (rows()) and d_force = d(Aᵀ λ) (n), exact. Returns false when this
+  /// constraint has no exact derivatives (the default).
+  virtual bool tangent(const ConstraintContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                       CVecRef lambda, CVecRef dq, CVecRef dqd, VecRef d_residual,
+                       VecRef d_force) const {
+    (void)c, (void)q, (void)qd, (void)qdd, (void)lambda, (void)dq, (void)dqd, (void)d_residual,
+        (void)d_force;
+    return false;
+  }
 };
 
 /// Sets every entry of a block of constraint rows to 0 (for evaluate(), before writing the

@@ -74,6 +74,18 @@ class Subsystem {
     gravity(c, q, G);
     return 0.0;
   }
+
+  /// Exact derivatives (docs/derivatives.md): whether inverse_dynamics_tangent() is implemented.
+  [[nodiscard]] virtual bool has_derivatives() const { return false; }
+  /// The directional derivative of the inverse dynamics ID(q, q̇, q̈) = M(q) q̈ + C(q, q̇) q̇ + G(q)
+  /// at fixed q̈ (and t) along (dq, dqd): dID = (∂ID/∂q) dq + (∂ID/∂q̇) dqd, exact (no finite
+  /// differences). The slot in `c`, if given, is this subsystem's data slot (scratch). Returns
+  /// false when this subsystem has no exact derivatives (the default).
+  virtual bool inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                                        CVecRef dq, CVecRef dqd, VecRef dID) const {
+    (void)c, (void)q, (void)qd, (void)qdd, (void)dq, (void)dqd, (void)dID;
+    return false;
+  }
 };
 
 }  // namespace ukdyn

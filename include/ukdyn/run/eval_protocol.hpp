@@ -30,4 +30,11 @@ struct EvalCounts {
 EvalCounts run_eval_protocol(const Scenario& scenario, std::istream& in, std::ostream& out,
                              std::ostream* err, const EvalOptions& options = {});
 
+/// `ukdyn linearize`: the exact derivatives of q̈ and Qc at (t, q, q̇, τ) (ukdyn/model/linearize.hpp)
+/// and the state-space matrices F, G of x = (q, q̇), as one JSON object on `out`
+/// (docs/derivatives.md). Returns whether ukdyn vouches for them (the object's "trusted"; its
+/// "message" says why not). Throws ukdyn::Error when a component has no exact derivatives.
+bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
+                         const Vec& tau, std::ostream& out);
+
 }  // namespace ukdyn

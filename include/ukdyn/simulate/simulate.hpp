@@ -67,6 +67,11 @@ struct SimulationSettings {
   /// and error control; ∂L/∂t ≠ 0 only with a mass of t); samples get it in ForwardData::work, and
   /// E − W stays constant.
   bool energy_balance = false;
+  /// The `sigma_min` output column: false (default) takes the solve's own estimate (the square root
+  /// of the smallest kept pivot of its factorisation, UkResult::sigma_min_kept: no extra work);
+  /// true computes the exact smallest kept singular value of A M^{-1/2} by an SVD at each sample
+  /// (scenario key simulation.sigma_min: svd).
+  bool sigma_min_svd = false;
 };
 
 /// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed

@@ -109,6 +109,10 @@ class TreeSubsystem : public Subsystem {
   [[nodiscard]] double potential(const EvalContext& c, CVecRef q) const override;
   double dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                   VecRef G) const override;
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  /// The RNEA with q̈ run once on dual numbers (forward-mode automatic differentiation).
+  bool inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                                CVecRef dq, CVecRef dqd, VecRef dID) const override;
 
   [[nodiscard]] const Model& model() const { return model_; }
   /// Index of a link by name (−1: the root frame), or −2 if there is none.

@@ -1,0 +1,57 @@
+// Exact first derivatives of the constrained forward dynamics q̈(q, q̇, τ) and of the constraint
+// force Qc(q, q̇, τ) (docs/derivatives.md): the linearisation of the U-K equation at a state.
+//
+// The U-K acceleration is the one of Gauss's principle, q̈ = argmin (q̈ − a)ᵀ M (q̈ − a) subject to
+// A q̈ = b with a = M⁻¹Q ([Udwadia1996]; paper Eq. (4)); with consistent rows and M positive
+// definite on null(A) it is the q̈ of the KKT system of the independent rows R of A,
+//   [ M    −A_Rᵀ ] [ q̈ ]   [ Q   ]          Qc = A_Rᵀ μ,
+//   [ A_R    0   ] [ μ  ] = [ b_R ],
+// and, while rank A stays constant near the state, q̈ and Qc are differentiable functions of the
+// state whose derivatives solve the same KKT matrix (implicit differentiation) with the directional
+// derivatives of the model on the right:
+//   M dq̈ − A_Rᵀ dμ = dτ − d(M q̈ + C q̇ + G)|_q̈ + dQ_a + (dA_R)ᵀ μ,
+//   A_R dq̈ = −d(A_R q̈ − b_R)|_q̈,            dQc = (dA_R)ᵀ μ + A_Rᵀ dμ.
+// Every directional derivative of the model comes from the components' exact tangents
+// (Subsystem::inverse_dynamics_tangent, Constraint::tangent, AppliedForce::add_tangent): no finite
+// differences. One factorisation of the KKT matrix serves every column.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "ukdyn/model/system.hpp"
+
+namespace ukdyn {
+
+/// The derivatives of one state (t, q, q̇, τ). Matrices are n × n (n = system.dof()).
+struct Linearization {
+  Vec qdd;  ///< q̈ of the KKT system (equal to forward()'s to round-off, see kkt_agreement)
+  Vec Qc;   ///< the constraint force A_Rᵀ μ
+  Mat dqdd_dq, dqdd_dqd, dqdd_dtau;
+  Mat dQc_dq, dQc_dqd, dQc_dtau;
+  int rank = 0;                  ///< rank of A (rows kept: kept_rows)
+  std::vector<Index> kept_rows;  ///< the independent rows R of A the derivatives use
+  /// max |q̈_KKT − q̈_forward| / (1 + max |q̈_forward|): the two formulations at the state.
+  double kkt_agreement = 0.0;
+  /// False when ukdyn cannot vouch for the derivatives at this state; `message` says why (the
+  /// rank of A is about to change, the forward solve was damped, the constraints are
+  /// inconsistent, the two formulations disagree).
+  bool trusted = true;
+  std::string message;
+};
+
+/// State-space form of a linearisation for x = (q, q̇), u = τ: ẋ ≈ F δx + G δu with
+/// F = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]], G = [[0], [∂q̈/∂τ]] (2n × 2n and 2n × n).
+void state_space(const Linearization& lin, Mat& F, Mat& G);
+
+/// The linearisation at (t, q, q̇, τ). Throws ukdyn::Error naming the component when a subsystem,
+/// constraint or applied force has no exact derivatives, and std::invalid_argument for wrong
+/// sizes. `settings`: the U-K solve the forward call uses (its rank rule decides R).
+Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
+                        const UkSettings& settings = {});
+
+/// The components of `system` without exact derivatives ("subsystem 'arm' (mobile_manipulator)",
+/// ...); empty when linearize() can run.
+std::vector<std::string> components_without_derivatives(const System& system);
+
+}  // namespace ukdyn

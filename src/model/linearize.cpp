@@ -1,0 +1,243 @@
+// Exact derivatives of the constrained forward dynamics by implicit differentiation of the KKT
+// form of Gauss's principle (ukdyn/model/linearize.hpp, docs/derivatives.md).
+#include "ukdyn/model/linearize.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <Eigen/QR>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace ukdyn {
+
+namespace {
+
+std::string sci(double v) {
+  std::ostringstream os;
+  os.precision(3);
+  os << v;
+  return os.str();
+}
+
+void check_size(const char* what, Index expected, Index got) {
+  if (expected != got) {
+    throw std::invalid_argument(std::string("linearize: ") + what + " has " + std::to_string(got) +
+                                " entries, the system has " + std::to_string(expected));
+  }
+}
+
+// The independent rows of A under the solve's rank rule (σ_k(A M^{-1/2}) > rank_rel_tol σ_1),
+// chosen by a column-pivoted QR of (A L^{-T})ᵀ, M = L Lᵀ (the singular values of A L^{-T} are
+// those of A M^{-1/2}); and how far the state is from a change of rank.
+struct RowChoice {
+  std::vector<Index> kept;
+  double sigma_ratio_kept = 1.0;     // σ_r / σ_1
+  double sigma_ratio_dropped = 0.0;  // σ_{r+1} / σ_1
+};
+
+RowChoice independent_rows(const Mat& Ms, const Mat& A, double rel_tol) {
+  RowChoice rc;
+  const Index m = A.rows();
+  if (m == 0) return rc;
+  Eigen::LLT<Mat> llt(Ms);
+  if (llt.info() != Eigen::Success)
+    throw Error("linearize: the mass matrix is not positive definite");
+  // X = A L^{-T}: Xᵀ = L^{-1} Aᵀ.
+  const Mat Xt = llt.matrixL().solve(A.transpose());
+  Eigen::JacobiSVD<Mat> svd(Xt);
+  const Vec& s = svd.singularValues();
+  const double top = s.size() > 0 ? s(0) : 0.0;
+  Index r = 0;
+  while (r < s.size() && top > 0.0 && s(r) > rel_tol * top) ++r;
+  if (r > 0) rc.sigma_ratio_kept = s(r - 1) / top;
+  if (r < s.size() && top > 0.0) rc.sigma_ratio_dropped = s(r) / top;
+  Eigen::ColPivHouseholderQR<Mat> qr(Xt);
+  for (Index k = 0; k < r; ++k) rc.kept.push_back(qr.colsPermutation().indices()(k));
+  std::sort(rc.kept.begin(), rc.kept.end());
+  return rc;
+}
+
+void mark(Linearization& lin, const std::string& why) {
+  lin.trusted = false;
+  lin.message += (lin.message.empty() ? "" : "; ") + why;
+}
+
+// Where the derivatives may not be those of the motion: lin.trusted and lin.message
+// (docs/derivatives.md, "When ukdyn cannot vouch for them").
+void vouch(Linearization& lin, const RowChoice& rc, const UkResult& result,
+           const UkSettings& settings, Index m) {
+  const Index r = static_cast<Index>(rc.kept.size());
+  if (r > 0 && rc.sigma_ratio_kept < 1e2 * settings.rank_rel_tol) {
+    mark(lin, "near a singular position: the smallest kept singular value of A M^-1/2 is " +
+                  sci(rc.sigma_ratio_kept) + " of the largest, the rank of A may change");
+  }
+  // Rows dropped as redundant must be so to round-off: a dropped singular value above ~1e4 ε
+  // means the rows are nearly, not exactly, dependent (a singular position a step away).
+  if (r < m && rc.sigma_ratio_dropped > 1e-12) {
+    mark(lin,
+         "near a singular position: a dropped row is not redundant to round-off (singular "
+         "value " +
+             sci(rc.sigma_ratio_dropped) + " of the largest), the rank of A may change");
+  }
+  if (r != result.rank) {
+    mark(lin, "the forward solve kept " + std::to_string(result.rank) + " rows, the derivatives " +
+                  std::to_string(r));
+  }
+  if (result.damping > 0.0 || settings.method == UkMethod::regularized)
+    mark(lin,
+         "the forward solve was damped (regularized or near a singular position): the "
+         "derivatives are those of the exact solution");
+  if (!result.consistent) mark(lin, "the constraints are inconsistent at this state");
+}
+
+}  // namespace
+
+std::vector<std::string> components_without_derivatives(const System& system) {
+  std::vector<std::string> out;
+  for (const auto& s : system.subsystems()) {
+    if (!s->has_derivatives()) out.push_back("subsystem '" + s->name() + "'");
+  }
+  const auto& names = system.constraint_row_names();
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < system.constraints().size(); ++c) {
+    if (system.constraints()[c]->has_derivatives()) continue;
+    const auto row = static_cast<std::size_t>(offs[c]);
+    out.push_back("constraint of row '" + (row < names.size() ? names[row] : std::string("?")) +
+                  "'");
+  }
+  for (const auto& f : system.applied_forces()) {
+    if (!f->has_derivatives()) out.push_back("applied force '" + f->name() + "'");
+  }
+  return out;
+}
+
+void state_space(const Linearization& lin, Mat& F, Mat& G) {
+  const Index n = lin.dqdd_dq.rows();
+  F = Mat::Zero(2 * n, 2 * n);
+  F.topRightCorner(n, n).setIdentity();
+  F.bottomLeftCorner(n, n) = lin.dqdd_dq;
+  F.bottomRightCorner(n, n) = lin.dqdd_dqd;
+  G = Mat::Zero(2 * n, n);
+  G.bottomRows(n) = lin.dqdd_dtau;
+}
+
+Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
+                        const UkSettings& settings) {
+  const Index n = system.dof(), m = system.rows();
+  check_size("q", n, q.size());
+  check_size("qd", n, qd.size());
+  check_size("tau", n, tau.size());
+  if (const auto missing = components_without_derivatives(system); !missing.empty()) {
+    std::string list;
+    for (const auto& s : missing) list += (list.empty() ? "" : ", ") + s;
+    throw Error("linearize: no exact derivatives for " + list +
+                " (docs/derivatives.md lists the kinds that have them)");
+  }
+  if (!(std::isfinite(t) && q.allFinite() && qd.allFinite() && tau.allFinite()))
+    throw std::invalid_argument("linearize: t, q, qd and tau must be finite");
+
+  Linearization lin;
+  ForwardData d(system);
+  forward(system, d, t, q, qd, tau, settings);
+  if (!d.result.finite) throw Error("linearize: the forward dynamics is not finite at this state");
+  const Mat Ms = solved_mass(system, d);
+  const RowChoice rc = independent_rows(Ms, d.A, settings.rank_rel_tol);
+  const Index r = static_cast<Index>(rc.kept.size());
+  lin.rank = static_cast<int>(r);
+  lin.kept_rows = rc.kept;
+  vouch(lin, rc, d.result, settings, m);
+
+  // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], and [q̈; μ] at the state.
+  Mat AR(r, n);
+  Vec bR(r);
+  for (Index k = 0; k < r; ++k) {
+    AR.row(k) = d.A.row(rc.kept[static_cast<std::size_t>(k)]);
+    bR(k) = d.b(rc.kept[static_cast<std::size_t>(k)]);
+  }
+  Mat K = Mat::Zero(n + r, n + r);
+  K.topLeftCorner(n, n) = d.M;
+  K.topRightCorner(n, r) = -AR.transpose();
+  K.bottomLeftCorner(r, n) = AR;
+  Eigen::PartialPivLU<Mat> lu(K);
+  Vec rhs(n + r);
+  rhs.head(n) = d.Q;
+  rhs.tail(r) = bR;
+  const Vec sol = lu.solve(rhs);
+  if (!sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
+  lin.qdd = sol.head(n);
+  const Vec mu = sol.tail(r);
+  lin.Qc = AR.transpose() * mu;
+  lin.kkt_agreement = (lin.qdd - d.qdd).cwiseAbs().maxCoeff() / (1.0 + d.qdd.cwiseAbs().maxCoeff());
+  if (!(lin.kkt_agreement <= 1e-8)) {
+    mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
+  }
+  // λ over all rows (0 on the dropped ones) for the constraints' tangents.
+  Vec lambda = Vec::Zero(m);
+  for (Index k = 0; k < r; ++k) lambda(rc.kept[static_cast<std::size_t>(k)]) = mu(k);
+
+  // One direction (dq, dqd): the right-hand side of the differentiated KKT system.
+  const auto& L = system.layout();
+  const auto& subs = system.subsystems();
+  const auto& cons = system.constraints();
+  const auto& offs = system.constraint_row_offsets();
+  Vec dID(n), dQa(n), dres(m), dforce(n), dforce_c(n), rhs_d(n + r);
+  auto direction = [&](const Vec& dq, const Vec& dqd) {
+    dID.setZero();
+    for (std::size_t k = 0; k < subs.size(); ++k) {
+      const Index s = L.start[k], nk = L.size[k];
+      if (!subs[k]->inverse_dynamics_tangent(
+              {t, d.subsystem_slot(k)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
+              dq.segment(s, nk), dqd.segment(s, nk), dID.segment(s, nk)))
+        throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
+    }
+    dQa.setZero();
+    for (const auto& f : system.applied_forces()) {
+      if (!f->add_tangent(t, q, qd, dq, dqd, dQa))
+        throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
+    }
+    dforce.setZero();
+    for (std::size_t c = 0; c < cons.size(); ++c) {
+      const Index rows = cons[c]->rows();
+      dforce_c.setZero();
+      if (!cons[c]->tangent({t, d.constraint_slots(c)}, q, qd, lin.qdd,
+                            lambda.segment(offs[c], rows), dq, dqd, dres.segment(offs[c], rows),
+                            dforce_c))
+        throw Error("linearize: a constraint has no exact derivatives");
+      dforce += dforce_c;
+    }
+    rhs_d.head(n) = -dID + dQa + dforce;
+    for (Index k = 0; k < r; ++k) rhs_d(n + k) = -dres(rc.kept[static_cast<std::size_t>(k)]);
+  };
+  auto column = [&](Index j, Mat& dqdd, Mat& dQc) {
+    const Vec x = lu.solve(rhs_d);
+    dqdd.col(j) = x.head(n);
+    dQc.col(j) = dforce + AR.transpose() * x.tail(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
+  };
+  lin.dqdd_dq.resize(n, n);
+  lin.dqdd_dqd.resize(n, n);
+  lin.dqdd_dtau.resize(n, n);
+  lin.dQc_dq.resize(n, n);
+  lin.dQc_dqd.resize(n, n);
+  lin.dQc_dtau.resize(n, n);
+  const Vec zero = Vec::Zero(n);
+  Vec e = Vec::Zero(n);
+  for (Index j = 0; j < n; ++j) {
+    e.setZero();
+    e(j) = 1.0;
+    direction(e, zero);
+    column(j, lin.dqdd_dq, lin.dQc_dq);
+    direction(zero, e);
+    column(j, lin.dqdd_dqd, lin.dQc_dqd);
+    // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
+    rhs_d.setZero();
+    rhs_d(j) = 1.0;
+    dforce.setZero();
+    column(j, lin.dqdd_dtau, lin.dQc_dtau);
+  }
+  return lin;
+}
+
+}  // namespace ukdyn
