@@ -200,11 +200,14 @@ void attach_root(ChainDef& chain, const urdf::Link& root) {
   }
 }
 
-// Fails unless the link's <inertial> block (if any) is a physical one: finite, mass >= 0, the
-// inertia about the CoM symmetric positive semi-definite and its principal moments A, B, C meeting
-// the triangle inequality A + B >= C (relative tolerance 1e-6 of the largest, for rounded
-// decimals). Every message names the file and the link.
-void check_inertial(const std::string& path, const urdf::Link& link) {
+// Fails unless the link's <inertial> block (if any) is valid: finite, mass >= 0, the inertia about
+// the CoM symmetric positive semi-definite (every message names the file and the link). Principal
+// moments A, B, C that break the triangle inequality A + B >= C of a rigid body (relative
+// tolerance 1e-6 of the largest, for rounded decimals) are noted, not refused: M stays positive
+// semi-definite, and simplified models write such inertias on purpose (the paper's arm, whose
+// turret has a moment about z only).
+void check_inertial(const std::string& path, const urdf::Link& link,
+                    std::vector<std::string>& notes) {
   if (!link.inertial) return;
   const urdf::Inertial& I = *link.inertial;
   const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
@@ -232,8 +235,9 @@ void check_inertial(const std::string& path, const urdf::Link& link) {
   }
   if (e(0) + e(1) < e(2) * (1.0 - 1e-6)) {
     os << where << ": <inertia> breaks the triangle inequality of a rigid body: principal moments "
-       << e(0) << " + " << e(1) << " < " << e(2) << " (ixx + iyy >= izz and its permutations)";
-    throw DefinitionError(os.str());
+       << e(0) << " + " << e(1) << " < " << e(2)
+       << " (ixx + iyy >= izz and its permutations); kept as written";
+    notes.push_back(os.str());
   }
   check_pose(I.origin, where);
 }
@@ -243,12 +247,13 @@ void check_inertial(const std::string& path, const urdf::Link& link) {
 // base, flange and tool frames (ROS's ur_description, franka_description); a mass matrix this
 // leaves singular is refused with the constraints (docs/free-bodies.md, "Singular mass
 // matrices").
-void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in) {
+void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in,
+                   std::vector<std::string>& notes) {
   if (!link.inertial) {
     in = InertialDef{};
     return;
   }
-  check_inertial(path, link);
+  check_inertial(path, link, notes);
   const urdf::Inertial& I = *link.inertial;
   in.mass = exact_number(I.mass);
   const OriginDef o = origin(I.origin);
@@ -395,7 +400,7 @@ void append_link(ChainDef& chain, const urdf::Link& link, const std::string& roo
   j.origin = origin(uj.parent_to_joint_origin_transform);
   assign_joint_variables(chain, j, uj, where, joint_values, vars);
   read_limits(uj, where, j, chain.notes);
-  read_inertial(path, link, j.inertial);
+  read_inertial(path, link, j.inertial, chain.notes);
 }
 
 }  // namespace
@@ -408,10 +413,13 @@ void append_urdf(ChainDef& chain, const std::string& path,
   const Unlink unlink{model};  // whatever the outcome
   const urdf::LinkConstSharedPtr root = checked_root(model, messages, path, joint_values);
   JointVariables vars{free_coordinates(chain, joint_values), 0, {}};
-  check_inertial(path, *root);  // named even where it is not used (a root fixed in the world)
+  std::vector<std::string> root_notes;      // read_inertial below notes it again if it is used
+  check_inertial(path, *root, root_notes);  // named even where unused (a root fixed in the world)
+  if (!chain.base.enabled && chain.floating_root.empty())
+    chain.notes.insert(chain.notes.end(), root_notes.begin(), root_notes.end());
   attach_root(chain, *root);
   if ((chain.base.enabled || !chain.floating_root.empty()) && root->inertial)
-    read_inertial(path, *root, chain.joints.back().inertial);
+    read_inertial(path, *root, chain.joints.back().inertial, chain.notes);
 
   // Depth-first from the root: parents are defined before their children (push_children refuses
   // a link reached twice).

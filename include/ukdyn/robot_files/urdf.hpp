@@ -5,7 +5,8 @@
 // joints (value = multiplier · other + offset; JointDef::mimic names the other). A link's
 // <inertial> block (mass, origin xyz/rpy of the CoM frame, inertia about the CoM) is optional: a
 // link without one is a massless frame. Every <inertial> is checked (mass >= 0, inertia positive
-// semi-definite, principal moments A + B >= C), the message naming the file and the link. Joint
+// semi-definite), the message naming the file and the link; principal moments with A + B < C are
+// kept and noted (ChainDef::notes). Joint
 // <limit> (lower, upper: revolute and prismatic; velocity, effort) goes to JointDef::limits.
 // Dynamics, safety controllers and visual and collision elements are ignored; meshes among them
 // are counted in one line of ChainDef::notes. Numbers that are short decimals are kept exact
