@@ -290,6 +290,12 @@ int main(int argc, char** argv) {
       sc.q0 = a.q;
       sc.qd0 = a.qd;
     }
+    if (*sim || *chk) {  // what the robot file readers left out (meshes, limits taken as absent)
+      if (*chk || !quiet) {
+        for (const auto& note : sc.notes)
+          std::cerr << "ukdyn: note: " << ukdyn::printable(note) << "\n";
+      }
+    }
     if (*sim) {
       if (html && !ukdyn::replay_available()) {  // said before the run, not after it
         ukdyn::write_replay(sc, out);            // throws the message: how to get three.js

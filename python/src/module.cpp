@@ -16,6 +16,7 @@
 
 #include "bindings.hpp"
 #include "ukdyn/version.hpp"
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
@@ -311,6 +312,53 @@ ForwardResult forward(const PyScenario& s, double t, const py::object& q_in,
   return r;
 }
 
+// ---------------------------------------------------------------------------- linearize
+
+struct PyLinearization {
+  py::array_t<double> qdd, Qc, dqdd_dq, dqdd_dqd, dqdd_dtau, dQc_dq, dQc_dqd, dQc_dtau, F, G;
+  int rank = 0;
+  std::vector<std::string> kept_rows;
+  double kkt_agreement = 0.0;
+  bool trusted = true;
+  std::string message;
+};
+
+// The exact derivatives at (t, q, qd, tau) (ukdyn/model/linearize.hpp, docs/derivatives.md).
+PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
+                          const py::object& qd_in, const py::object& tau_in) {
+  const ukdyn::Scenario& sc = s.sc;
+  const ukdyn::System& sys = *sc.system;
+  const Index n = sys.dof();
+  const Vec q = vector_arg(q_in, n, "q");
+  const Vec qd = vector_arg(qd_in, n, "qd");
+  const Vec tau = tau_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
+  ukdyn::Linearization lin;
+  Mat F, G;
+  {
+    py::gil_scoped_release release;
+    lin = ukdyn::linearize(sys, t, q, qd, tau, sc.sim.uk);
+    ukdyn::state_space(lin, F, G);
+  }
+  PyLinearization r;
+  r.qdd = numpy_of(lin.qdd);
+  r.Qc = numpy_of(lin.Qc);
+  r.dqdd_dq = numpy_of(lin.dqdd_dq);
+  r.dqdd_dqd = numpy_of(lin.dqdd_dqd);
+  r.dqdd_dtau = numpy_of(lin.dqdd_dtau);
+  r.dQc_dq = numpy_of(lin.dQc_dq);
+  r.dQc_dqd = numpy_of(lin.dQc_dqd);
+  r.dQc_dtau = numpy_of(lin.dQc_dtau);
+  r.F = numpy_of(F);
+  r.G = numpy_of(G);
+  r.rank = lin.rank;
+  for (Index k : lin.kept_rows)
+    r.kept_rows.push_back(sys.constraint_row_names()[static_cast<std::size_t>(k)]);
+  r.kkt_agreement = lin.kkt_agreement;
+  r.trusted = lin.trusted;
+  r.message = lin.message;
+  return r;
+}
+
 // ---------------------------------------------------------------------------- simulate
 
 // A run: the trajectory in one C++ buffer, column-major (each column contiguous), owned by a
@@ -496,6 +544,26 @@ PYBIND11_MODULE(_ukdyn, m) {
 
   bind_definitions(m);
 
+  py::class_<PyLinearization>(m, "Linearization",
+                              "Exact derivatives of qdd and Qc at a state (docs/derivatives.md)")
+      .def_readonly("qdd", &PyLinearization::qdd, "qdd of the KKT system, n")
+      .def_readonly("Qc", &PyLinearization::Qc, "constraint force, n")
+      .def_readonly("dqdd_dq", &PyLinearization::dqdd_dq, "d qdd / d q, n x n")
+      .def_readonly("dqdd_dqd", &PyLinearization::dqdd_dqd, "d qdd / d qd, n x n")
+      .def_readonly("dqdd_dtau", &PyLinearization::dqdd_dtau, "d qdd / d tau, n x n")
+      .def_readonly("dQc_dq", &PyLinearization::dQc_dq, "d Qc / d q, n x n")
+      .def_readonly("dQc_dqd", &PyLinearization::dQc_dqd, "d Qc / d qd, n x n")
+      .def_readonly("dQc_dtau", &PyLinearization::dQc_dtau, "d Qc / d tau, n x n")
+      .def_readonly("F", &PyLinearization::F, "state matrix of x = (q, qd), 2n x 2n")
+      .def_readonly("G", &PyLinearization::G, "input matrix of tau, 2n x n")
+      .def_readonly("rank", &PyLinearization::rank, "rank of A")
+      .def_readonly("kept_rows", &PyLinearization::kept_rows, "the independent rows used, by name")
+      .def_readonly("kkt_agreement", &PyLinearization::kkt_agreement,
+                    "max |qdd_KKT - qdd_forward| / (1 + max |qdd_forward|)")
+      .def_readonly("trusted", &PyLinearization::trusted,
+                    "False where ukdyn cannot vouch for the derivatives (see message)")
+      .def_readonly("message", &PyLinearization::message, "why not trusted ('' if trusted)");
+
   py::class_<ForwardResult>(m, "ForwardResult",
                             "Forward dynamics at one state (paper Eqs. (4), (11), (18)).")
       .def_readonly("M", &ForwardResult::M, "mass matrix, n x n")
@@ -663,6 +731,13 @@ made from a System built in code (Scenario.from_system).)doc")
           R"doc(Forward dynamics at (t, q, qd) with generalized forces tau (default 0): M, C, Cqd, G,
 Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python callables
 f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
+      .def("linearize", &linearize, py::arg("t"), py::arg("q"), py::arg("qd"),
+           py::arg("tau") = py::none(),
+           R"doc(Exact derivatives of qdd and Qc at (t, q, qd) with generalized forces tau (default
+0): implicit differentiation of the KKT form of the U-K equation over the model's exact tangents
+(no finite differences). Check .trusted: False at or near a singular position, after a damped
+solve, or with inconsistent constraints (.message says which). Raises ukdyn.Error naming a
+component without exact derivatives. docs/derivatives.md.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),
            py::arg("forces") = std::vector<py::object>{}, py::kw_only(),
            py::arg("control_law") = py::none(),

@@ -246,3 +246,58 @@ def test_cli_says_it_draws_figures_and_labels_platforms_in_metres(tmp_path):
     assert 'set ylabel "[m]"' in plat and 'title "dx1"' in plat and 'title "dy2"' in plat
     assert 'set ylabel "[rad]"' in angles and 'title "theta1"' in angles
     assert 'title "dx1"' not in angles and 'title "dy1"' not in angles
+
+
+ARM_YAML = """ukdyn: 1
+name: spatial_arm
+gravity: 9.81
+subsystems:
+  - name: arm
+    type: serial_chain
+    coordinates: [a, b, c]
+    joints:
+      - {name: j1, type: revolute, link: l1, axis: [0, 0, 1], coordinate: a,
+         mass: 2, com: [0.1, 0, 0.2], inertia: [0.02, 0.03, 0.01]}
+      - {name: j2, type: revolute, link: l2, origin: {xyz: [0, 0, 0.4]}, axis: [0, 1, 0],
+         coordinate: b, mass: 1.5, com: [0.3, 0, 0], inertia: [0.01, 0.04, 0.04]}
+      - {name: j3, type: revolute, link: l3, origin: {xyz: [0.6, 0, 0]}, axis: [1, 0, 0],
+         coordinate: c, mass: 0.7, com: [0.2, 0.05, 0], inertia: [0.003, 0.01, 0.01]}
+initial: {q: [0.3, -0.7, 1.1], qd: [0.5, -1.2, 0.8]}
+simulation: {t_end: 1, sample_dt: 0.1}
+"""
+
+
+def test_linearize_matches_differences_of_forward(tmp_path):
+    # Exact derivatives (docs/derivatives.md) against central differences of forward(),
+    # Richardson-extrapolated (error O(h^4)); F, G in state-space form.
+    path = tmp_path / "arm.yaml"
+    path.write_text(ARM_YAML)
+    sc = ukdyn.load_scenario(path)
+    q, qd, tau = np.array([0.3, -0.7, 1.1]), np.array([0.5, -1.2, 0.8]), np.array([0.2, -0.1, 0.05])
+    lin = sc.linearize(0.0, q, qd, tau)
+    assert lin.trusted, lin.message
+    assert lin.kkt_agreement < 1e-12
+    n = 3
+
+    def qdd(x, v, u):
+        return sc.forward(0.0, x, v, u).qdd
+
+    def diff(k, j):
+        def central(h):
+            args_p, args_m = [q.copy(), qd.copy(), tau.copy()], [q.copy(), qd.copy(), tau.copy()]
+            args_p[k][j] += h
+            args_m[k][j] -= h
+            return (qdd(*args_p) - qdd(*args_m)) / (2 * h)
+
+        return (4 * central(5e-4) - central(1e-3)) / 3
+
+    for k, exact in enumerate([lin.dqdd_dq, lin.dqdd_dqd, lin.dqdd_dtau]):
+        for j in range(n):
+            d = diff(k, j)
+            assert np.abs(exact[:, j] - d).max() <= 1e-8 * (1 + np.abs(d).max()), (k, j)
+    assert lin.F.shape == (6, 6) and lin.G.shape == (6, 3)
+    assert np.array_equal(lin.F[3:, :3], lin.dqdd_dq)
+    np.testing.assert_allclose(lin.dqdd_dtau, np.linalg.inv(sc.forward(0.0, q, qd, tau).M), rtol=1e-12)
+    zeros = np.zeros(12)
+    with pytest.raises(ukdyn.Error, match="no exact derivatives"):
+        ukdyn.load_scenario(scenario_path("paper.yaml")).linearize(0.0, zeros, zeros)

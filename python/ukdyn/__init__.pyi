@@ -202,6 +202,23 @@ class ForwardResult:
     consistent: bool
     finite: bool
 
+class Linearization:
+    qdd: FloatArray
+    Qc: FloatArray
+    dqdd_dq: FloatArray
+    dqdd_dqd: FloatArray
+    dqdd_dtau: FloatArray
+    dQc_dq: FloatArray
+    dQc_dqd: FloatArray
+    dQc_dtau: FloatArray
+    F: FloatArray
+    G: FloatArray
+    rank: int
+    kept_rows: list[str]
+    kkt_agreement: float
+    trusted: bool
+    message: str
+
 class Run:
     columns: list[str]
     summary: dict[str, Any]
@@ -293,5 +310,9 @@ class Scenario:
         closed loop (plant integrated, columns u_*, e_*, ed_*, Qp_*, Qs_*, summary["control"]);
         control_law replaces its built-in law. controller / forces: scenarios without control:."""
     def assemble(self) -> dict[str, Any]: ...
+    def linearize(
+        self, t: float, q: ArrayLike, qd: ArrayLike, tau: Optional[ArrayLike] = None
+    ) -> Linearization:
+        """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted (docs/derivatives.md)"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

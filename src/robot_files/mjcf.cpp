@@ -1,6 +1,8 @@
 #include "ukdyn/robot_files/mjcf.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <set>
 #include <vector>
@@ -130,6 +132,35 @@ struct JointCursor {
   const double* prev_anchor = nullptr;
 };
 
+// The largest generalized force the actuators on joint j can apply (+inf if one of them is not
+// limited, or none acts on it): per actuator with a joint transmission, |gear| times its force
+// bound, forcerange when forcelimited, else ctrlrange times the gain of a plain motor (fixed gain,
+// no bias, no activation dynamics) when ctrllimited.
+double actuator_effort(const mjModel& m, int j) {
+  const double inf = std::numeric_limits<double>::infinity();
+  double sum = 0.0;
+  bool any = false;
+  for (int u = 0; u < m.nu; ++u) {
+    if (m.actuator_trnid[2 * u] != j ||
+        (m.actuator_trntype[u] != mjTRN_JOINT && m.actuator_trntype[u] != mjTRN_JOINTINPARENT))
+      continue;
+    any = true;
+    const double* fr = m.actuator_forcerange + 2 * u;
+    const double* cr = m.actuator_ctrlrange + 2 * u;
+    const bool motor = m.actuator_gaintype[u] == mjGAIN_FIXED &&
+                       m.actuator_biastype[u] == mjBIAS_NONE && m.actuator_dyntype[u] == mjDYN_NONE;
+    double bound = inf;
+    if (m.actuator_forcelimited[u]) {
+      bound = std::max(std::abs(fr[0]), std::abs(fr[1]));
+    } else if (motor && m.actuator_ctrllimited[u]) {
+      bound =
+          std::max(std::abs(cr[0]), std::abs(cr[1])) * std::abs(m.actuator_gainprm[mjNGAIN * u]);
+    }
+    sum += bound * std::abs(m.actuator_gear[6 * u]);
+  }
+  return any && sum > 0.0 ? sum : inf;
+}
+
 // Joint i of body b, as a chain joint to a link BODY__JOINT after the cursor's link.
 void append_joint(ChainDef& chain, const MjcfSource& src, int b, int i, const std::string& bname,
                   const std::vector<std::string>& free, JointCursor& at) {
@@ -176,8 +207,38 @@ void append_joint(ChainDef& chain, const MjcfSource& src, int b, int i, const st
     const ex q = coordinate_symbol(chain.symbols(), free[adr]);
     const double q0 = m.qpos0[m.jnt_qposadr[j]];
     jd.value = q0 == 0.0 ? q : q - exact_number(q0);
+    if (m.jnt_limited[j]) {  // range is on qpos; the joint's value is qpos − qpos0
+      jd.limits.lower = m.jnt_range[2 * j] - q0;
+      jd.limits.upper = m.jnt_range[2 * j + 1] - q0;
+    }
+    jd.limits.effort = actuator_effort(m, j);
   }
   at = {jd.link, a};
+}
+
+// Fails unless body b's compiled mass is >= 0 and its principal moments A, B, C are >= 0 and meet
+// the triangle inequality A + B >= C (relative tolerance 1e-6 of the largest); names the file and
+// the body. (MuJoCo's compiler refuses most such bodies itself, with its own message.)
+void check_body_inertia(const MjcfSource& src, int b, const std::string& bname) {
+  const double mass = src.m.body_mass[b];
+  const double* I = src.m.body_inertia + 3 * b;
+  const std::string where = src.path + ": body '" + bname + "'";
+  if (!std::isfinite(mass) || mass < 0.0)
+    throw DefinitionError(where + ": the mass must be a finite number >= 0, got " +
+                          std::to_string(mass));
+  const double largest = std::max({I[0], I[1], I[2]});
+  for (int k = 0; k < 3; ++k) {
+    const double a = I[k], b1 = I[(k + 1) % 3], c = I[(k + 2) % 3];
+    if (!std::isfinite(a) || a < 0.0)
+      throw DefinitionError(where + ": a principal moment of inertia is negative or not finite");
+    if (b1 + c < a - 1e-6 * largest) {
+      throw DefinitionError(where +
+                            ": the inertia breaks the triangle inequality of a rigid body: "
+                            "principal moments " +
+                            std::to_string(b1) + " + " + std::to_string(c) + " < " +
+                            std::to_string(a));
+    }
+  }
 }
 
 // The body frame (fixed to the last joint frame, or to the parent) with the body's inertia.
@@ -195,6 +256,7 @@ void append_body_frame(ChainDef& chain, const MjcfSource& src, int b, const std:
     const double d[3] = {-at.prev_anchor[0], -at.prev_anchor[1], -at.prev_anchor[2]};
     fd.origin.xyz = vec_of(d);
   }
+  check_body_inertia(src, b, bname);
   fd.inertial.mass = exact_number(m.body_mass[b]);
   fd.inertial.com = vec_of(m.body_ipos + 3 * b);
   fd.inertial.rpy = rpy_of(m.body_iquat + 4 * b);
@@ -264,6 +326,13 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
   link[0] = root;
   for (int b = 1; b < g.m->nbody; ++b) append_body(chain, src, b, free, link);
   append_equalities(chain, src, link);
+  int meshes = 0;
+  for (int k = 0; k < g.m->ngeom; ++k) meshes += g.m->geom_type[k] == mjGEOM_MESH ? 1 : 0;
+  if (meshes > 0) {
+    chain.notes.push_back(
+        path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
+        " ignored: ukdyn reads kinematics and inertia only; visuals are not drawn");
+  }
 }
 
 #endif

@@ -1,5 +1,6 @@
 #include "ukdyn/robot_files/urdf.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <numbers>
@@ -12,6 +13,7 @@
 #include <console_bridge/console.h>
 #include <urdf_parser/urdf_parser.h>
 
+#include <Eigen/Eigenvalues>
 #include <mutex>
 #endif
 
@@ -198,16 +200,15 @@ void attach_root(ChainDef& chain, const urdf::Link& root) {
   }
 }
 
-// A link's <inertial> block, checked: finite, mass >= 0, inertia diagonal >= 0. A link without
-// one is massless, as the URDF specification makes <inertial> optional and as published robot
-// files leave it out of base, flange and tool frames (ROS's ur_description, franka_description);
-// a mass matrix this leaves singular is refused with the constraints (docs/free-bodies.md,
-// "Singular mass matrices").
-void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in) {
-  if (!link.inertial) {
-    in = InertialDef{};
-    return;
-  }
+// Fails unless the link's <inertial> block (if any) is valid: finite, mass >= 0, the inertia about
+// the CoM symmetric positive semi-definite (every message names the file and the link). Principal
+// moments A, B, C that break the triangle inequality A + B >= C of a rigid body (relative
+// tolerance 1e-6 of the largest, for rounded decimals) are noted, not refused: M stays positive
+// semi-definite, and simplified models write such inertias on purpose (the paper's arm, whose
+// turret has a moment about z only).
+void check_inertial(const std::string& path, const urdf::Link& link,
+                    std::vector<std::string>& notes) {
+  if (!link.inertial) return;
   const urdf::Inertial& I = *link.inertial;
   const std::string where = path + ": link '" + shown(link.name) + "': <inertial>";
   if (!std::isfinite(I.mass) || I.mass < 0.0) {
@@ -220,7 +221,40 @@ void read_inertial(const std::string& path, const urdf::Link& link, InertialDef&
   }
   if (I.ixx < 0.0 || I.iyy < 0.0 || I.izz < 0.0)
     throw DefinitionError(where + ": <inertia> has a negative diagonal entry (ixx, iyy, izz)");
+  Eigen::Matrix3d M;
+  M << I.ixx, I.ixy, I.ixz, I.ixy, I.iyy, I.iyz, I.ixz, I.iyz, I.izz;
+  const Eigen::Vector3d e =
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(M, Eigen::EigenvaluesOnly).eigenvalues();
+  const double scale = std::max(e(2), 0.0);  // ascending
+  std::ostringstream os;
+  os.precision(6);
+  if (e(0) < -1e-12 * std::max(scale, 1.0)) {
+    os << where << ": <inertia> is not positive semi-definite (principal moments " << e(0) << ", "
+       << e(1) << ", " << e(2) << ")";
+    throw DefinitionError(os.str());
+  }
+  if (e(0) + e(1) < e(2) * (1.0 - 1e-6)) {
+    os << where << ": <inertia> breaks the triangle inequality of a rigid body: principal moments "
+       << e(0) << " + " << e(1) << " < " << e(2)
+       << " (ixx + iyy >= izz and its permutations); kept as written";
+    notes.push_back(os.str());
+  }
   check_pose(I.origin, where);
+}
+
+// A link's <inertial> block (checked by check_inertial). A link without one is massless, as the
+// URDF specification makes <inertial> optional and as published robot files leave it out of
+// base, flange and tool frames (ROS's ur_description, franka_description); a mass matrix this
+// leaves singular is refused with the constraints (docs/free-bodies.md, "Singular mass
+// matrices").
+void read_inertial(const std::string& path, const urdf::Link& link, InertialDef& in,
+                   std::vector<std::string>& notes) {
+  if (!link.inertial) {
+    in = InertialDef{};
+    return;
+  }
+  check_inertial(path, link, notes);
+  const urdf::Inertial& I = *link.inertial;
   in.mass = exact_number(I.mass);
   const OriginDef o = origin(I.origin);
   in.com = o.xyz;
@@ -228,6 +262,49 @@ void read_inertial(const std::string& path, const urdf::Link& link, InertialDef&
   const ex xx = exact_number(I.ixx), xy = exact_number(I.ixy), xz = exact_number(I.ixz),
            yy = exact_number(I.iyy), yz = exact_number(I.iyz), zz = exact_number(I.izz);
   in.inertia = {xx, xy, xz, xy, yy, yz, xz, yz, zz};
+}
+
+// The joint's <limit>: lower and upper for revolute and prismatic joints (a continuous joint has
+// no range), velocity and effort for all three. urdfdom reads a missing lower or upper as 0 and
+// requires velocity and effort: a range with lower >= upper and a velocity or effort <= 0 are
+// taken as absent (noted once per joint in `notes`).
+void read_limits(const urdf::Joint& uj, const std::string& where, JointDef& j,
+                 std::vector<std::string>& notes) {
+  if (!uj.limits || j.type == JointDef::Type::fixed || j.type == JointDef::Type::floating) return;
+  const urdf::JointLimits& l = *uj.limits;
+  std::string ignored;
+  if (uj.type == urdf::Joint::REVOLUTE || uj.type == urdf::Joint::PRISMATIC) {
+    if (std::isfinite(l.lower) && std::isfinite(l.upper) && l.lower < l.upper) {
+      j.limits.lower = l.lower;
+      j.limits.upper = l.upper;
+    } else {
+      ignored += "the range (lower >= upper)";
+    }
+  }
+  if (std::isfinite(l.velocity) && l.velocity > 0.0) {
+    j.limits.velocity = l.velocity;
+  } else {
+    ignored += std::string(ignored.empty() ? "" : ", ") + "the velocity (<= 0)";
+  }
+  if (std::isfinite(l.effort) && l.effort > 0.0) {
+    j.limits.effort = l.effort;
+  } else {
+    ignored += std::string(ignored.empty() ? "" : ", ") + "the effort (<= 0)";
+  }
+  if (!ignored.empty()) notes.push_back(where + ": <limit>: " + ignored + " taken as no limit");
+}
+
+// The number of <visual> and <collision> meshes of the file's links (ukdyn reads none of them).
+std::size_t count_meshes(const urdf::ModelInterface& model) {
+  std::size_t n = 0;
+  for (const auto& [name, link] : model.links_) {
+    if (!link) continue;
+    for (const auto& v : link->visual_array)
+      n += v && v->geometry && v->geometry->type == urdf::Geometry::MESH ? 1 : 0;
+    for (const auto& c : link->collision_array)
+      n += c && c->geometry && c->geometry->type == urdf::Geometry::MESH ? 1 : 0;
+  }
+  return n;
 }
 
 // Pushes the link's children on the stack (the first child on top); a child reached twice (a
@@ -296,6 +373,7 @@ void assign_joint_variables(const ChainDef& chain, JointDef& j, const urdf::Join
                               "', which is not a movable joint before it");
       }
       j.value = exact_number(uj.mimic->multiplier) * m->second + exact_number(uj.mimic->offset);
+      j.mimic = uj.mimic->joint_name;
     } else {
       if (next >= free.size()) {
         throw DefinitionError(where + ": no coordinate left for it (the chain declares " +
@@ -321,7 +399,8 @@ void append_link(ChainDef& chain, const urdf::Link& link, const std::string& roo
       uj.parent_link_name == root_name && chain.base.enabled ? root_name : uj.parent_link_name;
   j.origin = origin(uj.parent_to_joint_origin_transform);
   assign_joint_variables(chain, j, uj, where, joint_values, vars);
-  read_inertial(path, link, j.inertial);
+  read_limits(uj, where, j, chain.notes);
+  read_inertial(path, link, j.inertial, chain.notes);
 }
 
 }  // namespace
@@ -334,9 +413,13 @@ void append_urdf(ChainDef& chain, const std::string& path,
   const Unlink unlink{model};  // whatever the outcome
   const urdf::LinkConstSharedPtr root = checked_root(model, messages, path, joint_values);
   JointVariables vars{free_coordinates(chain, joint_values), 0, {}};
+  std::vector<std::string> root_notes;      // read_inertial below notes it again if it is used
+  check_inertial(path, *root, root_notes);  // named even where unused (a root fixed in the world)
+  if (!chain.base.enabled && chain.floating_root.empty())
+    chain.notes.insert(chain.notes.end(), root_notes.begin(), root_notes.end());
   attach_root(chain, *root);
   if ((chain.base.enabled || !chain.floating_root.empty()) && root->inertial)
-    read_inertial(path, *root, chain.joints.back().inertial);
+    read_inertial(path, *root, chain.joints.back().inertial, chain.notes);
 
   // Depth-first from the root: parents are defined before their children (push_children refuses
   // a link reached twice).
@@ -348,6 +431,11 @@ void append_urdf(ChainDef& chain, const std::string& path,
     push_children(*model, *link, path, visited, stack);
     if (link == root) continue;
     append_link(chain, *link, root->name, path, joint_values, vars);
+  }
+  if (const std::size_t meshes = count_meshes(*model); meshes > 0) {
+    chain.notes.push_back(
+        path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
+        " ignored: ukdyn reads kinematics and inertia only; visuals are not drawn");
   }
 }
 

@@ -220,6 +220,10 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::shared_ptr<const symbolic::ChainDef>> pending;
   /// The chains on the tree algorithms, by name (their frames' numeric constraints).
   std::map<std::string, std::shared_ptr<const tree::TreeSubsystem>> trees;
+  /// Per chain with a limit: the limits of its coordinates (ChainDef::coordinate_limits).
+  std::map<std::string, std::vector<CoordinateLimits>> limits;
+  /// What the robot file readers noted (ChainDef::notes), each line once.
+  std::vector<std::string> notes;
 };
 
 namespace ukdyn::io_detail {
@@ -395,6 +399,17 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
 }
 
 // ------------------------------------------------------------------------------ serial chains
+
+std::vector<CoordinateLimits> chain_coordinate_limits(const DefinitionContext* context,
+                                                      const std::string& name) {
+  if (!context) return {};
+  auto it = context->limits.find(name);
+  return it == context->limits.end() ? std::vector<CoordinateLimits>{} : it->second;
+}
+
+std::vector<std::string> robot_file_notes(const DefinitionContext* context) {
+  return context ? context->notes : std::vector<std::string>{};
+}
 
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name) {
@@ -755,6 +770,13 @@ void load_points(const Loader& L, const Node& s, sym::ChainDef& def) {
 void record_chain(DefinitionContext& context, const std::string& name,
                   std::shared_ptr<const sym::ChainDef> def, std::optional<sym::ChainModel> model) {
   if (!def->link_constraints.empty()) context.link_constraints[name] = def->link_constraints;
+  if (auto lim = def->coordinate_limits();
+      std::any_of(lim.begin(), lim.end(), [](const CoordinateLimits& l) { return l.any(); }))
+    context.limits[name] = std::move(lim);
+  for (const auto& note : def->notes) {
+    if (std::find(context.notes.begin(), context.notes.end(), note) == context.notes.end())
+      context.notes.push_back(note);
+  }
   // The link tree as build_chain resolves it (an empty parent: the previous joint's child).
   auto& edges = context.edges[name];
   std::string last = def->base.enabled ? def->base.link : def->root_link;

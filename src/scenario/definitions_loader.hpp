@@ -96,6 +96,12 @@ std::vector<std::string> chain_base_coordinates(const DefinitionContext* context
                                                 const std::string& name);
 std::vector<std::string> chain_prismatic_coordinates(const DefinitionContext* context,
                                                      const std::string& name);
+/// The limits of serial_chain subsystem `name`'s coordinates (its robot file's joint limits,
+/// ChainDef::coordinate_limits); empty if it has none, or no context.
+std::vector<CoordinateLimits> chain_coordinate_limits(const DefinitionContext* context,
+                                                      const std::string& name);
+/// What the robot file readers noted (meshes ignored, limits taken as absent), each line once.
+std::vector<std::string> robot_file_notes(const DefinitionContext* context);
 /// The bodies (name, CoM in the world) of definitions subsystem `name`.
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name);

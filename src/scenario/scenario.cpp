@@ -839,6 +839,18 @@ void check_initial_state(const Loader& L, const Loading& st, Scenario& sc) {
 
 namespace {
 
+// Scenario::coordinate_limits() (the chains' robot file limits at their subsystems' offsets, in
+// sim.limits) and Scenario::notes.
+void collect_limits_and_notes(Scenario& sc) {
+  sc.sim.limits.assign(static_cast<std::size_t>(sc.system->dof()), CoordinateLimits{});
+  for (const SubsystemInfo& info : sc.subsystems) {
+    const auto lim = io_detail::chain_coordinate_limits(sc.definitions.get(), info.name);
+    for (std::size_t k = 0; k < lim.size() && static_cast<Index>(k) < info.dof; ++k)
+      sc.sim.limits[static_cast<std::size_t>(info.offset) + k] = lim[k];
+  }
+  sc.notes = io_detail::robot_file_notes(sc.definitions.get());
+}
+
 Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string& hash,
                                  const std::filesystem::path& path, const LoadOptions& options) {
   // The symbols of this system's derivation: shared by every definition loaded below, held by the
@@ -868,6 +880,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   check_singular_mass(L, sc, st);
   if (options.check_initial) check_initial_state(L, st, sc);
   sc.system = st.system;
+  collect_limits_and_notes(sc);
   return sc;
 }
 

@@ -3,15 +3,16 @@
 #include <algorithm>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "model/solve_stages.hpp"
 #include "ukdyn/simulate/diagnostics.hpp"
 #include "ukdyn/simulate/drift.hpp"
 #include "ukdyn/simulate/implicit.hpp"
-#include "model/solve_stages.hpp"
 
 namespace ukdyn {
 
@@ -150,6 +151,13 @@ bool finite_state(const State& x) {
   return true;
 }
 
+// A number for a message, to 6 significant digits.
+std::string g6(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
 // Checks the arguments of simulate() (the public edge); returns the number of grid samples.
 long check_arguments(const System& system, const Vec& q0, const Vec& qd0,
                      const SimulationSettings& s) {
@@ -180,6 +188,10 @@ long check_arguments(const System& system, const Vec& q0, const Vec& qd0,
   } else if (!(s.abs_tol > 0.0) || !(s.rel_tol >= 0.0)) {
     throw Error("simulate: abs_tol must be > 0 and rel_tol >= 0");
   }
+  if (!s.limits.empty() && static_cast<Index>(s.limits.size()) != n) {
+    throw std::invalid_argument("simulate: settings.limits has " + std::to_string(s.limits.size()) +
+                                " entries, expected 0 or " + std::to_string(n) + " (system.dof())");
+  }
   return n_samples;
 }
 
@@ -201,7 +213,8 @@ class Run {
         x_(static_cast<std::size_t>(2 * n_ + (s.energy_balance ? 1 : 0)), 0.0),  // [q; q̇; W]
         x_out_(x_.size()),
         last_good_(x_.size()),
-        sample_data_(system) {
+        sample_data_(system),
+        limit_warned_(s.limits.size(), 0) {
     Eigen::Map<Vec>(x_.data(), n_) = q0;
     Eigen::Map<Vec>(x_.data() + n_, n_) = qd0;
     // Sample times t0 + i·Δ, plus t_end itself when Δ does not divide the span.
@@ -262,6 +275,7 @@ class Run {
     stats_.t_reached = t;
     const UkResult& r = sample_data_.result;
     if (r.finite) warn_mass_condition(t);
+    if (!limit_warned_.empty()) check_limits(t, q, qd);
     const bool keep_going = observer_ ? observer_(t, q, qd, sample_data_) : true;
     if (!r.finite || !finite_state(xs)) {
       stats_.status = RunStatus::non_finite;
@@ -279,6 +293,30 @@ class Run {
       return false;
     }
     return true;
+  }
+
+  // SimulationSettings::limits: a sample outside a coordinate's position range or over its
+  // velocity limit is warned (kind joint_limit) once per coordinate, with the first time and the
+  // value; the run goes on. Allocates only when it warns (at most once per coordinate).
+  void check_limits(double t, const Eigen::Map<const Vec>& q, const Eigen::Map<const Vec>& qd) {
+    for (Index i = 0; i < n_; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      if (limit_warned_[k]) continue;
+      const CoordinateLimits& L = s_.limits[k];
+      const bool below = q(i)<L.lower, above = q(i)> L.upper;
+      const bool fast = std::abs(qd(i)) > L.velocity;
+      if (!below && !above && !fast) continue;
+      limit_warned_[k] = 1;
+      const std::string& name = system_.coordinate_names()[k];
+      const std::string what =
+          below || above
+              ? "left its range [" + g6(L.lower) + ", " + g6(L.upper) + "]: q = " + g6(q(i))
+              : "exceeded its velocity limit " + g6(L.velocity) + ": |qd| = " + g6(std::abs(qd(i)));
+      stats_.warnings.push_back({t, "joint_limit",
+                                 "coordinate '" + name + "' " + what +
+                                     " (the robot file's limit; nothing enforces it, the run "
+                                     "goes on)"});
+    }
   }
 
   // The solve's indicators at a sample: warnings, and the end of the run on inconsistency.
@@ -577,6 +615,7 @@ class Run {
   ForwardData sample_data_;
   SimulationStats stats_;
   int last_rank_ = -1;
+  std::vector<char> limit_warned_;  ///< per coordinate: joint_limit said (sized once)
   long total_samples_ = 0;
   bool extra_end_ = false;
 };

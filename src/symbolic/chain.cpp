@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -106,6 +107,70 @@ JointDef& ChainDef::add_joint(std::string joint_name, JointDef::Type type, std::
 
 void ChainDef::add_point(std::string point_name, std::string link, Vec3Ex xyz) {
   points.push_back({std::move(point_name), std::move(link), std::move(xyz)});
+}
+
+namespace {
+
+// A number, if e is one (finite, real) once evaluated.
+std::optional<double> number_of(const GiNaC::ex& e) {
+  const GiNaC::ex v = e.evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real())
+    return std::nullopt;
+  const double d = GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+  return std::isfinite(d) ? std::optional<double>(d) : std::nullopt;
+}
+
+// θ = c · q_k + offset: (k, c, offset) if the joint's value has that form, else nullopt.
+struct AffineInOne {
+  std::size_t k = 0;
+  double c = 1.0, offset = 0.0;
+};
+std::optional<AffineInOne> affine_in_one(const ChainDef& chain, const JointDef& j,
+                                         const GiNaC::exmap& values) {
+  const auto& cs = chain.coordinates();
+  if (!j.value) {
+    for (std::size_t k = 0; k < cs.size(); ++k)
+      if (cs[k] == j.coordinate) return AffineInOne{k, 1.0, 0.0};
+    return std::nullopt;
+  }
+  const GiNaC::ex v = j.value->subs(values);
+  std::optional<AffineInOne> found;
+  GiNaC::exmap zero;
+  for (std::size_t k = 0; k < cs.size(); ++k) {
+    const GiNaC::symbol q = coordinate_symbol(chain.symbols(), cs[k]);
+    zero[q] = 0;
+    if (!v.has(q)) continue;
+    const auto c = number_of(v.diff(q));
+    if (found || !c || *c == 0.0) return std::nullopt;  // two coordinates, or not affine
+    found = AffineInOne{k, *c, 0.0};
+  }
+  if (!found) return std::nullopt;
+  const auto off = number_of(v.subs(zero));
+  if (!off) return std::nullopt;
+  found->offset = *off;
+  return found;
+}
+
+}  // namespace
+
+std::vector<CoordinateLimits> ChainDef::coordinate_limits() const {
+  std::vector<CoordinateLimits> out(coordinates().size());
+  const GiNaC::exmap values = parameter_values();
+  for (const JointDef& j : joints) {
+    if (!j.limits.any() || !j.mimic.empty() || j.type == JointDef::Type::fixed ||
+        j.type == JointDef::Type::floating || j.type == JointDef::Type::ball)
+      continue;
+    const auto a = affine_in_one(*this, j, values);
+    if (!a) continue;
+    double lo = (j.limits.lower - a->offset) / a->c, hi = (j.limits.upper - a->offset) / a->c;
+    if (a->c < 0.0) std::swap(lo, hi);
+    CoordinateLimits& L = out[a->k];
+    L.lower = std::max(L.lower, lo);
+    L.upper = std::min(L.upper, hi);
+    L.velocity = std::min(L.velocity, j.limits.velocity / std::abs(a->c));
+    L.effort = std::min(L.effort, j.limits.effort * std::abs(a->c));
+  }
+  return out;
 }
 
 Vec3Ex ChainModel::world_point(const std::string& name) const {

@@ -385,15 +385,80 @@ Index tangent_workspace_doubles(std::size_t links, Index nt) {
 
 }  // namespace
 
-TreeSubsystem::TreeSubsystem(Model model) : model_(std::move(model)) {
+namespace {
+
+// Lumps a rigid body (mass m, CoM c, inertia I about c, both in K's frame) into link K.
+void lump(Link& K, double m, const Eigen::Vector3d& c, const Eigen::Matrix3d& I) {
+  const double M = K.mass + m;
+  if (!(M > 0.0)) {  // two massless frames, or a mass-less inertia: nothing to shift
+    K.inertia += I;
+    return;
+  }
+  const Eigen::Vector3d com = (K.mass * K.com + m * c) / M;
+  auto shift = [&com](double mass, const Eigen::Vector3d& at) {
+    const Eigen::Vector3d d = at - com;
+    return Eigen::Matrix3d(mass * (d.dot(d) * Eigen::Matrix3d::Identity() - d * d.transpose()));
+  };
+  K.inertia = K.inertia + shift(K.mass, K.com) + I + shift(m, c);
+  K.mass = M;
+  K.com = com;
+}
+
+// The tree with every link on a fixed joint merged into its nearest movable ancestor (its inertia
+// lumped there, its children re-parented with the composed origin), where each link of `m` is in
+// it, and V0: the potential of the masses whose joints up to the root are all fixed.
+Model merge_fixed_links(const Model& m, std::vector<TreeSubsystem::Placement>& where, double& V0) {
+  Model out = m;
+  out.links.clear();
+  out.points.clear();
+  where.assign(m.links.size(), {});
+  V0 = 0.0;
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const Link& L = m.links[i];
+    TreeSubsystem::Placement parent;  // the root frame
+    if (L.parent >= 0) parent = where[static_cast<std::size_t>(L.parent)];
+    const Eigen::Matrix3d Rj = parent.R * L.origin_rotation;
+    const Eigen::Vector3d pj = parent.p + parent.R * L.origin_translation;
+    if (L.type != JointType::fixed) {
+      Link K = L;
+      K.parent = parent.link;
+      K.origin_rotation = Rj;
+      K.origin_translation = pj;
+      out.links.push_back(std::move(K));
+      where[i].link = static_cast<int>(out.links.size()) - 1;
+      continue;
+    }
+    where[i] = {parent.link, Rj, pj};
+    if (L.mass == 0.0 && L.inertia.isZero(0.0)) continue;
+    const Eigen::Vector3d c = pj + Rj * L.com;
+    if (parent.link < 0) {  // fixed in the world: a constant potential −m g · c
+      V0 -= L.mass * m.gravity.dot(m.root_rotation * c + m.root_translation);
+    } else {
+      lump(out.links[static_cast<std::size_t>(parent.link)], L.mass, c,
+           Rj * L.inertia * Rj.transpose());
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(model)) {
   validate(model_);
-  theta_index_.assign(model_.links.size(), -1);
-  for (std::size_t i = 0; i < model_.links.size(); ++i) {
-    if (model_.links[i].type != JointType::fixed) theta_index_[i] = static_cast<int>(n_theta_++);
+  if (merge_fixed) {
+    merged_ = merge_fixed_links(model_, placement_, potential0_);
+  } else {
+    merged_ = model_;
+    placement_.resize(model_.links.size());
+    for (std::size_t i = 0; i < placement_.size(); ++i) placement_[i].link = static_cast<int>(i);
+  }
+  theta_index_.assign(merged_.links.size(), -1);
+  for (std::size_t i = 0; i < merged_.links.size(); ++i) {
+    if (merged_.links[i].type != JointType::fixed) theta_index_[i] = static_cast<int>(n_theta_++);
   }
   // The forward workspace, then the derivatives' (dual numbers, inverse_dynamics_tangent()).
-  slot_size_ = workspace_doubles(model_.links.size(), n_theta_) +
-               tangent_workspace_doubles(model_.links.size(), n_theta_);
+  slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
+               tangent_workspace_doubles(merged_.links.size(), n_theta_);
 }
 
 int TreeSubsystem::link_index(const std::string& name) const {
@@ -463,59 +528,59 @@ void to_coordinates(const Model& m, const std::vector<int>& ti, const double* x,
 }  // namespace
 
 void TreeSubsystem::mass(const EvalContext& c, CVecRef q, MatRef M) const {
-  with_workspace(c.slot, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(model_, theta_index_, w.theta, w.links);
-    composite(model_, w.links);
-    crba(model_, theta_index_, w.links, w.Mt, n_theta_);
-    to_coordinates(model_, theta_index_, w.Mt, n_theta_, M);
+  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, w.theta, w.links);
+    composite(merged_, w.links);
+    crba(merged_, theta_index_, w.links, w.Mt, n_theta_);
+    to_coordinates(merged_, theta_index_, w.Mt, n_theta_, M);
   });
 }
 
 void TreeSubsystem::coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd,
                                       VecRef Cqd) const {
-  with_workspace(c.slot, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(model_, theta_index_, w.theta, w.links);
-    velocity_products(model_, theta_index_, w.thetad, w.links, w.tau);
-    to_coordinates(model_, theta_index_, w.tau, Cqd);
+  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, w.theta, w.links);
+    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
+    to_coordinates(merged_, theta_index_, w.tau, Cqd);
   });
 }
 
 void TreeSubsystem::gravity(const EvalContext& c, CVecRef q, VecRef G) const {
-  with_workspace(c.slot, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(model_, theta_index_, w.theta, w.links);
-    composite(model_, w.links);
-    gravity_forces(model_, theta_index_, w.links, w.tau);
-    to_coordinates(model_, theta_index_, w.tau, G);
+  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, w.theta, w.links);
+    composite(merged_, w.links);
+    gravity_forces(merged_, theta_index_, w.links, w.tau);
+    to_coordinates(merged_, theta_index_, w.tau, G);
   });
 }
 
 double TreeSubsystem::potential(const EvalContext& c, CVecRef q) const {
   double V = 0.0;
-  with_workspace(c.slot, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(model_, theta_index_, w.theta, w.links);
+  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, w.theta, w.links);
     Eigen::Vector3d h = Eigen::Vector3d::Zero();
-    for (std::size_t i = 0; i < model_.links.size(); ++i) h += w.links[i].h_own;
-    V = -dot3<double>(model_.gravity, h);  // V = −Σ m g·c
+    for (std::size_t i = 0; i < merged_.links.size(); ++i) h += w.links[i].h_own;
+    V = -dot3<double>(merged_.gravity, h) + potential0_;  // V = −Σ m g·c
   });
   return V;
 }
 
 double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                                VecRef G) const {
-  with_workspace(c.slot, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(model_, theta_index_, w.theta, w.links);
-    composite(model_, w.links);
-    crba(model_, theta_index_, w.links, w.Mt, n_theta_);
-    to_coordinates(model_, theta_index_, w.Mt, n_theta_, M);
-    gravity_forces(model_, theta_index_, w.links, w.tau);
-    to_coordinates(model_, theta_index_, w.tau, G);
-    velocity_products(model_, theta_index_, w.thetad, w.links, w.tau);
-    to_coordinates(model_, theta_index_, w.tau, Cqd);
+  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, w.theta, w.links);
+    composite(merged_, w.links);
+    crba(merged_, theta_index_, w.links, w.Mt, n_theta_);
+    to_coordinates(merged_, theta_index_, w.Mt, n_theta_, M);
+    gravity_forces(merged_, theta_index_, w.links, w.tau);
+    to_coordinates(merged_, theta_index_, w.tau, G);
+    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
+    to_coordinates(merged_, theta_index_, w.tau, Cqd);
   });
   return 0.0;
 }
@@ -524,16 +589,16 @@ void TreeSubsystem::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, Ma
   using AD = Eigen::AutoDiffScalar<Eigen::VectorXd>;
   const Index nt = n_theta_;
   std::vector<double> theta(static_cast<std::size_t>(nt)), thetad(static_cast<std::size_t>(nt));
-  theta_of(model_, theta_index_, q.data(), qd.data(), theta.data(), thetad.data());
+  theta_of(merged_, theta_index_, q.data(), qd.data(), theta.data(), thetad.data());
   std::vector<AD> th(static_cast<std::size_t>(nt));
   for (Index k = 0; k < nt; ++k)
     th[static_cast<std::size_t>(k)] =
         AD(theta[static_cast<std::size_t>(k)], static_cast<int>(nt), static_cast<int>(k));
-  std::vector<LinkState<AD>> ws(model_.links.size());
+  std::vector<LinkState<AD>> ws(merged_.links.size());
   std::vector<AD> Mt(static_cast<std::size_t>(nt * nt));
-  place(model_, theta_index_, th.data(), ws.data());
-  composite(model_, ws.data());
-  crba(model_, theta_index_, ws.data(), Mt.data(), nt);
+  place(merged_, theta_index_, th.data(), ws.data());
+  composite(merged_, ws.data());
+  crba(merged_, theta_index_, ws.data(), Mt.data(), nt);
   // ∂M_ij/∂θ_k, zero where crba left a constant (no derivatives).
   auto dM = [&](Index i, Index j, Index k) {
     const auto& d = Mt[static_cast<std::size_t>(i + j * nt)].derivatives();
@@ -548,34 +613,42 @@ void TreeSubsystem::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, Ma
       Ct[static_cast<std::size_t>(i + j * nt)] = s;
     }
   }
-  to_coordinates(model_, theta_index_, Ct.data(), nt, C);  // C_q = Tᵀ C_θ T
+  to_coordinates(merged_, theta_index_, Ct.data(), nt, C);  // C_q = Tᵀ C_θ T
 }
 
 void TreeSubsystem::link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Vector3d& p) const {
-  if (link < 0) {
-    R = model_.root_rotation;
-    p = model_.root_translation;
-    return;
+  R = model_.root_rotation;
+  p = model_.root_translation;
+  if (link < 0) return;
+  const Placement& at = placement_[static_cast<std::size_t>(link)];
+  if (at.link >= 0) {
+    std::vector<double> theta(static_cast<std::size_t>(n_theta_));
+    theta_of(merged_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
+    std::vector<LinkState<double>> ws(merged_.links.size());
+    place(merged_, theta_index_, theta.data(), ws.data());
+    R = ws[static_cast<std::size_t>(at.link)].R;
+    p = ws[static_cast<std::size_t>(at.link)].p;
   }
-  std::vector<double> theta(static_cast<std::size_t>(n_theta_));
-  theta_of(model_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
-  std::vector<LinkState<double>> ws(model_.links.size());
-  place(model_, theta_index_, theta.data(), ws.data());
-  R = ws[static_cast<std::size_t>(link)].R;
-  p = ws[static_cast<std::size_t>(link)].p;
+  p += R * at.p;
+  R = R * at.R;
 }
 
 void TreeSubsystem::link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
                                std::vector<Eigen::Vector3d>& p) const {
   std::vector<double> theta(static_cast<std::size_t>(n_theta_));
-  theta_of(model_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
-  std::vector<LinkState<double>> ws(model_.links.size());
-  place(model_, theta_index_, theta.data(), ws.data());
-  R.resize(ws.size());
-  p.resize(ws.size());
-  for (std::size_t i = 0; i < ws.size(); ++i) {
-    R[i] = ws[i].R;
-    p[i] = ws[i].p;
+  theta_of(merged_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
+  std::vector<LinkState<double>> ws(merged_.links.size());
+  place(merged_, theta_index_, theta.data(), ws.data());
+  R.resize(model_.links.size());
+  p.resize(model_.links.size());
+  for (std::size_t i = 0; i < model_.links.size(); ++i) {
+    const Placement& at = placement_[i];
+    const Eigen::Matrix3d Rl =
+        at.link < 0 ? model_.root_rotation : ws[static_cast<std::size_t>(at.link)].R;
+    const Eigen::Vector3d pl =
+        at.link < 0 ? model_.root_translation : ws[static_cast<std::size_t>(at.link)].p;
+    R[i] = Rl * at.R;
+    p[i] = pl + Rl * at.p;
   }
 }
 
@@ -595,15 +668,26 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& w) {
 // acceleration of the RNEA's forward pass (velocity_products). Each joint k above the link moves
 // it by ∂p/∂θ_k = s_v + s_w × p, ∂R/∂θ_k = [s_w]× R (S_k = (s_w, s_v)); through θ = T q + c,
 // ∂/∂q_j = Σ_k T_kj ∂/∂θ_k.
-void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
-                                const Eigen::Vector3d& x_offset, Slot scratch,
+void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
+                                const Eigen::Matrix3d& frame_R_offset,
+                                const Eigen::Vector3d& frame_x_offset, Slot scratch,
                                 FrameState& out) const {
-  with_workspace(scratch, slot_size_, model_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(model_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(model_, theta_index_, w.theta, w.links);
-    velocity_products(model_, theta_index_, w.thetad, w.links, w.tau);
-    Eigen::Matrix3d Rl = model_.root_rotation;
-    Eigen::Vector3d pl = model_.root_translation, vw = Eigen::Vector3d::Zero(),
+  // The frame on the merged tree: its link there, the offset composed with the link's placement.
+  int link = -1;
+  Eigen::Matrix3d R_offset = frame_R_offset;
+  Eigen::Vector3d x_offset = frame_x_offset;
+  if (frame_link >= 0) {
+    const Placement& at = placement_[static_cast<std::size_t>(frame_link)];
+    link = at.link;
+    R_offset = at.R * frame_R_offset;
+    x_offset = at.p + at.R * frame_x_offset;
+  }
+  with_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, w.theta, w.links);
+    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
+    Eigen::Matrix3d Rl = merged_.root_rotation;
+    Eigen::Vector3d pl = merged_.root_translation, vw = Eigen::Vector3d::Zero(),
                     vv = Eigen::Vector3d::Zero(), aw = Eigen::Vector3d::Zero(),
                     av = Eigen::Vector3d::Zero();
     if (link >= 0) {
@@ -624,13 +708,13 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Ma
     out.Rdd = (skew(aw) + W * W) * out.R;
     out.dp.setZero();
     out.dR.setZero();
-    for (int j = link; j >= 0; j = model_.links[static_cast<std::size_t>(j)].parent) {
+    for (int j = link; j >= 0; j = merged_.links[static_cast<std::size_t>(j)].parent) {
       const auto ju = static_cast<std::size_t>(j);
       if (theta_index_[ju] < 0) continue;
       const Eigen::Vector3d sw = w.links[ju].sw, sv = w.links[ju].sv;
       const Eigen::Vector3d dp = sv + sw.cross(out.p);
       const Eigen::Matrix3d dR = skew(sw) * out.R;
-      for (const Term& t : model_.links[ju].terms) {
+      for (const Term& t : merged_.links[ju].terms) {
         out.dp.col(t.coordinate) += t.coefficient * dp;
         for (int r = 0; r < 9; ++r) out.dR(r, t.coordinate) += t.coefficient * dR(r / 3, r % 3);
       }
@@ -644,7 +728,7 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Ma
 bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd,
                                              CVecRef qdd, CVecRef dq, CVecRef dqd,
                                              VecRef dID) const {
-  const std::size_t nl = model_.links.size();
+  const std::size_t nl = merged_.links.size();
   const Index nt = n_theta_;
   const Index need = tangent_workspace_doubles(nl, nt);
   std::vector<double> own;
@@ -665,7 +749,7 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
   Dual* tau = thdd + nt;
   for (std::size_t i = 0; i < nl; ++i) {
     if (theta_index_[i] < 0) continue;
-    const Link& L = model_.links[i];
+    const Link& L = merged_.links[i];
     double v = L.offset, dv = 0.0, w = 0.0, dw = 0.0, a = 0.0;
     for (const Term& t : L.terms) {
       v += t.coefficient * q(t.coordinate);
@@ -679,14 +763,14 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
     thd[k] = dual(w, dw);
     thdd[k] = dual(a, 0.0);
   }
-  place(model_, theta_index_, th, ws);
-  inverse_dynamics(model_, theta_index_, thd, thdd, ws, tau);
+  place(merged_, theta_index_, th, ws);
+  inverse_dynamics(merged_, theta_index_, thd, thdd, ws, tau);
   dID.setZero();
   for (std::size_t i = 0; i < nl; ++i) {
     if (theta_index_[i] < 0) continue;
     const Dual& ti = tau[theta_index_[i]];
     const double d = ti.derivatives().size() > 0 ? ti.derivatives()(0) : 0.0;
-    for (const Term& t : model_.links[i].terms) dID(t.coordinate) += t.coefficient * d;
+    for (const Term& t : merged_.links[i].terms) dID(t.coordinate) += t.coefficient * d;
   }
   return true;
 }

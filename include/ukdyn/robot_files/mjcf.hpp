@@ -10,7 +10,12 @@
 // ball joints of the chain (ChainModel::quaternions: their unit-norm rows). Weld and connect
 // equalities become ChainDef::link_constraints (weld and ball frame constraints, ideal: MuJoCo's
 // solref / solimp softness is not modelled); joint and tendon equalities and inactive ones are
-// refused (an error names the file and the equality); contacts are not read. Numbers are MuJoCo's
+// refused (an error names the file and the equality); contacts are not read. Limits: a limited
+// joint's range (as compiled: `limited` / `autolimits` resolved, degrees turned to radians per
+// <compiler angle>) and the force bound of the actuators on it (forcerange, or the ctrlrange of a
+// plain motor, times the gear) go to JointDef::limits (MuJoCo 2.2 has no actuatorfrcrange).
+// Bodies are checked (mass >= 0, principal moments A + B >= C; the message names the body).
+// Mesh geoms are counted in one line of ChainDef::notes. Numbers are MuJoCo's
 // compiled doubles (orientations as roll-pitch-yaw of its quaternions), so agreement with MuJoCo is
 // to round-off, not exact.
 #pragma once

@@ -1,11 +1,16 @@
 // Serial chains (and trees) from URDF files, read with Debian's urdfdom (liburdfdom-dev).
 //
 // Supported joints: revolute, continuous (both turn about the axis), prismatic, fixed, floating
-// (position + unit quaternion, 7 coordinates; ChainDef::floating_root puts the root on one); mimic joints
-// (value = multiplier · other + offset). Every link except the root needs an <inertial> block
-// (mass, origin xyz/rpy of the CoM frame, inertia about the CoM). Joint limits, dynamics, visual
-// and collision elements are ignored. Numbers that are short decimals are kept exact (0.7 = 7/10);
-// angles within 1e-12 of a multiple of π/4 become that multiple exactly.
+// (position + unit quaternion, 7 coordinates; ChainDef::floating_root puts the root on one); mimic
+// joints (value = multiplier · other + offset; JointDef::mimic names the other). A link's
+// <inertial> block (mass, origin xyz/rpy of the CoM frame, inertia about the CoM) is optional: a
+// link without one is a massless frame. Every <inertial> is checked (mass >= 0, inertia positive
+// semi-definite), the message naming the file and the link; principal moments with A + B < C are
+// kept and noted (ChainDef::notes). Joint
+// <limit> (lower, upper: revolute and prismatic; velocity, effort) goes to JointDef::limits.
+// Dynamics, safety controllers and visual and collision elements are ignored; meshes among them
+// are counted in one line of ChainDef::notes. Numbers that are short decimals are kept exact
+// (0.7 = 7/10); angles within 1e-12 of a multiple of π/4 become that multiple exactly.
 #pragma once
 
 #include <map>

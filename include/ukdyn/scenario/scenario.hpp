@@ -51,6 +51,17 @@ struct Scenario {
   std::vector<ConstraintRole> constraint_roles;
   Actuators actuators;
   std::shared_ptr<const ControlSpec> control;
+  /// What the robot file readers noted and left out (e.g. "N meshes ignored"), one line each:
+  /// `ukdyn check` and `ukdyn simulate` print them as notes.
+  std::vector<std::string> notes;
+
+  /// Per coordinate (system->dof() entries, in the system's order): the limits its robot file
+  /// states (URDF <limit>, MJCF range and actuator force ranges), ±inf where none
+  /// (docs/definitions.md, "Joint limits"). They are sim.limits: `simulate` warns (joint_limit)
+  /// when a sample leaves them; nothing enforces them.
+  [[nodiscard]] const std::vector<CoordinateLimits>& coordinate_limits() const {
+    return sim.limits;
+  }
 };
 
 /// The `control:` section (docs/control.md): the law, the plant (another scenario, same

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/model/coordinate_limits.hpp"
 #include "ukdyn/model/system.hpp"
 
 namespace ukdyn {
@@ -72,6 +73,11 @@ struct SimulationSettings {
   /// true computes the exact smallest kept singular value of A M^{-1/2} by an SVD at each sample
   /// (scenario key simulation.sigma_min: svd).
   bool sigma_min_svd = false;
+  /// Per coordinate (empty: none; else system.dof() entries), the robot files' limits
+  /// (Scenario::coordinate_limits()): the first sample at which a coordinate is outside
+  /// [lower, upper] or |q̇| exceeds its velocity limit raises a warning of kind joint_limit for
+  /// that coordinate (once per coordinate, with the time and the value); the run goes on.
+  std::vector<CoordinateLimits> limits;
 };
 
 /// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed
@@ -92,10 +98,12 @@ enum class RunStatus {
 };
 std::string to_string(RunStatus status);
 
-/// A warning raised once per kind during a run, with the time it first happened.
+/// A warning raised once per kind (joint_limit: once per coordinate) during a run, with the time it first happened.
 struct RunWarning {
   double t = 0.0;
-  std::string kind;  ///< fully_prescribed, near_singular, rank_change, inconsistent_constraints
+  /// fully_prescribed, near_singular, rank_change, inconsistent_constraints, ... (once per
+  /// kind); joint_limit (once per coordinate)
+  std::string kind;
   std::string message;
 };
 

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/model/coordinate_limits.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 
 namespace ukdyn::symbolic {
@@ -47,6 +48,12 @@ struct InertialDef {
   Mat3Ex inertia{0, 0, 0, 0, 0, 0, 0, 0, 0};  ///< about the CoM, in the inertia frame
 };
 
+/// A joint's limits on its value θ (not on a coordinate), as its file states them: URDF <limit
+/// lower upper velocity effort>, MJCF range (on qpos, stored here on θ = qpos − qpos0) and the
+/// force ranges of the actuators on the joint; ±inf when absent. ChainDef::coordinate_limits maps
+/// them to the coordinates.
+using JointLimits = CoordinateLimits;
+
 struct JointDef {
   /// floating: 6 DoF in position + unit quaternion (docs/free-bodies.md, "Floating joints"):
   /// `coordinates` (7: x, y, z, qw, qx, qy, qz), the translation in the joint frame and the
@@ -59,10 +66,14 @@ struct JointDef {
   std::string link;    ///< child link name (unique)
   OriginDef origin;    ///< parent link frame → joint frame
   Vec3Ex axis{0, 0, 1};
-  std::string coordinate;          ///< the joint variable is this coordinate ...
-  std::optional<GiNaC::ex> value;  ///< ... or this expression of the coordinates
+  std::string coordinate;                ///< the joint variable is this coordinate ...
+  std::optional<GiNaC::ex> value;        ///< ... or this expression of the coordinates
   std::vector<std::string> coordinates;  ///< floating: x, y, z, qw, qx, qy, qz; ball: qw .. qz
-  InertialDef inertial;            ///< of the child link (mass 0: no body)
+  InertialDef inertial;                  ///< of the child link (mass 0: no body)
+  JointLimits limits;                    ///< on the joint's value θ (URDF, MJCF); ±inf: none
+  /// URDF mimic: the joint whose value this one follows (θ = multiplier · other + offset). Its
+  /// limits stay here and are not mapped to a coordinate.
+  std::string mimic;
 };
 
 struct MobileBaseDef {
@@ -110,6 +121,16 @@ class ChainDef : public SubsystemDef {
   std::vector<std::string> floating_root;
   /// Constraints between its links (from an MJCF file's equalities).
   std::vector<LinkConstraintDef> link_constraints;
+  /// What the file readers noted and left out (meshes; ignored limits), one line each, for
+  /// `ukdyn check` and `ukdyn simulate` to print.
+  std::vector<std::string> notes;
+
+  /// The limits of each of coordinates() (in their order), from the joints' limits: a joint whose
+  /// value is c · q + offset (one coordinate q, c and offset numbers once the parameters are
+  /// substituted; not a mimic joint) gives q the range ((lower − offset) / c, (upper − offset) / c)
+  /// (ends swapped when c < 0), the velocity limit velocity / |c| and the effort limit
+  /// effort · |c|. Two joints on one coordinate: the tighter of each. ±inf where nothing applies.
+  [[nodiscard]] std::vector<CoordinateLimits> coordinate_limits() const;
 };
 
 struct LinkPose {

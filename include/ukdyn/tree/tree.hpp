@@ -90,9 +90,17 @@ struct FrameState {
 
 /// The subsystem of a tree (validated first). Slot: its workspace, so that forward() allocates
 /// nothing.
+///
+/// Fixed joints are merged at construction (merge_fixed, the default; as Pinocchio, RBDL and
+/// MuJoCo do): the mass, CoM and inertia of a link on a fixed joint are lumped into its nearest
+/// ancestor on a movable joint (parallel-axis theorem, the inertia rotated into that link's frame),
+/// or, if every joint above it is fixed, into a constant potential; the recursive passes run on the
+/// movable links only. Its frame stays usable by name: link_index, link_pose(s) and frame_state
+/// place it as its ancestor's pose times the constant transform between them. model() is the
+/// tree as given.
 class TreeSubsystem : public Subsystem {
  public:
-  explicit TreeSubsystem(Model model);
+  explicit TreeSubsystem(Model model, bool merge_fixed = true);
   [[nodiscard]] Index dof() const override { return static_cast<Index>(model_.coordinates.size()); }
   [[nodiscard]] const std::string& name() const override { return model_.name; }
   [[nodiscard]] const std::vector<std::string>& coordinate_names() const override {
@@ -129,10 +137,23 @@ class TreeSubsystem : public Subsystem {
                    const Eigen::Vector3d& x_offset, Slot scratch, FrameState& out) const;
   /// Number of movable joints (the joint variables θ).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
+  /// Number of links the recursive passes run on (model().links less the merged fixed ones).
+  [[nodiscard]] std::size_t pass_links() const { return merged_.links.size(); }
+
+  /// Where a link of model() is in the merged tree: its link there (−1: the root frame) and its
+  /// frame in that link's frame (x_parent = R x + p).
+  struct Placement {
+    int link = -1;
+    Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  };
 
  private:
-  Model model_;
-  std::vector<int> theta_index_;  // per link: its joint variable's index, −1 for a fixed joint
+  Model model_;                       // as given: names, points, link_index
+  Model merged_;                      // what the passes run on (model_ itself if not merged)
+  std::vector<Placement> placement_;  // per link of model_
+  double potential0_ = 0.0;           // V of the masses fixed to the root frame (merged away)
+  std::vector<int> theta_index_;  // per link of merged_: its joint variable's index, −1: fixed
   Index n_theta_ = 0;
   Index slot_size_ = 0;
 };
