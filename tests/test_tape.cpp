@@ -1,5 +1,6 @@
 // Compiled tapes (src/symbolic/tape.cpp) against GiNaC: values, shared subexpressions, fused
-// products, sin/cos pairs; forward-mode tangents against GiNaC's derivatives.
+// products, sin/cos pairs; forward-mode tangents against GiNaC's derivatives, and the tangents of a
+// derived model's M, C q̇, G against a closed form and Richardson-extrapolated differences.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -12,6 +13,9 @@
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
+#ifdef UKDYN_HAVE_IO
+#include "ukdyn/scenario/scenario.hpp"
+#endif
 
 namespace {
 
@@ -339,5 +343,104 @@ TEST(SymbolicTape, MultiDirectionTangentsEqualSingleDirectionCalls) {
     }
   }
 }
+
+// ------------------------------------------------------------------- tangents of a model
+
+sym::SubsystemDef double_pendulum_def() {
+  sym::SubsystemDef d("tangent_pendulum", {"tp_a", "tp_b"});
+  d.parameter("m1", 1.3);
+  d.parameter("m2", 0.7);
+  d.parameter("l1", 0.9);
+  d.parameter("l2", 1.1);
+  auto& b1 = d.add_body("bob1");
+  b1.mass = d.parse("m1");
+  b1.com = {d.parse("l1*sin(tp_a)"), 0, d.parse("-l1*cos(tp_a)")};
+  auto& b2 = d.add_body("bob2");
+  b2.mass = d.parse("m2");
+  b2.com = {d.parse("l1*sin(tp_a) + l2*sin(tp_b)"), 0, d.parse("-l1*cos(tp_a) - l2*cos(tp_b)")};
+  d.gravity = {0, 0, d.parse("-9.81")};
+  return d;
+}
+
+// Double pendulum (point masses, absolute angles), δ = θ1 − θ2, k = m2 l1 l2:
+//   M12 = k cos δ, C q̇ = k sin δ (θ̇2², −θ̇1²), G = g ((m1 + m2) l1 sin θ1, m2 l2 sin θ2), so
+//   dM12 = −k sin δ dδ, dCqd1 = k (cos δ dδ θ̇2² + 2 sin δ θ̇2 dθ̇2),
+//   dCqd2 = −k (cos δ dδ θ̇1² + 2 sin δ θ̇1 dθ̇1), dG = g ((m1 + m2) l1 cos θ1 dθ1, m2 l2 cos θ2 dθ2).
+TEST(SymbolicTape, DynamicsTangentOfADoublePendulumMatchesTheClosedForm) {
+  const auto sub = sym::make_subsystem(double_pendulum_def());
+  const double m1 = 1.3, m2 = 0.7, l1 = 0.9, l2 = 1.1, g = 9.81, k = m2 * l1 * l2;
+  std::mt19937_64 rng(13);
+  double worst = 0.0;
+  for (int rep = 0; rep < 200; ++rep) {
+    Vec q(2), qd(2), dq(2), dqd(2);
+    for (Vec* x : {&q, &qd, &dq, &dqd})
+      *x << uktest::uniform(rng, -3, 3), uktest::uniform(rng, -3, 3);
+    Mat M(2, 2), dM(2, 2), M0(2, 2);
+    Vec c(2), G(2), dc(2), dG(2), c0(2), G0(2);
+    sub->dynamics_tangent({}, q, qd, dq, dqd, M, c, G, dM, dc, dG);
+    sub->dynamics({}, q, qd, M0, c0, G0);
+    EXPECT_EQ(M, M0);
+    EXPECT_EQ(c, c0);
+    EXPECT_EQ(G, G0);
+    const double s = std::sin(q(0) - q(1)), co = std::cos(q(0) - q(1)), dd = dq(0) - dq(1);
+    Mat dMref(2, 2);
+    dMref << 0.0, -k * s * dd, -k * s * dd, 0.0;
+    Vec dcref(2), dGref(2);
+    dcref << k * (co * dd * qd(1) * qd(1) + 2 * s * qd(1) * dqd(1)),
+        -k * (co * dd * qd(0) * qd(0) + 2 * s * qd(0) * dqd(0));
+    dGref << g * (m1 + m2) * l1 * std::cos(q(0)) * dq(0), g * m2 * l2 * std::cos(q(1)) * dq(1);
+    worst = std::max({worst, (dM - dMref).norm() / (1 + dMref.norm()),
+                      (dc - dcref).norm() / (1 + dcref.norm()),
+                      (dG - dGref).norm() / (1 + dGref.norm())});
+  }
+  EXPECT_LE(worst, 1e-12);
+  std::cout << "double pendulum dM, d(C qd), dG vs closed form: worst " << worst << "\n";
+}
+
+#ifdef UKDYN_HAVE_IO
+// The paper's system from definitions (scenarios/paper_generic.yaml): the tangents of M, C q̇ and G
+// of every subsystem along random (dq, dq̇) against central differences of dynamics() with one
+// Richardson step, (4 D(h/2) − D(h)) / 3, error O(h⁴).
+TEST(SymbolicTape, DynamicsTangentOfThePaperTwinMatchesRichardsonDifferences) {
+  const ukdyn::Scenario sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/paper_generic.yaml");
+  std::mt19937_64 rng(14);
+  double worst = 0.0;
+  int subsystems = 0;
+  for (const auto& base : sc.system->subsystems()) {
+    const auto* sub = dynamic_cast<const sym::DerivedSubsystem*>(base.get());
+    ASSERT_NE(sub, nullptr);
+    ++subsystems;
+    const Index n = sub->dof();
+    // All of M, C q̇, G stacked in one vector.
+    auto stacked = [&](const Vec& q, const Vec& qd) {
+      Mat M(n, n);
+      Vec c(n), G(n), all(n * n + 2 * n);
+      sub->dynamics({}, q, qd, M, c, G);
+      all << M.reshaped(), c, G;
+      return all;
+    };
+    for (int rep = 0; rep < 20; ++rep) {
+      const Vec q = uktest::random_vec(rng, n, -1.2, 1.2), qd = uktest::random_vec(rng, n, -2, 2);
+      const Vec dq = uktest::random_vec(rng, n, -1, 1), dqd = uktest::random_vec(rng, n, -1, 1);
+      Mat M(n, n), dM(n, n);
+      Vec c(n), G(n), dc(n), dG(n), tangent(n * n + 2 * n);
+      sub->dynamics_tangent({}, q, qd, dq, dqd, M, c, G, dM, dc, dG);
+      tangent << dM.reshaped(), dc, dG;
+      auto central = [&](double h) {
+        return Vec((stacked(q + h * dq, qd + h * dqd) - stacked(q - h * dq, qd - h * dqd)) /
+                   (2 * h));
+      };
+      const double h = 1e-3;
+      const Vec rich = (4 * central(h / 2) - central(h)) / 3;
+      const double err = (tangent - rich).norm() / (1 + tangent.norm());
+      worst = std::max(worst, err);
+      EXPECT_LE(err, 1e-8) << sub->name() << " rep " << rep;
+    }
+  }
+  EXPECT_GE(subsystems, 2);
+  std::cout << "paper twin tangents vs Richardson differences: worst " << worst << "\n";
+}
+#endif
 
 }  // namespace
