@@ -9,8 +9,15 @@
 //                                  derived arms + the derived closure), at the state of
 //                                  forward/closure (bench_ukdyn.cpp): the ratio of the two is the
 //                                  cost of forward dynamics from definitions
+//   Symbolic/Chain7MassEval        the mass tape of a derived 7-link spatial chain (M's upper
+//                                  triangle, 28 outputs): Tape::eval
+//   Symbolic/Chain7MassTangent1    the same with its tangent along one direction of q
+//                                  (Tape::eval_tangent)
+//   Symbolic/Chain7MassTangent7    the same along the 7 unit directions at once: every ∂M/∂q_j
+//                                  (Tape::eval_tangents, K = 7)
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <memory>
 #include <random>
 #include <string>
@@ -20,7 +27,9 @@
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace {
 
@@ -211,5 +220,71 @@ void Forward_ClosureDefinitions(benchmark::State& state) {
 BENCHMARK(Forward_ClosureDefinitions)
     ->Name("forward/closure_definitions")
     ->Apply(ukbench::add_min_max);
+
+// A 7-link spatial chain, derived (revolute joints about z and y in turn, 0.3 m apart along x, as
+// tree/chain_7 of bench_tree.cpp): the tape of its mass matrix's upper triangle.
+sym::Tape chain7_mass_tape() {
+  using JT = sym::JointDef::Type;
+  std::vector<std::string> q;
+  for (int i = 0; i < 7; ++i) q.push_back("tq" + std::to_string(i));
+  sym::ChainDef c("tangent_chain", q);
+  c.gravity = {0, 0, GiNaC::numeric(-981, 100)};
+  for (int i = 0; i < 7; ++i) {
+    auto& j = c.add_joint("j" + std::to_string(i), JT::revolute, "l" + std::to_string(i));
+    j.origin.xyz = {i == 0 ? GiNaC::ex(0) : GiNaC::numeric(3, 10), 0, 0};
+    j.axis = i % 2 == 0 ? sym::Vec3Ex{0, 0, 1} : sym::Vec3Ex{0, 1, 0};
+    j.coordinate = q[static_cast<std::size_t>(i)];
+    j.inertial.mass = 1;
+    j.inertial.com = {GiNaC::numeric(15, 100), 0, 0};
+    j.inertial.inertia = {GiNaC::numeric(1, 100), 0, 0, 0, GiNaC::numeric(2, 100), 0, 0, 0,
+                          GiNaC::numeric(2, 100)};
+  }
+  const sym::SubsystemDerivation d = sym::derive(sym::build_chain(c).def);
+  std::vector<GiNaC::ex> m;
+  for (unsigned i = 0; i < 7; ++i) {
+    for (unsigned j = i; j < 7; ++j) m.push_back(d.M(i, j).subs(d.parameter_values).expand());
+  }
+  return sym::Tape(m, sym::coordinate_inputs(*d.symbols, d.coordinates, sym::InputSet::q));
+}
+
+// Derived once per process (about a minute of GiNaC on a loaded machine), on first use: a run
+// filtered to other benchmarks does not pay for it.
+const sym::Tape& chain7_mass() {
+  static const sym::Tape tape = chain7_mass_tape();
+  return tape;
+}
+
+// K = 0: eval; K = 1: eval_tangent along a random direction; K = 7: eval_tangents along the unit
+// directions e_0 .. e_6 (the whole Jacobian of M).
+void chain7_mass(benchmark::State& state, std::size_t K) {
+  const sym::Tape& tape = chain7_mass();
+  std::mt19937_64 rng(1);
+  const Vec q = random_state(rng, 7);
+  const std::size_t m = tape.outputs(), W = tape.work_size(), lanes = std::max<std::size_t>(K, 1);
+  std::vector<double> out(m), dout(m * lanes), work(W), dwork(W * lanes);
+  Mat dirs = Mat::Identity(7, 7);
+  if (K == 1) dirs.col(0) = random_state(rng, 7);
+  for (auto _ : state) {
+    if (K == 0) {
+      tape.eval(0.0, q.data(), nullptr, out.data(), work.data());
+    } else if (K == 1) {
+      tape.eval_tangent(0.0, q.data(), nullptr, 0.0, dirs.data(), nullptr, out.data(), dout.data(),
+                        work.data(), dwork.data());
+    } else {
+      tape.eval_tangents(K, 0.0, q.data(), nullptr, nullptr, dirs.data(), 7, nullptr, 0, out.data(),
+                         dout.data(), work.data(), dwork.data());
+    }
+    benchmark::DoNotOptimize(out.data());
+    benchmark::DoNotOptimize(dout.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["instructions"] = static_cast<double>(tape.executed_instructions());
+}
+void Symbolic_Chain7MassEval(benchmark::State& state) { chain7_mass(state, 0); }
+void Symbolic_Chain7MassTangent1(benchmark::State& state) { chain7_mass(state, 1); }
+void Symbolic_Chain7MassTangent7(benchmark::State& state) { chain7_mass(state, 7); }
+BENCHMARK(Symbolic_Chain7MassEval)->Apply(ukbench::add_min_max);
+BENCHMARK(Symbolic_Chain7MassTangent1)->Apply(ukbench::add_min_max);
+BENCHMARK(Symbolic_Chain7MassTangent7)->Apply(ukbench::add_min_max);
 
 }  // namespace

@@ -628,6 +628,19 @@ double DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd
   return d_.time_varying ? out[k] : 0.0;
 }
 
+void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef dq,
+                                        CVecRef dqd, MatRef M, VecRef Cqd, VecRef G, MatRef dM,
+                                        VecRef dCqd, VecRef dG) const {
+  // Contiguous copies: the refs may be strided.
+  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
+  std::vector<double> out(dyn_.outputs()), dout(dyn_.outputs()), work(dyn_.work_size()),
+      dwork(dyn_.work_size());
+  dyn_.eval_tangent(ctx.t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
+                    dout.data(), work.data(), dwork.data());
+  unpack_dynamics(out.data(), M, Cqd, G);
+  unpack_dynamics(dout.data(), dM, dCqd, dG);
+}
+
 void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const {
   // Row-major tape output into a column-major block: go through a transposed map.
   if (C.innerStride() == 1 && C.outerStride() == C.rows() && C.rows() == n_ && C.cols() == n_) {

@@ -504,4 +504,285 @@ void Tape::eval(double t, const double* q, const double* qd, double* out, double
   for (std::size_t k = 0; k < out_.size(); ++k) out[k] = w[out_[k]];
 }
 
+// ------------------------------------------------------------------------------- forward mode
+//
+// Tangent-linear evaluation [Griewank2008, ch. 3]: every slot w carries, next to its value, the
+// derivatives dw of its value along K directions (dw[slot·K + k]); each instruction's tangents are
+// the chain rule of its operation applied to its operands' tangents. The values are computed by the
+// same expressions as eval(), so they are bitwise eval()'s.
+
+namespace {
+
+// The lane loops: N = 1 a fixed single direction, N = 0 the run-time K. The same expression per
+// lane for every K, so direction k of a K-direction run is bitwise the single-direction run.
+template <std::size_t N>
+inline std::size_t lanes(std::size_t K) {
+  return N != 0 ? N : K;
+}
+
+// dv = p · da.
+template <std::size_t N>
+inline void scale(double* __restrict dv, const double* __restrict da, double p, std::size_t K) {
+  for (std::size_t k = 0; k < lanes<N>(K); ++k) dv[k] = p * da[k];
+}
+
+// dv = p · da, and 0 where da = 0 (p may be infinite or NaN: sqrt, log, asin, acos at the edge).
+template <std::size_t N>
+inline void scale_nonzero(double* __restrict dv, const double* __restrict da, double p,
+                          std::size_t K) {
+  for (std::size_t k = 0; k < lanes<N>(K); ++k) dv[k] = da[k] == 0.0 ? 0.0 : p * da[k];
+}
+
+// dv = p · da + r · db.
+template <std::size_t N>
+inline void combine(double* __restrict dv, const double* __restrict da, double p,
+                    const double* __restrict db, double r, std::size_t K) {
+  for (std::size_t k = 0; k < lanes<N>(K); ++k) dv[k] = p * da[k] + r * db[k];
+}
+
+// The value of a function op at x (and y, its second operand if binary) and, into dv, its tangents
+// from the operands' da (and db).
+template <std::size_t N>
+double function_tangent(Tape::Op op, double x, double y, const double* da, const double* db,
+                        double* dv, std::size_t K) {
+  const std::size_t L = lanes<N>(K);
+  double v;
+  switch (op) {
+    case Tape::Op::pow: {
+      // d(x^y) = y x^(y−1) dx + x^y ln(x) dy; a zero dy drops the second term (x ≤ 0 allowed
+      // then), a zero dx the first (x^(y−1) infinite at 0).
+      v = std::pow(x, y);
+      const double px = y * std::pow(x, y - 1.0);
+      const double py = v * std::log(x);
+      for (std::size_t k = 0; k < L; ++k) {
+        const double tx = da[k] == 0.0 ? 0.0 : px * da[k];
+        dv[k] = db[k] == 0.0 ? tx : tx + py * db[k];
+      }
+      return v;
+    }
+    case Tape::Op::sqrt:
+      v = std::sqrt(x);
+      scale_nonzero<N>(dv, da, 0.5 / v, K);
+      return v;
+    case Tape::Op::sin:
+      v = std::sin(x);
+      scale<N>(dv, da, std::cos(x), K);
+      return v;
+    case Tape::Op::cos:
+      v = std::cos(x);
+      scale<N>(dv, da, -std::sin(x), K);
+      return v;
+    case Tape::Op::tan:
+      v = std::tan(x);
+      scale<N>(dv, da, 1.0 + v * v, K);
+      return v;
+    case Tape::Op::asin:
+      v = std::asin(x);
+      scale_nonzero<N>(dv, da, 1.0 / std::sqrt(1.0 - x * x), K);
+      return v;
+    case Tape::Op::acos:
+      v = std::acos(x);
+      scale_nonzero<N>(dv, da, -1.0 / std::sqrt(1.0 - x * x), K);
+      return v;
+    case Tape::Op::atan:
+      v = std::atan(x);
+      scale<N>(dv, da, 1.0 / (1.0 + x * x), K);
+      return v;
+    case Tape::Op::atan2: {
+      const double r2 = x * x + y * y;  // atan2(x, y): x the ordinate
+      v = std::atan2(x, y);
+      combine<N>(dv, da, y / r2, db, -x / r2, K);
+      return v;
+    }
+    case Tape::Op::exp:
+      v = std::exp(x);
+      scale<N>(dv, da, v, K);
+      return v;
+    case Tape::Op::log:
+      v = std::log(x);
+      scale_nonzero<N>(dv, da, 1.0 / x, K);
+      return v;
+    case Tape::Op::sinh:
+      v = std::sinh(x);
+      scale<N>(dv, da, std::cosh(x), K);
+      return v;
+    case Tape::Op::cosh:
+      v = std::cosh(x);
+      scale<N>(dv, da, std::sinh(x), K);
+      return v;
+    case Tape::Op::tanh:
+      v = std::tanh(x);
+      scale<N>(dv, da, 1.0 - v * v, K);
+      return v;
+    case Tape::Op::abs:
+      v = std::abs(x);
+      scale<N>(dv, da, x > 0.0 ? 1.0 : x < 0.0 ? -1.0 : 0.0, K);
+      return v;
+    default:
+      return 0.0;  // not a function op: tangent_step handles it
+  }
+}
+
+}  // namespace
+
+template <std::size_t N>
+void Tape::tangent_step(const Exec& I, std::size_t K, double* w, double* dw) const {
+  const std::size_t L = lanes<N>(K);
+  const double x = w[I.a];
+  const double* da = dw + static_cast<std::size_t>(I.a) * L;
+  const double* db = dw + static_cast<std::size_t>(I.b) * L;  // b: an operand of binary ops only
+  double* dv = dw + static_cast<std::size_t>(I.dst) * L;
+  double v;
+  switch (I.op) {
+    case Op::add:
+      v = x + w[I.b];
+      for (std::size_t k = 0; k < L; ++k) dv[k] = da[k] + db[k];
+      break;
+    case Op::sub:
+      v = x - w[I.b];
+      for (std::size_t k = 0; k < L; ++k) dv[k] = da[k] - db[k];
+      break;
+    case Op::mul:
+      v = x * w[I.b];
+      combine<N>(dv, da, w[I.b], db, x, K);
+      break;
+    case Op::div: {
+      const double y = w[I.b];
+      v = x / y;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = (da[k] - v * db[k]) / y;
+      break;
+    }
+    case Op::neg:
+      v = -x;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = -da[k];
+      break;
+    case Op::add_c:
+      v = x + I.imm;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = da[k];
+      break;
+    case Op::mul_c: {
+      const double c = I.imm;
+      v = x * c;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = da[k] * c;
+      break;
+    }
+    case Op::square:
+      v = x * x;
+      scale<N>(dv, da, 2.0 * x, K);
+      break;
+    case Op::sin_cos:
+    case Op::cos_sin: {
+      const double s = std::sin(x), c = std::cos(x);  // one sincos call
+      const bool sin_first = I.op == Op::sin_cos;
+      v = sin_first ? s : c;
+      w[I.b] = sin_first ? c : s;
+      scale<N>(dv, da, sin_first ? c : -s, K);
+      scale<N>(dw + static_cast<std::size_t>(I.b) * L, da, sin_first ? -s : c, K);
+      break;
+    }
+    case Op::spline: {
+      const auto s = static_cast<std::size_t>(I.imm);
+      const CubicSpline& S = *splines_[s / 4];
+      const int d = static_cast<int>(s % 4);
+      v = S.eval(x, d);
+      scale<N>(dv, da, d < 3 ? S.eval(x, d + 1) : 0.0, K);  // a cubic: the 4th derivative is 0
+      break;
+    }
+    case Op::add_mul:
+    case Op::sub_mul: {
+      const double y = w[I.b], z = w[I.c];
+      const double* dc = dw + static_cast<std::size_t>(I.c) * L;
+      const bool add = I.op == Op::add_mul;
+      v = add ? x + y * z : x - y * z;
+      for (std::size_t k = 0; k < L; ++k) {
+        const double dp = db[k] * z + y * dc[k];
+        dv[k] = add ? da[k] + dp : da[k] - dp;
+      }
+      break;
+    }
+    case Op::add_mul_c:
+    case Op::sub_mul_c: {
+      const double c = I.imm;
+      const bool add = I.op == Op::add_mul_c;
+      v = add ? x + w[I.b] * c : x - w[I.b] * c;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = add ? da[k] + db[k] * c : da[k] - db[k] * c;
+      break;
+    }
+    case Op::mul_c_mul: {
+      const double c = I.imm, xc = x * c, y = w[I.b];
+      v = xc * y;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = (da[k] * c) * y + xc * db[k];
+      break;
+    }
+    case Op::mul_mul_c: {
+      const double c = I.imm, y = w[I.b];
+      v = (x * y) * c;
+      for (std::size_t k = 0; k < L; ++k) dv[k] = (da[k] * y + x * db[k]) * c;
+      break;
+    }
+    case Op::constant:  // loaded before the instructions; none of these is in exec_
+    case Op::time:
+    case Op::q:
+    case Op::qd:
+    case Op::fused:
+      return;
+    default:
+      v = function_tangent<N>(I.op, x, w[I.b], da, db, dv, K);
+      break;
+  }
+  w[I.dst] = v;
+}
+
+template <std::size_t N>
+void Tape::run_tangents(std::size_t K, double t, const double* q, const double* qd,
+                        const double* dt, const double* dq, std::size_t n_q, const double* dqd,
+                        std::size_t n_qd, double* out, double* dout, double* work,
+                        double* dwork) const {
+  const std::size_t L = lanes<N>(K);
+  double* w = work;
+  double* dw = dwork;
+  auto lane = [&](std::int32_t slot) { return dw + static_cast<std::size_t>(slot) * L; };
+  for (const Load& ld : constants_) {
+    w[ld.dst] = ld.value;
+    std::fill_n(lane(ld.dst), L, 0.0);
+  }
+  for (const Load& ld : time_loads_) {
+    w[ld.dst] = t;
+    double* d = lane(ld.dst);
+    for (std::size_t k = 0; k < L; ++k) d[k] = dt != nullptr ? dt[k] : 0.0;
+  }
+  for (const Load& ld : q_loads_) {
+    w[ld.dst] = q[ld.index];
+    double* d = lane(ld.dst);
+    const auto j = static_cast<std::size_t>(ld.index);
+    for (std::size_t k = 0; k < L; ++k) d[k] = dq != nullptr ? dq[j + n_q * k] : 0.0;
+  }
+  for (const Load& ld : qd_loads_) {
+    w[ld.dst] = qd[ld.index];
+    double* d = lane(ld.dst);
+    const auto j = static_cast<std::size_t>(ld.index);
+    for (std::size_t k = 0; k < L; ++k) d[k] = dqd != nullptr ? dqd[j + n_qd * k] : 0.0;
+  }
+  for (const Exec& I : exec_) tangent_step<N>(I, K, w, dw);
+  const std::size_t m = out_.size();
+  for (std::size_t i = 0; i < m; ++i) {
+    out[i] = w[out_[i]];
+    const double* d = lane(out_[i]);
+    for (std::size_t k = 0; k < L; ++k) dout[i + m * k] = d[k];
+  }
+}
+
+void Tape::eval_tangent(double t, const double* q, const double* qd, double dt, const double* dq,
+                        const double* dqd, double* out, double* dout, double* work,
+                        double* dwork) const {
+  run_tangents<1>(1, t, q, qd, &dt, dq, 0, dqd, 0, out, dout, work, dwork);
+}
+
+void Tape::eval_tangents(std::size_t K, double t, const double* q, const double* qd,
+                         const double* dt, const double* dq, std::size_t n_q, const double* dqd,
+                         std::size_t n_qd, double* out, double* dout, double* work,
+                         double* dwork) const {
+  run_tangents<0>(K, t, q, qd, dt, dq, n_q, dqd, n_qd, out, dout, work, dwork);
+}
+
 }  // namespace ukdyn::symbolic

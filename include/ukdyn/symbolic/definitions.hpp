@@ -167,6 +167,13 @@ class DerivedSubsystem final : public Subsystem {
   /// context's slot if it has one.
   double dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                   VecRef G) const override;
+  /// Directional derivatives of M, C q̇ and G along (dq, dqd) at (ctx.t, q, q̇), t held fixed:
+  /// dM = Σ_j ∂M/∂q_j dq_j, dCqd = Σ_j ∂(C q̇)/∂q_j dq_j + ∂(C q̇)/∂q̇_j dq̇_j, dG = Σ_j ∂G/∂q_j dq_j;
+  /// exact (forward mode on the dynamics tape, Tape::eval_tangent), and M, C q̇, G themselves
+  /// (bitwise dynamics()'s). Allocates its buffers: an analysis path (linearisation, sensitivities),
+  /// not the integration hot path.
+  void dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                        MatRef M, VecRef Cqd, VecRef G, MatRef dM, VecRef dCqd, VecRef dG) const;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const;
   /// A mass of t must stay >= 0 (derive() checks it at t = 0 only): evaluates every mass of t at

@@ -106,6 +106,23 @@ class Tape {
   void eval(double t, const double* q, const double* qd, double* out) const;
   static constexpr std::size_t kStackWork = 2048;
 
+  /// Forward mode: the outputs and their directional derivatives along (dt, dq, dqd): out[i] and
+  /// dout[i] = Σ ∂out_i/∂t dt + ∂out_i/∂q_j dq_j + ∂out_i/∂qd_j dqd_j. work and dwork: work_size()
+  /// doubles each. Allocation-free; exact (the derivative rules of each op, no differences;
+  /// docs/architecture.md, "Tangents"). out is bitwise what eval() gives. dq or dqd null: zero
+  /// tangents of q or q̇. A zero tangent stays zero through an op whose derivative is infinite
+  /// there (sqrt, log, asin, acos, pow at 0); abs at 0 has derivative 0.
+  void eval_tangent(double t, const double* q, const double* qd, double dt, const double* dq,
+                    const double* dqd, double* out, double* dout, double* work,
+                    double* dwork) const;
+  /// The same along K directions at once (the values computed once, K tangents per slot).
+  /// Directions column-major: dq is n_q×K (dq[j + n_q k]), dqd n_qd×K, dt K values (null: 0), dq
+  /// or dqd null: 0; dout is outputs()×K (dout[i + outputs() k]). work: work_size() doubles, dwork
+  /// work_size()·K. Direction k gives bitwise what eval_tangent() gives along it. Allocation-free.
+  void eval_tangents(std::size_t K, double t, const double* q, const double* qd, const double* dt,
+                     const double* dq, std::size_t n_q, const double* dqd, std::size_t n_qd,
+                     double* out, double* dout, double* work, double* dwork) const;
+
  private:
   std::int32_t emit(Op op, std::int32_t a, std::int32_t b, double imm);
   std::int32_t compile(const GiNaC::ex& e, const InputMap& inputs);
@@ -113,6 +130,14 @@ class Tape {
   std::int32_t power(std::int32_t base, long n);
   void fuse_sin_cos();
   void fuse_products();
+  // Forward mode (tape.cpp): N = 1 for one direction, N = 0 for K given at run time.
+  template <std::size_t N>
+  void run_tangents(std::size_t K, double t, const double* q, const double* qd, const double* dt,
+                    const double* dq, std::size_t n_q, const double* dqd, std::size_t n_qd,
+                    double* out, double* dout, double* work, double* dwork) const;
+  struct Exec;
+  template <std::size_t N>
+  void tangent_step(const Exec& I, std::size_t K, double* w, double* dw) const;
 
   std::vector<Instr> code_;
   /// Inputs and constants, written by plain loops before the instructions run.
