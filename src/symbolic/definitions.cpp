@@ -620,8 +620,7 @@ double DerivedSubsystem::dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd,
   return unpack_dynamics(out, M, Cqd, G);
 }
 
-double DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd,
-                                         VecRef G) const {
+double DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G) const {
   std::size_t k = symmetric_from_upper(out, n_, M);
   for (Index i = 0; i < n_; ++i) Cqd(i) = out[k++];
   for (Index i = 0; i < n_; ++i) G(i) = out[k++];
@@ -639,6 +638,16 @@ void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecR
                     dout.data(), work.data(), dwork.data());
   unpack_dynamics(out.data(), M, Cqd, G);
   unpack_dynamics(dout.data(), dM, dCqd, dG);
+}
+
+bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd,
+                                                CVecRef qdd, CVecRef dq, CVecRef dqd,
+                                                VecRef dID) const {
+  Mat M(n_, n_), dM(n_, n_);
+  Vec Cqd(n_), G(n_), dCqd(n_), dG(n_);
+  dynamics_tangent(ctx, q, qd, dq, dqd, M, Cqd, G, dM, dCqd, dG);
+  dID = dM * qdd + dCqd + dG;
+  return true;
 }
 
 void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const {
@@ -868,6 +877,27 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) A(r, c) = out[k++];
   for (Index r = 0; r < m_; ++r) b(r) = out[k++];
+}
+
+bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                                CVecRef lambda, CVecRef dq, CVecRef dqd, VecRef d_residual,
+                                VecRef d_force) const {
+  // Contiguous copies: the refs may be strided. The tape's outputs: A's structural entries (nz_),
+  // then b.
+  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
+  std::vector<double> out(ab_.outputs()), dout(ab_.outputs()), work(ab_.work_size()),
+      dwork(ab_.work_size());
+  ab_.eval_tangent(ctx.t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
+                   dout.data(), work.data(), dwork.data());
+  for (Index r = 0; r < m_; ++r) d_residual(r) = 0.0;
+  std::size_t k = 0;
+  for (const auto& [r, c] : nz_) {
+    const double dA = dout[k++];
+    d_residual(r) += dA * qdd(c);
+    d_force(c) += dA * lambda(r);
+  }
+  for (Index r = 0; r < m_; ++r) d_residual(r) -= dout[k++];
+  return true;
 }
 
 std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {

@@ -189,6 +189,19 @@ DerivedAppliedForce::DerivedAppliedForce(ForceDerivation derivation, std::string
   d_only_ = Tape(d_out, in);
 }
 
+bool DerivedAppliedForce::add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                                      VecRef dQ) const {
+  if (!springs_.empty()) return false;
+  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
+  std::vector<double> out(q_.outputs()), dout(q_.outputs()), work(q_.work_size()),
+      dwork(q_.work_size());
+  q_.eval_tangent(t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(), dout.data(),
+                  work.data(), dwork.data());
+  std::size_t k = 0;
+  for (const Index i : q_index_) dQ(i) += dout[k++];
+  return true;
+}
+
 double DerivedAppliedForce::add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const {
   constexpr std::size_t kStack = 512;
   double buf[kStack];

@@ -34,11 +34,10 @@ class ClosureConstraint final : public Constraint {
   /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
   /// evaluations without slots recompute them.
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
-                     VecRef b) const override;
-  void position_residual(const ConstraintContext& ctx, CVecRef q,
-                              VecRef phi) const override;
+                VecRef b) const override;
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
-                              VecRef phid) const override;
+                         VecRef phid) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> left_, right_;
@@ -60,11 +59,10 @@ class CutPointTrajectory final : public Constraint {
   /// With the data slots: the arms' sin/cos from their slots (MobileManipulator::kSlotSize); the
   /// evaluations without slots recompute them.
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
-                     VecRef b) const override;
-  void position_residual(const ConstraintContext& ctx, CVecRef q,
-                              VecRef phi) const override;
+                VecRef b) const override;
+  void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
-                              VecRef phid) const override;
+                         VecRef phid) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> arm_;
@@ -82,9 +80,19 @@ class CoordinateConstraint final : public Constraint {
   CoordinateConstraint(Index coordinate, TimeFunction f, std::string name);
   [[nodiscard]] Index rows() const override { return 1; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
-  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A, VecRef b) const override;
+  void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
+                VecRef b) const override;
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
-  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd, VecRef phid) const override;
+  void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                         VecRef phid) const override;
+  /// q_j = f(t): A = e_jᵀ is constant and b = f̈(t) depends on t alone, so A q̈ − b and Aᵀλ do
+  /// not change with (q, q̇): both tangents are 0 (exact).
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef,
+               VecRef d_residual, VecRef) const override {
+    d_residual.setZero();
+    return true;
+  }
 
  private:
   Index j_;

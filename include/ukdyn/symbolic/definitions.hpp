@@ -157,8 +157,7 @@ class DerivedSubsystem final : public Subsystem {
   [[nodiscard]] bool time_varying() const override { return d_.time_varying; }
   void mass(const EvalContext& ctx, CVecRef q, MatRef M) const override;
   void coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const override;
-  void coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd,
-                         VecRef Cqd) const override;
+  void coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(const EvalContext& ctx, CVecRef q, VecRef G) const override;
   [[nodiscard]] double potential(const EvalContext& ctx, CVecRef q) const override;
   /// Data slot: the dynamics tape's outputs and its work buffer (allocation-free at any size).
@@ -174,6 +173,10 @@ class DerivedSubsystem final : public Subsystem {
   /// not the integration hot path.
   void dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                         MatRef M, VecRef Cqd, VecRef G, MatRef dM, VecRef dCqd, VecRef dG) const;
+  /// Exact derivatives (docs/derivatives.md): dID = dM q̈ + d(C q̇) + dG from dynamics_tangent().
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                                CVecRef dq, CVecRef dqd, VecRef dID) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const;
   /// A mass of t must stay >= 0 (derive() checks it at t = 0 only): evaluates every mass of t at
@@ -277,6 +280,12 @@ class DerivedConstraint final : public Constraint {
   /// The structurally non-zero entries of the derived A (GiNaC zeros excluded), per row.
   [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override;
   [[nodiscard]] const ConstraintDerivation& derivation() const { return d_; }
+  /// Exact derivatives (docs/derivatives.md): forward mode on the A, b tape (Tape::eval_tangent)
+  /// gives dA and db along (dq, dqd); d(A q̈ − b) = dA q̈ − db, d(Aᵀλ) = dAᵀ λ. Allocates its
+  /// buffers (an analysis path).
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
   [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
 
  private:

@@ -101,6 +101,11 @@ class DerivedAppliedForce final : public AppliedForce {
   double add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
   [[nodiscard]] const ForceDerivation& derivation() const { return d_; }
+  /// Exact derivatives of the expression forces (forward mode on their tape); spring-dampers
+  /// between points have none yet (docs/derivatives.md).
+  [[nodiscard]] bool has_derivatives() const override { return springs_.empty(); }
+  bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                   VecRef dQ) const override;
 
  private:
   struct CompiledSpring {

@@ -194,6 +194,11 @@ class FrameConstraint final : public Constraint {
                          VecRef phid) const override {
     c_->velocity_residual(ctx, q, qd, phid);
   }
+  [[nodiscard]] bool has_derivatives() const override { return c_->has_derivatives(); }
+  bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
+    return c_->tangent(ctx, q, qd, qdd, lambda, dq, dqd, d_residual, d_force);
+  }
   /// The derivation of the rows (null for the numeric rows of frames on trees).
   [[nodiscard]] const DerivedConstraint* derived() const { return d_.get(); }
   [[nodiscard]] const FrameWrenches& wrench() const { return *w_; }
