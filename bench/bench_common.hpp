@@ -53,6 +53,13 @@ void register_tree_benchmarks();
 /// Runs the 4 s closure-only free motions of ukdyn; also fills the reference state at t = 0.5 s.
 std::vector<ViolationRow> ukdyn_violation_rows(bool spatial, std::vector<double>& q_ref_05);
 
+#if defined(UKDYN_BENCH_HAVE_MUJOCO) && defined(UKDYN_BENCH_HAVE_IO)
+/// Two Pandas welded to a plate (scenarios/two_pandas_weld.yaml, bench/two_pandas_weld.xml): ukdyn's
+/// q̈ against MuJoCo's qacc at the initial state, with MuJoCo's default and stiffer welds
+/// (bench_tree.cpp). Not timed.
+void print_two_pandas_weld_check();
+#endif
+
 #ifdef UKDYN_BENCH_HAVE_MUJOCO
 /// MuJoCo benchmarks (bench_mujoco.cpp). Returns false if the MJCF cannot be loaded.
 bool register_mujoco_benchmarks();

@@ -200,6 +200,8 @@ void print_summary(const Timings& ts) {
     print_ratio(ts, robot + ": mj_forward / ukdyn tree forward (same MJCF)",
                 "mujoco/" + robot + "_mj_forward", "tree/" + robot + "_forward", 2.0);
   }
+  print_ratio(ts, "two Pandas on platforms welded to a plate: mj_forward / ukdyn forward",
+              "mujoco/two_pandas_weld_mj_forward", "scenario/two_pandas_weld_forward", 3.0);
   for (const std::string n : {"15", "30", "60"}) {
     print_ratio(ts, "chain " + n + " / 7 links: M (CRBA)", "tree/chain_" + n + "_mass",
                 "tree/chain_7_mass");
@@ -299,6 +301,9 @@ int main(int argc, char** argv) {
     ukbench::print_summary(reporter.results());
 #ifdef UKDYN_BENCH_HAVE_SIMBODY
     ukbench::print_simbody_model_check();
+#endif
+#if defined(UKDYN_BENCH_HAVE_MUJOCO) && defined(UKDYN_BENCH_HAVE_IO)
+    ukbench::print_two_pandas_weld_check();
 #endif
     ukbench::print_violation_table();
   }

@@ -6,9 +6,17 @@
 //   tree/chain_<N>_mass, _bias M and C q̇ + G of an N-link spatial chain (cost against N)
 //   scenario/<name>_forward    forward() of a shipped scenario at its initial state (the arms on
 //                              trees, their welds to the load numeric), when built with io
+//   mujoco/two_pandas_weld_mj_forward
+//                              mj_forward on bench/two_pandas_weld.xml, the MJCF twin of
+//                              scenarios/two_pandas_weld.yaml (two Pandas on x, y, yaw platforms
+//                              welded to a free plate: MuJoCo's weld equalities, its default Newton
+//                              solver, no contacts), at the same state (keyframe 'grasp')
 #include <benchmark/benchmark.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <memory>
 #include <string>
@@ -170,7 +178,8 @@ void register_chains() {
 // by ':'; e.g. tools/n_robots.py 64 --weld > /tmp/n64.yaml for the N-robot scaling).
 void register_scenarios() {
   std::vector<std::pair<std::string, std::string>> files;
-  for (const std::string name : {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld"})
+  for (const std::string name :
+       {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"})
     files.emplace_back(name, std::string(UKDYN_BENCH_SOURCE_DIR) + "/scenarios/" + name + ".yaml");
   if (const char* extra = std::getenv("UKDYN_BENCH_SCENARIOS")) {
     std::string list = extra;
@@ -200,6 +209,86 @@ void register_scenarios() {
 }
 #endif
 
+#ifdef UKDYN_BENCH_HAVE_MUJOCO
+// The two-Panda weld system in MuJoCo (tools/two_pandas_weld.py writes it with the scenario).
+std::string two_pandas_mjcf() {
+  return std::string(UKDYN_BENCH_SOURCE_DIR) + "/bench/two_pandas_weld.xml";
+}
+
+struct MjPair {
+  mjModel* m = nullptr;
+  mjData* d = nullptr;
+  std::string error;
+  MjPair() {
+    char err[1000] = "";
+    m = mj_loadXML(two_pandas_mjcf().c_str(), nullptr, err, sizeof err);
+    if (m == nullptr) {
+      error = err;
+      return;
+    }
+    d = mj_makeData(m);
+    const int key = mj_name2id(m, mjOBJ_KEY, "grasp");
+    if (key < 0) {
+      error = "no keyframe 'grasp'";
+      return;
+    }
+    mj_resetDataKeyframe(m, d, key);
+  }
+  MjPair(const MjPair&) = delete;
+  MjPair& operator=(const MjPair&) = delete;
+  ~MjPair() {
+    if (d != nullptr) mj_deleteData(d);
+    if (m != nullptr) mj_deleteModel(m);
+  }
+};
+
+// MuJoCo's defaults: Newton solver (mjSOL_NEWTON), 100 iterations, tolerance 1e-8, warm start on
+// (each call starts from the previous call's qacc, so at this fixed state the solver stops after
+// its first iteration), weld solref (0.02, 1), solimp (0.9, 0.95, 0.001), contacts disabled.
+void register_two_pandas_mujoco() {
+  with_min_max(
+      benchmark::RegisterBenchmark("mujoco/two_pandas_weld_mj_forward", [](benchmark::State& st) {
+        MjPair p;
+        if (!p.error.empty()) {
+          st.SkipWithError(p.error.c_str());
+          return;
+        }
+        for (auto _ : st) {
+          mj_forward(p.m, p.d);
+          benchmark::DoNotOptimize(p.d->qacc);
+          benchmark::ClobberMemory();
+        }
+        st.counters["nefc"] = p.d->nefc;
+        st.counters["solver_iter"] = p.d->solver_iter;
+      }));
+}
+#endif
+
+#if defined(UKDYN_BENCH_HAVE_MUJOCO) && defined(UKDYN_BENCH_HAVE_IO)
+// q̈ of MuJoCo (qacc) and of ukdyn (forward()) at the same state; the load's angular part of
+// ukdyn's quaternion rates turned into the body-frame ω̇ MuJoCo uses (q̇ = 0 here: ω̇ = 2 q̄ ⊗ q̈).
+struct QddDiff {
+  double arms = 0, arms_max = 0, load = 0, load_max = 0;
+};
+
+QddDiff qdd_diff(const mjData* d, const Vec& qdd) {
+  QddDiff r;
+  for (Index i = 0; i < 20; ++i) {
+    r.arms = std::max(r.arms, std::abs(d->qacc[i] - qdd[i]));
+    r.arms_max = std::max(r.arms_max, std::abs(qdd[i]));
+  }
+  const Eigen::Quaterniond q(1, 0, 0, 0);
+  const Eigen::Quaterniond qdd_q(qdd[23], qdd[24], qdd[25], qdd[26]);
+  const Eigen::Vector3d wd = 2.0 * (q.conjugate() * qdd_q).vec();
+  for (Index i = 0; i < 6; ++i) {
+    const double uk = i < 3 ? qdd[20 + i] : wd[i - 3];
+    r.load = std::max(r.load, std::abs(d->qacc[20 + i] - uk));
+    r.load_max = std::max(r.load_max, std::abs(uk));
+  }
+  return r;
+}
+#endif
+
 }  // namespace
 
 void register_tree_benchmarks() {
@@ -209,6 +298,67 @@ void register_tree_benchmarks() {
 #ifdef UKDYN_BENCH_HAVE_IO
   register_scenarios();
 #endif
+#ifdef UKDYN_BENCH_HAVE_MUJOCO
+  register_two_pandas_mujoco();
+#endif
 }
+
+#if defined(UKDYN_BENCH_HAVE_MUJOCO) && defined(UKDYN_BENCH_HAVE_IO)
+void print_two_pandas_weld_check() {
+  std::printf(
+      "\nTwo Pandas welded to a plate, at the initial state (scenarios/two_pandas_weld.yaml vs\n"
+      "bench/two_pandas_weld.xml keyframe 'grasp', q̇ = 0, τ = 0): MuJoCo's qacc vs ukdyn's q̈\n");
+  try {
+    const ukdyn::Scenario sc = ukdyn::load_scenario(std::string(UKDYN_BENCH_SOURCE_DIR) +
+                                                    "/scenarios/two_pandas_weld.yaml");
+    const ukdyn::System& sys = *sc.system;
+    ukdyn::ForwardData data(sys);
+    const Vec tau = Vec::Zero(sys.dof());
+    ukdyn::forward(sys, data, sc.sim.t0, sc.q0, sc.qd0, tau, sc.sim.uk);
+    Vec phi(sys.rows());
+    ukdyn::position_residuals(sys, sc.sim.t0, sc.q0, phi);
+    MjPair p;
+    if (!p.error.empty() || sys.dof() != 27 || p.m->nq != 27) {
+      std::printf("  failed: %s (n = %d, nq = %d)\n", p.error.c_str(), static_cast<int>(sys.dof()),
+                  p.m == nullptr ? -1 : p.m->nq);
+      return;
+    }
+    double dq = 0;
+    for (Index i = 0; i < 27; ++i) dq = std::max(dq, std::abs(p.d->qpos[i] - sc.q0[i]));
+    std::printf("  ukdyn: n = %d, m = %d rows, max |Phi(q0)| = %.1e; |qpos - q0| = %.1e\n",
+                static_cast<int>(sys.dof()), static_cast<int>(sys.rows()),
+                phi.cwiseAbs().maxCoeff(), dq);
+    std::printf("  %-44s %5s %9s %10s %10s %10s %10s\n", "MuJoCo weld solimp (solref 0.02 1)",
+                "nefc", "max|pos|", "arms diff", "arms max", "load diff", "load max");
+    const double soft[][2] = {{-1, -1}, {0.99, 0.99}, {0.9999, 0.9999}};
+    for (const auto& s : soft) {
+      if (s[0] > 0)
+        for (int e = 0; e < p.m->neq; ++e) {
+          p.m->eq_solimp[e * mjNIMP + 0] = s[0];
+          p.m->eq_solimp[e * mjNIMP + 1] = s[1];
+        }
+      mj_resetDataKeyframe(p.m, p.d, 0);
+      mj_forward(p.m, p.d);
+      double pos = 0;
+      for (int i = 0; i < p.d->nefc; ++i) pos = std::max(pos, std::abs(p.d->efc_pos[i]));
+      const QddDiff r = qdd_diff(p.d, data.qdd);
+      char label[64];
+      if (s[0] > 0)
+        std::snprintf(label, sizeof label, "%g %g 0.001", s[0], s[1]);
+      else
+        std::snprintf(label, sizeof label, "0.9 0.95 0.001 (default)");
+      std::printf("  %-44s %5d %9.1e %10.2e %10.2e %10.2e %10.2e\n", label, p.d->nefc, pos, r.arms,
+                  r.arms_max, r.load, r.load_max);
+    }
+    std::printf(
+        "  (arms: the 20 platform and joint coordinates, rad/s^2 or m/s^2; load: its linear and\n"
+        "  body-frame angular acceleration. MuJoCo's welds are soft: its constraint force is\n"
+        "  regularised by (1 - d)/d with d = solimp, so q̈ approaches ukdyn's ideal welds as d -> "
+        "1.)\n");
+  } catch (const std::exception& e) {
+    std::printf("  failed: %s\n", e.what());
+  }
+}
+#endif
 
 }  // namespace ukbench
