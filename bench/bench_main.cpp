@@ -202,6 +202,22 @@ void print_summary(const Timings& ts) {
   }
   print_ratio(ts, "two Pandas on platforms welded to a plate: mj_forward / ukdyn forward",
               "mujoco/two_pandas_weld_mj_forward", "scenario/two_pandas_weld_forward", 3.0);
+  // Exact derivatives (∂q̈ and ∂Qc w.r.t. q, q̇, τ): cost in forward calls (target <= 8) and
+  // speed-up over central differences of forward() (q̈ only; target >= 10).
+  for (const std::string sc :
+       {"paper_chain", "two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"}) {
+    const Timing* l = find(ts, "derivatives/" + sc + "_linearize");
+    const Timing* f = find(ts, "scenario/" + sc + "_forward");
+    if (l != nullptr && f != nullptr)
+      std::printf("  %-64s %8.1fx (target <= 8x: %s)\n",
+                  (sc + ": derivatives / one forward call").c_str(), l->median / f->median,
+                  l->median <= 8.0 * f->median ? "met" : "NOT met");
+    print_ratio(ts, sc + ": central differences / exact derivatives",
+                "derivatives/" + sc + "_central_differences", "derivatives/" + sc + "_linearize",
+                10.0);
+  }
+  print_ratio(ts, "two Pandas welded: MuJoCo mjd_transitionFD / ukdyn exact derivatives",
+              "mujoco/two_pandas_weld_mjd_transitionFD", "derivatives/two_pandas_weld_linearize");
   for (const std::string n : {"15", "30", "60"}) {
     print_ratio(ts, "chain " + n + " / 7 links: M (CRBA)", "tree/chain_" + n + "_mass",
                 "tree/chain_7_mass");

@@ -14,6 +14,7 @@
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -32,6 +33,7 @@
 #include <mujoco/mujoco.h>
 #endif
 #ifdef UKDYN_BENCH_HAVE_IO
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #endif
 
@@ -174,12 +176,80 @@ void register_chains() {
 }
 
 #ifdef UKDYN_BENCH_HAVE_IO
+// A state of a scenario with a velocity along its constraints (the null space of A at q0) and a
+// nonzero τ, where the derivatives are timed.
+struct DerivativeState {
+  Vec q, qd, tau;
+};
+
+DerivativeState derivative_state(const ukdyn::Scenario& sc) {
+  const ukdyn::System& sys = *sc.system;
+  const Index n = sys.dof();
+  DerivativeState s{sc.q0, sc.qd0, Vec::Zero(n)};
+  for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
+  ukdyn::ForwardData d(sys);
+  ukdyn::forward(sys, d, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  Eigen::JacobiSVD<Mat> svd(d.A, Eigen::ComputeFullV);
+  Index rank = 0;
+  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+  for (Index k = rank; k < n; ++k)
+    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+  return s;
+}
+
+// The exact derivatives (linearize(): ∂q̈/∂(q, q̇, τ) and ∂Qc/∂(q, q̇, τ)) against what a user
+// without them does: central differences of forward(), 2 calls per column of (q, q̇, τ) (q̈ only).
+void register_derivatives(const std::vector<std::pair<std::string, std::string>>& files) {
+  for (const auto& [name, path] : files) {
+    with_min_max(benchmark::RegisterBenchmark(
+        ("derivatives/" + name + "_linearize").c_str(), [path](benchmark::State& st) {
+          const ukdyn::Scenario sc = ukdyn::load_scenario(path);
+          if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
+            st.SkipWithError("a component has no exact derivatives");
+            return;
+          }
+          const DerivativeState s = derivative_state(sc);
+          for (auto _ : st) {
+            const ukdyn::Linearization l =
+                ukdyn::linearize(*sc.system, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+            benchmark::DoNotOptimize(l.dqdd_dq.data());
+          }
+          st.counters["dof"] = static_cast<double>(sc.system->dof());
+        }));
+    with_min_max(benchmark::RegisterBenchmark(
+        ("derivatives/" + name + "_central_differences").c_str(), [path](benchmark::State& st) {
+          const ukdyn::Scenario sc = ukdyn::load_scenario(path);
+          const ukdyn::System& sys = *sc.system;
+          const Index n = sys.dof();
+          const DerivativeState s = derivative_state(sc);
+          ukdyn::ForwardData d(sys);
+          Mat J(n, 3 * n);
+          for (auto _ : st) {
+            Vec x[3] = {s.q, s.qd, s.tau};
+            for (int which = 0; which < 3; ++which) {
+              for (Index j = 0; j < n; ++j) {
+                const double v = x[which](j), h = 1e-6 * (1.0 + std::abs(v));
+                x[which](j) = v + h;
+                ukdyn::forward(sys, d, sc.sim.t0, x[0], x[1], x[2], sc.sim.uk);
+                J.col(which * n + j) = d.qdd;
+                x[which](j) = v - h;
+                ukdyn::forward(sys, d, sc.sim.t0, x[0], x[1], x[2], sc.sim.uk);
+                J.col(which * n + j) = (J.col(which * n + j) - d.qdd) / (2 * h);
+                x[which](j) = v;
+              }
+            }
+            benchmark::DoNotOptimize(J.data());
+          }
+        }));
+  }
+}
+
 // The shipped multi-arm scenarios, and the files listed in UKDYN_BENCH_SCENARIOS (paths separated
 // by ':'; e.g. tools/n_robots.py 64 --weld > /tmp/n64.yaml for the N-robot scaling).
 void register_scenarios() {
   std::vector<std::pair<std::string, std::string>> files;
   for (const std::string name :
-       {"two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"})
+       {"paper_chain", "two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"})
     files.emplace_back(name, std::string(UKDYN_BENCH_SOURCE_DIR) + "/scenarios/" + name + ".yaml");
   if (const char* extra = std::getenv("UKDYN_BENCH_SCENARIOS")) {
     std::string list = extra;
@@ -193,6 +263,7 @@ void register_scenarios() {
       a = b + 1;
     }
   }
+  register_derivatives(files);
   for (const auto& [name, path] : files) {
     benchmark::RegisterBenchmark(
         ("scenario/" + name + "_forward").c_str(), [path](benchmark::State& st) {
@@ -260,6 +331,26 @@ void register_two_pandas_mujoco() {
         }
         st.counters["nefc"] = p.d->nefc;
         st.counters["solver_iter"] = p.d->solver_iter;
+      }));
+  // What a MuJoCo user has for derivatives: mjd_transitionFD (finite differences of mj_step,
+  // centred, eps 1e-6), the discrete-time A (2nv × 2nv) and B (2nv × nu).
+  with_min_max(benchmark::RegisterBenchmark(
+      "mujoco/two_pandas_weld_mjd_transitionFD", [](benchmark::State& st) {
+        MjPair p;
+        if (!p.error.empty()) {
+          st.SkipWithError(p.error.c_str());
+          return;
+        }
+        const int nv = p.m->nv, nu = p.m->nu;
+        std::vector<mjtNum> A(static_cast<std::size_t>(4 * nv * nv)),
+            B(static_cast<std::size_t>(2 * nv * std::max(nu, 1)));
+        for (auto _ : st) {
+          mjd_transitionFD(p.m, p.d, 1e-6, 1, A.data(), nu > 0 ? B.data() : nullptr, nullptr,
+                           nullptr);
+          benchmark::DoNotOptimize(A.data());
+        }
+        st.counters["nv"] = nv;
+        st.counters["nu"] = nu;
       }));
 }
 #endif

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <sstream>
 
 #include "helpers.hpp"
 #include "ukdyn/core/constraint_forces.hpp"
@@ -545,6 +546,57 @@ simulation: {t_end: 0.1, sample_dt: 0.01}
   EXPECT_NE(dynamic_cast<const sym::FrameConstraint*>(sc.system->constraints()[0].get()), nullptr);
   EXPECT_EQ(sc.system->rows(), 3);
 }
+// A weld holds for any designed relative orientation put in the offsets (a grid of rpy offsets
+// with 90° and 180° turns and oblique axes): a free body welded to the world frame turned by the
+// offset, started turned with it, stays put under any generalized force (q̈ = 0). Started 180°
+// away from the offset about any axis — zero residual there, but the orientation rows' spurious
+// root, where they hold no rotation — the scenario is refused naming the weld and the angle.
+TEST(FrameConstraintsYaml, WeldHoldsForAnyOffsetAndRefusesItsSpuriousRoot) {
+  const double pi = std::numbers::pi;
+  const std::vector<Eigen::Vector3d> offsets = {
+      {0, 0, 0},      {0, 0, pi},       {pi, 0, 0},       {0, pi / 2, 0},
+      {pi / 2, 0, 0}, {0.3, -1.1, 2.5}, {pi, pi / 2, pi}, {-2.0, 0.7, -pi / 2}};
+  const std::vector<Eigen::Vector3d> flips = {{1, 0, 0},
+                                              {0, 1, 0},
+                                              {0, 0, 1},
+                                              Eigen::Vector3d(1, 1, 1).normalized(),
+                                              Eigen::Vector3d(1, -2, 0.5).normalized()};
+  auto text = [](const Eigen::Vector3d& rpy, const Eigen::Quaterniond& q) {
+    std::ostringstream os;
+    os.precision(17);
+    os << "ukdyn: 1\nname: weld grid\nsubsystems:\n  - {name: load, type: free_body, mass: 2, "
+          "inertia: [1, 2, 3]}\nconstraints:\n  - {type: weld, name: glue, a: load.load, b: "
+          "{frame: world, xyz: [0.1, -0.2, 0.3], rpy: ["
+       << rpy.x() << ", " << rpy.y() << ", " << rpy.z() << "]}}\ninitial:\n  q: [0.1, -0.2, 0.3, "
+       << q.w() << ", " << q.x() << ", " << q.y() << ", " << q.z()
+       << "]\n  qd: [0, 0, 0, 0, 0, 0, 0]\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
+    return os.str();
+  };
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-5.0, 5.0);
+  for (const Eigen::Vector3d& rpy : offsets) {
+    const Eigen::Quaterniond target(Eigen::AngleAxisd(rpy.z(), Eigen::Vector3d::UnitZ()) *
+                                    Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()) *
+                                    Eigen::AngleAxisd(rpy.x(), Eigen::Vector3d::UnitX()));
+    const auto sc = ukdyn::load_scenario_text(text(rpy, target), "grid.yaml");
+    ukdyn::ForwardData d(*sc.system);
+    Vec tau(7);
+    for (Index i = 0; i < 7; ++i) tau(i) = u(rng);
+    ukdyn::forward(*sc.system, d, 0.0, sc.q0, sc.qd0, tau);
+    EXPECT_LE(d.qdd.cwiseAbs().maxCoeff(), 1e-9) << "offset " << rpy.transpose();
+    for (const Eigen::Vector3d& axis : flips) {
+      const Eigen::Quaterniond spurious = target * Eigen::Quaterniond(Eigen::AngleAxisd(pi, axis));
+      try {
+        (void)ukdyn::load_scenario_text(text(rpy, spurious), "grid.yaml");
+        ADD_FAILURE() << "no error for offset " << rpy.transpose() << ", flip " << axis.transpose();
+      } catch (const ukdyn::ScenarioError& e) {
+        EXPECT_NE(std::string(e.what()).find("weld 'glue'"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("180 degrees apart"), std::string::npos) << e.what();
+      }
+    }
+  }
+}
+
 // The paper's robots holding the load as its own body (welds + level, scenarios/
 // paper_load_body.yaml) describe the same motion as the cut model (scenarios/paper_urdf.yaml):
 // both are fully prescribed by the same kinematics. Joint angles over 2 s; the redundant roll rows

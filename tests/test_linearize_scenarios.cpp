@@ -5,10 +5,13 @@
 // forward().
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
 #include <filesystem>
 
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace {
 
@@ -77,6 +80,110 @@ TEST(DerivativeScenarios, PaperTreesTapesAndDefinitionsAgree) {
       const Vec d = difference_column(*trees.system, t, trees.q0, trees.qd0, tau, which, j);
       EXPECT_LE((exact.col(j) - d).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + d.cwiseAbs().maxCoeff()))
           << "which " << which << " column " << j;
+    }
+  }
+}
+
+namespace {
+
+// The first tree subsystem of a scenario (a URDF arm on its platform).
+std::shared_ptr<const tree::TreeSubsystem> first_tree(const System& sys) {
+  for (const auto& s : sys.subsystems()) {
+    if (auto t = std::dynamic_pointer_cast<const tree::TreeSubsystem>(s)) return t;
+  }
+  return nullptr;
+}
+
+// Everything frame_state_tangent returns, from frame_state alone: p, R, ṗ, Ṙ, the acceleration
+// at q̈ (frame_state's at q̈ = 0 plus Σ_c ∂x/∂q_c q̈_c) and the columns, as one vector.
+Vec frame_quantities(const tree::TreeSubsystem& tr, const Vec& q, const Vec& qd, const Vec& qdd,
+                     int link, const Eigen::Matrix3d& Ro, const Eigen::Vector3d& po) {
+  const Index n = tr.dof();
+  std::vector<double> buf(static_cast<std::size_t>(12 * n));
+  tree::FrameState s(buf.data(), buf.data() + 3 * n, n);
+  tr.frame_state(q, qd, link, Ro, po, {}, s);
+  const Eigen::Vector3d pdd = s.pdd + s.dp * qdd;
+  Eigen::Matrix3d Rdd = s.Rdd;
+  for (Index c = 0; c < n; ++c)
+    for (int r = 0; r < 9; ++r) Rdd(r / 3, r % 3) += s.dR(r, c) * qdd(c);
+  Vec out(36 + 12 * n);
+  out << s.p, s.R.reshaped(), s.pd, s.Rd.reshaped(), pdd, Rdd.reshaped(), s.dp.reshaped(),
+      s.dR.reshaped();
+  return out;
+}
+
+Vec tangent_quantities(const tree::FrameState& s) {
+  const Index n = s.dp.cols();
+  Vec out(36 + 12 * n);
+  out << s.p, s.R.reshaped(), s.pd, s.Rd.reshaped(), s.pdd, s.Rdd.reshaped(), s.dp.reshaped(),
+      s.dR.reshaped();
+  return out;
+}
+
+}  // namespace
+
+// frame_state_tangent (dual numbers through the recursive pass) against Richardson-extrapolated
+// central differences of frame_state (doubles), for the flange of a real arm on its platform, at
+// random states and directions.
+TEST(DerivativeScenarios, TreeFrameTangentMatchesDifferencesOfFrameState) {
+  const Scenario sc = load_scenario(kSource / "scenarios" / "two_ur5e_load.yaml");
+  const auto tr = first_tree(*sc.system);
+  ASSERT_TRUE(tr);
+  const Index n = tr->dof();
+  const int link = tr->link_index("tool0");
+  ASSERT_GE(link, 0);
+  const Eigen::Matrix3d Ro = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+  const Eigen::Vector3d po(0.05, -0.02, 0.1);
+  std::srand(7);
+  for (int trial = 0; trial < 5; ++trial) {
+    const Vec q = Vec::Random(n), qd = Vec::Random(n), qdd = Vec::Random(n), dq = Vec::Random(n),
+              dqd = Vec::Random(n);
+    std::vector<double> vb(static_cast<std::size_t>(12 * n)), tb(vb.size());
+    tree::FrameState v(vb.data(), vb.data() + 3 * n, n), t(tb.data(), tb.data() + 3 * n, n);
+    tr->frame_state_tangent(q, qd, qdd, dq, dqd, link, Ro, po, {}, v, t);
+    const Vec value = frame_quantities(*tr, q, qd, qdd, link, Ro, po);
+    EXPECT_LE((tangent_quantities(v) - value).cwiseAbs().maxCoeff(), 1e-13);
+    auto central = [&](double h) {
+      return Vec((frame_quantities(*tr, q + h * dq, qd + h * dqd, qdd, link, Ro, po) -
+                  frame_quantities(*tr, q - h * dq, qd - h * dqd, qdd, link, Ro, po)) /
+                 (2 * h));
+    };
+    const Vec d = (4 * central(5e-4) - central(1e-3)) / 3;
+    EXPECT_LE((tangent_quantities(t) - d).cwiseAbs().maxCoeff(),
+              1e-7 * (1.0 + d.cwiseAbs().maxCoeff()))
+        << "trial " << trial;
+  }
+}
+
+// Real arms welded to a free-body load (numeric frame constraints on trees, the quaternion load):
+// exact derivatives against differences of forward() at a state moving along the constraints.
+TEST(DerivativeScenarios, ArmsWeldedToALoadMatchDifferencesOfForward) {
+  for (const char* name : {"two_ur5e_load.yaml", "four_panda_plate.yaml"}) {
+    SCOPED_TRACE(name);
+    const Scenario sc = load_scenario(kSource / "scenarios" / name);
+    ASSERT_TRUE(components_without_derivatives(*sc.system).empty());
+    const Index n = sc.system->dof();
+    const Vec tau = some_tau(n);
+    // A velocity along the constraints (in the null space of A at q0), so that the terms of q̇
+    // are exercised.
+    ForwardData fd(*sc.system);
+    forward(*sc.system, fd, 0.0, sc.q0, sc.qd0, tau);
+    Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
+    Index rank = 0;
+    while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+    Vec qd = sc.qd0;
+    for (Index k = rank; k < n; ++k)
+      qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+    const Linearization l = linearize(*sc.system, 0.0, sc.q0, qd, tau);
+    EXPECT_TRUE(l.trusted) << l.message;
+    EXPECT_LE(l.kkt_agreement, 1e-9);
+    for (int which = 0; which < 3; ++which) {
+      const Mat& exact = which == 0 ? l.dqdd_dq : which == 1 ? l.dqdd_dqd : l.dqdd_dtau;
+      for (Index j = 0; j < n; ++j) {
+        const Vec d = difference_column(*sc.system, 0.0, sc.q0, qd, tau, which, j);
+        EXPECT_LE((exact.col(j) - d).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + d.cwiseAbs().maxCoeff()))
+            << "which " << which << " column " << j;
+      }
     }
   }
 }

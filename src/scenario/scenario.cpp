@@ -19,6 +19,7 @@
 #include "scenario/yaml_loader.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 
 namespace ukdyn {
@@ -805,7 +806,31 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
   }
 }
 
-// The initial state must satisfy the constraints (paper, assumption 3).
+// A weld's orientation rows ½ vee(R_rel − R_relᵀ) = sin θ · u vanish at the welded pose θ = 0 and
+// again at θ = 180° (a spurious root where they lose two ranks and hold no rotation across u:
+// docs/frame-constraints.md, "Where the weld's orientation rows are regular"). A start with zero
+// residual can sit on that root (an offset turning a frame 180° the bodies were not turned by):
+// refused, the rows being regular only for θ < 90°.
+void check_weld_rotations(const Loader& L, const System& system, const Vec& q0, const Node& init) {
+  for (const auto& c : system.constraints()) {
+    const auto* f = dynamic_cast<const symbolic::FrameConstraint*>(c.get());
+    if (f == nullptr || f->wrench().kind() != symbolic::FrameConstraintDef::Kind::weld) continue;
+    const symbolic::FrameWrench w = f->wrench().evaluate(q0, Vec::Zero(f->rows()));
+    const double cos_theta = 0.5 * ((w.rotation_a.transpose() * w.rotation_b).trace() - 1.0);
+    if (cos_theta > 0.0) continue;
+    std::ostringstream os;
+    os.precision(4);
+    os << "weld '" << f->wrench().name() << "': at initial.q its frames '" << f->wrench().frame_a()
+       << "' and '" << f->wrench().frame_b() << "' are "
+       << std::acos(std::clamp(cos_theta, -1.0, 1.0)) * 180.0 / std::numbers::pi
+       << " degrees apart, not welded: the weld's orientation rows are regular only below 90 "
+          "degrees and vanish again at 180 (where they would hold no rotation); turn the bodies "
+          "as the frames' rpy offsets say, or put the relative orientation in the offsets";
+    L.fail(init, os.str());
+  }
+}
+
+// The initial state must satisfy the constraints (paper, assumption 3).// The initial state must satisfy the constraints (paper, assumption 3).
 void check_initial_state(const Loader& L, const Loading& st, Scenario& sc) {
   const std::shared_ptr<System>& system = st.system;
   const Node& init = st.init;
@@ -832,6 +857,7 @@ void check_initial_state(const Loader& L, const Loading& st, Scenario& sc) {
          << std::scientific << phid(worst) << " > initial_tolerance " << sc.initial_tolerance;
       L.fail(init, os.str());
     }
+    check_weld_rotations(L, *system, sc.q0, init);
   }
 }
 

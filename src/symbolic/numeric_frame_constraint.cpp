@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <set>
+#include <unsupported/Eigen/AutoDiff>
 
 #include "symbolic/ex_helpers.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
@@ -20,27 +21,32 @@ using tree::FrameState;
 constexpr int kMaxRows = 6;
 
 // Φ, D = ∂Φ/∂x and the second-order term Q = ẋᵀ H ẋ of the rows, x = (p_a, R_a, p_b, R_b):
-// columns 0-2 p_a, 3-11 R_a (row-major, R(i, j) at 3 i + j), 12-14 p_b, 15-23 R_b.
+// columns 0-2 p_a, 3-11 R_a (row-major, R(i, j) at 3 i + j), 12-14 p_b, 15-23 R_b. The scalar S
+// is double (evaluate) or a dual number (tangent: forward-mode automatic differentiation).
+template <class S>
 struct RowValues {
   int m = 0;
-  Eigen::Matrix<double, kMaxRows, 1> phi, Q;
-  Eigen::Matrix<double, kMaxRows, 24> D;
+  Eigen::Matrix<S, kMaxRows, 1> phi, Q;
+  Eigen::Matrix<S, kMaxRows, 24> D;
 };
 
 constexpr int kPa = 0, kRa = 3, kPb = 12, kRb = 15;
 
-void position_rows(const FrameState& a, const FrameState& b, RowValues& r) {
+// St: a frame's state with p, R, pd, Rd of scalar S (FrameState for doubles, DualFrame).
+template <class S, class St>
+void position_rows(const St& a, const St& b, RowValues<S>& r) {
   for (int k = 0; k < 3; ++k) {
     r.phi(r.m) = a.p(k) - b.p(k);
-    r.D(r.m, kPa + k) = 1.0;
-    r.D(r.m, kPb + k) = -1.0;
+    r.D(r.m, kPa + k) = S(1.0);
+    r.D(r.m, kPb + k) = S(-1.0);
     ++r.m;
   }
 }
 
 // Φ = ½ (X_ij − X_ji), X = R_aᵀ R_b (X_ij = Σ_k Ra_ki Rb_kj).
-void weld_row(const FrameState& a, const FrameState& b, int i, int j, RowValues& r) {
-  const double Xij = a.R.col(i).dot(b.R.col(j)), Xji = a.R.col(j).dot(b.R.col(i));
+template <class S, class St>
+void weld_row(const St& a, const St& b, int i, int j, RowValues<S>& r) {
+  const S Xij = a.R.col(i).dot(b.R.col(j)), Xji = a.R.col(j).dot(b.R.col(i));
   r.phi(r.m) = 0.5 * (Xij - Xji);
   for (int k = 0; k < 3; ++k) {
     r.D(r.m, kRa + 3 * k + i) += 0.5 * b.R(k, j);
@@ -54,9 +60,12 @@ void weld_row(const FrameState& a, const FrameState& b, int i, int j, RowValues&
 }
 
 // Φ = (R_a u)·(R_b n).
-void hinge_row(const FrameState& a, const FrameState& b, const Eigen::Vector3d& u,
-               const Eigen::Vector3d& n, RowValues& r) {
-  const Eigen::Vector3d ua = a.R * u, nb = b.R * n;
+template <class S, class St>
+void hinge_row(const St& a, const St& b, const Eigen::Vector3d& u, const Eigen::Vector3d& n,
+               RowValues<S>& r) {
+  using V = Eigen::Matrix<S, 3, 1>;
+  const V us = u.cast<S>(), ns = n.cast<S>();
+  const V ua = a.R * us, nb = b.R * ns;
   r.phi(r.m) = ua.dot(nb);
   for (int k = 0; k < 3; ++k) {
     for (int i = 0; i < 3; ++i) {
@@ -64,21 +73,23 @@ void hinge_row(const FrameState& a, const FrameState& b, const Eigen::Vector3d& 
       r.D(r.m, kRb + 3 * k + i) = ua(k) * n(i);
     }
   }
-  r.Q(r.m) = 2.0 * (a.Rd * u).dot(b.Rd * n);
+  r.Q(r.m) = 2.0 * V(a.Rd * us).dot(V(b.Rd * ns));
   ++r.m;
 }
 
 // Φ = (R_a u)·e.
-void level_row(const FrameState& a, const Eigen::Vector3d& u, const Eigen::Vector3d& e,
-               RowValues& r) {
-  r.phi(r.m) = (a.R * u).dot(e);
+template <class S, class St>
+void level_row(const St& a, const Eigen::Vector3d& u, const Eigen::Vector3d& e, RowValues<S>& r) {
+  using V = Eigen::Matrix<S, 3, 1>;
+  r.phi(r.m) = V(a.R * u.cast<S>()).dot(e.cast<S>());
   for (int k = 0; k < 3; ++k)
-    for (int i = 0; i < 3; ++i) r.D(r.m, kRa + 3 * k + i) = e(k) * u(i);
+    for (int i = 0; i < 3; ++i) r.D(r.m, kRa + 3 * k + i) = S(e(k) * u(i));
   ++r.m;
 }
 
 // The rows of frame_rows() (frame_constraints.cpp, rows_for) in the same order.
-void row_values(const NumericFrameSpec& f, const FrameState& a, const FrameState& b, RowValues& r) {
+template <class S, class St>
+void row_values(const NumericFrameSpec& f, const St& a, const St& b, RowValues<S>& r) {
   r.m = 0;
   r.phi.setZero();
   r.Q.setZero();
@@ -110,7 +121,7 @@ void row_values(const NumericFrameSpec& f, const FrameState& a, const FrameState
       }
       break;
     case K::distance: {
-      const Eigen::Vector3d d = a.p - b.p, dd = a.pd - b.pd;
+      const Eigen::Matrix<S, 3, 1> d = a.p - b.p, dd = a.pd - b.pd;
       r.phi(0) = 0.5 * (d.dot(d) - f.length * f.length);
       for (int k = 0; k < 3; ++k) {
         r.D(0, kPa + k) = d(k);
@@ -258,7 +269,7 @@ void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState&
 }
 
 // G (m × 6) of one end: [∂Φ/∂p, Σ_rc ∂Φ/∂R_rc ([e_k]× R)_rc].
-void twist_map(const RowValues& r, const Eigen::Matrix3d& R, int p0, int r0, MatRef G) {
+void twist_map(const RowValues<double>& r, const Eigen::Matrix3d& R, int p0, int r0, MatRef G) {
   for (int i = 0; i < r.m; ++i) {
     for (int k = 0; k < 3; ++k) G(i, k) = r.D(i, p0 + k);
     for (int k = 0; k < 3; ++k) {
@@ -290,8 +301,8 @@ void twist_jacobian(const FrameState& s, const std::vector<Index>& cols, Index n
 }
 
 // A(:, cols) += D_end ∂x_end/∂q over one end's columns.
-void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues& r, int p0,
-                 int r0, MatRef A) {
+void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
+                 int p0, int r0, MatRef A) {
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const auto ci = static_cast<Index>(c);
     for (int i = 0; i < r.m; ++i) {
@@ -300,6 +311,132 @@ void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowV
       for (int k = 0; k < 9; ++k) v += r.D(i, r0 + k) * s.dR(k, ci);
       A(i, cols[c]) += v;
     }
+  }
+}
+
+// ---------------------------------------------------------------- derivatives (dual numbers)
+
+// One tangent direction: value and directional derivative (Eigen's forward-mode scalar).
+using Dual = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+using DV3 = Eigen::Matrix<Dual, 3, 1>;
+using DM3 = Eigen::Matrix<Dual, 3, 3>;
+
+Dual dual(double value, double tangent) {
+  return Dual(value, Eigen::Matrix<double, 1, 1>::Constant(tangent));
+}
+double tangent_of(const Dual& x) { return x.derivatives()(0); }
+
+// A frame's state on dual numbers along one direction (dq, dq̇) at fixed q̈: pdd, Rdd are the
+// acceleration AT q̈ (so that A q̈ − b = D ẍ + ẋᵀHẋ), dp, dR the columns of its end.
+struct DualFrame {
+  DV3 p, pd, pdd;
+  DM3 R, Rd, Rdd;
+  Eigen::Matrix<Dual, 3, Eigen::Dynamic> dp;
+  Eigen::Matrix<Dual, 9, Eigen::Dynamic> dR;
+};
+
+template <class M, class DM>
+void combine(const M& value, const M& tangent, DM& out) {
+  for (Index i = 0; i < value.rows(); ++i)
+    for (Index j = 0; j < value.cols(); ++j) out(i, j) = dual(value(i, j), tangent(i, j));
+}
+
+// A tree end: frame_state_tangent (the recursive pass on dual numbers).
+void tree_end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
+                      double* scratch, DualFrame& s) {
+  const NumericFrameEnd& spec = e.spec;
+  const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
+  std::vector<double> buf(static_cast<std::size_t>(24 * n));
+  FrameState v(buf.data(), buf.data() + 3 * n, n), t(buf.data() + 12 * n, buf.data() + 15 * n, n);
+  spec.tree->frame_state_tangent(q.segment(c0, n), qd.segment(c0, n), qdd.segment(c0, n),
+                                 dq.segment(c0, n), dqd.segment(c0, n), spec.link, spec.offset_R,
+                                 spec.offset_p, Slot(scratch, static_cast<std::size_t>(e.scratch)),
+                                 v, t);
+  combine(v.p, t.p, s.p);
+  combine(v.R, t.R, s.R);
+  combine(v.pd, t.pd, s.pd);
+  combine(v.Rd, t.Rd, s.Rd);
+  combine(v.pdd, t.pdd, s.pdd);
+  combine(v.Rdd, t.Rdd, s.Rdd);
+  s.dp.resize(3, n);
+  s.dR.resize(9, n);
+  combine(v.dp, t.dp, s.dp);
+  combine(v.dR, t.dR, s.dR);
+}
+
+// An expressions end: its tape (x, ∂x/∂q_c, ẍ|q̈=0) along the direction (Tape::eval_tangent),
+// then ẋ = Σ_c ∂x/∂q_c q̇_c and ẍ = ẍ|q̈=0 + Σ_c ∂x/∂q_c q̈_c on dual numbers.
+void expression_end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq,
+                            CVecRef dqd, DualFrame& s) {
+  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;  // contiguous (the refs may be strided)
+  const std::size_t no = e.tape.outputs(), nw = e.tape.work_size();
+  std::vector<double> out(no), dout(no), work(nw), dwork(nw);
+  e.tape.eval_tangent(0.0, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
+                      dout.data(), work.data(), dwork.data());
+  auto x = [&](std::size_t i) { return dual(out[i], dout[i]); };
+  const auto nc = static_cast<Index>(e.cols.size());
+  s.dp.resize(3, nc);
+  s.dR.resize(9, nc);
+  for (int i = 0; i < 3; ++i) s.p(i) = x(static_cast<std::size_t>(i));
+  for (int i = 0; i < 9; ++i) s.R(i / 3, i % 3) = x(static_cast<std::size_t>(3 + i));
+  const std::size_t acc = 12 * static_cast<std::size_t>(nc + 1);
+  for (int i = 0; i < 3; ++i) s.pdd(i) = x(acc + static_cast<std::size_t>(i));
+  for (int i = 0; i < 9; ++i) s.Rdd(i / 3, i % 3) = x(acc + 3 + static_cast<std::size_t>(i));
+  s.pd.setZero();
+  s.Rd.setZero();
+  for (Index c = 0; c < nc; ++c) {
+    const std::size_t d = 12 * static_cast<std::size_t>(c + 1);
+    const Index col = e.cols[static_cast<std::size_t>(c)];
+    const Dual v = dual(qd(col), dqd(col));
+    const double a = qdd(col);
+    for (int i = 0; i < 3; ++i) {
+      s.dp(i, c) = x(d + static_cast<std::size_t>(i));
+      s.pd(i) += s.dp(i, c) * v;
+      s.pdd(i) += s.dp(i, c) * a;
+    }
+    for (int i = 0; i < 9; ++i) {
+      s.dR(i, c) = x(d + 3 + static_cast<std::size_t>(i));
+      s.Rd(i / 3, i % 3) += s.dR(i, c) * v;
+      s.Rdd(i / 3, i % 3) += s.dR(i, c) * a;
+    }
+  }
+}
+
+void end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
+                 double* scratch, DualFrame& s) {
+  switch (e.spec.kind) {
+    case NumericFrameEnd::Kind::fixed:
+      s.p = e.spec.offset_p.cast<Dual>();
+      s.R = e.spec.offset_R.cast<Dual>();
+      s.pd.setZero();
+      s.pdd.setZero();
+      s.Rd.setZero();
+      s.Rdd.setZero();
+      s.dp.resize(3, 0);
+      s.dR.resize(9, 0);
+      return;
+    case NumericFrameEnd::Kind::tree:
+      tree_end_tangent(e, q, qd, qdd, dq, dqd, scratch, s);
+      return;
+    case NumericFrameEnd::Kind::expressions:
+      expression_end_tangent(e, q, qd, qdd, dq, dqd, s);
+      return;
+  }
+}
+
+// d_force(cols) += d(J_endᵀ D_endᵀ λ): the end's part of d(Aᵀλ).
+void add_force_tangent(const DualFrame& s, const std::vector<Index>& cols, const RowValues<Dual>& r,
+                       int p0, int r0, CVecRef lambda, VecRef d_force) {
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    Dual f(0.0);
+    for (int i = 0; i < r.m; ++i) {
+      Dual a(0.0);
+      for (int k = 0; k < 3; ++k) a += r.D(i, p0 + k) * s.dp(k, ci);
+      for (int k = 0; k < 9; ++k) a += r.D(i, r0 + k) * s.dR(k, ci);
+      f += a * lambda(i);
+    }
+    d_force(cols[c]) += tangent_of(f);
   }
 }
 
@@ -337,16 +474,46 @@ class Core {
     FrameState A(da, da + 3 * na, na), B(db, db + 3 * nb, nb);
     end_state(a_, q, qd, sa, A);
     end_state(b_, q, qd, sb, B);
-    RowValues r;
+    RowValues<double> r;
     row_values(f_, A, B, r);
     f(A, B, r);
   }
 
   // A = D ∂x/∂q over the ends' columns (rows of A zeroed first).
-  void jacobian(const FrameState& a, const FrameState& b, const RowValues& r, MatRef A) const {
+  void jacobian(const FrameState& a, const FrameState& b, const RowValues<double>& r,
+                MatRef A) const {
     zero_rows(A);
     add_columns(a, a_.cols, r, kPa, kRa, A);
     add_columns(b, b_.cols, r, kPb, kRb, A);
+  }
+
+  // d(A q̈ − b) and d(Aᵀλ) along (dq, dq̇) at fixed q̈, λ: the rows on dual numbers, with
+  // A q̈ − b = D ẍ + ẋᵀHẋ (ẍ: the frames' acceleration at q̈) and Aᵀλ = Σ_end J_endᵀ D_endᵀ λ.
+  void tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda, CVecRef dq, CVecRef dqd,
+               Slot slot, VecRef d_residual, VecRef d_force) const {
+    std::vector<double> own;
+    double* base = slot.data();
+    if (static_cast<Index>(slot.size()) < slot_size()) {
+      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+      base = own.data();
+    }
+    DualFrame A, B;
+    end_tangent(a_, q, qd, qdd, dq, dqd, base, A);
+    end_tangent(b_, q, qd, qdd, dq, dqd, base + a_.scratch, B);
+    RowValues<Dual> r;
+    row_values(f_, A, B, r);
+    for (int i = 0; i < r.m; ++i) {
+      Dual res = r.Q(i);
+      for (int k = 0; k < 3; ++k) {
+        res += r.D(i, kPa + k) * A.pdd(k) + r.D(i, kPb + k) * B.pdd(k);
+      }
+      for (int k = 0; k < 9; ++k) {
+        res += r.D(i, kRa + k) * A.Rdd(k / 3, k % 3) + r.D(i, kRb + k) * B.Rdd(k / 3, k % 3);
+      }
+      d_residual(i) = tangent_of(res);
+    }
+    add_force_tangent(A, a_.cols, r, kPa, kRa, lambda, d_force);
+    add_force_tangent(B, b_.cols, r, kPb, kRb, lambda, d_force);
   }
 
   [[nodiscard]] const End& a() const { return a_; }
@@ -391,23 +558,30 @@ class NumericFrameRows final : public Constraint {
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override {
     core_->with(q, qd, ctx.slots.own(),
-                [&](const FrameState& sa, const FrameState& sb, const RowValues& r) {
+                [&](const FrameState& sa, const FrameState& sb, const RowValues<double>& r) {
                   core_->jacobian(sa, sb, r, A);
                   b = -(r.D.topRows(r.m) * rates(sa, sb, true) + r.Q.head(r.m));
                 });
   }
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
     // The rates are not used: q stands in for q̇.
-    core_->with(
-        q, q, ctx.slots.own(),
-        [&](const FrameState&, const FrameState&, const RowValues& r) { phi = r.phi.head(r.m); });
+    core_->with(q, q, ctx.slots.own(),
+                [&](const FrameState&, const FrameState&, const RowValues<double>& r) {
+                  phi = r.phi.head(r.m);
+                });
   }
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                          VecRef phid) const override {
     core_->with(q, qd, ctx.slots.own(),
-                [&](const FrameState& sa, const FrameState& sb, const RowValues& r) {
+                [&](const FrameState& sa, const FrameState& sb, const RowValues<double>& r) {
                   phid = r.D.topRows(r.m) * rates(sa, sb, false);
                 });
+  }
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
+    core_->tangent(q, qd, qdd, lambda, dq, dqd, ctx.slots.own(), d_residual, d_force);
+    return true;
   }
 
  private:
@@ -430,7 +604,7 @@ class NumericFrameWrenches final : public FrameWrenches {
   }
   void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const override {
     core_->with(q, q, Slot(ws.out),
-                [&](const FrameState& a, const FrameState& b, const RowValues& r) {
+                [&](const FrameState& a, const FrameState& b, const RowValues<double>& r) {
                   twist_map(r, a.R, kPa, kRa, ws.Ga);
                   twist_map(r, b.R, kPb, kRb, ws.Gb);
                   w.position_a = a.p;
@@ -443,13 +617,14 @@ class NumericFrameWrenches final : public FrameWrenches {
   void maps(const Vec& q, Mat& Ga, Mat& Gb) const override {
     Ga.resize(rows(), 6);
     Gb.resize(rows(), 6);
-    core_->with(q, q, {}, [&](const FrameState& a, const FrameState& b, const RowValues& r) {
-      twist_map(r, a.R, kPa, kRa, Ga);
-      twist_map(r, b.R, kPb, kRb, Gb);
-    });
+    core_->with(q, q, {},
+                [&](const FrameState& a, const FrameState& b, const RowValues<double>& r) {
+                  twist_map(r, a.R, kPa, kRa, Ga);
+                  twist_map(r, b.R, kPb, kRb, Gb);
+                });
   }
   void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const override {
-    core_->with(q, q, {}, [&](const FrameState& a, const FrameState& b, const RowValues&) {
+    core_->with(q, q, {}, [&](const FrameState& a, const FrameState& b, const RowValues<double>&) {
       twist_jacobian(a, core_->a().cols, n_, Ja);
       twist_jacobian(b, core_->b().cols, n_, Jb);
     });

@@ -654,20 +654,99 @@ void TreeSubsystem::link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
 
 namespace {
 
-Eigen::Matrix3d skew(const Eigen::Vector3d& w) {
-  Eigen::Matrix3d S;
-  S << 0.0, -w.z(), w.y(), w.z(), 0.0, -w.x(), -w.y(), w.x(), 0.0;
-  return S;
+template <class S>
+M3<S> skew(const V3<S>& w) {
+  M3<S> K;
+  K << S(0.0), -w.z(), w.y(), w.z(), S(0.0), -w.x(), -w.y(), w.x(), S(0.0);
+  return K;
+}
+
+// Link twists (ω, v_O) about the world origin and spatial accelerations (α, a_O) without gravity
+// at θ̇ and θ̈ (thetadd null: θ̈ = 0, the velocity-product acceleration): the forward pass of the
+// RNEA (Featherstone Table 5.1 in world coordinates) without the forces.
+template <class S>
+void link_motion(const Model& m, const std::vector<int>& ti, const S* thetad, const S* thetadd,
+                 LinkState<S>* ws) {
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    LinkState<S>& w = ws[i];
+    const int p = m.links[i].parent;
+    if (p < 0) {
+      w.vw.setZero();
+      w.vv.setZero();
+      w.aw.setZero();
+      w.av.setZero();
+    } else {
+      w.vw = ws[p].vw;
+      w.vv = ws[p].vv;
+      w.aw = ws[p].aw;
+      w.av = ws[p].av;
+    }
+    if (ti[i] < 0) continue;
+    const S qd = thetad[ti[i]];
+    w.aw += w.vw.cross(w.sw) * qd;
+    w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd;
+    if (thetadd) {
+      w.aw += w.sw * thetadd[ti[i]];
+      w.av += w.sv * thetadd[ti[i]];
+    }
+    w.vw += w.sw * qd;
+    w.vv += w.sv * qd;
+  }
+}
+
+// A point p fixed in link i moves with the link's twist (ω, v_O) about the world origin:
+// ṗ = v_O + ω × p, Ṙ = [ω]× R, p̈ = a_O + α × p + ω × ṗ, R̈ = ([α]× + [ω]×[ω]×) R, with (α, a_O)
+// the link's spatial acceleration (link_motion). Each joint k above the link moves it by
+// ∂p/∂θ_k = s_v + s_w × p, ∂R/∂θ_k = [s_w]× R (S_k = (s_w, s_v)); through θ = T q + c,
+// ∂/∂q_j = Σ_k T_kj ∂/∂θ_k.
+template <class S>
+struct FrameMotion {
+  M3<S> R, Rd, Rdd;
+  V3<S> p, pd, pdd;
+};
+
+template <class S>
+FrameMotion<S> frame_motion(const Model& m, const LinkState<S>* ws, int link,
+                            const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset) {
+  M3<S> Rl = m.root_rotation.cast<S>();
+  V3<S> pl = m.root_translation.cast<S>(), vw = V3<S>::Zero(), vv = V3<S>::Zero(),
+        aw = V3<S>::Zero(), av = V3<S>::Zero();
+  if (link >= 0) {
+    const LinkState<S>& L = ws[link];
+    Rl = L.R;
+    pl = L.p;
+    vw = L.vw;
+    vv = L.vv;
+    aw = L.aw;
+    av = L.av;
+  }
+  FrameMotion<S> f;
+  f.p = pl + Rl * x_offset.cast<S>();
+  f.R = Rl * R_offset.cast<S>();
+  f.pd = vv + vw.cross(f.p);
+  f.pdd = av + aw.cross(f.p) + vw.cross(f.pd);
+  const M3<S> W = skew<S>(vw);
+  f.Rd = W * f.R;
+  f.Rdd = (skew<S>(aw) + W * W) * f.R;
+  return f;
+}
+
+// The columns ∂p/∂q_j, ∂R/∂q_j (R row-major) of the frame at (p, R) on link `link`: col(j, dp,
+// dR) is called once per joint term above the link, with the coefficient applied.
+template <class S, class F>
+void frame_columns(const Model& m, const std::vector<int>& ti, const LinkState<S>* ws, int link,
+                   const V3<S>& p, const M3<S>& R, F&& col) {
+  for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+    const auto ju = static_cast<std::size_t>(j);
+    if (ti[ju] < 0) continue;
+    const V3<S> dp = ws[ju].sv + ws[ju].sw.cross(p);
+    const M3<S> dR = skew<S>(ws[ju].sw) * R;
+    for (const Term& t : m.links[ju].terms) col(t.coordinate, t.coefficient, dp, dR);
+  }
 }
 
 }  // namespace
 
-// A point p fixed in link i moves with the link's twist (ω, v_O) about the world origin:
-// ṗ = v_O + ω × p, Ṙ = [ω]× R; at q̈ = 0 its acceleration is the velocity-product one,
-// p̈ = a_O + α × p + ω × ṗ, R̈ = ([α]× + [ω]×[ω]×) R, with (α, a_O) the link's spatial
-// acceleration of the RNEA's forward pass (velocity_products). Each joint k above the link moves
-// it by ∂p/∂θ_k = s_v + s_w × p, ∂R/∂θ_k = [s_w]× R (S_k = (s_w, s_v)); through θ = T q + c,
-// ∂/∂q_j = Σ_k T_kj ∂/∂θ_k.
 void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
                                 const Eigen::Matrix3d& frame_R_offset,
                                 const Eigen::Vector3d& frame_x_offset, Slot scratch,
@@ -685,41 +764,134 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
   with_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
     theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
     place(merged_, theta_index_, w.theta, w.links);
-    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
-    Eigen::Matrix3d Rl = merged_.root_rotation;
-    Eigen::Vector3d pl = merged_.root_translation, vw = Eigen::Vector3d::Zero(),
-                    vv = Eigen::Vector3d::Zero(), aw = Eigen::Vector3d::Zero(),
-                    av = Eigen::Vector3d::Zero();
-    if (link >= 0) {
-      const LinkState<double>& L = w.links[link];
-      Rl = L.R;
-      pl = L.p;
-      vw = L.vw;
-      vv = L.vv;
-      aw = L.aw;
-      av = L.av;
-    }
-    out.p = pl + Rl * x_offset;
-    out.R = Rl * R_offset;
-    out.pd = vv + vw.cross(out.p);
-    out.pdd = av + aw.cross(out.p) + vw.cross(out.pd);
-    const Eigen::Matrix3d W = skew(vw);
-    out.Rd = W * out.R;
-    out.Rdd = (skew(aw) + W * W) * out.R;
+    link_motion<double>(merged_, theta_index_, w.thetad, nullptr, w.links);
+    const FrameMotion<double> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
+    out.p = f.p;
+    out.R = f.R;
+    out.pd = f.pd;
+    out.pdd = f.pdd;
+    out.Rd = f.Rd;
+    out.Rdd = f.Rdd;
     out.dp.setZero();
     out.dR.setZero();
-    for (int j = link; j >= 0; j = merged_.links[static_cast<std::size_t>(j)].parent) {
-      const auto ju = static_cast<std::size_t>(j);
-      if (theta_index_[ju] < 0) continue;
-      const Eigen::Vector3d sw = w.links[ju].sw, sv = w.links[ju].sv;
-      const Eigen::Vector3d dp = sv + sw.cross(out.p);
-      const Eigen::Matrix3d dR = skew(sw) * out.R;
-      for (const Term& t : merged_.links[ju].terms) {
-        out.dp.col(t.coordinate) += t.coefficient * dp;
-        for (int r = 0; r < 9; ++r) out.dR(r, t.coordinate) += t.coefficient * dR(r / 3, r % 3);
-      }
-    }
+    frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
+                  [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
+                    out.dp.col(c) += k * dp;
+                    for (int r = 0; r < 9; ++r) out.dR(r, c) += k * dR(r / 3, r % 3);
+                  });
   });
+}
+
+namespace {
+
+// The dual-number workspace of the derivatives at the end of a slot (or in `own`): the links, then
+// θ, θ̇, θ̈, τ (nt each), from the first 16-aligned double (Eigen aligns LinkState<Dual>).
+struct DualWorkspace {
+  LinkState<Dual>* links;
+  Dual* theta;
+  Dual* thetad;
+  Dual* thetadd;
+  Dual* tau;
+};
+
+DualWorkspace dual_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
+                             std::vector<double>& own) {
+  const Index need = tangent_workspace_doubles(nl, nt);
+  double* base = nullptr;
+  if (static_cast<Index>(slot.size()) >= slot_size) {
+    base = slot.data() + (slot_size - need);
+  } else {
+    own.resize(static_cast<std::size_t>(need));
+    base = own.data();
+  }
+  if (reinterpret_cast<std::uintptr_t>(base) % 16 != 0) ++base;  // (doubles are 8-aligned)
+  DualWorkspace w{};
+  w.links = reinterpret_cast<LinkState<Dual>*>(base);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<Dual>;
+  w.theta = reinterpret_cast<Dual*>(base + static_cast<Index>(nl) * kDualLinkDoubles);
+  for (Index k = 0; k < 4 * nt; ++k) new (&w.theta[k]) Dual;
+  w.thetad = w.theta + nt;
+  w.thetadd = w.thetad + nt;
+  w.tau = w.thetadd + nt;
+  return w;
+}
+
+// θ, θ̇ seeded with dθ = T dq, dθ̇ = T dq̇; θ̈ = T q̈ held (no tangent).
+void seed_duals(const Model& m, const std::vector<int>& ti, CVecRef q, CVecRef qd, CVecRef qdd,
+                CVecRef dq, CVecRef dqd, const DualWorkspace& w) {
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    if (ti[i] < 0) continue;
+    const Link& L = m.links[i];
+    double v = L.offset, dv = 0.0, s = 0.0, ds = 0.0, a = 0.0;
+    for (const Term& t : L.terms) {
+      v += t.coefficient * q(t.coordinate);
+      dv += t.coefficient * dq(t.coordinate);
+      s += t.coefficient * qd(t.coordinate);
+      ds += t.coefficient * dqd(t.coordinate);
+      a += t.coefficient * qdd(t.coordinate);
+    }
+    const auto k = static_cast<std::size_t>(ti[i]);
+    w.theta[k] = dual(v, dv);
+    w.thetad[k] = dual(s, ds);
+    w.thetadd[k] = dual(a, 0.0);
+  }
+}
+
+double value_of(const Dual& x) { return x.value(); }
+double tangent_of(const Dual& x) { return x.derivatives().size() > 0 ? x.derivatives()(0) : 0.0; }
+
+template <int R, int C>
+void split(const Eigen::Matrix<Dual, R, C>& x, Eigen::Matrix<double, R, C>& v,
+           Eigen::Matrix<double, R, C>& d) {
+  v = x.unaryExpr([](const Dual& e) { return value_of(e); });
+  d = x.unaryExpr([](const Dual& e) { return tangent_of(e); });
+}
+
+}  // namespace
+
+// The same pass as frame_state() with θ̈ = T q̈ on dual numbers seeded with (T dq, T dq̇): exact
+// directional derivatives (forward-mode automatic differentiation, Griewank & Walther 2008,
+// ch. 3) of the frame's pose, twist, acceleration at q̈ and columns.
+void TreeSubsystem::frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
+                                        int frame_link, const Eigen::Matrix3d& frame_R_offset,
+                                        const Eigen::Vector3d& frame_x_offset, Slot scratch,
+                                        FrameState& value, FrameState& tangent) const {
+  int link = -1;
+  Eigen::Matrix3d R_offset = frame_R_offset;
+  Eigen::Vector3d x_offset = frame_x_offset;
+  if (frame_link >= 0) {
+    const Placement& at = placement_[static_cast<std::size_t>(frame_link)];
+    link = at.link;
+    R_offset = at.R * frame_R_offset;
+    x_offset = at.p + at.R * frame_x_offset;
+  }
+  std::vector<double> own;
+  const DualWorkspace w = dual_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
+  seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
+  place(merged_, theta_index_, w.theta, w.links);
+  link_motion<Dual>(merged_, theta_index_, w.thetad, w.thetadd, w.links);
+  const FrameMotion<Dual> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
+  split(f.p, value.p, tangent.p);
+  split(f.R, value.R, tangent.R);
+  split(f.pd, value.pd, tangent.pd);
+  split(f.Rd, value.Rd, tangent.Rd);
+  split(f.pdd, value.pdd, tangent.pdd);
+  split(f.Rdd, value.Rdd, tangent.Rdd);
+  value.dp.setZero();
+  value.dR.setZero();
+  tangent.dp.setZero();
+  tangent.dR.setZero();
+  frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
+                [&](Index c, double k, const V3<Dual>& dp, const M3<Dual>& dR) {
+                  for (int r = 0; r < 3; ++r) {
+                    value.dp(r, c) += k * value_of(dp(r));
+                    tangent.dp(r, c) += k * tangent_of(dp(r));
+                  }
+                  for (int r = 0; r < 9; ++r) {
+                    value.dR(r, c) += k * value_of(dR(r / 3, r % 3));
+                    tangent.dR(r, c) += k * tangent_of(dR(r / 3, r % 3));
+                  }
+                });
 }
 
 // dID = Tᵀ dτ_θ with τ_θ = RNEA(θ, θ̇, θ̈) run once on dual numbers seeded with dθ = T dq,
@@ -729,47 +901,15 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
                                              CVecRef qdd, CVecRef dq, CVecRef dqd,
                                              VecRef dID) const {
   const std::size_t nl = merged_.links.size();
-  const Index nt = n_theta_;
-  const Index need = tangent_workspace_doubles(nl, nt);
   std::vector<double> own;
-  double* base = nullptr;
-  if (static_cast<Index>(c.slot.size()) >= slot_size_) {
-    base = c.slot.data() + (slot_size_ - need);
-  } else {
-    own.resize(static_cast<std::size_t>(need));
-    base = own.data();
-  }
-  if (reinterpret_cast<std::uintptr_t>(base) % 16 != 0) ++base;  // (doubles are 8-aligned)
-  auto* ws = reinterpret_cast<LinkState<Dual>*>(base);
-  for (std::size_t i = 0; i < nl; ++i) new (&ws[i]) LinkState<Dual>;
-  auto* th = reinterpret_cast<Dual*>(base + static_cast<Index>(nl) * kDualLinkDoubles);
-  for (Index k = 0; k < 4 * nt; ++k) new (&th[k]) Dual;
-  Dual* thd = th + nt;
-  Dual* thdd = thd + nt;
-  Dual* tau = thdd + nt;
-  for (std::size_t i = 0; i < nl; ++i) {
-    if (theta_index_[i] < 0) continue;
-    const Link& L = merged_.links[i];
-    double v = L.offset, dv = 0.0, w = 0.0, dw = 0.0, a = 0.0;
-    for (const Term& t : L.terms) {
-      v += t.coefficient * q(t.coordinate);
-      dv += t.coefficient * dq(t.coordinate);
-      w += t.coefficient * qd(t.coordinate);
-      dw += t.coefficient * dqd(t.coordinate);
-      a += t.coefficient * qdd(t.coordinate);
-    }
-    const auto k = static_cast<std::size_t>(theta_index_[i]);
-    th[k] = dual(v, dv);
-    thd[k] = dual(w, dw);
-    thdd[k] = dual(a, 0.0);
-  }
-  place(merged_, theta_index_, th, ws);
-  inverse_dynamics(merged_, theta_index_, thd, thdd, ws, tau);
+  const DualWorkspace w = dual_workspace(c.slot, slot_size_, nl, n_theta_, own);
+  seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
+  place(merged_, theta_index_, w.theta, w.links);
+  inverse_dynamics(merged_, theta_index_, w.thetad, w.thetadd, w.links, w.tau);
   dID.setZero();
   for (std::size_t i = 0; i < nl; ++i) {
     if (theta_index_[i] < 0) continue;
-    const Dual& ti = tau[theta_index_[i]];
-    const double d = ti.derivatives().size() > 0 ? ti.derivatives()(0) : 0.0;
+    const double d = tangent_of(w.tau[theta_index_[i]]);
     for (const Term& t : merged_.links[i].terms) dID(t.coordinate) += t.coefficient * d;
   }
   return true;

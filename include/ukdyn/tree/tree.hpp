@@ -135,6 +135,14 @@ class TreeSubsystem : public Subsystem {
   /// a buffer of its own); `out.dp`, `out.dR` have dof() columns.
   void frame_state(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
                    const Eigen::Vector3d& x_offset, Slot scratch, FrameState& out) const;
+  /// frame_state and its exact directional derivative along (dq, dq̇) at fixed q̈ (the same
+  /// recursive pass run on dual numbers: forward-mode automatic differentiation). `value` is the
+  /// frame's state except that pdd, Rdd are the acceleration AT q̈ (frame_state gives it at
+  /// q̈ = 0); `tangent` holds the derivative of every field of `value` (p, R, pd, Rd, pdd, Rdd,
+  /// dp, dR). `scratch`: slot_size() doubles (none: a buffer of its own).
+  void frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd, int link,
+                           const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
+                           Slot scratch, FrameState& value, FrameState& tangent) const;
   /// Number of movable joints (the joint variables θ).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
   /// Number of links the recursive passes run on (model().links less the merged fixed ones).
