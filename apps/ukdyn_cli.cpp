@@ -91,8 +91,9 @@ int cmd_sweep(const SweepArgs& a, bool merge, int* argc, char*** argv) {
     rep = ukdyn::merge_sweep(sw, dirs, out);
   } else {
     ukdyn::SweepOptions opt;
-    if (std::sscanf(a.shard.c_str(), "%d/%d", &opt.shard, &opt.shards) != 2)
-      throw ukdyn::ScenarioError("--shard: expected i/N, got '" + ukdyn::printable(a.shard) + "'");
+    if (!ukdyn::parse_shard(a.shard, opt.shard, opt.shards))
+      throw ukdyn::ScenarioError("--shard: expected i/N with 0 <= i < N (decimal digits), got '" +
+                                 ukdyn::printable(a.shard) + "'");
     opt.threads = a.threads;
     if (!a.quiet) {
       opt.progress = &std::cerr;

@@ -150,8 +150,8 @@ const fs::path kCli = UKDYN_CLI;
 
 TEST(SweepCli, ThreadsAndShardsGiveTheSameBytes) {
   ScratchDir dir("ukdyn_sweep_same");
-  const fs::path f =
-      write(dir.path / "s.yaml", random_sweep(kSource / "scenarios" / "paper_free.yaml", 200, "0.05"));
+  const fs::path f = write(dir.path / "s.yaml",
+                           random_sweep(kSource / "scenarios" / "paper_free.yaml", 200, "0.05"));
   const auto d = [&](const std::string& n) { return (dir.path / n).string(); };
   auto r1 =
       run_cli(kCli, dir.path, "sweep " + sh(f) + " --no-figures --threads 1 -o " + sh(d("t1")));
@@ -549,3 +549,19 @@ TEST(SimulateProgress, LinesWhenStderrIsNotATerminal) {
 #endif  // UKDYN_CLI
 
 }  // namespace
+
+// "i/N" exactly: decimal digits, 0 <= i < N, nothing around them (a shard option with trailing
+// garbage used to be cut at the garbage and run as if it were not there).
+TEST(Sweep, ShardTextIsParsedWhole) {
+  int i = -1, n = -1;
+  EXPECT_TRUE(ukdyn::parse_shard("0/1", i, n));
+  EXPECT_EQ(i, 0);
+  EXPECT_EQ(n, 1);
+  EXPECT_TRUE(ukdyn::parse_shard("3/4", i, n));
+  EXPECT_EQ(i, 3);
+  EXPECT_EQ(n, 4);
+  for (const char* bad : {"1/2junk", " 1/2", "1/2 ", "+1/2", "-1/2", "2/2", "1/0", "1/", "/2", "1",
+                          "", "1//2", "1/2/3", "0x1/2", "99999999999/2"}) {
+    EXPECT_FALSE(ukdyn::parse_shard(bad, i, n)) << "'" << bad << "'";
+  }
+}

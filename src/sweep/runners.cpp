@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -203,6 +204,23 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   return rep;
 }
 
+bool parse_shard(const std::string& text, int& index, int& count) {
+  const std::size_t slash = text.find('/');
+  if (slash == std::string::npos) return false;
+  auto digits = [](const char* b, const char* e, int& v) {
+    if (b == e || !std::all_of(b, e, [](char c) { return c >= '0' && c <= '9'; })) return false;
+    const auto r = std::from_chars(b, e, v);
+    return r.ec == std::errc() && r.ptr == e;
+  };
+  int i = 0, n = 0;
+  const char* s = text.data();
+  if (!digits(s, s + slash, i) || !digits(s + slash + 1, s + text.size(), n)) return false;
+  if (!(n >= 1 && i < n)) return false;
+  index = i;
+  count = n;
+  return true;
+}
+
 SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path>& dirs,
                         const std::filesystem::path& out_dir) {
   const auto start = std::chrono::steady_clock::now();
@@ -225,7 +243,7 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
     if (!j.value("complete", false)) throw ScenarioError(where + ": the shard is incomplete");
     const std::string sh = j.value("shard", std::string("0/1"));
     int i = 0, n = 0;
-    if (std::sscanf(sh.c_str(), "%d/%d", &i, &n) != 2) throw ScenarioError(where + ": bad shard");
+    if (!parse_shard(sh, i, n)) throw ScenarioError(where + ": bad shard '" + printable(sh) + "'");
     if (shards >= 0 && n != shards) throw ScenarioError(where + ": shards of different splits");
     shards = n;
     if (!seen.insert(i).second) throw ScenarioError(where + ": shard " + sh + " given twice");

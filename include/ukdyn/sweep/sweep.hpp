@@ -136,6 +136,10 @@ struct SweepReport {
 SweepReport run_sweep(const Sweep& sweep, const std::filesystem::path& out_dir,
                       const SweepOptions& options);
 
+/// Parses "i/N" (decimal digits only, 0 ≤ i < N, nothing before or after): the --shard option
+/// and a shard's summary. False for anything else ("1/2junk", " 1/2", "+1/2", "2/2", "1/0").
+bool parse_shard(const std::string& text, int& index, int& count);
+
 /// Merges the results of shards (their output folders) into out_dir: the same table as one run.
 /// Throws ScenarioError if a shard is missing, incomplete, or from another sweep.
 SweepReport merge_sweep(const Sweep& sweep, const std::vector<std::filesystem::path>& shard_dirs,
