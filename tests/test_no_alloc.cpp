@@ -162,6 +162,32 @@ void expect_forward_allocation_free(bool trajectory) {
 TEST(NoAlloc, ForwardClosureAllocatesNothing) { expect_forward_allocation_free(false); }
 TEST(NoAlloc, ForwardClosureAndTrajectoryAllocatesNothing) { expect_forward_allocation_free(true); }
 
+// The exact tangents of the paper's closed-form robot and its constraints (linearize()'s per-column
+// calls) run on fixed-size dual numbers on the stack: no allocation once the outputs exist.
+TEST(NoAlloc, PaperTangentsAllocateNothing) {
+  PaperSystem ps(true);
+  const ukdyn::System& sys = *ps.two.system;
+  const Vec qd = Vec::LinSpaced(12, -0.3, 0.4), qdd = Vec::LinSpaced(12, 1.0, 2.0);
+  const Vec dq = Vec::LinSpaced(12, 0.2, -0.1), dqd = Vec::LinSpaced(12, -0.5, 0.5);
+  Vec dID(6), d_res(6), d_force = Vec::Zero(12);
+  const Vec lambda = Vec::LinSpaced(6, 1.0, 3.0);
+  bool ok = true;
+  const long n = allocations_in([&] {
+    for (int k = 0; k < 5; ++k) {
+      ok = ok &&
+           ps.two.left->inverse_dynamics_tangent({}, ps.q0.head<6>(), qd.head<6>(), qdd.head<6>(),
+                                                 dq.head<6>(), dqd.head<6>(), dID);
+      for (const auto& c : sys.constraints()) {
+        const Eigen::Index m = c->rows();
+        ok = ok &&
+             c->tangent({0.1 * k}, ps.q0, qd, qdd, lambda.head(m), dq, dqd, d_res.head(m), d_force);
+      }
+    }
+  });
+  EXPECT_TRUE(ok);
+  EXPECT_EQ(n, 0) << "the paper's tangents allocated " << n << " times";
+}
+
 // The integrator's right-hand side itself (ukdyn::IntegratorRhs: the object simulate() hands to
 // Boost.Odeint), called on a moving state: x = [q; q̇] in a std::vector<double> as odeint keeps it.
 long rhs_allocations(const ukdyn::System& sys, const Vec& q0, const ukdyn::SimulationSettings& s,

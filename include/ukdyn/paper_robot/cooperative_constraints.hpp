@@ -38,6 +38,12 @@ class ClosureConstraint final : public Constraint {
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                          VecRef phid) const override;
+  /// Exact derivatives (docs/derivatives.md): rows 1–3 from the arms' dJ, dc (the cut-point
+  /// kinematics on dual numbers, MobileManipulator::cut_point_jacobian_tangent); rows 4–6 are
+  /// constant (A fixed, b = 0), their tangents 0.
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> left_, right_;
@@ -63,6 +69,11 @@ class CutPointTrajectory final : public Constraint {
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
   void velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                          VecRef phid) const override;
+  /// Exact derivatives (docs/derivatives.md) with respect to (q, q̇) at fixed t: b = f̈(t) − c, so
+  /// d(A q̈ − b) = dJ q̈ + dc on the chosen axes, from MobileManipulator::cut_point_jacobian_tangent.
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> arm_;

@@ -30,11 +30,15 @@ struct MobileManipulatorParams {
 
 /// Kinematic quantities of one arm at (q, q̇), paper notation below Eq. (13):
 /// ĉ_k = l_k cos θ_k, ŝ_k = l_k sin θ_k, κ̂ = Σĉ, ρ̂ = Σŝ, ζ̂ = (Σ ŝ θ̇) δ̇, ψ̂ = Σ ĉ θ̇², γ̂ = Σ ŝ θ̇².
-struct ArmKinematics {
-  std::array<double, 3> c{}, s{};
-  double kappa = 0, rho = 0, zeta = 0, psi = 0, gamma = 0;
-  double cos_delta = 1, sin_delta = 0;
+/// Templated on the scalar so that the same expressions run on dual numbers for the exact tangents
+/// (MobileManipulator::cut_point_jacobian_tangent); ArmKinematics is the double instance.
+template <class T>
+struct ArmKinematicsT {
+  std::array<T, 3> c{}, s{};
+  T kappa = T(0), rho = T(0), zeta = T(0), psi = T(0), gamma = T(0);
+  T cos_delta = T(1), sin_delta = T(0);
 };
+using ArmKinematics = ArmKinematicsT<double>;
 
 class MobileManipulator final : public Subsystem {
  public:
@@ -75,26 +79,21 @@ class MobileManipulator final : public Subsystem {
   void cut_point_jacobian(CVecRef q, CVecRef qd, Eigen::Matrix<double, 3, 6>& J, Vec3& c,
                           ConstSlot slot = {}) const;
 
- private:
-  /// The sin/cos every closed-form expression below uses, evaluated once per state: δ and θ1..θ3
-  /// directly, θi − θj by
-  ///   cos(a − b) = cos a cos b + sin a sin b,  sin(a − b) = sin a cos b − cos a sin b.
-  struct Trig {
-    double cd = 1, sd = 0;             ///< cos δ, sin δ
-    std::array<double, 3> ct{}, st{};  ///< cos θk, sin θk
-    std::array<double, 3> c{}, s{};    ///< ĉk = lk cos θk, ŝk = lk sin θk
-    double c12 = 1, c13 = 1, c23 = 1;  ///< cos(θ1 − θ2), cos(θ1 − θ3), cos(θ2 − θ3)
-    double s12 = 0, s13 = 0, s23 = 0;  ///< sin(θ1 − θ2), sin(θ1 − θ3), sin(θ2 − θ3)
-  };
-  /// record: also store the angles' sin/cos in this slot for the constraints' cut-point kinematics
-  /// (done by dynamics() only).
-  [[nodiscard]] Trig trig(CVecRef q, Slot record = {}) const;
-  void mass_from(const Trig& t, MatRef M) const;
-  void coriolis_from(const Trig& t, CVecRef qd, MatRef C) const;
-  void coriolis_times_qd_from(const Trig& t, CVecRef qd, VecRef Cqd) const;
-  /// G from ĉ1..ĉ3 (the only trig G needs).
-  void gravity_from(const std::array<double, 3>& c, VecRef G) const;
+  /// The directional derivatives along (dq, dq̇) of J and c of cut_point_jacobian(), exact: the same
+  /// closed-form expressions evaluated once on dual numbers (forward-mode automatic differentiation,
+  /// Griewank & Walther 2008, ch. 3). No allocation.
+  void cut_point_jacobian_tangent(CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                                  Eigen::Matrix<double, 3, 6>& dJ, Vec3& dc) const;
 
+  /// Exact derivatives (docs/derivatives.md): d(M q̈ + C q̇ + G) at fixed q̈ along (dq, dq̇), the
+  /// closed forms of mass(), coriolis_times_qd() and gravity() evaluated once on dual numbers.
+  [[nodiscard]] bool has_derivatives() const override { return true; }
+  bool inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                                CVecRef dq, CVecRef dqd, VecRef dID) const override;
+
+ private:
+  /// The closed-form M, C, C q̇, G are free function templates on the scalar type in the .cpp (one
+  /// source for the double evaluation and its dual-number tangent).
   std::string name_;
   MobileManipulatorParams p_;
   std::vector<std::string> names_;
