@@ -301,3 +301,52 @@ def test_linearize_matches_differences_of_forward(tmp_path):
     zeros = np.zeros(12)
     with pytest.raises(ukdyn.Error, match="no exact derivatives"):
         ukdyn.load_scenario(scenario_path("paper.yaml")).linearize(0.0, zeros, zeros)
+
+
+def test_linearize_minimal_and_discrete():
+    # Minimal coordinates on the constraint manifold and the zero-order hold (docs/derivatives.md):
+    # the five-bar (4 angles, 2 closure rows) held at rest by tau = G.
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    q, zero = np.array(sc.q0), np.zeros(sc.dof)
+    tau = np.array(sc.forward(0.0, q, zero).G)
+    plain = sc.linearize(0.0, q, zero, tau)
+    assert plain.N is None and plain.Fd is None and plain.F_min is None
+    lin = sc.linearize(0.0, q, zero, tau, minimal=True, dt=0.02)
+    A = sc.forward(0.0, q, zero, tau).A
+    assert lin.N.shape == (4, 2)
+    assert np.abs(A @ lin.N).max() <= 1e-12
+    assert np.abs(lin.N.T @ lin.N - np.eye(2)).max() <= 1e-12
+    assert lin.at_rest and lin.minimal_note == ""
+    P = np.zeros((4, 8))
+    P[:2, :4], P[2:, 4:] = lin.N.T, lin.N.T
+    np.testing.assert_allclose(lin.F_min, P @ lin.F @ lin.T, atol=1e-12)
+    # An equilibrium: the tangent space is invariant, F T = T F_min.
+    assert np.abs(lin.qdd).max() <= 1e-10
+    np.testing.assert_allclose(lin.F @ lin.T, lin.T @ lin.F_min, atol=1e-9)
+    # The discrete model: Fd = exp(F dt) (series), Gd = (∫ exp) G.
+    def expm_series(X):
+        E, term = np.eye(len(X)), np.eye(len(X))
+        for k in range(1, 40):
+            term = term @ X / k
+            E = E + term
+        return E
+
+    np.testing.assert_allclose(lin.Fd, expm_series(lin.F * 0.02), atol=1e-12)
+    np.testing.assert_allclose(lin.Fd_min, expm_series(lin.F_min * 0.02), atol=1e-12)
+    aug = np.zeros((8, 8))
+    aug[:4, :4], aug[:4, 4:] = lin.F_min * 0.02, lin.G_min * 0.02
+    np.testing.assert_allclose(lin.Gd_min, expm_series(aug)[:4, 4:], atol=1e-12)
+    with pytest.raises(ValueError):
+        sc.linearize(0.0, q, zero, tau, dt=-1.0)
+
+
+def test_lqr_example_closed_loop_matches_the_minimal_model():
+    pytest.importorskip("scipy")
+    sys.path.insert(0, str(SOURCE / "python" / "examples"))
+    try:
+        import lqr_minimal
+    finally:
+        sys.path.pop(0)
+    predicted, identified, rel = lqr_minimal.closed_loop_check(verbose=False)
+    assert np.all(predicted.real < 0)
+    assert rel <= 1e-3, (predicted, identified)
