@@ -340,6 +340,29 @@ def test_linearize_minimal_and_discrete():
         sc.linearize(0.0, q, zero, tau, dt=-1.0)
 
 
+def test_linearize_minimal_away_from_rest():
+    # Moving (the heavy top spinning): D = d(A_R qd)/dq from the constraints' tangents against
+    # Richardson differences of A(q) qd, and x = T z keeps A_R dqd + D dq = 0.
+    sc = ukdyn.load_scenario(scenario_path("heavy_top.yaml"))
+    q, qd = np.array(sc.q0), np.array(sc.qd0)
+    lin = sc.linearize(0.0, q, qd, minimal=True)
+    assert not lin.at_rest and "frozen" in lin.minimal_note
+    rows = [sc.constraint_row_names.index(r) for r in lin.kept_rows]
+    n = sc.dof
+
+    def a_qd(x):
+        return sc.forward(0.0, x, qd).A[rows] @ qd
+
+    def central(j, h):
+        e = np.eye(n)[j]
+        return (a_qd(q + h * e) - a_qd(q - h * e)) / (2 * h)
+
+    D = np.column_stack([(4 * central(j, 5e-4) - central(j, 1e-3)) / 3 for j in range(n)])
+    assert np.abs(lin.D - D).max() <= 1e-9 * (1 + np.abs(D).max())
+    AR = sc.forward(0.0, q, qd).A[rows]
+    assert np.abs(np.hstack([lin.D, AR]) @ lin.T).max() <= 1e-12 * (1 + np.abs(lin.D).max())
+
+
 def test_lqr_example_closed_loop_matches_the_minimal_model():
     pytest.importorskip("scipy")
     sys.path.insert(0, str(SOURCE / "python" / "examples"))
