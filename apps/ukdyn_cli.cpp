@@ -6,7 +6,7 @@
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
 //   ukdyn linearize SCENARIO [--minimal] [--dt H] [--state FILE.json | --row RUN.csv:N]
-//                  [--out FILE.json]   (exact derivatives of q̈ and Qc at the initial state or the
+//                  [--out FILE.json|FILE.npz]   (exact derivatives of q̈ and Qc at the initial state or the
 //                  given one, JSON; in minimal coordinates; discrete; docs/derivatives.md)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
 //   docs/definitions.md)
@@ -181,11 +181,13 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
   const ukdyn::LinearizeOptions opt{a.minimal, a.dt};
   if (a.out.empty())
     return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
-  if (!a.out.ends_with(".json"))
-    throw ukdyn::Error("--out " + a.out + ": the output is JSON, name it FILE.json");
-  std::ofstream f(a.out);
+  const bool npz = a.out.ends_with(".npz");
+  if (!npz && !a.out.ends_with(".json"))
+    throw ukdyn::Error("--out " + a.out + ": name it FILE.json (JSON) or FILE.npz (numpy)");
+  std::ofstream f(a.out, std::ios::binary);
   if (!f) throw ukdyn::WriteFailed("cannot write " + a.out);
-  const bool trusted = ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, f, opt);
+  const bool trusted = npz ? ukdyn::write_linearization_npz(sc, st.t, st.q, st.qd, st.tau, f, opt)
+                           : ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, f, opt);
   f.close();
   if (!f) throw ukdyn::WriteFailed("writing " + a.out + " failed");
   return trusted ? 0 : 1;
@@ -255,7 +257,8 @@ int main(int argc, char** argv) {
   lin->add_option("--row", la.row,
                   "linearise at data row N (from 0) of a run's trajectory.csv: RUN.csv:N")
       ->excludes(lin_state);
-  lin->add_option("--out,-o", la.out, "write the JSON to FILE.json instead of stdout");
+  lin->add_option("--out,-o", la.out,
+                  "write FILE.json (the JSON) or FILE.npz (numpy arrays) instead of stdout");
 
   auto* chk =
       app.add_subcommand("check", "Load and validate a scenario (the initial state included)");

@@ -340,6 +340,31 @@ def test_linearize_minimal_and_discrete():
         sc.linearize(0.0, q, zero, tau, dt=-1.0)
 
 
+def test_cli_linearize_npz_matches_json(tmp_path):
+    # `ukdyn linearize --out FILE.npz`: numpy reads the uncompressed archive ukdyn writes itself;
+    # the arrays equal the JSON's numbers bit for bit.
+    import json
+
+    path = scenario_path("five_bar_redundant.yaml")
+    code, out, err = run_cli("linearize", path, "--minimal", "--dt", "0.01")
+    assert code == 0, err
+    j = json.loads(out)
+    npz = tmp_path / "lin.npz"
+    code, _, err = run_cli("linearize", path, "--minimal", "--dt", "0.01", "--out", npz)
+    assert code == 0, err
+    with np.load(npz) as z:
+        assert np.array_equal(z["F"], np.array(j["F"]))
+        assert np.array_equal(z["Fd"], np.array(j["Fd"]))
+        assert np.array_equal(z["q"], np.array(j["q"]))
+        assert np.array_equal(z["dqdd_dq"], np.array(j["derivatives"]["dqdd_dq"]))
+        assert np.array_equal(z["minimal_N"], np.array(j["minimal"]["N"]))
+        assert np.array_equal(z["minimal_Fd"], np.array(j["minimal"]["Fd"]))
+        assert z["t"].shape == () and float(z["trusted"]) == 1.0 and float(z["rank"]) == 2.0
+        assert "coordinates" not in z.files
+    code, _, err = run_cli("linearize", path, "--out", tmp_path / "lin.txt")
+    assert code == 2 and "FILE.npz" in err
+
+
 def test_linearize_minimal_away_from_rest():
     # Moving (the heavy top spinning): D = d(A_R qd)/dq from the constraints' tangents against
     # Richardson differences of A(q) qd, and x = T z keeps A_R dqd + D dq = 0.

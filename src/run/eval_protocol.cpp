@@ -10,6 +10,7 @@
 #include <ostream>
 
 #include "output/csv_reader.hpp"
+#include "output/npz.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/text/safe_text.hpp"
@@ -209,8 +210,11 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
 
 }  // namespace
 
-bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
-                         std::ostream& out, const LinearizeOptions& opt) {
+namespace {
+
+// The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
+json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                          const LinearizeOptions& opt, bool& trusted) {
   const System& sys = *sc.system;
   const Linearization lin = linearize(sys, t, q, qd, tau, sc.sim.uk);
   Mat F, G;
@@ -234,8 +238,56 @@ bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& 
     j["Gd"] = rows_of(Gd);
   }
   if (opt.minimal) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
+  trusted = lin.trusted;
+  return j;
+}
+
+// The numbers of the object as float64 arrays: a number or a boolean → shape (), a list of
+// numbers → (n,), a list of rows → (r, c); the "derivatives" entries by their own names, the
+// "minimal" ones as minimal_<name>; strings (names, messages) are left out.
+void collect_arrays(const json& j, const std::string& prefix,
+                    std::vector<io_detail::NpyArray>& out) {
+  for (const auto& [key, v] : j.items()) {
+    io_detail::NpyArray a;
+    a.name = prefix + key;
+    if (v.is_object()) {
+      collect_arrays(v, key == "minimal" ? "minimal_" : "", out);
+      continue;
+    }
+    if (v.is_number() || v.is_boolean()) {
+      a.values.push_back(v.is_boolean() ? (v.get<bool>() ? 1.0 : 0.0) : v.get<double>());
+    } else if (v.is_array() && !v.empty() && v[0].is_array()) {
+      a.shape = {v.size(), v[0].size()};
+      for (const auto& row : v)
+        for (const auto& x : row) a.values.push_back(x.get<double>());
+    } else if (v.is_array() && (v.empty() || v[0].is_number())) {
+      a.shape = {v.size()};
+      for (const auto& x : v) a.values.push_back(x.get<double>());
+    } else {
+      continue;
+    }
+    out.push_back(std::move(a));
+  }
+}
+
+}  // namespace
+
+bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                         std::ostream& out, const LinearizeOptions& opt) {
+  bool trusted = false;
+  const json j = linearization_object(sc, t, q, qd, tau, opt, trusted);
   out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
-  return lin.trusted;
+  return trusted;
+}
+
+bool write_linearization_npz(const Scenario& sc, double t, const Vec& q, const Vec& qd,
+                             const Vec& tau, std::ostream& out, const LinearizeOptions& opt) {
+  bool trusted = false;
+  const json j = linearization_object(sc, t, q, qd, tau, opt, trusted);
+  std::vector<io_detail::NpyArray> arrays;
+  collect_arrays(j, "", arrays);
+  out << io_detail::npz_bytes(arrays);
+  return trusted;
 }
 
 LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
