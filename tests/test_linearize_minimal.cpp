@@ -11,6 +11,7 @@
 #include <cmath>
 #include <complex>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -18,6 +19,9 @@
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/tree/tree.hpp"
 
+#ifdef UKDYN_HAVE_IO
+#include "output/npz.hpp"
+#endif
 #ifdef UKDYN_CLI
 #include <nlohmann/json.hpp>
 
@@ -289,6 +293,31 @@ TEST(DiscreteTime, ExpmOfARandomMatrix) {
   const Mat Y = 40.0 * X;
   EXPECT_LE((expm(Y) * expm(-Y) - Mat::Identity(6, 6)).cwiseAbs().maxCoeff(), 1e-9);
 }
+
+#ifdef UKDYN_HAVE_IO
+// The .npz writer's parts: CRC-32's check value (ITU-T V.42: "123456789" → 0xCBF43926), a .npy
+// 1.0 header padded to 64 bytes with the shape as Python writes it, and the zip records.
+TEST(DiscreteTime, NpzWriterParts) {
+  EXPECT_EQ(io_detail::crc32("123456789"), 0xCBF43926u);
+  EXPECT_EQ(io_detail::crc32(""), 0u);
+  const std::string npy = io_detail::npy_bytes({"a", {2, 3}, {1, 2, 3, 4, 5, 6}});
+  ASSERT_EQ(npy.size(), 128u + 6 * 8);  // 10 + 60 + 1 header bytes padded to 128
+  EXPECT_EQ(npy.substr(0, 8), std::string("\x93NUMPY\x01\x00", 8));
+  EXPECT_NE(npy.find("'shape': (2, 3), }"), std::string::npos);
+  EXPECT_EQ(npy[127], '\n');
+  double v = 0.0;
+  std::memcpy(&v, npy.data() + 128 + 5 * 8, 8);
+  EXPECT_EQ(v, 6.0);
+  EXPECT_NE(io_detail::npy_bytes({"v", {4}, {1, 2, 3, 4}}).find("(4,)"), std::string::npos);
+  EXPECT_NE(io_detail::npy_bytes({"s", {}, {7}}).find("'shape': ()"), std::string::npos);
+  EXPECT_THROW((void)io_detail::npy_bytes({"x", {2}, {1}}), std::invalid_argument);
+  const std::string zip = io_detail::npz_bytes({{"a", {1}, {1.5}}, {"b", {}, {2}}});
+  EXPECT_EQ(zip.substr(0, 4), std::string("PK\x03\x04", 4));
+  EXPECT_EQ(zip.substr(zip.size() - 22, 4), std::string("PK\x05\x06", 4));  // end record
+  EXPECT_NE(zip.find("a.npy"), std::string::npos);
+  EXPECT_NE(zip.find("b.npy"), std::string::npos);
+}
+#endif
 
 #ifdef UKDYN_CLI
 using nlohmann::json;
