@@ -114,6 +114,40 @@ class Skate final : public Constraint {
   std::vector<std::string> names_{"skate"};
 };
 
+// A rheonomic row: the sphere's centre moves, c(t) = (s t, 0, 0): Φ = (|p − c|² − L²)/2,
+// A = (p − c)ᵀ, Φ_t = −(p − c)·ċ, b = −|ṗ − ċ|² (c̈ = 0).
+constexpr double kCentreSpeed = 0.6;
+Vec rel(double t, CVecRef q) { return q - Eigen::Vector3d(kCentreSpeed * t, 0, 0); }
+Vec rel_rate(CVecRef qd) { return qd - Eigen::Vector3d(kCentreSpeed, 0, 0); }
+
+class MovingSphere final : public Constraint {
+ public:
+  Index rows() const override { return 1; }
+  const std::vector<std::string>& row_names() const override { return names_; }
+  void evaluate(const ConstraintContext& c, CVecRef q, CVecRef qd, MatRef A,
+                VecRef b) const override {
+    A.row(0) = rel(c.t, q).transpose();
+    b(0) = -rel_rate(qd).squaredNorm();
+  }
+  void position_residual(const ConstraintContext& c, CVecRef q, VecRef phi) const override {
+    phi(0) = 0.5 * (rel(c.t, q).squaredNorm() - L * L);
+  }
+  void velocity_residual(const ConstraintContext& c, CVecRef q, CVecRef qd,
+                         VecRef phid) const override {
+    phid(0) = rel(c.t, q).dot(rel_rate(qd));
+  }
+  bool has_derivatives() const override { return true; }
+  bool tangent(const ConstraintContext&, CVecRef, CVecRef qd, CVecRef qdd, CVecRef lambda,
+               CVecRef dq, CVecRef dqd, VecRef dres, VecRef dforce) const override {
+    dres(0) = qdd.dot(dq) + 2.0 * rel_rate(qd).dot(dqd);
+    dforce += lambda(0) * dq;
+    return true;
+  }
+
+ private:
+  std::vector<std::string> names_{"moving_sphere"};
+};
+
 System pendulum() {
   System s;
   s.add_subsystem(point_mass());
@@ -211,6 +245,36 @@ TEST(MinimalCoordinates, AwayFromRestTheEmbeddingKeepsTheVelocityConstraint) {
   const Index k = mm.N.cols();
   EXPECT_LE((mm.F_min.topLeftCorner(k, k)).norm(), 1e-14);
   EXPECT_LE((mm.F_min.topRightCorner(k, k) - Mat::Identity(k, k)).norm(), 1e-14);
+}
+
+// Rheonomic: D = ∂(A q̇ + Φ_t)/∂q = (q̇ − ċ)ᵀ, at rest −ċᵀ = (−s, 0, 0) (the Φ_t part by
+// differences: exact here up to round-off, Φ_t is linear in q).
+TEST(MinimalCoordinates, RheonomicRowsGetThePhiTTerm) {
+  System sys;
+  sys.add_subsystem(point_mass());
+  sys.add_constraint(std::make_shared<MovingSphere>());
+  const double t = 0.5, s = kCentreSpeed;
+  Vec q(3), qd = Vec::Zero(3), tau = Vec::Zero(3);
+  q << s * t + L * std::sin(0.4), 0.0, -L * std::cos(0.4);
+  qd << s, 0.0, 0.0;  // moving with the centre: A q̇ + Φ_t = 0
+  for (const bool moving : {false, true}) {
+    const Vec v = moving ? qd : Vec(Vec::Zero(3));
+    const Linearization lin = linearize(sys, t, q, v, tau);
+    const MinimalModel mm = minimal_model(sys, t, q, v, tau, lin);
+    EXPECT_TRUE(mm.rheonomic);
+    EXPECT_NE(mm.note.find("rheonomic"), std::string::npos);
+    Vec expect = v - Eigen::Vector3d(s, 0, 0);
+    EXPECT_LE((mm.D.transpose() - expect).norm(), 1e-10) << moving;
+    Mat DA(1, 6);
+    DA << mm.D, mm.AR;
+    EXPECT_LE((DA * mm.T).norm(), 1e-10);
+  }
+  // A scleronomic row is not rheonomic.
+  const System plain = pendulum();
+  Vec p(3);
+  p << 0.0, 0.0, -L;
+  const Vec z = Vec::Zero(3);
+  EXPECT_FALSE(minimal_model(plain, 0.0, p, z, z, linearize(plain, 0.0, p, z, z)).rheonomic);
 }
 
 TEST(MinimalCoordinates, VelocityLevelRowsAreRefused) {

@@ -4,6 +4,7 @@
 
 #include <Eigen/LU>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <sstream>
@@ -76,6 +77,40 @@ Mat velocity_jacobian(const System& system, ForwardData& d, double t, CVecRef q,
   return D;
 }
 
+// Rheonomic rows (Φ(q, t)): the velocity constraint is A q̇ + Φ_t = 0, so its linearisation has
+// the extra term ∂Φ_t/∂q δq. Φ_t(q) is the velocity residual at q̇ = 0 (exactly 0 for a
+// scleronomic row, velocity_residual() = A q̇); where it is not 0 at the state or a probe around
+// it, ∂Φ_t/∂q comes from Richardson-extrapolated central differences of it (error O(h⁴); the
+// constraints have no tangent of Φ_t) and `rheonomic` is set. Returns the r × n term.
+Mat phi_t_jacobian(const System& system, ForwardData& d, double t, CVecRef q,
+                   const std::vector<Index>& kept, bool& rheonomic) {
+  const Index n = system.dof(), m = system.rows(), r = static_cast<Index>(kept.size());
+  const Vec zero = Vec::Zero(n);
+  Vec phit(m);
+  auto phi_t = [&](const Vec& x) {
+    velocity_residuals(system, d, t, x, zero, phit);
+    Vec out(r);
+    for (Index k = 0; k < r; ++k) out(k) = phit(kept[static_cast<std::size_t>(k)]);
+    return out;
+  };
+  const double h = 1e-3 * (1.0 + q.cwiseAbs().maxCoeff());
+  Mat E(r, n);
+  double seen = phi_t(q).cwiseAbs().maxCoeff();
+  for (Index j = 0; j < n; ++j) {
+    auto central = [&](double step) {
+      Vec xp = q, xm = q;
+      xp(j) += step;
+      xm(j) -= step;
+      const Vec fp = phi_t(xp), fm = phi_t(xm);
+      seen = std::max({seen, fp.cwiseAbs().maxCoeff(), fm.cwiseAbs().maxCoeff()});
+      return Vec((fp - fm) / (2.0 * step));
+    };
+    E.col(j) = (4.0 * central(h / 2) - central(h)) / 3.0;
+  }
+  rheonomic = r > 0 && seen > 0.0;
+  return rheonomic ? E : Mat::Zero(r, n);
+}
+
 }  // namespace
 
 Mat null_space_basis(const Mat& AR) {
@@ -120,12 +155,14 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
       k > 0 ? (mm.N.transpose() * mm.N - Mat::Identity(k, k)).cwiseAbs().maxCoeff() : 0.0;
   mm.at_rest = qd.isZero(0.0);
   mm.D = mm.at_rest ? Mat::Zero(r, n) : velocity_jacobian(system, d, t, q, qd, lin.kept_rows);
+  if (r > 0) mm.D += phi_t_jacobian(system, d, t, q, lin.kept_rows, mm.rheonomic);
+  forward(system, d, t, q, qd, tau);  // leave the slots at the state
   state_space(lin, mm.F, mm.G);
   // T = [[N, 0], [−A_R⁺ D N, N]], A_R⁺ D N by the least-squares (minimum-norm) solve of A_R X = D N.
   mm.T = Mat::Zero(2 * n, 2 * k);
   mm.T.topLeftCorner(n, k) = mm.N;
   mm.T.bottomRightCorner(n, k) = mm.N;
-  if (r > 0 && !mm.at_rest) {
+  if (r > 0 && !mm.D.isZero(0.0)) {
     const Mat ARt = mm.AR.transpose();
     const Mat gram = mm.AR * ARt;  // A_R⁺ = A_Rᵀ (A_R A_Rᵀ)⁻¹ (rows independent)
     mm.T.bottomLeftCorner(n, k) = -ARt * gram.partialPivLu().solve(mm.D * mm.N);
@@ -135,8 +172,14 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
   P.bottomRightCorner(k, n) = mm.N.transpose();
   mm.F_min = P * mm.F * mm.T;
   mm.G_min = P * mm.G;
-  if (!mm.at_rest) {
+  if (mm.rheonomic) {
     mm.note =
+        "rheonomic rows: the d(Phi_t)/dq part of D is by Richardson central differences (the "
+        "constraints give no tangent of Phi_t)";
+  }
+  if (!mm.at_rest) {
+    mm.note +=
+        std::string(mm.note.empty() ? "" : "; ") +
         "q' != 0: N is frozen at this state, the model is the instantaneous projection of the "
         "time-varying linearisation along the trajectory (docs/derivatives.md)";
   }

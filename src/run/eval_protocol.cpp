@@ -118,6 +118,7 @@ json minimal_json(const System& sys, double t, const Vec& q, const Vec& qd, cons
   j["null_residual"] = mm.null_residual;
   j["ortho_residual"] = mm.ortho_residual;
   j["at_rest"] = mm.at_rest;
+  j["rheonomic"] = mm.rheonomic;
   j["note"] = mm.note;
   if (dt > 0.0) {
     Mat Fd, Gd;

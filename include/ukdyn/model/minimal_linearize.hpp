@@ -6,7 +6,7 @@
 // the independent rows the linearisation kept (Linearization::kept_rows) and N an orthonormal
 // basis of null(A_R) (n × k, k = n − r), a first-order perturbation that stays on the manifold is
 //   δq = N z₁                      (A_R δq = 0),
-//   δq̇ = N z₂ − A_R⁺ D N z₁         (A_R δq̇ + D δq = 0, D = ∂(A_R q̇)/∂q at fixed q̇),
+//   δq̇ = N z₂ − A_R⁺ D N z₁         (A_R δq̇ + D δq = 0, D = ∂(A_R q̇ + Φ_t)/∂q at fixed q̇),
 // with z₁ = Nᵀδq, z₂ = Nᵀδq̇ and A_R⁺ = A_Rᵀ(A_R A_Rᵀ)⁻¹ (NᵀA_R⁺ = 0). In x = (δq, δq̇) that is
 // x = T z, T = [[N, 0], [−A_R⁺ D N, N]]; with P = diag(Nᵀ, Nᵀ) (P T = I) the reduced model is
 //   ż = F_min z + G_min δτ,   F_min = P F T,   G_min = P G,
@@ -32,16 +32,20 @@ namespace ukdyn {
 
 /// The reduced model of one state (minimal_model()).
 struct MinimalModel {
-  Mat N;     ///< n × k orthonormal basis of null(A_R), k = n − rank
-  Mat AR;    ///< r × n: the kept rows of A at the state
-  Mat D;     ///< r × n: ∂(A_R q̇)/∂q at fixed q̇ (exact, from the constraints' tangents)
-  Mat T;     ///< 2n × 2k: x = T z, the tangent of the manifold in (δq, δq̇)
-  Mat F, G;  ///< the full model (state_space())
+  Mat N;   ///< n × k orthonormal basis of null(A_R), k = n − rank
+  Mat AR;  ///< r × n: the kept rows of A at the state
+  /// r × n: ∂(A_R q̇ + Φ_t)/∂q at fixed q̇: the A_R q̇ part exact (the constraints' tangents), the
+  /// Φ_t part of rheonomic rows by Richardson central differences (`rheonomic`)
+  Mat D;
+  Mat T;                        ///< 2n × 2k: x = T z, the tangent of the manifold in (δq, δq̇)
+  Mat F, G;                     ///< the full model (state_space())
   Mat F_min, G_min;             ///< 2k × 2k and 2k × n
   double null_residual = 0.0;   ///< max |A_R N|
   double ortho_residual = 0.0;  ///< max |NᵀN − I|
-  bool at_rest = true;          ///< q̇ = 0 (D = 0, the model is time-invariant on the manifold)
-  std::string note;             ///< what the model means away from rest ("" at rest)
+  bool at_rest = true;          ///< q̇ = 0 (then D = 0 unless a row is rheonomic)
+  /// A kept row has Φ_t ≠ 0 near the state: D holds ∂Φ_t/∂q, by central differences.
+  bool rheonomic = false;
+  std::string note;  ///< what the model means away from rest, how D was had ("" otherwise)
 };
 
 /// The orthonormal basis of null(A_R) described above (n × (n − rows)); A_R must have independent
