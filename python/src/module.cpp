@@ -325,7 +325,7 @@ struct PyLinearization {
   py::object dt = py::none(), Fd = py::none(), Gd = py::none();
   py::object N = py::none(), T = py::none(), D = py::none(), F_min = py::none(), G_min = py::none(),
              Fd_min = py::none(), Gd_min = py::none();
-  py::object at_rest = py::none();
+  py::object at_rest = py::none(), rheonomic = py::none();
   std::string minimal_note;
 };
 
@@ -346,6 +346,7 @@ void add_minimal_and_discrete(PyLinearization& r, const ukdyn::MinimalModel* mm,
   r.F_min = numpy_of(mm->F_min);
   r.G_min = numpy_of(mm->G_min);
   r.at_rest = py::bool_(mm->at_rest);
+  r.rheonomic = py::bool_(mm->rheonomic);
   r.minimal_note = mm->note;
   if (dt > 0.0) {
     Mat Fd, Gd;
@@ -619,6 +620,8 @@ PYBIND11_MODULE(_ukdyn, m) {
       .def_readonly("Gd_min", &PyLinearization::Gd_min, "discrete G_min (dt), or None")
       .def_readonly("at_rest", &PyLinearization::at_rest,
                     "qd == 0: the minimal model is time-invariant on the manifold (minimal=True)")
+      .def_readonly("rheonomic", &PyLinearization::rheonomic,
+                    "a kept row has Phi_t != 0: D's d(Phi_t)/dq by differences (minimal=True)")
       .def_readonly("minimal_note", &PyLinearization::minimal_note,
                     "what the minimal model means away from rest ('' at rest)");
 

@@ -316,7 +316,7 @@ def test_linearize_minimal_and_discrete():
     assert lin.N.shape == (4, 2)
     assert np.abs(A @ lin.N).max() <= 1e-12
     assert np.abs(lin.N.T @ lin.N - np.eye(2)).max() <= 1e-12
-    assert lin.at_rest and lin.minimal_note == ""
+    assert lin.at_rest and not lin.rheonomic and lin.minimal_note == ""
     P = np.zeros((4, 8))
     P[:2, :4], P[2:, 4:] = lin.N.T, lin.N.T
     np.testing.assert_allclose(lin.F_min, P @ lin.F @ lin.T, atol=1e-12)

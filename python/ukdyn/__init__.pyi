@@ -229,6 +229,7 @@ class Linearization:
     Fd_min: Optional[FloatArray]
     Gd_min: Optional[FloatArray]
     at_rest: Optional[bool]
+    rheonomic: Optional[bool]
     minimal_note: str
 
 class Run:
