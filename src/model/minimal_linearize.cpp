@@ -158,13 +158,14 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
   if (r > 0) mm.D += phi_t_jacobian(system, d, t, q, lin.kept_rows, mm.rheonomic);
   forward(system, d, t, q, qd, tau);  // leave the slots at the state
   state_space(lin, mm.F, mm.G);
-  // T = [[N, 0], [−A_R⁺ D N, N]], A_R⁺ D N by the least-squares (minimum-norm) solve of A_R X = D N.
+  // T = [[N, 0], [−A_R⁺ D N, N]], A_R⁺ = A_Rᵀ (A_R A_Rᵀ)⁻¹ by the normal equations (the kept rows
+  // are independent; their Gram matrix squares cond(A_R), which the rank rule keeps moderate).
   mm.T = Mat::Zero(2 * n, 2 * k);
   mm.T.topLeftCorner(n, k) = mm.N;
   mm.T.bottomRightCorner(n, k) = mm.N;
   if (r > 0 && !mm.D.isZero(0.0)) {
     const Mat ARt = mm.AR.transpose();
-    const Mat gram = mm.AR * ARt;  // A_R⁺ = A_Rᵀ (A_R A_Rᵀ)⁻¹ (rows independent)
+    const Mat gram = mm.AR * ARt;
     mm.T.bottomLeftCorner(n, k) = -ARt * gram.partialPivLu().solve(mm.D * mm.N);
   }
   Mat P = Mat::Zero(2 * k, 2 * n);
