@@ -178,6 +178,13 @@ TEST(MinimalCoordinates, SphericalPendulumOscillatesAtSqrtGOverL) {
   EXPECT_LE(mm.null_residual, 1e-12);
   EXPECT_LE(mm.ortho_residual, 1e-12);
   EXPECT_TRUE(mm.at_rest);
+  EXPECT_EQ(mm.position_residual, 0.0);
+  EXPECT_TRUE(mm.note.empty()) << mm.note;
+  // Off the sphere the model is still built, and the note says where the state is.
+  const Vec off = 1.1 * q;
+  const MinimalModel mo = minimal_model(sys, 0.0, off, qd, tau, linearize(sys, 0.0, off, qd, tau));
+  EXPECT_NEAR(mo.position_residual, 0.5 * (1.21 - 1.0) * L * L, 1e-15);
+  EXPECT_NE(mo.note.find("off the constraint manifold"), std::string::npos) << mo.note;
   // Closed form: z̈ = −(g/L) z in each horizontal direction, the input 1/m.
   const double w = std::sqrt(g / L);
   const auto ev = eigenvalues(mm.F_min);

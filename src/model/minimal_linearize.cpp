@@ -173,8 +173,21 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
   P.bottomRightCorner(k, n) = mm.N.transpose();
   mm.F_min = P * mm.F * mm.T;
   mm.G_min = P * mm.G;
+  Vec phi(system.rows()), phid(system.rows());
+  position_residuals(system, d, t, q, phi);
+  velocity_residuals(system, d, t, q, qd, phid);
+  for (Index row : lin.kept_rows) {
+    mm.position_residual = std::max(mm.position_residual, std::abs(phi(row)));
+    mm.velocity_residual = std::max(mm.velocity_residual, std::abs(phid(row)));
+  }
+  forward(system, d, t, q, qd, tau);
+  if (mm.position_residual > 1e-8 || mm.velocity_residual > 1e-8) {
+    mm.note = "the state is off the constraint manifold (|Phi| " + sci(mm.position_residual) +
+              ", |Phi'| " + sci(mm.velocity_residual) + ")";
+  }
   if (mm.rheonomic) {
-    mm.note =
+    mm.note +=
+        std::string(mm.note.empty() ? "" : "; ") +
         "rheonomic rows: the d(Phi_t)/dq part of D is by Richardson central differences (the "
         "constraints give no tangent of Phi_t)";
   }

@@ -117,6 +117,8 @@ json minimal_json(const System& sys, double t, const Vec& q, const Vec& qd, cons
   j["G"] = rows_of(mm.G_min);
   j["null_residual"] = mm.null_residual;
   j["ortho_residual"] = mm.ortho_residual;
+  j["position_residual"] = mm.position_residual;
+  j["velocity_residual"] = mm.velocity_residual;
   j["at_rest"] = mm.at_rest;
   j["rheonomic"] = mm.rheonomic;
   j["note"] = mm.note;

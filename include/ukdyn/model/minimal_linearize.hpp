@@ -42,7 +42,10 @@ struct MinimalModel {
   Mat F_min, G_min;             ///< 2k × 2k and 2k × n
   double null_residual = 0.0;   ///< max |A_R N|
   double ortho_residual = 0.0;  ///< max |NᵀN − I|
-  bool at_rest = true;          ///< q̇ = 0 (then D = 0 unless a row is rheonomic)
+  /// max |Φ_R| and max |A_R q̇ + Φ_t| at the state: how far it is from the manifold the model
+  /// describes (the note says so above 1e-8)
+  double position_residual = 0.0, velocity_residual = 0.0;
+  bool at_rest = true;  ///< q̇ = 0 (then D = 0 unless a row is rheonomic)
   /// A kept row has Φ_t ≠ 0 near the state: D holds ∂Φ_t/∂q, by central differences.
   bool rheonomic = false;
   std::string note;  ///< what the model means away from rest, how D was had ("" otherwise)
