@@ -5,8 +5,9 @@
 //   ukdyn assemble SCENARIO
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
-//   ukdyn linearize SCENARIO       (exact derivatives of q̈ and Qc at the initial state, JSON;
-//   docs/derivatives.md)
+//   ukdyn linearize SCENARIO [--minimal] [--dt H] [--state FILE.json | --row RUN.csv:N]
+//                  [--out FILE.json|FILE.npz]   (exact derivatives of q̈ and Qc at the initial state or the
+//                  given one, JSON; in minimal coordinates; discrete; docs/derivatives.md)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
 //   docs/definitions.md)
 //   ukdyn sweep SWEEP [--out DIR] [--threads N] [--shard i/N] [--extract K]   (docs/sweeps.md;
@@ -154,6 +155,45 @@ std::string scenario_of(const std::string& out_dir) {
   }
 }
 
+struct LinearizeArgs {
+  bool minimal = false;
+  double dt = 0.0;
+  std::string state, row, out;
+};
+
+// `ukdyn linearize`: the state (the scenario's initial one, --state or --row), then the JSON on
+// stdout or in --out. Exit 0, or 1 when ukdyn cannot vouch for the derivatives.
+int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
+  ukdyn::LinearizeState st{sc.sim.t0, sc.q0, sc.qd0, sc.tau};
+  if (!a.state.empty()) st = ukdyn::read_state_json(sc, a.state);
+  if (!a.row.empty()) {  // RUN.csv:N, split at the last ':'
+    const auto colon = a.row.rfind(':');
+    long n = -1;
+    std::size_t used = 0;
+    try {
+      if (colon != std::string::npos) n = std::stol(a.row.substr(colon + 1), &used);
+    } catch (const std::exception&) {
+      n = -1;
+    }
+    if (colon == std::string::npos || n < 0 || used != a.row.size() - colon - 1)
+      throw ukdyn::Error("--row " + a.row + ": expected RUN.csv:N (N >= 0, the data row)");
+    st = ukdyn::read_state_csv_row(sc, a.row.substr(0, colon), n);
+  }
+  const ukdyn::LinearizeOptions opt{a.minimal, a.dt};
+  if (a.out.empty())
+    return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
+  const bool npz = a.out.ends_with(".npz");
+  if (!npz && !a.out.ends_with(".json"))
+    throw ukdyn::Error("--out " + a.out + ": name it FILE.json (JSON) or FILE.npz (numpy)");
+  std::ofstream f(a.out, std::ios::binary);
+  if (!f) throw ukdyn::WriteFailed("cannot write " + a.out);
+  const bool trusted = npz ? ukdyn::write_linearization_npz(sc, st.t, st.q, st.qd, st.tau, f, opt)
+                           : ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, f, opt);
+  f.close();
+  if (!f) throw ukdyn::WriteFailed("writing " + a.out + " failed");
+  return trusted ? 0 : 1;
+}
+
 }  // namespace
 
 // long function main: the command line as one CLI11 table (every subcommand, its options and its
@@ -208,6 +248,18 @@ int main(int argc, char** argv) {
       "linearize",
       "Print the exact derivatives of q'' and Qc at the scenario's initial state as JSON");
   lin->add_option("scenario", scenario, "scenario file (YAML)")->required();
+  LinearizeArgs la;
+  lin->add_flag("--minimal", la.minimal,
+                "also the model in minimal coordinates on the constraint manifold");
+  lin->add_option("--dt", la.dt, "also the zero-order-hold discrete model with this step (s)")
+      ->check(CLI::PositiveNumber);
+  auto* lin_state =
+      lin->add_option("--state", la.state, "linearise at {t, q, qd, tau} of this JSON file");
+  lin->add_option("--row", la.row,
+                  "linearise at data row N (from 0) of a run's trajectory.csv: RUN.csv:N")
+      ->excludes(lin_state);
+  lin->add_option("--out,-o", la.out,
+                  "write FILE.json (the JSON) or FILE.npz (numpy arrays) instead of stdout");
 
   auto* chk =
       app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
@@ -318,7 +370,7 @@ int main(int argc, char** argv) {
       return counts.failures == 0 ? 0 : 1;
     }
     if (*lin) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
-      return ukdyn::write_linearization(sc, sc.sim.t0, sc.q0, sc.qd0, sc.tau, std::cout) ? 0 : 1;
+      return cmd_linearize(sc, la);
     }
     if (*drv) {
       std::cout << ukdyn::symbolic::format_system(*sc.system,

@@ -15,14 +15,14 @@
 #include <vector>
 
 #include "bindings.hpp"
-#include "ukdyn/version.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-
+#include "ukdyn/version.hpp"
 
 namespace ukdyn_python {
 
@@ -321,11 +321,51 @@ struct PyLinearization {
   double kkt_agreement = 0.0;
   bool trusted = true;
   std::string message;
+  // dt: the discrete model (None without dt); minimal: ukdyn/model/minimal_linearize.hpp.
+  py::object dt = py::none(), Fd = py::none(), Gd = py::none();
+  py::object N = py::none(), T = py::none(), D = py::none(), F_min = py::none(), G_min = py::none(),
+             Fd_min = py::none(), Gd_min = py::none();
+  py::object at_rest = py::none(), rheonomic = py::none();
+  std::string minimal_note;
 };
+
+// The discrete and minimal parts of a linearisation (with the GIL held: numpy arrays).
+void add_minimal_and_discrete(PyLinearization& r, const ukdyn::MinimalModel* mm, const Mat& F,
+                              const Mat& G, double dt) {
+  if (dt > 0.0) {
+    Mat Fd, Gd;
+    ukdyn::discretize_zoh(F, G, dt, Fd, Gd);
+    r.dt = py::float_(dt);
+    r.Fd = numpy_of(Fd);
+    r.Gd = numpy_of(Gd);
+  }
+  if (!mm) return;
+  r.N = numpy_of(mm->N);
+  r.T = numpy_of(mm->T);
+  r.D = numpy_of(mm->D);
+  r.F_min = numpy_of(mm->F_min);
+  r.G_min = numpy_of(mm->G_min);
+  r.at_rest = py::bool_(mm->at_rest);
+  r.rheonomic = py::bool_(mm->rheonomic);
+  r.minimal_note = mm->note;
+  if (dt > 0.0) {
+    Mat Fd, Gd;
+    ukdyn::discretize_zoh(mm->F_min, mm->G_min, dt, Fd, Gd);
+    r.Fd_min = numpy_of(Fd);
+    r.Gd_min = numpy_of(Gd);
+  }
+}
 
 // The exact derivatives at (t, q, qd, tau) (ukdyn/model/linearize.hpp, docs/derivatives.md).
 PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
-                          const py::object& qd_in, const py::object& tau_in) {
+                          const py::object& qd_in, const py::object& tau_in, bool minimal,
+                          const py::object& dt_in) {
+  double dt = 0.0;
+  if (!dt_in.is_none()) {
+    dt = dt_in.cast<double>();
+    if (!(std::isfinite(dt) && dt > 0.0))
+      throw std::invalid_argument("linearize: dt must be a positive finite step (or None)");
+  }
   const ukdyn::Scenario& sc = s.sc;
   const ukdyn::System& sys = *sc.system;
   const Index n = sys.dof();
@@ -333,13 +373,16 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   const Vec qd = vector_arg(qd_in, n, "qd");
   const Vec tau = tau_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
   ukdyn::Linearization lin;
+  ukdyn::MinimalModel mm;
   Mat F, G;
   {
     py::gil_scoped_release release;
     lin = ukdyn::linearize(sys, t, q, qd, tau, sc.sim.uk);
     ukdyn::state_space(lin, F, G);
+    if (minimal) mm = ukdyn::minimal_model(sys, t, q, qd, tau, lin);
   }
   PyLinearization r;
+  add_minimal_and_discrete(r, minimal ? &mm : nullptr, F, G, dt);
   r.qdd = numpy_of(lin.qdd);
   r.Qc = numpy_of(lin.Qc);
   r.dqdd_dq = numpy_of(lin.dqdd_dq);
@@ -562,7 +605,25 @@ PYBIND11_MODULE(_ukdyn, m) {
                     "max |qdd_KKT - qdd_forward| / (1 + max |qdd_forward|)")
       .def_readonly("trusted", &PyLinearization::trusted,
                     "False where ukdyn cannot vouch for the derivatives (see message)")
-      .def_readonly("message", &PyLinearization::message, "why not trusted ('' if trusted)");
+      .def_readonly("message", &PyLinearization::message, "why not trusted ('' if trusted)")
+      .def_readonly("dt", &PyLinearization::dt, "the step of the discrete model, or None")
+      .def_readonly("Fd", &PyLinearization::Fd, "zero-order-hold exp(F dt), 2n x 2n, or None")
+      .def_readonly("Gd", &PyLinearization::Gd, "zero-order-hold input matrix, 2n x n, or None")
+      .def_readonly("N", &PyLinearization::N,
+                    "orthonormal basis of null(A_R), n x k (minimal=True), or None")
+      .def_readonly("T", &PyLinearization::T, "x = T z on the manifold, 2n x 2k, or None")
+      .def_readonly("D", &PyLinearization::D, "d(A_R qd)/dq, r x n, or None")
+      .def_readonly("F_min", &PyLinearization::F_min,
+                    "state matrix of z = (N^T dq, N^T dqd), 2k x 2k, or None")
+      .def_readonly("G_min", &PyLinearization::G_min, "input matrix of z, 2k x n, or None")
+      .def_readonly("Fd_min", &PyLinearization::Fd_min, "discrete F_min (dt), or None")
+      .def_readonly("Gd_min", &PyLinearization::Gd_min, "discrete G_min (dt), or None")
+      .def_readonly("at_rest", &PyLinearization::at_rest,
+                    "qd == 0: the minimal model is time-invariant on the manifold (minimal=True)")
+      .def_readonly("rheonomic", &PyLinearization::rheonomic,
+                    "a kept row has Phi_t != 0: D's d(Phi_t)/dq by differences (minimal=True)")
+      .def_readonly("minimal_note", &PyLinearization::minimal_note,
+                    "what the minimal model means away from rest ('' at rest)");
 
   py::class_<ForwardResult>(m, "ForwardResult",
                             "Forward dynamics at one state (paper Eqs. (4), (11), (18)).")
@@ -732,12 +793,15 @@ made from a System built in code (Scenario.from_system).)doc")
 Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python callables
 f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
       .def("linearize", &linearize, py::arg("t"), py::arg("q"), py::arg("qd"),
-           py::arg("tau") = py::none(),
+           py::arg("tau") = py::none(), py::kw_only(), py::arg("minimal") = false,
+           py::arg("dt") = py::none(),
            R"doc(Exact derivatives of qdd and Qc at (t, q, qd) with generalized forces tau (default
 0): implicit differentiation of the KKT form of the U-K equation over the model's exact tangents
 (no finite differences). Check .trusted: False at or near a singular position, after a damped
 solve, or with inconsistent constraints (.message says which). Raises ukdyn.Error naming a
-component without exact derivatives. docs/derivatives.md.)doc")
+component without exact derivatives. minimal=True: also N, T, D, F_min, G_min, the model in
+z = (N^T dq, N^T dqd) on the constraint manifold (raises ukdyn.Error for velocity-level rows).
+dt: also the zero-order-hold Fd, Gd (and Fd_min, Gd_min). docs/derivatives.md.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),
            py::arg("forces") = std::vector<py::object>{}, py::kw_only(),
            py::arg("control_law") = py::none(),

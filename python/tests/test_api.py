@@ -303,3 +303,100 @@ def test_linearize_matches_differences_of_forward(tmp_path):
     zeros = np.zeros(springs.dof)
     with pytest.raises(ukdyn.Error, match="no exact derivatives"):
         springs.linearize(0.0, zeros, zeros)
+
+
+def test_linearize_minimal_and_discrete():
+    # Minimal coordinates on the constraint manifold and the zero-order hold (docs/derivatives.md):
+    # the five-bar (4 angles, 2 closure rows) held at rest by tau = G.
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    q, zero = np.array(sc.q0), np.zeros(sc.dof)
+    tau = np.array(sc.forward(0.0, q, zero).G)
+    plain = sc.linearize(0.0, q, zero, tau)
+    assert plain.N is None and plain.Fd is None and plain.F_min is None
+    lin = sc.linearize(0.0, q, zero, tau, minimal=True, dt=0.02)
+    A = sc.forward(0.0, q, zero, tau).A
+    assert lin.N.shape == (4, 2)
+    assert np.abs(A @ lin.N).max() <= 1e-12
+    assert np.abs(lin.N.T @ lin.N - np.eye(2)).max() <= 1e-12
+    assert lin.at_rest and not lin.rheonomic and lin.minimal_note == ""
+    P = np.zeros((4, 8))
+    P[:2, :4], P[2:, 4:] = lin.N.T, lin.N.T
+    np.testing.assert_allclose(lin.F_min, P @ lin.F @ lin.T, atol=1e-12)
+    # An equilibrium: the tangent space is invariant, F T = T F_min.
+    assert np.abs(lin.qdd).max() <= 1e-10
+    np.testing.assert_allclose(lin.F @ lin.T, lin.T @ lin.F_min, atol=1e-9)
+    # The discrete model: Fd = exp(F dt) (series), Gd = (∫ exp) G.
+    def expm_series(X):
+        E, term = np.eye(len(X)), np.eye(len(X))
+        for k in range(1, 40):
+            term = term @ X / k
+            E = E + term
+        return E
+
+    np.testing.assert_allclose(lin.Fd, expm_series(lin.F * 0.02), atol=1e-12)
+    np.testing.assert_allclose(lin.Fd_min, expm_series(lin.F_min * 0.02), atol=1e-12)
+    aug = np.zeros((8, 8))
+    aug[:4, :4], aug[:4, 4:] = lin.F_min * 0.02, lin.G_min * 0.02
+    np.testing.assert_allclose(lin.Gd_min, expm_series(aug)[:4, 4:], atol=1e-12)
+    with pytest.raises(ValueError):
+        sc.linearize(0.0, q, zero, tau, dt=-1.0)
+
+
+def test_cli_linearize_npz_matches_json(tmp_path):
+    # `ukdyn linearize --out FILE.npz`: numpy reads the uncompressed archive ukdyn writes itself;
+    # the arrays equal the JSON's numbers bit for bit.
+    import json
+
+    path = scenario_path("five_bar_redundant.yaml")
+    code, out, err = run_cli("linearize", path, "--minimal", "--dt", "0.01")
+    assert code == 0, err
+    j = json.loads(out)
+    npz = tmp_path / "lin.npz"
+    code, _, err = run_cli("linearize", path, "--minimal", "--dt", "0.01", "--out", npz)
+    assert code == 0, err
+    with np.load(npz) as z:
+        assert np.array_equal(z["F"], np.array(j["F"]))
+        assert np.array_equal(z["Fd"], np.array(j["Fd"]))
+        assert np.array_equal(z["q"], np.array(j["q"]))
+        assert np.array_equal(z["dqdd_dq"], np.array(j["derivatives"]["dqdd_dq"]))
+        assert np.array_equal(z["minimal_N"], np.array(j["minimal"]["N"]))
+        assert np.array_equal(z["minimal_Fd"], np.array(j["minimal"]["Fd"]))
+        assert z["t"].shape == () and float(z["trusted"]) == 1.0 and float(z["rank"]) == 2.0
+        assert "coordinates" not in z.files
+    code, _, err = run_cli("linearize", path, "--out", tmp_path / "lin.txt")
+    assert code == 2 and "FILE.npz" in err
+
+
+def test_linearize_minimal_away_from_rest():
+    # Moving (the heavy top spinning): D = d(A_R qd)/dq from the constraints' tangents against
+    # Richardson differences of A(q) qd, and x = T z keeps A_R dqd + D dq = 0.
+    sc = ukdyn.load_scenario(scenario_path("heavy_top.yaml"))
+    q, qd = np.array(sc.q0), np.array(sc.qd0)
+    lin = sc.linearize(0.0, q, qd, minimal=True)
+    assert not lin.at_rest and "frozen" in lin.minimal_note
+    rows = [sc.constraint_row_names.index(r) for r in lin.kept_rows]
+    n = sc.dof
+
+    def a_qd(x):
+        return sc.forward(0.0, x, qd).A[rows] @ qd
+
+    def central(j, h):
+        e = np.eye(n)[j]
+        return (a_qd(q + h * e) - a_qd(q - h * e)) / (2 * h)
+
+    D = np.column_stack([(4 * central(j, 5e-4) - central(j, 1e-3)) / 3 for j in range(n)])
+    assert np.abs(lin.D - D).max() <= 1e-9 * (1 + np.abs(D).max())
+    AR = sc.forward(0.0, q, qd).A[rows]
+    assert np.abs(np.hstack([lin.D, AR]) @ lin.T).max() <= 1e-12 * (1 + np.abs(lin.D).max())
+
+
+def test_lqr_example_closed_loop_matches_the_minimal_model():
+    pytest.importorskip("scipy")
+    sys.path.insert(0, str(SOURCE / "python" / "examples"))
+    try:
+        import lqr_minimal
+    finally:
+        sys.path.pop(0)
+    predicted, identified, rel = lqr_minimal.closed_loop_check(verbose=False)
+    assert np.all(predicted.real < 0)
+    assert rel <= 1e-3, (predicted, identified)

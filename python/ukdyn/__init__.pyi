@@ -218,6 +218,19 @@ class Linearization:
     kkt_agreement: float
     trusted: bool
     message: str
+    dt: Optional[float]
+    Fd: Optional[FloatArray]
+    Gd: Optional[FloatArray]
+    N: Optional[FloatArray]
+    T: Optional[FloatArray]
+    D: Optional[FloatArray]
+    F_min: Optional[FloatArray]
+    G_min: Optional[FloatArray]
+    Fd_min: Optional[FloatArray]
+    Gd_min: Optional[FloatArray]
+    at_rest: Optional[bool]
+    rheonomic: Optional[bool]
+    minimal_note: str
 
 class Run:
     columns: list[str]
@@ -311,8 +324,17 @@ class Scenario:
         control_law replaces its built-in law. controller / forces: scenarios without control:."""
     def assemble(self) -> dict[str, Any]: ...
     def linearize(
-        self, t: float, q: ArrayLike, qd: ArrayLike, tau: Optional[ArrayLike] = None
+        self,
+        t: float,
+        q: ArrayLike,
+        qd: ArrayLike,
+        tau: Optional[ArrayLike] = None,
+        *,
+        minimal: bool = False,
+        dt: Optional[float] = None,
     ) -> Linearization:
-        """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted (docs/derivatives.md)"""
+        """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted; minimal: the model
+        in minimal coordinates on the constraint manifold; dt: the zero-order-hold discrete model
+        (docs/derivatives.md)"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

@@ -4,11 +4,15 @@
 
 #include <Eigen/Cholesky>
 #include <cmath>
+#include <fstream>
 #include <istream>
 #include <nlohmann/json.hpp>
 #include <ostream>
 
+#include "output/csv_reader.hpp"
+#include "output/npz.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
@@ -97,6 +101,36 @@ json linearization_json(const System& sys, const Linearization& lin) {
   return out;
 }
 
+// The reduced model in minimal coordinates (docs/derivatives.md, "Minimal coordinates").
+json minimal_json(const System& sys, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                  const Linearization& lin, double dt) {
+  const MinimalModel mm = minimal_model(sys, t, q, qd, tau, lin);
+  json j;
+  j["basis"] =
+      "N: last n-r right singular vectors of A_R, each column's largest entry positive; "
+      "z = (N^T dq, N^T dqd), x = T z";
+  j["dof"] = mm.N.cols();
+  j["N"] = rows_of(mm.N);
+  j["T"] = rows_of(mm.T);
+  j["D"] = rows_of(mm.D);
+  j["F"] = rows_of(mm.F_min);
+  j["G"] = rows_of(mm.G_min);
+  j["null_residual"] = mm.null_residual;
+  j["ortho_residual"] = mm.ortho_residual;
+  j["position_residual"] = mm.position_residual;
+  j["velocity_residual"] = mm.velocity_residual;
+  j["at_rest"] = mm.at_rest;
+  j["rheonomic"] = mm.rheonomic;
+  j["note"] = mm.note;
+  if (dt > 0.0) {
+    Mat Fd, Gd;
+    discretize_zoh(mm.F_min, mm.G_min, dt, Fd, Gd);
+    j["Fd"] = rows_of(Fd);
+    j["Gd"] = rows_of(Gd);
+  }
+  return j;
+}
+
 // The answer to one request, or throws ukdyn::Error saying why there is none.
 json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& line,
             const EvalOptions& opt) {
@@ -179,8 +213,11 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
 
 }  // namespace
 
-bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
-                         std::ostream& out) {
+namespace {
+
+// The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
+json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                          const LinearizeOptions& opt, bool& trusted) {
   const System& sys = *sc.system;
   const Linearization lin = linearize(sys, t, q, qd, tau, sc.sim.uk);
   Mat F, G;
@@ -196,8 +233,137 @@ bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& 
   j["derivatives"] = linearization_json(sys, lin);
   j["F"] = rows_of(F);
   j["G"] = rows_of(G);
+  if (opt.dt > 0.0) {
+    Mat Fd, Gd;
+    discretize_zoh(F, G, opt.dt, Fd, Gd);
+    j["dt"] = opt.dt;
+    j["Fd"] = rows_of(Fd);
+    j["Gd"] = rows_of(Gd);
+  }
+  if (opt.minimal) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
+  trusted = lin.trusted;
+  return j;
+}
+
+// The numbers of the object as float64 arrays: a number or a boolean → shape (), a list of
+// numbers → (n,), a list of rows → (r, c); the "derivatives" entries by their own names, the
+// "minimal" ones as minimal_<name>; strings (names, messages) are left out.
+void collect_arrays(const json& j, const std::string& prefix,
+                    std::vector<io_detail::NpyArray>& out) {
+  for (const auto& [key, v] : j.items()) {
+    io_detail::NpyArray a;
+    a.name = prefix + key;
+    if (v.is_object()) {
+      collect_arrays(v, key == "minimal" ? "minimal_" : "", out);
+      continue;
+    }
+    if (v.is_number() || v.is_boolean()) {
+      a.values.push_back(v.is_boolean() ? (v.get<bool>() ? 1.0 : 0.0) : v.get<double>());
+    } else if (v.is_array() && !v.empty() && v[0].is_array()) {
+      a.shape = {v.size(), v[0].size()};
+      for (const auto& row : v)
+        for (const auto& x : row) a.values.push_back(x.get<double>());
+    } else if (v.is_array() && (v.empty() || v[0].is_number())) {
+      a.shape = {v.size()};
+      for (const auto& x : v) a.values.push_back(x.get<double>());
+    } else {
+      continue;
+    }
+    out.push_back(std::move(a));
+  }
+}
+
+}  // namespace
+
+bool write_linearization(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                         std::ostream& out, const LinearizeOptions& opt) {
+  bool trusted = false;
+  const json j = linearization_object(sc, t, q, qd, tau, opt, trusted);
   out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
-  return lin.trusted;
+  return trusted;
+}
+
+bool write_linearization_npz(const Scenario& sc, double t, const Vec& q, const Vec& qd,
+                             const Vec& tau, std::ostream& out, const LinearizeOptions& opt) {
+  bool trusted = false;
+  const json j = linearization_object(sc, t, q, qd, tau, opt, trusted);
+  std::vector<io_detail::NpyArray> arrays;
+  collect_arrays(j, "", arrays);
+  out << io_detail::npz_bytes(arrays);
+  return trusted;
+}
+
+LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(fmt::format("{}: cannot open the state file", printable(path)));
+  json j;
+  try {
+    j = json::parse(in);
+  } catch (const json::exception& e) {
+    throw Error(fmt::format("{}: invalid JSON: {}", printable(path), e.what()));
+  }
+  if (!j.is_object())
+    throw Error(
+        fmt::format(R"({}: expected a JSON object {{"t", "q", "qd", "tau"}})", printable(path)));
+  const Index n = sc.system->dof();
+  LinearizeState st;
+  try {
+    for (const auto& [key, value] : j.items()) {
+      if (key != "t" && key != "q" && key != "qd" && key != "tau")
+        throw Error(fmt::format("unknown key '{}' (the keys are t, q, qd, tau)", printable(key)));
+    }
+    st.t = sc.sim.t0;
+    if (const auto it = j.find("t"); it != j.end()) {
+      if (!it->is_number() || !std::isfinite(it->get<double>()))
+        throw Error("key 't': expected a finite number");
+      st.t = it->get<double>();
+    }
+    st.q = read_vec(j, "q", n, true);
+    st.qd = read_vec(j, "qd", n, true);
+    st.tau = j.contains("tau") ? read_vec(j, "tau", n, true) : sc.tau;
+  } catch (const Error& e) {
+    throw Error(fmt::format("{}: {}", printable(path), e.what()));
+  }
+  return st;
+}
+
+LinearizeState read_state_csv_row(const Scenario& sc, const std::string& path, long row) {
+  std::ifstream in(path);
+  if (!in) throw Error(fmt::format("{}: cannot open the trajectory file", printable(path)));
+  if (row < 0) throw Error(fmt::format("{}: row {} (rows count from 0)", printable(path), row));
+  io_detail::CsvLines lines(in);
+  std::string line;
+  if (!lines.next(line)) throw Error(fmt::format("{}: empty file", printable(path)));
+  const auto header = io_detail::split_csv_line(line);
+  auto column = [&](const std::string& name) {
+    for (std::size_t c = 0; c < header.size(); ++c)
+      if (header[c] == name) return c;
+    throw Error(fmt::format("{}:1: no column '{}' (a trajectory.csv of this scenario has it)",
+                            printable(path), printable(name)));
+  };
+  const auto& names = sc.system->coordinate_names();
+  const Index n = sc.system->dof();
+  std::vector<std::size_t> cols{column("t")};
+  for (const auto& nm : names) cols.push_back(column(nm));
+  for (const auto& nm : names) cols.push_back(column(nm + "_dot"));
+  for (long k = 0; k <= row; ++k) {
+    if (!lines.next(line))
+      throw Error(fmt::format("{}: no data row {} (the file has {})", printable(path), row, k));
+  }
+  const auto cells = io_detail::split_csv_line(line);
+  std::vector<double> v(cols.size());
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    if (cols[c] >= cells.size() || !io_detail::parse_csv_number(cells[cols[c]], v[c]) ||
+        !std::isfinite(v[c]))
+      throw Error(fmt::format("{}:{}: column '{}': not a finite number", printable(path),
+                              lines.line_no(), printable(header[cols[c]])));
+  }
+  LinearizeState st;
+  st.t = v[0];
+  st.q = Eigen::Map<const Vec>(v.data() + 1, n);
+  st.qd = Eigen::Map<const Vec>(v.data() + 1 + n, n);
+  st.tau = sc.tau;
+  return st;
 }
 
 EvalCounts run_eval_protocol(const Scenario& sc, std::istream& in, std::ostream& out,

@@ -34,7 +34,33 @@ EvalCounts run_eval_protocol(const Scenario& scenario, std::istream& in, std::os
 /// and the state-space matrices F, G of x = (q, q̇), as one JSON object on `out`
 /// (docs/derivatives.md). Returns whether ukdyn vouches for them (the object's "trusted"; its
 /// "message" says why not). Throws ukdyn::Error when a component has no exact derivatives.
+/// With options.minimal the object also holds "minimal": the reduced model in minimal coordinates
+/// on the constraint manifold (ukdyn/model/minimal_linearize.hpp); with options.dt > 0 the
+/// zero-order-hold discrete matrices "Fd", "Gd" (and the minimal model's). Throws ukdyn::Error when
+/// a component has no exact derivatives or a row is velocity-level (minimal).
+struct LinearizeOptions {
+  bool minimal = false;
+  double dt = 0.0;  ///< > 0: also the discrete model with this step
+};
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
-                         const Vec& tau, std::ostream& out);
+                         const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});
+
+/// The state to linearise at, from a JSON file {"t": T, "q": [...], "qd": [...], "tau": [...]}
+/// (t and tau optional: the scenario's t0 and τ) or from data row `row` (0: the first row after
+/// the header) of a run's trajectory.csv (t, the coordinates by name and <name>_dot; τ is the
+/// scenario's, the CSV does not hold it). Throws ukdyn::Error naming the file, the line and the key.
+struct LinearizeState {
+  double t = 0.0;
+  Vec q, qd, tau;
+};
+/// The same numbers as numpy's .npz (uncompressed; numpy.load reads it): every number, boolean,
+/// vector and matrix of the JSON object as a float64 array under its key, the "derivatives" ones
+/// under their own names, the "minimal" ones as minimal_<key>; names and messages are JSON only.
+bool write_linearization_npz(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
+                             const Vec& tau, std::ostream& out,
+                             const LinearizeOptions& options = {});
+
+LinearizeState read_state_json(const Scenario& scenario, const std::string& path);
+LinearizeState read_state_csv_row(const Scenario& scenario, const std::string& path, long row);
 
 }  // namespace ukdyn
