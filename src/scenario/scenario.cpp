@@ -641,7 +641,7 @@ bool load_forces(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
   const Node s = L.child(root, "simulation", true);
   L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min"});
+                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min", "jacobian"});
   auto& sim = sc.sim;
   sim.t0 = L.number_or(s, "t0", 0.0);
   const Node te = L.child(s, "t_end", true);
@@ -684,6 +684,21 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
       L.fail(ad, "the bdf integrator is always adaptive");
     if (!sim.adaptive && sim.integrator == IntegratorKind::esdirk)
       L.fail(ad, "the esdirk integrator is always adaptive");
+  }
+  // The Jacobian of bdf / esdirk's Newton iterations (simulate.hpp, JacobianKind).
+  if (Node jn = L.child(s, "jacobian", false); jn.node.IsDefined()) {
+    const std::string v = L.string(jn);
+    if (v == "auto") {
+      sim.jacobian = JacobianKind::automatic;
+    } else if (v == "exact") {
+      sim.jacobian = JacobianKind::exact;
+    } else if (v == "difference") {
+      sim.jacobian = JacobianKind::difference;
+    } else {
+      L.fail(jn, "unknown jacobian '" + v + "' (expected auto, exact or difference)");
+    }
+    if (sim.integrator != IntegratorKind::bdf && sim.integrator != IntegratorKind::esdirk)
+      L.fail(jn, "only used with integrator bdf or esdirk (the implicit integrators)");
   }
   // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
   sim.energy_balance = applied;
