@@ -636,6 +636,25 @@ bool load_forces(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   return true;
 }
 
+// simulation.jacobian: the Jacobian of bdf / esdirk's Newton iterations (simulate.hpp,
+// JacobianKind); after the integrator.
+void load_jacobian(const Loader& L, const Node& s, SimulationSettings& sim) {
+  const Node jn = L.child(s, "jacobian", false);
+  if (!jn.node.IsDefined()) return;
+  const std::string v = L.string(jn);
+  if (v == "auto") {
+    sim.jacobian = JacobianKind::automatic;
+  } else if (v == "exact") {
+    sim.jacobian = JacobianKind::exact;
+  } else if (v == "difference") {
+    sim.jacobian = JacobianKind::difference;
+  } else {
+    L.fail(jn, "unknown jacobian '" + v + "' (expected auto, exact or difference)");
+  }
+  if (sim.integrator != IntegratorKind::bdf && sim.integrator != IntegratorKind::esdirk)
+    L.fail(jn, "only used with integrator bdf or esdirk (the implicit integrators)");
+}
+
 // simulation: the time span, sampling, integrator, tolerances and drift control.
 // applied: the system has state-dependent applied forces (energy balance on by default).
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
@@ -685,21 +704,7 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     if (!sim.adaptive && sim.integrator == IntegratorKind::esdirk)
       L.fail(ad, "the esdirk integrator is always adaptive");
   }
-  // The Jacobian of bdf / esdirk's Newton iterations (simulate.hpp, JacobianKind).
-  if (Node jn = L.child(s, "jacobian", false); jn.node.IsDefined()) {
-    const std::string v = L.string(jn);
-    if (v == "auto") {
-      sim.jacobian = JacobianKind::automatic;
-    } else if (v == "exact") {
-      sim.jacobian = JacobianKind::exact;
-    } else if (v == "difference") {
-      sim.jacobian = JacobianKind::difference;
-    } else {
-      L.fail(jn, "unknown jacobian '" + v + "' (expected auto, exact or difference)");
-    }
-    if (sim.integrator != IntegratorKind::bdf && sim.integrator != IntegratorKind::esdirk)
-      L.fail(jn, "only used with integrator bdf or esdirk (the implicit integrators)");
-  }
+  load_jacobian(L, s, sim);
   // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
   sim.energy_balance = applied;
   if (Node eb = L.child(s, "energy_balance", false); eb.node.IsDefined()) {
