@@ -654,6 +654,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
                                           : constant;
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
+  // The constant τ has ∂τ/∂(q, q̇) = 0 (bdf / esdirk's exact Jacobian); a control law or a Python
+  // controller has none (difference quotients, said in the stats' jacobian_note).
+  if (!ctl && !options.tau) settings.tau_jacobian = zero_force_jacobian;
   const auto start = std::chrono::steady_clock::now();
   rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                        [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
