@@ -501,8 +501,7 @@ class Run {
     if (s_.energy_balance) {  // exact_jacobian.hpp: W is a quadrature
       stats_.jacobian_note =
           "exact Jacobian of (q, qd); the energy-balance state W is a quadrature (f does not "
-          "depend "
-          "on it), its row is left zero";
+          "depend on it), its row is left zero";
     }
   }
 
