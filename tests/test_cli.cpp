@@ -193,6 +193,7 @@ TEST(Cli, SimulateWritesCsvSummaryAndFigures) {
 // implicit integrators"): the governor (spring-dampers, energy balance) runs with the exact one and
 // the note on W; with Baumgarte's terms the difference quotients, and the reason, once.
 TEST(Cli, BdfReportsWhichJacobianItUsed) {
+  if (!ukdyn::bdf_available()) GTEST_SKIP() << "built without SUNDIALS CVODE";
   std::string text = slurp(kSource / "scenarios" / "benchmarks" / "flyball_governor.yaml");
   const auto at = text.find("  t_end: 10");
   ASSERT_NE(at, std::string::npos);
