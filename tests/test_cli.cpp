@@ -189,6 +189,42 @@ TEST(Cli, SimulateWritesCsvSummaryAndFigures) {
   EXPECT_TRUE(fs::exists(out / "figures" / "energy.png"));
 }
 
+// bdf's Jacobian in the summary and on the console (docs/derivatives.md, "Exact Jacobians in the
+// implicit integrators"): the governor (spring-dampers, energy balance) runs with the exact one and
+// the note on W; with Baumgarte's terms the difference quotients, and the reason, once.
+TEST(Cli, BdfReportsWhichJacobianItUsed) {
+  if (!ukdyn::bdf_available()) GTEST_SKIP() << "built without SUNDIALS CVODE";
+  std::string text = slurp(kSource / "scenarios" / "benchmarks" / "flyball_governor.yaml");
+  const auto at = text.find("  t_end: 10");
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, std::string("  t_end: 10").size(), "  t_end: 0.05");
+  const fs::path exact = scratch() / "governor_short.yaml";
+  std::ofstream(exact) << text;
+  const fs::path out = scratch() / "out_governor_jac";
+  const Result r =
+      run("simulate '" + exact.string() + "' --out '" + out.string() + "' --no-figures");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto summary = nlohmann::json::parse(slurp(out / "summary.json"));
+  EXPECT_EQ(summary["jacobian"]["kind"], "exact");
+  EXPECT_GT(summary["jacobian"]["evaluations"].get<long>(), 0);
+  EXPECT_EQ(summary["jacobian"]["fallbacks"].get<long>(), 0);
+  EXPECT_NE(summary["jacobian"]["note"].get<std::string>().find("quadrature"), std::string::npos);
+  EXPECT_NE(r.out.find("jacobian            exact ("), std::string::npos) << r.out;
+
+  text.replace(text.find("  integrator: bdf"), std::string("  integrator: bdf").size(),
+               "  integrator: bdf\n  drift: {method: baumgarte}");
+  const fs::path baum = scratch() / "governor_baumgarte.yaml";
+  std::ofstream(baum) << text;
+  const fs::path out2 = scratch() / "out_governor_baum";
+  const Result b =
+      run("simulate '" + baum.string() + "' --out '" + out2.string() + "' --no-figures");
+  ASSERT_EQ(b.exit_code, 0) << b.err;
+  const auto s2 = nlohmann::json::parse(slurp(out2 / "summary.json"));
+  EXPECT_EQ(s2["jacobian"]["kind"], "difference");
+  EXPECT_NE(s2["jacobian"]["note"].get<std::string>().find("Baumgarte"), std::string::npos);
+  EXPECT_NE(b.out.find("jacobian            difference ("), std::string::npos) << b.out;
+}
+
 TEST(Cli, InterruptKeepsWhatWasComputedAndSaysSo) {
   // A long fixed-step run interrupted after 2 s: exit 1, the rows so far in
   // trajectory.incomplete.csv, summary.json "incomplete" with the reason, no trajectory.csv.

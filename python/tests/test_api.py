@@ -298,11 +298,11 @@ def test_linearize_matches_differences_of_forward(tmp_path):
     assert lin.F.shape == (6, 6) and lin.G.shape == (6, 3)
     assert np.array_equal(lin.F[3:, :3], lin.dqdd_dq)
     np.testing.assert_allclose(lin.dqdd_dtau, np.linalg.inv(sc.forward(0.0, q, qd, tau).M), rtol=1e-12)
-    # A spring-damper between points has no exact derivatives: refused, by name.
+    # Spring-dampers between points have exact tangents too (every shipped component has; a
+    # component without them is refused by name: tests/test_linearize.cpp).
     springs = ukdyn.load_scenario(scenario_path("benchmarks/flyball_governor.yaml"))
-    zeros = np.zeros(springs.dof)
-    with pytest.raises(ukdyn.Error, match="no exact derivatives"):
-        springs.linearize(0.0, zeros, zeros)
+    lin = springs.linearize(0.0, np.array(springs.q0), np.array(springs.qd0))
+    assert lin.trusted and np.all(np.isfinite(lin.dqdd_dq))
 
 
 def test_linearize_minimal_and_discrete():

@@ -281,6 +281,12 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
   }
   summary["warnings"] = warnings;
   summary["rhs_evaluations"] = rep.stats.rhs_evaluations;
+  if (!rep.stats.jacobian.empty()) {  // bdf, esdirk (docs/derivatives.md)
+    summary["jacobian"] = {{"kind", rep.stats.jacobian},
+                           {"evaluations", rep.stats.jacobian_evaluations},
+                           {"fallbacks", rep.stats.jacobian_fallbacks},
+                           {"note", rep.stats.jacobian_note}};
+  }
   summary["samples"] = rep.stats.samples;
   summary["wall_seconds"] = rep.wall_seconds;
   summary["trajectory_csv"] =
@@ -374,6 +380,9 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
           : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
   SimulationSettings settings = sc.sim;
   settings.cancel = s.options.cancel;
+  // The scenario's τ is constant: ∂τ/∂(q, q̇) = 0 (the exact Jacobian of bdf / esdirk). A control
+  // law's has none (the difference-quotient Jacobian, said in the summary).
+  if (!ctl) settings.tau_jacobian = zero_force_jacobian;
   try {
     rep.stats = simulate(s.sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                          [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
@@ -645,6 +654,9 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
                                           : constant;
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
+  // The constant τ has ∂τ/∂(q, q̇) = 0 (bdf / esdirk's exact Jacobian); a control law or a Python
+  // controller has none (difference quotients, said in the stats' jacobian_note).
+  if (!ctl && !options.tau) settings.tau_jacobian = zero_force_jacobian;
   const auto start = std::chrono::steady_clock::now();
   rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                        [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
@@ -741,6 +753,15 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
       adaptive_steps(sc.sim) ? fmt::format("abs/rel tol {:g}/{:g}", sc.sim.abs_tol, sc.sim.rel_tol)
                              : fmt::format("fixed step {:g} s", sc.sim.step),
       to_string(sc.sim.drift.kind));
+  if (!rep.stats.jacobian.empty()) {  // bdf, esdirk
+    os << fmt::format(
+        "  jacobian            {} ({} evaluations{}){}\n", rep.stats.jacobian,
+        rep.stats.jacobian_evaluations,
+        rep.stats.jacobian_fallbacks > 0
+            ? fmt::format(", {} by differences at untrusted states", rep.stats.jacobian_fallbacks)
+            : "",
+        rep.stats.jacobian_note.empty() ? "" : ": " + p(rep.stats.jacobian_note));
+  }
   os << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
   os << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n", rep.rank_min,
                     rep.rank_max, sc.system->rows(), sc.system->dof() - rep.rank_max);

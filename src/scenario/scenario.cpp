@@ -637,12 +637,31 @@ bool load_forces(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   return true;
 }
 
+// simulation.jacobian: the Jacobian of bdf / esdirk's Newton iterations (simulate.hpp,
+// JacobianKind); after the integrator.
+void load_jacobian(const Loader& L, const Node& s, SimulationSettings& sim) {
+  const Node jn = L.child(s, "jacobian", false);
+  if (!jn.node.IsDefined()) return;
+  const std::string v = L.string(jn);
+  if (v == "auto") {
+    sim.jacobian = JacobianKind::automatic;
+  } else if (v == "exact") {
+    sim.jacobian = JacobianKind::exact;
+  } else if (v == "difference") {
+    sim.jacobian = JacobianKind::difference;
+  } else {
+    L.fail(jn, "unknown jacobian '" + v + "' (expected auto, exact or difference)");
+  }
+  if (sim.integrator != IntegratorKind::bdf && sim.integrator != IntegratorKind::esdirk)
+    L.fail(jn, "only used with integrator bdf or esdirk (the implicit integrators)");
+}
+
 // simulation: the time span, sampling, integrator, tolerances and drift control.
 // applied: the system has state-dependent applied forces (energy balance on by default).
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
   const Node s = L.child(root, "simulation", true);
   L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min"});
+                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min", "jacobian"});
   auto& sim = sc.sim;
   sim.t0 = L.number_or(s, "t0", 0.0);
   const Node te = L.child(s, "t_end", true);
@@ -686,6 +705,7 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     if (!sim.adaptive && sim.integrator == IntegratorKind::esdirk)
       L.fail(ad, "the esdirk integrator is always adaptive");
   }
+  load_jacobian(L, s, sim);
   // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
   sim.energy_balance = applied;
   if (Node eb = L.child(s, "energy_balance", false); eb.node.IsDefined()) {

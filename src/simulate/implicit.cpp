@@ -1,6 +1,8 @@
 #include "ukdyn/simulate/implicit.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 
 #ifdef UKDYN_HAVE_CVODE
 #ifdef UKDYN_HAVE_ARKODE
@@ -45,6 +47,8 @@ namespace {
 struct UserData {
   const ImplicitProblem* p;
   std::vector<double> scratch;
+  std::vector<double> f1 = std::vector<double>(scratch.size());  // the fallback's f(y + δ e_j)
+  long jacobian_fallbacks = 0;
 };
 
 int rhs_fn(realtype t, N_Vector y, N_Vector ydot, void* user) {
@@ -66,6 +70,49 @@ int proj_fn(realtype t, N_Vector ycur, N_Vector corr, realtype, N_Vector, void* 
   for (std::size_t i = 0; i < u->p->size; ++i) {
     c[i] = u->scratch[i] - y[i];
     if (!std::isfinite(c[i])) return 1;
+  }
+  return 0;
+}
+
+// Forward differences of f, column by column: J e_j ≈ (f(y + δ_j e_j) − f(y)) / δ_j with
+// δ_j = √u · max(|y_j|, 1) (u the unit round-off; Dennis & Schnabel, Numerical Methods for
+// Unconstrained Optimization, SIAM 1996, §5.4). The fallback of the exact Jacobian at a state
+// where linearize() is not trusted. Allocates nothing (UserData's buffers).
+int difference_jacobian(UserData& u, double t, const double* y, const double* fy, double* J) {
+  const std::size_t n = u.p->size;
+  const double sqrt_u = std::sqrt(std::numeric_limits<double>::epsilon());
+  for (std::size_t i = 0; i < n; ++i) u.scratch[i] = y[i];
+  for (std::size_t j = 0; j < n; ++j) {
+    const double delta = sqrt_u * std::max(std::abs(y[j]), 1.0);
+    u.scratch[j] = y[j] + delta;
+    const double step = u.scratch[j] - y[j];  // the representable increment
+    u.p->rhs(t, u.scratch.data(), u.f1.data());
+    u.scratch[j] = y[j];
+    for (std::size_t i = 0; i < n; ++i) {
+      J[j * n + i] = (u.f1[i] - fy[i]) / step;
+      if (!std::isfinite(J[j * n + i])) return 1;
+    }
+  }
+  return 0;
+}
+
+// The Jacobian callback of CVODE (CVLsJacFn) and ARKStep (ARKLsJacFn): the exact ∂f/∂x of the
+// problem into the dense matrix (column-major); where the problem says it is not trusted, forward
+// differences at this call (counted). 1 (recoverable: the integrator cuts the step) for a
+// non-finite entry.
+int jac_fn(realtype t, N_Vector y, N_Vector fy, SUNMatrix Jac, void* user, N_Vector, N_Vector,
+           N_Vector) {
+  auto* u = static_cast<UserData*>(user);
+  const std::size_t n = u->p->size;
+  double* J = SM_DATA_D(Jac);
+  std::fill(J, J + n * n, 0.0);
+  const double* x = N_VGetArrayPointer(y);
+  if (!u->p->jacobian(t, x, J)) {
+    ++u->jacobian_fallbacks;
+    return difference_jacobian(*u, t, x, N_VGetArrayPointer(fy), J);
+  }
+  for (std::size_t k = 0; k < n * n; ++k) {
+    if (!std::isfinite(J[k])) return 1;
   }
   return 0;
 }
@@ -140,7 +187,8 @@ ImplicitResult integrate_bdf(const ImplicitProblem& p, std::vector<double>& x, d
   check(CVodeSStolerances(cv.mem, s.rel_tol, s.abs_tol), "CVodeSStolerances");
   cv.A = SUNDenseMatrix(n, n, cv.ctx);
   cv.LS = SUNLinSol_Dense(cv.y, cv.A, cv.ctx);
-  check(CVodeSetLinearSolver(cv.mem, cv.LS, cv.A), "CVodeSetLinearSolver");  // DQ Jacobian
+  check(CVodeSetLinearSolver(cv.mem, cv.LS, cv.A), "CVodeSetLinearSolver");
+  if (p.jacobian) check(CVodeSetJacFn(cv.mem, jac_fn), "CVodeSetJacFn");  // else CVODE's DQ
   check(CVodeSetMaxNumSteps(cv.mem, 100'000'000L), "CVodeSetMaxNumSteps");
   check(CVodeSetInitStep(cv.mem, std::min(s.step, s.sample_dt)), "CVodeSetInitStep");
   if (p.project) check(CVodeSetProjFn(cv.mem, proj_fn), "CVodeSetProjFn");
@@ -168,6 +216,7 @@ ImplicitResult integrate_bdf(const ImplicitProblem& p, std::vector<double>& x, d
   res.nonlinear_failures = v;
   CVodeGetNumJacEvals(cv.mem, &v);
   res.jacobians = v;
+  res.jacobian_fallbacks = user.jacobian_fallbacks;
   for (std::size_t k = 0; k < p.size; ++k) x[k] = N_VGetArrayPointer(cv.y)[k];
   return res;
 }
@@ -199,7 +248,8 @@ ImplicitResult integrate_esdirk(const ImplicitProblem& p, std::vector<double>& x
   check(ARKStepSStolerances(ak.mem, s.rel_tol, s.abs_tol), "ARKStepSStolerances");
   ak.A = SUNDenseMatrix(n, n, ak.ctx);
   ak.LS = SUNLinSol_Dense(ak.y, ak.A, ak.ctx);
-  check(ARKStepSetLinearSolver(ak.mem, ak.LS, ak.A), "ARKStepSetLinearSolver");  // DQ Jacobian
+  check(ARKStepSetLinearSolver(ak.mem, ak.LS, ak.A), "ARKStepSetLinearSolver");
+  if (p.jacobian) check(ARKStepSetJacFn(ak.mem, jac_fn), "ARKStepSetJacFn");  // else ARKODE's DQ
   check(ARKStepSetMaxNumSteps(ak.mem, 100'000'000L), "ARKStepSetMaxNumSteps");
   check(ARKStepSetInitStep(ak.mem, std::min(s.step, s.sample_dt)), "ARKStepSetInitStep");
   // Predictor of the stage solutions: the interpolant of the last step at full order (method 1),
@@ -237,6 +287,7 @@ ImplicitResult integrate_esdirk(const ImplicitProblem& p, std::vector<double>& x
   res.nonlinear_failures = v;
   ARKStepGetNumJacEvals(ak.mem, &v);
   res.jacobians = v;
+  res.jacobian_fallbacks = user.jacobian_fallbacks;
   for (std::size_t k = 0; k < p.size; ++k) x[k] = N_VGetArrayPointer(ak.y)[k];
   return res;
 }

@@ -5,11 +5,13 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "model/solve_stages.hpp"
+#include "simulate/exact_jacobian.hpp"
 #include "ukdyn/simulate/diagnostics.hpp"
 #include "ukdyn/simulate/drift.hpp"
 #include "ukdyn/simulate/implicit.hpp"
@@ -52,6 +54,23 @@ std::string to_string(IntegratorKind kind) {
 
 bool bdf_available() { return detail::cvode_available(); }
 bool esdirk_available() { return detail::arkode_available(); }
+
+std::string to_string(JacobianKind kind) {
+  switch (kind) {
+    case JacobianKind::automatic:
+      return "auto";
+    case JacobianKind::exact:
+      return "exact";
+    case JacobianKind::difference:
+      return "difference";
+  }
+  return "unknown";
+}
+
+void zero_force_jacobian(double, CVecRef, CVecRef, Mat& dtau_dq, Mat& dtau_dqd) {
+  dtau_dq.setZero();
+  dtau_dqd.setZero();
+}
 
 std::string to_string(DriftControl kind) {
   switch (kind) {
@@ -465,9 +484,31 @@ class Run {
     return true;
   }
 
+  // The Jacobian of bdf / esdirk (SimulationSettings::jacobian): the exact one when asked for or
+  // when, under automatic, it covers every term of f; else SUNDIALS's difference quotients, and
+  // under automatic the reason in stats_.jacobian_note (said once, in the summary).
+  void choose_jacobian(detail::ImplicitProblem& p) {
+    stats_.jacobian = "difference";
+    if (s_.jacobian == JacobianKind::difference) return;
+    const std::string gap = detail::exact_jacobian_gap(system_, rhs_.tau_fn, s_);
+    if (!gap.empty()) {  // jacobian: exact was refused by simulate() already
+      stats_.jacobian_note = "difference-quotient Jacobian: " + gap;
+      return;
+    }
+    exact_.emplace(system_, rhs_.tau_fn, s_);
+    p.jacobian = [this](double t, const double* xs, double* J) { return (*exact_)(t, xs, J); };
+    stats_.jacobian = "exact";
+    if (s_.energy_balance) {  // exact_jacobian.hpp: W is a quadrature
+      stats_.jacobian_note =
+          "exact Jacobian of (q, qd); the energy-balance state W is a quadrature (f does not "
+          "depend on it), its row is left zero";
+    }
+  }
+
   // Implicit BDF (SUNDIALS CVODE, implicit.hpp): same right-hand side, projection and samples.
   void run_bdf() {
     detail::ImplicitProblem p;
+    choose_jacobian(p);
     p.size = x_.size();
     p.rhs = [&](double t, const double* xs, double* dx) { rhs_.eval_raw(xs, dx, t); };
     if (project_) {
@@ -481,6 +522,8 @@ class Run {
                        : detail::integrate_bdf(p, x_, s_.t0, s_);
     stats_.steps = r.steps;
     stats_.rejected_steps = r.error_test_failures + r.nonlinear_failures;
+    stats_.jacobian_evaluations = r.jacobians;
+    stats_.jacobian_fallbacks = r.jacobian_fallbacks;
     if (r.failed && stats_.status == RunStatus::completed) {
       stats_.status = RunStatus::step_failure;
       stats_.message = r.message;
@@ -618,6 +661,7 @@ class Run {
   std::vector<char> limit_warned_;  ///< per coordinate: joint_limit said (sized once)
   long total_samples_ = 0;
   bool extra_end_ = false;
+  std::optional<detail::ExactJacobian> exact_;  ///< bdf / esdirk with the exact Jacobian
 };
 
 }  // namespace
@@ -626,6 +670,14 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                          const ForceFunction& tau, const SimulationSettings& s,
                          const SampleObserver& observer) {
   const long n_samples = check_arguments(system, q0, qd0, s);
+  if (s.jacobian == JacobianKind::exact &&
+      (s.integrator == IntegratorKind::bdf || s.integrator == IntegratorKind::esdirk)) {
+    const std::string gap = detail::exact_jacobian_gap(system, tau, s);
+    if (!gap.empty()) {
+      throw Error("simulate: jacobian exact: the exact Jacobian does not cover f: " + gap +
+                  " (use jacobian auto or difference)");
+    }
+  }
   Run run(system, q0, qd0, tau, s, observer, n_samples);
   return run.run();
 }

@@ -251,6 +251,7 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
   out.obs->control_at = control_at;
   SimulationSettings settings = sc.sim;
   settings.cancel = cancel;
+  if (!ctl) settings.tau_jacobian = zero_force_jacobian;  // constant τ (bdf / esdirk's Jacobian)
   const Vec tau = sc.tau;
   const ForceFunction f =
       ctl ? ctl->loop->force_function()

@@ -191,7 +191,6 @@ DerivedAppliedForce::DerivedAppliedForce(ForceDerivation derivation, std::string
 
 bool DerivedAppliedForce::add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                                       VecRef dQ) const {
-  if (!springs_.empty()) return false;
   const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
   std::vector<double> out(q_.outputs()), dout(q_.outputs()), work(q_.work_size()),
       dwork(q_.work_size());
@@ -199,7 +198,43 @@ bool DerivedAppliedForce::add_tangent(double t, CVecRef q, CVecRef qd, CVecRef d
                   work.data(), dwork.data());
   std::size_t k = 0;
   for (const Index i : q_index_) dQ(i) += dout[k++];
+  if (!springs_.empty()) add_spring_tangent(t, qc, qdc, dqc, dqdc, dQ);
   return true;
+}
+
+// The spring-dampers' dQ along (dq, dq̇): forward mode on the d, ḋ, J_d tape (Tape::eval_tangent)
+// gives δd, δḋ, δJ; then the chain rule through add_to()'s formulas, with u_e = d_axis J_e / L:
+//   δL = d·δd / L,  δL̇ = (δd·ḋ + d·δḋ) / L − L̇ δL / L,  δg = k δL + c δL̇  (g = k (L − L0) + c L̇),
+//   δu_e = (δd_axis J_e + d_axis δJ_e) / L − u_e δL / L,   δQ_j −= δg u_e + g δu_e.
+void DerivedAppliedForce::add_spring_tangent(double t, const Vec& q, const Vec& qd, const Vec& dq,
+                                             const Vec& dqd, VecRef dQ) const {
+  const std::size_t m = springs_tape_.outputs(), w = springs_tape_.work_size();
+  std::vector<double> out(m), dout(m), work(w), dwork(w);
+  springs_tape_.eval_tangent(t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), out.data(),
+                             dout.data(), work.data(), dwork.data());
+  for (const auto& s : springs_) {
+    const double* d = out.data() + s.first;
+    const double* dd = d + 3;
+    const double* J = d + 6;
+    const double* td = dout.data() + s.first;  // δd, δḋ, δJ
+    const double* tdd = td + 3;
+    const double* tJ = td + 6;
+    const double L = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    const double Ld = (d[0] * dd[0] + d[1] * dd[1] + d[2] * dd[2]) / L;
+    const double dL = (d[0] * td[0] + d[1] * td[1] + d[2] * td[2]) / L;
+    const double dLd = (td[0] * dd[0] + td[1] * dd[1] + td[2] * dd[2] + d[0] * tdd[0] +
+                        d[1] * tdd[1] + d[2] * tdd[2]) /
+                           L -
+                       Ld * dL / L;
+    const double g = s.k * (L - s.l0) + s.c * Ld;
+    const double dg = s.k * dL + s.c * dLd;
+    for (std::size_t e = 0; e < s.jac.size(); ++e) {
+      const auto [j, axis] = s.jac[e];
+      const double u = d[axis] * J[e] / L;
+      const double du = (td[axis] * J[e] + d[axis] * tJ[e]) / L - u * dL / L;
+      dQ(j) -= dg * u + g * du;
+    }
+  }
 }
 
 double DerivedAppliedForce::add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const {

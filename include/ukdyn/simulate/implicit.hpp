@@ -1,6 +1,6 @@
 // Internal to ukdyn::simulate: the implicit (stiff) integrator, SUNDIALS CVODE's variable-order
 // BDF method (Hindmarsh et al., ACM TOMS 31 (2005) 363–396) with a dense direct linear solver and
-// CVODE's difference-quotient Jacobian, and the drift projection as CVODE's projection function
+// an exact Jacobian (ImplicitProblem::jacobian) or CVODE's difference-quotient one, and the drift projection as CVODE's projection function
 // (CVodeSetProjFn) after every step. Built when SUNDIALS is found (UKDYN_HAVE_CVODE).
 #pragma once
 
@@ -23,6 +23,10 @@ struct ImplicitProblem {
   std::function<void(double t, double* x)> project;                  ///< may be empty
   std::function<bool(double t, std::vector<double>& x)> observe;     ///< false ends the run
   std::function<double(long)> sample_time;
+  /// The exact Jacobian ∂f/∂x at (t, x) into J (column-major, size × size, zeroed by the caller);
+  /// false: not trusted at this state (J is then built from forward differences of rhs). Empty:
+  /// SUNDIALS's own difference-quotient Jacobian.
+  std::function<bool(double t, const double* x, double* J)> jacobian;
   long total_samples = 0;
 };
 
@@ -30,6 +34,7 @@ struct ImplicitResult {
   bool failed = false;
   std::string message;
   long steps = 0, error_test_failures = 0, nonlinear_failures = 0, jacobians = 0;
+  long jacobian_fallbacks = 0;  ///< exact: calls that fell back to forward differences
 };
 
 /// Integrates from x (size `size`) at `t0`, observing at sample_time(1..total_samples−1) (the

@@ -47,6 +47,21 @@ struct DriftSettings {
   bool stop_on_branch_switch = false;
 };
 
+/// bdf, esdirk: the Jacobian ∂f/∂x of the Newton iterations (docs/derivatives.md, "Exact
+/// Jacobians in the implicit integrators"). exact: from linearize() (∂q̈/∂q, ∂q̈/∂q̇, chained with
+/// ∂q̈/∂τ · ∂τ/∂x of SimulationSettings::tau_jacobian); simulate() throws ukdyn::Error when a term
+/// of f has no exact derivative. difference: SUNDIALS's difference quotients. automatic: exact
+/// when it covers every term of f, else difference quotients (SimulationStats::jacobian_note
+/// says why).
+enum class JacobianKind { automatic, exact, difference };
+std::string to_string(JacobianKind kind);
+
+/// ∂τ/∂q and ∂τ/∂q̇ (n × n each, already sized) of a ForceFunction at (t, q, q̇).
+using ForceJacobian =
+    std::function<void(double t, CVecRef q, CVecRef qd, Mat& dtau_dq, Mat& dtau_dqd)>;
+/// The ForceJacobian of a τ(t) that does not depend on (q, q̇): zeros.
+void zero_force_jacobian(double t, CVecRef q, CVecRef qd, Mat& dtau_dq, Mat& dtau_dqd);
+
 struct SimulationSettings {
   double t0 = 0.0;
   double t_end = 1.0;
@@ -78,6 +93,11 @@ struct SimulationSettings {
   /// [lower, upper] or |q̇| exceeds its velocity limit raises a warning of kind joint_limit for
   /// that coordinate (once per coordinate, with the time and the value); the run goes on.
   std::vector<CoordinateLimits> limits;
+  /// bdf, esdirk: which Jacobian the Newton iterations use (JacobianKind).
+  JacobianKind jacobian = JacobianKind::automatic;
+  /// The ForceFunction's ∂τ/∂q, ∂τ/∂q̇ for the exact Jacobian. Empty with a non-empty
+  /// ForceFunction: τ is taken to depend on (q, q̇) without known derivatives (no exact Jacobian).
+  ForceJacobian tau_jacobian;
 };
 
 /// True if the steps are error-controlled (bdf; dopri5 / rkf78 with adaptive), false for a fixed
@@ -121,6 +141,15 @@ struct SimulationStats {
   double max_correction_ratio = 0.0;     ///< largest max|Δq| / the branch bound (≥ 1: warned)
   double min_step = 0.0;                 ///< adaptive dopri5: smallest accepted step (0: none)
   double min_step_t = 0.0;               ///< the time it ended
+  /// bdf, esdirk: the Jacobian used, "exact" or "difference" (empty for the explicit integrators).
+  std::string jacobian;
+  /// Why the difference-quotient Jacobian was used under JacobianKind::automatic, or what the
+  /// exact one leaves out (the energy-balance state's row); empty otherwise.
+  std::string jacobian_note;
+  long jacobian_evaluations = 0;  ///< bdf, esdirk: Jacobian evaluations (either kind)
+  /// exact: evaluations at states where linearize() was not trusted (a rank change near, a damped
+  /// solve), which used forward differences of f instead (the run goes on).
+  long jacobian_fallbacks = 0;
   std::vector<RunWarning> warnings;
 };
 

@@ -101,9 +101,9 @@ class DerivedAppliedForce final : public AppliedForce {
   double add_to(double t, CVecRef q, CVecRef qd, VecRef Q) const override;
   [[nodiscard]] double potential(CVecRef q) const override;
   [[nodiscard]] const ForceDerivation& derivation() const { return d_; }
-  /// Exact derivatives of the expression forces (forward mode on their tape); spring-dampers
-  /// between points have none yet (docs/derivatives.md).
-  [[nodiscard]] bool has_derivatives() const override { return springs_.empty(); }
+  /// Exact derivatives of the expression forces and of the spring-dampers (forward mode on their
+  /// tapes, then the chain rule through L, L̇ and the force; docs/derivatives.md).
+  [[nodiscard]] bool has_derivatives() const override { return true; }
   bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                    VecRef dQ) const override;
 
@@ -121,6 +121,8 @@ class DerivedAppliedForce final : public AppliedForce {
   Tape q_, springs_tape_, d_only_;
   std::vector<CompiledSpring> springs_;
   bool has_potential_ = false;
+  void add_spring_tangent(double t, const Vec& q, const Vec& qd, const Vec& dq, const Vec& dqd,
+                          VecRef dQ) const;
 };
 
 std::shared_ptr<DerivedAppliedForce> make_applied_force(const ForceDef& def);
