@@ -178,27 +178,37 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
   Vec lambda = Vec::Zero(m);
   for (Index k = 0; k < r; ++k) lambda(rc.kept[static_cast<std::size_t>(k)]) = mu(k);
 
-  // One direction (dq, dqd): the right-hand side of the differentiated KKT system.
+  // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
+  // column each, solved together with the one factorisation. A subsystem's inverse dynamics
+  // depends on its own coordinates only (M, C, G are block-diagonal, paper Eq. (10)-(11)): along
+  // e_j only the subsystem holding j has a tangent, the others' is zero and is not computed.
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
-  Vec dID(n), dQa(n), dres(m), dforce(n), dforce_c(n), rhs_d(n + r);
-  auto direction = [&](const Vec& dq, const Vec& dqd) {
+  Mat rhs_all = Mat::Zero(n + r, 2 * n), dforce_all(n, 2 * n);
+  Vec dID(n), dQa(n), dres(m), dforce_c(n);
+  std::vector<std::size_t> owner(static_cast<std::size_t>(n), 0);
+  for (std::size_t k = 0; k < subs.size(); ++k)
+    for (Index i = 0; i < L.size[k]; ++i) owner[static_cast<std::size_t>(L.start[k] + i)] = k;
+  Vec dq = Vec::Zero(n), dqd = Vec::Zero(n);
+  auto direction = [&](Index col) {
     dID.setZero();
-    for (std::size_t k = 0; k < subs.size(); ++k) {
-      const Index s = L.start[k], nk = L.size[k];
-      if (!subs[k]->inverse_dynamics_tangent(
-              {t, d.subsystem_slot(k)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
-              dq.segment(s, nk), dqd.segment(s, nk), dID.segment(s, nk)))
-        throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
-    }
+    const Index j = col % n;
+    const std::size_t k = owner[static_cast<std::size_t>(j)];
+    const Index s = L.start[k], nk = L.size[k];
+    if (!subs[k]->inverse_dynamics_tangent(
+            {t, d.subsystem_slot(k)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
+            dq.segment(s, nk), dqd.segment(s, nk), dID.segment(s, nk)))
+      throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
     dQa.setZero();
     for (const auto& f : system.applied_forces()) {
       if (!f->add_tangent(t, q, qd, dq, dqd, dQa))
         throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
     }
+    auto dforce = dforce_all.col(col);
     dforce.setZero();
+    dres.setZero();
     for (std::size_t c = 0; c < cons.size(); ++c) {
       const Index rows = cons[c]->rows();
       dforce_c.setZero();
@@ -208,35 +218,29 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
         throw Error("linearize: a constraint has no exact derivatives");
       dforce += dforce_c;
     }
-    rhs_d.head(n) = -dID + dQa + dforce;
-    for (Index k = 0; k < r; ++k) rhs_d(n + k) = -dres(rc.kept[static_cast<std::size_t>(k)]);
+    rhs_all.col(col).head(n) = -dID + dQa + dforce;
+    for (Index i = 0; i < r; ++i) rhs_all(n + i, col) = -dres(rc.kept[static_cast<std::size_t>(i)]);
   };
-  auto column = [&](Index j, Mat& dqdd, Mat& dQc) {
-    const Vec x = lu.solve(rhs_d);
-    dqdd.col(j) = x.head(n);
-    dQc.col(j) = dforce + AR.transpose() * x.tail(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
-  };
-  lin.dqdd_dq.resize(n, n);
-  lin.dqdd_dqd.resize(n, n);
-  lin.dqdd_dtau.resize(n, n);
-  lin.dQc_dq.resize(n, n);
-  lin.dQc_dqd.resize(n, n);
-  lin.dQc_dtau.resize(n, n);
-  const Vec zero = Vec::Zero(n);
-  Vec e = Vec::Zero(n);
   for (Index j = 0; j < n; ++j) {
-    e.setZero();
-    e(j) = 1.0;
-    direction(e, zero);
-    column(j, lin.dqdd_dq, lin.dQc_dq);
-    direction(zero, e);
-    column(j, lin.dqdd_dqd, lin.dQc_dqd);
-    // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
-    rhs_d.setZero();
-    rhs_d(j) = 1.0;
-    dforce.setZero();
-    column(j, lin.dqdd_dtau, lin.dQc_dtau);
+    dq(j) = 1.0;
+    direction(j);
+    dq(j) = 0.0;
+    dqd(j) = 1.0;
+    direction(n + j);
+    dqd(j) = 0.0;
   }
+  const Mat X = lu.solve(rhs_all);
+  lin.dqdd_dq = X.topLeftCorner(n, n);
+  lin.dqdd_dqd = X.topRightCorner(n, n);
+  const Mat dQc = dforce_all + AR.transpose() * X.bottomRows(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
+  lin.dQc_dq = dQc.leftCols(n);
+  lin.dQc_dqd = dQc.rightCols(n);
+  // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
+  Mat rhs_tau = Mat::Zero(n + r, n);
+  rhs_tau.topRows(n).setIdentity();
+  const Mat Xt = lu.solve(rhs_tau);
+  lin.dqdd_dtau = Xt.topRows(n);
+  lin.dQc_dtau = AR.transpose() * Xt.bottomRows(r);
   return lin;
 }
 

@@ -491,6 +491,13 @@ class Core {
   // A q̈ − b = D ẍ + ẋᵀHẋ (ẍ: the frames' acceleration at q̈) and Aᵀλ = Σ_end J_endᵀ D_endᵀ λ.
   void tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda, CVecRef dq, CVecRef dqd,
                Slot slot, VecRef d_residual, VecRef d_force) const {
+    // The rows read the coordinates of their ends only (columns()): along a direction that moves
+    // none of them both tangents are zero (linearize() runs one direction per coordinate).
+    if (std::all_of(cols_.begin(), cols_.end(),
+                    [&](Index c) { return dq(c) == 0.0 && dqd(c) == 0.0; })) {
+      d_residual.setZero();
+      return;
+    }
     std::vector<double> own;
     double* base = slot.data();
     if (static_cast<Index>(slot.size()) < slot_size()) {
