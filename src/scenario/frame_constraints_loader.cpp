@@ -91,13 +91,28 @@ Eigen::Vector3d unit_at(const Loader& L, const Node& at, const sym::Vec3Ex& v,
   return u / u.norm();
 }
 
+// A vector whose entries are constants (with the parameters' values) must not be zero: checked
+// where it is written (an expression of q is left to the rows' own checks).
+void check_nonzero(const Loader& L, const Node& at, const sym::Vec3Ex& v,
+                   const GiNaC::exmap& values, const char* what) {
+  Eigen::Vector3d u;
+  for (int k = 0; k < 3; ++k) {
+    const ex e = v[static_cast<std::size_t>(k)].subs(values).evalf();
+    if (!GiNaC::is_a<GiNaC::numeric>(e) || !GiNaC::ex_to<GiNaC::numeric>(e).is_real()) return;
+    u(k) = GiNaC::ex_to<GiNaC::numeric>(e).to_double();
+  }
+  if (!(u.norm() > 0.0) || !u.allFinite())
+    L.fail(at, std::string(what) + " must be a nonzero vector");
+}
+
 // A frame constraint with a frame of a chain on the tree algorithms: numeric rows
 // (symbolic/numeric_frame_constraint.hpp); the other frame by its expressions (a body, the world)
 // or on its tree.
 std::shared_ptr<const Constraint> numeric_frame_constraint(
     const Loader& L, const Node& c, const sym::FrameConstraintDef& f, const sym::ConstraintDef& def,
     std::optional<sym::NumericFrameEnd> ta, std::optional<sym::NumericFrameEnd> tb,
-    const std::vector<std::string>& system_coordinates, const Vec& q0, const Node& axis_node) {
+    const std::vector<std::string>& system_coordinates, const Vec& q0, const Node& axis_node,
+    const Node& up_node) {
   using K = sym::FrameConstraintDef::Kind;
   const GiNaC::exmap values = def.parameter_values();
   sym::NumericFrameSpec spec;
@@ -108,7 +123,7 @@ std::shared_ptr<const Constraint> numeric_frame_constraint(
   if (f.kind == K::hinge) spec.axis = unit_at(L, axis_node, f.axis, values, "the hinge axis");
   if (f.kind == K::level) {
     spec.axis = unit_at(L, axis_node, f.axis, values, "the level axis");
-    spec.up = unit_at(L, c, f.up, values, "the level up direction");
+    spec.up = unit_at(L, up_node, f.up, values, "the level up direction");
     spec.vertical = f.vertical;
   }
   auto end_of = [](std::optional<sym::NumericFrameEnd>& t, const sym::FramePose& pose) {
@@ -185,8 +200,11 @@ std::shared_ptr<const Constraint> load_frame_constraint(
   }
   const bool has_axis = f.kind == K::hinge || f.kind == K::level;
   const Node axis_node = has_axis ? L.child(c, "axis", true) : c;
+  Node up_node = c;
   if (has_axis) {
     f.axis = vec3(L, axis_node, def);
+    check_nonzero(L, axis_node, f.axis, def.parameter_values(),
+                  f.kind == K::hinge ? "the hinge axis" : "the level axis");
   }
   if (f.kind == K::level) {
     if (Node o = L.child(c, "orientation", false); o.node.IsDefined()) {
@@ -197,11 +215,15 @@ std::shared_ptr<const Constraint> load_frame_constraint(
         L.fail(o, "expected horizontal or vertical, got '" + s + "'");
       }
     }
-    if (Node u = L.child(c, "up", false); u.node.IsDefined()) f.up = vec3(L, u, def);
+    if (Node u = L.child(c, "up", false); u.node.IsDefined()) {
+      f.up = vec3(L, u, def);
+      up_node = u;
+      check_nonzero(L, u, f.up, def.parameter_values(), "the level up direction");
+    }
   }
   if (ta || tb)
     return numeric_frame_constraint(L, c, f, def, std::move(ta), std::move(tb), system_coordinates,
-                                    q0, axis_node);
+                                    q0, axis_node, up_node);
   if (f.kind == K::distance) {
     const Node ln = L.child(c, "length", true);
     if (ln.node.IsScalar() && ln.node.Scalar() == "initial") {

@@ -351,6 +351,26 @@ Vec initial_vector(const Loader& L, const Node& n, Index expected,
 }
 
 // initial: q, qd, hold; then M(q0) positive definite for the definition-based subsystems.
+// A free body's orientation is a unit quaternion (docs/free-bodies.md): a zero (or non-finite) one
+// at initial.q is named as such, before M(q0), singular there, would be blamed.
+void check_free_body_quaternions(const Loader& L, const Scenario& sc, const Loading& st) {
+  for (const auto& [fb, quat] : st.free_bodies) {
+    double norm2 = 0.0;
+    std::ostringstream values;
+    values.precision(6);
+    for (const std::string& c : quat) {
+      const double v = sc.q0(st.coord_index.at(c));
+      norm2 += v * v;
+      values << (&c == quat.data() ? "" : ", ") << v;
+    }
+    if (std::isfinite(norm2) && norm2 > 1e-12) continue;
+    L.fail(L.child(st.init, "q", true),
+           "the orientation quaternion of free body '" + fb + "' (" + quat[0] + ", " + quat[1] +
+               ", " + quat[2] + ", " + quat[3] + ") is [" + values.str() +
+               "] at initial.q: it must be a unit quaternion (1, 0, 0, 0 is the identity)");
+  }
+}
+
 void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   const std::shared_ptr<System>& system = st.system;
   const auto& coord_index = st.coord_index;
@@ -383,6 +403,7 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
       sc.held[static_cast<std::size_t>(it->second)] = true;
     }
   }
+  check_free_body_quaternions(L, sc, st);
   for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // M(q0) positive definite (definitions)
     const auto& info = sc.subsystems[k];
     // Singular M is allowed when the constraints fix its null directions ([M; A] of full column
