@@ -12,6 +12,7 @@ pkgs=(cmake make g++ ccache pkg-config libeigen3-dev libboost-dev libyaml-cpp-de
       libsimbody-dev  # tests/test_simbody_three_robots.cpp (skipped without it) and the bench
       python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
       python3-scipy  # python/examples/lqr_minimal.py (solve_continuous_are)
+      coinor-libipopt-dev  # IPOPT: `ukdyn optimize` (docs/optimization.md), optional at build time
       libopenmpi-dev openmpi-bin  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
       nodejs chromium)  # the replay page: three.js from npm (web/), its browser test
 for arg in "$@"; do
