@@ -10,6 +10,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "ukdyn/model/constraint_jacobians.hpp"
+
 namespace ukdyn {
 
 namespace {
@@ -21,59 +23,24 @@ std::string sci(double v) {
   return os.str();
 }
 
-// Refuses a kept row whose position residual Φ_i does not change along its own row a_i of A: a
-// holonomic row has a_i = ∂Φ_i/∂q, so the central difference of Φ_i along a_iᵀ/|a_i| is |a_i|; a
-// velocity-level (nonholonomic) row has no Φ_i (its residual is 0). The difference only classifies
-// the row (a factor 1e3 apart); no derivative of the model comes from it.
+// Refuses a kept row that is velocity-level (first_velocity_level_row, constraint_jacobians.hpp).
 void require_position_rows(const System& system, ForwardData& d, double t, CVecRef q, const Mat& AR,
                            const std::vector<Index>& kept) {
-  const Index m = system.rows();
-  Vec phi_p(m), phi_m(m);
-  const double h = 1e-6 * (1.0 + q.cwiseAbs().maxCoeff());
-  for (Index k = 0; k < AR.rows(); ++k) {
-    const double norm = AR.row(k).norm();
-    if (norm == 0.0) continue;
-    const Vec v = AR.row(k).transpose() / norm;
-    const Index row = kept[static_cast<std::size_t>(k)];
-    position_residuals(system, d, t, q + h * v, phi_p);
-    position_residuals(system, d, t, q - h * v, phi_m);
-    const double slope = (phi_p(row) - phi_m(row)) / (2.0 * h);
-    if (!(std::abs(slope) > 1e-3 * norm)) {
-      throw Error("minimal coordinates: constraint row '" +
-                  system.constraint_row_names()[static_cast<std::size_t>(row)] +
-                  "' is velocity-level (nonholonomic: its position residual does not vary along "
-                  "its row of A, slope " +
-                  sci(slope) + " against |a| = " + sci(norm) +
-                  "); ukdyn builds minimal coordinates for holonomic rows only");
-    }
-  }
+  const Index k = first_velocity_level_row(system, d, t, q, AR, kept);
+  if (k < 0) return;
+  throw Error(
+      "minimal coordinates: constraint row '" +
+      system.constraint_row_names()[static_cast<std::size_t>(kept[static_cast<std::size_t>(k)])] +
+      "' is velocity-level (nonholonomic: its position residual does not vary along its row "
+      "of A); ukdyn builds minimal coordinates for holonomic rows only");
 }
 
-// D = ∂(A_R q̇)/∂q at fixed q̇, column by column from the constraints' exact tangents:
-// tangent() gives d(A v − b) along dq at fixed v, so d(A) q̇ = d(A q̇ − b) − d(A·0 − b).
+// D = ∂(A_R q̇)/∂q at fixed q̇ from the constraints' exact tangents (constraint_jacobians.hpp).
 Mat velocity_jacobian(const System& system, ForwardData& d, double t, CVecRef q, CVecRef qd,
                       const std::vector<Index>& kept) {
-  const Index n = system.dof(), m = system.rows();
-  const auto& cons = system.constraints();
-  const auto& offs = system.constraint_row_offsets();
-  Mat D(static_cast<Index>(kept.size()), n);
-  Vec res_v(m), res_0(m), dforce(n), e(n);
-  const Vec zero = Vec::Zero(n), lambda = Vec::Zero(m);
-  for (Index j = 0; j < n; ++j) {
-    e.setZero();
-    e(j) = 1.0;
-    for (std::size_t c = 0; c < cons.size(); ++c) {
-      const Index rows = cons[c]->rows();
-      const ConstraintContext ctx{t, d.constraint_slots(c)};
-      const bool ok = cons[c]->tangent(ctx, q, qd, qd, lambda.segment(offs[c], rows), e, zero,
-                                       res_v.segment(offs[c], rows), dforce) &&
-                      cons[c]->tangent(ctx, q, qd, zero, lambda.segment(offs[c], rows), e, zero,
-                                       res_0.segment(offs[c], rows), dforce);
-      if (!ok) throw Error("minimal coordinates: a constraint has no exact derivatives");
-    }
-    for (std::size_t k = 0; k < kept.size(); ++k)
-      D(static_cast<Index>(k), j) = res_v(kept[k]) - res_0(kept[k]);
-  }
+  Mat D;
+  std::vector<Mat> unused;
+  constraint_state_jacobians(system, d, t, q, qd, kept, {}, D, unused);
   return D;
 }
 
