@@ -13,6 +13,8 @@
 //   ukdyn sweep SWEEP [--out DIR] [--threads N] [--shard i/N] [--extract K]   (docs/sweeps.md;
 //   also under mpirun)
 //   ukdyn sweep merge SWEEP --out DIR SHARD_DIR...
+//   ukdyn optimize PROBLEM [--out DIR] [--quiet]   (optimal trajectory by collocation on IPOPT;
+//                  docs/optimization.md)
 // Exit codes: 0 success; 1 run incomplete (stopped, interrupted, a write failed), some eval lines
 // failed, or linearize could not vouch for its derivatives; 2 bad input: a usage error, a bad
 // scenario, an output folder ukdyn refuses or one in use.
@@ -33,6 +35,7 @@
 #include "apps/sweep_mpi.hpp"
 #include "ukdyn/output/replay.hpp"
 #include "ukdyn/run/eval_protocol.hpp"
+#include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/sweep/sweep.hpp"
@@ -160,6 +163,34 @@ struct LinearizeArgs {
   double dt = 0.0;
   std::string state, row, out;
 };
+
+// `ukdyn optimize`: solve, write the run folder, print what was found. Exit 0 when IPOPT
+// converged and ukdyn vouches for the result, 1 otherwise (the folder is written either way).
+int cmd_optimize(const std::string& problem, const std::string& out, bool quiet) {
+  const ukdyn::OptimizationFile f = ukdyn::load_optimization_file(problem);
+  if (!ukdyn::ipopt_available()) ukdyn::optimize_trajectory(f.problem);  // throws the message
+  const ukdyn::OptimizeReport rep = ukdyn::run_optimization(f, out);
+  const auto& s = rep.solution;
+  if (!quiet) {
+    std::cout << fmt::format(
+        "{}: {} ({} iterations, {:.2f} s), cost {:.9g}, duration {:.6g} s\n"
+        "  {} with {} intervals; max defect {:.2e}, |Phi| {:.2e}, |Phi'| {:.2e}, correction "
+        "{:.2e}\n",
+        ukdyn::printable(f.name), s.status, s.iterations, rep.wall_seconds, s.cost, s.duration,
+        ukdyn::to_string(f.problem.method), f.problem.intervals, s.max_defect,
+        s.max_position_residual, s.max_velocity_residual, s.max_correction);
+    if (rep.replay.done)
+      std::cout << fmt::format(
+          "  open-loop replay of u(t): {}, max |q - q_opt| {:.2e}, |Phi| {:.2e}\n",
+          rep.replay.status, rep.replay.max_q_deviation, rep.replay.max_position_residual);
+    std::cout << fmt::format("  wrote {}/trajectory.csv, summary.json\n", ukdyn::printable(out));
+  }
+  if (!s.trusted) {
+    std::cerr << "ukdyn: warning: " << ukdyn::printable(s.message, true) << "\n";
+    return 1;
+  }
+  return 0;
+}
 
 // `ukdyn linearize`: the state (the scenario's initial one, --state or --row), then the JSON on
 // stdout or in --out. Exit 0, or 1 when ukdyn cannot vouch for the derivatives.
@@ -297,6 +328,14 @@ int main(int argc, char** argv) {
   mrg->add_option("shards", sa.shard_dirs, "the shards' output folders")->required();
   mrg->add_flag("--quiet,-q", sa.quiet, "print nothing but errors");
 
+  std::string problem;
+  auto* opt = app.add_subcommand(
+      "optimize",
+      "Optimal trajectory of a problem file by collocation on IPOPT (docs/optimization.md)");
+  opt->add_option("problem", problem, "problem file (YAML)")->required();
+  opt->add_option("--out,-o", out, "output folder")->capture_default_str();
+  opt->add_flag("--quiet,-q", quiet, "print nothing but errors and warnings");
+
   try {
     app.parse(argc, argv);
     if (*swp && !*mrg && sa.file.empty()) throw CLI::RequiredError("sweep");
@@ -307,6 +346,7 @@ int main(int argc, char** argv) {
 
   try {
     if (*swp) return cmd_sweep(sa, mrg->parsed(), &argc, &argv);
+    if (*opt) return cmd_optimize(problem, out, quiet);
     if (*rpl) {
       if (!ukdyn::replay_available()) {
         throw ukdyn::Error(

@@ -1,0 +1,252 @@
+// Trajectory-optimisation problem files (ukdyn/scenario/optimization_file.hpp).
+#include "ukdyn/scenario/optimization_file.hpp"
+
+#include <cmath>
+#include <limits>
+
+#include "scenario/yaml_loader.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
+
+namespace ukdyn {
+
+using io_detail::Loader;
+using io_detail::Node;
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+Index coordinate(const Loader& L, const Node& at, const System& sys, const std::string& name) {
+  const auto& names = sys.coordinate_names();
+  for (std::size_t i = 0; i < names.size(); ++i)
+    if (names[i] == name) return static_cast<Index>(i);
+  L.fail(at, "no coordinate named '" + name + "' in the scenario");
+}
+
+Index actuator(const Loader& L, const Node& at, const std::vector<std::string>& names,
+               const std::string& name) {
+  for (std::size_t i = 0; i < names.size(); ++i)
+    if (names[i] == name) return static_cast<Index>(i);
+  L.fail(at, "no actuator named '" + name + "'");
+}
+
+// A state: `zeros`, a list of n numbers, or a mapping {coordinate: value} (others: `fill`).
+Vec state(const Loader& L, const Node& n, const System& sys, double fill) {
+  const Index dof = sys.dof();
+  if (n.node.IsScalar() && n.node.Scalar() == "zeros") return Vec::Zero(dof);
+  if (n.node.IsSequence()) return L.vector(n, dof);
+  if (!n.node.IsMap())
+    L.fail(n, "expected `zeros`, a list of " + std::to_string(dof) +
+                  " numbers or {coordinate: value}");
+  Vec v = Vec::Constant(dof, fill);
+  for (const auto& kv : n.node) {
+    const std::string c = L.key(n, kv.first);
+    const Node entry{kv.second, n.key + "." + c};
+    v(coordinate(L, entry, sys, c)) = L.number(entry);
+  }
+  return v;
+}
+
+// Bounds {name: [lower, upper]} over coordinates or actuators.
+template <class IndexOf>
+void bounds(const Loader& L, const Node& n, Vec& lo, Vec& hi, Index size, IndexOf index_of) {
+  if (!n.node.IsDefined()) return;
+  if (!n.node.IsMap()) L.fail(n, "expected {name: [lower, upper]}");
+  if (lo.size() == 0) lo = Vec::Constant(size, -kInf), hi = Vec::Constant(size, kInf);
+  for (const auto& kv : n.node) {
+    const std::string name = L.key(n, kv.first);
+    const Node entry{kv.second, n.key + "." + name};
+    const Index i = index_of(entry, name);
+    if (!entry.node.IsSequence() || entry.node.size() != 2)
+      L.fail(entry, "expected [lower, upper]");
+    lo(i) = L.number(Node{entry.node[0], entry.key + "[0]"});
+    hi(i) = L.number(Node{entry.node[1], entry.key + "[1]"});
+    if (!(lo(i) < hi(i))) L.fail(entry, "the lower bound must be below the upper bound");
+  }
+}
+
+CollocationMethod method(const Loader& L, const Node& n) {
+  if (!n.node.IsDefined()) return CollocationMethod::hermite_simpson;
+  const std::string s = L.string(n);
+  if (s == "hermite_simpson") return CollocationMethod::hermite_simpson;
+  if (s == "trapezoidal") return CollocationMethod::trapezoidal;
+  L.fail(n, "expected hermite_simpson or trapezoidal, got '" + s + "'");
+}
+
+void costs(const Loader& L, const Node& root, TrajectoryProblem& p) {
+  const Node c = L.child(root, "costs", true);
+  L.only_keys(c, {"effort", "power", "constraint_force", "smoothness", "duration"});
+  const Index k = p.B.cols();
+  if (const Node e = L.child(c, "effort", false); e.node.IsDefined()) {
+    if (e.node.IsMap()) {
+      p.costs.effort = Vec::Zero(k);
+      for (const auto& kv : e.node) {
+        const std::string a = L.key(e, kv.first);
+        const Node entry{kv.second, e.key + "." + a};
+        p.costs.effort(actuator(L, entry, p.actuator_names, a)) = L.number(entry);
+      }
+    } else {
+      p.costs.effort = Vec::Constant(k, L.number(e));
+    }
+    if (p.costs.effort.minCoeff() < 0.0) L.fail(e, "effort weights must be >= 0");
+  }
+  auto weight = [&](const char* key) {
+    const Node w = L.child(c, key, false);
+    if (!w.node.IsDefined()) return 0.0;
+    const double v = L.number(w);
+    if (v < 0.0) L.fail(w, "must be >= 0");
+    return v;
+  };
+  p.costs.power = weight("power");
+  p.costs.constraint_force = weight("constraint_force");
+  p.costs.smoothness = weight("smoothness");
+  p.costs.duration = weight("duration");
+  const bool any = p.costs.effort.size() || p.costs.power > 0 || p.costs.constraint_force > 0 ||
+                   p.costs.smoothness > 0 || p.costs.duration > 0;
+  if (!any) L.fail(c, "no cost term has a positive weight");
+}
+
+void timing(const Loader& L, const Node& root, TrajectoryProblem& p) {
+  const Node d = L.child(root, "duration", true);
+  if (d.node.IsMap()) {
+    L.only_keys(d, {"initial", "min", "max"});
+    p.free_duration = true;
+    p.duration = L.positive(L.child(d, "initial", true));
+    p.min_duration = L.positive(L.child(d, "min", true));
+    p.max_duration = L.positive(L.child(d, "max", true));
+    if (!(p.min_duration <= p.duration && p.duration <= p.max_duration))
+      L.fail(d, "expected min <= initial <= max");
+  } else {
+    p.duration = L.positive(d);
+  }
+  const Node n = L.child(root, "intervals", false);
+  if (n.node.IsDefined()) {
+    const double v = L.number(n);
+    if (!(v >= 1 && v <= 10000 && v == std::floor(v)))
+      L.fail(n, "expected a whole number from 1 to 10000");
+    p.intervals = static_cast<Index>(v);
+  }
+}
+
+void envelopes(const Loader& L, const Node& root, TrajectoryProblem& p) {
+  const Node e = L.child(root, "envelopes", false);
+  if (!e.node.IsDefined()) return;
+  if (!e.node.IsSequence()) L.fail(e, "expected a list of {actuator, u_max, speed_max}");
+  for (std::size_t i = 0; i < e.node.size(); ++i) {
+    const Node item{e.node[i], e.key + "[" + std::to_string(i) + "]"};
+    L.only_keys(item, {"actuator", "u_max", "speed_max"});
+    const Node a = L.child(item, "actuator", true);
+    p.envelopes.push_back({actuator(L, a, p.actuator_names, L.string(a)),
+                           L.positive(L.child(item, "u_max", true)),
+                           L.positive(L.child(item, "speed_max", true))});
+  }
+}
+
+void ipopt(const Loader& L, const Node& root, IpoptSettings& s) {
+  const Node n = L.child(root, "ipopt", false);
+  if (!n.node.IsDefined()) return;
+  L.only_keys(n, {"tol", "constr_viol_tol", "max_iter", "print_level", "lbfgs_memory"});
+  s.tol = L.number_or(n, "tol", s.tol);
+  s.dual_inf_tol = s.tol;
+  s.constr_viol_tol = L.number_or(n, "constr_viol_tol", s.constr_viol_tol);
+  s.max_iter = static_cast<int>(L.number_or(n, "max_iter", s.max_iter));
+  s.print_level = static_cast<int>(L.number_or(n, "print_level", s.print_level));
+  s.lbfgs_memory = static_cast<int>(L.number_or(n, "lbfgs_memory", s.lbfgs_memory));
+  if (!(s.tol > 0 && s.constr_viol_tol > 0 && s.max_iter >= 0 && s.max_iter <= 100000 &&
+        s.print_level >= 0 && s.print_level <= 12 && s.lbfgs_memory >= 1 && s.lbfgs_memory <= 100))
+    L.fail(
+        n,
+        "tol and constr_viol_tol > 0, max_iter 0..100000, print_level 0..12, lbfgs_memory 1..100");
+}
+
+// The actuators: the scenario's (`actuators:`), or one per coordinate (B = I) if it has none.
+void actuation(const Scenario& sc, TrajectoryProblem& p) {
+  const System& sys = *sc.system;
+  if (sc.actuators.count() > 0) {
+    p.B = sc.actuators.B;
+    p.actuator_names = sc.actuators.names;
+    p.u_lower = -sc.actuators.limit;
+    p.u_upper = sc.actuators.limit;
+  } else {
+    p.B = Mat::Identity(sys.dof(), sys.dof());
+    p.actuator_names = sys.coordinate_names();
+  }
+}
+
+}  // namespace
+
+OptimizationFile load_optimization_text(const std::string& text,
+                                        const std::filesystem::path& path) {
+  const Loader L(path);
+  const Node root{io_detail::parse_scenario_yaml(text, path), ""};
+  L.only_keys(root, {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration",
+                     "end", "costs", "bounds", "envelopes", "ipopt", "verify"});
+  if (L.number(L.child(root, "ukdyn", true)) != 1)
+    L.fail(L.child(root, "ukdyn", true), "expected 1");
+  OptimizationFile f;
+  f.path = path;
+  f.hash = io_detail::scenario_text_hash(text);
+  f.name = L.name(L.child(root, "name", true));
+  const Node sn = L.child(root, "scenario", true);
+  try {
+    f.scenario = std::make_shared<Scenario>(load_scenario_file(path.parent_path() / L.string(sn)));
+  } catch (const ScenarioError& e) {
+    L.fail(sn, std::string("the scenario: ") + e.what());
+  }
+  const Scenario& sc = *f.scenario;
+  if (sc.control)
+    L.fail(sn,
+           "the scenario has a control section: give the plain system (its physical constraints)");
+  const System& sys = *sc.system;
+  TrajectoryProblem& p = f.problem;
+  p.system = sc.system;
+  p.tau = sc.tau;
+  p.uk = sc.sim.uk;
+  p.t0 = sc.sim.t0;
+  p.q_start = sc.q0;
+  p.qd_start = sc.qd0;
+  actuation(sc, p);
+  p.method = method(L, L.child(root, "method", false));
+  timing(L, root, p);
+  const Node end = L.child(root, "end", true);
+  L.only_keys(end, {"q", "qd"});
+  p.q_end = state(L, L.child(end, "q", true), sys, std::numeric_limits<double>::quiet_NaN());
+  const Node qd_end = L.child(end, "qd", false);
+  p.qd_end = qd_end.node.IsDefined()
+                 ? state(L, qd_end, sys, std::numeric_limits<double>::quiet_NaN())
+                 : Vec::Zero(sys.dof());
+  costs(L, root, p);
+  if (const Node b = L.child(root, "bounds", false); b.node.IsDefined()) {
+    L.only_keys(b, {"q", "qd", "u"});
+    auto coord = [&](const Node& at, const std::string& n) { return coordinate(L, at, sys, n); };
+    bounds(L, L.child(b, "q", false), p.q_lower, p.q_upper, sys.dof(), coord);
+    bounds(L, L.child(b, "qd", false), p.qd_lower, p.qd_upper, sys.dof(), coord);
+    if (p.u_lower.size() == 0) p.u_lower = Vec::Constant(p.B.cols(), -kInf), p.u_upper = -p.u_lower;
+    bounds(
+        L, L.child(b, "u", false), p.u_lower, p.u_upper, p.B.cols(),
+        [&](const Node& at, const std::string& n) { return actuator(L, at, p.actuator_names, n); });
+  }
+  envelopes(L, root, p);
+  ipopt(L, root, f.ipopt);
+  if (const Node v = L.child(root, "verify", false); v.node.IsDefined()) {
+    const std::string s = L.string(v);
+    if (s != "true" && s != "false") L.fail(v, "expected true or false");
+    f.verify = s == "true";
+  }
+  try {
+    validate(p);
+  } catch (const Error& e) {
+    // The message names the quantity; the place is the key that set it.
+    const std::string m = e.what();
+    const bool at_end = m.find("the end ") != std::string::npos;
+    const bool at_bounds = m.find("outside its bounds") != std::string::npos;
+    L.fail(at_end ? end : at_bounds ? L.child(root, "bounds", true) : sn, m);
+  }
+  return f;
+}
+
+OptimizationFile load_optimization_file(const std::filesystem::path& path) {
+  return load_optimization_text(read_scenario_text(path), path);
+}
+
+}  // namespace ukdyn
