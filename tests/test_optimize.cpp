@@ -4,10 +4,15 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <nlohmann/json.hpp>
 
+#include "cli_run.hpp"
 #include "optimize/transcription.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
+#include "ukdyn/run/optimize_run.hpp"
+#include "ukdyn/scenario/optimization_file.hpp"
 #include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/simulate/simulate.hpp"
 
 namespace ukdyn {
 namespace {
@@ -229,6 +234,118 @@ TEST(Optimize, RestToRestOnACircleMatchesTheClosedFormAtTheMethodsOrder) {
   EXPECT_GT(tr20 / tr40, 3.5) << tr20 << " " << tr40;
   EXPECT_LT(tr20 / tr40, 4.5) << tr20 << " " << tr40;
 }
+
+namespace fs = std::filesystem;
+
+// The problem-file errors name the key (and the line) where the problem is.
+TEST(OptimizeFile, ErrorsNameTheKey) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const std::string good = ukdyn_test::slurp(dir / "paper_lift.yaml");
+  struct Case {
+    const char* from;
+    const char* to;
+    const char* expect;
+  };
+  const Case cases[] = {
+      {"method: hermite_simpson", "method: simpson",
+       "key 'method': expected hermite_simpson or trapezoidal"},
+      {"intervals: 50", "intervals: 2.5", "key 'intervals': expected a whole number"},
+      {"duration: 1", "duration: -1", "key 'duration': must be > 0"},
+      {"  qd: zeros", "  qd: {nope: 1}", "key 'end.qd.nope': no coordinate named 'nope'"},
+      {"  q: [0, 1, 0, 2.0223032201924793", "  q: [0.5, 1, 0, 2.0223032201924793",
+       "key 'end': optimize: the end q violates constraint row 'closure_"},
+      {"  effort: 1e-4", "  effort: -1", "key 'costs.effort': effort weights must be >= 0"},
+      {"  effort: 1e-4", "  effort: {dx9: 1}", "key 'costs.effort.dx9': no actuator named 'dx9'"},
+      {"scenario: ../paper_free.yaml", "scenario: ../nothing.yaml",
+       "key 'scenario': the scenario: "},
+      {"costs:", "cost:", "key 'cost': unknown key"},
+  };
+  for (const auto& c : cases) {
+    std::string text = good;
+    const auto at = text.find(c.from);
+    ASSERT_NE(at, std::string::npos) << c.from;
+    text.replace(at, std::string(c.from).size(), c.to);
+    try {
+      load_optimization_text(text, dir / "bad.yaml");
+      ADD_FAILURE() << "accepted: " << c.to;
+    } catch (const ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The paper's lift at minimum effort against the paper's own cosine path between the same rest
+// states in the same time: along a given path q(t) the least ∫‖τ‖² is that of τ = P h, h = M q̈ +
+// C q̇ + G and P the projector onto null(A_closure) (any τ with τ − h ∈ range(A_closureᵀ) drives
+// the path; the closure force takes the rest). The optimum must not cost more; the optimal
+// trajectory stays on the closure, and the open-loop replay follows it.
+TEST(OptimizeFile, PaperLiftBeatsThePapersCosinePath) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path root = fs::path(UKDYN_SOURCE_DIR) / "scenarios";
+  const OptimizationFile f = load_optimization_file(root / "optimize" / "paper_lift.yaml");
+  const TrajectorySolution s = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(s.converged) << s.status;
+  EXPECT_TRUE(s.trusted) << s.message;
+  EXPECT_LE(s.dual_infeasibility, 1e-8);
+  EXPECT_LE(s.max_position_residual, 1e-10);
+  EXPECT_LE(s.max_velocity_residual, 1e-10);
+  const double optimum = s.cost / 1e-4;  // the file's effort weight
+
+  const Scenario paper = load_scenario(root / "paper.yaml");
+  const System& free = *f.problem.system;
+  SimulationSettings set = paper.sim;
+  set.t_end = 1.0;
+  ForwardData d(free);
+  const Index n = free.dof();
+  std::vector<double> power;
+  const SampleObserver obs = [&](double t, CVecRef q, CVecRef qd, const ForwardData& pd) {
+    evaluate_dynamics(free, d, t, q, qd);
+    evaluate_constraints(free, d, t, q, qd);
+    const Vec h = d.M * pd.qdd + d.Cqd + d.G;
+    const Vec tau = h - d.A.transpose() * (d.A * d.A.transpose()).ldlt().solve(d.A * h);
+    power.push_back(tau.squaredNorm());
+    return true;
+  };
+  simulate(
+      *paper.system, paper.q0, paper.qd0,
+      [](double, CVecRef, CVecRef, VecRef tau) { tau.setZero(); }, set, obs);
+  ASSERT_EQ(power.size(), 101u);
+  double path = 0;  // Simpson over the 100 sample steps
+  for (std::size_t i = 0; i < power.size(); ++i)
+    path += (i == 0 || i + 1 == power.size() ? 1 : (i % 2 ? 4 : 2)) * power[i] * 0.01 / 3;
+  std::printf("paper lift, integral of |tau|^2: cosine path %.6g, optimum %.6g (%.1f %% less)\n",
+              path, optimum, 100 * (1 - optimum / path));
+  EXPECT_LT(optimum, path);
+  (void)n;
+}
+
+#ifdef UKDYN_TEST_HAVE_CLI
+// Same problem file, two processes: the same bytes (trajectory.csv and summary.json), exit 0.
+TEST(OptimizeCli, SameBytesInTwoProcesses) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_cli");
+  const std::string file =
+      (fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize" / "paper_lift.yaml").string();
+  for (const char* out : {"a", "b"}) {
+    const auto r = ukdyn_test::run_cli(
+        UKDYN_CLI, scratch,
+        "optimize " + ukdyn_test::sh(file) + " --out " + ukdyn_test::sh((scratch / out).string()));
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.out.find("Solve_Succeeded"), std::string::npos) << r.out;
+  }
+  for (const char* name : {"trajectory.csv", "summary.json"})
+    EXPECT_EQ(ukdyn_test::slurp(scratch / "a" / name), ukdyn_test::slurp(scratch / "b" / name))
+        << name;
+  const auto j = nlohmann::json::parse(ukdyn_test::slurp(scratch / "a" / "summary.json"));
+  EXPECT_TRUE(j["trusted"].get<bool>());
+  EXPECT_LT(j["replay"]["max_q_deviation"].get<double>(), 1e-4);
+  // A problem file that does not exist: exit 2, the path named.
+  const auto bad = ukdyn_test::run_cli(UKDYN_CLI, scratch, "optimize /nonexistent/p.yaml");
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("/nonexistent/p.yaml"), std::string::npos) << bad.err;
+}
+#endif
 
 }  // namespace
 }  // namespace ukdyn
