@@ -185,6 +185,11 @@ int cmd_optimize(const std::string& problem, const std::string& out, bool quiet)
           rep.replay.status, rep.replay.max_q_deviation, rep.replay.max_position_residual);
     std::cout << fmt::format("  wrote {}/trajectory.csv, summary.json\n", ukdyn::printable(out));
   }
+  if (rep.replay.done && !(rep.replay.max_q_deviation <= 1e-3))
+    std::cerr << fmt::format(
+        "ukdyn: warning: the optimal u(t) integrated open loop leaves the optimal motion by {:.2e} "
+        "(an open-loop unstable system, or a mesh that does not resolve the motion)\n",
+        rep.replay.max_q_deviation);
   if (!s.trusted) {
     std::cerr << "ukdyn: warning: " << ukdyn::printable(s.message, true) << "\n";
     return 1;

@@ -122,6 +122,9 @@ void check_derivatives(CollocationMethod method) {
   p.costs.smoothness = 0.2;
   p.costs.duration = 1.5;
   p.envelopes.push_back({0, 40.0, 5.0});
+  p.costs.multiplier = Vec::Constant(1, 0.02);
+  p.multiplier_lower = Vec::Constant(1, -30.0);
+  p.multiplier_upper = Vec::Constant(1, 30.0);
   optimize::Transcription tr(p);
   Vec x = tr.initial_guess();
   std::srand(7);
@@ -211,6 +214,33 @@ TEST(Optimize, RestToRestOnARailMatchesTheCubicClosedForm) {
   EXPECT_TRUE(s.trusted) << s.message;
 }
 
+// A bound on the ring's force (the row's multiplier μ, Qc = A_Rᵀ μ): the bead swung quickly needs
+// a large centripetal force; bounded, the optimum keeps |μ| within the bound at every point, pays
+// more effort than without it, and μ is the multiplier of the constraint force it reports.
+TEST(Optimize, ABoundOnAConstraintForceHoldsAndCosts) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(circle_text(0.0), "circle.yaml");
+  TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, 20, 1.0, on_circle(2.0));
+  const auto free = optimize_trajectory(p);
+  ASSERT_TRUE(free.converged) << free.status;
+  // Unbounded, the optimum is the cubic along the arc (peak speed 1.5 RΔθ/T at t = T/2, a knot)
+  // and the ring carries the centripetal force m v²/R = |Qc| = |2 q μ| = 2R|μ|.
+  const double peak = free.mu.cwiseAbs().maxCoeff(), v = 1.5 * 0.8 * 2.0 / 1.0;
+  EXPECT_NEAR(peak, 2.0 * v * v / 0.8 / (2 * 0.8), 1e-5 * peak);  // measured 6.2e-6 (N = 20)
+  p.multiplier_lower = Vec::Constant(1, -0.5 * peak);
+  p.multiplier_upper = Vec::Constant(1, 0.5 * peak);
+  const auto bound = optimize_trajectory(p);
+  ASSERT_TRUE(bound.converged) << bound.status;
+  EXPECT_LE(bound.mu.cwiseAbs().maxCoeff(), 0.5 * peak * (1 + 1e-8));
+  EXPECT_GT(bound.cost, free.cost * 1.001);
+  for (Index i = 0; i < bound.t.size(); ++i) {  // Qc = A_Rᵀ μ, A = ∂(x² + z² − R²)/∂q = 2 (x, z)
+    const Vec Qc = 2.0 * bound.q.row(i).transpose() * bound.mu(i, 0);
+    EXPECT_LT((Qc - bound.Qc.row(i).transpose()).cwiseAbs().maxCoeff(), 1e-9);
+  }
+  std::printf("ring force: peak %.4g free, %.4g bounded; cost %.6g -> %.6g\n", peak,
+              bound.mu.cwiseAbs().maxCoeff(), free.cost, bound.cost);
+}
+
 TEST(Optimize, RestToRestOnACircleMatchesTheClosedFormAtTheMethodsOrder) {
   if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
   const auto sc = load_scenario_text(circle_text(0.0), "circle.yaml");
@@ -259,6 +289,10 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"scenario: ../paper_free.yaml", "scenario: ../nothing.yaml",
        "key 'scenario': the scenario: "},
       {"costs:", "cost:", "key 'cost': unknown key"},
+      {"  effort: 1e-4", "  constraint_rows: {nope: 1}",
+       "key 'costs.constraint_rows.nope': no constraint row or block named 'nope'"},
+      {"costs:", "actuated: [dx1, dx1]\ncosts:", "key 'actuated[1]': coordinate 'dx1' is listed twice"},
+      {"costs:", "max_correction: 0\ncosts:", "key 'max_correction': must be > 0"},
   };
   for (const auto& c : cases) {
     std::string text = good;

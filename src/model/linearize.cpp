@@ -124,6 +124,32 @@ void state_space(const Linearization& lin, Mat& F, Mat& G) {
   G.bottomRows(n) = lin.dqdd_dtau;
 }
 
+namespace {
+
+// The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
+// over dμ) and the τ columns, solved here with the same factorisation.
+void store_solutions(Linearization& lin, const Eigen::PartialPivLU<Mat>& lu, const Mat& X,
+                     const Mat& dforce_all, const Mat& AR, const Vec& mu) {
+  const Index n = AR.cols(), r = AR.rows();
+  lin.dqdd_dq = X.topLeftCorner(n, n);
+  lin.dqdd_dqd = X.topRightCorner(n, n);
+  const Mat dQc = dforce_all + AR.transpose() * X.bottomRows(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
+  lin.dQc_dq = dQc.leftCols(n);
+  lin.dQc_dqd = dQc.rightCols(n);
+  lin.mu = mu;
+  lin.dmu_dq = X.bottomLeftCorner(r, n);
+  lin.dmu_dqd = X.bottomRightCorner(r, n);
+  // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
+  Mat rhs_tau = Mat::Zero(n + r, n);
+  rhs_tau.topRows(n).setIdentity();
+  const Mat Xt = lu.solve(rhs_tau);
+  lin.dqdd_dtau = Xt.topRows(n);
+  lin.dQc_dtau = AR.transpose() * Xt.bottomRows(r);
+  lin.dmu_dtau = Xt.bottomRows(r);
+}
+
+}  // namespace
+
 Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
                         const UkSettings& settings) {
   const Index n = system.dof(), m = system.rows();
@@ -229,18 +255,7 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
     direction(n + j);
     dqd(j) = 0.0;
   }
-  const Mat X = lu.solve(rhs_all);
-  lin.dqdd_dq = X.topLeftCorner(n, n);
-  lin.dqdd_dqd = X.topRightCorner(n, n);
-  const Mat dQc = dforce_all + AR.transpose() * X.bottomRows(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
-  lin.dQc_dq = dQc.leftCols(n);
-  lin.dQc_dqd = dQc.rightCols(n);
-  // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
-  Mat rhs_tau = Mat::Zero(n + r, n);
-  rhs_tau.topRows(n).setIdentity();
-  const Mat Xt = lu.solve(rhs_tau);
-  lin.dqdd_dtau = Xt.topRows(n);
-  lin.dQc_dtau = AR.transpose() * Xt.bottomRows(r);
+  store_solutions(lin, lu, lu.solve(rhs_all), dforce_all, AR, mu);
   return lin;
 }
 

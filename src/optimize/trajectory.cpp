@@ -128,6 +128,15 @@ void validate(const TrajectoryProblem& pr) {
   check_bounds("q", pr.q_lower, pr.q_upper);
   check_bounds("qd", pr.qd_lower, pr.qd_upper);
   check_bounds("u", pr.u_lower, pr.u_upper);
+  check_size("multiplier_lower", sys.rows(), pr.multiplier_lower.size(), true);
+  check_size("multiplier_upper", sys.rows(), pr.multiplier_upper.size(), true);
+  if (pr.multiplier_lower.size() != pr.multiplier_upper.size())
+    throw Error("optimize: multiplier_lower and multiplier_upper must both be given or both empty");
+  check_bounds("multiplier", pr.multiplier_lower, pr.multiplier_upper);
+  check_size("costs.multiplier", sys.rows(), pr.costs.multiplier.size(), true);
+  if (pr.costs.multiplier.size() &&
+      !(pr.costs.multiplier.allFinite() && pr.costs.multiplier.minCoeff() >= 0.0))
+    throw Error("optimize: a multiplier weight is negative or not finite");
   if (!(pr.q_start.allFinite() && pr.qd_start.allFinite() && pr.tau.allFinite() &&
         pr.B.allFinite()))
     throw Error("optimize: the start state, tau and B must be finite");

@@ -51,8 +51,30 @@ Transcription::Transcription(const TrajectoryProblem& problem)
     row += (knot_phi_[js] ? r_ : 0) + (knot_phid_[js] ? r_ : 0);
   }
   envelope_rows_start_ = row;
-  ng_ = row + 4 * static_cast<Index>(problem.envelopes.size()) * P_;
+  multiplier_rows_start_ = row + 4 * static_cast<Index>(problem.envelopes.size()) * P_;
+  select_multiplier_rows();
+  ng_ = multiplier_rows_start_ + static_cast<Index>(bounded_.size()) * P_;
   eval_.resize(static_cast<std::size_t>(P_));
+}
+
+// The kept positions of the rows that carry a multiplier bound or weight; a row that the rank rule
+// dropped has no determined multiplier and is refused by name.
+void Transcription::select_multiplier_rows() {
+  const auto& pr = problem_;
+  const auto& names = pr.system->constraint_row_names();
+  auto position = [&](Index row) {
+    const auto it = std::find(kept_.begin(), kept_.end(), row);
+    if (it == kept_.end())
+      throw Error("optimize: constraint row '" + names[static_cast<std::size_t>(row)] +
+                  "' is redundant at the start (the rank rule dropped it): its force is not "
+                  "determined, so it can carry no bound or cost");
+    return static_cast<Index>(it - kept_.begin());
+  };
+  for (Index i = 0; i < pr.multiplier_lower.size(); ++i)
+    if (std::isfinite(pr.multiplier_lower(i)) || std::isfinite(pr.multiplier_upper(i)))
+      bounded_.push_back(position(i));
+  for (Index i = 0; i < pr.costs.multiplier.size(); ++i)
+    if (pr.costs.multiplier(i) > 0.0) weighted_.push_back(position(i));
 }
 
 double Transcription::duration(const Vec& x) const {
@@ -97,13 +119,25 @@ void Transcription::bounds(Vec& xl, Vec& xu, Vec& gl, Vec& gu) const {
     if (std::isfinite(pr.q_end(i))) xl(q_of(P_ - 1) + i) = xu(q_of(P_ - 1) + i) = pr.q_end(i);
     if (std::isfinite(pr.qd_end(i))) xl(v_of(P_ - 1) + i) = xu(v_of(P_ - 1) + i) = pr.qd_end(i);
   }
+  if (std::isfinite(pr.max_correction) && r_ > 0) {
+    xl.segment(gq_of(0), N_ * 2 * r_).setConstant(-pr.max_correction);
+    xu.segment(gq_of(0), N_ * 2 * r_).setConstant(pr.max_correction);
+  }
   if (pr.free_duration) {
     xl(time_index()) = pr.min_duration;
     xu(time_index()) = pr.max_duration;
   }
   gl.setZero(ng_);
   gu.setZero(ng_);
-  for (Index row = envelope_rows_start_; row < ng_; ++row) {
+  for (Index p = 0; p < P_; ++p)
+    for (std::size_t b = 0; b < bounded_.size(); ++b) {
+      const Index row =
+          multiplier_rows_start_ + p * static_cast<Index>(bounded_.size()) + static_cast<Index>(b);
+      const Index orig = kept_[static_cast<std::size_t>(bounded_[b])];
+      gl(row) = pr.multiplier_lower(orig);
+      gu(row) = pr.multiplier_upper(orig);
+    }
+  for (Index row = envelope_rows_start_; row < multiplier_rows_start_; ++row) {
     const auto e = static_cast<std::size_t>((row - envelope_rows_start_) / 4 %
                                             static_cast<Index>(pr.envelopes.size()));
     gl(row) = -kInf;
@@ -162,6 +196,7 @@ void Transcription::evaluate(const Vec& x) {
     e.lin = linearize(sys, t, q, v, tau, pr.uk);
     e.dadu = e.lin.dqdd_dtau * pr.B;
     if (pr.costs.constraint_force > 0.0) e.dQcdu = e.lin.dQc_dtau * pr.B;
+    if (!bounded_.empty() || !weighted_.empty()) e.dmudu = e.lin.dmu_dtau * pr.B;
     const bool is_knot = !hs() || p % 2 == 0;
     if (!is_knot) continue;
     const Index j = hs() ? p / 2 : p;
@@ -213,6 +248,15 @@ double Transcription::running_cost(Index p, const Vec& x, Vec* gq, Vec* gv, Vec*
       *gq += 2.0 * c.constraint_force * e.lin.dQc_dq.transpose() * Qc;
       *gv += 2.0 * c.constraint_force * e.lin.dQc_dqd.transpose() * Qc;
       *gu += 2.0 * c.constraint_force * e.dQcdu.transpose() * Qc;
+    }
+  }
+  for (const Index k : weighted_) {
+    const double w = c.multiplier(kept_[static_cast<std::size_t>(k)]), mu = e.lin.mu(k);
+    L += w * mu * mu;
+    if (gq) {
+      *gq += 2.0 * w * mu * e.lin.dmu_dq.row(k).transpose();
+      *gv += 2.0 * w * mu * e.lin.dmu_dqd.row(k).transpose();
+      *gu += 2.0 * w * mu * e.dmudu.row(k).transpose();
     }
   }
   return L;
@@ -303,6 +347,8 @@ void Transcription::constraint_values(const Vec& x, Vec& g) {
         for (const double s2 : {1.0, -1.0}) g(row++) = s1 * u + s2 * c * omega;
     }
   }
+  for (Index p = 0; p < P_; ++p)
+    for (const Index k : bounded_) g(row++) = eval_[static_cast<std::size_t>(p)].lin.mu(k);
 }
 
 void Transcription::interval_jacobian(const Vec& x, Index i, double h, JacobianSink& sink) const {
@@ -402,6 +448,19 @@ void Transcription::jacobian(const Vec& x, JacobianSink& sink) {
   for (Index j = 1; j <= N_; ++j) knot_jacobian(j, sink);
   if (!problem_.envelopes.empty())
     for (Index p = 0; p < P_; ++p) envelope_jacobian(p, sink);
+  if (!bounded_.empty())
+    for (Index p = 0; p < P_; ++p) multiplier_jacobian(p, sink);
+}
+
+void Transcription::multiplier_jacobian(Index p, JacobianSink& sink) const {
+  const PointEval& e = eval_[static_cast<std::size_t>(p)];
+  Index row = multiplier_rows_start_ + p * static_cast<Index>(bounded_.size());
+  for (const Index k : bounded_) {
+    sink.dense(row, q_of(p), e.lin.dmu_dq.row(k));
+    sink.dense(row, v_of(p), e.lin.dmu_dqd.row(k));
+    if (k_ > 0) sink.dense(row, u_of(p), e.dmudu.row(k));
+    ++row;
+  }
 }
 
 namespace {
@@ -431,6 +490,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
   s.t.resize(P_);
   s.q.resize(P_, n_), s.qd.resize(P_, n_), s.qdd.resize(P_, n_), s.Qc.resize(P_, n_);
   s.u.resize(P_, k_);
+  s.mu.resize(P_, r_);
   s.trusted = true;
   for (Index p = 0; p < P_; ++p) {
     const PointEval& e = eval_[static_cast<std::size_t>(p)];
@@ -441,6 +501,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
     s.u.row(p) = x.segment(u_of(p), k_).transpose();
     s.qdd.row(p) = e.lin.qdd.transpose();
     s.Qc.row(p) = e.lin.Qc.transpose();
+    if (e.lin.mu.size() == r_) s.mu.row(p) = e.lin.mu.transpose();
     if (s.trusted && (!e.lin.trusted || e.lin.kept_rows != kept_)) {
       s.trusted = false;
       s.message = "at t = " + std::to_string(s.t(p)) + ": " +
@@ -457,6 +518,26 @@ TrajectorySolution Transcription::solution(const Vec& x) {
   constraint_values(x, g);
   if (knot_rows_start_ > 0) s.max_defect = g.head(knot_rows_start_).cwiseAbs().maxCoeff();
   if (r_ > 0) s.max_correction = x.segment(gq_of(0), N_ * 2 * r_).cwiseAbs().maxCoeff();
+  // The corrections against the steps they correct: a resolved trajectory has |A_Rᵀγ| = O(h³)
+  // against steps O(h); a correction of a tenth of its step means the knots jump across the
+  // manifold (an unresolved motion, or another branch of the constraints' roots).
+  for (Index i = 0; i < N_ && r_ > 0; ++i) {
+    const Index a = knot_point(i), b = knot_point(i + 1);
+    const Mat& AR = eval_[static_cast<std::size_t>(b)].AR;
+    const double cq = (AR.transpose() * x.segment(gq_of(i), r_)).cwiseAbs().maxCoeff();
+    const double cv = (AR.transpose() * x.segment(gv_of(i), r_)).cwiseAbs().maxCoeff();
+    const double dq = (x.segment(q_of(b), n_) - x.segment(q_of(a), n_)).cwiseAbs().maxCoeff();
+    const double dv = (x.segment(v_of(b), n_) - x.segment(v_of(a), n_)).cwiseAbs().maxCoeff();
+    s.max_correction_ratio =
+        std::max({s.max_correction_ratio, cq / (dq + 1e-12), cv / (dv + 1e-12)});
+  }
+  if (s.trusted && s.max_correction_ratio > 0.1) {
+    s.trusted = false;
+    s.message = "the manifold corrections reach " + std::to_string(s.max_correction_ratio) +
+                " of the steps they correct: the knots jump across the constraint manifold (the "
+                "mesh does not resolve the motion, or the path changes branch of the "
+                "constraints' roots); use more intervals or bound max_correction";
+  }
   s.kept_rows = kept_;
   s.cost = cost(x);
   (void)pr;

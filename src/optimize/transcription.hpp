@@ -25,6 +25,7 @@ struct PointEval {
   Linearization lin;  ///< a = lin.qdd and its derivatives
   Mat dadu;           ///< n × k: ∂a/∂τ B
   Mat dQcdu;          ///< n × k: ∂Qc/∂τ B
+  Mat dmudu;          ///< r × k: ∂μ/∂τ B
   Vec phi;            ///< r: Φ_R(q) (knots)
   Vec phid;           ///< r: A_R v (knots)
   Mat AR;             ///< r × n
@@ -75,13 +76,18 @@ class Transcription {
   void interval_jacobian(const Vec& x, Index i, double h, JacobianSink& sink) const;
   void knot_jacobian(Index j, JacobianSink& sink) const;
   void envelope_jacobian(Index p, JacobianSink& sink) const;
+  void multiplier_jacobian(Index p, JacobianSink& sink) const;
   Mat straight_line_guess(Mat& qd) const;
+  void select_multiplier_rows();
 
   const TrajectoryProblem& problem_;
   Index n_ = 0, k_ = 0, r_ = 0, N_ = 0, P_ = 0, stride_ = 0, nv_ = 0, ng_ = 0;
   std::vector<Index> kept_;
   bool constrain_end_q_ = true, constrain_end_v_ = true;
   Index interval_rows_ = 0, knot_rows_start_ = 0, envelope_rows_start_ = 0;
+  Index multiplier_rows_start_ = 0;
+  /// Positions in kept_ of the rows with multiplier bounds, and of the rows with a weight.
+  std::vector<Index> bounded_, weighted_;
   std::vector<Index> knot_row_;  ///< per knot: first row of its manifold rows (−1: none)
   std::vector<bool> knot_phi_, knot_phid_;
   Vec last_x_;

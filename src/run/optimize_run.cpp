@@ -24,11 +24,13 @@ void write_csv(const OutputDir& dir, const OptimizationFile& f, const Trajectory
   for (const auto& c : names) header.push_back(c + "_ddot");
   for (const auto& a : f.problem.actuator_names) header.push_back("u_" + a);
   for (const auto& c : names) header.push_back("Qc_" + c);
+  const auto& rows = f.scenario->system->constraint_row_names();
+  for (const Index k : s.kept_rows) header.push_back("mu_" + rows[static_cast<std::size_t>(k)]);
   CsvWriter csv(dir, "trajectory.csv", header);
   std::vector<double> row;
   for (Index p = 0; p < s.t.size(); ++p) {
     row.assign({s.t(p), s.knot[static_cast<std::size_t>(p)] ? 1.0 : 0.0});
-    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc})
+    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc, &s.mu})
       for (Index j = 0; j < m->cols(); ++j) row.push_back((*m)(p, j));
     csv.row(row);
   }
@@ -59,6 +61,7 @@ nlohmann::json summary(const OptimizationFile& f, const OptimizeReport& rep) {
   j["max_position_residual"] = s.max_position_residual;
   j["max_velocity_residual"] = s.max_velocity_residual;
   j["max_correction"] = s.max_correction;
+  j["max_correction_ratio"] = s.max_correction_ratio;
   j["constraint_rank"] = s.kept_rows.size();
   j["trusted"] = s.trusted;
   j["message"] = s.message;

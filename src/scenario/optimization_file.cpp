@@ -30,6 +30,21 @@ Index actuator(const Loader& L, const Node& at, const std::vector<std::string>& 
   L.fail(at, "no actuator named '" + name + "'");
 }
 
+// Constraint rows by name: a row's own name (`grasp_ur_a_x`), or a block's name for all its rows
+// (`grasp_ur_a` → every row named grasp_ur_a_*).
+std::vector<Index> rows_named(const Loader& L, const Node& at, const System& sys,
+                              const std::string& name) {
+  const auto& names = sys.constraint_row_names();
+  std::vector<Index> rows;
+  for (std::size_t i = 0; i < names.size(); ++i)
+    if (names[i] == name) return {static_cast<Index>(i)};
+  for (std::size_t i = 0; i < names.size(); ++i)
+    if (names[i].size() > name.size() + 1 && names[i].compare(0, name.size() + 1, name + "_") == 0)
+      rows.push_back(static_cast<Index>(i));
+  if (rows.empty()) L.fail(at, "no constraint row or block named '" + name + "'");
+  return rows;
+}
+
 // A state: `zeros`, a list of n numbers, or a mapping {coordinate: value} (others: `fill`).
 Vec state(const Loader& L, const Node& n, const System& sys, double fill) {
   const Index dof = sys.dof();
@@ -75,7 +90,19 @@ CollocationMethod method(const Loader& L, const Node& n) {
 
 void costs(const Loader& L, const Node& root, TrajectoryProblem& p) {
   const Node c = L.child(root, "costs", true);
-  L.only_keys(c, {"effort", "power", "constraint_force", "smoothness", "duration"});
+  L.only_keys(c,
+              {"effort", "power", "constraint_force", "constraint_rows", "smoothness", "duration"});
+  if (const Node cr = L.child(c, "constraint_rows", false); cr.node.IsDefined()) {
+    if (!cr.node.IsMap()) L.fail(cr, "expected {row or block: weight}");
+    p.costs.multiplier = Vec::Zero(p.system->rows());
+    for (const auto& kv : cr.node) {
+      const std::string name = L.key(cr, kv.first);
+      const Node entry{kv.second, cr.key + "." + name};
+      const double w = L.number(entry);
+      if (w < 0.0) L.fail(entry, "must be >= 0");
+      for (const Index i : rows_named(L, entry, *p.system, name)) p.costs.multiplier(i) = w;
+    }
+  }
   const Index k = p.B.cols();
   if (const Node e = L.child(c, "effort", false); e.node.IsDefined()) {
     if (e.node.IsMap()) {
@@ -102,6 +129,7 @@ void costs(const Loader& L, const Node& root, TrajectoryProblem& p) {
   p.costs.smoothness = weight("smoothness");
   p.costs.duration = weight("duration");
   const bool any = p.costs.effort.size() || p.costs.power > 0 || p.costs.constraint_force > 0 ||
+                   (p.costs.multiplier.size() && p.costs.multiplier.maxCoeff() > 0) ||
                    p.costs.smoothness > 0 || p.costs.duration > 0;
   if (!any) L.fail(c, "no cost term has a positive weight");
 }
@@ -179,8 +207,9 @@ OptimizationFile load_optimization_text(const std::string& text,
                                         const std::filesystem::path& path) {
   const Loader L(path);
   const Node root{io_detail::parse_scenario_yaml(text, path), ""};
-  L.only_keys(root, {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration",
-                     "end", "costs", "bounds", "envelopes", "ipopt", "verify"});
+  L.only_keys(root,
+              {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration", "end",
+               "costs", "bounds", "envelopes", "ipopt", "verify", "actuated", "max_correction"});
   if (L.number(L.child(root, "ukdyn", true)) != 1)
     L.fail(L.child(root, "ukdyn", true), "expected 1");
   OptimizationFile f;
@@ -206,6 +235,22 @@ OptimizationFile load_optimization_text(const std::string& text,
   p.q_start = sc.q0;
   p.qd_start = sc.qd0;
   actuation(sc, p);
+  if (const Node a = L.child(root, "actuated", false); a.node.IsDefined()) {
+    // One input per listed coordinate (B: their columns of I), instead of the scenario's.
+    if (!a.node.IsSequence() || a.node.size() == 0)
+      L.fail(a, "expected a list of coordinate names");
+    p.B = Mat::Zero(sys.dof(), static_cast<Index>(a.node.size()));
+    p.actuator_names.clear();
+    p.u_lower.resize(0), p.u_upper.resize(0);
+    for (std::size_t i = 0; i < a.node.size(); ++i) {
+      const Node item{a.node[i], a.key + "[" + std::to_string(i) + "]"};
+      const std::string c = L.string(item);
+      const Index j = coordinate(L, item, sys, c);
+      if (p.B.row(j).sum() != 0.0) L.fail(item, "coordinate '" + c + "' is listed twice");
+      p.B(j, static_cast<Index>(i)) = 1.0;
+      p.actuator_names.push_back(c);
+    }
+  }
   p.method = method(L, L.child(root, "method", false));
   timing(L, root, p);
   const Node end = L.child(root, "end", true);
@@ -217,7 +262,7 @@ OptimizationFile load_optimization_text(const std::string& text,
                  : Vec::Zero(sys.dof());
   costs(L, root, p);
   if (const Node b = L.child(root, "bounds", false); b.node.IsDefined()) {
-    L.only_keys(b, {"q", "qd", "u"});
+    L.only_keys(b, {"q", "qd", "u", "constraint_rows"});
     auto coord = [&](const Node& at, const std::string& n) { return coordinate(L, at, sys, n); };
     bounds(L, L.child(b, "q", false), p.q_lower, p.q_upper, sys.dof(), coord);
     bounds(L, L.child(b, "qd", false), p.qd_lower, p.qd_upper, sys.dof(), coord);
@@ -227,6 +272,8 @@ OptimizationFile load_optimization_text(const std::string& text,
         [&](const Node& at, const std::string& n) { return actuator(L, at, p.actuator_names, n); });
   }
   envelopes(L, root, p);
+  if (const Node mc = L.child(root, "max_correction", false); mc.node.IsDefined())
+    p.max_correction = L.positive(mc);
   ipopt(L, root, f.ipopt);
   if (const Node v = L.child(root, "verify", false); v.node.IsDefined()) {
     const std::string s = L.string(v);

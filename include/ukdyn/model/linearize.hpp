@@ -29,6 +29,10 @@ struct Linearization {
   Vec Qc;   ///< the constraint force A_Rᵀ μ
   Mat dqdd_dq, dqdd_dqd, dqdd_dtau;
   Mat dQc_dq, dQc_dqd, dQc_dtau;
+  /// The multipliers of the kept rows (Qc = A_Rᵀ μ; one entry per kept_rows entry) and their
+  /// derivatives (r × n each): the force each independent row carries.
+  Vec mu;
+  Mat dmu_dq, dmu_dqd, dmu_dtau;
   int rank = 0;                  ///< rank of A (rows kept: kept_rows)
   std::vector<Index> kept_rows;  ///< the independent rows R of A the derivatives use
   /// max |q̈_KKT − q̈_forward| / (1 + max |q̈_forward|): the two formulations at the state.

@@ -49,6 +49,10 @@ struct TrajectoryCosts {
   Vec effort;                     ///< k weights W_j of ∫ Σ W_j u_j² dt (empty: no effort term)
   double power = 0.0;             ///< weight of ∫ (uᵀ Bᵀ v)² dt (mechanical power squared)
   double constraint_force = 0.0;  ///< weight of ∫ ‖Qc‖² dt (all constraint forces)
+  /// m weights (one per constraint row; empty: none) of ∫ Σ w_i μ_i² dt, μ the row's multiplier
+  /// (Qc = A_Rᵀ μ): the force one row carries, e.g. a grasp's force components. Rows with a
+  /// positive weight must be independent (kept by the rank rule).
+  Vec multiplier;
   double smoothness = 0.0;  ///< weight of Σ ‖u_{j+1} − u_j‖² / h over the knots (≈ ∫‖u̇‖² h)
   double duration = 0.0;  ///< weight of T (free duration only)
 };
@@ -69,6 +73,13 @@ struct TrajectoryProblem {
   /// Bounds at every point; empty: none. n, n and k entries (±inf allowed).
   Vec q_lower, q_upper, qd_lower, qd_upper, u_lower, u_upper;
   std::vector<TorqueSpeedEnvelope> envelopes;
+  /// Bounds on the multipliers μ_i of constraint rows at every point (m entries each, ±inf:
+  /// none; empty: no bounds): grasp forces, the squeeze force of a weld row. A bounded row must be
+  /// independent (kept by the rank rule), else its multiplier is not determined.
+  Vec multiplier_lower, multiplier_upper;
+  /// Bound on every correction |γ| (+inf: none). A resolved trajectory has γ = O(h³); a large γ
+  /// lets the knots jump across the manifold (to another branch of the constraints' roots).
+  double max_correction = std::numeric_limits<double>::infinity();
   TrajectoryCosts costs;
   /// Initial guess at the collocation points (rows: points, as TrajectorySolution::t); empty: the
   /// straight line in q from start to end, each point assembled onto the manifold, u = 0.
@@ -89,15 +100,18 @@ struct TrajectorySolution {
   Vec t;                   ///< times of the collocation points
   std::vector<bool> knot;  ///< per point: a knot (false: a Hermite–Simpson midpoint)
   Mat q, qd, qdd, u, Qc;   ///< rows: points; q, qd, qdd, Qc n columns, u k columns
+  Mat mu;                  ///< rows: points; the multipliers of the kept rows (kept_rows)
   double duration = 0.0;
   double cost = 0.0;
   double max_defect = 0.0;             ///< max |collocation equation| over every interval
   double max_position_residual = 0.0;  ///< max |Φ_R(q_j)| over the knots
   double max_velocity_residual = 0.0;  ///< max |A_R(q_j) v_j| over the knots
   double max_correction = 0.0;         ///< max |γ| (the manifold corrections, → 0 as h → 0)
-  std::vector<Index> kept_rows;        ///< R
-  std::string status;                  ///< IPOPT's return status, e.g. "Solve_Succeeded"
-  bool converged = false;              ///< IPOPT met its tolerances
+  /// max over intervals of |A_Rᵀγ| / |step| (position and velocity): > 0.1 is not trusted
+  double max_correction_ratio = 0.0;
+  std::vector<Index> kept_rows;  ///< R
+  std::string status;            ///< IPOPT's return status, e.g. "Solve_Succeeded"
+  bool converged = false;        ///< IPOPT met its tolerances
   int iterations = 0;
   double dual_infeasibility = 0.0, constraint_violation = 0.0, complementarity = 0.0;
   double kkt_error = 0.0;  ///< IPOPT's overall NLP error (unscaled)
