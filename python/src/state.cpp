@@ -28,6 +28,18 @@ using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecas
 
 // ---------------------------------------------------------------------------- Data
 
+// numpy views of a ForwardData's Eigen buffers (column-major), kept alive by `owner`.
+py::array vector_view(Vec& v, const py::capsule& owner) {
+  if (v.size() == 0) return py::array_t<double>(0);
+  return py::array_t<double>({v.size()}, {static_cast<py::ssize_t>(sizeof(double))}, v.data(),
+                             owner);
+}
+py::array matrix_view(Mat& m, const py::capsule& owner) {
+  if (m.size() == 0) return py::array_t<double>({m.rows(), m.cols()});
+  const auto s = static_cast<py::ssize_t>(sizeof(double));
+  return py::array_t<double>({m.rows(), m.cols()}, {s, s * m.rows()}, m.data(), owner);
+}
+
 // A ForwardData for one scenario's system, reused from call to call. Its arrays (M, Cqd, G, Q, A,
 // b, Qc, qdd) are numpy views of the ForwardData's own buffers (Eigen, column-major: M and A are
 // Fortran-ordered), made once: forward(..., out=data) writes into them and allocates nothing.
@@ -55,17 +67,6 @@ struct PyData {
     b = vector_view(d.b, owner);
     Qc = vector_view(d.Qc, owner);
     qdd = vector_view(d.qdd, owner);
-  }
-
-  static py::array vector_view(Vec& v, const py::capsule& owner) {
-    if (v.size() == 0) return py::array_t<double>(0);
-    return py::array_t<double>({v.size()}, {static_cast<py::ssize_t>(sizeof(double))}, v.data(),
-                               owner);
-  }
-  static py::array matrix_view(Mat& m, const py::capsule& owner) {
-    if (m.size() == 0) return py::array_t<double>({m.rows(), m.cols()});
-    const auto s = static_cast<py::ssize_t>(sizeof(double));
-    return py::array_t<double>({m.rows(), m.cols()}, {s, s * m.rows()}, m.data(), owner);
   }
 };
 
