@@ -15,6 +15,7 @@
 
 #include "scenario_bindings.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/output/geometry.hpp"
 
 namespace ukdyn_python {
 
@@ -104,7 +105,7 @@ void check_result(const ukdyn::ForwardData& d, const std::string& where) {
 
 // forward(q, qd, t=..., tau=..., out=data): into data's buffers; returns data.
 py::object forward_into(const PyScenario& s, const py::object& q_in, const py::object& qd_in,
-                        double t, const py::object& tau_in, const py::object& out) {
+                        const py::object& out, double t, const py::object& tau_in) {
   PyData& d = data_for(s, out, "out");
   const Index n = s.sc.system->dof();
   require_finite(t, "t");
@@ -164,12 +165,13 @@ struct Batch {
   py::object keep_q, keep_qd, keep_tau, keep_t;
   const double *q = nullptr, *qd = nullptr, *tau = nullptr, *t = nullptr;
   bool tau_rows = false, t_rows = false;
+  double t_scalar = 0.0;
   [[nodiscard]] CMap q_row(Index i) const { return {q + i * n, n}; }
   [[nodiscard]] CMap qd_row(Index i) const { return {qd + i * n, n}; }
   [[nodiscard]] CMap tau_row(Index i, const Vec& zero) const {
     return tau ? CMap(tau + (tau_rows ? i * n : 0), n) : CMap(zero.data(), n);
   }
-  [[nodiscard]] double t_at(Index i) const { return t[t_rows ? i : 0]; }
+  [[nodiscard]] double t_at(Index i) const { return t ? t[t_rows ? i : 0] : t_scalar; }
 };
 
 Batch batch_of(const PyScenario& s, const py::object& q_in, const py::object& qd_in,
@@ -185,17 +187,22 @@ Batch batch_of(const PyScenario& s, const py::object& q_in, const py::object& qd
   b.qd = qd.data();
   b.keep_q = q;
   b.keep_qd = qd;
-  const DoubleArray t = DoubleArray::ensure(t_in);  // a number (0-d) or k numbers
-  if (!t || t.ndim() > 1 || (t.ndim() == 1 && t.size() != std::max<Index>(b.k, 1))) {
-    PyErr_Clear();
-    throw py::value_error("t: expected a number or one number per row of q");
+  if (py::isinstance<py::float_>(t_in) || py::isinstance<py::int_>(t_in)) {
+    b.t_scalar = t_in.cast<double>();  // a number: no array made
+    require_finite(b.t_scalar, "t");
+  } else {
+    const DoubleArray t = DoubleArray::ensure(t_in);  // k numbers (or a 0-d array)
+    if (!t || t.ndim() > 1 || (t.ndim() == 1 && t.size() != std::max<Index>(b.k, 1))) {
+      PyErr_Clear();
+      throw py::value_error("t: expected a number or one number per row of q");
+    }
+    b.t_rows = t.ndim() == 1;
+    for (py::ssize_t i = 0; i < t.size(); ++i) {
+      if (!std::isfinite(t.data()[i])) throw py::value_error("t: not finite");
+    }
+    b.t = t.data();
+    b.keep_t = t;
   }
-  b.t_rows = t.ndim() == 1;
-  for (py::ssize_t i = 0; i < t.size(); ++i) {
-    if (!std::isfinite(t.data()[i])) throw py::value_error("t: not finite");
-  }
-  b.t = t.data();
-  b.keep_t = t;
   if (!tau_in.is_none()) {
     Index ktau = 0;
     const DoubleArray tau = checked_rows(tau_in, b.n, "tau", ktau);
@@ -312,6 +319,23 @@ py::dict energies(const PyScenario& s, const py::object& q_in, const py::object&
   r["T"] = T;
   r["V"] = V;
   r["E"] = T + V;
+  return r;
+}
+
+// World positions of the system's named points at q (ukdyn/output/geometry.hpp: what the replay
+// page draws: platforms, joints, cut points and grasps of the paper's arms, link frame origins and
+// named points of chains and URDF / MJCF arms, centres of mass of definitions bodies).
+py::dict points(const PyScenario& s, const py::object& q_in) {
+  const Vec q = vector_arg(q_in, s.sc.system->dof(), "q");
+  const ukdyn::Geometry g = ukdyn::build_geometry(s.sc);
+  std::vector<ukdyn::Vec3> pos;
+  g.evaluate(q, pos);
+  py::dict r;
+  for (std::size_t i = 0; i < pos.size(); ++i) {
+    if (!pos[i].allFinite())
+      throw ukdyn::Error("points: non-finite position of '" + g.points()[i].name + "'");
+    r[py::str(g.points()[i].name)] = array_of(pos[i]);
+  }
   return r;
 }
 
@@ -445,14 +469,15 @@ copy them to keep a value.)doc")
   cls.def(
          "make_data", [](const PyScenario& s) { return std::make_shared<PyData>(s.sc.system); },
          "A reusable Data for forward(q, qd, t=..., out=data) and forward_qdd(..., data=data).")
-      .def("forward", &forward_into, py::arg("q"), py::arg("qd"), py::kw_only(), py::arg("t") = 0.0,
-           py::arg("tau") = py::none(), py::arg("out"),
-           "Forward dynamics into out (a Data): no allocation; returns out. Raises ValueError for "
+      .def("forward", &forward_into, py::arg("q"), py::arg("qd"), py::arg("out"),
+           py::arg("t") = 0.0, py::arg("tau") = py::none(),
+           "Forward dynamics into out (a Data): no allocation; returns out. Called with keywords "
+           "(out=, t=, tau=) Python makes a transient dict for them; positionally, nothing at "
+           "all. Raises ValueError for "
            "non-finite inputs, ukdyn.Error for a singular M or a non-finite result.")
       .def(
-          "forward_qdd", &forward_qdd, py::arg("q"), py::arg("qd"), py::kw_only(),
-          py::arg("t") = 0.0, py::arg("tau") = py::none(), py::arg("out") = py::none(),
-          py::arg("data") = py::none(),
+          "forward_qdd", &forward_qdd, py::arg("q"), py::arg("qd"), py::arg("t") = 0.0,
+          py::arg("tau") = py::none(), py::arg("out") = py::none(), py::arg("data") = py::none(),
           "qdd only: q, qd of shape (n,) or (k, n) (a batch, row by row); t a number or k numbers; "
           "tau None, (n,) or (k, n). out: a C-contiguous float64 array of q's shape to write into "
           "(returned). data: a Data to reuse (else one is made per call).")
@@ -460,6 +485,9 @@ copy them to keep a value.)doc")
            py::arg("t") = 0.0, py::arg("tau") = py::none(),
            "Forward dynamics of each row of (k, n) arrays: a dict qdd, Qc (k x n), rank, residual, "
            "consistent (k); row i is bit for bit forward() of row i.")
+      .def("points", &points, py::arg("q"),
+           "World positions (3 numbers each) of the system's named points at q, as the replay "
+           "page draws them: a dict name -> array.")
       .def("energies", &energies, py::arg("q"), py::arg("qd"), py::kw_only(), py::arg("t") = 0.0,
            "T, V, E at (t, q, qd), as the T, V, E columns of trajectory.csv: a dict.")
       .def("constraints", &constraints, py::arg("q"), py::arg("qd"), py::kw_only(),

@@ -337,10 +337,9 @@ class Scenario:
         self,
         q: ArrayLike,
         qd: ArrayLike,
-        *,
+        out: Data,
         t: float = 0.0,
         tau: Optional[ArrayLike] = None,
-        out: Data,
     ) -> Data:
         """into out's buffers: no allocation; returns out"""
     def make_data(self) -> Data: ...
@@ -348,7 +347,6 @@ class Scenario:
         self,
         q: ArrayLike,
         qd: ArrayLike,
-        *,
         t: Union[float, ArrayLike] = 0.0,
         tau: Optional[ArrayLike] = None,
         out: Optional[FloatArray] = None,
@@ -364,6 +362,8 @@ class Scenario:
         tau: Optional[ArrayLike] = None,
     ) -> dict[str, Any]:
         """qdd, Qc (k x n), rank, residual, consistent (k) of each row"""
+    def points(self, q: ArrayLike) -> dict[str, FloatArray]:
+        """world positions of the named points at q (as the replay page draws them)"""
     def energies(self, q: ArrayLike, qd: ArrayLike, *, t: float = 0.0) -> dict[str, float]:
         """T, V, E"""
     def constraints(self, q: ArrayLike, qd: ArrayLike, *, t: float = 0.0) -> dict[str, Any]:
