@@ -35,21 +35,24 @@ def main():
     d = sc.make_data()
     out = np.empty(n)
     k = 1000
-    rng = np.random.default_rng(1)
-    Q = q + 1e-3 * rng.standard_normal((k, n))
+    Q = np.tile(q, (k, 1))  # the same state k times: the C++ work of the single calls
     QD = np.tile(qd, (k, 1))
     OUT = np.empty((k, n))
     rows = [
         ("forward(t, q, qd)", lambda: sc.forward(0.0, q, qd, tau), 20000, 1),
         ("forward(q, qd, out=data)", lambda: sc.forward(q, qd, t=0.0, tau=tau, out=d), 50000, 1),
+        ("forward(q, qd, data, 0.0, tau) positional", lambda: sc.forward(q, qd, d, 0.0, tau), 50000,
+         1),
         ("forward_qdd(q, qd, out=, data=)",
          lambda: sc.forward_qdd(q, qd, t=0.0, tau=tau, out=out, data=d), 50000, 1),
+        ("forward_qdd(q, qd, 0.0, tau, out, data)",
+         lambda: sc.forward_qdd(q, qd, 0.0, tau, out, d), 50000, 1),
         ("forward_batch, per row (k=%d)" % k, lambda: sc.forward_batch(Q, QD, t=0.0), 20, k),
         ("forward_qdd batch, per row (k=%d)" % k,
          lambda: sc.forward_qdd(Q, QD, t=0.0, out=OUT, data=d), 50, k),
     ]
     print("scenario %s: n = %d coordinates, m = %d rows" % (path, n, sc.rows))
-    print("%-38s %12s" % ("call", "per call"))
+    print("%-44s %12s" % ("call", "per call"))
     base = None
     results = []
     for name, f, number, per in rows:
@@ -57,7 +60,7 @@ def main():
         results.append((name, t))
     base = results[-1][1]
     for name, t in results:
-        print("%-38s %9.3f us  (%5.1fx the batched C++ loop)" % (name, t * 1e6, t / base))
+        print("%-44s %9.3f us  (%5.1fx the batched C++ loop)" % (name, t * 1e6, t / base))
 
 
 if __name__ == "__main__":

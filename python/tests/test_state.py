@@ -127,12 +127,13 @@ def test_no_allocation_per_call():
             sc.forward_qdd(q, qd, t=0.1, out=out, data=d)
 
     _, base_peak = traced(noop)
-    # 2 x 10^4 calls: nothing kept (under 0.05 byte per call), and, positionally, not one
-    # temporary object made and freed per call beyond the loop's own (a 0-d numpy array alone is
-    # over 100 bytes)
+    # 2 x 10^4 calls: nothing kept (under 0.05 byte per call), and, positionally, no temporary
+    # numpy array or dict made and freed per call (a 0-d numpy array alone is over 100 bytes, an
+    # empty dict 64; measured: 16 bytes over the loop's own peak)
     kept, peak = traced(positional)
-    assert kept < 1024 and peak <= base_peak + 16, (kept, peak, base_peak)
-    # with keywords: only the dict Python builds for the keywords of a call (freed at once)
+    assert kept < 1024 and peak <= base_peak + 64, (kept, peak, base_peak)
+    # with keywords: only the dict Python builds for the keywords of a call (freed at once;
+    # measured: 157 bytes over the loop's peak)
     kept, peak = traced(keywords)
     assert kept < 1024 and peak <= base_peak + 400, (kept, peak, base_peak)
 
