@@ -577,14 +577,16 @@ py::object prepare_start(ukdyn::Scenario& sc, const py::object& q0, const py::ob
 // run_scenario_in_memory() on a worker thread while this (Python's) thread waits with the GIL
 // released and, every 20 ms, takes it back to check for signals (PyErr_CheckSignals: Ctrl-C). A
 // signal whose handler raises (KeyboardInterrupt) cancels the run (options.cancel: it stops after
-// the current step, status `stopped`, as the CLI's run on SIGINT) and is raised here once the
-// worker has returned. Python callables of the run take the GIL on the worker thread.
-ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOptions opt) {
+// the current step, status `stopped`, as the CLI's run on SIGINT); `interrupted` is then true, the
+// Python error stays set and the run so far is returned once the worker has returned. Python
+// callables of the run take the GIL on the worker thread.
+ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOptions opt,
+                                   bool& interrupted) {
   std::atomic<bool> cancel{false};
   opt.cancel = &cancel;
   auto done = std::async(std::launch::async,
                          [&sc, &opt] { return ukdyn::run_scenario_in_memory(sc, opt); });
-  bool interrupted = false;
+  interrupted = false;
   for (;;) {
     {
       py::gil_scoped_release release;
@@ -597,12 +599,45 @@ ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOp
   }
   if (interrupted) {
     try {
-      (void)done.get();
+      return done.get();
     } catch (...) {  // the signal's exception is the one raised
+      return {};
     }
-    throw py::error_already_set();
   }
   return done.get();
+}
+
+// The Run of a MemoryRun: its columns moved into one column-major buffer owned by a capsule.
+std::shared_ptr<Run> make_run(const ukdyn::MemoryRun& mem, const py::object& assembly) {
+  auto run = std::make_shared<Run>();
+  run->columns = mem.header;
+  const std::size_t cols = mem.header.size();
+  run->rows = mem.report.csv_rows;
+  // Row-major (as sampled) → column-major, once, in C++.
+  // (never empty: a run with no sample still hands out views of a valid pointer)
+  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem.values.size()));
+  const auto rows = static_cast<std::size_t>(run->rows);
+  for (std::size_t i = 0; i < rows; ++i) {
+    for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem.values[i * cols + j];
+  }
+  run->values = buffer->data();
+  run->owner = py::capsule(buffer, [](void* p) { delete static_cast<std::vector<double>*>(p); });
+  run->summary = mem.summary_json.empty()
+                     ? py::object(py::none())
+                     : py::module_::import("json").attr("loads")(mem.summary_json);
+  for (const auto& w : mem.report.stats.warnings) {
+    py::dict d;
+    d["t"] = w.t;
+    d["kind"] = w.kind;
+    d["message"] = w.message;
+    run->warnings.append(d);
+  }
+  run->stats = mem.report.stats;
+  run->status = ukdyn::to_string(mem.report.stats.status);
+  run->message = mem.report.stats.message;
+  run->complete = mem.report.complete();
+  run->assembly = assembly;
+  return run;
 }
 
 std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
@@ -650,43 +685,23 @@ std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
     };
   }
   ukdyn::MemoryRun result;
+  bool interrupted = false;
   try {
-    result = run_interruptible(sc, opt);
+    result = run_interruptible(sc, opt, interrupted);
   } catch (...) {
     law.reset();  // with the GIL (it holds a Python object)
     throw;
   }
   law.reset();
+  if (interrupted) {
+    // KeyboardInterrupt (or what the signal's handler raised), with the run so far as its .run
+    // (status `stopped`, incomplete, as the CLI's run on Ctrl-C).
+    py::error_already_set e;  // takes the pending exception
+    e.value().attr("run") = py::cast(make_run(result, assembly));
+    throw e;
+  }
   rethrow_recorded(errors);
-  const ukdyn::MemoryRun* mem = &result;
-
-  auto run = std::make_shared<Run>();
-  run->columns = mem->header;
-  const std::size_t cols = mem->header.size();
-  run->rows = mem->report.csv_rows;
-  // Row-major (as sampled) → column-major, once, in C++.
-  // (never empty: a run with no sample still hands out views of a valid pointer)
-  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem->values.size()));
-  const auto rows = static_cast<std::size_t>(run->rows);
-  for (std::size_t i = 0; i < rows; ++i) {
-    for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem->values[i * cols + j];
-  }
-  run->values = buffer->data();
-  run->owner = py::capsule(buffer, [](void* p) { delete static_cast<std::vector<double>*>(p); });
-  run->summary = py::module_::import("json").attr("loads")(mem->summary_json);
-  for (const auto& w : mem->report.stats.warnings) {
-    py::dict d;
-    d["t"] = w.t;
-    d["kind"] = w.kind;
-    d["message"] = w.message;
-    run->warnings.append(d);
-  }
-  run->stats = mem->report.stats;
-  run->status = ukdyn::to_string(mem->report.stats.status);
-  run->message = mem->report.stats.message;
-  run->complete = mem->report.complete();
-  run->assembly = assembly;
-  return run;
+  return make_run(result, assembly);
 }
 
 std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object& q0,

@@ -181,9 +181,14 @@ def test_ctrl_c_stops_a_long_simulate_with_keyboard_interrupt():
     sc.t_end = 1e7  # hours of integration: only the interrupt ends it within the ctest timeout
     sc.sample_dt = 1.0
     timer = interrupt_after(0.5)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt) as e:
         sc.simulate()
     timer.join()
+    # the run so far comes with the exception, incomplete as the CLI's run on Ctrl-C
+    run = e.value.run
+    assert run.status == "stopped" and not run.complete and run.message
+    assert run.summary["status"] == "incomplete"
+    assert len(run) >= 1 and 0.0 < run["t"][-1] < sc.t_end
     # the scenario still runs afterwards
     sc.t_end = 0.05
     assert sc.simulate().complete
