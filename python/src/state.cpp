@@ -14,8 +14,10 @@
 #include <string>
 
 #include "scenario_bindings.hpp"
+#include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/output/geometry.hpp"
+#include "ukdyn/simulate/control.hpp"
 
 namespace ukdyn_python {
 
@@ -410,6 +412,20 @@ InverseDynamics least_norm_tau(const Mat& A, const Vec& r) {
   return out;
 }
 
+// With the scenario's actuators (`actuators:`, τ = B u, docs/control.md): the least-norm u that
+// realises q̈ on a plant enforcing only the physical rows, B u + A_pᵀμ = r, by the control code's
+// solve_actuation() (core/force_split.hpp); `underactuated` when its residual is not round-off.
+void add_actuation(const ukdyn::Scenario& sc, const Mat& A, const Vec& r, py::dict& out) {
+  if (sc.actuators.count() == 0) return;
+  const std::vector<bool> servo = ukdyn::servo_row_flags(*sc.system, sc.constraint_roles);
+  const ukdyn::Actuation act =
+      ukdyn::solve_actuation(sc.actuators.B, ukdyn::select_rows(A, servo, false), r);
+  out["u"] = array_of(act.u);
+  out["mu"] = array_of(act.mu);
+  out["actuation_residual"] = act.residual;
+  out["underactuated"] = act.underactuated;
+}
+
 py::dict inverse_dynamics(const PyScenario& s, const py::object& q_in, const py::object& qd_in,
                           const py::object& qdd_in, double t, double tol) {
   require_finite(t, "t");
@@ -432,13 +448,15 @@ py::dict inverse_dynamics(const PyScenario& s, const py::object& q_in, const py:
         sys.constraint_row_names()[static_cast<std::size_t>(worst)] + "' (tol " +
         std::to_string(tol) + " x (1 + max|b|))");
   }
-  const InverseDynamics inv = least_norm_tau(d.A, d.M * qdd - d.Q);
+  const Vec r = d.M * qdd - d.Q;
+  const InverseDynamics inv = least_norm_tau(d.A, r);
   py::dict out;
   out["tau"] = array_of(inv.tau);
   out["Qc"] = array_of(inv.Qc);
   out["lambda"] = array_of(inv.lambda);
   out["acc_residual"] = acc_res;
   out["residual"] = inv.residual;
+  add_actuation(s.sc, d.A, r, out);
   return out;
 }
 
@@ -499,7 +517,9 @@ copy them to keep a value.)doc")
           py::kw_only(), py::arg("t") = 0.0, py::arg("tol") = 1e-9,
           "Constrained inverse dynamics: for qdd on the manifold (|A qdd - b| <= tol (1 + max|b|), "
           "else ValueError), the least-norm tau and the constraint force Qc = A^T lambda with "
-          "M qdd = tau + Q_a - C qd - G + Qc: a dict tau, Qc, lambda, acc_residual, residual.");
+          "M qdd = tau + Q_a - C qd - G + Qc: a dict tau, Qc, lambda, acc_residual, residual; with "
+          "actuators (tau = B u), also u, mu (the physical rows' multipliers), "
+          "actuation_residual, underactuated (docs/control.md).");
 }
 
 }  // namespace ukdyn_python

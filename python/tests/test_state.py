@@ -260,3 +260,55 @@ def test_inverse_then_forward_returns_qdd(path):
         assert np.linalg.norm(inv0["tau"]) <= np.linalg.norm(tau) + 1e-12
     with pytest.raises(ValueError, match="not on the constraint manifold"):
         sc.inverse_dynamics(q, qd, qdd + r.A[0], t=t)  # A qdd - b = A A[0]^T, not 0
+
+
+def test_inverse_dynamics_of_a_pendulum_in_closed_form():
+    # M = m I, Q(0) = (0, -m g), A = 2 q^T: tau = P r with r = m qdd - Q(0) and P = I - q q^T/|q|^2
+    # (the tangential part), Qc = (q q^T/|q|^2) r = A^T lambda with lambda = q.r / (2 |q|^2).
+    m, L, g = 1.3, 0.7, 9.81
+    sc = pendulum(m, L, g)
+    th, w = 0.4, 1.7
+    q = L * np.array([np.sin(th), -np.cos(th)])
+    qd = L * w * np.array([np.cos(th), np.sin(th)])
+    tangent = np.array([np.cos(th), np.sin(th)])
+    qdd = -w**2 * q + 2.5 * tangent  # centripetal + any tangential: on the manifold
+    inv = sc.inverse_dynamics(q, qd, qdd)
+    r = m * qdd - np.array([0.0, -m * g])
+    P = np.eye(2) - np.outer(q, q) / (q @ q)
+    np.testing.assert_allclose(inv["tau"], P @ r, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(inv["Qc"], r - P @ r, rtol=0, atol=1e-13)
+    assert inv["lambda"][0] == pytest.approx(q @ r / (2 * q @ q), rel=1e-13)
+    assert "u" not in inv  # no actuators: no actuation
+
+
+def test_inverse_dynamics_with_the_actuators_of_a_control_scenario():
+    # paper_control.yaml: tau = B u (8 drives), servo rows and physical (closure) rows. For the qdd
+    # that some u0 produces, the actuation of the control code gives a u with B u + A_p^T mu = r and
+    # forward(B u) returns qdd (the KKT solution is unique, and qdd satisfies every row).
+    sc = ukdyn.load_scenario(scenario_path("paper_control.yaml"))
+    rng = np.random.default_rng(17)
+    t, q, qd = 0.2, sc.q0, sc.qd0 + 0.0
+    d0 = sc.forward(t, q, qd)
+    B = np.zeros((sc.dof, len(sc.actuator_names)))
+    for j, name in enumerate(sc.actuator_names):  # "one drive per coordinate" in that file
+        B[sc.coordinate_names.index(name), j] = 1.0
+    u0 = rng.standard_normal(B.shape[1])
+    qdd = sc.forward(t, q, qd, B @ u0).qdd
+    inv = sc.inverse_dynamics(q, qd, qdd, t=t)
+    assert not inv["underactuated"] and inv["actuation_residual"] < 1e-10 * (1 + np.abs(inv["u"]).max())
+    back = sc.forward(t, q, qd, B @ inv["u"]).qdd
+    assert np.max(np.abs(back - qdd)) <= 1e-12 * (1.0 + np.max(np.abs(qdd)))
+    assert d0.A.shape[0] == sc.rows
+
+
+def test_data_views_outlive_the_data_and_the_scenario():
+    sc = ukdyn.load_scenario(FIVE_BAR)
+    d = sc.make_data()
+    sc.forward(sc.q0, sc.qd0, d)
+    qdd, M = d.qdd, d.M
+    want = qdd.copy(), M.copy()
+    del d, sc
+    import gc
+    gc.collect()
+    np.testing.assert_array_equal(qdd, want[0])
+    np.testing.assert_array_equal(M, want[1])
