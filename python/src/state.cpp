@@ -18,6 +18,7 @@
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/output/geometry.hpp"
 #include "ukdyn/simulate/control.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace ukdyn_python {
 
@@ -341,6 +342,81 @@ py::dict points(const PyScenario& s, const py::object& q_in) {
   return r;
 }
 
+// ---------------------------------------------------------------------------- frames
+
+// A link frame of a tree subsystem (URDF / MJCF arms, serial chains on the recursive algorithms,
+// ukdyn/tree/tree.hpp), named "<subsystem>.<link>".
+struct FrameRef {
+  const ukdyn::tree::TreeSubsystem* tree = nullptr;
+  Index offset = 0;  // the subsystem's first coordinate in q
+  int link = -2;
+};
+
+std::vector<std::string> frame_names(const PyScenario& s) {
+  std::vector<std::string> names;
+  for (const auto& sub : s.sc.system->subsystems()) {
+    if (const auto* t = dynamic_cast<const ukdyn::tree::TreeSubsystem*>(sub.get())) {
+      for (const auto& l : t->model().links) names.push_back(t->name() + "." + l.name);
+    }
+  }
+  return names;
+}
+
+FrameRef find_frame(const PyScenario& s, const std::string& name) {
+  const ukdyn::System& sys = *s.sc.system;
+  for (std::size_t k = 0; k < sys.subsystems().size(); ++k) {
+    const auto* t = dynamic_cast<const ukdyn::tree::TreeSubsystem*>(sys.subsystems()[k].get());
+    const std::string prefix = t ? t->name() + "." : std::string();
+    if (!t || name.rfind(prefix, 0) != 0) continue;
+    const int link = t->link_index(name.substr(prefix.size()));
+    if (link >= -1) return {t, sys.layout().start[k], link};
+  }
+  std::string known;
+  for (const auto& n : frame_names(s)) known += (known.empty() ? "" : ", ") + n;
+  throw py::key_error("frame '" + name + "': no such frame (the frames of tree subsystems are " +
+                      (known.empty() ? std::string("none") : known) + ")");
+}
+
+// vee(S) of a skew-symmetric S: S x = vee(S) × x.
+Eigen::Vector3d vee(const Eigen::Matrix3d& S) { return {S(2, 1), S(0, 2), S(1, 0)}; }
+
+// The pose, velocity and Jacobians of a link frame at (q, q̇), in the world frame, from the tree's
+// frame_state (its recursive pass): p, R (x_world = R x_link + p), v = ṗ, ω = vee(Ṙ Rᵀ), and over
+// all n coordinates of the system J_p = ∂p/∂q (3 × n) and J_ω (3 × n, column j = vee(∂R/∂q_j Rᵀ)),
+// so that v = J_p q̇ and ω = J_ω q̇.
+py::dict frame(const PyScenario& s, const std::string& name, const py::object& q_in,
+               const py::object& qd_in) {
+  const Index n = s.sc.system->dof();
+  const Vec q = vector_arg(q_in, n, "q");
+  const Vec qd = qd_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(qd_in, n, "qd");
+  const FrameRef f = find_frame(s, name);
+  const Index k = f.tree->dof();
+  std::vector<double> dp(static_cast<std::size_t>(3 * k)), dR(static_cast<std::size_t>(9 * k));
+  ukdyn::tree::FrameState st(dp.data(), dR.data(), k);
+  f.tree->frame_state(q.segment(f.offset, k), qd.segment(f.offset, k), f.link,
+                      Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), {}, st);
+  Mat Jp = Mat::Zero(3, n), Jw = Mat::Zero(3, n);
+  Jp.middleCols(f.offset, k) = st.dp;
+  for (Index j = 0; j < k; ++j) {
+    Eigen::Matrix3d dRj;  // column j of dR: ∂R/∂q_j, row-major
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) dRj(a, b) = st.dR(3 * a + b, j);
+    }
+    Jw.col(f.offset + j) = vee(dRj * st.R.transpose());
+  }
+  const Eigen::Vector3d omega = vee(st.Rd * st.R.transpose());
+  if (!st.p.allFinite() || !st.R.allFinite() || !Jp.allFinite() || !Jw.allFinite())
+    throw ukdyn::Error("frame '" + name + "': non-finite pose or Jacobian at this state");
+  py::dict r;
+  r["p"] = array_of(st.p);
+  r["R"] = py::cast(Mat(st.R));
+  r["v"] = array_of(st.pd);
+  r["omega"] = array_of(omega);
+  r["Jp"] = py::cast(Jp);
+  r["Jw"] = py::cast(Jw);
+  return r;
+}
+
 // Φ(q, t), Φ̇ = A q̇ + Φ_t, A and b (A q̈ = b, paper Eq. (2)) with the rank of A (SVD, singular
 // values over 1e-10 σ_max) and of A M^{-1/2} (the U-K solve's, the `rank` column).
 py::dict constraints(const PyScenario& s, const py::object& q_in, const py::object& qd_in,
@@ -506,6 +582,13 @@ copy them to keep a value.)doc")
       .def("points", &points, py::arg("q"),
            "World positions (3 numbers each) of the system's named points at q, as the replay "
            "page draws them: a dict name -> array.")
+      .def_property_readonly("frame_names", &frame_names,
+                             "the link frames of tree subsystems (URDF / MJCF arms, chains), "
+                             "'<subsystem>.<link>'")
+      .def("frame", &frame, py::arg("name"), py::arg("q"), py::arg("qd") = py::none(),
+           "Pose, velocity and Jacobians of a link frame in the world frame: a dict p (3), R "
+           "(3 x 3, x_world = R x_link + p), v, omega (3), Jp, Jw (3 x n: v = Jp qd, omega = Jw "
+           "qd). KeyError naming the frames for an unknown name.")
       .def("energies", &energies, py::arg("q"), py::arg("qd"), py::kw_only(), py::arg("t") = 0.0,
            "T, V, E at (t, q, qd), as the T, V, E columns of trajectory.csv: a dict.")
       .def("constraints", &constraints, py::arg("q"), py::arg("qd"), py::kw_only(),

@@ -312,3 +312,49 @@ def test_data_views_outlive_the_data_and_the_scenario():
     gc.collect()
     np.testing.assert_array_equal(qdd, want[0])
     np.testing.assert_array_equal(M, want[1])
+
+
+URDF = scenario_path("paper_urdf.yaml")
+
+
+@pytest.mark.parametrize("path", [URDF, scenario_path("two_ur5e_load.yaml")])
+def test_frames_against_finite_differences(path):
+    # p, R of every link frame; Jp = dp/dq and Jw (column j = vee(dR/dq_j R^T)) against central
+    # differences (h = 1e-6, <= 1e-7); v = Jp qd and omega = Jw qd; R a rotation.
+    sc = ukdyn.load_scenario(path)
+    assert sc.frame_names
+    rng = np.random.default_rng(3)
+    q = sc.q0 + 0.1 * rng.standard_normal(sc.dof)
+    qd = rng.standard_normal(sc.dof)
+    h = 1e-6
+
+    def vee(S):
+        return np.array([S[2, 1], S[0, 2], S[1, 0]])
+
+    for name in sc.frame_names:
+        f = sc.frame(name, q, qd)
+        R = f["R"]
+        assert np.max(np.abs(R @ R.T - np.eye(3))) < 1e-14 and np.linalg.det(R) > 0
+        for j in range(sc.dof):
+            e = np.zeros(sc.dof)
+            e[j] = h
+            fp, fm = sc.frame(name, q + e), sc.frame(name, q - e)
+            dp = (fp["p"] - fm["p"]) / (2 * h)
+            dR = (fp["R"] - fm["R"]) / (2 * h)
+            assert np.max(np.abs(f["Jp"][:, j] - dp)) <= 1e-7 * (1 + np.max(np.abs(dp))), (name, j)
+            assert np.max(np.abs(f["Jw"][:, j] - vee(dR @ R.T))) <= 1e-7, (name, j)
+        np.testing.assert_allclose(f["v"], f["Jp"] @ qd, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f["omega"], f["Jw"] @ qd, rtol=0, atol=1e-12)
+    with pytest.raises(KeyError, match="no such frame"):
+        sc.frame("nowhere.link", q)
+
+
+def test_frame_origins_equal_the_replay_geometry():
+    # A second formulation: the replay geometry places link frame origins by link_poses().
+    sc = ukdyn.load_scenario(URDF)
+    q = sc.q0 + 0.05
+    pts = sc.points(q)
+    common = [n for n in sc.frame_names if n in pts]
+    assert len(common) >= 4, (sc.frame_names, list(pts))
+    for name in common:
+        np.testing.assert_allclose(sc.frame(name, q)["p"], pts[name], rtol=0, atol=1e-14)

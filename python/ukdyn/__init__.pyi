@@ -362,6 +362,13 @@ class Scenario:
         tau: Optional[ArrayLike] = None,
     ) -> dict[str, Any]:
         """qdd, Qc (k x n), rank, residual, consistent (k) of each row"""
+    @property
+    def frame_names(self) -> list[str]:
+        """the link frames of tree subsystems, '<subsystem>.<link>'"""
+    def frame(
+        self, name: str, q: ArrayLike, qd: Optional[ArrayLike] = None
+    ) -> dict[str, FloatArray]:
+        """p, R, v, omega, Jp, Jw of a link frame in the world frame"""
     def points(self, q: ArrayLike) -> dict[str, FloatArray]:
         """world positions of the named points at q (as the replay page draws them)"""
     def energies(self, q: ArrayLike, qd: ArrayLike, *, t: float = 0.0) -> dict[str, float]:
