@@ -290,7 +290,9 @@ Enum enum_of(const std::string& name, std::initializer_list<Enum> values, const 
   std::string known;
   for (Enum e : values) {
     if (to_string(e) == name) return e;
-    known += (known.empty() ? "" : ", ") + to_string(e);
+    // (two appends: GCC 12's LTO reports a false -Wstringop-overflow for the concatenation)
+    if (!known.empty()) known += ", ";
+    known += to_string(e);
   }
   throw ukdyn::Error(std::string(what) + ": '" + name + "' (expected one of " + known + ")");
 }

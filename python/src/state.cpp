@@ -372,7 +372,10 @@ FrameRef find_frame(const PyScenario& s, const std::string& name) {
     if (link >= -1) return {t, sys.layout().start[k], link};
   }
   std::string known;
-  for (const auto& n : frame_names(s)) known += (known.empty() ? "" : ", ") + n;
+  for (const auto& n : frame_names(s)) {
+    if (!known.empty()) known += ", ";
+    known += n;
+  }
   throw py::key_error("frame '" + name + "': no such frame (the frames of tree subsystems are " +
                       (known.empty() ? std::string("none") : known) + ")");
 }
