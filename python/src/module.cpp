@@ -6,15 +6,20 @@
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
+#include <Eigen/Cholesky>
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <exception>
+#include <future>
 #include <limits>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
-#include "bindings.hpp"
+#include "scenario_bindings.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/run/run.hpp"
@@ -25,6 +30,51 @@
 #include "ukdyn/version.hpp"
 
 namespace ukdyn_python {
+
+py::array_t<double, py::array::c_style | py::array::forcecast> checked_vector(const py::object& v,
+                                                                              ukdyn::Index n,
+                                                                              const char* what) {
+  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+  if (!a) {
+    PyErr_Clear();
+    throw py::type_error(std::string(what) + ": expected a sequence of " + std::to_string(n) +
+                         " numbers");
+  }
+  if (a.ndim() != 1 || a.size() != n) {
+    throw py::value_error(std::string(what) + ": expected " + std::to_string(n) +
+                          " numbers, got an array of " + std::to_string(a.size()) + " in " +
+                          std::to_string(a.ndim()) + " dimensions");
+  }
+  const double* p = a.data();
+  for (ukdyn::Index i = 0; i < n; ++i) {
+    if (!std::isfinite(p[i])) {
+      throw py::value_error(std::string(what) + "[" + std::to_string(i) + "]: not finite (" +
+                            std::to_string(p[i]) + ")");
+    }
+  }
+  return a;
+}
+
+ukdyn::Vec vector_arg(const py::object& v, ukdyn::Index n, const char* what) {
+  const auto a = checked_vector(v, n, what);
+  ukdyn::Vec out(n);
+  std::copy(a.data(), a.data() + n, out.data());
+  return out;
+}
+
+void require_finite(double t, const char* what) {
+  if (!std::isfinite(t)) throw py::value_error(std::string(what) + ": not finite");
+}
+
+namespace {
+// A tolerance as the scenario loader takes it (src/scenario/scenario.cpp): in [1e-16, 1].
+double checked_tolerance(double v, const char* what) {
+  if (!(v >= 1e-16 && v <= 1.0))
+    throw py::value_error(std::string(what) + ": a tolerance must lie in [1e-16, 1], got " +
+                          std::to_string(v));
+  return v;
+}
+}  // namespace
 
 namespace {
 
@@ -225,27 +275,6 @@ py::object control_law_callable(const py::object& law) {
 
 // ---------------------------------------------------------------------------- scenario
 
-struct PyScenario {
-  ukdyn::Scenario sc;
-};
-
-Vec vector_arg(const py::object& v, Index n, const char* what) {
-  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
-  if (!a) {
-    PyErr_Clear();
-    throw py::type_error(std::string(what) + ": expected a sequence of " + std::to_string(n) +
-                         " numbers");
-  }
-  if (a.ndim() != 1 || a.size() != n) {
-    throw py::value_error(std::string(what) + ": expected " + std::to_string(n) +
-                          " numbers, got an array of " + std::to_string(a.size()) + " in " +
-                          std::to_string(a.ndim()) + " dimensions");
-  }
-  Vec out(n);
-  std::copy(a.data(), a.data() + n, out.data());
-  return out;
-}
-
 py::array_t<double> numpy_of(const Vec& v) { return copy_of(v); }
 py::array_t<double> numpy_of(const Mat& M) {
   py::array_t<double> a({M.rows(), M.cols()});
@@ -261,7 +290,9 @@ Enum enum_of(const std::string& name, std::initializer_list<Enum> values, const 
   std::string known;
   for (Enum e : values) {
     if (to_string(e) == name) return e;
-    known += (known.empty() ? "" : ", ") + to_string(e);
+    // (two appends: GCC 12's LTO reports a false -Wstringop-overflow for the concatenation)
+    if (!known.empty()) known += ", ";
+    known += to_string(e);
   }
   throw ukdyn::Error(std::string(what) + ": '" + name + "' (expected one of " + known + ")");
 }
@@ -275,11 +306,42 @@ struct ForwardResult {
   bool consistent = true, finite = true;
 };
 
+// What `ukdyn eval` refuses to answer (src/run/eval_protocol.cpp), refused here too: a singular M
+// (also to round-off: LLT reciprocal condition under 1e-13, eval's min_rcond) that the constraints
+// do not make up for, and any non-finite result. Raises ukdyn.Error.
+void check_forward_result(const ukdyn::System& sys, const ukdyn::ForwardData& data, const Mat& C) {
+  if (!data.M.allFinite())
+    throw ukdyn::Error("forward: the mass matrix M is not finite at this state");
+  if (data.singular.rank_deficient) {
+    throw ukdyn::Error(
+        "forward: the mass matrix M is singular and the constraints do not fix the undetermined "
+        "directions ([M; A] is rank deficient) at this state");
+  }
+  const Eigen::LLT<Mat> llt(ukdyn::solved_mass(sys, data));
+  if (llt.info() != Eigen::Success)
+    throw ukdyn::Error(
+        "forward: the mass matrix M is singular (not positive definite) at this state");
+  if (const double rc = llt.rcond(); !(rc >= 1e-13)) {
+    std::ostringstream os;
+    os << "forward: the mass matrix M is singular to round-off at this state (reciprocal "
+          "condition "
+       << rc << ")";
+    throw ukdyn::Error(os.str());
+  }
+  if (!data.result.finite || !data.qdd.allFinite() || !data.Qc.allFinite() || !data.A.allFinite() ||
+      !data.b.allFinite() || !data.G.allFinite() || !data.Q.allFinite() || !data.Cqd.allFinite() ||
+      !C.allFinite()) {
+    throw ukdyn::Error(
+        "forward: non-finite result at this state (M, A, b, forces or accelerations)");
+  }
+}
+
 ForwardResult forward(const PyScenario& s, double t, const py::object& q_in,
                       const py::object& qd_in, const py::object& tau_in,
                       const std::vector<py::object>& forces) {
   const ukdyn::Scenario& sc = s.sc;
   const Index n = sc.system->dof();
+  require_finite(t, "t");
   const Vec q = vector_arg(q_in, n, "q");
   const Vec qd = vector_arg(qd_in, n, "qd");
   const Vec tau = tau_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
@@ -293,6 +355,7 @@ ForwardResult forward(const PyScenario& s, double t, const py::object& q_in,
     ukdyn::coriolis_matrix(*sys, q, qd, C);
   }
   rethrow_recorded(errors);
+  check_forward_result(*sys, data, C);
   ForwardResult r;
   r.M = numpy_of(data.M);
   r.C = numpy_of(C);
@@ -369,6 +432,7 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   const ukdyn::Scenario& sc = s.sc;
   const ukdyn::System& sys = *sc.system;
   const Index n = sys.dof();
+  require_finite(t, "t");
   const Vec q = vector_arg(q_in, n, "q");
   const Vec qd = vector_arg(qd_in, n, "qd");
   const Vec tau = tau_in.is_none() ? Vec(Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
@@ -416,6 +480,7 @@ struct Run {
   std::string status, message;
   bool complete = false;
   ukdyn::SimulationStats stats;
+  py::object assembly = py::none();  // simulate(assemble=True): what assemble() returned
 
   [[nodiscard]] Index column_index(const std::string& name) const {
     for (std::size_t j = 0; j < columns.size(); ++j) {
@@ -437,11 +502,153 @@ struct Run {
   }
 };
 
+py::dict assembly_dict(const ukdyn::AssemblyResult& a) {
+  py::dict d;
+  d["q"] = numpy_of(a.q);
+  d["qd"] = numpy_of(a.qd);
+  d["success"] = a.success;
+  d["iterations"] = a.iterations;
+  d["max_position_residual"] = a.max_position_residual;
+  d["max_velocity_residual"] = a.max_velocity_residual;
+  d["message"] = a.message;
+  return d;
+}
+
+// The rows of `r` over tol, worst first: "'name' = residual, ..." (at most 8 named).
+std::string violated_rows(const ukdyn::System& sys, const Vec& r, double tol) {
+  std::vector<Index> rows;
+  for (Index i = 0; i < r.size(); ++i) {
+    if (!(std::abs(r(i)) <= tol)) rows.push_back(i);
+  }
+  std::sort(rows.begin(), rows.end(),
+            [&r](Index a, Index b) { return std::abs(r(a)) > std::abs(r(b)); });
+  std::ostringstream os;
+  os.precision(3);
+  for (std::size_t k = 0; k < rows.size() && k < 8; ++k) {
+    os << (k ? ", " : "") << "'" << sys.constraint_row_names()[static_cast<std::size_t>(rows[k])]
+       << "' = " << std::scientific << r(rows[k]);
+  }
+  if (rows.size() > 8) os << " and " << rows.size() - 8 << " more";
+  return os.str();
+}
+
+// The start of a run, as the scenario loader checks `initial:` (paper, assumption 3): q0, qd0, t0,
+// t_end overridden where given, then |Φ(q0, t0)| and |Φ̇| ≤ initial_tolerance on every row, or a
+// ValueError naming the rows and their residuals. With `assemble`, the state is assemble()'s
+// (`ukdyn assemble`), returned as a dict (None otherwise).
+py::object prepare_start(ukdyn::Scenario& sc, const py::object& q0, const py::object& qd0,
+                         const py::object& t0, const py::object& t_end, bool assemble) {
+  const Index n = sc.system->dof();
+  if (!q0.is_none()) sc.q0 = vector_arg(q0, n, "q0");
+  if (!qd0.is_none()) sc.qd0 = vector_arg(qd0, n, "qd0");
+  if (!t0.is_none()) sc.sim.t0 = t0.cast<double>();
+  if (!t_end.is_none()) sc.sim.t_end = t_end.cast<double>();
+  require_finite(sc.sim.t0, "t0");
+  require_finite(sc.sim.t_end, "t_end");
+  if (!(sc.sim.t_end > sc.sim.t0)) throw py::value_error("t_end must be greater than t0");
+  if (assemble) {
+    const ukdyn::AssemblyResult a = ukdyn::assemble(*sc.system, sc.sim.t0, sc.q0, sc.qd0, sc.held);
+    if (!a.success) throw ukdyn::Error("simulate(assemble=True): assembly failed: " + a.message);
+    sc.q0 = a.q;
+    sc.qd0 = a.qd;
+    return assembly_dict(a);
+  }
+  const ukdyn::System& sys = *sc.system;
+  if (sys.rows() == 0) return py::none();
+  Vec phi(sys.rows()), phid(sys.rows());
+  ukdyn::position_residuals(sys, sc.sim.t0, sc.q0, phi);
+  ukdyn::velocity_residuals(sys, sc.sim.t0, sc.q0, sc.qd0, phid);
+  const double tol = sc.initial_tolerance;
+  std::ostringstream os;
+  os.precision(3);
+  if (!(phi.cwiseAbs().maxCoeff() <= tol)) {
+    os << "simulate: q0 violates the constraints at t0 beyond initial_tolerance " << tol
+       << " (residual Phi of the rows " << violated_rows(sys, phi, tol) << ")";
+  } else if (!(phid.cwiseAbs().maxCoeff() <= tol)) {
+    os << "simulate: qd0 violates the velocity constraints at t0 beyond initial_tolerance " << tol
+       << " (residual Phi_dot of the rows " << violated_rows(sys, phid, tol) << ")";
+  }
+  if (!os.str().empty()) {
+    throw py::value_error(os.str() +
+                          "; pass assemble=True to start from the consistent state assemble() "
+                          "finds, or give a consistent q0, qd0");
+  }
+  return py::none();
+}
+
+// run_scenario_in_memory() on a worker thread while this (Python's) thread waits with the GIL
+// released and, every 20 ms, takes it back to check for signals (PyErr_CheckSignals: Ctrl-C). A
+// signal whose handler raises (KeyboardInterrupt) cancels the run (options.cancel: it stops after
+// the current step, status `stopped`, as the CLI's run on SIGINT); `interrupted` is then true, the
+// Python error stays set and the run so far is returned once the worker has returned. Python
+// callables of the run take the GIL on the worker thread.
+ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOptions opt,
+                                   bool& interrupted) {
+  std::atomic<bool> cancel{false};
+  opt.cancel = &cancel;
+  auto done = std::async(std::launch::async,
+                         [&sc, &opt] { return ukdyn::run_scenario_in_memory(sc, opt); });
+  interrupted = false;
+  for (;;) {
+    {
+      py::gil_scoped_release release;
+      if (done.wait_for(std::chrono::milliseconds(20)) == std::future_status::ready) break;
+    }
+    if (!interrupted && PyErr_CheckSignals() != 0) {
+      interrupted = true;
+      cancel.store(true);
+    }
+  }
+  if (interrupted) {
+    try {
+      return done.get();
+    } catch (...) {  // the signal's exception is the one raised
+      return {};
+    }
+  }
+  return done.get();
+}
+
+// The Run of a MemoryRun: its columns moved into one column-major buffer owned by a capsule.
+std::shared_ptr<Run> make_run(const ukdyn::MemoryRun& mem, const py::object& assembly) {
+  auto run = std::make_shared<Run>();
+  run->columns = mem.header;
+  const std::size_t cols = mem.header.size();
+  run->rows = mem.report.csv_rows;
+  // Row-major (as sampled) → column-major, once, in C++.
+  // (never empty: a run with no sample still hands out views of a valid pointer)
+  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem.values.size()));
+  const auto rows = static_cast<std::size_t>(run->rows);
+  for (std::size_t i = 0; i < rows; ++i) {
+    for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem.values[i * cols + j];
+  }
+  run->values = buffer->data();
+  run->owner = py::capsule(buffer, [](void* p) { delete static_cast<std::vector<double>*>(p); });
+  run->summary = mem.summary_json.empty()
+                     ? py::object(py::none())
+                     : py::module_::import("json").attr("loads")(mem.summary_json);
+  for (const auto& w : mem.report.stats.warnings) {
+    py::dict d;
+    d["t"] = w.t;
+    d["kind"] = w.kind;
+    d["message"] = w.message;
+    run->warnings.append(d);
+  }
+  run->stats = mem.report.stats;
+  run->status = ukdyn::to_string(mem.report.stats.status);
+  run->message = mem.report.stats.message;
+  run->complete = mem.report.complete();
+  run->assembly = assembly;
+  return run;
+}
+
 std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
-                              const std::vector<py::object>& forces,
-                              const py::object& control_law) {
+                              const std::vector<py::object>& forces, const py::object& control_law,
+                              const py::object& q0, const py::object& qd0, const py::object& t0,
+                              const py::object& t_end, bool assemble) {
   ukdyn::Scenario sc = s.sc;
   CallbackErrors errors;
+  py::object assembly = prepare_start(sc, q0, qd0, t0, t_end, assemble);
   if (sc.control && !forces.empty()) {
     throw ukdyn::Error(
         "forces: Python applied forces are not supported with a control: section (they would act "
@@ -480,40 +687,23 @@ std::shared_ptr<Run> simulate(const PyScenario& s, const py::object& controller,
     };
   }
   ukdyn::MemoryRun result;
-  {
-    py::gil_scoped_release release;
-    result = ukdyn::run_scenario_in_memory(sc, opt);
+  bool interrupted = false;
+  try {
+    result = run_interruptible(sc, opt, interrupted);
+  } catch (...) {
+    law.reset();  // with the GIL (it holds a Python object)
+    throw;
   }
-  law.reset();  // with the GIL (it holds a Python object)
+  law.reset();
+  if (interrupted) {
+    // KeyboardInterrupt (or what the signal's handler raised), with the run so far as its .run
+    // (status `stopped`, incomplete, as the CLI's run on Ctrl-C).
+    py::error_already_set e;  // takes the pending exception
+    e.value().attr("run") = py::cast(make_run(result, assembly));
+    throw e;
+  }
   rethrow_recorded(errors);
-  const ukdyn::MemoryRun* mem = &result;
-
-  auto run = std::make_shared<Run>();
-  run->columns = mem->header;
-  const std::size_t cols = mem->header.size();
-  run->rows = mem->report.csv_rows;
-  // Row-major (as sampled) → column-major, once, in C++.
-  // (never empty: a run with no sample still hands out views of a valid pointer)
-  auto* buffer = new std::vector<double>(std::max<std::size_t>(1, mem->values.size()));
-  const auto rows = static_cast<std::size_t>(run->rows);
-  for (std::size_t i = 0; i < rows; ++i) {
-    for (std::size_t j = 0; j < cols; ++j) (*buffer)[j * rows + i] = mem->values[i * cols + j];
-  }
-  run->values = buffer->data();
-  run->owner = py::capsule(buffer, [](void* p) { delete static_cast<std::vector<double>*>(p); });
-  run->summary = py::module_::import("json").attr("loads")(mem->summary_json);
-  for (const auto& w : mem->report.stats.warnings) {
-    py::dict d;
-    d["t"] = w.t;
-    d["kind"] = w.kind;
-    d["message"] = w.message;
-    run->warnings.append(d);
-  }
-  run->stats = mem->report.stats;
-  run->status = ukdyn::to_string(mem->report.stats.status);
-  run->message = mem->report.stats.message;
-  run->complete = mem->report.complete();
-  return run;
+  return make_run(result, assembly);
 }
 
 std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object& q0,
@@ -551,7 +741,12 @@ std::shared_ptr<PyScenario> from_system(const PySystem& system, const py::object
       {ukdyn::DriftControl::none, ukdyn::DriftControl::baumgarte, ukdyn::DriftControl::projection},
       "drift");
   sc.sim.energy_balance = energy_balance;
-  if (!(t_end > t0) || !(sample_dt > 0.0) || !(step > 0.0)) {
+  require_finite(t0, "t0");
+  require_finite(t_end, "t_end");
+  checked_tolerance(abs_tol, "abs_tol");
+  checked_tolerance(rel_tol, "rel_tol");
+  if (!(t_end > t0) || !(sample_dt > 0.0) || !(step > 0.0) || !std::isfinite(sample_dt) ||
+      !std::isfinite(step)) {
     throw ukdyn::Error("Scenario.from_system: need t_end > t0, sample_dt > 0 and step > 0");
   }
   return s;
@@ -673,6 +868,8 @@ column of trajectory.csv of that name as a numpy array; every column is a view o
                     "completed, non_finite, inconsistent_constraints, step_failure, stopped, "
                     "branch_switch")
       .def_readonly("message", &Run::message, "why the run stopped early (empty if completed)")
+      .def_readonly("assembly", &Run::assembly,
+                    "simulate(assemble=True): assemble()'s dict (q, qd, residuals), else None")
       .def_readonly("complete", &Run::complete, "the integration reached t_end")
       .def_property_readonly("steps", [](const Run& r) { return r.stats.steps; })
       .def_property_readonly("rhs_evaluations",
@@ -702,9 +899,10 @@ n = coordinates, k = actuators.)doc")
       .def_readonly("tau", &ControlData::tau, "the model's constant forces.tau, n")
       .def_readonly("rank", &ControlData::rank, "numerical rank of the model's A M^-1/2");
 
-  py::class_<PyScenario, std::shared_ptr<PyScenario>>(m, "Scenario", R"doc(A system with its initial
+  PyScenarioClass scenario_class(m, "Scenario", R"doc(A system with its initial
 state, constant forces and run settings: loaded from a YAML scenario (docs/scenario-format.md) or
-made from a System built in code (Scenario.from_system).)doc")
+made from a System built in code (Scenario.from_system).)doc");
+  scenario_class
       .def_static(
           "load",
           [](const std::string& path, bool check_initial) {
@@ -763,13 +961,46 @@ made from a System built in code (Scenario.from_system).)doc")
           "constant generalized forces (forces.tau)")
       .def_property(
           "t0", [](const PyScenario& s) { return s.sc.sim.t0; },
-          [](PyScenario& s, double v) { s.sc.sim.t0 = v; })
+          [](PyScenario& s, double v) {
+            require_finite(v, "t0");
+            if (!(v < s.sc.sim.t_end))
+              throw py::value_error("t0: must be less than t_end (" +
+                                    std::to_string(s.sc.sim.t_end) + "); set t_end first");
+            s.sc.sim.t0 = v;
+          },
+          "start time [s] (finite, < t_end)")
       .def_property(
           "t_end", [](const PyScenario& s) { return s.sc.sim.t_end; },
-          [](PyScenario& s, double v) { s.sc.sim.t_end = v; })
+          [](PyScenario& s, double v) {
+            require_finite(v, "t_end");
+            if (!(v > s.sc.sim.t0))
+              throw py::value_error("t_end: must be greater than t0 (" +
+                                    std::to_string(s.sc.sim.t0) + ")");
+            s.sc.sim.t_end = v;
+          },
+          "end time [s] (finite, > t0)")
       .def_property(
           "sample_dt", [](const PyScenario& s) { return s.sc.sim.sample_dt; },
-          [](PyScenario& s, double v) { s.sc.sim.sample_dt = v; })
+          [](PyScenario& s, double v) {
+            if (!(std::isfinite(v) && v > 0.0))
+              throw py::value_error("sample_dt: must be a finite number > 0");
+            s.sc.sim.sample_dt = v;
+          },
+          "output sample step [s] (> 0)")
+      .def_property(
+          "abs_tol", [](const PyScenario& s) { return s.sc.sim.abs_tol; },
+          [](PyScenario& s, double v) { s.sc.sim.abs_tol = checked_tolerance(v, "abs_tol"); },
+          "the integrator's absolute tolerance, in [1e-16, 1] (simulation.abs_tol)")
+      .def_property(
+          "rel_tol", [](const PyScenario& s) { return s.sc.sim.rel_tol; },
+          [](PyScenario& s, double v) { s.sc.sim.rel_tol = checked_tolerance(v, "rel_tol"); },
+          "the integrator's relative tolerance, in [1e-16, 1] (simulation.rel_tol)")
+      .def_property(
+          "initial_tolerance", [](const PyScenario& s) { return s.sc.initial_tolerance; },
+          [](PyScenario& s, double v) {
+            s.sc.initial_tolerance = checked_tolerance(v, "initial_tolerance");
+          },
+          "max |Phi|, |Phi_dot| allowed at the start of simulate(), in [1e-16, 1]")
       .def_property(
           "energy_balance", [](const PyScenario& s) { return s.sc.sim.energy_balance; },
           [](PyScenario& s, bool v) { s.sc.sim.energy_balance = v; },
@@ -804,7 +1035,9 @@ z = (N^T dq, N^T dqd) on the constraint manifold (raises ukdyn.Error for velocit
 dt: also the zero-order-hold Fd, Gd (and Fd_min, Gd_min). docs/derivatives.md.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),
            py::arg("forces") = std::vector<py::object>{}, py::kw_only(),
-           py::arg("control_law") = py::none(),
+           py::arg("control_law") = py::none(), py::arg("q0") = py::none(),
+           py::arg("qd0") = py::none(), py::arg("t0") = py::none(), py::arg("t_end") = py::none(),
+           py::arg("assemble") = false,
            R"doc(Runs the scenario as `ukdyn simulate` does (same samples, columns and summary), in
 memory. controller: u(t, q, qd) -> n numbers, added to the constant tau. forces: callables
 f(t, q, qd) -> Q_a (n numbers), applied forces (non-conservative). A scenario with a control:
@@ -814,7 +1047,10 @@ control_law: law(t, q, qd, data) -> u (one number per actuator), or an object wi
 control(t, q, qd, data), replaces its built-in law; data is a ControlData (the model's M, Q, A,
 b, Qc, qdd, phi, phid at the measured state, the servo-row mask, B, limits). The GIL is released
 while C++ runs and taken back for each call of a callable; an exception raised there ends the run
-and is re-raised here with its type.)doc")
+and is re-raised here with its type. q0, qd0, t0, t_end: the start and the end of this run (else the
+scenario's). The start must satisfy the constraints (|Phi|, |Phi_dot| <= initial_tolerance), else
+ValueError naming the rows and their residuals; assemble=True starts from assemble()'s state
+instead (run.assembly says what it did). Ctrl-C stops the run and raises KeyboardInterrupt.)doc")
       .def(
           "assemble",
           [](const PyScenario& s) {
@@ -823,15 +1059,7 @@ and is re-raised here with its type.)doc")
               py::gil_scoped_release release;
               a = ukdyn::assemble(*s.sc.system, s.sc.sim.t0, s.sc.q0, s.sc.qd0, s.sc.held);
             }
-            py::dict d;
-            d["q"] = numpy_of(a.q);
-            d["qd"] = numpy_of(a.qd);
-            d["success"] = a.success;
-            d["iterations"] = a.iterations;
-            d["max_position_residual"] = a.max_position_residual;
-            d["max_velocity_residual"] = a.max_velocity_residual;
-            d["message"] = a.message;
-            return d;
+            return assembly_dict(a);
           },
           "The consistent (q, qd) nearest to (q0, qd0), holding initial.hold, as `ukdyn "
           "assemble` finds it: a dict q, qd, success, iterations, residuals, message.")
@@ -839,4 +1067,5 @@ and is re-raised here with its type.)doc")
         return "<ukdyn.Scenario '" + s.sc.name + "', " + std::to_string(s.sc.system->dof()) +
                " coordinates, " + std::to_string(s.sc.system->rows()) + " constraint rows>";
       });
+  bind_state(m, scenario_class);
 }

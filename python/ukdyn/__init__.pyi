@@ -1,7 +1,7 @@
 # Type stubs of the Python module ukdyn (docs/python.md). The classes live in ukdyn._ukdyn (C++,
 # pybind11) and are re-exported here.
 from os import PathLike
-from typing import Any, Callable, Literal, Optional, Protocol, Sequence, Union
+from typing import Any, Callable, Literal, Optional, Protocol, Sequence, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -202,6 +202,27 @@ class ForwardResult:
     consistent: bool
     finite: bool
 
+class Data:
+    """Reusable buffers of forward dynamics for one scenario (Scenario.make_data()); the arrays are
+    views of the C++ buffers, refreshed in place by forward(q, qd, t=..., out=data)."""
+    M: FloatArray
+    Cqd: FloatArray
+    G: FloatArray
+    Q: FloatArray
+    A: FloatArray
+    b: FloatArray
+    Qc: FloatArray
+    qdd: FloatArray
+    t: float
+    @property
+    def rank(self) -> int: ...
+    @property
+    def residual(self) -> float: ...
+    @property
+    def consistent(self) -> bool: ...
+    @property
+    def sigma_min(self) -> float: ...
+
 class Linearization:
     qdd: FloatArray
     Qc: FloatArray
@@ -239,6 +260,7 @@ class Run:
     status: str
     message: str
     complete: bool
+    assembly: Optional[dict[str, Any]]
     def __getitem__(self, name: str) -> FloatArray: ...
     def __contains__(self, name: str) -> bool: ...
     def __len__(self) -> int: ...
@@ -295,9 +317,13 @@ class Scenario:
     t0: float
     t_end: float
     sample_dt: float
+    abs_tol: float
+    rel_tol: float
+    initial_tolerance: float
     energy_balance: bool
     @property
     def integrator(self) -> str: ...
+    @overload
     def forward(
         self,
         t: float,
@@ -306,6 +332,54 @@ class Scenario:
         tau: Optional[ArrayLike] = None,
         forces: Sequence[Callback] = (),
     ) -> ForwardResult: ...
+    @overload
+    def forward(
+        self,
+        q: ArrayLike,
+        qd: ArrayLike,
+        out: Data,
+        t: float = 0.0,
+        tau: Optional[ArrayLike] = None,
+    ) -> Data:
+        """into out's buffers: no allocation; returns out"""
+    def make_data(self) -> Data: ...
+    def forward_qdd(
+        self,
+        q: ArrayLike,
+        qd: ArrayLike,
+        t: Union[float, ArrayLike] = 0.0,
+        tau: Optional[ArrayLike] = None,
+        out: Optional[FloatArray] = None,
+        data: Optional[Data] = None,
+    ) -> FloatArray:
+        """qdd of one state (n,) or of each row of (k, n) arrays"""
+    def forward_batch(
+        self,
+        q: ArrayLike,
+        qd: ArrayLike,
+        *,
+        t: Union[float, ArrayLike] = 0.0,
+        tau: Optional[ArrayLike] = None,
+    ) -> dict[str, Any]:
+        """qdd, Qc (k x n), rank, residual, consistent (k) of each row"""
+    @property
+    def frame_names(self) -> list[str]:
+        """the link frames of tree subsystems, '<subsystem>.<link>'"""
+    def frame(
+        self, name: str, q: ArrayLike, qd: Optional[ArrayLike] = None
+    ) -> dict[str, FloatArray]:
+        """p, R, v, omega, Jp, Jw of a link frame in the world frame"""
+    def points(self, q: ArrayLike) -> dict[str, FloatArray]:
+        """world positions of the named points at q (as the replay page draws them)"""
+    def energies(self, q: ArrayLike, qd: ArrayLike, *, t: float = 0.0) -> dict[str, float]:
+        """T, V, E"""
+    def constraints(self, q: ArrayLike, qd: ArrayLike, *, t: float = 0.0) -> dict[str, Any]:
+        """phi, phid, A, b, rank, rank_uk, free_dof, rows"""
+    def inverse_dynamics(
+        self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, *, t: float = 0.0, tol: float = 1e-9
+    ) -> dict[str, Any]:
+        """least-norm tau and Qc for qdd on the manifold: tau, Qc, lambda, acc_residual,
+        residual"""
     @property
     def actuator_names(self) -> list[str]:
         """the actuators (`actuators:`), in the order of u"""
@@ -318,6 +392,11 @@ class Scenario:
         forces: Sequence[Callback] = (),
         *,
         control_law: Optional[ControlLaw] = None,
+        q0: Optional[ArrayLike] = None,
+        qd0: Optional[ArrayLike] = None,
+        t0: Optional[float] = None,
+        t_end: Optional[float] = None,
+        assemble: bool = False,
     ) -> Run:
         """Runs the scenario as `ukdyn simulate` does, in memory. With a control: section, the
         closed loop (plant integrated, columns u_*, e_*, ed_*, Qp_*, Qs_*, summary["control"]);
