@@ -32,4 +32,7 @@ struct PySystem {
 /// make_applied_force and System (definitions.cpp).
 void bind_definitions(py::module_& m);
 
+/// Binds optimize, ipopt_available and Optimized (optimize.cpp; docs/optimization.md).
+void bind_optimize(py::module_& m);
+
 }  // namespace ukdyn_python

@@ -21,6 +21,7 @@ from ._ukdyn import (
     ForceDef,
     ForwardResult,
     Linearization,
+    Optimized,
     Run,
     Scenario,
     ScenarioError,
@@ -31,12 +32,22 @@ from ._ukdyn import (
     make_applied_force,
     make_constraint,
     make_subsystem,
+    ipopt_available,
 )
+from ._ukdyn import optimize as _optimize
 
 
 def load_scenario(path, check_initial=True):
     """Loads and validates a scenario file (docs/scenario-format.md); same as Scenario.load."""
     return Scenario.load(str(path), check_initial)
+
+
+def optimize(path, out=None):
+    """Solves a trajectory-optimisation problem file (docs/optimization.md) by collocation on IPOPT;
+    with out, also writes the run folder (trajectory.csv, summary.json) and runs the open-loop
+    replay check. Returns an Optimized (t, q, qd, qdd, u, Qc, mu as numpy arrays; cost, status,
+    trusted, message, ...). Raises ukdyn.ScenarioError for a bad problem file."""
+    return _optimize(str(path), None if out is None else str(out))
 
 
 __all__ = [
@@ -50,6 +61,7 @@ __all__ = [
     "ForceDef",
     "ForwardResult",
     "Linearization",
+    "Optimized",
     "Run",
     "Scenario",
     "ScenarioError",
@@ -58,6 +70,8 @@ __all__ = [
     "System",
     "__version__",
     "load_scenario",
+    "ipopt_available",
+    "optimize",
     "make_applied_force",
     "make_constraint",
     "make_subsystem",

@@ -253,6 +253,37 @@ class Linearization:
     rheonomic: Optional[bool]
     minimal_note: str
 
+class Optimized:
+    t: FloatArray
+    knot: list[bool]
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    u: FloatArray
+    Qc: FloatArray
+    mu: FloatArray
+    coordinates: list[str]
+    actuators: list[str]
+    rows: list[str]
+    cost: float
+    duration: float
+    status: str
+    converged: bool
+    trusted: bool
+    message: str
+    iterations: int
+    dual_infeasibility: float
+    max_defect: float
+    max_position_residual: float
+    max_velocity_residual: float
+    max_correction_ratio: float
+    replay_max_q_deviation: Optional[float]
+
+def ipopt_available() -> bool: ...
+def optimize(
+    path: Union[str, PathLike[str]], out: Optional[Union[str, PathLike[str]]] = None
+) -> Optimized: ...
+
 class Run:
     columns: list[str]
     summary: dict[str, Any]
