@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "cli_run.hpp"
@@ -220,7 +221,8 @@ TEST(Optimize, RestToRestOnARailMatchesTheCubicClosedForm) {
 TEST(Optimize, ABoundOnAConstraintForceHoldsAndCosts) {
   if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
   const auto sc = load_scenario_text(circle_text(0.0), "circle.yaml");
-  TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, 20, 1.0, on_circle(2.0));
+  TrajectoryProblem p =
+      problem_for(sc, CollocationMethod::hermite_simpson, 20, 1.0, on_circle(2.0));
   const auto free = optimize_trajectory(p);
   ASSERT_TRUE(free.converged) << free.status;
   // Unbounded, the optimum is the cubic along the arc (peak speed 1.5 RΔθ/T at t = T/2, a knot)
@@ -291,7 +293,8 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"costs:", "cost:", "key 'cost': unknown key"},
       {"  effort: 1e-4", "  constraint_rows: {nope: 1}",
        "key 'costs.constraint_rows.nope': no constraint row or block named 'nope'"},
-      {"costs:", "actuated: [dx1, dx1]\ncosts:", "key 'actuated[1]': coordinate 'dx1' is listed twice"},
+      {"costs:", "actuated: [dx1, dx1]\ncosts:",
+       "key 'actuated[1]': coordinate 'dx1' is listed twice"},
       {"costs:", "max_correction: 0\ncosts:", "key 'max_correction': must be > 0"},
   };
   for (const auto& c : cases) {
@@ -352,6 +355,48 @@ TEST(OptimizeFile, PaperLiftBeatsThePapersCosinePath) {
               path, optimum, 100 * (1 - optimum / path));
   EXPECT_LT(optimum, path);
   (void)n;
+}
+
+// A warm start from a previous run's trajectory.csv (`guess:`), here the trapezoidal solution on
+// 20 intervals refined to Hermite–Simpson on 40 (another method and mesh: interpolated in time):
+// the same optimum as from the straight line, in fewer iterations.
+TEST(OptimizeFile, WarmStartFromAPreviousRun) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_guess");
+  std::string text = ukdyn_test::slurp(dir / "paper_lift.yaml");
+  auto replace = [](std::string t, const std::string& from, const std::string& to) {
+    const auto at = t.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    return t.replace(at, from.size(), to);
+  };
+  const std::string coarse =
+      replace(replace(text, "method: hermite_simpson", "method: trapezoidal"), "intervals: 50",
+              "intervals: 20");
+  const OptimizationFile f1 = load_optimization_text(coarse, dir / "coarse.yaml");
+  run_optimization(f1, scratch / "coarse");
+  const std::string fine = replace(text, "intervals: 50", "intervals: 40");
+  const OptimizationFile cold = load_optimization_text(fine, dir / "fine.yaml");
+  const OptimizationFile warm = load_optimization_text(
+      fine + "guess: " + (scratch / "coarse" / "trajectory.csv").string() + "\n",
+      dir / "fine.yaml");
+  const auto a = optimize_trajectory(cold.problem, cold.ipopt);
+  const auto b = optimize_trajectory(warm.problem, warm.ipopt);
+  ASSERT_TRUE(a.converged && b.converged) << a.status << " " << b.status;
+  EXPECT_LT(std::abs(a.cost - b.cost), 1e-7 * a.cost);
+  EXPECT_LT(b.iterations, a.iterations);
+  std::printf("cold start %d iterations, warm start %d\n", a.iterations, b.iterations);
+  // A guess file without the columns the problem needs is refused at `guess`.
+  std::ofstream(scratch / "bad.csv") << "t,dx1\n0,0\n1,0\n";
+  try {
+    load_optimization_text(fine + "guess: " + (scratch / "bad.csv").string() + "\n",
+                           dir / "fine.yaml");
+    ADD_FAILURE() << "accepted a guess without its columns";
+  } catch (const ScenarioError& e) {
+    EXPECT_NE(std::string(e.what()).find("key 'guess': the guess file has no column 'dy1'"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <sstream>
+#include <tuple>
 
 #include "optimize/transcription.hpp"
 #include "ukdyn/model/constraint_jacobians.hpp"
@@ -141,6 +142,14 @@ void validate(const TrajectoryProblem& pr) {
         pr.B.allFinite()))
     throw Error("optimize: the start state, tau and B must be finite");
   check_costs_and_time(pr, k);
+  const Index P =
+      pr.method == CollocationMethod::hermite_simpson ? 2 * pr.intervals + 1 : pr.intervals + 1;
+  for (const auto& [what, G, cols] :
+       {std::tuple{"q_guess", &pr.q_guess, n}, std::tuple{"qd_guess", &pr.qd_guess, n},
+        std::tuple{"u_guess", &pr.u_guess, k}})
+    if (G->size() && (G->rows() != P || G->cols() != cols || !G->allFinite()))
+      throw Error(std::string("optimize: ") + what + " must be finite with one row per point (" +
+                  std::to_string(P) + ") and " + std::to_string(cols) + " columns");
   if (time_varying(sys))
     throw Error(
         "optimize: the system depends on time (a rheonomic constraint or a time-dependent "
@@ -225,6 +234,14 @@ class ValueSink final : public optimize::JacobianSink {
   std::size_t at_ = 0;
 };
 
+Vec view(const Number* x, IIndex n) { return Eigen::Map<const Vec>(x, n); }
+
+// Bounds for IPOPT: ±inf as ±kIpoptInf (beyond nlp_{lower,upper}_bound_inf: no bound).
+void copy(const Vec& v, Number* out, IIndex n) {
+  for (IIndex i = 0; i < n; ++i)
+    out[i] = std::isfinite(v(i)) ? v(i) : (v(i) > 0 ? kIpoptInf : -kIpoptInf);
+}
+
 // The TNLP: every callback maps x onto the transcription; an evaluation that throws (a state where
 // the dynamics is not finite, say) returns false, and IPOPT shortens its step.
 class CollocationTnlp final : public Ipopt::TNLP {
@@ -295,11 +312,6 @@ class CollocationTnlp final : public Ipopt::TNLP {
   }
 
  private:
-  static Vec view(const Number* x, IIndex n) { return Eigen::Map<const Vec>(x, n); }
-  static void copy(const Vec& v, Number* out, IIndex n) {
-    for (IIndex i = 0; i < n; ++i)
-      out[i] = std::isfinite(v(i)) ? v(i) : (v(i) > 0 ? kIpoptInf : -kIpoptInf);
-  }
   template <class F>
   bool guard(F&& f) {
     try {

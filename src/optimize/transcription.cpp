@@ -172,7 +172,10 @@ Vec Transcription::initial_guess() const {
   Vec x = Vec::Zero(nv_);
   Mat qd;
   const Mat q = pr.q_guess.size() ? pr.q_guess : straight_line_guess(qd);
-  if (pr.qd_guess.size()) qd = pr.qd_guess;
+  if (pr.qd_guess.size())
+    qd = pr.qd_guess;
+  else if (pr.q_guess.size())
+    qd.setZero(P_, n_);
   for (Index p = 0; p < P_; ++p) {
     x.segment(q_of(p), n_) = q.row(p).transpose();
     x.segment(v_of(p), n_) = qd.row(p).transpose();

@@ -3,7 +3,9 @@
 
 #include <cmath>
 #include <limits>
+#include <sstream>
 
+#include "output/csv_reader.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 
@@ -201,6 +203,61 @@ void actuation(const Scenario& sc, TrajectoryProblem& p) {
   }
 }
 
+// `guess: RUN/trajectory.csv`: a previous run's q, q̇ and u (a `ukdyn optimize` folder, or a
+// `simulate` run with u_ columns), interpolated linearly in the fraction of the duration onto
+// this problem's points (another mesh, method or duration is fine: a warm start).
+void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path& file,
+                    TrajectoryProblem& p) {
+  std::istringstream text(read_scenario_text(file));  // a regular file of at most 4 MiB
+  io_detail::CsvLines lines(text);
+  std::string line;
+  if (!lines.next(line)) L.fail(at, "the guess file is empty");
+  const auto header = io_detail::split_csv_line(line);
+  const auto& names = p.system->coordinate_names();
+  std::vector<std::size_t> cols;
+  auto column = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    if (it == header.end()) L.fail(at, "the guess file has no column '" + name + "'");
+    cols.push_back(static_cast<std::size_t>(it - header.begin()));
+  };
+  column("t");
+  for (const auto& c : names) column(c);
+  for (const auto& c : names) column(c + "_dot");
+  for (const auto& a : p.actuator_names) column("u_" + a);
+  std::vector<Vec> rows;
+  while (lines.next(line)) {
+    const auto cells = io_detail::split_csv_line(line);
+    Vec r(static_cast<Index>(cols.size()));
+    for (std::size_t i = 0; i < cols.size(); ++i)
+      if (cols[i] >= cells.size() ||
+          !io_detail::parse_csv_number(cells[cols[i]], r(static_cast<Index>(i))) ||
+          !std::isfinite(r(static_cast<Index>(i))))
+        L.fail(at, "the guess file's line " + std::to_string(lines.line_no()) +
+                       " has no finite number in column '" +
+                       header[cols[i] < header.size() ? cols[i] : 0] + "'");
+    if (!rows.empty() && !(r(0) > rows.back()(0)))
+      L.fail(at,
+             "the guess file's times do not increase at line " + std::to_string(lines.line_no()));
+    rows.push_back(std::move(r));
+  }
+  if (rows.size() < 2) L.fail(at, "the guess file needs at least two rows");
+  const Index n = p.system->dof(), k = p.B.cols();
+  const Index P =
+      p.method == CollocationMethod::hermite_simpson ? 2 * p.intervals + 1 : p.intervals + 1;
+  p.q_guess.resize(P, n), p.qd_guess.resize(P, n), p.u_guess.resize(P, k);
+  const double t0 = rows.front()(0), span = rows.back()(0) - t0;
+  std::size_t j = 0;
+  for (Index i = 0; i < P; ++i) {
+    const double t = t0 + span * static_cast<double>(i) / static_cast<double>(P - 1);
+    while (j + 2 < rows.size() && rows[j + 1](0) < t) ++j;
+    const double w = std::clamp((t - rows[j](0)) / (rows[j + 1](0) - rows[j](0)), 0.0, 1.0);
+    const Vec r = (1.0 - w) * rows[j] + w * rows[j + 1];
+    p.q_guess.row(i) = r.segment(1, n).transpose();
+    p.qd_guess.row(i) = r.segment(1 + n, n).transpose();
+    p.u_guess.row(i) = r.segment(1 + 2 * n, k).transpose();
+  }
+}
+
 }  // namespace
 
 OptimizationFile load_optimization_text(const std::string& text,
@@ -275,6 +332,15 @@ OptimizationFile load_optimization_text(const std::string& text,
   if (const Node mc = L.child(root, "max_correction", false); mc.node.IsDefined())
     p.max_correction = L.positive(mc);
   ipopt(L, root, f.ipopt);
+  if (const Node g = L.child(root, "guess", false); g.node.IsDefined()) {
+    try {
+      guess_from_csv(L, g, path.parent_path() / L.string(g), p);
+    } catch (const ScenarioError& e) {
+      const std::string m = e.what();
+      if (m.find("key 'guess'") != std::string::npos) throw;
+      L.fail(g, m);
+    }
+  }
   if (const Node v = L.child(root, "verify", false); v.node.IsDefined()) {
     const std::string s = L.string(v);
     if (s != "true" && s != "false") L.fail(v, "expected true or false");
