@@ -1,12 +1,12 @@
 // Wheeled platforms (docs/wheeled-platforms.md): subsystems of type mecanum, omni and
 // differential_drive, generated as definitions with exact nonholonomic rolling rows. Checked by
 // evidence that does not come from the generator:
-// - the textbook inverse kinematics of an X-layout Mecanum platform (sign table of Taheri, Qiao &
-//   Ghaeminezhad 2015, Eq. (22); Muir & Neuman 1987) and of a three-wheel omni (kiwi) platform;
+// - the textbook inverse kinematics of an X-layout Mecanum platform ([Taheri2015], wheels FL, FR,
+//   RL, RR; diagonal wheels share a roller angle) and of a three-wheel omni (kiwi) platform;
 // - the power balance Σ τ_i φ̇_i = dE/dt and its integral E − E0 = Σ τ_i (φ_i − φ_i0) under
 //   constant torques (the rolling rows are ideal: their force does no work);
 // - a second formulation: d'Alembert's principle in the platform's own twist ν = (u, w, ω)
-//   (Zeidis & Zimmermann, ZAMM 2019), (diag(m, m, I) + J Hᵀ H) ν̇ + m (−ω w, ω u, 0) = Hᵀ τ with
+//   (as in [Zeidis2019]), (diag(m, m, I) + J Hᵀ H) ν̇ + m (−ω w, ω u, 0) = Hᵀ τ with
 //   φ̇ = H ν written here from the layout, at random states of a five-wheel layout;
 // - the special motions of the X layout (pure translation forward and sideways, pure rotation
 //   about the centre) against their closed forms;
@@ -87,7 +87,8 @@ std::array<double, 3> twist(const Vec& q, const Vec& qd) {
   return {c * qd(0) + s * qd(1), -s * qd(0) + c * qd(1), qd(2)};
 }
 
-// Textbook Mecanum inverse kinematics of the X layout (Taheri et al. 2015, Eq. (22)):
+// Textbook Mecanum inverse kinematics of the X layout ([Taheri2015]; written here, not taken from
+// the generator):
 //   φ̇_FL = (u − w − (lx + ly) ω)/r,  φ̇_FR = (u + w + (lx + ly) ω)/r,
 //   φ̇_RL = (u + w − (lx + ly) ω)/r,  φ̇_RR = (u − w + (lx + ly) ω)/r.
 std::array<double, 4> mecanum_ik(const std::array<double, 3>& v) {
@@ -257,7 +258,7 @@ TEST(WheeledPlatforms, MecanumAccelerationsMatchTheReducedEquationsInTheTwist) {
               worst, worst_wheel);
 }
 
-// The special motions of the X layout from rest (Zeidis & Zimmermann 2019): with κ = 4 J / r²,
+// The special motions of the X layout from rest (cf. [Zeidis2019]): with κ = 4 J / r²,
 // equal torques τ0 drive it straight ahead with a = (4 τ0 / r) / (m + κ); the pattern
 // (−1, +1, +1, −1) τ0 sideways with the same a; the pattern (−1, +1, −1, +1) τ0 turns it about
 // its centre with α = (4 L τ0 / r) / (I + κ L²), L = lx + ly, the centre at rest.

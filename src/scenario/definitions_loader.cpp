@@ -229,8 +229,9 @@ struct ukdyn::LoadedDefinitions {
 namespace ukdyn::io_detail {
 
 void record_definition_bodies(DefinitionContext* context, const std::string& name,
-                              const sym::SubsystemDef& def) {
+                              const sym::SubsystemDef& def, const std::vector<std::string>& base) {
   if (!context) return;
+  if (!base.empty()) context->base_coordinates[name] = base;
   context->frames.add_bodies(def);     // frame constraints
   auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
   const GiNaC::exmap values = def.parameter_values();

@@ -123,7 +123,7 @@ std::shared_ptr<const Subsystem> load_wheeled_platform(
     const sym::SubsystemDef d =
         sym::wheeled_platform_definition(name, def, coordinates, L.symbol_table());
     auto sub = sym::make_subsystem(d);
-    record_definition_bodies(context, name, d);
+    record_definition_bodies(context, name, d, {coordinates[0], coordinates[1]});
     return sub;
   } catch (const sym::DefinitionError& e) {  // a coordinate named like a parameter (m, I, J)
     L.fail(at_coords, e.what());

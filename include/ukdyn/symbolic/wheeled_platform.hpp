@@ -6,7 +6,7 @@
 // (its heading β_i; axle direction s_i = (−sin β_i, cos β_i)), with radius r; its rollers' axes,
 // projected on the floor, make the roller angle γ_i with the axle: e_i = cos γ_i s_i + sin γ_i d_i.
 // A roller turns freely about its own axis, so the only no-slip condition is that the contact
-// point does not slide along e_i (Muir & Neuman 1987; Zeidis & Zimmermann 2019):
+// point does not slide along e_i ([Muir1987]; [Zeidis2019]):
 //
 //   e_i · (v_i − r φ̇_i d_i) = 0,   v_i = R(ψ)ᵀ (ẋ, ẏ) + ψ̇ (−b_i, a_i)   (platform frame),
 //
