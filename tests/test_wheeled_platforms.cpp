@@ -429,4 +429,109 @@ TEST(WheeledPlatforms, ErrorsNameTheKey) {
   EXPECT_NE(message(bad).find("base_wheel1"), std::string::npos) << message(bad);
 }
 
+// The platform as the mobile base of a serial chain (x, y, yaw), its wheels revolute joints about
+// their axles with their mass and full inertia [J_d, J, J_d] (the tree algorithms, a 3D rigid-body
+// model), and `type: rolling_wheels` on those coordinates: the same motion as `type: mecanum` with
+// m = m_b + 4 m_w, I = I_b + 4 (J_d + m_w (a² + b²)) — which checks the generator's split of the
+// wheels' kinetic energy (no cross term between spin and yaw) against a second formulation.
+std::string chain_platform_yaml(const std::string& arm) {
+  std::string wheels, rows;
+  const char* names[4] = {"fl", "fr", "rl", "rr"};
+  const double a[4] = {0.3, 0.3, -0.3, -0.3}, b[4] = {0.25, -0.25, 0.25, -0.25};
+  const char* g[4] = {"-pi/4", "pi/4", "pi/4", "-pi/4"};
+  for (int i = 0; i < 4; ++i) {
+    wheels += std::string("      - {name: ") + names[i] +
+              ", type: revolute, parent: platform, link: w_" + names[i] + ", origin: {xyz: [" +
+              num(a[i]) + ", " + num(b[i]) + ", 0.1]}, axis: [0, 1, 0], coordinate: w" +
+              std::to_string(i + 1) + ", mass: 1.5, inertia: [0.0041, 0.0075, 0.0041]}\n";
+    rows += "      - {coordinate: w" + std::to_string(i + 1) + ", position: [" + num(a[i]) + ", " +
+            num(b[i]) + "], roller_angle: " + g[i] + "}\n";
+  }
+  return "ukdyn: 1\nname: chain_platform\nsubsystems:\n  - name: robot\n    type: serial_chain\n"
+         "    coordinates: [x, y, psi, w1, w2, w3, w4" +
+         std::string(arm.empty() ? "" : ", delta, theta1") +
+         "]\n"
+         "    base: {type: omnidirectional, link: platform, x: x, y: y, yaw: psi, mass: 44, "
+         "inertia: [2, 3, 3.5]}\n    joints:\n" +
+         wheels + arm +
+         "constraints:\n  - type: rolling_wheels\n    name: floor\n    x: x\n    y: y\n    yaw: "
+         "psi\n"
+         "    wheel_radius: 0.1\n    wheels:\n" +
+         rows + "initial: {q: " +
+         std::string(arm.empty() ? "[0, 0, 0, 0, 0, 0, 0]" : "[0, 0, 0, 0, 0, 0, 0, 0, 0.8]") +
+         ", qd: zeros}\nsimulation: {t_end: 4, sample_dt: 0.01, abs_tol: 1e-13, rel_tol: 1e-13}\n";
+}
+
+TEST(WheeledPlatforms, ChainBasePlatformMatchesTheMecanumKind) {
+  const auto chain = ukdyn::load_scenario_text(chain_platform_yaml(""), "chain.yaml");
+  const double I = 3.5 + 4 * (0.0041 + 1.5 * (kLx * kLx + kLy * kLy));
+  std::string y = mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 1.0);
+  y.replace(y.find("yaw_inertia: 4.17"), 17, "yaw_inertia: " + num(I));
+  const auto kind = ukdyn::load_scenario_text(y, "kind.yaml");
+  ukdyn::ForwardData dc(*chain.system), dk(*kind.system);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  double worst = 0.0, scale = 0.0;
+  for (int trial = 0; trial < 40; ++trial) {
+    Vec q(7), qd(7), tau = Vec::Zero(7);
+    for (int i = 0; i < 7; ++i) q(i) = 3 * U(rng);
+    const std::array<double, 3> nu{U(rng), U(rng), 2 * U(rng)};
+    const double c = std::cos(q(2)), s = std::sin(q(2));
+    qd << c * nu[0] - s * nu[1], s * nu[0] + c * nu[1], nu[2], 0, 0, 0, 0;
+    const auto ik = mecanum_ik(nu);
+    for (int i = 0; i < 4; ++i) qd(3 + i) = ik[static_cast<std::size_t>(i)];
+    for (int i = 3; i < 7; ++i) tau(i) = U(rng);
+    ukdyn::forward(*chain.system, dc, 0.0, q, qd, tau);
+    ukdyn::forward(*kind.system, dk, 0.0, q, qd, tau);
+    worst = std::max(worst, (dc.qdd - dk.qdd).cwiseAbs().maxCoeff());
+    scale = std::max(scale, dk.qdd.cwiseAbs().maxCoeff());
+  }
+  EXPECT_GT(scale, 1.0);
+  EXPECT_LE(worst, 1e-12 * scale);
+  std::printf(
+      "[ measured ] chain base vs mecanum kind: max |qdd difference| %.3g (qdd up to %.3g)\n",
+      worst, scale);
+}
+
+// An arm (a turret and a link) on the chain-base platform, free under gravity, with constant wheel
+// torques: the wheel rates keep the textbook inverse kinematics of the platform twist, and
+// E(t) − E(0) = Σ τ_i (φ_i(t) − φ_i(0)) (gravity in E; the rolling rows do no work).
+TEST(WheeledPlatforms, ArmOnATurningPlatformKeepsRollingAndBalancesEnergy) {
+  const std::string arm =
+      "      - {name: turret, type: revolute, parent: platform, link: turret, origin: {xyz: [0.1, "
+      "0, 0.2]}, axis: [0, 0, 1], coordinate: delta, mass: 2, com: [0, 0, 0.25], inertia: [0.05, "
+      "0.05, 0.0625]}\n"
+      "      - {name: j1, type: revolute, link: link1, origin: {xyz: [0, 0, 0.5]}, axis: [0, -1, "
+      "0], "
+      "coordinate: theta1, mass: 3, com: [0.35, 0, 0], inertia: [0.005, 0.1225, 0.1225]}\n";
+  std::string y = chain_platform_yaml(arm);
+  y.replace(y.find("simulation:"), 0, "forces: {tau: [0, 0, 0, 0.2, 0.9, -0.3, 0.5, 0.4, 0]}\n");
+  const auto sc = ukdyn::load_scenario_text(y, "arm.yaml");
+  const auto samples = run(sc);
+  ukdyn::ForwardData d(*sc.system);
+  double worst_ik = 0.0, worst_e = 0.0, max_e = 0.0, yaw_span = 0.0, swing = 0.0;
+  double E0 = 0.0;
+  for (const auto& s : samples) {
+    const auto ik = mecanum_ik(twist(s.q, s.qd));
+    for (int i = 0; i < 4; ++i)
+      worst_ik = std::max(worst_ik, std::abs(s.qd(3 + i) - ik[static_cast<std::size_t>(i)]));
+    ukdyn::forward(*sc.system, d, s.t, s.q, s.qd, sc.tau);
+    const double E = 0.5 * s.qd.dot(d.M * s.qd) + sc.system->subsystems()[0]->potential({}, s.q);
+    if (&s == &samples.front()) E0 = E;
+    const double work = sc.tau.dot(s.q - sc.q0);
+    worst_e = std::max(worst_e, std::abs(E - E0 - work));
+    max_e = std::max(max_e, std::abs(work));
+    yaw_span = std::max(yaw_span, std::abs(s.q(2)));
+    swing = std::max(swing, std::abs(s.q(8) - 0.8));
+  }
+  EXPECT_GT(yaw_span, 0.1);
+  EXPECT_GT(swing, 0.5);
+  EXPECT_LE(worst_ik, 1e-12);
+  EXPECT_LE(worst_e, 1e-9 * max_e);
+  std::printf(
+      "[ measured ] arm on the platform: IK %.3g rad/s; |E - E0 - W| %.3g J (W up to %.3g J); "
+      "yaw %.3g rad, swing %.3g rad\n",
+      worst_ik, worst_e, max_e, yaw_span, swing);
+}
+
 }  // namespace

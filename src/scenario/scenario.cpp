@@ -625,6 +625,9 @@ std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node&
     return io_detail::load_frame_constraint(L, c, cname, type, system_coordinates(st),
                                             *st.definition_context, sc.q0);
   }
+  if (type == "rolling_wheels") {  // docs/wheeled-platforms.md
+    return io_detail::load_rolling_wheels(L, c, cname, system_coordinates(st));
+  }
   if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
     return io_detail::load_constraint_kind(L, c, cname, type, system_coordinates(st),
                                            *st.definition_context, sc.q0);
@@ -632,7 +635,7 @@ std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node&
   L.fail(type_node, "unknown constraint type '" + type +
                         "' (expected closure, cut_point_trajectory, coordinate, expression, "
                         "nonholonomic, points_coincide, point_trajectory, angle_relation, weld, "
-                        "ball, hinge, level or distance)");
+                        "ball, hinge, level, distance or rolling_wheels)");
 }
 
 // constraints: each entry built, with its role, and added.

@@ -10,6 +10,7 @@
 
 #include "scenario/definitions_loader.hpp"
 #include "scenario/yaml_loader.hpp"
+#include "ukdyn/model/constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
 #include "ukdyn/symbolic/wheeled_platform.hpp"
 
@@ -37,5 +38,12 @@ struct LoadedPlatform {
 std::shared_ptr<const Subsystem> load_wheeled_platform(
     const Loader& L, const Node& s, const std::string& type, const std::string& name,
     const std::vector<std::string>& coordinates, DefinitionContext* context, LoadedPlatform& out);
+
+/// A constraint node of type rolling_wheels (docs/wheeled-platforms.md, "A platform as the base
+/// of a chain"): the rolling rows NAME_wheelK on coordinates x, y, yaw and one angle per wheel of
+/// any subsystem (a serial_chain's mobile base and its wheel joints).
+std::shared_ptr<const Constraint> load_rolling_wheels(
+    const Loader& L, const Node& c, const std::string& name,
+    const std::vector<std::string>& system_coordinates);
 
 }  // namespace ukdyn::io_detail

@@ -166,9 +166,13 @@ SubsystemDef wheeled_platform_definition(const std::string& name, const WheeledP
 ConstraintDef wheeled_platform_rolling_constraint(
     const std::string& name, const WheeledPlatformDef& def,
     const std::vector<std::string>& coordinates, const std::vector<std::string>& system_coordinates,
-    std::shared_ptr<SymbolTable> symbols) {
-  ConstraintDef c(name + "_rolling", ConstraintDef::Kind::nonholonomic, system_coordinates,
-                  std::move(symbols));
+    std::shared_ptr<SymbolTable> symbols, const std::string& constraint_name) {
+  if (coordinates.size() != def.wheels.size() + 3)
+    throw DefinitionError("rolling rows of " + std::to_string(def.wheels.size()) + " wheels need " +
+                          std::to_string(def.wheels.size() + 3) +
+                          " coordinates (x, y, yaw, one angle per wheel)");
+  ConstraintDef c(constraint_name.empty() ? name + "_rolling" : constraint_name,
+                  ConstraintDef::Kind::nonholonomic, system_coordinates, std::move(symbols));
   const ex xd = c.parse(coordinates[0] + "_dot"), yd = c.parse(coordinates[1] + "_dot");
   const ex psi = c.parse(coordinates[2]), psid = c.parse(coordinates[2] + "_dot");
   const ex u = cos(psi) * xd + sin(psi) * yd;   // forward velocity, platform frame

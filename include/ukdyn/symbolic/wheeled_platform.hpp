@@ -74,10 +74,13 @@ SubsystemDef wheeled_platform_definition(const std::string& name, const WheeledP
                                          std::shared_ptr<SymbolTable> symbols = nullptr);
 
 /// The rolling rows NAME_wheelK (mecanum, omni; one per wheel) or NAME_lateral, NAME_roll_left,
-/// NAME_roll_right (differential_drive), nonholonomic, over the system's coordinates.
+/// NAME_roll_right (differential_drive), nonholonomic, over the system's coordinates; the
+/// constraint is named NAME_rolling, or `constraint_name` if given (the listed constraint
+/// `type: rolling_wheels` on another subsystem's coordinates). Only the wheels, the radius and the
+/// kind of `def` are used. `coordinates`: x, y, ψ, φ_1..φ_N (any coordinates of the system).
 ConstraintDef wheeled_platform_rolling_constraint(
     const std::string& name, const WheeledPlatformDef& def,
     const std::vector<std::string>& coordinates, const std::vector<std::string>& system_coordinates,
-    std::shared_ptr<SymbolTable> symbols = nullptr);
+    std::shared_ptr<SymbolTable> symbols = nullptr, const std::string& constraint_name = {});
 
 }  // namespace ukdyn::symbolic
