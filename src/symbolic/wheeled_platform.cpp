@@ -154,7 +154,9 @@ SubsystemDef wheeled_platform_definition(const std::string& name, const WheeledP
   for (std::size_t i = 0; i < def.wheels.size(); ++i) {
     BodyDef& w = d.add_body("wheel" + std::to_string(i + 1));
     w.mass = 0;  // in m; its spin: ½ J φ̇_i² (no cross term with the yaw, header)
-    w.com = {x, y, 0};
+    // its hub (massless: only where the replay page draws the wheel)
+    const ex a = decimal(def.wheels[i].x), b = decimal(def.wheels[i].y);
+    w.com = {x + c * a - s * b, y + s * a + c * b, decimal(def.wheel_radius)};
     w.angular_velocity = std::array<ex, 3>{d.qd(coordinates[3 + i]), 0, 0};
     w.inertia_kind = BodyDef::InertiaKind::scalar;
     w.inertia_scalar = J;
