@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -309,7 +310,7 @@ std::string diff_yaml(double tl, double tr, const std::string& q0, const std::st
 //   x = x0 + ((u0 + a t) sin ψ − u0 sin ψ0)/ω0 + a (cos ψ − cos ψ0)/ω0²,
 //   y = y0 − ((u0 + a t) cos ψ − u0 cos ψ0)/ω0 + a (sin ψ − sin ψ0)/ω0².
 TEST(WheeledPlatforms, DifferentialDriveMatchesTheUnicycleClosedForm) {
-  const double m = 20, I = 0.8, J = 0.004, r = 0.1, W = 0.5, tau = 0.3;
+  const double m = 20, J = 0.004, r = 0.1, W = 0.5, tau = 0.3;  // (I: ω stays ω0)
   const double u0 = 0.4, w0 = 0.9, psi0 = 0.2;
   const double a = (2 * tau / r) / (m + 2 * J / (r * r));
   const std::string qd0 = "[" + num(u0 * std::cos(psi0)) + ", " + num(u0 * std::sin(psi0)) +
@@ -532,6 +533,69 @@ TEST(WheeledPlatforms, ArmOnATurningPlatformKeepsRollingAndBalancesEnergy) {
       "[ measured ] arm on the platform: IK %.3g rad/s; |E - E0 - W| %.3g J (W up to %.3g J); "
       "yaw %.3g rad, swing %.3g rad\n",
       worst_ik, worst_e, max_e, yaw_span, swing);
+}
+
+// Wheel torques as actuators (docs/control.md): servo rows prescribe x = 0.25 t², y = 0.1 sin t,
+// ψ = 0.5 t + 0.2 t²; the constrained inverse dynamics gives wheel torques u (τ = B u, B the unit
+// columns of the wheel angles) that realise the servo force against the rolling rows. Applied open
+// loop to the platform alone (no servo rows), they reproduce the prescribed accelerations, and
+// their generalized force Hᵀ u equals the reduced equations' left side at the prescribed motion.
+TEST(WheeledPlatforms, WheelTorquesAsActuatorsRealiseAPrescribedMotion) {
+  std::string servo = mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 1.0);
+  servo.replace(servo.find("initial:"), 0,
+                "constraints:\n"
+                "  - {type: expression, name: go, role: servo, rows: {x: base_x - 0.25*t^2, "
+                "y: base_y - 0.1*sin(t), yaw: base_yaw - 0.5*t - 0.2*t^2}}\n");
+  {  // q̇(0) on the prescribed motion: ẏ = 0.1, ψ̇ = 0.5, the wheel rates from the rows
+    const auto w0 = mecanum_ik({0.0, 0.1, 0.5});
+    servo.replace(servo.find("qd: zeros"), 9,
+                  "qd: [0, 0.1, 0.5, " + num(w0[0]) + ", " + num(w0[1]) + ", " + num(w0[2]) + ", " +
+                      num(w0[3]) + "]");
+  }
+  const auto sc = ukdyn::load_scenario_text(servo, "servo.yaml");
+  const auto plant = ukdyn::load_scenario_text(
+      mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 1.0), "plant.yaml");
+  ukdyn::ForwardData d(*sc.system), dp(*plant.system);
+  Mat B = Mat::Zero(7, 4);
+  for (int i = 0; i < 4; ++i) B(3 + i, i) = 1.0;
+  const double kappa = 4 * kSpin / (kRadius * kRadius), L = kLx + kLy;
+  double worst_plant = 0.0, worst_reduced = 0.0, worst_res = 0.0;
+  for (double t : {0.3, 1.1, 2.5}) {
+    // The prescribed state: x, y, ψ and their rates; the wheel rates from the rolling rows.
+    const double psi = 0.5 * t + 0.2 * t * t, om = 0.5 + 0.4 * t;
+    Vec q(7), qd(7);
+    q << 0.25 * t * t, 0.1 * std::sin(t), psi, 0.1, 0.2, 0.3, 0.4;
+    qd << 0.5 * t, 0.1 * std::cos(t), om, 0, 0, 0, 0;
+    const auto nu = twist(q, qd);
+    const auto ik = mecanum_ik(nu);
+    for (int i = 0; i < 4; ++i) qd(3 + i) = ik[static_cast<std::size_t>(i)];
+    ukdyn::forward(*sc.system, d, t, q, qd, sc.tau);
+    const auto act = ukdyn::solve_actuation(B, Mat(d.A.topRows(4)), d.Qc);
+    EXPECT_FALSE(act.underactuated);
+    worst_res = std::max(worst_res, act.residual);
+    ukdyn::forward(*plant.system, dp, t, q, qd, B * act.u);
+    worst_plant = std::max(worst_plant, (dp.qdd - d.qdd).cwiseAbs().maxCoeff());
+    // Reduced equations: (m + κ)(u̇ − ω w) + κ ω w = F_u, ... with the prescribed ν̇.
+    const double c = std::cos(psi), s = std::sin(psi);
+    const double xdd = 0.5, ydd = -0.1 * std::sin(t), psidd = 0.4;
+    const double ud = c * xdd + s * ydd + om * nu[1], wd = -s * xdd + c * ydd - om * nu[0];
+    const double Fu = (kMass + kappa) * ud - kMass * om * nu[1];
+    const double Fw = (kMass + kappa) * wd + kMass * om * nu[0];
+    const double Fo = (kYaw + kappa * L * L) * psidd;
+    const auto& u = act.u;
+    const double Hu = (u(0) + u(1) + u(2) + u(3)) / kRadius;
+    const double Hw = (-u(0) + u(1) + u(2) - u(3)) / kRadius;
+    const double Ho = L * (-u(0) + u(1) - u(2) + u(3)) / kRadius;
+    worst_reduced =
+        std::max({worst_reduced, std::abs(Hu - Fu), std::abs(Hw - Fw), std::abs(Ho - Fo)});
+  }
+  EXPECT_LE(worst_res, 1e-10);
+  EXPECT_LE(worst_plant, 1e-10);
+  EXPECT_LE(worst_reduced, 1e-10);
+  std::printf(
+      "[ measured ] wheel actuators: residual %.3g, plant qdd vs servo qdd %.3g, H^T u vs reduced "
+      "equations %.3g\n",
+      worst_res, worst_plant, worst_reduced);
 }
 
 }  // namespace
