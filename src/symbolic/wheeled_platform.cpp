@@ -5,6 +5,7 @@
 #include "ukdyn/symbolic/wheeled_platform.hpp"
 
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -139,9 +140,15 @@ SubsystemDef wheeled_platform_definition(const std::string& name, const WheeledP
                           " wheels has " + std::to_string(def.wheels.size() + 3) +
                           " coordinates (x, y, yaw, one angle per wheel)");
   SubsystemDef d(name, coordinates, std::move(symbols));
-  const ex m = d.parameter("m", decimal(def.mass));
-  const ex I = d.parameter("I", decimal(def.yaw_inertia));
-  const ex J = d.parameter("J", decimal(def.wheel_inertia));
+  // Parameters m, I, J (kept as symbols in `ukdyn derive`), renamed m_, m__, ... if a coordinate
+  // has the name.
+  const auto free_name = [&](std::string n) {
+    while (std::find(coordinates.begin(), coordinates.end(), n) != coordinates.end()) n += "_";
+    return n;
+  };
+  const ex m = d.parameter(free_name("m"), decimal(def.mass));
+  const ex I = d.parameter(free_name("I"), decimal(def.yaw_inertia));
+  const ex J = d.parameter(free_name("J"), decimal(def.wheel_inertia));
   const ex x = d.q(coordinates[0]), y = d.q(coordinates[1]), psi = d.q(coordinates[2]);
   const ex c = cos(psi), s = sin(psi);
   const ex cx = decimal(def.com_x), cy = decimal(def.com_y);
