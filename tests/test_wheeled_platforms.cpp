@@ -598,4 +598,32 @@ TEST(WheeledPlatforms, WheelTorquesAsActuatorsRealiseAPrescribedMotion) {
       worst_res, worst_plant, worst_reduced);
 }
 
+// `instances:` of a platform: two copies (one with its own prefix, mass and yaw inertia) under
+// equal torques τ0 drive straight ahead, each with its own a = (4 τ0 / r) / (m + 4 J / r²).
+TEST(WheeledPlatforms, InstancesOfAPlatformMoveWithTheirOwnMass) {
+  std::string y = mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 2.0);
+  y.replace(y.find("initial:"), 0,
+            "    instances:\n      - {name: p1}\n"
+            "      - {name: p2, prefix: q_, parameters: {mass: 80, yaw_inertia: 6}}\n");
+  y.replace(y.find("[0, 0, 0, 0, 0, 0, 0]"), 21, "[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]");
+  y.replace(y.find("  tau: ["), y.find("]\n", y.find("  tau: [")) - y.find("  tau: [") + 1,
+            "  tau: [0, 0, 0, 0.6, 0.6, 0.6, 0.6, 0, 0, 0, 0.6, 0.6, 0.6, 0.6]");
+  const auto sc = ukdyn::load_scenario_text(y, "instances.yaml");
+  const auto& names = sc.system->coordinate_names();
+  ASSERT_EQ(names.size(), 14u);
+  EXPECT_EQ(names[0], "p1_x");
+  EXPECT_EQ(names[7], "q_x");
+  EXPECT_EQ(names[13], "q_phi4");
+  const double kappa = 4 * kSpin / (kRadius * kRadius);
+  const double a1 = (4 * 0.6 / kRadius) / (kMass + kappa), a2 = (4 * 0.6 / kRadius) / (80 + kappa);
+  double worst = 0.0;
+  for (const auto& s : run(sc)) {
+    const double h = 0.5 * s.t * s.t;
+    worst = std::max({worst, std::abs(s.q(0) - a1 * h), std::abs(s.q(7) - a2 * h), std::abs(s.q(1)),
+                      std::abs(s.q(8)), std::abs(s.q(2)), std::abs(s.q(9))});
+  }
+  EXPECT_LE(worst, 1e-10);
+  std::printf("[ measured ] instances: max error %.3g (a1 %.4g, a2 %.4g m/s^2)\n", worst, a1, a2);
+}
+
 }  // namespace

@@ -187,8 +187,10 @@ std::vector<InstanceEntry> instance_entries(const Loader& L, const Node& s, cons
                                             const std::string& type) {
   const Node in = L.child(s, "instances", false);
   if (!in.node.IsDefined()) return {InstanceEntry{name, "", false, {}, s}};
-  if (type != "definitions" && type != "serial_chain")
-    L.fail(in, "instances are available for definitions and serial_chain subsystems");
+  if (type != "definitions" && type != "serial_chain" && !io_detail::is_wheeled_platform(type))
+    L.fail(in,
+           "instances are available for definitions, serial_chain, mecanum, omni and "
+           "differential_drive subsystems");
   if (!in.node.IsSequence() || in.node.size() == 0)
     L.fail(in, "expected a non-empty list of {name, prefix, parameters, mount}");
   if (in.node.size() > 4096) L.fail(in, "too many instances (at most 4096)");
@@ -254,7 +256,8 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     if (default_names && (type == "free_body" || io_detail::is_wheeled_platform(type))) {
       names = type == "free_body"  // NAME_x, ..., NAME_qz; NAME_x, NAME_y, NAME_yaw, NAME_phi1, ...
                   ? symbolic::free_body_coordinates(name)
-                  : io_detail::wheeled_platform_default_coordinates(L, s, type, name);
+                  : io_detail::wheeled_platform_default_coordinates(
+                        L, s, type, inst.is_instance ? inst.prefix : name + "_");
       for (std::size_t j = 0; j < names.size(); ++j) {
         if (coord_index.count(names[j]))
           L.fail(name_node, "duplicate coordinate name '" + names[j] + "'");
@@ -306,7 +309,7 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
       } else if (io_detail::is_wheeled_platform(type)) {  // docs/wheeled-platforms.md
         st.platforms.emplace_back();
         sub = io_detail::load_wheeled_platform(L, s, type, name, names, definition_context.get(),
-                                               st.platforms.back());
+                                               st.platforms.back(), ispec);
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
                               "' (expected mobile_manipulator, definitions, serial_chain, "

@@ -86,34 +86,52 @@ bool is_wheeled_platform(const std::string& type) {
 
 std::vector<std::string> wheeled_platform_default_coordinates(const Loader& L, const Node& s,
                                                               const std::string& type,
-                                                              const std::string& name) {
+                                                              const std::string& prefix) {
   std::size_t n = 2;
   if (type != "differential_drive") {
     const Node ws = L.child(s, "wheels", true);
     n = ws.node.IsSequence() ? ws.node.size() : 0;
   }
-  auto names = sym::wheeled_platform_coordinates(name, n);
+  std::vector<std::string> names{prefix + "x", prefix + "y", prefix + "yaw"};
+  for (std::size_t i = 0; i < n; ++i) names.push_back(prefix + "phi" + std::to_string(i + 1));
   for (const auto& c : names) (void)L.name(Node{YAML::Node(c), s.key + ".name"});
   return names;
 }
 
 std::shared_ptr<const Subsystem> load_wheeled_platform(
     const Loader& L, const Node& s, const std::string& type, const std::string& name,
-    const std::vector<std::string>& coordinates, DefinitionContext* context, LoadedPlatform& out) {
+    const std::vector<std::string>& coordinates, DefinitionContext* context, LoadedPlatform& out,
+    const InstanceSpec* instance) {
   const bool diff = type == "differential_drive";
   if (diff) {
     L.only_keys(s, {"name", "type", "coordinates", "mass", "yaw_inertia", "wheel_radius",
-                    "wheel_inertia", "com", "track_width"});
+                    "wheel_inertia", "com", "track_width", "instances"});
   } else {
     L.only_keys(s, {"name", "type", "coordinates", "mass", "yaw_inertia", "wheel_radius",
-                    "wheel_inertia", "com", "wheels"});
+                    "wheel_inertia", "com", "wheels", "instances"});
+  }
+  // A number of the platform, or the instance's value for it.
+  const auto positive = [&](const char* key) {
+    if (instance) {
+      if (auto it = instance->parameters.find(key); it != instance->parameters.end())
+        return L.positive(it->second);
+    }
+    return L.positive(L.child(s, key, true));
+  };
+  if (instance) {
+    for (const auto& [k, v] : instance->parameters) {
+      if (k != "mass" && k != "yaw_inertia" && k != "wheel_radius" && k != "wheel_inertia")
+        L.fail(v, "'" + k + "' is not a parameter of a " + type +
+                      " platform (an instance may set mass, yaw_inertia, wheel_radius, "
+                      "wheel_inertia)");
+    }
   }
   sym::WheeledPlatformDef def;
   def.kind = kind_of(type);
-  def.mass = L.positive(L.child(s, "mass", true));
-  def.yaw_inertia = L.positive(L.child(s, "yaw_inertia", true));
-  def.wheel_radius = L.positive(L.child(s, "wheel_radius", true));
-  def.wheel_inertia = L.positive(L.child(s, "wheel_inertia", true));
+  def.mass = positive("mass");
+  def.yaw_inertia = positive("yaw_inertia");
+  def.wheel_radius = positive("wheel_radius");
+  def.wheel_inertia = positive("wheel_inertia");
   if (Node c = L.child(s, "com", false); c.node.IsDefined()) {
     const Vec v = L.vector(c, 2);
     def.com_x = v(0);
