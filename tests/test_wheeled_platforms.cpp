@@ -540,6 +540,9 @@ TEST(WheeledPlatforms, ArmOnATurningPlatformKeepsRollingAndBalancesEnergy) {
 // columns of the wheel angles) that realise the servo force against the rolling rows. Applied open
 // loop to the platform alone (no servo rows), they reproduce the prescribed accelerations, and
 // their generalized force Hᵀ u equals the reduced equations' left side at the prescribed motion.
+// Three wheels are driven (the rear-right one rolls freely): u is then unique. With all four the
+// actuation is redundant, and solve_actuation's rank-deficient solve is not reliable
+// (docs/wheeled-platforms.md, "Limits").
 TEST(WheeledPlatforms, WheelTorquesAsActuatorsRealiseAPrescribedMotion) {
   std::string servo = mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 1.0);
   servo.replace(servo.find("initial:"), 0,
@@ -556,8 +559,8 @@ TEST(WheeledPlatforms, WheelTorquesAsActuatorsRealiseAPrescribedMotion) {
   const auto plant = ukdyn::load_scenario_text(
       mecanum_yaml(constant_torques(0, 0, 0, 0), "[0, 0, 0, 0, 0, 0, 0]", 1.0), "plant.yaml");
   ukdyn::ForwardData d(*sc.system), dp(*plant.system);
-  Mat B = Mat::Zero(7, 4);
-  for (int i = 0; i < 4; ++i) B(3 + i, i) = 1.0;
+  Mat B = Mat::Zero(7, 3);
+  for (int i = 0; i < 3; ++i) B(3 + i, i) = 1.0;
   const double kappa = 4 * kSpin / (kRadius * kRadius), L = kLx + kLy;
   double worst_plant = 0.0, worst_reduced = 0.0, worst_res = 0.0;
   for (double t : {0.3, 1.1, 2.5}) {
@@ -582,7 +585,7 @@ TEST(WheeledPlatforms, WheelTorquesAsActuatorsRealiseAPrescribedMotion) {
     const double Fu = (kMass + kappa) * ud - kMass * om * nu[1];
     const double Fw = (kMass + kappa) * wd + kMass * om * nu[0];
     const double Fo = (kYaw + kappa * L * L) * psidd;
-    const auto& u = act.u;
+    const Vec u{{act.u(0), act.u(1), act.u(2), 0.0}};  // the rear-right wheel is not driven
     const double Hu = (u(0) + u(1) + u(2) + u(3)) / kRadius;
     const double Hw = (-u(0) + u(1) + u(2) - u(3)) / kRadius;
     const double Ho = L * (-u(0) + u(1) - u(2) + u(3)) / kRadius;
