@@ -228,6 +228,20 @@ struct ukdyn::LoadedDefinitions {
 
 namespace ukdyn::io_detail {
 
+void record_definition_bodies(DefinitionContext* context, const std::string& name,
+                              const sym::SubsystemDef& def, const std::vector<std::string>& base) {
+  if (!context) return;
+  if (!base.empty()) context->base_coordinates[name] = base;
+  context->frames.add_bodies(def);     // frame constraints
+  auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
+  const GiNaC::exmap values = def.parameter_values();
+  for (const auto& b : def.bodies) {
+    list.push_back({b.name,
+                    {b.com[0].subs(values).expand(), b.com[1].subs(values).expand(),
+                     b.com[2].subs(values).expand()}});
+  }
+}
+
 std::shared_ptr<const Subsystem> load_definitions_subsystem(
     const Loader& L, const Node& s, const std::string& name,
     const std::vector<std::string>& coordinates, double gravity, const InstanceSpec* instance,
@@ -273,16 +287,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   }
   try {
     auto sub = sym::make_subsystem(*def);
-    if (context) {
-      context->frames.add_bodies(*def);    // frame constraints
-      auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
-      const GiNaC::exmap values = def->parameter_values();
-      for (const auto& b : def->bodies) {
-        list.push_back({b.name,
-                        {b.com[0].subs(values).expand(), b.com[1].subs(values).expand(),
-                         b.com[2].subs(values).expand()}});
-      }
-    }
+    record_definition_bodies(context, name, *def);
     return sub;
   } catch (const sym::DefinitionError& e) {
     if (e.body >= 0)

@@ -54,6 +54,13 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
     const std::vector<std::string>& coordinates, double gravity,
     DefinitionContext* context = nullptr);
 
+/// Records a definition's bodies in `context` (if given): its frames for frame constraints and
+/// its bodies' CoMs for the replay page, as load_definitions_subsystem does (wheeled platforms);
+/// `base` the coordinates drawn with the platform displacements (m), not among the angles.
+void record_definition_bodies(DefinitionContext* context, const std::string& name,
+                              const symbolic::SubsystemDef& def,
+                              const std::vector<std::string>& base = {});
+
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
 /// all coordinates in order.
 std::shared_ptr<const Constraint> load_definitions_constraint(

@@ -16,11 +16,13 @@
 #include "scenario/definitions_loader.hpp"
 #include "scenario/forces_loader.hpp"
 #include "scenario/frame_constraints_loader.hpp"
+#include "scenario/wheeled_platform_loader.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
+#include "ukdyn/symbolic/wheeled_platform.hpp"
 
 namespace ukdyn {
 
@@ -163,6 +165,8 @@ struct Loading {
   std::vector<Node> sub_nodes;  // the node of each subsystem (an instance: its template)
   // free_body subsystems: name and quaternion coordinates (their unit-norm rows come first).
   std::vector<std::pair<std::string, std::vector<std::string>>> free_bodies;
+  // Wheeled platforms (docs/wheeled-platforms.md): their rolling rows come after the unit norms.
+  std::vector<io_detail::LoadedPlatform> platforms;
   // Subsystems whose M(q0) is not positive definite: checked with the constraints ([M; A]).
   std::vector<std::size_t> singular_mass;
   Node init;  // the initial block
@@ -183,8 +187,10 @@ std::vector<InstanceEntry> instance_entries(const Loader& L, const Node& s, cons
                                             const std::string& type) {
   const Node in = L.child(s, "instances", false);
   if (!in.node.IsDefined()) return {InstanceEntry{name, "", false, {}, s}};
-  if (type != "definitions" && type != "serial_chain")
-    L.fail(in, "instances are available for definitions and serial_chain subsystems");
+  if (type != "definitions" && type != "serial_chain" && !io_detail::is_wheeled_platform(type))
+    L.fail(in,
+           "instances are available for definitions, serial_chain, mecanum, omni and "
+           "differential_drive subsystems");
   if (!in.node.IsSequence() || in.node.size() == 0)
     L.fail(in, "expected a non-empty list of {name, prefix, parameters, mount}");
   if (in.node.size() > 4096) L.fail(in, "too many instances (at most 4096)");
@@ -246,8 +252,12 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
     const std::string type = L.string(type_node);
     // Coordinate names: unique across the system, usable as CSV column names.
     std::vector<std::string> names, local;
-    if (type == "free_body" && !L.child(s, "coordinates", false).node.IsDefined()) {
-      names = symbolic::free_body_coordinates(name);  // NAME_x, ..., NAME_qz
+    const bool default_names = !L.child(s, "coordinates", false).node.IsDefined();
+    if (default_names && (type == "free_body" || io_detail::is_wheeled_platform(type))) {
+      names = type == "free_body"  // NAME_x, ..., NAME_qz; NAME_x, NAME_y, NAME_yaw, NAME_phi1, ...
+                  ? symbolic::free_body_coordinates(name)
+                  : io_detail::wheeled_platform_default_coordinates(
+                        L, s, type, inst.is_instance ? inst.prefix : name + "_");
       for (std::size_t j = 0; j < names.size(); ++j) {
         if (coord_index.count(names[j]))
           L.fail(name_node, "duplicate coordinate name '" + names[j] + "'");
@@ -296,10 +306,14 @@ void load_subsystems(const Loader& L, const Node& root, double gravity, Scenario
         st.free_bodies.push_back({name, {names[3], names[4], names[5], names[6]}});
         sub = io_detail::load_free_body_subsystem(L, s, name, names, gravity,
                                                   definition_context.get());
+      } else if (io_detail::is_wheeled_platform(type)) {  // docs/wheeled-platforms.md
+        st.platforms.emplace_back();
+        sub = io_detail::load_wheeled_platform(L, s, type, name, names, definition_context.get(),
+                                               st.platforms.back(), ispec);
       } else {
         L.fail(type_node, "unknown subsystem type '" + type +
-                              "' (expected mobile_manipulator, definitions, serial_chain or "
-                              "free_body)");
+                              "' (expected mobile_manipulator, definitions, serial_chain, "
+                              "free_body, mecanum, omni or differential_drive)");
       }
     } catch (const ScenarioError&) {
       throw;
@@ -489,6 +503,21 @@ void add_quaternion_norms(const Loader& L, const Scenario& sc, const Loading& st
   }
 }
 
+// The rolling rows of the wheeled platforms (docs/wheeled-platforms.md), nonholonomic.
+void add_platform_rolling(const Loader& L, const Loading& st, ConstraintSink& sink) {
+  for (const auto& p : st.platforms) {
+    try {
+      sink.add(p.at,
+               symbolic::make_constraint(symbolic::wheeled_platform_rolling_constraint(
+                   p.name, p.def, p.coordinates, st.system->coordinate_names(), L.symbol_table())));
+    } catch (const ScenarioError&) {
+      throw;
+    } catch (const Error& e) {
+      L.fail(p.at, e.what());
+    }
+  }
+}
+
 // The weld / connect equalities of the chains read from MJCF files.
 void add_link_constraints(const Loader& L, const Scenario& sc, const Loading& st,
                           ConstraintSink& sink) {
@@ -599,6 +628,9 @@ std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node&
     return io_detail::load_frame_constraint(L, c, cname, type, system_coordinates(st),
                                             *st.definition_context, sc.q0);
   }
+  if (type == "rolling_wheels") {  // docs/wheeled-platforms.md
+    return io_detail::load_rolling_wheels(L, c, cname, system_coordinates(st));
+  }
   if (io_detail::is_constraint_kind(type)) {  // docs/definitions.md
     return io_detail::load_constraint_kind(L, c, cname, type, system_coordinates(st),
                                            *st.definition_context, sc.q0);
@@ -606,7 +638,7 @@ std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node&
   L.fail(type_node, "unknown constraint type '" + type +
                         "' (expected closure, cut_point_trajectory, coordinate, expression, "
                         "nonholonomic, points_coincide, point_trajectory, angle_relation, weld, "
-                        "ball, hinge, level or distance)");
+                        "ball, hinge, level, distance or rolling_wheels)");
 }
 
 // constraints: each entry built, with its role, and added.
@@ -637,6 +669,7 @@ void add_listed_constraints(const Loader& L, const Node& root, const Scenario& s
 void load_constraints(const Loader& L, const Node& root, Scenario& sc, Loading& st) {
   ConstraintSink sink{L, sc, *st.system, {}, {}};
   add_quaternion_norms(L, sc, st, sink);
+  add_platform_rolling(L, st, sink);
   add_link_constraints(L, sc, st, sink);
   add_listed_constraints(L, root, sc, st, sink);
 }
