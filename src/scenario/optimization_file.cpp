@@ -266,7 +266,7 @@ OptimizationFile load_optimization_text(const std::string& text,
   const Node root{io_detail::parse_scenario_yaml(text, path), ""};
   L.only_keys(root,
               {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration", "end",
-               "costs", "bounds", "envelopes", "ipopt", "verify", "actuated", "max_correction"});
+               "costs", "bounds", "envelopes", "ipopt", "verify", "actuated", "max_correction", "guess"});
   if (L.number(L.child(root, "ukdyn", true)) != 1)
     L.fail(L.child(root, "ukdyn", true), "expected 1");
   OptimizationFile f;
