@@ -48,10 +48,11 @@ void split_constraint_force(const Mat& A, const Vec& Qc, ConstraintForceWorkspac
   const Index m = A.rows();
   if (m == 0) return;
   ws.At = A.transpose();
-  ws.cod.setThreshold(Eigen::Default);  // a fresh decomposition's rank at compute()
+  // The threshold is set before compute(): the decomposition's Z (the complete orthogonal step) is
+  // built for the rank at compute(); a threshold changed afterwards would solve with another rank
+  // against that Z (not the least-norm solution, and reading past the factor).
+  ws.cod.setThreshold(rel_tol);  // relative to the largest pivot
   ws.cod.compute(ws.At);
-  const double top = ws.cod.maxPivot();
-  ws.cod.setThreshold(top > 0 ? rel_tol : 1.0);
   s.rank = static_cast<int>(ws.cod.rank());
   s.unique = s.rank == m;
   // The least-norm least-squares solution, cod.solve(Qc) without its temporaries.

@@ -119,14 +119,16 @@ Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel
   // P = I − A_pᵀ(A_pᵀ)⁺, the projector onto range(A_pᵀ)^⊥ = null(A_p).
   Mat P = Mat::Identity(n, n);
   Eigen::CompleteOrthogonalDecomposition<Mat> codp;
+  // Thresholds before compute(): Z is built for the rank at compute() (see split_constraint_force).
   if (Ap.rows() > 0) {
-    codp.compute(Ap.transpose());
     codp.setThreshold(rel_tol);
+    codp.compute(Ap.transpose());
     P -= Ap.transpose() * codp.solve(Mat::Identity(n, n));
   }
   const Mat PB = P * B;
-  Eigen::CompleteOrthogonalDecomposition<Mat> cod(PB);
+  Eigen::CompleteOrthogonalDecomposition<Mat> cod;
   cod.setThreshold(rel_tol);
+  cod.compute(PB);
   a.u = B.cols() > 0 ? Vec(cod.solve(P * Qc)) : Vec::Zero(0);
   const Vec rest = Qc - B * a.u;
   a.mu = Ap.rows() > 0 ? Vec(codp.solve(rest)) : Vec::Zero(0);
@@ -170,18 +172,16 @@ void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& w, double 
   const Index mp = w.Ap.rows();
   w.P.setIdentity();
   if (mp > 0) {
-    w.codp.setThreshold(Eigen::Default);  // a fresh decomposition's rank at compute()
+    w.codp.setThreshold(rel_tol);  // before compute(): Z is built for the rank at compute()
     w.codp.compute(w.Ap.transpose());
-    w.codp.setThreshold(rel_tol);
     // codp is n × mp: its solve of I (n × n) is mp × n.
     cod_solve_into(w.codp, w.I, w.X, w.c_mat, w.y_mat, w.z_temp, w.hh_mat);
     w.ApTX.noalias() = w.Ap.transpose() * w.X;
     w.P -= w.ApTX;
   }
   w.PB.noalias() = w.P * B;
-  w.cod.setThreshold(Eigen::Default);
-  w.cod.compute(w.PB);
   w.cod.setThreshold(rel_tol);
+  w.cod.compute(w.PB);
   if (B.cols() > 0) {
     w.PQc.noalias() = w.P * Qc;
     cod_solve_into(w.cod, w.PQc, a.u, w.c_vec, w.y_k, w.z_temp, w.hh_vec);
