@@ -52,6 +52,23 @@ TEST(ActuationSolve, LeastNormWhenTheProjectorHasRoundOffRank) {
   EXPECT_LT((ws2.result.u - Vec::Ones(2)).cwiseAbs().maxCoeff(), 1e-9) << ws2.result.u.transpose();
 }
 
+// Physical rows that span every coordinate (A_p of full column rank): P = 0 up to round-off, so
+// nothing is left for the actuators, u = 0 (the relative rank threshold alone kept the round-off
+// at full rank and amplified it: τ of 296 on the paper's fully prescribed system).
+TEST(ActuationSolve, NothingLeftForTheActuatorsGivesZero) {
+  Mat Ap(3, 3);
+  Ap << 1.0, 0.3, -0.7, 0.2, 1.1, 0.4, 0.5, -0.2, 0.9;
+  Vec Qc(3);
+  Qc << 0.5, -1.25, 2.0;
+  const Actuation a = solve_actuation(Mat::Identity(3, 3), Ap, Qc);
+  EXPECT_EQ(a.u.cwiseAbs().maxCoeff(), 0.0) << a.u.transpose();
+  EXPECT_LT((Ap.transpose() * a.mu - Qc).cwiseAbs().maxCoeff(), 1e-12);
+  ActuationWorkspace ws(3, 3, 3);
+  ws.Ap = Ap;
+  solve_actuation(Mat::Identity(3, 3), Qc, ws);
+  EXPECT_EQ(ws.result.u.cwiseAbs().maxCoeff(), 0.0) << ws.result.u.transpose();
+}
+
 // Two identical rows (rank 1 of 2): the least-norm λ splits the force equally.
 TEST(ConstraintForceSplit, RedundantRowsShareTheForceEqually) {
   Mat A(2, 2);

@@ -129,7 +129,10 @@ Actuation solve_actuation(const Mat& B, const Mat& Ap, const Vec& Qc, double rel
   Eigen::CompleteOrthogonalDecomposition<Mat> cod;
   cod.setThreshold(rel_tol);
   cod.compute(PB);
-  a.u = B.cols() > 0 ? Vec(cod.solve(P * Qc)) : Vec::Zero(0);
+  // P B of round-off size (the physical rows span every actuated direction): nothing is left for
+  // the actuators; the relative threshold alone would keep the round-off at full rank.
+  const bool none = PB.norm() <= rel_tol * B.norm();
+  a.u = B.cols() > 0 && !none ? Vec(cod.solve(P * Qc)) : Vec::Zero(B.cols());
   const Vec rest = Qc - B * a.u;
   a.mu = Ap.rows() > 0 ? Vec(codp.solve(rest)) : Vec::Zero(0);
   const Vec r = B * a.u + Ap.transpose() * a.mu - Qc;
@@ -182,9 +185,11 @@ void solve_actuation(const Mat& B, const Vec& Qc, ActuationWorkspace& w, double 
   w.PB.noalias() = w.P * B;
   w.cod.setThreshold(rel_tol);
   w.cod.compute(w.PB);
-  if (B.cols() > 0) {
+  if (B.cols() > 0 && w.PB.norm() > rel_tol * B.norm()) {  // else P B is round-off (above)
     w.PQc.noalias() = w.P * Qc;
     cod_solve_into(w.cod, w.PQc, a.u, w.c_vec, w.y_k, w.z_temp, w.hh_vec);
+  } else {
+    a.u.setZero();
   }
   w.Bu.noalias() =
       B * a.u;  // before `rest`: Qc − B u written at once evaluates B u into a heap temporary
