@@ -175,7 +175,26 @@ void envelopes(const Loader& L, const Node& root, TrajectoryProblem& p) {
 void ipopt(const Loader& L, const Node& root, IpoptSettings& s) {
   const Node n = L.child(root, "ipopt", false);
   if (!n.node.IsDefined()) return;
-  L.only_keys(n, {"tol", "constr_viol_tol", "max_iter", "print_level", "lbfgs_memory"});
+  L.only_keys(n, {"tol", "constr_viol_tol", "max_iter", "print_level", "lbfgs_memory", "options"});
+  if (const Node o = L.child(n, "options", false); o.node.IsDefined()) {
+    // Any IPOPT option: a whole number → integer, another number → numeric, else a string.
+    if (!o.node.IsMap()) L.fail(o, "expected {IPOPT option: value}");
+    for (const auto& kv : o.node) {
+      const std::string name = L.key(o, kv.first);
+      const Node entry{kv.second, o.key + "." + name};
+      const std::string text = L.string(entry);
+      double v = 0.0;
+      if (Loader::parse_number(text, v) && std::isfinite(v)) {
+        if (v == std::floor(v) && std::abs(v) < 1e9 &&
+            text.find_first_of(".eE") == std::string::npos)
+          s.integer_options.emplace_back(name, static_cast<int>(v));
+        else
+          s.numeric_options.emplace_back(name, v);
+      } else {
+        s.string_options.emplace_back(name, text);
+      }
+    }
+  }
   s.tol = L.number_or(n, "tol", s.tol);
   s.dual_inf_tol = s.tol;
   s.constr_viol_tol = L.number_or(n, "constr_viol_tol", s.constr_viol_tol);
@@ -264,9 +283,9 @@ OptimizationFile load_optimization_text(const std::string& text,
                                         const std::filesystem::path& path) {
   const Loader L(path);
   const Node root{io_detail::parse_scenario_yaml(text, path), ""};
-  L.only_keys(root,
-              {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration", "end",
-               "costs", "bounds", "envelopes", "ipopt", "verify", "actuated", "max_correction", "guess"});
+  L.only_keys(root, {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration",
+                     "end", "costs", "bounds", "envelopes", "ipopt", "verify", "actuated",
+                     "max_correction", "guess"});
   if (L.number(L.child(root, "ukdyn", true)) != 1)
     L.fail(L.child(root, "ukdyn", true), "expected 1");
   OptimizationFile f;

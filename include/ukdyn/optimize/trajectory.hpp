@@ -27,6 +27,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "ukdyn/model/system.hpp"
@@ -94,6 +95,11 @@ struct IpoptSettings {
   int max_iter = 1000;
   int lbfgs_memory = 10;
   int print_level = 0;  ///< IPOPT's console output (0: none)
+  /// Any other IPOPT option by name, after ukdyn's own (IPOPT checks names and values; a bad one
+  /// ends the solve with status Invalid_Option).
+  std::vector<std::pair<std::string, std::string>> string_options;
+  std::vector<std::pair<std::string, int>> integer_options;
+  std::vector<std::pair<std::string, double>> numeric_options;
 };
 
 struct TrajectorySolution {
