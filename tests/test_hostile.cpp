@@ -43,10 +43,9 @@ struct Outcome {
 
 Outcome simulate(const fs::path& scenario, const fs::path& out_dir) {
   const fs::path err = scratch() / "stderr.txt";
-  const std::string cmd =
-      "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI) + " simulate " +
-      sh(scenario.string()) + " --out " + sh(out_dir.string()) +
-      " --no-figures --quiet < /dev/null > /dev/null 2> " + sh(err.string());
+  const std::string cmd = "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI) +
+                          " simulate " + sh(scenario.string()) + " --out " + sh(out_dir.string()) +
+                          " --no-figures --quiet < /dev/null > /dev/null 2> " + sh(err.string());
   const int rc = std::system(cmd.c_str());
   Outcome o;
   o.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + (WIFSIGNALED(rc) ? WTERMSIG(rc) : 0);
@@ -298,6 +297,40 @@ TEST(HostileCorpus, FifoScenarioIsNamedNotOpened) {
   const Outcome d = simulate(scratch(), scratch() / "out_dir");
   EXPECT_EQ(d.exit_code, 2) << d.err;
   EXPECT_NE(d.err.find("is a folder, not a scenario file"), std::string::npos) << d.err;
+}
+
+// An MJCF model that is a FIFO, or that includes one, is named as what it is before MuJoCo opens
+// anything (MuJoCo's reader would block on the FIFO forever); an include cycle is refused.
+TEST(HostileCorpus, MjcfFifoAndIncludeCycleAreRefusedBeforeMuJoCoReads) {
+  const fs::path dir = scratch() / "mjcf_fifo";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ASSERT_EQ(::mkfifo((dir / "pipe.xml").c_str(), 0600), 0);
+  std::ofstream(dir / "top.xml") << "<mujoco><include file=\"pipe.xml\"/><worldbody/></mujoco>\n";
+  std::ofstream(dir / "a.xml") << "<mujoco><include file='b.xml'/></mujoco>\n";
+  std::ofstream(dir / "b.xml") << "<mujoco><include file='a.xml'/></mujoco>\n";
+  auto scenario = [&](const std::string& model) {
+    const fs::path p = dir / ("s_" + model + ".yaml");
+    std::ofstream(p) << "ukdyn: 1\nname: m\ngravity: 9.81\nsubsystems:\n  - name: arm\n"
+                        "    type: serial_chain\n    coordinates: [a]\n    mjcf: "
+                     << model << "\ninitial:\n  q: [0]\n  qd: [0]\nsimulation:\n  t_end: 1\n"
+                     << "  sample_dt: 0.01\n";
+    return p;
+  };
+  const struct {
+    const char* model;
+    const char* expect;
+  } cases[] = {
+      {"pipe.xml", "pipe.xml: not a regular file (a directory, FIFO or device)"},
+      {"top.xml", "pipe.xml (included from top.xml): not a regular file"},
+      {"a.xml", "more than 32 levels of <include> (a cycle?)"},
+  };
+  for (const auto& c : cases) {
+    const Outcome r = simulate(scenario(c.model), dir / "out");
+    EXPECT_EQ(r.exit_code, 2) << c.model << ": " << r.err;
+    EXPECT_NE(r.err.find(c.expect), std::string::npos) << r.err;
+  }
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -2,9 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <numbers>
+#include <regex>
 #include <set>
+#include <sstream>
 #include <vector>
 
 #include "ukdyn/symbolic/constraint_kinds.hpp"
@@ -30,6 +34,33 @@ void append_mjcf(ChainDef&, const std::string& path, bool) {
 namespace {
 
 using GiNaC::ex;
+
+// Every file MuJoCo would open is checked before it opens any: the model file and, recursively,
+// its <include file="..."/> (relative to the model file's folder, as MuJoCo resolves them) must be
+// regular files of at most 16 MiB; a FIFO, a folder or a device is named as what it is (a FIFO
+// would block MuJoCo's reader forever), an include cycle or more than 32 levels is refused.
+void check_model_files(const std::filesystem::path& file, const std::filesystem::path& folder,
+                       int depth, const std::string& via) {
+  const std::string name = file.string() + via;
+  if (depth > 32) throw DefinitionError(name + ": more than 32 levels of <include> (a cycle?)");
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec))
+    throw DefinitionError(name + (std::filesystem::exists(file, ec)
+                                      ? ": not a regular file (a directory, FIFO or device)"
+                                      : ": no such MJCF file"));
+  if (std::filesystem::file_size(file, ec) > (16u << 20) || ec)
+    throw DefinitionError(name + ": larger than 16 MiB (an MJCF model is a small text file)");
+  std::ifstream in(file, std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  const std::string xml = text.str();
+  static const std::regex include(R"re(<\s*include\s[^>]*?file\s*=\s*["']([^"']*)["'])re");
+  for (std::sregex_iterator it(xml.begin(), xml.end(), include), end; it != end; ++it) {
+    std::filesystem::path inc = (*it)[1].str();
+    if (inc.is_relative()) inc = folder / inc;
+    check_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")");
+  }
+}
 
 // Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
 std::array<double, 9> quat_matrix(const double* q) {
@@ -313,6 +344,7 @@ void append_equalities(ChainDef& chain, const MjcfSource& src,
 bool mjcf_supported() { return true; }
 
 void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
+  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "");
   char err[1000] = "";
   ModelGuard g;
   g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
