@@ -19,9 +19,9 @@
 #include <Eigen/Dense>
 #include <random>
 
-#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/robot_files/mjcf.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 namespace {
 
@@ -252,6 +252,32 @@ TEST(MjcfEquality, JointEqualitiesAreRefusedByName) {
     const std::string what = e.what();
     EXPECT_NE(what.find("equality 'couple'"), std::string::npos) << what;
     EXPECT_NE(what.find("only weld and connect"), std::string::npos) << what;
+  }
+}
+
+// An equality name that would break a CSV header (a comma, a quote, a newline) is refused with
+// the file and the equality named, before it becomes a constraint name.
+TEST(MjcfEquality, ImportedNamesObeyTheNameRule) {
+  const std::string xml = testing::TempDir() + "bad_equality_name.xml";
+  {
+    FILE* f = std::fopen(xml.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs(
+        "<mujoco><worldbody><body name='a'><joint name='ja'/><geom size='0.1'/></body>"
+        "<body name='b' pos='1 0 0'><joint name='jb'/><geom size='0.1'/></body></worldbody>"
+        "<equality><connect name='x,&quot;y&#10;z' body1='a' body2='b' anchor='0 0 0'/>"
+        "</equality></mujoco>",
+        f);
+    std::fclose(f);
+  }
+  ukdyn::symbolic::ChainDef c("m", {"qa", "qb"});
+  try {
+    ukdyn::symbolic::append_mjcf(c, xml);
+    FAIL() << "no error";
+  } catch (const ukdyn::symbolic::DefinitionError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("equality 0 is named 'x,\"y?z': a name must be"), std::string::npos)
+        << what;
   }
 }
 

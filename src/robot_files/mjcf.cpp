@@ -1,6 +1,7 @@
 #include "ukdyn/robot_files/mjcf.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -108,6 +109,26 @@ struct MjcfSource {
     return n && *n ? std::string(n) : fallback;
   }
 };
+
+// An imported name that becomes a constraint name (CSV columns, figure files) obeys the
+// scenario's name rule (docs/scenario-format.md, "Names"): 1 to 64 characters from A-Z a-z 0-9 _ .
+// -, not starting with '.' or '-'. A name with a comma, a quote or a newline is refused here, not
+// written into a CSV header that ukdyn's own reader must then split.
+void check_imported_name(const std::string& name, const std::string& what,
+                         const std::string& path) {
+  bool ok = !name.empty() && name.size() <= 64 && name[0] != '.' && name[0] != '-';
+  std::string shown;
+  for (const char ch : name) {
+    ok =
+        ok && (std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '.' || ch == '-');
+    const auto u = static_cast<unsigned char>(ch);
+    if (shown.size() < 48) shown += u >= 0x20 && u < 0x7f ? std::string(1, ch) : "?";
+  }
+  if (!ok)
+    throw DefinitionError(path + ": " + what + " is named '" + shown +
+                          "': a name must be 1 to 64 characters from A-Z a-z 0-9 _ . - and not "
+                          "start with '.' or '-' (rename it in the MJCF file)");
+}
 
 // Coordinates for the joints, in MuJoCo's order: the chain's, less the mobile base's.
 std::vector<std::string> joint_coordinates(const ChainDef& chain) {
@@ -322,6 +343,7 @@ void append_equalities(ChainDef& chain, const MjcfSource& src,
     const double* d = m.eq_data + mjNEQDATA * e;
     LinkConstraintDef lc;
     lc.name = src.name_of(mjOBJ_EQUALITY, e, "equality" + std::to_string(e));
+    check_imported_name(lc.name, "equality " + std::to_string(e), src.path);
     // (Body 0, MuJoCo's world, is the chain's root: the base, or root_link at the mount.)
     lc.link_a = link[static_cast<std::size_t>(m.eq_obj1id[e])];
     lc.link_b = link[static_cast<std::size_t>(m.eq_obj2id[e])];
