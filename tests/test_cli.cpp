@@ -160,6 +160,7 @@ TEST(Cli, EvalAgreesWithTheLibraryAndReportsBadLines) {
   EXPECT_EQ(j["M"].size(), 12u);
   EXPECT_EQ(j["A"].size(), 6u);
   EXPECT_EQ(j["rank"], 6);
+  EXPECT_EQ(j["line"], 1);  // every answer names its input line
   // In-process reference.
   const ukdyn::Scenario sc = ukdyn::load_scenario(paper);
   ukdyn::ForwardData d(*sc.system);

@@ -382,7 +382,9 @@ EvalCounts run_eval_protocol(const Scenario& sc, std::istream& in, std::ostream&
     std::string text;
     try {
       if (too_long) throw Error(fmt::format("line longer than {} bytes", opt.max_line_bytes));
-      text = answer(sc, data, C, line, opt).dump();
+      json a = answer(sc, data, C, line, opt);
+      a["line"] = lineno;  // every answer names its input line, as an error does
+      text = a.dump();
     } catch (const std::exception& e) {
       ++counts.failures;
       const std::string msg = fmt::format("{}:{}: {}", opt.source, lineno, e.what());
