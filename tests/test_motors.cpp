@@ -10,9 +10,9 @@
 
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/motor.hpp"
+#include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
-#include "ukdyn/robot_files/mjcf.hpp"
 
 #ifdef UKDYN_TEST_HAVE_MUJOCO
 #include <mujoco/mujoco.h>
@@ -71,6 +71,8 @@ TEST(Motors, PendulumMatchesTheClosedFormWithReflectedInertia) {
       worst = std::max(worst, std::abs(d.qdd(0) - ref) / std::max(1.0, std::abs(ref)));
     }
     EXPECT_LE(worst, 1e-12) << (motor ? "with" : "without") << " the motor";
+    std::cout << (motor ? "with" : "without")
+              << " the motor: max |qdd - closed form| / max(1, |qdd|) = " << worst << "\n";
   }
 }
 
@@ -99,6 +101,9 @@ TEST(Motors, LinearizeMatchesCentralDifferences) {
   const double th = std::tanh(kN * qd(0) / kWs);
   const double I = kIyy + kMass * kL * kL + kN * kN * kJm;
   EXPECT_NEAR(lin.dqdd_dqd(0, 0), -kN * kN * (kBm + kCm * (1 - th * th) / kWs) / I, 1e-12);
+  std::cout << "dqdd/dq " << lin.dqdd_dq(0, 0) << " (differences " << fq << "), dqdd/dqd "
+            << lin.dqdd_dqd(0, 0) << " (differences " << fv << ", closed form "
+            << -kN * kN * (kBm + kCm * (1 - th * th) / kWs) / I << ")\n";
 }
 
 // An actuator over two coordinates of one subsystem, τ = b u: the rotor turns at n bᵀq̇, its
@@ -231,7 +236,8 @@ TEST(Motors, ArmatureAndDampingMatchMuJoCo) {
             ", rotor_inertia: " + std::to_string(J[k]) + ", viscous: " + std::to_string(b[k]) +
             ", torque_constant: 0.1}}\n";
   const std::string text =
-      "ukdyn: 1\nname: open_chain_motors\ngravity: 9.81\nsubsystems:\n  - name: m\n    type: serial_chain\n"
+      "ukdyn: 1\nname: open_chain_motors\ngravity: 9.81\nsubsystems:\n  - name: m\n    type: "
+      "serial_chain\n"
       "    coordinates: [x, h1, h2, s2, h3, sw]\n    mjcf: " +
       file + "\n" + acts +
       "initial: {q: [0, 0, 0, 0, 0, 0]}\nsimulation: {t_end: 1, sample_dt: 0.1}\n";
@@ -274,5 +280,63 @@ TEST(Motors, ArmatureAndDampingMatchMuJoCo) {
   std::cout << "max |qdd_ukdyn - qacc_MuJoCo| / max(1, |qacc|) = " << worst << "\n";
 }
 #endif
+
+}  // namespace
+
+namespace {
+
+// scenarios/paper_motors.yaml: the paper's motion is prescribed by its constraints, so adding the
+// motors leaves q(t) as in paper.yaml and the kinetic energy must grow by exactly
+// ½ Σ_j n² J_m θ̇_j² over the eight motorised joints (the closed-form mobile manipulator's M with
+// the rotors added); the run completes and every motor stays within its envelope.
+TEST(MotorScenario, PaperMotorsAddsTheRotorsKineticEnergy) {
+  const std::string dir = std::string(UKDYN_SOURCE_DIR) + "/scenarios/";
+  const auto with = ukdyn::load_scenario(dir + "paper_motors.yaml");
+  const auto without = ukdyn::load_scenario(dir + "paper.yaml");
+  const auto a = ukdyn::run_scenario_in_memory(with);
+  ASSERT_TRUE(a.report.complete());
+  auto column = [&a](const std::string& name) {
+    for (std::size_t c = 0; c < a.header.size(); ++c)
+      if (a.header[c] == name) return c;
+    ADD_FAILURE() << "no column " << name;
+    return std::size_t{0};
+  };
+  const ukdyn::System& paper = *without.system;
+  const auto& names = paper.coordinate_names();
+  const std::vector<std::string> joints = {"delta1", "theta1", "theta2", "theta3",
+                                           "delta2", "theta4", "theta5", "theta6"};
+  const double reflected = 100.0 * 100.0 * 1.2e-5;  // n² J_m of the scenario's gearmotor
+  const std::size_t cols = a.header.size();
+  ukdyn::ForwardData d(paper);
+  Vec q(12), qd(12);
+  double worst = 0.0, max_rotors = 0.0;
+  for (long r = 0; r < a.report.csv_rows; ++r) {
+    const double* row = a.values.data() + static_cast<std::size_t>(r) * cols;
+    for (Index i = 0; i < 12; ++i) {
+      q(i) = row[column(names[static_cast<std::size_t>(i)])];
+      qd(i) = row[column(names[static_cast<std::size_t>(i)] + "_dot")];
+    }
+    ukdyn::evaluate_dynamics(paper, d, row[0], q, qd);  // the paper's M at the same state
+    double rotors = 0.0;
+    for (const auto& j : joints) {
+      const double w = row[column(j + "_dot")];
+      rotors += 0.5 * reflected * w * w;
+    }
+    max_rotors = std::max(max_rotors, rotors);
+    const double dT = row[column("T")] - ukdyn::kinetic_energy(d, qd);
+    worst = std::max(worst, std::abs(dT - rotors) / std::max(1.0, row[column("T")]));
+  }
+  EXPECT_GT(max_rotors, 1.0);  // the rotors' share is not negligible
+  EXPECT_LE(worst, 1e-13);
+  const auto j = nlohmann::json::parse(a.summary_json);
+  for (const auto& [name, m] : j["motors"].items()) {
+    EXPECT_TRUE(m["within_envelope"].get<bool>()) << name;
+    const double el = m["energy_electrical"], joint = m["energy_joint"], gear = m["energy_gear"],
+                 cu = m["energy_copper"];
+    EXPECT_NEAR(el, joint + gear + cu, 1e-12 * std::max(1.0, std::abs(el))) << name;
+  }
+  std::cout << "max |T_motors - T_paper - 1/2 sum n^2 J_m w^2| / max(1, T) = " << worst
+            << " (rotors up to " << max_rotors << " J)\n";
+}
 
 }  // namespace

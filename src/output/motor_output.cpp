@@ -197,4 +197,44 @@ std::vector<std::pair<std::string, std::vector<std::string>>> MotorColumns::figu
   return f;
 }
 
+std::vector<Figure> MotorColumns::envelope_figures() const {
+  std::vector<Figure> figs;
+  for (Index j : index_) {
+    const auto k = static_cast<std::size_t>(j);
+    const MotorSpec& m = *act_->motors[k];
+    const std::string& a = act_->names[k];
+    Figure f;
+    f.file = "motor_envelope_" + a + ".png";
+    f.title = "Operating points of the motor of '" + a + "' over its envelope";
+    f.ylabel = "|motor torque| [N·m]";
+    f.xlabel = "|motor speed| [rad/s]";
+    f.x_column = "motor_speed_" + a;
+    f.columns = {"motor_torque_" + a};
+    // Up to the no-load speed, or past the fastest sample.
+    f.x_max = std::isfinite(m.no_load_speed)
+                  ? 1.05 * std::max(m.no_load_speed, totals_[figs.size()].peak_speed)
+                  : 0.0;
+    // T_avail(x) = min(T_p, T_s (1 − x/ω_0)), 0 beyond ω_0 (numbers only: no text of the user's).
+    const bool line = std::isfinite(m.stall_torque);
+    const std::string ts =
+        line && std::isfinite(m.no_load_speed)
+            ? fmt::format("({:.17g}*(1 - x/{:.17g}))", m.stall_torque, m.no_load_speed)
+            : fmt::format("({:.17g})", m.stall_torque);
+    std::string env;
+    if (line && std::isfinite(m.peak_torque)) {
+      env = fmt::format("({:.17g} < {} ? {:.17g} : {})", m.peak_torque, ts, m.peak_torque, ts);
+    } else if (line) {
+      env = ts;
+    } else if (std::isfinite(m.peak_torque)) {
+      env = fmt::format("({:.17g})", m.peak_torque);
+    }
+    if (!env.empty()) f.functions.push_back({"(" + env + " > 0 ? " + env + " : 0)", "envelope"});
+    if (std::isfinite(m.continuous_torque))
+      f.functions.push_back(
+          {fmt::format("({:.17g})", m.continuous_torque), "continuous torque (RMS limit)"});
+    figs.push_back(std::move(f));
+  }
+  return figs;
+}
+
 }  // namespace ukdyn

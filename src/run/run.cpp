@@ -459,6 +459,8 @@ std::vector<Figure> run_figures(const RunSetup& s, RunReport& rep) {
   }
   for (const auto& [nm, cols] : s.control_columns.figures())  // docs/control.md
     figs.push_back({nm + ".png", nm, "[N, N·m or m]", cols});
+  for (auto& f : s.control_columns.motors().envelope_figures())  // docs/motors.md
+    figs.push_back(std::move(f));
   if (s.ctl) {  // the plant has no servo rows: drop the curves of columns it does not write
     const std::vector<std::string>& header = s.header;
     for (auto& f : figs)

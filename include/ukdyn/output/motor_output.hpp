@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/output/plots.hpp"
 #include "ukdyn/simulate/control.hpp"
 
 namespace ukdyn {
@@ -49,6 +50,9 @@ class MotorColumns {
   [[nodiscard]] std::string console_line() const;
   [[nodiscard]] std::vector<RunWarning> warnings() const;
   [[nodiscard]] std::vector<std::pair<std::string, std::vector<std::string>>> figures() const;
+  /// Per motor, motor_envelope_<a>.png: the operating points |τ_m| against |ω_m| of every sample
+  /// over the envelope min(T_p, T_s (1 − |ω_m|/ω_0)) and the continuous torque.
+  [[nodiscard]] std::vector<Figure> envelope_figures() const;
 
   /// The run so far, per actuator with a motor (in actuator order).
   struct Totals {
