@@ -8,8 +8,10 @@
 //   motor friction     τ_f(ω_m) = b_m ω_m + c_m tanh(ω_m / ω_s) at the motor shaft, seen through
 //                      the ideal ratio at the joint: Q_f = −b n τ_f (MotorFriction below; the
 //                      viscous part is n² b_m on the joint, the Coulomb part n c_m);
-//   gear efficiency    u, the actuator's input, is the torque the gear delivers on the joint side.
-//                      The motor's electromagnetic torque is τ_m = u / (n η) when the motor drives
+//   gear efficiency    u, the actuator's input (τ = B u), drives the joint's equation, which takes
+//                      the rotor's inertia and friction above; u / n is the motor's torque through
+//                      an ideal gear. The gear's losses go on top: the motor's electromagnetic
+//                      torque is τ_m = u / (n η) when the motor drives
 //                      the load (u ω_j ≥ 0, "motoring") and τ_m = u η / n when the load drives the
 //                      motor (u ω_j < 0, "braking": the gear loses on the way back too);
 //   electrical         i = τ_m / k_t, back-EMF k_e ω_m with k_e = k_t (SI), V = R i + k_t ω_m,
