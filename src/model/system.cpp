@@ -2,6 +2,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
@@ -28,8 +29,49 @@ Index System::add_subsystem(std::shared_ptr<const Subsystem> subsystem) {
   layout_.size.push_back(n);
   for (const auto& nm : subsystem->coordinate_names()) coord_names_.push_back(nm);
   subsystems_.push_back(std::move(subsystem));
+  added_mass_.emplace_back();
   dof_ += n;
   return offset;
+}
+
+void System::add_reflected_inertia(CVecRef b, double inertia) {
+  if (b.size() != dof_)
+    throw std::invalid_argument("System::add_reflected_inertia: b has " + std::to_string(b.size()) +
+                                " entries, the system " + std::to_string(dof_) + " coordinates");
+  if (!(inertia >= 0.0) || !std::isfinite(inertia))
+    throw std::invalid_argument(
+        "System::add_reflected_inertia: the inertia must be >= 0 and "
+        "finite (got " +
+        std::to_string(inertia) + ")");
+  std::size_t block = subsystems_.size();
+  for (std::size_t k = 0; k < subsystems_.size(); ++k) {
+    if (b.segment(layout_.start[k], layout_.size[k]).cwiseAbs().maxCoeff() == 0.0) continue;
+    if (block != subsystems_.size())
+      throw std::invalid_argument(
+          "System::add_reflected_inertia: the actuator acts on coordinates of two subsystems ('" +
+          subsystems_[block]->name() + "' and '" + subsystems_[k]->name() +
+          "'); a rotor inertia n² J_m b bᵀ would couple their blocks of M, which stay separate "
+          "(paper Eq. (11))");
+    block = k;
+  }
+  if (block == subsystems_.size())
+    throw std::invalid_argument("System::add_reflected_inertia: b is zero");
+  const Index s = layout_.start[block], n = layout_.size[block];
+  const Vec bk = b.segment(s, n);
+  add_block_inertia(block, inertia * bk * bk.transpose());
+}
+
+void System::add_block_inertia(std::size_t k, const Mat& added) {
+  if (k >= subsystems_.size())
+    throw std::invalid_argument("System::add_block_inertia: no subsystem " + std::to_string(k));
+  const Index n = layout_.size[k];
+  if (added.rows() != n || added.cols() != n || !added.allFinite() ||
+      (added - added.transpose()).cwiseAbs().maxCoeff() != 0.0)
+    throw std::invalid_argument("System::add_block_inertia: expected a finite symmetric " +
+                                std::to_string(n) + " x " + std::to_string(n) + " matrix");
+  Mat& add = added_mass_[k];
+  if (add.size() == 0) add = Mat::Zero(n, n);
+  add += added;
 }
 
 Index System::add_constraint(std::shared_ptr<const Constraint> constraint) {
@@ -132,6 +174,7 @@ ForwardData::ForwardData(const System& system)
         q(i) = static_cast<double>(state >> 11) * 0x1.0p-52 - 1.0;
       }
       subs[k]->mass({}, q, Mk);
+      if (system.added_mass(k).size() != 0) Mk += system.added_mass(k);
       if (!Mk.allFinite()) {
         singular_everywhere = false;
         break;
@@ -190,6 +233,8 @@ void evaluate_dynamics(const System& system, ForwardData& data, double t, CVecRe
     const Index n = L.size[k];
     Lt += subs[k]->dynamics({t, data.subsystem_slot(k)}, q.segment(s, n), qd.segment(s, n),
                             data.M.block(s, s, n, n), data.Cqd.segment(s, n), data.G.segment(s, n));
+    // Reflected rotor inertias (add_reflected_inertia): constant, so C q̇ and G are unchanged.
+    if (const Mat& add = system.added_mass(k); add.size() != 0) data.M.block(s, s, n, n) += add;
   }
   data.lagrangian_dt = Lt;
 }

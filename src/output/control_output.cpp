@@ -14,7 +14,8 @@ ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop)
     : sc_(&sc),
       forces_(ControlModel{sc.system, servo_row_flags(*sc.system, sc.constraint_roles),
                            sc.actuators, sc.tau, sc.sim.uk},
-              loop) {
+              loop),
+      motors_(sc.actuators) {
   const System& sys = *sc.system;
   const std::vector<bool>& servo = forces_.model().row_servo;
   row_names_ = sys.constraint_row_names();
@@ -30,6 +31,7 @@ ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop)
   if (sc.actuators.count() > 0) {
     for (const auto& a : sc.actuators.names) header_.push_back("u_" + a);
     header_.push_back("act_residual");
+    header_.insert(header_.end(), motors_.header().begin(), motors_.header().end());
   }
   if (loop != nullptr) {
     for (const auto& r : servo_names_) header_.push_back("e_" + r);
@@ -42,7 +44,7 @@ ControlColumns::ControlColumns(const Scenario& sc, ClosedLoop* loop)
 void ControlColumns::fill(double t, CVecRef q, CVecRef qd, const ForwardData& d, double* out) {
   forces_.evaluate(t, q, qd, d);
   if (forces_.has_split()) out = fill_split(t, out);
-  if (forces_.actuated()) out = fill_actuators(t, out);
+  if (forces_.actuated()) out = fill_actuators(t, qd, out);
   if (forces_.loop() != nullptr) fill_servo(t, out);
   if (peaks_.closure) {
     const ClosureForce& c = forces_.closure();
@@ -74,7 +76,7 @@ double* ControlColumns::fill_split(double t, double* out) {
 }
 
 // u_, act_residual; returns where the next columns go.
-double* ControlColumns::fill_actuators(double t, double* out) {
+double* ControlColumns::fill_actuators(double t, CVecRef qd, double* out) {
   const Vec& u = forces_.u();
   const double residual = forces_.actuation_residual();
   if (forces_.underactuated() && !underactuated_) {
@@ -90,6 +92,7 @@ double* ControlColumns::fill_actuators(double t, double* out) {
   max_residual_ = std::max(max_residual_, residual);
   for (Index j = 0; j < u.size(); ++j) *out++ = u(j);
   *out++ = residual;
+  out = motors_.fill(t, qd, u, out);  // docs/motors.md
   max_u_ = std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0);
   if (!first_ && t > t_prev_ && u.size())
     max_udot_ = std::max(max_udot_, (u - u_prev_).cwiseAbs().maxCoeff() / (t - t_prev_));
@@ -163,6 +166,7 @@ std::vector<RunWarning> ControlColumns::warnings() const {
         {sat_t_, "saturation",
          fmt::format("actuator limits reached: u clipped, up to {:.3e} over a limit", sat_over_)});
   }
+  for (auto& m : motors_.warnings()) w.push_back(std::move(m));
   return w;
 }
 
@@ -223,6 +227,7 @@ std::vector<std::pair<std::string, std::vector<std::string>>> ControlColumns::fi
     std::vector<std::string> u;
     for (const auto& a : sc_->actuators.names) u.push_back("u_" + a);
     f.push_back({"actuators", u});
+    for (auto& m : motors_.figures()) f.push_back(std::move(m));
   }
   if (forces_.loop() != nullptr) {
     std::vector<std::string> e;

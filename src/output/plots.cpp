@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <cstring>
 #include <set>
@@ -55,8 +56,42 @@ std::vector<std::string> file_names(const std::vector<Figure>& figures) {
   return names;
 }
 
-// `data`: the CSV as gnuplot reads it from OUT/figures ("../trajectory.csv", or kData).
+// An operating-point figure (Figure::x_column): |y| against |x| as points from the whole CSV
+// `full` (its header `header`), then the figure's functions of x. Empty if a column is missing.
+std::string scatter_plot(const std::string& full, const std::vector<std::string>& header,
+                         const Figure& f) {
+  const auto col = [&header](const std::string& c) -> std::size_t {
+    auto it = std::find(header.begin(), header.end(), c);
+    return it == header.end() ? 0 : static_cast<std::size_t>(it - header.begin()) + 1;
+  };
+  const std::size_t x = col(f.x_column);
+  if (x == 0) return {};
+  std::string gp = "set xlabel " + gnuplot_string(f.xlabel) + " noenhanced\n";
+  gp += f.x_max > 0.0 && std::isfinite(f.x_max) ? fmt::format("set xrange [0:{:.17g}]\n", f.x_max)
+                                                : std::string("set xrange [0:*]\n");
+  gp += "set yrange [0:*]\nset samples 400\nplot ";
+  bool first = true;
+  for (const auto& c : f.columns) {
+    const std::size_t y = col(c);
+    if (y == 0) continue;
+    gp += fmt::format(
+        "{}{} skip 1 using (abs(${})):(abs(${})) with points pt 7 ps 0.4 title {} "
+        "noenhanced",
+        first ? "" : ", \\\n     ", gnuplot_string(full), x, y, gnuplot_string(c));
+    first = false;
+  }
+  if (first) return {};
+  for (const auto& [expr, title] : f.functions)
+    gp += fmt::format(", \\\n     {} with lines lw 2 title {} noenhanced", expr,
+                      gnuplot_string(title));
+  gp += "\nset autoscale x\nset autoscale y\nset xlabel 't [s]'\n";
+  return gp;
+}
+
+// `data`: the CSV as gnuplot reads it from OUT/figures ("../trajectory.csv", or kData); `full`:
+// the whole CSV ("../trajectory.csv") with `full_header`, for the operating-point figures.
 std::string script_text(const std::string& data_file, const std::vector<std::string>& header,
+                        const std::string& full, const std::vector<std::string>& full_header,
                         const std::vector<Figure>& figures, const std::vector<std::string>& files,
                         std::vector<std::string>& drawn) {
   std::string gp;
@@ -69,6 +104,16 @@ std::string script_text(const std::string& data_file, const std::vector<std::str
   const std::string data = gnuplot_string(data_file);
   for (std::size_t i = 0; i < figures.size(); ++i) {
     const Figure& f = figures[i];
+    if (!f.x_column.empty()) {
+      const std::string plot = scatter_plot(full, full_header, f);
+      if (plot.empty()) continue;
+      gp += "set output " + gnuplot_string(files[i]) + "\n";
+      gp += "set title " + gnuplot_string(f.title) + " noenhanced\n";
+      gp += "set ylabel " + gnuplot_string(f.ylabel) + " noenhanced\n";
+      gp += plot + "unset output\n";
+      drawn.push_back(files[i]);
+      continue;
+    }
     std::vector<std::size_t> idx;
     for (const auto& c : f.columns) {
       auto it = std::find(header.begin(), header.end(), c);
@@ -232,8 +277,8 @@ FigureResult render_figures(const OutputDir& out, const std::string& csv_name,
     res.error = e.what();
     return res;
   }
-  const std::string script =
-      script_text(data.empty() ? "../" + csv_name : kData, data_header, figures, files, drawn);
+  const std::string script = script_text(data.empty() ? "../" + csv_name : kData, data_header,
+                                         "../" + csv_name, header, figures, files, drawn);
   const int fig = out.open_subdir("figures");
   // Every name to be written in figures/ must be free or a regular file (ukdyn's own, earlier).
   try {

@@ -395,6 +395,7 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
            "Fc_ and W_ columns report the least-norm multipliers (docs/frame-constraints.md)"});
     }
     for (auto& w : s.control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
+    rep.motors_line = s.control_columns.motors().console_line();
   } catch (const std::exception& e) {
     // Invalid settings: the summary must not be left saying "running".
     progress.done();
@@ -458,6 +459,8 @@ std::vector<Figure> run_figures(const RunSetup& s, RunReport& rep) {
   }
   for (const auto& [nm, cols] : s.control_columns.figures())  // docs/control.md
     figs.push_back({nm + ".png", nm, "[N, N·m or m]", cols});
+  for (auto& f : s.control_columns.motors().envelope_figures())  // docs/motors.md
+    figs.push_back(std::move(f));
   if (s.ctl) {  // the plant has no servo rows: drop the curves of columns it does not write
     const std::vector<std::string>& header = s.header;
     for (auto& f : figs)
@@ -508,6 +511,8 @@ void summary_final(nlohmann::json& summary, const RunSetup& s, bool split_unique
     reason = to_string(rep.stats.status) + ": " + rep.stats.message;
   }
   if (!s.control_columns.empty()) summary["control"] = s.control_columns.summary();
+  if (!s.control_columns.motors().empty())  // docs/motors.md
+    summary["motors"] = s.control_columns.motors().summary();
   if (!s.force_columns.empty() && !s.ctl) {
     summary["constraint_forces"] = {
         {"split_unique", split_unique},
@@ -674,6 +679,8 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   for (auto& w : control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
   nlohmann::json summary = summary_start(sc);
   if (!control_columns.empty()) summary["control"] = control_columns.summary();
+  if (!control_columns.motors().empty())  // docs/motors.md
+    summary["motors"] = control_columns.motors().summary();
   if (!force_columns.empty() && !ctl) {
     summary["constraint_forces"] = {
         {"split_unique", observer.split_unique},
@@ -770,6 +777,8 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
   os << fmt::format(
       "  energy              E0 = {:.9g} J, max |E - E0| = {:.3e} J, max T = {:.6g} J\n", rep.E0,
       rep.max_energy_drift, rep.max_T);
+  if (!rep.motors_line.empty())  // docs/motors.md
+    os << fmt::format("  motors              {}\n", p(rep.motors_line));
   os << fmt::format("  outputs             {}\n",
                     rep.csv.empty() ? std::string("(no trajectory written)") : p(rep.csv.string()));
   if (!rep.summary.empty())

@@ -61,7 +61,59 @@ double number_at_least(const Loader& L, const Node& parent, const char* key, dou
   return v;
 }
 
-void load_actuators(const Loader& L, const Node& a, Scenario& sc,
+// One key of a `motor:` block: absent → fallback; present → a number obeying `rule` (else an
+// error at the key: file:line:column, the key path and the rule).
+double motor_key(const Loader& L, const Node& m, const char* key, double fallback,
+                 bool (*ok)(double), const char* rule) {
+  const Node n = L.child(m, key, false);
+  if (!n.node.IsDefined()) return fallback;
+  const double v = L.number(n);
+  if (!ok(v)) L.fail(n, fmt::format("{} {} (got {})", key, rule, v));
+  return v;
+}
+
+// An actuator's `motor:` block (docs/motors.md, "Keys"): the motor and gearbox behind it. Its
+// reflected rotor inertia n² J_m b bᵀ goes into M, its friction −b n τ_f(n bᵀq̇) into the applied
+// forces of `system` (ukdyn/model/motor.hpp).
+MotorSpec load_motor(const Loader& L, const Node& m, const std::string& actuator, CVecRef b,
+                     System& system) {
+  if (!m.node.IsMap()) L.fail(m, "expected a map of motor keys (docs/motors.md)");
+  L.only_keys(m, {"ratio", "efficiency", "rotor_inertia", "viscous", "coulomb", "coulomb_speed",
+                  "torque_constant", "resistance", "stall_torque", "no_load_speed",
+                  "continuous_torque", "peak_torque"});
+  const auto pos = [](double v) { return v > 0.0 && std::isfinite(v); };
+  const auto nonneg = [](double v) { return v >= 0.0 && std::isfinite(v); };
+  const auto limit = [](double v) { return v > 0.0; };  // .inf allowed: no limit
+  const auto eff = [](double v) { return v > 0.0 && v <= 1.0; };
+  const char* kPos = "must be > 0 and finite";
+  const char* kNonneg = "must be >= 0 and finite";
+  MotorSpec s;
+  L.child(m, "ratio", true);
+  L.child(m, "torque_constant", true);
+  s.ratio = motor_key(L, m, "ratio", 1.0, pos, kPos);
+  s.efficiency = motor_key(L, m, "efficiency", 1.0, eff, "must be in (0, 1]");
+  s.rotor_inertia = motor_key(L, m, "rotor_inertia", 0.0, nonneg, kNonneg);
+  s.viscous = motor_key(L, m, "viscous", 0.0, nonneg, kNonneg);
+  s.coulomb = motor_key(L, m, "coulomb", 0.0, nonneg, kNonneg);
+  s.coulomb_speed = motor_key(L, m, "coulomb_speed", s.coulomb_speed, pos, kPos);
+  s.torque_constant = motor_key(L, m, "torque_constant", 1.0, pos, kPos);
+  s.resistance = motor_key(L, m, "resistance", 0.0, nonneg, kNonneg);
+  const double inf = std::numeric_limits<double>::infinity();
+  s.stall_torque = motor_key(L, m, "stall_torque", inf, limit, "must be > 0");
+  s.no_load_speed = motor_key(L, m, "no_load_speed", inf, limit, "must be > 0");
+  s.continuous_torque = motor_key(L, m, "continuous_torque", inf, limit, "must be > 0");
+  s.peak_torque = motor_key(L, m, "peak_torque", inf, limit, "must be > 0");
+  try {
+    if (s.rotor_inertia > 0.0) system.add_reflected_inertia(b, s.ratio * s.ratio * s.rotor_inertia);
+    if (s.viscous > 0.0 || s.coulomb > 0.0)
+      system.add_applied_force(std::make_shared<MotorFriction>("motor_" + actuator, s, Vec(b)));
+  } catch (const std::invalid_argument& e) {
+    L.fail(m, e.what());
+  }
+  return s;
+}
+
+void load_actuators(const Loader& L, const Node& a, Scenario& sc, System& system,
                     const std::map<std::string, Index>& coord_index) {
   const Index n = sc.system->dof();
   if (!a.node.IsSequence() || a.node.size() == 0)
@@ -70,10 +122,11 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc,
   const auto k = static_cast<Index>(a.node.size());
   act.B = Mat::Zero(n, k);
   act.limit = Vec::Constant(k, std::numeric_limits<double>::infinity());
+  act.motors.assign(static_cast<std::size_t>(k), std::nullopt);
   std::set<std::string> names;
   for (std::size_t j = 0; j < a.node.size(); ++j) {
     const Node e{a.node[j], a.key + "[" + std::to_string(j) + "]"};
-    L.only_keys(e, {"name", "coordinate", "gains", "limit"});
+    L.only_keys(e, {"name", "coordinate", "gains", "limit", "motor"});
     const std::string nm = L.name(L.child(e, "name", true));
     if (!names.insert(nm).second) L.fail(e, "duplicate actuator name '" + nm + "'");
     act.names.push_back(nm);
@@ -99,6 +152,8 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc,
     }
     if (act.B.col(col).norm() == 0.0) L.fail(e, "the actuator's gains are all zero");
     if (Node ln = L.child(e, "limit", false); ln.node.IsDefined()) act.limit(col) = L.positive(ln);
+    if (Node mn = L.child(e, "motor", false); mn.node.IsDefined())
+      act.motors[j] = load_motor(L, mn, nm, act.B.col(col), system);
   }
 }
 
@@ -126,7 +181,11 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
   } else {
     doc = clone_yaml(root.node);
     doc.remove("control");
-    doc.remove("actuators");
+    // The actuators stay when a motor is behind one: its rotor and friction belong to the plant.
+    bool motors = false;
+    if (const YAML::Node acts = doc["actuators"]; acts.IsSequence())
+      for (const auto& a : acts) motors = motors || (a.IsMap() && a["motor"].IsDefined());
+    if (!motors) doc.remove("actuators");
     hash_input = sc.hash;
   }
   for (std::size_t i = 0; i < set.node.size(); ++i) {
@@ -249,10 +308,10 @@ void load_control(const Loader& L, const Node& root, const Node& c, Scenario& sc
 
 }  // namespace
 
-void load_control_sections(const Loader& L, const Node& root, Scenario& sc,
+void load_control_sections(const Loader& L, const Node& root, Scenario& sc, System& system,
                            const std::map<std::string, Index>& coord_index) {
   if (Node a = L.child(root, "actuators", false); a.node.IsDefined())
-    load_actuators(L, a, sc, coord_index);
+    load_actuators(L, a, sc, system, coord_index);
   if (Node c = L.child(root, "control", false); c.node.IsDefined())
     load_control(L, root, c, sc, coord_index);
 }

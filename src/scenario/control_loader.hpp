@@ -25,8 +25,10 @@ RoleChoice take_role(const Loader& L, const Node& c, const std::string& type);
 /// The role of the built constraint (by_time: Φ(q0, t) or Φ̇(q0, 0, t) varies with t).
 ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const Vec& q0);
 
-/// `actuators:` and `control:` (after the constraints and the initial state are loaded).
-void load_control_sections(const Loader& L, const Node& root, Scenario& sc,
+/// `actuators:` and `control:` (after the constraints and the initial state are loaded). An
+/// actuator's `motor:` block (docs/motors.md) adds its reflected rotor inertia and its friction to
+/// `system` (the scenario's own, sc.system).
+void load_control_sections(const Loader& L, const Node& root, Scenario& sc, System& system,
                            const std::map<std::string, Index>& coord_index);
 
 }  // namespace ukdyn::io_detail

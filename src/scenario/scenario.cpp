@@ -976,7 +976,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   check_masses_of_t(L, sc, st);
   load_solver(L, root, sc);
   sc.system = st.system;
-  io_detail::load_control_sections(L, root, sc, st.coord_index);  // docs/control.md
+  io_detail::load_control_sections(L, root, sc, *st.system, st.coord_index);  // docs/control.md
   check_singular_mass(L, sc, st);
   if (options.check_initial) check_initial_state(L, st, sc);
   sc.system = st.system;

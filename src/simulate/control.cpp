@@ -37,6 +37,8 @@ std::shared_ptr<System> physical_system(const System& system,
                                         const std::vector<ConstraintRole>& roles) {
   auto out = std::make_shared<System>();
   for (const auto& s : system.subsystems()) out->add_subsystem(s);
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)  // reflected rotor inertias
+    if (system.added_mass(k).size() != 0) out->add_block_inertia(k, system.added_mass(k));
   for (std::size_t c = 0; c < system.constraints().size(); ++c) {
     if (c < roles.size() && roles[c] == ConstraintRole::servo) continue;
     out->add_constraint(system.constraints()[c]);

@@ -25,6 +25,19 @@ class System {
   Index add_constraint(std::shared_ptr<const Constraint> constraint);
   /// Adds an applied force Q_a(t, q, q̇) over all coordinates (applied_force.hpp).
   void add_applied_force(std::shared_ptr<const AppliedForce> force);
+  /// Adds the constant inertia `inertia` · b bᵀ to M (b: n system coordinates), e.g. a motor's
+  /// rotor seen through a gear of ratio n: n² J_m b bᵀ (ukdyn/model/motor.hpp, docs/motors.md).
+  /// evaluate_dynamics() adds it after the subsystems' M, so forward(), the constraint forces,
+  /// the energies, linearize() (a constant: no tangent) and every integrator see it. b's non-zeros
+  /// must lie in one subsystem (M stays block-diagonal, paper Eq. (11)); throws
+  /// std::invalid_argument otherwise, or for a negative or non-finite inertia, or a wrong size.
+  /// Add every subsystem first.
+  void add_reflected_inertia(CVecRef b, double inertia);
+  /// Adds a constant symmetric matrix to subsystem k's block of M (what add_reflected_inertia()
+  /// adds; used to carry those onto a copy of the system, e.g. the plant of a control run).
+  void add_block_inertia(std::size_t k, const Mat& added);
+  /// Σ of the reflected inertias on subsystem k's block (its dof² entries; empty if none).
+  [[nodiscard]] const Mat& added_mass(std::size_t k) const { return added_mass_[k]; }
 
   [[nodiscard]] Index dof() const { return dof_; }
   [[nodiscard]] Index rows() const { return rows_; }
@@ -58,6 +71,7 @@ class System {
   std::vector<std::shared_ptr<const Subsystem>> subsystems_;
   std::vector<std::shared_ptr<const Constraint>> constraints_;
   std::vector<std::shared_ptr<const AppliedForce>> applied_;
+  std::vector<Mat> added_mass_;  // per subsystem: Σ inertia · b bᵀ on its block (empty: none)
   std::vector<Index> row_offsets_;
   std::vector<std::string> coord_names_;
   std::vector<std::string> row_names_;

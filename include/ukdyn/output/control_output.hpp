@@ -3,6 +3,8 @@
 //                                                          with at least one servo row)
 //   u_<actuator>, act_residual                             the actuators' inputs (`actuators:`):
 //                                                          inverse dynamics, or the law's u
+//   motor_*_<actuator>                                     the motor behind an actuator
+//                                                          (motor_output.hpp, docs/motors.md)
 //   e_<row>, ed_<row>                                      servo errors (`control:`)
 //   servo_uncertainty                                      ‖δ‖ of the built-in laws (`control:`)
 #pragma once
@@ -11,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/output/motor_output.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/control.hpp"
 #include "ukdyn/simulate/control_forces.hpp"
@@ -48,10 +51,12 @@ class ControlColumns {
     double max_squeeze_force = 0.0;  ///< max −λ·n (compression > 0); −inf before a sample
   };
   [[nodiscard]] const Peaks& peaks() const { return peaks_; }
+  /// The motors behind the actuators (docs/motors.md): summary.json → motors, the console line.
+  [[nodiscard]] const MotorColumns& motors() const { return motors_; }
 
  private:
   double* fill_split(double t, double* out);
-  double* fill_actuators(double t, double* out);
+  double* fill_actuators(double t, CVecRef qd, double* out);
   double* fill_servo(double t, double* out);
 
   const Scenario* sc_;
@@ -75,6 +80,7 @@ class ControlColumns {
   double t_prev_ = 0.0;
   bool first_ = true;
   Peaks peaks_;
+  MotorColumns motors_;
 };
 
 }  // namespace ukdyn

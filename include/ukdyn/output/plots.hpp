@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "ukdyn/output/output_dir.hpp"
@@ -18,6 +19,14 @@ struct Figure {
   std::string title;
   std::string ylabel;
   std::vector<std::string> columns;  ///< CSV column names, plotted against t
+  /// An operating-point figure instead of curves against t: |column| against |x_column| for every
+  /// sample, as points, drawn from the whole CSV (never the decimated copy, whose per-column
+  /// extremes would pair values of different samples); and curves y = f(x) given as gnuplot
+  /// expressions that ukdyn writes from numbers only (e.g. a motor's envelope), with their titles.
+  std::string x_column{};
+  std::string xlabel{};
+  std::vector<std::pair<std::string, std::string>> functions{};
+  double x_max{0.0};  ///< > 0: the x axis of an operating-point figure at least up to x_max
 };
 
 /// At most this many figures per run, and this many curves per figure.

@@ -52,6 +52,8 @@ struct RunReport {
   /// A control run (docs/control.md): the system integrated (the plant, physical rows only), whose
   /// rows the residuals above belong to; null otherwise (the scenario's system).
   std::shared_ptr<const System> plant;
+  /// The worst margin of the motors to their envelopes (docs/motors.md); empty without motors.
+  std::string motors_line;
 
   /// The integration reached t_end and every output was written.
   [[nodiscard]] bool complete() const {

@@ -7,19 +7,24 @@
 #include <functional>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "ukdyn/core/force_split.hpp"
+#include "ukdyn/model/motor.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 namespace ukdyn {
 
-/// k actuators: τ = B u (B: n × k); limit(j) = |u_j| allowed (+inf: none).
+/// k actuators: τ = B u (B: n × k); limit(j) = |u_j| allowed (+inf: none); motors[j]: the motor
+/// and gearbox behind actuator j, if given (docs/motors.md; its rotor inertia and friction are in
+/// the System already, ukdyn/model/motor.hpp).
 struct Actuators {
   std::vector<std::string> names;
   Mat B;
   Vec limit;
+  std::vector<std::optional<MotorSpec>> motors;
   [[nodiscard]] Index count() const { return static_cast<Index>(names.size()); }
 };
 
