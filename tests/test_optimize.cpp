@@ -9,6 +9,7 @@
 
 #include "cli_run.hpp"
 #include "optimize/transcription.hpp"
+#include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/scenario/optimization_file.hpp"
@@ -401,6 +402,32 @@ TEST(OptimizeFile, WarmStartFromAPreviousRun) {
               std::string::npos)
         << e.what();
   }
+}
+
+// `envelopes: motors`: every motor's operating point at the optimum, computed by the motor model
+// itself (motor_point: τ_m = u/(nη) motoring, uη/n braking, against min(T_p, T_s(1 − |ω_m|/ω_0))),
+// stays inside its envelope up to IPOPT's bound relaxation (1e-8 of the bound), and the lift in
+// 0.6 s puts some motor on it (the constraint is active, so it was not vacuous).
+TEST(OptimizeFile, MotorEnvelopesHoldAtTheOptimum) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "paper_lift_motors.yaml");
+  EXPECT_EQ(f.problem.envelopes.size(),
+            8u);  // the gearmotors of the two robots' base and arm joints
+  const auto s = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(s.converged && s.trusted) << s.status << " " << s.message;
+  const auto& motors = f.scenario->actuators.motors;
+  double lowest = 1e9;
+  for (Index p = 0; p < s.t.size(); ++p)
+    for (Index j = 0; j < s.u.cols(); ++j) {
+      const auto& m = motors[static_cast<std::size_t>(j)];
+      if (!m) continue;
+      const double omega_j = f.problem.B.col(j).dot(s.qd.row(p).transpose());
+      lowest = std::min(lowest, motor_point(*m, s.u(p, j), omega_j).margin);
+    }
+  EXPECT_GT(lowest, -1e-7);
+  EXPECT_LT(lowest, 1e-4);
+  std::printf("lowest motor margin at the optimum: %.3g\n", lowest);
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI

@@ -158,10 +158,44 @@ void timing(const Loader& L, const Node& root, TrajectoryProblem& p) {
   }
 }
 
-void envelopes(const Loader& L, const Node& root, TrajectoryProblem& p) {
+// `envelopes: motors`: each actuator's motor (docs/motors.md) seen at the joint. The motor's
+// torque–speed line T_s (1 − |ω_m|/ω_0), ω_m = n ω_j, with τ_m = u/(n η) while motoring is
+// |u| ≤ n η T_s (1 − |ω_j| / (ω_0/n)); its peak torque bounds |u| ≤ n η T_p. Braking (u ω_j < 0,
+// τ_m = u η/n) would allow more torque: the motoring line is the conservative bound for both.
+void motor_envelopes(const Loader& L, const Node& e, const Scenario& sc, bool actuated,
+                     TrajectoryProblem& p) {
+  if (actuated) L.fail(e, "`motors` takes the scenario's actuators: remove `actuated`");
+  const Index k = p.B.cols();
+  if (p.u_lower.size() == 0) p.u_lower = Vec::Constant(k, -kInf), p.u_upper = -p.u_lower;
+  bool any = false;
+  for (Index j = 0; j < k && j < static_cast<Index>(sc.actuators.motors.size()); ++j) {
+    const auto& m = sc.actuators.motors[static_cast<std::size_t>(j)];
+    if (!m) continue;
+    const double scale = m->ratio * m->efficiency;
+    if (std::isfinite(m->stall_torque) && std::isfinite(m->no_load_speed)) {
+      p.envelopes.push_back({j, scale * m->stall_torque, m->no_load_speed / m->ratio});
+      any = true;
+    }
+    if (std::isfinite(m->peak_torque)) {
+      p.u_upper(j) = std::min(p.u_upper(j), scale * m->peak_torque);
+      p.u_lower(j) = std::max(p.u_lower(j), -scale * m->peak_torque);
+      any = true;
+    }
+  }
+  if (!any)
+    L.fail(e,
+           "no actuator of the scenario has a motor with a stall torque and no-load speed or a "
+           "peak torque");
+}
+
+void envelopes(const Loader& L, const Node& root, const Scenario& sc, bool actuated,
+               TrajectoryProblem& p) {
   const Node e = L.child(root, "envelopes", false);
   if (!e.node.IsDefined()) return;
-  if (!e.node.IsSequence()) L.fail(e, "expected a list of {actuator, u_max, speed_max}");
+  if (e.node.IsScalar() && e.node.Scalar() == "motors")
+    return motor_envelopes(L, e, sc, actuated, p);
+  if (!e.node.IsSequence())
+    L.fail(e, "expected `motors` or a list of {actuator, u_max, speed_max}");
   for (std::size_t i = 0; i < e.node.size(); ++i) {
     const Node item{e.node[i], e.key + "[" + std::to_string(i) + "]"};
     L.only_keys(item, {"actuator", "u_max", "speed_max"});
@@ -347,7 +381,7 @@ OptimizationFile load_optimization_text(const std::string& text,
         L, L.child(b, "u", false), p.u_lower, p.u_upper, p.B.cols(),
         [&](const Node& at, const std::string& n) { return actuator(L, at, p.actuator_names, n); });
   }
-  envelopes(L, root, p);
+  envelopes(L, root, sc, L.child(root, "actuated", false).node.IsDefined(), p);
   if (const Node mc = L.child(root, "max_correction", false); mc.node.IsDefined())
     p.max_correction = L.positive(mc);
   ipopt(L, root, f.ipopt);
