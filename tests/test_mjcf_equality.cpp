@@ -17,6 +17,7 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Dense>
+#include <fstream>
 #include <random>
 
 #include "ukdyn/model/system.hpp"
@@ -231,19 +232,20 @@ TEST(MjcfEquality, RowsAndJacobianAndAccelerationMatchMuJoCo) {
       worst_pos, space, worst_acc);
 }
 
+// Two bodies on hinges with one <equality> entry, written to the test's temporary folder.
+std::string two_body_model(const std::string& name, const std::string& equality) {
+  const std::string xml = testing::TempDir() + name;
+  std::ofstream(xml) << "<mujoco><worldbody><body name='a'><joint name='ja'/><geom size='0.1'/>"
+                        "</body><body name='b' pos='1 0 0'><joint name='jb'/><geom size='0.1'/>"
+                        "</body></worldbody><equality>"
+                     << equality << "</equality></mujoco>";
+  return xml;
+}
+
 TEST(MjcfEquality, JointEqualitiesAreRefusedByName) {
   ASSERT_TRUE(ukdyn::symbolic::mjcf_supported());
-  const std::string xml = testing::TempDir() + "joint_equality.xml";
-  {
-    FILE* f = std::fopen(xml.c_str(), "w");
-    ASSERT_NE(f, nullptr);
-    std::fputs(
-        "<mujoco><worldbody><body name='a'><joint name='ja'/><geom size='0.1'/></body>"
-        "<body name='b' pos='1 0 0'><joint name='jb'/><geom size='0.1'/></body></worldbody>"
-        "<equality><joint name='couple' joint1='ja' joint2='jb'/></equality></mujoco>",
-        f);
-    std::fclose(f);
-  }
+  const std::string xml =
+      two_body_model("joint_equality.xml", "<joint name='couple' joint1='ja' joint2='jb'/>");
   ukdyn::symbolic::ChainDef c("m", {"qa", "qb"});
   try {
     ukdyn::symbolic::append_mjcf(c, xml);
@@ -258,18 +260,9 @@ TEST(MjcfEquality, JointEqualitiesAreRefusedByName) {
 // An equality name that would break a CSV header (a comma, a quote, a newline) is refused with
 // the file and the equality named, before it becomes a constraint name.
 TEST(MjcfEquality, ImportedNamesObeyTheNameRule) {
-  const std::string xml = testing::TempDir() + "bad_equality_name.xml";
-  {
-    FILE* f = std::fopen(xml.c_str(), "w");
-    ASSERT_NE(f, nullptr);
-    std::fputs(
-        "<mujoco><worldbody><body name='a'><joint name='ja'/><geom size='0.1'/></body>"
-        "<body name='b' pos='1 0 0'><joint name='jb'/><geom size='0.1'/></body></worldbody>"
-        "<equality><connect name='x,&quot;y&#10;z' body1='a' body2='b' anchor='0 0 0'/>"
-        "</equality></mujoco>",
-        f);
-    std::fclose(f);
-  }
+  const std::string xml =
+      two_body_model("bad_equality_name.xml",
+                     "<connect name='x,&quot;y&#10;z' body1='a' body2='b' anchor='0 0 0'/>");
   ukdyn::symbolic::ChainDef c("m", {"qa", "qb"});
   try {
     ukdyn::symbolic::append_mjcf(c, xml);

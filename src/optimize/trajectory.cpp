@@ -4,12 +4,12 @@
 #include "ukdyn/optimize/trajectory.hpp"
 
 #include <cmath>
-#include <sstream>
 #include <tuple>
 
 #include "optimize/transcription.hpp"
 #include "ukdyn/model/constraint_jacobians.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/simulate/diagnostics.hpp"
 
 #if UKDYN_HAVE_IPOPT
 #include <IpIpoptApplication.hpp>
@@ -25,12 +25,7 @@ std::string to_string(CollocationMethod method) {
 
 namespace {
 
-std::string sci(double v) {
-  std::ostringstream os;
-  os.precision(3);
-  os << std::scientific << v;
-  return os.str();
-}
+using detail::sci;  // "%.3g", ukdyn/simulate/diagnostics.hpp
 
 void check_size(const char* what, Index expected, Index got, bool may_be_empty) {
   if (got == expected || (may_be_empty && got == 0)) return;
