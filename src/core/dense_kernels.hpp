@@ -98,6 +98,11 @@ struct RankRule {
   /// false: stop at μ/2 only (the regularized solve drops no direction by τ: all its pivots are
   /// ≥ μ; τ then only sets the reported rank).
   bool drop_by_tolerance = true;
+  /// The factorisation keeps at most this many pivots: m − the structural redundancy of the
+  /// adaptive solve (UkSettings::structural_redundancy). The pivots of a positive semidefinite W
+  /// under diagonal pivoting do not increase, so the ones left are the smallest: the directions of
+  /// the rows that are dependent at every configuration, whatever drift has lifted them to.
+  Index keep_at_most = std::numeric_limits<Index>::max();
 };
 
 struct LdltPivots {
@@ -128,7 +133,7 @@ struct LdltPivots {
       count_floor = rule.tol2 * std::max(pv.d_max - rule.shift, rule.scale);  // τ² s
       cutoff = std::max(0.5 * rule.shift, rule.drop_by_tolerance ? count_floor : 0.0);
     }
-    if (!(pv.d_max > 0.0 && dp > cutoff)) break;
+    if (!(pv.d_max > 0.0 && dp > cutoff) || k >= rule.keep_at_most) break;
     piv[k] = p;
     if (p != k) {
       // Symmetric swap of rows/columns k and p in lower storage.

@@ -515,17 +515,24 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   }
   // The regularized solve drops no direction by rank_tol (only round-off under μ/2), unless there
   // is no shift (μ = 0: regularization 0, or W = 0).
+  // Adaptive with a structural redundancy r (UkSettings): at most m − r pivots, so that drift off
+  // the manifold, which lifts the redundant directions' singular values from 0 to its own size,
+  // neither puts a force on them (exact) nor reads as an approaching singular position (damping).
+  const bool adaptive = settings.method == UkMethod::adaptive;
+  const Index keep_at_most = adaptive && settings.structural_redundancy > 0
+                                 ? std::max<Index>(m - settings.structural_redundancy, 0)
+                                 : std::numeric_limits<Index>::max();
   LdltPivots pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(),
-                               RankRule{tol2, mu, 0.0, !(regularized && mu > 0.0)});
+                               RankRule{tol2, mu, 0.0, !(regularized && mu > 0.0), keep_at_most});
   // Adaptive: the exact factorisation above decides. When its smallest kept singular value is
   // within adaptive_band · ε of the largest, W is rebuilt and refactored with the damping
   // μ = weight(ρ) ε² max diag W (damping_weight): exact to round-off away from singular positions,
   // damped (as regularized) inside the band, and continuous in between.
-  const bool adaptive = settings.method == UkMethod::adaptive;
   auto damp = [&](double weight) {
     build_W<MM>(ws.A_Linvt.data(), n, m, W, ldw);
     mu = shift_W(W, ldw, m, settings.regularization, weight);
-    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(), RankRule{tol2, mu});
+    pv = pivoted_ldlt(W, ldw, m, ws.piv.data(), ws.tmp_m.data(),
+                      RankRule{tol2, mu, 0.0, true, keep_at_most});
     res.damping = weight * settings.regularization;
   };
   if (adaptive && pv.rank > 0 && pv.d_max > 0.0) {
@@ -551,8 +558,12 @@ UkResult solve_impl(const Mat& A, const Vec& b, const Vec& Q, UkWorkspace& ws, V
   // by the exact factorisation, and if that leaves a residual that is not round-off, the row still
   // asks for a force (the 0/0 limit at a singular position; a redundant consistent row leaves
   // round-off and keeps the exact answer). Then the fully damped solve, which is what the band's
-  // inside gives just above the cut-off: continuous across it.
-  if (adaptive && mu == 0.0 && pv.kept < m && !res.consistent && pv.d_max > 0.0) {
+  // inside gives just above the cut-off: continuous across it. Not for the directions of a
+  // structural redundancy (keep_at_most, above): their rows are dependent at every configuration,
+  // so what they leave is the drift of a state off the manifold, and the least-squares answer of
+  // the other rows is the right one.
+  if (adaptive && mu == 0.0 && pv.kept < std::min(m, keep_at_most) && !res.consistent &&
+      pv.d_max > 0.0) {
     damp(1.0);
     solve_and_check();
   }

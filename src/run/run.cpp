@@ -315,6 +315,7 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
                      {"max", rep.rank_max},
                      {"rows", m},
                      {"free_dof_min", n - rep.rank_max},
+                     {"redundant_rows", rep.stats.structural_redundancy},
                      {"smallest_kept_sigma_estimate", finite_or_null(rep.sigma_min)}};
   nlohmann::json figs = nlohmann::json::array();
   for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(rep.out_dir).string());
@@ -770,8 +771,12 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
         rep.stats.jacobian_note.empty() ? "" : ": " + p(rep.stats.jacobian_note));
   }
   os << fmt::format("  wall time           {:.3f} s\n", rep.wall_seconds);
-  os << fmt::format("  rank of A           {}..{} of {} rows ({} free DOF)\n", rep.rank_min,
-                    rep.rank_max, sc.system->rows(), sc.system->dof() - rep.rank_max);
+  os << fmt::format(
+      "  rank of A           {}..{} of {} rows ({} free DOF{})\n", rep.rank_min, rep.rank_max,
+      sc.system->rows(), sc.system->dof() - rep.rank_max,
+      rep.stats.structural_redundancy > 0
+          ? fmt::format(", {} redundant around the motion", rep.stats.structural_redundancy)
+          : "");
   os << fmt::format("  max |residual|      {:.3e} ({})\n", worst.value, p(worst.row));
   os << fmt::format("  max |A qdd - b|     {:.3e}\n", rep.max_acc_residual);
   os << fmt::format(

@@ -1,4 +1,5 @@
-// Diagnostics of a failed run: why the step control gave up (docs/singular-positions.md).
+// Diagnostics of a run: why the step control gave up, and the redundancy at the start
+// (docs/singular-positions.md).
 #include "ukdyn/simulate/diagnostics.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -67,6 +68,42 @@ std::string diagnose_singularity(const System& system, double t, const std::vect
   return "the constraints are near a singular position at t = " + std::to_string(t) +
          ": a singular value of A M^-1/2 is " + sci(ratio) + " of the largest (rank_tol " +
          sci(uk.rank_rel_tol) + "), in rows [" + names(rn, svd.matrixU().col(k)) + "]";
+}
+
+// Constant redundancy against a singular start (diagnostics.hpp). The singular values of a
+// singular position grow like the distance from it (h here), far above the rank cut-off
+// (rank_rel_tol = 1e-7 of the largest) for h = 1e-3; a redundancy holds at every configuration.
+int structural_redundancy(const System& system, double t0, const Vec& q0, const Vec& qd0,
+                          const UkSettings& uk) {
+  const Index n = system.dof(), m = system.rows();
+  if (m == 0 || n == 0) return 0;
+  UkSettings exact = uk;
+  exact.method = UkMethod::exact;
+  exact.structural_redundancy = 0;
+  ForwardData d(system);
+  const Vec zero = Vec::Zero(n);
+  auto deficiency = [&](const Vec& q, const Vec& qd) {
+    forward(system, d, t0, q, qd, zero, exact);
+    return d.result.finite ? static_cast<int>(m) - d.result.rank : 0;
+  };
+  int r = deficiency(q0, qd0);
+  if (r <= 0) return 0;
+  evaluate_constraints(system, d, t0, q0, qd0);
+  const Eigen::BDCSVD<Mat> svd(d.A, Eigen::ComputeFullV);
+  const Index rank_a = svd.rank();
+  if (rank_a >= n) return r;  // nothing can move: no configuration nearby to compare with
+  const Mat null = svd.matrixV().rightCols(n - rank_a);
+  const double h = 1e-3 * (1.0 + q0.cwiseAbs().maxCoeff());
+  const std::vector<bool> held(static_cast<std::size_t>(n), false);
+  for (int k = 0; k < 2 && r > 0; ++k) {
+    Vec c = Vec::Ones(null.cols());
+    for (Index i = 1; k == 1 && i < c.size(); i += 2) c(i) = -1.0;
+    const Vec dir = (null * c).normalized();
+    const AssemblyResult a = assemble(system, t0, q0 + h * dir, qd0, held, 1e-12);
+    if (!a.success) continue;  // not back on the manifold: no evidence either way
+    r = std::min(r, deficiency(a.q, a.qd));
+  }
+  return r;
 }
 
 }  // namespace ukdyn::detail

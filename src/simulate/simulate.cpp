@@ -678,8 +678,21 @@ SimulationStats simulate(const System& system, const Vec& q0, const Vec& qd0,
                   " (use jacobian auto or difference)");
     }
   }
-  Run run(system, q0, qd0, tau, s, observer, n_samples);
-  return run.run();
+  // The rows redundant around the whole motion (Bricard's mechanism), told from a start at a
+  // singular position: the adaptive solve damps only the latter (UkSettings::structural_redundancy).
+  const int redundancy = s.uk.structural_redundancy > 0
+                             ? s.uk.structural_redundancy
+                             : detail::structural_redundancy(system, s.t0, q0, qd0, s.uk);
+  SimulationSettings with_redundancy;
+  const bool copy = redundancy != s.uk.structural_redundancy;
+  if (copy) {
+    with_redundancy = s;
+    with_redundancy.uk.structural_redundancy = redundancy;
+  }
+  Run run(system, q0, qd0, tau, copy ? with_redundancy : s, observer, n_samples);
+  SimulationStats stats = run.run();
+  stats.structural_redundancy = redundancy;
+  return stats;
 }
 
 }  // namespace ukdyn

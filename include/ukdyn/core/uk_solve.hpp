@@ -62,6 +62,12 @@ struct UkSettings {
   double rank_rel_tol = 1e-7;
   /// ‖A q̈ − b‖ above consistency_rel_tol · (‖b‖ + ‖A‖_∞ ‖q̈‖ + 1) flags the set as inconsistent.
   double consistency_rel_tol = 1e-8;
+  /// adaptive: how many rows are redundant around the whole motion (constant redundancy, e.g.
+  /// Bricard's mechanism: rank 4 of 5 rows everywhere), as simulate() finds at the start
+  /// (detail::structural_redundancy). Up to this many directions dropped by the exact cut-off are a
+  /// redundancy, not a singular position: an inconsistency they leave (the drift of an integrator
+  /// stage off the manifold) keeps the exact least-squares answer instead of the damped solve.
+  int structural_redundancy = 0;
 };
 
 struct UkResult {

@@ -1,10 +1,11 @@
-// Diagnostics of a failed run (internal to simulate()).
+// Diagnostics of a run (internal to simulate()): why a step failed, and the rank at the start.
 #pragma once
 
 #include <string>
 #include <vector>
 
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/simulate/simulate.hpp"
 
 namespace ukdyn::detail {
 
@@ -16,5 +17,13 @@ std::string sci(double v);
 /// rows involved, or returns "" when neither M nor A is singular there.
 std::string diagnose_singularity(const System& system, double t, const std::vector<double>& x,
                                  const UkSettings& uk);
+
+/// The rows redundant around the start of a run (constant redundancy, as Bricard's mechanism),
+/// told from a start at a singular position: the smallest rank deficiency of the exact solve at
+/// (t0, q0) and at two configurations nearby on the manifold (q0 moved along A's null space and
+/// assembled back onto Φ = 0). A singular position's missing rank comes back nearby; a structural
+/// redundancy's does not. At setup only (allocates).
+int structural_redundancy(const System& system, double t0, const Vec& q0, const Vec& qd0,
+                          const UkSettings& uk);
 
 }  // namespace ukdyn::detail

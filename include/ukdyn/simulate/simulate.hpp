@@ -150,6 +150,10 @@ struct SimulationStats {
   /// exact: evaluations at states where linearize() was not trusted (a rank change near, a damped
   /// solve), which used forward differences of f instead (the run goes on).
   long jacobian_fallbacks = 0;
+  /// Rows redundant around the motion (found at the start: the rank the exact solve misses at q0
+  /// and at two nearby configurations on the manifold; 0 for a start at a singular position whose
+  /// rank comes back nearby). The adaptive solve does not damp them (UkSettings).
+  int structural_redundancy = 0;
   std::vector<RunWarning> warnings;
 };
 
