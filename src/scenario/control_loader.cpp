@@ -214,8 +214,9 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
                                     : "give exactly one of 'value' and 'scale'");
     }
     std::string why;
-    // A value or scale goes where a number is; an expression may go anywhere a scalar is.
-    auto at = xn.node.IsDefined() ? find_scalar(doc, path, why) : find_number(doc, path, why);
+    // A value goes only where a number is (never over an expression); a scale needs a number there
+    // (said below); an expression may go anywhere a scalar is.
+    auto at = vn.node.IsDefined() ? find_number(doc, path, why) : find_scalar(doc, path, why);
     if (!at) L.fail(pn, "'" + path + "': " + why);
     if (xn.node.IsDefined()) {
       // The text goes in as written; the plant's loader parses it (and names this key's path in
@@ -231,8 +232,11 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
     } else {
       double old = 0.0;
       if (!Loader::parse_number(at->Scalar(), old) || !std::isfinite(old))
-        L.fail(pn, "'" + path + "' holds '" + escape_controls(at->Scalar()) +
-                       "', not a number: 'scale' needs one (give 'value')");
+        L.fail(
+            pn,
+            "'" + path + "' holds '" + escape_controls(at->Scalar()) +
+                "', not a number: 'scale' needs one (give the path of a number it uses, such as a "
+                "parameter, or an 'expression')");
       v = old * L.number(sn);
     }
     *at = fmt::format("{}", v);  // the shortest text that reads back as v
