@@ -444,6 +444,32 @@ TEST(TrustCli, AControlLawOfNoNumberIsNamedAndItsPeakIsNotZero) {
   ASSERT_TRUE(j.contains("control")) << j.dump(1);
   EXPECT_TRUE(j["control"]["max_abs_u"].is_null()) << j["control"].dump();
 }
+TEST(TrustCli, AnImplicitSolversStepFailureNamesTheSingularMassMatrix) {
+  // M = [[z^2, x z], [x z, x^2 + 1]] loses rank at z = 0 (det M = z^2), reached at t = 1.
+  ScratchDir dir("ukdyn_trust_cli_singular_esdirk");
+  const fs::path s = write(dir.path / "s.yaml", R"(ukdyn: 1
+name: singular
+gravity: 0
+subsystems:
+  - name: b
+    type: definitions
+    coordinates: [x, z]
+    bodies:
+      - {name: b, mass: 1, com: [x*z, 0, z]}
+initial:
+  q: [0.5, 1]
+  qd: [0, -1]
+simulation: {t_end: 2, sample_dt: 0.01, integrator: esdirk}
+)");
+  const auto r = run_cli(
+      kCli, dir.path, "simulate " + sh(s) + " -q --no-figures -o " + sh((dir.path / "o").string()));
+  if (r.err.find("built without SUNDIALS") != std::string::npos) GTEST_SKIP() << r.err;
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_NE(r.err.find("the mass matrix is singular and no constraint fixes the direction in "
+                       "coordinates [x]"),
+            std::string::npos)
+      << r.err;
+}
 #endif  // UKDYN_CLI
 
 }  // namespace

@@ -546,6 +546,10 @@ class Run {
     if (r.failed && stats_.status == RunStatus::completed) {
       stats_.status = RunStatus::step_failure;
       stats_.message = r.message;
+      // Why, as for the explicit steppers' failed step control: at the state the solver reached
+      // (a singular M or A there, named with its coordinates or rows).
+      const std::string cause = detail::diagnose_singularity(system_, stats_.t_reached, x_, s_.uk);
+      if (!cause.empty()) stats_.message += ": " + cause;
     }
   }
 
