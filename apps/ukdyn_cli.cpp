@@ -33,6 +33,7 @@
 #include <vector>
 
 #include "apps/sweep_mpi.hpp"
+#include "core/input_file.hpp"
 #include "ukdyn/output/replay.hpp"
 #include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/optimize_run.hpp"
@@ -143,19 +144,40 @@ int write_replay_page(const ukdyn::Scenario& sc, const std::string& out, bool qu
   return 0;
 }
 
-// The scenario of an output folder: --scenario, else the path its summary.json names.
-std::string scenario_of(const std::string& out_dir) {
+// OUT/summary.json of a run, read with the checks of every input file (at most 1 MiB); null if
+// there is none.
+nlohmann::json run_summary(const std::string& out_dir) {
   const std::string summary = out_dir + "/summary.json";
-  std::ifstream in(summary);
-  if (!in) throw ukdyn::Error(summary + ": cannot open (give the scenario with --scenario)");
-  nlohmann::json j;
   try {
-    j = nlohmann::json::parse(in);
-    return j.at("scenario").at("path").get<std::string>();
-  } catch (const std::exception& e) {
-    throw ukdyn::Error(summary + ": no scenario.path (" + e.what() +
-                       "); give the scenario with --scenario");
+    const std::string text = ukdyn::detail::read_input_file(
+        summary, {"run summary", ukdyn::detail::kMiB, ukdyn::printable(summary)});
+    return nlohmann::json::parse(text, nullptr, false);
+  } catch (const ukdyn::detail::InputFileError& e) {
+    if (e.missing()) return nullptr;
+    throw ukdyn::ScenarioError(e.what());
   }
+}
+
+// The scenario of an output folder when --scenario is not given: the file its summary.json names,
+// read only if its text is the run's (the hash summary.json records). A summary.json is data
+// like any other: a path in it that leads elsewhere is never parsed (nor quoted in a message).
+ukdyn::Scenario scenario_of(const std::string& out_dir, const nlohmann::json& j) {
+  const std::string summary = ukdyn::printable(out_dir + "/summary.json");
+  const auto path = nlohmann::json::json_pointer("/scenario/path");
+  const auto hash = nlohmann::json::json_pointer("/scenario/hash_fnv1a64");
+  if (!j.is_object() || !j.contains(path) || !j[path].is_string() || !j.contains(hash) ||
+      !j[hash].is_string())
+    throw ukdyn::ScenarioError(summary +
+                               ": no scenario.path and hash_fnv1a64 (give the scenario with "
+                               "--scenario)");
+  const std::string file = j[path].get<std::string>();
+  const std::string text = ukdyn::read_scenario_text(file);
+  if (ukdyn::scenario_text_hash(text) != j[hash].get<std::string>())
+    throw ukdyn::ScenarioError(
+        summary + ": the scenario it names, " + ukdyn::printable(file) +
+        ", is not the run's (its hash differs from summary.json's): give the scenario with "
+        "--scenario");
+  return ukdyn::load_scenario_text(text, file);
 }
 
 struct LinearizeArgs {
@@ -316,7 +338,7 @@ int main(int argc, char** argv) {
   swp->add_option("sweep", sa.file, "sweep file (YAML, docs/sweeps.md)");
   swp->add_option("--out,-o", sa.out, "output folder (default out/sweep-NAME)");
   swp->add_option("--threads,-j", sa.threads, "worker threads (default: every core)")
-      ->check(CLI::Range(1, 4096));
+      ->check(CLI::Range(1, ukdyn::max_sweep_threads()));
   swp->add_option("--shard", sa.shard, "compute shard i of N (samples k with k % N == i)");
   swp->add_option("--extract", sa.extract, "print sample K as a standalone scenario")
       ->check(CLI::Range(0L, 100000000L));
@@ -353,23 +375,24 @@ int main(int argc, char** argv) {
     if (*swp) return cmd_sweep(sa, mrg->parsed(), &argc, &argv);
     if (*opt) return cmd_optimize(problem, out, quiet);
     if (*rpl) {
+      // The run folder and its scenario are checked first (bad input is named as such whatever
+      // this build can draw).
+      const nlohmann::json j = run_summary(replay_dir);
+      const ukdyn::Scenario sc = replay_scenario.empty()
+                                     ? scenario_of(replay_dir, j)
+                                     : ukdyn::load_scenario_file(replay_scenario);
       if (!ukdyn::replay_available()) {
         throw ukdyn::Error(
             "ukdyn replay: this ukdyn was built without three.js (web/node_modules/three was "
             "missing when it was configured): run `npm ci` in web/ (scripts/install-deps.sh does) "
             "and rebuild");
       }
-      const std::string file = replay_scenario.empty() ? scenario_of(replay_dir) : replay_scenario;
-      const ukdyn::Scenario sc = ukdyn::load_scenario_file(file);
       std::string status = "unknown";
-      if (std::ifstream in(replay_dir + "/summary.json"); in) {
-        const auto j = nlohmann::json::parse(in, nullptr, false);
-        if (j.is_object() && j.contains("status") && j["status"].is_string()) status = j["status"];
-        if (j.is_object() && j.contains("scenario") && j["scenario"].is_object() &&
-            j["scenario"].value("hash_fnv1a64", sc.hash) != sc.hash) {
-          std::cerr << "ukdyn: warning: " << ukdyn::printable(file)
-                    << " changed since the run (its hash differs from summary.json's)\n";
-        }
+      if (j.is_object() && j.contains("status") && j["status"].is_string()) status = j["status"];
+      if (j.is_object() && j.contains("scenario") && j["scenario"].is_object() &&
+          j["scenario"].value("hash_fnv1a64", sc.hash) != sc.hash) {
+        std::cerr << "ukdyn: warning: " << ukdyn::printable(replay_scenario)
+                  << " changed since the run (its hash differs from summary.json's)\n";
       }
       return write_replay_page(sc, replay_dir, quiet, status);
     }

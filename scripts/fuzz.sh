@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp), the eval protocol (fuzz/fuzz_eval.cpp) and the
-# expression parser + derivation (fuzz/fuzz_expression.cpp) with libFuzzer, AddressSanitizer and
+# expression parser + derivation (fuzz/fuzz_expression.cpp), the sweep file loader (fuzz/fuzz_sweep.cpp)
+# and the MJCF reader (fuzz/fuzz_mjcf.cpp) with libFuzzer, AddressSanitizer and
 # UndefinedBehaviorSanitizer for a bounded time each. Builds with clang 14 in build/asan, the build `make sanitize` uses (asserts on).
 # Seeds: scenarios/*.yaml and tests/hostile/*.yaml (scenario), fuzz/eval_seeds, fuzz/expression_seeds;
 # new inputs go to build/asan/corpus_<target>.
@@ -9,6 +10,8 @@
 #   scripts/fuzz.sh [SECONDS]          (scenario loader; default: FUZZ_SECONDS or 60)
 #   EVAL_FUZZ_SECONDS=N                (eval lines; default 20; seeds fuzz/eval_seeds)
 #   EXPRESSION_FUZZ_SECONDS=N          (expression parser + derivation; default 30)
+#   SWEEP_FUZZ_SECONDS=N               (sweep files; default 30; seeds fuzz/sweep_seeds, scenarios/sweeps)
+#   MJCF_FUZZ_SECONDS=N                (MJCF models; default 30; seeds fuzz/mjcf_seeds)
 #   build/asan/fuzz/fuzz_scenario build/asan/artifacts_fuzz_scenario/crash-...   replays one finding
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,7 +23,7 @@ jobs=${JOBS:-2}
 # shellcheck source=asan-configure.sh
 source scripts/asan-configure.sh
 build=$asan_build
-cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression -j "$jobs"
+cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression fuzz_sweep fuzz_mjcf -j "$jobs"
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:detect_stack_use_after_return=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
@@ -68,3 +71,8 @@ fuzz fuzz_eval "eval protocol" "${EVAL_FUZZ_SECONDS:-20}" 8192 fuzz/eval.dict fu
 # The expression parser + derivation (fuzz/fuzz_expression.cpp).
 fuzz fuzz_expression "expression parser" "${EXPRESSION_FUZZ_SECONDS:-30}" 4096 \
   fuzz/expression.dict fuzz/expression_seeds
+# Sweep files, with a control base scenario and its plant beside them (fuzz/fuzz_sweep.cpp).
+fuzz fuzz_sweep "sweep file loader" "${SWEEP_FUZZ_SECONDS:-30}" 8192 fuzz/scenario.dict \
+  fuzz/sweep_seeds scenarios/sweeps
+# MJCF models as a serial chain's mjcf: (fuzz/fuzz_mjcf.cpp).
+fuzz fuzz_mjcf "MJCF reader" "${MJCF_FUZZ_SECONDS:-30}" 16384 fuzz/scenario.dict fuzz/mjcf_seeds

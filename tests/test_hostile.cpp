@@ -321,8 +321,8 @@ TEST(HostileCorpus, MjcfFifoAndIncludeCycleAreRefusedBeforeMuJoCoReads) {
     const char* model;
     const char* expect;
   } cases[] = {
-      {"pipe.xml", "pipe.xml: not a regular file (a directory, FIFO or device)"},
-      {"top.xml", "pipe.xml (included from top.xml): not a regular file"},
+      {"pipe.xml", "pipe.xml: is a FIFO (named pipe), not a MJCF file"},
+      {"top.xml", "pipe.xml (included from top.xml): is a FIFO (named pipe)"},
       {"a.xml", "more than 32 levels of <include> (a cycle?)"},
   };
   for (const auto& c : cases) {

@@ -93,7 +93,10 @@ double* ControlColumns::fill_actuators(double t, CVecRef qd, double* out) {
   for (Index j = 0; j < u.size(); ++j) *out++ = u(j);
   *out++ = residual;
   out = motors_.fill(t, qd, u, out);  // docs/motors.md
-  max_u_ = std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0);
+  // A u of no number makes the peak no number (null in summary.json, nan in a sweep's table),
+  // never the largest finite u before it.
+  max_u_ = u.allFinite() ? std::max(max_u_, u.size() ? u.cwiseAbs().maxCoeff() : 0.0)
+                         : std::numeric_limits<double>::quiet_NaN();
   if (!first_ && t > t_prev_ && u.size())
     max_udot_ = std::max(max_udot_, (u - u_prev_).cwiseAbs().maxCoeff() / (t - t_prev_));
   u_prev_ = u;

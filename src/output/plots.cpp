@@ -16,6 +16,7 @@
 #include <set>
 #include <thread>
 
+#include "core/input_file.hpp"
 #include "ukdyn/output/trajectory_table.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
@@ -239,16 +240,14 @@ void cap_figures(std::vector<Figure>& figures, std::vector<std::string>& notes) 
 void remove_previous_figures(const OutputDir& out) {
   const int fig = out.open_subdir("figures", false);
   if (fig < 0) return;
-  const int mf = ::openat(fig, kManifest, O_RDONLY | O_NOFOLLOW | O_CLOEXEC | O_NONBLOCK);
-  if (mf >= 0) {
-    struct stat st {};
-    std::string text;
-    if (::fstat(mf, &st) == 0 && S_ISREG(st.st_mode) && st.st_size < (1 << 16)) {
-      text.resize(static_cast<std::size_t>(st.st_size));
-      const ssize_t got = ::read(mf, text.data(), text.size());
-      text.resize(got > 0 ? static_cast<std::size_t>(got) : 0);
-    }
-    ::close(mf);
+  std::string text;  // the names the last run drew; none if the manifest is not a small file
+  bool manifest = true;
+  try {
+    text = detail::read_input_file(kManifest, {"figure manifest", 64 * 1024, kManifest, fig});
+  } catch (const detail::InputFileError&) {
+    manifest = false;
+  }
+  if (manifest) {
     std::size_t pos = 0;
     while (pos < text.size()) {
       auto end = text.find('\n', pos);

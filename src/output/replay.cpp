@@ -6,9 +6,9 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "output/replay_assets.hpp"
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/geometry.hpp"
-#include "output/replay_assets.hpp"
 #include "ukdyn/output/trajectory_table.hpp"
 
 namespace ukdyn {
@@ -93,9 +93,10 @@ void number(std::string& o, double v) {
 // OUT/trajectory.csv, or the incomplete file of a run that did not finish.
 std::filesystem::path locate_trajectory_csv(const std::filesystem::path& out_dir) {
   std::filesystem::path csv = out_dir / "trajectory.csv";
-  if (!std::filesystem::is_regular_file(csv)) {
+  std::error_code ec;  // what is there is checked when it is read (detail::InputStream)
+  if (!std::filesystem::exists(std::filesystem::symlink_status(csv, ec))) {
     const auto inc = out_dir / CsvWriter::incomplete_name("trajectory.csv");
-    if (!std::filesystem::is_regular_file(inc)) {
+    if (!std::filesystem::exists(std::filesystem::symlink_status(inc, ec))) {
       throw Error(fmt::format("{}: no trajectory.csv (nor {}): simulate first", out_dir.string(),
                               inc.filename().string()));
     }

@@ -4,8 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
+#include <limits>
 
+#include "core/input_file.hpp"
 #include "output/csv_reader.hpp"
 #include "ukdyn/core/types.hpp"
 
@@ -13,10 +14,10 @@ namespace ukdyn {
 
 namespace {
 
-std::ifstream open_csv(const std::filesystem::path& csv) {
-  std::ifstream in(csv, std::ios::binary);
-  if (!in) throw Error(fmt::format("{}: cannot open", csv.string()));
-  return in;
+// A trajectory table of any size, with the type checks of every input file (a FIFO or a folder in
+// its place is named as what it is and never blocks).
+detail::InputFileSpec csv_spec(const std::filesystem::path& csv) {
+  return {"trajectory table", std::numeric_limits<std::size_t>::max(), csv.string()};
 }
 
 using io_detail::CsvLines;
@@ -47,7 +48,7 @@ void parse_row(const std::string& line, std::size_t n, std::vector<double>& out,
 }  // namespace
 
 std::size_t count_csv_rows(const std::filesystem::path& csv) {
-  auto in = open_csv(csv);
+  detail::InputStream in(csv, csv_spec(csv));
   CsvLines lines_in(in);
   std::size_t lines = 0;
   std::string line;
@@ -60,7 +61,7 @@ std::size_t count_csv_rows(const std::filesystem::path& csv) {
 TrajectoryTable read_trajectory(const std::filesystem::path& csv, std::size_t stride) {
   stride = std::max<std::size_t>(stride, 1);
   const std::size_t total = count_csv_rows(csv);
-  auto in = open_csv(csv);
+  detail::InputStream in(csv, csv_spec(csv));
   CsvLines lines(in);
   TrajectoryTable t;
   std::string line;
@@ -84,7 +85,7 @@ TrajectoryTable read_trajectory_minmax(const std::filesystem::path& csv, std::si
   buckets = std::max<std::size_t>(buckets, 1);
   const std::size_t total = count_csv_rows(csv);
   if (total <= 2 * buckets) return read_trajectory(csv, 1);
-  auto in = open_csv(csv);
+  detail::InputStream in(csv, csv_spec(csv));
   CsvLines lines(in);
   TrajectoryTable t;
   std::string line;

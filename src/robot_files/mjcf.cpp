@@ -4,14 +4,13 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <numbers>
 #include <regex>
 #include <set>
-#include <sstream>
 #include <vector>
 
+#include "core/input_file.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 
 #ifdef UKDYN_HAVE_MUJOCO
@@ -39,27 +38,25 @@ using GiNaC::ex;
 // Every file MuJoCo would open is checked before it opens any: the model file and, recursively,
 // its <include file="..."/> (relative to the model file's folder, as MuJoCo resolves them) must be
 // regular files of at most 16 MiB; a FIFO, a folder or a device is named as what it is (a FIFO
-// would block MuJoCo's reader forever), an include cycle or more than 32 levels is refused.
+// would block MuJoCo's reader forever), an include cycle or more than 32 levels is refused, and so
+// are more than 256 files in all (a file that includes itself twice would double at every level).
 void check_model_files(const std::filesystem::path& file, const std::filesystem::path& folder,
-                       int depth, const std::string& via) {
+                       int depth, const std::string& via, int& files) {
   const std::string name = file.string() + via;
   if (depth > 32) throw DefinitionError(name + ": more than 32 levels of <include> (a cycle?)");
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(file, ec))
-    throw DefinitionError(name + (std::filesystem::exists(file, ec)
-                                      ? ": not a regular file (a directory, FIFO or device)"
-                                      : ": no such MJCF file"));
-  if (std::filesystem::file_size(file, ec) > (16u << 20) || ec)
-    throw DefinitionError(name + ": larger than 16 MiB (an MJCF model is a small text file)");
-  std::ifstream in(file, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  const std::string xml = text.str();
+  if (++files > 256) throw DefinitionError(name + ": more than 256 files with its <include>s");
+  std::string xml;
+  try {
+    xml = detail::read_input_file(file, {"MJCF file", 16 * detail::kMiB, name});
+  } catch (const detail::InputFileError& e) {
+    throw DefinitionError(e.what());
+  }
   static const std::regex include(R"re(<\s*include\s[^>]*?file\s*=\s*["']([^"']*)["'])re");
   for (std::sregex_iterator it(xml.begin(), xml.end(), include), end; it != end; ++it) {
     std::filesystem::path inc = (*it)[1].str();
     if (inc.is_relative()) inc = folder / inc;
-    check_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")");
+    check_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")",
+                      files);
   }
 }
 
@@ -366,7 +363,8 @@ void append_equalities(ChainDef& chain, const MjcfSource& src,
 bool mjcf_supported() { return true; }
 
 void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
-  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "");
+  int files = 0;
+  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "", files);
   char err[1000] = "";
   ModelGuard g;
   g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);

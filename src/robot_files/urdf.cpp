@@ -7,6 +7,7 @@
 #include <set>
 #include <sstream>
 
+#include "core/input_file.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 
 #ifdef UKDYN_HAVE_URDFDOM
@@ -62,14 +63,14 @@ class Collect : public console_bridge::OutputHandler {
   std::string messages;
 };
 
-urdf::ModelInterfaceSharedPtr parse_file(const std::string& path, std::string& messages) {
+urdf::ModelInterfaceSharedPtr parse_file(const std::string& xml, std::string& messages) {
   static std::mutex mutex;  // the output handler is global
   const std::lock_guard<std::mutex> lock(mutex);
   Collect collect;
   console_bridge::useOutputHandler(&collect);
   urdf::ModelInterfaceSharedPtr model;
   try {
-    model = urdf::parseURDFFile(path);
+    model = urdf::parseURDF(xml);
   } catch (...) {
     console_bridge::restorePreviousOutputHandler();
     throw;
@@ -104,17 +105,14 @@ OriginDef origin(const urdf::Pose& p) {
   return {vec(p.position), {angle(r), angle(pi), angle(y)}};
 }
 
-// A directory, FIFO, device, missing or oversized file is refused before urdfdom opens it.
-void check_file(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    // A directory, FIFO or device is not "missing" (and a FIFO is never opened).
-    throw DefinitionError(path + (std::filesystem::exists(path, ec)
-                                      ? ": not a regular file (a directory, FIFO or device)"
-                                      : ": no such URDF file"));
+// The text of the URDF file, read with the checks of every file ukdyn reads (a regular file of at
+// most 16 MiB; a FIFO, folder or device named as what it is); urdfdom parses the text read.
+std::string read_urdf(const std::string& path) {
+  try {
+    return detail::read_input_file(path, {"URDF file", 16 * detail::kMiB, path});
+  } catch (const detail::InputFileError& e) {
+    throw DefinitionError(e.what());
   }
-  if (std::filesystem::file_size(path, ec) > (16u << 20) || ec)
-    throw DefinitionError(path + ": larger than 16 MiB (a URDF is a small text file)");
 }
 
 // urdfdom's links own their children (shared_ptr): a cyclic file makes a reference cycle that
@@ -407,9 +405,9 @@ void append_link(ChainDef& chain, const urdf::Link& link, const std::string& roo
 
 void append_urdf(ChainDef& chain, const std::string& path,
                  const std::map<std::string, GiNaC::ex>& joint_values) {
-  check_file(path);
+  const std::string xml = read_urdf(path);
   std::string messages;
-  const urdf::ModelInterfaceSharedPtr model = parse_file(path, messages);
+  const urdf::ModelInterfaceSharedPtr model = parse_file(xml, messages);
   const Unlink unlink{model};  // whatever the outcome
   const urdf::LinkConstSharedPtr root = checked_root(model, messages, path, joint_values);
   JointVariables vars{free_coordinates(chain, joint_values), 0, {}};

@@ -4,11 +4,12 @@
 
 #include <Eigen/Cholesky>
 #include <cmath>
-#include <fstream>
 #include <istream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <ostream>
 
+#include "core/input_file.hpp"
 #include "output/csv_reader.hpp"
 #include "output/npz.hpp"
 #include "ukdyn/model/linearize.hpp"
@@ -294,11 +295,11 @@ bool write_linearization_npz(const Scenario& sc, double t, const Vec& q, const V
 }
 
 LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(fmt::format("{}: cannot open the state file", printable(path)));
+  const std::string text =
+      detail::read_input_file(path, {"state file", detail::kMiB, printable(path)});
   json j;
   try {
-    j = json::parse(in);
+    j = json::parse(text);
   } catch (const json::exception& e) {
     throw Error(fmt::format("{}: invalid JSON: {}", printable(path), e.what()));
   }
@@ -328,8 +329,8 @@ LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
 }
 
 LinearizeState read_state_csv_row(const Scenario& sc, const std::string& path, long row) {
-  std::ifstream in(path);
-  if (!in) throw Error(fmt::format("{}: cannot open the trajectory file", printable(path)));
+  detail::InputStream in(
+      path, {"trajectory file", std::numeric_limits<std::size_t>::max(), printable(path)});
   if (row < 0) throw Error(fmt::format("{}: row {} (rows count from 0)", printable(path), row));
   io_detail::CsvLines lines(in);
   std::string line;

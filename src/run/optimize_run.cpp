@@ -146,6 +146,9 @@ void interpolate_u(const TrajectorySolution& s, CollocationMethod method, double
 
 OptimizeReport run_optimization(const OptimizationFile& file, const std::filesystem::path& out) {
   OutputDir dir(out);  // refused before the solve, not after it
+  // An earlier run's summary goes first: a solve that throws, or a trajectory.csv that is refused,
+  // must not leave it describing this folder.
+  dir.remove_file(dir.fd(), "summary.json");
   OptimizeReport rep;
   const auto t0 = std::chrono::steady_clock::now();
   rep.solution = optimize_trajectory(file.problem, file.ipopt);

@@ -228,19 +228,21 @@ struct Observer {
 // Every name used must be free or a regular file. The previous run's outputs go first, the
 // summary before anything else, so that nothing on disk describes a run that is not this one;
 // only regular files under ukdyn's own names are removed.
+// The summary goes even when the run is refused below (a FIFO or a folder at another name): a
+// refused run must not leave the previous run's "complete" summary in the folder.
 void clear_previous_outputs(const OutputDir& out) {
   const std::string incomplete = CsvWriter::incomplete_name(kCsv);
-  for (const std::string& f :
-       {std::string(kSummary), std::string(kSummary) + ".part", std::string(kCsv),
-        std::string(kCsv) + ".part", incomplete, std::string(kReplayFile)}) {
+  out.require_file_or_absent(out.fd(), "", kSummary);
+  out.remove_file(out.fd(), kSummary);
+  for (const std::string& f : {std::string(kSummary) + ".part", std::string(kCsv),
+                               std::string(kCsv) + ".part", incomplete, std::string(kReplayFile)}) {
     out.require_file_or_absent(out.fd(), "", f);
   }
   if (const int figures = out.open_subdir("figures", false); figures >= 0) {
     ::close(figures);  // (a real folder: a link or a file there is refused by open_subdir)
   }
   // (replay.html too: a page of the previous run; simulate --html writes this run's afterwards)
-  for (const std::string& f :
-       {std::string(kSummary), std::string(kCsv), incomplete, std::string(kReplayFile)}) {
+  for (const std::string& f : {std::string(kCsv), incomplete, std::string(kReplayFile)}) {
     out.remove_file(out.fd(), f);
   }
   remove_previous_figures(out);

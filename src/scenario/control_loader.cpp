@@ -157,6 +157,24 @@ void load_actuators(const Loader& L, const Node& a, Scenario& sc, System& system
   }
 }
 
+// The document of the plant file `pn` names (its text in `text`), checked before it is loaded or
+// copied: the limits of every YAML file (parse_scenario_yaml), and no control section of its own,
+// so that a plant naming its own file, or two plants naming each other, is refused at once
+// instead of loading plants without end.
+YAML::Node plant_document(const Loader& L, const Node& pn, const std::filesystem::path& where,
+                          std::string& text) {
+  YAML::Node doc;
+  try {
+    text = read_scenario_text(where);
+    doc = parse_scenario_yaml(text, where);
+  } catch (const ScenarioError& e) {
+    L.fail(pn, std::string("the plant scenario: ") + e.what());
+  }
+  if (doc.IsMap() && doc["control"].IsDefined())
+    L.fail(pn, "the plant scenario must not have a control section itself");
+  return doc;
+}
+
 // control.plant_set: the plant is the plant file (or, without one, this scenario's own tree less
 // its control and actuators sections) with the listed values changed, each {path, value} or
 // {path, scale} (the number there times scale) or {path, expression} (the text of an expression
@@ -171,13 +189,7 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
   std::string hash_input;
   if (plant_file != nullptr) {
     where = sc.path.parent_path() / L.string(*plant_file);
-    try {
-      const std::string text = read_scenario_text(where);
-      doc = clone_yaml(parse_scenario_yaml(text, where));
-      hash_input = text;
-    } catch (const ScenarioError& e) {
-      L.fail(*plant_file, std::string("the plant scenario: ") + e.what());
-    }
+    doc = clone_yaml(plant_document(L, *plant_file, where, hash_input));
   } else {
     doc = clone_yaml(root.node);
     doc.remove("control");
@@ -202,7 +214,9 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
                                     : "give exactly one of 'value' and 'scale'");
     }
     std::string why;
-    auto at = find_scalar(doc, path, why);
+    // A value goes only where a number is (never over an expression); a scale needs a number there
+    // (said below); an expression may go anywhere a scalar is.
+    auto at = vn.node.IsDefined() ? find_number(doc, path, why) : find_scalar(doc, path, why);
     if (!at) L.fail(pn, "'" + path + "': " + why);
     if (xn.node.IsDefined()) {
       // The text goes in as written; the plant's loader parses it (and names this key's path in
@@ -218,8 +232,11 @@ std::shared_ptr<Scenario> perturbed_plant(const Loader& L, const Node& root, con
     } else {
       double old = 0.0;
       if (!Loader::parse_number(at->Scalar(), old) || !std::isfinite(old))
-        L.fail(pn, "'" + path + "' holds '" + escape_controls(at->Scalar()) +
-                       "', not a number: 'scale' needs one (give 'value')");
+        L.fail(
+            pn,
+            "'" + path + "' holds '" + escape_controls(at->Scalar()) +
+                "', not a number: 'scale' needs one (give the path of a number it uses, such as a "
+                "parameter, or an 'expression')");
       v = old * L.number(sn);
     }
     *at = fmt::format("{}", v);  // the shortest text that reads back as v
@@ -292,9 +309,11 @@ void load_control(const Loader& L, const Node& root, const Node& c, Scenario& sc
       L.fail(sn, "the plant's coordinates differ from the model's (same names, same order)");
   } else if (pn.node.IsDefined()) {
     const std::filesystem::path p = sc.path.parent_path() / L.string(pn);
+    std::string text;
+    const YAML::Node doc = plant_document(L, pn, p, text);
     Scenario plant;
     try {
-      plant = load_scenario(p);
+      plant = load_scenario_yaml(doc, scenario_text_hash(text), p, LoadOptions{});
     } catch (const ScenarioError& e) {
       L.fail(pn, std::string("the plant scenario: ") + e.what());
     }

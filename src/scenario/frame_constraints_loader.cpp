@@ -91,14 +91,16 @@ Eigen::Vector3d unit_at(const Loader& L, const Node& at, const sym::Vec3Ex& v,
   return u / u.norm();
 }
 
-// A vector whose entries are constants (with the parameters' values) must not be zero: checked
-// where it is written (an expression of q is left to the rows' own checks).
+// An axis or up direction must be constant (numbers and parameters: the rows take it as one) and
+// not zero: checked, and named, at the key where it is written.
 void check_nonzero(const Loader& L, const Node& at, const sym::Vec3Ex& v,
                    const GiNaC::exmap& values, const char* what) {
   Eigen::Vector3d u;
   for (int k = 0; k < 3; ++k) {
     const ex e = v[static_cast<std::size_t>(k)].subs(values).evalf();
-    if (!GiNaC::is_a<GiNaC::numeric>(e) || !GiNaC::ex_to<GiNaC::numeric>(e).is_real()) return;
+    if (!GiNaC::is_a<GiNaC::numeric>(e) || !GiNaC::ex_to<GiNaC::numeric>(e).is_real())
+      L.fail(at, std::string(what) + " must be a constant vector (numbers and parameters), got " +
+                     "a function of the coordinates or t in element " + std::to_string(k));
     u(k) = GiNaC::ex_to<GiNaC::numeric>(e).to_double();
   }
   if (!(u.norm() > 0.0) || !u.allFinite())

@@ -261,7 +261,7 @@ void actuation(const Scenario& sc, TrajectoryProblem& p) {
 // this problem's points (another mesh, method or duration is fine: a warm start).
 void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path& file,
                     TrajectoryProblem& p) {
-  std::istringstream text(read_scenario_text(file));  // a regular file of at most 4 MiB
+  std::istringstream text(read_input_text(file, "guess table", std::size_t{256} << 20));
   io_detail::CsvLines lines(text);
   std::string line;
   if (!lines.next(line)) L.fail(at, "the guess file is empty");
@@ -412,7 +412,7 @@ OptimizationFile load_optimization_text(const std::string& text,
 }
 
 OptimizationFile load_optimization_file(const std::filesystem::path& path) {
-  return load_optimization_text(read_scenario_text(path), path);
+  return load_optimization_text(read_input_text(path, "problem file"), path);
 }
 
 }  // namespace ukdyn

@@ -5,7 +5,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <map>
 #include <numbers>
 #include <set>
@@ -18,8 +17,10 @@
 #include "scenario/frame_constraints_loader.hpp"
 #include "scenario/wheeled_platform_loader.hpp"
 #include "scenario/yaml_loader.hpp"
+#include "scenario/yaml_paths.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 #include "ukdyn/symbolic/wheeled_platform.hpp"
@@ -31,7 +32,6 @@ namespace {
 using io_detail::Loader;
 using io_detail::Node;
 
-constexpr std::size_t kMaxFileBytes = 4u << 20;  // 4 MiB: a scenario is a small text file
 constexpr Index kMaxDof = 10'000;
 
 MobileManipulatorParams load_mm_params(const Loader& L, const Node& n, double gravity) {
@@ -107,9 +107,16 @@ TimeFunction load_time_function(const Loader& L, const Node& n) {
 }
 
 // YAML syntax: the document, or a ScenarioError at the line and column of the problem.
+// Then the size of the document with its aliases expanded, before anything walks or copies it.
 YAML::Node parse_yaml(const std::string& text, const std::filesystem::path& path) {
   try {
-    return YAML::Load(text);
+    YAML::Node doc = YAML::Load(text);
+    YAML::Mark at;
+    if (const std::string why = io_detail::yaml_expansion_problem(doc, at); !why.empty()) {
+      throw ScenarioError(escape_controls(path.string()) + ":" + std::to_string(at.line + 1) + ":" +
+                          std::to_string(at.column + 1) + ": " + why);
+    }
+    return doc;
   } catch (const YAML::Exception& e) {
     std::ostringstream os;
     os << path.string() << ":" << (e.mark.line + 1) << ":" << (e.mark.column + 1)
@@ -365,22 +372,34 @@ Vec initial_vector(const Loader& L, const Node& n, Index expected,
 }
 
 // initial: q, qd, hold; then M(q0) positive definite for the definition-based subsystems.
-// A free body's orientation is a unit quaternion (docs/free-bodies.md): a zero (or non-finite) one
-// at initial.q is named as such, before M(q0), singular there, would be blamed.
-void check_free_body_quaternions(const Loader& L, const Scenario& sc, const Loading& st) {
-  for (const auto& [fb, quat] : st.free_bodies) {
+// A free body's orientation is a unit quaternion (docs/free-bodies.md), and so is that of a
+// chain's floating or ball joint: a zero (or non-finite) one at initial.q is named as such, before
+// M(q0), singular there, would be blamed.
+void check_initial_quaternions(const Loader& L, const Scenario& sc, const Loading& st) {
+  std::vector<std::pair<std::string, std::vector<std::string>>> all;
+  for (const auto& [fb, quat] : st.free_bodies) all.push_back({"free body '" + fb + "'", quat});
+  for (const auto& info : sc.subsystems) {
+    const symbolic::ChainModel* chain =
+        io_detail::chain_model(st.definition_context.get(), info.name);
+    if (!chain) continue;
+    for (const auto& [joint, quat] : chain->quaternions)
+      all.push_back({"joint '" + joint + "' of chain '" + info.name + "'", quat});
+  }
+  for (const auto& [what, quat] : all) {
     double norm2 = 0.0;
     std::ostringstream values;
     values.precision(6);
     for (const std::string& c : quat) {
-      const double v = sc.q0(st.coord_index.at(c));
+      const auto it = st.coord_index.find(c);
+      if (it == st.coord_index.end()) break;  // not coordinates of the system: not checked here
+      const double v = sc.q0(it->second);
       norm2 += v * v;
       values << (&c == quat.data() ? "" : ", ") << v;
     }
-    if (std::isfinite(norm2) && norm2 > 1e-12) continue;
+    if (quat.size() != 4 || (std::isfinite(norm2) && norm2 > 1e-12)) continue;
     L.fail(L.child(st.init, "q", true),
-           "the orientation quaternion of free body '" + fb + "' (" + quat[0] + ", " + quat[1] +
-               ", " + quat[2] + ", " + quat[3] + ") is [" + values.str() +
+           "the orientation quaternion of " + what + " (" + quat[0] + ", " + quat[1] + ", " +
+               quat[2] + ", " + quat[3] + ") is [" + values.str() +
                "] at initial.q: it must be a unit quaternion (1, 0, 0, 0 is the identity)");
   }
 }
@@ -417,7 +436,7 @@ void load_initial(const Loader& L, const Node& root, Scenario& sc, Loading& st) 
       sc.held[static_cast<std::size_t>(it->second)] = true;
     }
   }
-  check_free_body_quaternions(L, sc, st);
+  check_initial_quaternions(L, sc, st);
   for (std::size_t k = 0; k < sc.subsystems.size(); ++k) {  // M(q0) positive definite (definitions)
     const auto& info = sc.subsystems[k];
     // Singular M is allowed when the constraints fix its null directions ([M; A] of full column
@@ -1021,24 +1040,7 @@ Scenario io_detail::load_scenario_yaml(const YAML::Node& root, const std::string
 }
 
 Scenario load_scenario(const std::filesystem::path& path, const LoadOptions& options) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    // A FIFO, a directory or a device is not "missing": say what it is (never open a FIFO).
-    const bool exists = std::filesystem::exists(path, ec);
-    throw ScenarioError(escape_controls(path.string()) +
-                        (exists ? ": not a regular file (a directory, FIFO or device)"
-                                : ": no such scenario file"));
-  }
-  const auto size = std::filesystem::file_size(path, ec);
-  if (ec || size > kMaxFileBytes) {
-    throw ScenarioError(escape_controls(path.string()) +
-                        ": not a readable scenario (larger than 4 MiB?)");
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw ScenarioError(escape_controls(path.string()) + ": cannot open");
-  std::ostringstream os;
-  os << in.rdbuf();
-  return load_scenario_text(os.str(), path, options);
+  return load_scenario_file(path, options);  // the checks of every file ukdyn reads
 }
 
 }  // namespace ukdyn

@@ -4,7 +4,10 @@
 
 #include <algorithm>
 #include <string>
+#include <utility>
 #include <vector>
+
+#include "scenario/yaml_loader.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -51,6 +54,40 @@ bool parse_path(const std::string& path, std::vector<PathStep>& steps) {
 }
 
 }  // namespace
+
+std::string yaml_expansion_problem(const YAML::Node& root, YAML::Mark& at) {
+  struct Item {
+    YAML::Node node;
+    std::size_t depth;
+  };
+  std::vector<Item> stack{{root, 1}};
+  std::size_t count = 0;
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    if (++count > kMaxYamlNodes || it.depth > kMaxYamlDepth) {
+      at = it.node.Mark();
+      return count > kMaxYamlNodes
+                 ? fmt::format(
+                       "the YAML expands to more than {} nodes with its aliases (*name) "
+                       "written out (an alias bomb?)",
+                       kMaxYamlNodes)
+                 : fmt::format(
+                       "the YAML is nested more than {} levels deep with its aliases "
+                       "written out",
+                       kMaxYamlDepth);
+    }
+    if (it.node.IsSequence()) {
+      for (const auto& e : it.node) stack.push_back({e, it.depth + 1});
+    } else if (it.node.IsMap()) {
+      for (const auto& kv : it.node) {
+        stack.push_back({kv.first, it.depth + 1});
+        stack.push_back({kv.second, it.depth + 1});
+      }
+    }
+  }
+  return {};
+}
 
 // The base scenario as a YAML tree: copied node by node, so that an alias (`*table1`) becomes a
 // copy of its own and a value written at one path changes that path only.
@@ -128,6 +165,18 @@ std::optional<YAML::Node> find_scalar(YAML::Node doc, const std::string& path, s
     return std::nullopt;
   }
   return cur;
+}
+
+std::optional<YAML::Node> find_number(YAML::Node doc, const std::string& path, std::string& why) {
+  auto at = find_scalar(std::move(doc), path, why);
+  double v = 0.0;
+  if (at && !Loader::parse_number(at->Scalar(), v)) {
+    why = "'" + path + "' holds '" + escape_controls(at->Scalar()) +
+          "', not a number: a number put there would replace it (give the path of a number it "
+          "uses, such as a parameter)";
+    return std::nullopt;
+  }
+  return at;
 }
 
 }  // namespace ukdyn::io_detail

@@ -165,7 +165,8 @@ void ClosedLoop::evaluate(double t, CVecRef q, CVecRef qd) {
   for (Index j = 0; j < u.size(); ++j) {
     const double lim = model.actuators.limit(j);
     u(j) = std::clamp(u_raw(j), -lim, lim);
-    saturated = saturated || u(j) != u_raw(j);
+    // (a u of no number is not "clipped": the run stops on it, simulate.cpp names the cause)
+    saturated = saturated || (std::isfinite(u_raw(j)) && u(j) != u_raw(j));
   }
   d.setZero();
   if (disturbance) disturbance(t, d);

@@ -284,6 +284,21 @@ class Run {
     stats_.warnings.push_back({t, kind, message});
   }
 
+  // The input forces τ of the last evaluation, if they are not numbers: then they, not the model,
+  // made the state or acceleration non-finite (a control law, a controller, a force function).
+  [[nodiscard]] std::string force_cause() const {
+    const Vec& tau = rhs_.tau;
+    for (Index i = 0; i < tau.size(); ++i) {
+      if (std::isfinite(tau(i))) continue;
+      return "the input force tau of coordinate '" +
+             system_.coordinate_names()[static_cast<std::size_t>(i)] + "' is " +
+             (std::isnan(tau(i)) ? std::string("NaN") : std::to_string(tau(i))) +
+             " (the forces given to the model: a control law's u, a controller or a force function "
+             "gave no number there)";
+    }
+    return {};
+  }
+
   // The observer: evaluates forward() at the sample (its own ForwardData), diagnoses, hands over.
   bool observe(double t, const State& xs) {
     const Eigen::Map<const Vec> q(xs.data(), n_);
@@ -299,7 +314,9 @@ class Run {
     if (!r.finite || !finite_state(xs)) {
       stats_.status = RunStatus::non_finite;
       stats_.message = "non-finite state or acceleration at t = " + std::to_string(t);
-      if (finite_state(xs)) {
+      if (const std::string forces = force_cause(); !forces.empty()) {
+        stats_.message += ": " + forces;
+      } else if (finite_state(xs)) {
         const std::string cause = detail::diagnose_singularity(system_, t, xs, s_.uk);
         if (!cause.empty()) stats_.message += ": " + cause;
       }
@@ -437,7 +454,9 @@ class Run {
     if (!finite_state(xs)) {
       stats_.status = RunStatus::non_finite;
       stats_.message = "non-finite state at t = " + std::to_string(t);
-      if (std::isfinite(last_good_t_)) {  // why: at the last finite state (a singular M or A)
+      if (const std::string forces = force_cause(); !forces.empty()) {
+        stats_.message += ": " + forces;
+      } else if (std::isfinite(last_good_t_)) {  // why: at the last finite state (singular M, A)
         const std::string cause =
             detail::diagnose_singularity(system_, last_good_t_, last_good_, s_.uk);
         if (!cause.empty()) stats_.message += ": " + cause;
@@ -527,6 +546,10 @@ class Run {
     if (r.failed && stats_.status == RunStatus::completed) {
       stats_.status = RunStatus::step_failure;
       stats_.message = r.message;
+      // Why, as for the explicit steppers' failed step control: at the state the solver reached
+      // (a singular M or A there, named with its coordinates or rows).
+      const std::string cause = detail::diagnose_singularity(system_, stats_.t_reached, x_, s_.uk);
+      if (!cause.empty()) stats_.message += ": " + cause;
     }
   }
 

@@ -14,6 +14,7 @@
 #include <sstream>
 #include <thread>
 
+#include "core/input_file.hpp"
 #include "output/csv_reader.hpp"
 #include "sweep/journal.hpp"
 #include "sweep/report.hpp"
@@ -36,19 +37,25 @@ std::vector<long> shard_sample_indices(const Sweep& sw, const SweepOptions& opt)
   return shard_samples;
 }
 
+// The summary and table of an earlier run go first, the summary before anything is checked:
+// nothing on disk may describe another run, even when this one is refused.
+void clear_previous_sweep(const OutputDir& out) {
+  for (const char* f : {kSummary, kTable}) {
+    out.require_file_or_absent(out.fd(), "", f);
+    out.remove_file(out.fd(), f);
+  }
+}
+
 // Rank 0's output folder: the earlier table and summary removed, the rows of an interrupted run of
 // this shard read back from its journal (`done`), and the journal opened (one process only).
 void open_sweep_output(const Sweep& sw, const SweepOptions& opt,
                        const std::filesystem::path& out_dir, const std::string& head,
-                       std::size_t columns, int size, std::optional<OutputDir>& out,
-                       std::map<long, std::string>& done, std::optional<Journal>& journal) {
+                       const std::vector<std::string>& header, int size,
+                       std::optional<OutputDir>& out, std::map<long, std::string>& done,
+                       std::optional<Journal>& journal) {
   out.emplace(out_dir);
-  // A table or summary of an earlier run goes first: nothing on disk may describe another run.
-  for (const char* f : {kTable, kSummary}) {
-    out->require_file_or_absent(out->fd(), "", f);
-    out->remove_file(out->fd(), f);
-  }
-  if (opt.resume && size == 1) done = read_journal(*out, head, columns);
+  clear_previous_sweep(*out);
+  if (opt.resume && size == 1) done = read_journal(*out, head, sw, header);
   for (auto it = done.begin(); it != done.end();) {  // rows of this shard only
     it = (it->first % opt.shards == opt.shard && it->first < sw.samples) ? std::next(it)
                                                                          : done.erase(it);
@@ -118,8 +125,9 @@ std::vector<std::string> compute_rows(SampleRunner& runner, const std::vector<lo
 
 // Gather (MPI): every rank's rows into rank 0's table t. Returns false on the other ranks (their
 // part is done).
-bool gather_rows(SweepComm& comm, int rank, const std::vector<std::string>& rows, Table& t,
-                 SweepReport& rep) {
+// Each row is checked as a resumed one is (row_problem); one that fails is left out and named.
+bool gather_rows(SweepComm& comm, int rank, const std::vector<std::string>& rows, const Sweep& sw,
+                 Table& t, SweepReport& rep) {
   std::string mine;
   if (rank != 0)
     for (const auto& r : rows)
@@ -131,16 +139,45 @@ bool gather_rows(SweepComm& comm, int rank, const std::vector<std::string>& rows
     io_detail::CsvLines lines(is);
     std::string line;
     while (lines.next(line)) {
-      t.rows[std::strtol(line.c_str(), nullptr, 10)] = line;
+      long k = -1;
+      if (const std::string why = row_problem(sw, t.header, line, k); !why.empty()) {
+        rep.failures.push_back("a rank's row refused: " + why);
+        continue;
+      }
+      t.rows[k] = line;
       ++rep.computed;
     }
   }
   return true;
 }
 
+// The rows of shard i of n (its results.csv) into t, each checked against the sweep file
+// (row_problem), in this shard and given once; a bad one is refused naming the file, line and
+// column.
+void merge_shard_rows(const Sweep& sw, const std::filesystem::path& table, int i, int n, Table& t) {
+  const std::string shown = printable(table.string());
+  std::istringstream is(read_text(table, "shard table", 1024 * detail::kMiB));
+  io_detail::CsvLines lines(is);
+  std::string line;
+  lines.next(line);
+  if (line != header_line(t.header)) throw ScenarioError(shown + ":1: another header");
+  while (lines.next(line)) {
+    if (line.empty()) continue;
+    long k = -1;
+    std::string why = row_problem(sw, t.header, line, k);
+    if (why.empty() && k % n != i)
+      why = fmt::format("column 1: sample {} belongs to shard {}/{}, not to shard {}/{}", k, k % n,
+                        n, i, n);
+    if (why.empty() && t.rows.count(k)) why = fmt::format("column 1: sample {} given twice", k);
+    if (!why.empty()) throw ScenarioError(fmt::format("{}:{}: {}", shown, lines.line_no(), why));
+    t.rows[k] = line;
+  }
+}
+
 }  // namespace
 }  // namespace sweep_detail
 
+using sweep_detail::clear_previous_sweep;
 using sweep_detail::compute_rows;
 using sweep_detail::gather_rows;
 using sweep_detail::header_line;
@@ -148,6 +185,7 @@ using sweep_detail::Journal;
 using sweep_detail::journal_head;
 using sweep_detail::kSummary;
 using sweep_detail::kTable;
+using sweep_detail::merge_shard_rows;
 using sweep_detail::open_sweep_output;
 using sweep_detail::rank_todo;
 using sweep_detail::read_text;
@@ -161,6 +199,11 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   const auto start = std::chrono::steady_clock::now();
   if (opt.shards < 1 || opt.shard < 0 || opt.shard >= opt.shards)
     throw ScenarioError("--shard: expected i/N with 0 <= i < N");
+  if (opt.threads < 0 || opt.threads > max_sweep_threads())
+    throw ScenarioError(
+        fmt::format("--threads: expected 1 to {} (4 per hardware thread, at least "
+                    "16, at most 256), got {}",
+                    max_sweep_threads(), opt.threads));
   const Scenario base = load_scenario_text(sw.base_text, sw.base_path, LoadOptions{false});
   SampleRunner runner(sw, base);
   const auto& header = runner.header();
@@ -177,7 +220,7 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   std::optional<Journal> journal;
   const std::string head = journal_head(sw, opt);
   if (rank == 0) {
-    open_sweep_output(sw, opt, out_dir, head, header.size(), size, out, done, journal);
+    open_sweep_output(sw, opt, out_dir, head, header, size, out, done, journal);
     rep.resumed = static_cast<long>(done.size());
   }
   const std::vector<long> todo = rank_todo(shard_samples, done, rank, size);
@@ -193,15 +236,21 @@ SweepReport run_sweep(const Sweep& sw, const std::filesystem::path& out_dir,
   t.rows = done;
   for (std::size_t i = 0; i < todo.size(); ++i)
     if (!rows[i].empty()) t.rows[todo[i]] = rows[i];
-  if (opt.comm && size > 1 && !gather_rows(*opt.comm, rank, rows, t, rep)) return rep;
+  if (opt.comm && size > 1 && !gather_rows(*opt.comm, rank, rows, sw, t, rep)) return rep;
   const std::string journal_error = journal ? journal->error() : std::string();
   journal.reset();
-  rep.complete = static_cast<long>(t.rows.size()) == rep.samples && journal_error.empty();
+  rep.complete = static_cast<long>(t.rows.size()) == rep.samples && journal_error.empty() &&
+                 rep.failures.empty();
   if (!journal_error.empty()) rep.failures.push_back("journal: " + journal_error);
   write_outputs(*out, sw, t, &opt, rep.complete, rep, opt.cancel);
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return rep;
+}
+
+int max_sweep_threads() {
+  const int hw = static_cast<int>(std::thread::hardware_concurrency());
+  return std::clamp(4 * hw, 16, 256);
 }
 
 bool parse_shard(const std::string& text, int& index, int& count) {
@@ -226,6 +275,14 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
   const auto start = std::chrono::steady_clock::now();
   const Scenario base = load_scenario_text(sw.base_text, sw.base_path, LoadOptions{false});
   const auto header = sweep_header(sw, base);
+  for (const auto& d : dirs) {
+    std::error_code ec;
+    if (std::filesystem::equivalent(d, out_dir, ec))
+      throw ScenarioError(printable(out_dir.string()) +
+                          ": the merge's output folder is one of the shards' (give another)");
+  }
+  OutputDir out(out_dir);  // a refused merge leaves no earlier summary behind
+  clear_previous_sweep(out);
   Table t;
   t.header = header;
   int shards = -1;
@@ -247,18 +304,7 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
     if (shards >= 0 && n != shards) throw ScenarioError(where + ": shards of different splits");
     shards = n;
     if (!seen.insert(i).second) throw ScenarioError(where + ": shard " + sh + " given twice");
-    std::istringstream is(read_text(d / kTable, "shard table"));
-    io_detail::CsvLines lines(is);
-    std::string line;
-    lines.next(line);
-    if (line != header_line(header))
-      throw ScenarioError(printable((d / kTable).string()) + ": another header");
-    while (lines.next(line)) {
-      const long k = std::strtol(line.c_str(), nullptr, 10);
-      if (k % n != i)
-        throw ScenarioError(printable((d / kTable).string()) + ": a row of another shard");
-      t.rows[k] = line;
-    }
+    merge_shard_rows(sw, d / kTable, i, n, t);
   }
   if (shards < 0 || static_cast<int>(seen.size()) != shards)
     throw ScenarioError(
@@ -268,7 +314,6 @@ SweepReport merge_sweep(const Sweep& sw, const std::vector<std::filesystem::path
   rep.resumed = static_cast<long>(t.rows.size());
   rep.complete = static_cast<long>(t.rows.size()) == sw.samples;
   if (!rep.complete) throw ScenarioError("merge: the shards do not hold every sample");
-  OutputDir out(out_dir);
   write_outputs(out, sw, t, nullptr, true, rep, nullptr);
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -6,11 +6,12 @@
 
 #include <algorithm>
 #include <cstring>
-#include <fstream>
 #include <sstream>
 
+#include "scenario/yaml_loader.hpp"
 #include "scenario/yaml_paths.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
@@ -19,18 +20,9 @@ namespace sweep_detail {
 
 std::string num(double v) { return fmt::format("{}", v); }
 
-std::string read_text(const std::filesystem::path& p, const std::string& what) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(p, ec)) {
-    throw ScenarioError(printable(p.string()) + ": no such " + what + " (or not a regular file)");
-  }
-  if (std::filesystem::file_size(p, ec) > (std::size_t{4} << 20)) {
-    throw ScenarioError(printable(p.string()) + ": larger than 4 MiB");
-  }
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
+std::string read_text(const std::filesystem::path& p, const std::string& what,
+                      std::size_t max_bytes) {
+  return read_input_text(p, what, max_bytes);
 }
 
 YAML::Node clone(const YAML::Node& n) { return io_detail::clone_yaml(n); }
@@ -45,7 +37,7 @@ YAML::Node plant_tree(const YAML::Node& doc, const std::filesystem::path& base_p
   const YAML::Node pf = doc["control"]["plant"];
   if (pf && pf.IsScalar()) {
     const auto where = base_path.parent_path() / pf.Scalar();
-    return clone(YAML::Load(read_text(where, "plant scenario")));
+    return clone(io_detail::parse_scenario_yaml(read_text(where, "plant scenario"), where));
   }
   YAML::Node t = clone(doc);
   t.remove("control");

@@ -17,9 +17,11 @@ namespace ukdyn::sweep_detail {
 /// written into a sample's tree and the cells of the table.
 std::string num(double v);
 
-/// A small text file (at most 4 MiB) whole. Throws ScenarioError naming it if it is missing, not a
-/// regular file or larger.
-std::string read_text(const std::filesystem::path& p, const std::string& what);
+/// A text file whole (at most max_bytes), with the checks of every file ukdyn reads
+/// (core/input_file.hpp). Throws ScenarioError naming it if it is missing, not a regular file or
+/// larger.
+std::string read_text(const std::filesystem::path& p, const std::string& what,
+                      std::size_t max_bytes = std::size_t{4} << 20);
 
 /// A deep copy of a YAML tree (io_detail::clone_yaml, scenario/yaml_paths.hpp).
 YAML::Node clone(const YAML::Node& n);

@@ -28,7 +28,7 @@ namespace ukdyn {
 
 namespace {
 
-using io_detail::find_scalar;
+using io_detail::find_number;
 using io_detail::Loader;
 using io_detail::Node;
 using sweep_detail::clone;
@@ -106,11 +106,11 @@ void check_path(const Loader& L, const Node& e, const std::string& path, const Y
       L.fail(e, "'" + path + "': a 'plant.' path needs a base scenario with a control: section");
     YAML::Node copy = clone(*plant);
     const std::string rest = path.substr(std::strlen(kPlantPrefix));
-    if (!find_scalar(copy, rest, why)) L.fail(e, "'" + path + "': in the plant: " + why);
+    if (!find_number(copy, rest, why)) L.fail(e, "'" + path + "': in the plant: " + why);
     return;
   }
   YAML::Node copy = clone(doc);
-  if (!find_scalar(copy, path, why)) L.fail(e, "'" + path + "': " + why);
+  if (!find_number(copy, path, why)) L.fail(e, "'" + path + "': " + why);
 }
 
 std::vector<SweepTarget> load_targets(const Loader& L, const Node& p, const YAML::Node& doc,
@@ -194,14 +194,7 @@ void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
 
 // The sweep file's YAML tree (a syntax error names its line and column).
 YAML::Node parse_sweep_yaml(const std::string& text, const std::filesystem::path& path) {
-  YAML::Node root_node;
-  try {
-    root_node = YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw ScenarioError(fmt::format("{}:{}:{}: YAML syntax error: {}", printable(path.string()),
-                                    e.mark.line + 1, e.mark.column + 1, printable(e.msg)));
-  }
-  return root_node;
+  return io_detail::parse_scenario_yaml(text, path);  // syntax, depth, aliases expanded
 }
 
 void check_format_version(const Loader& L, const Node& root) {
@@ -227,9 +220,9 @@ BaseTrees load_base_trees(const Loader& L, const Node& bn, const std::filesystem
   BaseTrees t;
   t.doc = std::make_shared<YAML::Node>();
   try {
-    *t.doc = clone(YAML::Load(sw.base_text));
-  } catch (const YAML::Exception& e) {
-    L.fail(bn, "the base scenario is not valid YAML: " + e.msg);
+    *t.doc = clone(io_detail::parse_scenario_yaml(sw.base_text, sw.base_path));
+  } catch (const ScenarioError& e) {
+    L.fail(bn, std::string("the base scenario: ") + e.what());
   }
   // A control scenario (docs/control.md): each sample runs its closed loop; `plant.` paths lead
   // into the plant's tree.
@@ -402,9 +395,15 @@ void check_against_base(const Loader& L, const Node& root, const Node& ps, const
            "the metrics control and squeeze_force need a base scenario with a "
            "control: section (docs/control.md)");
   const std::vector<std::string> h = base_run_columns(L, bn, metrics_node, sw, base);
-  for (const auto& c : sw.metrics.columns) {
-    if (std::find(h.begin(), h.end(), c.column) == h.end())
-      L.fail(root, "metrics: no trajectory column named '" + c.column + "'");
+  // Each {column: NAME} metric is named at its own key (metrics[i].column).
+  const Node mn = L.child(root, "metrics", false);
+  for (std::size_t i = 0; mn.node.IsSequence() && i < mn.node.size(); ++i) {
+    const Node e{mn.node[i], mn.key + "[" + std::to_string(i) + "]"};
+    if (!e.node.IsMap()) continue;
+    const Node cn = L.child(e, "column", true);
+    const std::string c = L.string(cn);
+    if (std::find(h.begin(), h.end(), c) == h.end())
+      L.fail(cn, "no trajectory column named '" + c + "' in a run of the base scenario");
   }
 }
 

@@ -58,6 +58,19 @@ CubicSpline::CubicSpline(std::vector<double> t, std::vector<double> y, End end, 
     c_[i] = {y[i], slope(i) - h[i] * (2 * m[i] + m[i + 1]) / 6, m[i] / 2,
              (m[i + 1] - m[i]) / (6 * h[i])};
   }
+  // Finite knots can still make a spline of no numbers (knots 1e-300 apart, values near the
+  // largest double): refused here, where the spline is written, rather than found later as a
+  // non-finite residual at the initial state or during the run.
+  for (std::size_t i = 0; i < n; ++i) {
+    bool finite =
+        std::all_of(c_[i].begin(), c_[i].end(), [](double v) { return std::isfinite(v); });
+    for (int d = 0; d <= 3 && finite; ++d)
+      finite = std::isfinite(eval(t_[i], d)) && std::isfinite(eval(t_[i + 1], d));
+    if (!finite)
+      throw Error("the spline has no finite polynomial between points " + std::to_string(i + 1) +
+                  " and " + std::to_string(i + 2) +
+                  " (times too close together for the values, or values too large)");
+  }
 }
 
 double CubicSpline::eval(double t, int d) const {

@@ -108,7 +108,7 @@ class SweepComm {
 };
 
 struct SweepOptions {
-  int threads = 0;            ///< 0: std::thread::hardware_concurrency()
+  int threads = 0;  ///< 0: std::thread::hardware_concurrency(); at most max_sweep_threads()
   int shard = 0, shards = 1;  ///< compute the samples k with k % shards == shard
   std::ostream* progress = nullptr;
   bool progress_tty = false;  ///< a bar redrawn in place; else a line every progress_every s
@@ -130,6 +130,10 @@ struct SweepReport {
   std::string figure_error;
   std::vector<std::string> failures;  ///< "sample K: status: reason"
 };
+
+/// The most worker threads a sweep takes: 4 per hardware thread, at least 16, at most 256 (more
+/// only contend for the cores and the memory of the samples in flight).
+int max_sweep_threads();
 
 /// Runs the sweep into out_dir: results.csv, summary.json, figures/, journal.csv. On MPI ranks
 /// other than 0 nothing is written (out_dir is not opened).
