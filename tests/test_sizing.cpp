@@ -252,6 +252,54 @@ TEST(SizingExample, ChoiceHoldsEverywhereAndNextSmallerFailsWhereReported) {
       r.configurations, r.runs, lowest, smaller_checked);
 }
 
+// A sample that cannot run (a negative mass in the sweep) makes every candidate fail, with the
+// sample and the loader's reason: nothing is vouched for on a sample that did not run.
+TEST(Sizing, FailedSampleFailsEveryCandidate) {
+  ScratchDir dir("ukdyn_sizing_failed");
+  write(dir.path / "link.yaml", kLink);
+  write(dir.path / "cat.yaml", catalogue());
+  write(dir.path / "sw.yaml", R"(ukdyn_sweep: 1
+name: masses
+base: link.yaml
+mode: list
+parameters:
+  - {name: mass, path: "subsystems[arm].joints[j1].mass", values: [2, -1]}
+)");
+  std::string s = kSizing;
+  s.replace(s.find("scenario: link.yaml"), 19, "sweep: sw.yaml");
+  write(dir.path / "s.yaml", s);
+  const ukdyn::SizingFile f = ukdyn::load_sizing_file(dir.path / "s.yaml");
+  ASSERT_EQ(f.sweep.samples, 2);
+  const ukdyn::SizingResult r = ukdyn::run_sizing(f);
+  ASSERT_FALSE(r.all_found());
+  const ukdyn::SizingChoice& c = r.choices[0];
+  EXPECT_EQ(c.binding.sample, 1);
+  EXPECT_NE(c.binding.failure.find("sample 1: invalid scenario"), std::string::npos)
+      << c.binding.failure;
+  EXPECT_NE(c.binding.failure.find("mass"), std::string::npos) << c.binding.failure;
+}
+
+// A scenario with nothing that drives its actuators (no servo rows, no control: u ≡ 0): refused
+// at the sizing file's key, not sized on zero inputs.
+TEST(Sizing, NoInputsToSizeByIsRefused) {
+  ScratchDir dir("ukdyn_sizing_no_u");
+  std::string link = kLink;
+  link.erase(link.find("constraints:"),
+             link.find("actuators:") - link.find("constraints:"));  // no servo row
+  write(dir.path / "link.yaml", link);
+  write(dir.path / "cat.yaml", catalogue());
+  write(dir.path / "s.yaml", kSizing);
+  try {
+    (void)ukdyn::load_sizing_file(dir.path / "s.yaml");
+    ADD_FAILURE() << "accepted a scenario without inputs";
+  } catch (const ukdyn::ScenarioError& e) {
+    EXPECT_NE(std::string(e.what()).find("s.yaml:4:11: key 'scenario': the scenario has no servo "
+                                         "constraint rows and no control: section"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
 // Bad catalogue and sizing files: the error names the file, the line and the key.
 TEST(Sizing, BadFilesNameFileLineAndKey) {
   ScratchDir dir("ukdyn_sizing_bad");

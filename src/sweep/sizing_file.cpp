@@ -306,6 +306,12 @@ SizingFile load_sizing_file(const std::filesystem::path& path) {
   } catch (const ScenarioError& e) {
     L.fail(L.child(root, f.from_sweep ? "sweep" : "scenario", true), e.what());
   }
+  const bool servo = std::any_of(base.constraint_roles.begin(), base.constraint_roles.end(),
+                                 [](ConstraintRole r) { return r == ConstraintRole::servo; });
+  if (!servo && !base.control)
+    L.fail(L.child(root, f.from_sweep ? "sweep" : "scenario", true),
+           "the scenario has no servo constraint rows and no control: section, so the actuators' "
+           "inputs u are 0 at every sample (docs/control.md): there is nothing to size by");
   const YAML::Node control = sweep_detail::base_yaml(f.sweep)["control"];
   if (control.IsDefined() && control.IsMap() && control["plant"].IsDefined())
     L.fail(L.child(root, f.from_sweep ? "sweep" : "scenario", true),
