@@ -342,8 +342,8 @@ TEST(Sizing, BadFilesNameFileLineAndKey) {
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI
-// The CLI: exit 0 with sizing.json and candidates.csv; exit 1 when no candidate holds, the
-// actuator and the shortfall on stderr; exit 2 for a bad sizing file.
+// The CLI: exit 0 with sizing.json and candidates.csv (the same bytes with one thread); exit 1 when
+// no candidate holds, the actuator and the shortfall on stderr; exit 2 for a bad sizing file.
 TEST(SizingCli, ExitCodesAndOutputs) {
   const fs::path scratch = ukdyn_test::process_scratch("ukdyn_sizing_cli");
   write(scratch / "link.yaml", kLink);
@@ -356,6 +356,14 @@ TEST(SizingCli, ExitCodesAndOutputs) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("C + g50"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("next smaller C + g10 fails"), std::string::npos) << r.out;
+  // One worker thread: the same bytes (no wall time in the files; samples reduced in order).
+  const auto r1 = ukdyn_test::run_cli(UKDYN_CLI, scratch,
+                                      "size -q -j 1 " + sh((scratch / "s.yaml").string()) +
+                                          " --out " + sh((scratch / "out1").string()));
+  ASSERT_EQ(r1.exit_code, 0) << r1.err;
+  for (const char* name : {"sizing.json", "candidates.csv"})
+    EXPECT_EQ(ukdyn_test::slurp(scratch / "out" / name), ukdyn_test::slurp(scratch / "out1" / name))
+        << name;
   const auto j = nlohmann::json::parse(ukdyn_test::slurp(scratch / "out" / "sizing.json"));
   EXPECT_EQ(j["actuators"][0]["choice"]["motor"], "C");
   const std::string csv = ukdyn_test::slurp(scratch / "out" / "candidates.csv");
