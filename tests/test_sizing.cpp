@@ -136,6 +136,31 @@ TEST(Sizing, GearboxLimitThatNoCandidateMeets) {
   EXPECT_NEAR(j["actuators"][0]["shortfall"].get<double>(), 0.1 - (1.0 - kHold / 8.0), 1e-6);
 }
 
+// Without a mass on every entry the default order is the motor's continuous torque (then, for one
+// motor, the gearboxes by their rated output torque); the reason is stated.
+TEST(Sizing, OrderWithoutMassesIsByContinuousTorque) {
+  ScratchDir dir("ukdyn_sizing_order");
+  write(dir.path / "link.yaml", kLink);
+  write(dir.path / "cat.yaml", R"(ukdyn_catalogue: 1
+name: test
+motors:
+  - {name: big, torque_constant: 0.05, peak_torque: 0.3, continuous_torque: 0.2}
+  - {name: small, mass: 0.1, torque_constant: 0.02, peak_torque: 0.05, continuous_torque: 0.02}
+gearboxes:
+  - {name: strong, ratio: 50, continuous_torque: 40}
+  - {name: weak, ratio: 10, continuous_torque: 5}
+)");
+  write(dir.path / "s.yaml", kSizing);
+  const ukdyn::SizingFile f = ukdyn::load_sizing_file(dir.path / "s.yaml");
+  EXPECT_EQ(f.order_by, "continuous_torque");
+  EXPECT_NE(f.order_reason.find("no mass"), std::string::npos) << f.order_reason;
+  std::vector<std::string> names;
+  for (const auto& c : f.actuators[0].candidates)
+    names.push_back(ukdyn::candidate_name(f.catalogue, c));
+  EXPECT_EQ(names, (std::vector<std::string>{"small + weak", "small + strong", "big + weak",
+                                             "big + strong"}));
+}
+
 // The shipped example's choices, checked by runs this test sets up itself.
 struct Columns {
   std::size_t u, margin;
