@@ -239,6 +239,8 @@ std::vector<SizingPoint> Sizer::run_loaded(const std::vector<std::size_t>& cfg, 
     return failed_sample(
         cfg.size(), k, vals,
         fmt::format("{} at t = {:.6g} s: {}", to_string(st.status), st.t_reached, st.message));
+  if (run->report.csv_rows == 0)  // no operating point: nothing to vouch for
+    return failed_sample(cfg.size(), k, vals, "the run has no output samples");
   const auto summary = nlohmann::json::parse(run->summary_json, nullptr, false);
   std::vector<SizingPoint> out;
   for (std::size_t a = 0; a < cfg.size(); ++a) {
