@@ -186,19 +186,21 @@ class Sizer {
 std::vector<SizingPoint> Sizer::run_sample(const std::vector<std::size_t>& cfg, long k) {
   const Sweep& sw = f_.sweep;
   const std::vector<double> vals = sample_values(sw, k);
-  YAML::Node doc = sweep_detail::sample_doc(sw, vals, true);
-  for (std::size_t a = 0; a < cfg.size(); ++a) {
-    const SizingActuator& act = f_.actuators[a];
-    const MotorSpec spec = candidate_spec(f_.catalogue, act.candidates[cfg[a]]);
-    for (YAML::Node e : doc["actuators"])
-      if (e.IsMap() && e["name"].IsScalar() && e["name"].Scalar() == act.name)
-        e["motor"] = motor_node(spec);
-  }
   std::optional<Scenario> sc;
   std::vector<SizingPoint> out;
   try {
     {
+      // The sample's tree (copied from the base tree, as the sweep does under its lock) and its
+      // model are built under build_mu_: yaml-cpp and GiNaC are not thread-safe.
       std::lock_guard<std::mutex> lock(build_mu_);
+      YAML::Node doc = sweep_detail::sample_doc(sw, vals, true);
+      for (std::size_t a = 0; a < cfg.size(); ++a) {
+        const SizingActuator& act = f_.actuators[a];
+        const MotorSpec spec = candidate_spec(f_.catalogue, act.candidates[cfg[a]]);
+        for (YAML::Node e : doc["actuators"])
+          if (e.IsMap() && e["name"].IsScalar() && e["name"].Scalar() == act.name)
+            e["motor"] = motor_node(spec);
+      }
       sc.emplace(
           io_detail::load_scenario_yaml(doc, hash_, sw.base_path, LoadOptions{!sw.assemble}));
     }
