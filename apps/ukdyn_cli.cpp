@@ -15,8 +15,11 @@
 //   ukdyn sweep merge SWEEP --out DIR SHARD_DIR...
 //   ukdyn optimize PROBLEM [--out DIR] [--quiet]   (optimal trajectory by collocation on IPOPT;
 //                  docs/optimization.md)
+//   ukdyn size SIZING [--out DIR] [--threads N] [--quiet]   (the smallest motor + gearbox of a
+//                  catalogue for each actuator; docs/sizing.md)
 // Exit codes: 0 success; 1 run incomplete (stopped, interrupted, a write failed), some eval lines
-// failed, or linearize could not vouch for its derivatives; 2 bad input: a usage error, a bad
+// failed, linearize could not vouch for its derivatives, or size found no catalogue entry that
+// holds for some actuator; 2 bad input: a usage error, a bad
 // scenario, an output folder ukdyn refuses or one in use.
 #include <fmt/format.h>
 #include <unistd.h>
@@ -39,6 +42,7 @@
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/sweep/sizing.hpp"
 #include "ukdyn/sweep/sweep.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/text/safe_text.hpp"
@@ -219,6 +223,54 @@ int cmd_optimize(const std::string& problem, const std::string& out, bool quiet)
   return 0;
 }
 
+// `ukdyn size`: the smallest catalogue motor + gearbox per actuator (docs/sizing.md). Exit 0 when
+// every actuator has one, 1 when some has none that holds (or the iteration did not settle, or it
+// was interrupted), 2 for bad input.
+int cmd_size(const std::string& file, const std::string& out_arg, int threads, bool quiet) {
+  const ukdyn::SizingFile f = ukdyn::load_sizing_file(file);
+  const std::string out = out_arg.empty() ? "out/size-" + f.name : out_arg;
+  ukdyn::check_output_folder(out);  // refused before the runs, not after them
+  std::signal(SIGINT, on_interrupt);
+  std::signal(SIGTERM, on_interrupt);
+  ukdyn::SizingOptions opt;
+  opt.threads = threads;
+  opt.progress = quiet ? nullptr : &std::cerr;
+  opt.cancel = &g_interrupted;
+  const ukdyn::SizingResult r = ukdyn::run_sizing(f, opt);
+  if (g_interrupted.load()) {
+    std::cerr << "ukdyn: size interrupted: nothing written\n";
+    return 1;
+  }
+  ukdyn::write_sizing(f, r, out);
+  if (!quiet) {
+    ukdyn::print_sizing_report(std::cout, f, r);
+    std::cout << "  wrote " << ukdyn::printable(out) << "/sizing.json, candidates.csv\n";
+  }
+  std::cout.flush();
+  int rc = 0;
+  for (std::size_t a = 0; a < f.actuators.size(); ++a) {
+    const ukdyn::SizingChoice& c = r.choices[a];
+    if (c.found) continue;
+    std::cerr << ukdyn::printable(
+        fmt::format("ukdyn: actuator '{}': no catalogue entry keeps the margin {:.3g} %: the best, "
+                    "{}, keeps "
+                    "{:.3g} % (short by {:.3g} points)\n",
+                    f.actuators[a].name, 100.0 * f.margin,
+                    ukdyn::candidate_name(f.catalogue, f.actuators[a].candidates[c.best_candidate]),
+                    100.0 * c.best_margin, 100.0 * (f.margin - c.best_margin)),
+        true);
+    rc = 1;
+  }
+  if (!r.converged) {
+    std::cerr << fmt::format(
+        "ukdyn: the sizing did not settle in {} rounds (max_rounds): the choices are those of the "
+        "last round and not vouched for\n",
+        f.max_rounds);
+    rc = 1;
+  }
+  return rc;
+}
+
 // `ukdyn linearize`: the state (the scenario's initial one, --state or --row), then the JSON on
 // stdout or in --out. Exit 0, or 1 when ukdyn cannot vouch for the derivatives.
 int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
@@ -363,6 +415,16 @@ int main(int argc, char** argv) {
   opt->add_option("--out,-o", out, "output folder")->capture_default_str();
   opt->add_flag("--quiet,-q", quiet, "print nothing but errors and warnings");
 
+  std::string size_file, size_out;
+  int size_threads = 0;
+  auto* sz = app.add_subcommand(
+      "size", "Choose the smallest catalogue motor + gearbox for each actuator (docs/sizing.md)");
+  sz->add_option("sizing", size_file, "sizing file (YAML)")->required();
+  sz->add_option("--out,-o", size_out, "output folder (default out/size-NAME)");
+  sz->add_option("--threads,-j", size_threads, "worker threads (default: every core)")
+      ->check(CLI::Range(1, 4096));
+  sz->add_flag("--quiet,-q", quiet, "print nothing but errors and warnings");
+
   try {
     app.parse(argc, argv);
     if (*swp && !*mrg && sa.file.empty()) throw CLI::RequiredError("sweep");
@@ -374,6 +436,7 @@ int main(int argc, char** argv) {
   try {
     if (*swp) return cmd_sweep(sa, mrg->parsed(), &argc, &argv);
     if (*opt) return cmd_optimize(problem, out, quiet);
+    if (*sz) return cmd_size(size_file, size_out, size_threads, quiet);
     if (*rpl) {
       // The run folder and its scenario are checked first (bad input is named as such whatever
       // this build can draw).

@@ -29,8 +29,8 @@ using ukdyn_test::shell;
 using ukdyn_test::slurp;
 const fs::path kSource = UKDYN_SOURCE_DIR;
 
-// Every scenario shipped in scenarios/ (benchmarks/ included; sweep files and optimisation problems
-// not: docs/sweeps.md, docs/optimization.md), as
+// Every scenario shipped in scenarios/ (benchmarks/ included; sweep files, optimisation problems and
+// sizing files not: docs/sweeps.md, docs/optimization.md, docs/sizing.md), as
 // paths relative to scenarios/, sorted (one ctest entry each, in a stable order).
 std::vector<std::string> shipped_scenarios() {
   std::vector<std::string> list;
@@ -38,7 +38,7 @@ std::vector<std::string> shipped_scenarios() {
   for (const auto& e : fs::recursive_directory_iterator(root)) {
     if (e.path().extension() != ".yaml") continue;
     const fs::path folder = e.path().parent_path().filename();
-    if (folder == "sweeps" || folder == "optimize") continue;
+    if (folder == "sweeps" || folder == "optimize" || folder == "sizing") continue;
     list.push_back(fs::relative(e.path(), root).generic_string());
   }
   std::sort(list.begin(), list.end());

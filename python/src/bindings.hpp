@@ -34,5 +34,6 @@ void bind_definitions(py::module_& m);
 
 /// Binds optimize, ipopt_available and Optimized (optimize.cpp; docs/optimization.md).
 void bind_optimize(py::module_& m);
+void bind_size(py::module_& m);
 
 }  // namespace ukdyn_python

@@ -782,6 +782,7 @@ PYBIND11_MODULE(_ukdyn, m) {
 
   bind_definitions(m);
   bind_optimize(m);
+  bind_size(m);
 
   py::class_<PyLinearization>(m, "Linearization",
                               "Exact derivatives of qdd and Qc at a state (docs/derivatives.md)")

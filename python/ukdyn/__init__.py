@@ -35,6 +35,7 @@ from ._ukdyn import (
     ipopt_available,
 )
 from ._ukdyn import optimize as _optimize
+from ._ukdyn import size as _size
 
 
 def load_scenario(path, check_initial=True):
@@ -48,6 +49,14 @@ def optimize(path, out=None):
     replay check. Returns an Optimized (t, q, qd, qdd, u, Qc, mu as numpy arrays; cost, status,
     trusted, message, ...). Raises ukdyn.ScenarioError for a bad problem file."""
     return _optimize(str(path), None if out is None else str(out))
+
+
+def size(path, out=None):
+    """Sizes the actuators of a sizing file (docs/sizing.md): per actuator the smallest catalogue
+    motor + gearbox that keeps the margin at every operating point of every sample, each candidate
+    re-run with its motor in the model. Returns sizing.json as a dict; with out, also writes
+    sizing.json and candidates.csv there. Raises ukdyn.ScenarioError for a bad file."""
+    return _size(str(path), None if out is None else str(out))
 
 
 __all__ = [
@@ -72,6 +81,7 @@ __all__ = [
     "load_scenario",
     "ipopt_available",
     "optimize",
+    "size",
     "make_applied_force",
     "make_constraint",
     "make_subsystem",

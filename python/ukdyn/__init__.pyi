@@ -283,6 +283,9 @@ def ipopt_available() -> bool: ...
 def optimize(
     path: Union[str, PathLike[str]], out: Optional[Union[str, PathLike[str]]] = None
 ) -> Optimized: ...
+def size(
+    path: Union[str, PathLike[str]], out: Optional[Union[str, PathLike[str]]] = None
+) -> dict[str, Any]: ...
 
 class Run:
     columns: list[str]

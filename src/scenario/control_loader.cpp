@@ -50,6 +50,15 @@ ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const
   return ConstraintRole::physical;
 }
 
+double motor_key(const Loader& L, const Node& m, const char* key, double fallback,
+                 bool (*ok)(double), const char* rule) {
+  const Node n = L.child(m, key, false);
+  if (!n.node.IsDefined()) return fallback;
+  const double v = L.number(n);
+  if (!ok(v)) L.fail(n, fmt::format("{} {} (got {})", key, rule, v));
+  return v;
+}
+
 namespace {
 
 double number_at_least(const Loader& L, const Node& parent, const char* key, double fallback,
@@ -58,17 +67,6 @@ double number_at_least(const Loader& L, const Node& parent, const char* key, dou
   if (!n.node.IsDefined()) return fallback;
   const double v = L.number(n);
   if (!(v >= lo)) L.fail(n, "must be >= " + std::to_string(lo));
-  return v;
-}
-
-// One key of a `motor:` block: absent → fallback; present → a number obeying `rule` (else an
-// error at the key: file:line:column, the key path and the rule).
-double motor_key(const Loader& L, const Node& m, const char* key, double fallback,
-                 bool (*ok)(double), const char* rule) {
-  const Node n = L.child(m, key, false);
-  if (!n.node.IsDefined()) return fallback;
-  const double v = L.number(n);
-  if (!ok(v)) L.fail(n, fmt::format("{} {} (got {})", key, rule, v));
   return v;
 }
 

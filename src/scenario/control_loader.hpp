@@ -25,6 +25,12 @@ RoleChoice take_role(const Loader& L, const Node& c, const std::string& type);
 /// The role of the built constraint (by_time: Φ(q0, t) or Φ̇(q0, 0, t) varies with t).
 ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const Vec& q0);
 
+/// One numeric key of a `motor:` block (or of a catalogue's motor or gearbox,
+/// src/sweep/sizing_file.cpp): absent → fallback; present → a number for which ok() is true, else
+/// an error at the key (file:line:column, the key path, "KEY RULE (got V)").
+double motor_key(const Loader& L, const Node& m, const char* key, double fallback,
+                 bool (*ok)(double), const char* rule);
+
 /// `actuators:` and `control:` (after the constraints and the initial state are loaded). An
 /// actuator's `motor:` block (docs/motors.md) adds its reflected rotor inertia and its friction to
 /// `system` (the scenario's own, sc.system).
