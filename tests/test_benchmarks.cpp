@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "tools/benchmark_reference.hpp"
+#include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/diagnostics.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -176,6 +177,44 @@ TEST(Benchmarks, SimplePendulumAgainstTheExactSolution) {
   const auto wrong = ukdyn::load_scenario_text(text, "wrong_g.yaml");
   const Trace tw = run(wrong, 3.0, 0.01);
   EXPECT_GT(pendulum_max_error(tw, ref), 1e-3);
+}
+
+// simulation.error_estimate: shadow against the true error (the exact pendulum): at tolerance 1e-7
+// over 3 s the run's error is ~1e-7 m, the shadow's (at 1e-9) a hundredth of it, so the estimate
+// max |q − q_shadow| must be the true max |q − q_exact| within a few per cent (bounds: a factor 1.5).
+TEST(Benchmarks, ShadowErrorEstimateMatchesTheTrueError) {
+  auto sc = ukdyn::load_scenario(kBench / "simple_pendulum.yaml");
+  sc.sim.t_end = 3.0;
+  sc.sim.sample_dt = 0.01;
+  sc.sim.abs_tol = sc.sim.rel_tol = 1e-7;
+  sc.error_estimate = true;
+  const ukdyn::MemoryRun run = ukdyn::run_scenario_in_memory(sc);
+  ASSERT_TRUE(run.report.complete()) << run.report.stats.message;
+  const std::size_t cols = run.header.size();
+  ASSERT_GE(cols, 3u);
+  ASSERT_EQ(run.header[1], "x");
+  ASSERT_EQ(run.header[2], "y");
+  const ukdyn_bench::SimplePendulumReference ref;
+  double err = 0;
+  for (std::size_t r = 0; r * cols < run.values.size(); ++r) {
+    const double* row = run.values.data() + r * cols;
+    double x = 0, y = 0;
+    ref.point(row[0], x, y);
+    err = std::max({err, std::abs(row[1] - x), std::abs(row[2] - y)});
+  }
+  const ukdyn::ErrorEstimate& e = run.report.error_estimate;
+  ASSERT_TRUE(e.requested);
+  EXPECT_EQ(e.shadow_status, ukdyn::to_string(ukdyn::RunStatus::completed)) << e.note;
+  EXPECT_EQ(e.samples_compared, static_cast<long>(run.values.size() / cols));
+  EXPECT_GT(err, 1e-9);  // there is an error to estimate
+  EXPECT_GT(e.max_abs_q, err / 1.5) << err;
+  EXPECT_LT(e.max_abs_q, err * 1.5) << err;
+  EXPECT_NE(run.summary_json.find("\"error_estimate\""), std::string::npos);
+  // Off by default: nothing is computed or reported.
+  sc.error_estimate = false;
+  const ukdyn::MemoryRun plain = ukdyn::run_scenario_in_memory(sc);
+  EXPECT_FALSE(plain.report.error_estimate.requested);
+  EXPECT_EQ(plain.summary_json.find("\"error_estimate\""), std::string::npos);
 }
 
 // ---- A04 Bricard's mechanism ------------------------------------------------------------------

@@ -9,6 +9,7 @@
 #include <optional>
 #include <ostream>
 
+#include "run/error_estimate.hpp"
 #include "run/run_faults.hpp"
 #include "run/run_observer.hpp"
 #include "scenario/definitions_loader.hpp"
@@ -198,8 +199,10 @@ struct Observer {
   bool split_unique = true;                  // the force split was unique at every sample
   double split_t = 0.0;                      // the first sample where it was not
   std::vector<double>* memory = nullptr;     ///< run_scenario_in_memory(): the rows, back to back
+  io_detail::ShadowEstimate* shadow = nullptr;  ///< simulation.error_estimate: shadow
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
+    if (shadow != nullptr) shadow->compare(t, q);
     std::size_t k = recorder.record(t, q, qd, d);
     std::vector<double>& row = recorder.row();
     if (forces != nullptr && !forces->empty()) {  // docs/frame-constraints.md
@@ -265,6 +268,22 @@ nlohmann::json summary_start(const Scenario& sc) {
 }
 
 // The results of a run, into its summary.
+// simulation.error_estimate: shadow (docs/accuracy.md).
+nlohmann::json error_estimate_json(const ErrorEstimate& e) {
+  nlohmann::json j = {{"method", "shadow"}, {"note", e.note}};
+  if (e.shadow_status.empty()) return j;  // not computed (the note says why)
+  j["max_abs_q_difference"] = finite_or_null(e.max_abs_q);
+  j["t"] = e.t;
+  j["coordinate"] = e.coordinate;
+  j["samples_compared"] = e.samples_compared;
+  j["sample_stride"] = e.stride;
+  j["shadow"] = {{"status", e.shadow_status},       {"t_reached", e.shadow_t_reached},
+                 {"abs_tol", e.shadow_abs_tol},     {"rel_tol", e.shadow_rel_tol},
+                 {"step", e.shadow_step},           {"regularization", e.shadow_regularization},
+                 {"wall_seconds", e.shadow_seconds}};
+  return j;
+}
+
 void summary_results(nlohmann::json& summary, const System& sys, const RunReport& rep) {
   const Index n = sys.dof();
   const Index m = sys.rows();
@@ -319,6 +338,8 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
                      {"free_dof_min", n - rep.rank_max},
                      {"redundant_rows", rep.stats.structural_redundancy},
                      {"smallest_kept_sigma_estimate", finite_or_null(rep.sigma_min)}};
+  if (rep.error_estimate.requested)
+    summary["error_estimate"] = error_estimate_json(rep.error_estimate);
   nlohmann::json figs = nlohmann::json::array();
   for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(rep.out_dir).string());
   summary["figures"] = figs;
@@ -387,6 +408,10 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
   // law's has none (the difference-quotient Jacobian, said in the summary).
   if (!ctl) settings.tau_jacobian = zero_force_jacobian;
   try {
+    // The shadow run first (a closed loop of its own), so that the run's samples are compared as
+    // they come (docs/accuracy.md).
+    std::optional<io_detail::ShadowEstimate> shadow;
+    if (sc.error_estimate) observer.shadow = &shadow.emplace(sc, s.options.cancel);
     rep.stats = simulate(s.sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                          [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                            return observer(t, q, qd, d);
@@ -399,6 +424,7 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
     }
     for (auto& w : s.control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
     rep.motors_line = s.control_columns.motors().console_line();
+    if (shadow) rep.error_estimate = shadow->result(s.sys);
   } catch (const std::exception& e) {
     // Invalid settings: the summary must not be left saying "running".
     progress.done();
@@ -665,11 +691,23 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   // The constant τ has ∂τ/∂(q, q̇) = 0 (bdf / esdirk's exact Jacobian); a control law or a Python
   // controller has none (difference quotients, said in the stats' jacobian_note).
   if (!ctl && !options.tau) settings.tau_jacobian = zero_force_jacobian;
+  // The shadow run re-runs the scenario's own forces or law; a Python force function or law is not
+  // re-run (it may keep state), so the estimate is missing then, and says why.
+  std::optional<io_detail::ShadowEstimate> shadow;
+  if (sc.error_estimate && !options.tau && options.law == nullptr) {
+    observer.shadow = &shadow.emplace(sc, options.cancel);
+  } else if (sc.error_estimate) {
+    rep.error_estimate.requested = true;
+    rep.error_estimate.note =
+        "not computed: the run's forces or control law come from the caller, and a second run "
+        "of them could differ (they may keep state)";
+  }
   const auto start = std::chrono::steady_clock::now();
   rep.stats = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings,
                        [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                          return observer(t, q, qd, d);
                        });
+  if (shadow) rep.error_estimate = shadow->result(sys);
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   rep.csv_rows = static_cast<long>(run.values.size() / cols);
@@ -781,6 +819,18 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
           : "");
   os << fmt::format("  max |residual|      {:.3e} ({})\n", worst.value, p(worst.row));
   os << fmt::format("  max |A qdd - b|     {:.3e}\n", rep.max_acc_residual);
+  if (const ErrorEstimate& e = rep.error_estimate; e.requested) {  // docs/accuracy.md
+    os << (e.shadow_status.empty()
+               ? fmt::format("  error estimate      {}\n", e.note)
+               : fmt::format(
+                     "  error estimate      max |q - q_shadow| = {:.3e} ({} at t = {:.6g} s; "
+                     "shadow run at {}){}\n",
+                     e.max_abs_q, p(e.coordinate), e.t,
+                     e.shadow_step > 0.0 ? fmt::format("step {:.3g}", e.shadow_step)
+                                         : fmt::format("tolerances {:.3g} / {:.3g}",
+                                                       e.shadow_abs_tol, e.shadow_rel_tol),
+                     e.note.empty() ? "" : "; " + e.note));
+  }
   os << fmt::format(
       "  energy              E0 = {:.9g} J, max |E - E0| = {:.3e} J, max T = {:.6g} J\n", rep.E0,
       rep.max_energy_drift, rep.max_T);

@@ -734,7 +734,8 @@ void load_jacobian(const Loader& L, const Node& s, SimulationSettings& sim) {
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
   const Node s = L.child(root, "simulation", true);
   L.only_keys(s, {"t0", "t_end", "sample_dt", "integrator", "adaptive", "abs_tol", "rel_tol",
-                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min", "jacobian"});
+                  "step", "initial_tolerance", "drift", "energy_balance", "sigma_min", "jacobian",
+                  "error_estimate"});
   auto& sim = sc.sim;
   sim.t0 = L.number_or(s, "t0", 0.0);
   const Node te = L.child(s, "t_end", true);
@@ -785,6 +786,12 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
     const std::string v = L.string(eb);
     if (v != "true" && v != "false") L.fail(eb, "expected true or false");
     sim.energy_balance = v == "true";
+  }
+  // The run's global error by a shadow run at tighter settings (docs/accuracy.md).
+  if (Node ee = L.child(s, "error_estimate", false); ee.node.IsDefined()) {
+    const std::string v = L.string(ee);
+    if (v != "shadow" && v != "none") L.fail(ee, "expected shadow or none");
+    sc.error_estimate = v == "shadow";
   }
   // The sigma_min column: the solve's pivot estimate, or an SVD per sample (simulate.hpp).
   if (Node sm = L.child(s, "sigma_min", false); sm.node.IsDefined()) {

@@ -29,6 +29,25 @@ struct RunOptions {
   const std::atomic<bool>* cancel = nullptr;
 };
 
+/// simulation.error_estimate: shadow (docs/accuracy.md): the run's positions against those of a
+/// second run of the same scenario at tighter settings (tolerances / 100, a fixed step / 4), at
+/// the same output samples.
+struct ErrorEstimate {
+  bool requested = false;
+  double max_abs_q = 0.0;  ///< max over the samples compared and coordinates of |q − q_shadow|
+  double t = 0.0;          ///< where it is largest
+  std::string coordinate;  ///< and in which coordinate
+  long samples_compared = 0;
+  long stride = 1;  ///< every stride-th sample is compared (at most ~2e6 numbers kept)
+  std::string shadow_status;
+  double shadow_t_reached = 0.0;
+  double shadow_abs_tol = 0.0, shadow_rel_tol = 0.0;
+  double shadow_step = 0.0;  ///< a fixed-step run's shadow step (0: error-controlled)
+  double shadow_regularization = 0.0;
+  double shadow_seconds = 0.0;
+  std::string note;  ///< why the estimate is partial or missing (empty: complete)
+};
+
 struct RunReport {
   SimulationStats stats;
   std::filesystem::path out_dir;
@@ -54,6 +73,7 @@ struct RunReport {
   std::shared_ptr<const System> plant;
   /// The worst margin of the motors to their envelopes (docs/motors.md); empty without motors.
   std::string motors_line;
+  ErrorEstimate error_estimate;  ///< with simulation.error_estimate: shadow
 
   /// The integration reached t_end and every output was written.
   [[nodiscard]] bool complete() const {

@@ -41,6 +41,9 @@ struct Scenario {
   std::vector<SubsystemInfo> subsystems;
   Vec q0, qd0, tau;
   SimulationSettings sim;
+  /// simulation.error_estimate: shadow — run_scenario() integrates the scenario a second time at
+  /// tighter settings and reports max |q − q_shadow| over the samples (docs/accuracy.md).
+  bool error_estimate = false;
   double initial_tolerance = 1e-9;  ///< |Φ(q0, t0)| and |Φ̇(q0, q̇0, t0)| must stay under this
   std::vector<bool> held;           ///< coordinates kept fixed by assembly (initial.hold)
   /// The serial chains' link poses and points, as loaded (what the replay page draws:
