@@ -6,9 +6,9 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "output/replay_assets.hpp"
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/geometry.hpp"
-#include "output/replay_assets.hpp"
 #include "ukdyn/output/trajectory_table.hpp"
 
 namespace ukdyn {
@@ -201,6 +201,8 @@ void append_plot_groups_json(std::string& d, const TrajectoryTable& tab) {
   };
   d += group("position residuals Φ [m or rad]",
              [](const std::string& h) { return h.rfind("res_", 0) == 0; });
+  d += "," + group("velocity residuals of the nonholonomic rows [m/s or rad/s]",
+                   [](const std::string& h) { return h.rfind("vres_", 0) == 0; });
   d += "," + group("constraint force Qc [N or N·m]",
                    [](const std::string& h) { return h.rfind("Qc_", 0) == 0; });
   d += "," + group("energy [J]", [](const std::string& h) {
