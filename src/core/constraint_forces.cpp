@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <Eigen/SVD>
+#include <cmath>
 #include <limits>
 
 #include "core/cod_solve.hpp"
@@ -22,8 +23,8 @@ Mat pinv(const Mat& X, double rel_tol = 1e-12) {
   return svd.matrixV() * inv.asDiagonal() * svd.matrixU().transpose();
 }
 
-// X⁺ into out with the buffers of svd (preallocated for X's size), inv and tmp: the same cut-off
-// as pinv(), no allocation.
+// X⁺ into out with the buffers of svd (preallocated for X's size), inv and tmp: pinv()'s result
+// (the same cut-off), no allocation.
 void pinv_into(const Mat& X, Eigen::JacobiSVD<Mat>& svd, Vec& inv, Mat& tmp, Mat& out,
                double rel_tol = 1e-12) {
   svd.compute(X, Eigen::ComputeThinU | Eigen::ComputeThinV);
@@ -32,6 +33,47 @@ void pinv_into(const Mat& X, Eigen::JacobiSVD<Mat>& svd, Vec& inv, Mat& tmp, Mat
   for (Index i = 0; i < s.size(); ++i) inv(i) = s(i) > cut ? 1.0 / s(i) : 0.0;
   tmp.noalias() = svd.matrixV() * inv.asDiagonal();
   out.noalias() = tmp * svd.matrixU().transpose();
+}
+
+// X⁺ of a symmetric positive semidefinite X (n × n) into out. When the Cholesky factor's diagonal
+// shows X well conditioned (λ_min / λ_max above 1e-8 by the diagonal's ratio squared), X⁺ = X⁻¹ by
+// that factor: several times faster than the SVD at 24 × 24. Otherwise pinv_into(). No allocation.
+void pinv_psd_into(const Mat& X, Eigen::LLT<Mat>& llt, Eigen::JacobiSVD<Mat>& svd, Vec& inv,
+                   Mat& tmp, Mat& out) {
+  llt.compute(X);
+  if (llt.info() == Eigen::Success) {
+    const auto d = llt.matrixLLT().diagonal();
+    const double lo = d.minCoeff(), hi = d.maxCoeff();
+    if (lo > 0.0 && lo * lo > 1e-8 * hi * hi) {
+      out.setIdentity();
+      llt.solveInPlace(out);
+      return;
+    }
+  }
+  pinv_into(X, svd, inv, tmp, out);
+}
+
+// The same for a fixed 6 × 6 X (no allocation by construction).
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+Mat6 pinv6(const Mat6& X, double rel_tol = 1e-12) {
+  const Eigen::JacobiSVD<Mat6> svd(X, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const auto& s = svd.singularValues();
+  const double cut = rel_tol * s(0);
+  Eigen::Matrix<double, 6, 1> inv;
+  for (Index i = 0; i < 6; ++i) inv(i) = s(i) > cut ? 1.0 / s(i) : 0.0;
+  return svd.matrixV() * inv.asDiagonal() * svd.matrixU().transpose();
+}
+
+// pinv6() of a symmetric positive semidefinite X: X⁻¹ by Cholesky when well conditioned (as
+// pinv_psd_into), else the SVD.
+Mat6 pinv6_psd(const Mat6& X) {
+  const Eigen::LLT<Mat6> llt(X);
+  if (llt.info() == Eigen::Success) {
+    const auto d = llt.matrixLLT().diagonal();
+    const double lo = d.minCoeff(), hi = d.maxCoeff();
+    if (lo > 0.0 && lo * lo > 1e-8 * hi * hi) return llt.solve(Mat6::Identity());
+  }
+  return pinv6(X);
 }
 
 }  // namespace
@@ -135,12 +177,10 @@ InternalWrenchWorkspace::InternalWrenchWorkspace(Index grasps, Index agent_dof)
       tmpN(6 * grasps, 6 * grasps),
       S(6, 6),
       S6(6, 6),
-      tmp6(6, 6),
       llt(agent_dof),
+      llt_big(6 * grasps),
       svd_big(6 * grasps, 6 * grasps, Eigen::ComputeThinU | Eigen::ComputeThinV),
-      svd6(6, 6, Eigen::ComputeThinU | Eigen::ComputeThinV),
       inv_big(6 * grasps),
-      inv6(6),
       Gw(6),
       y6(6) {}
 
@@ -150,7 +190,7 @@ void internal_wrenches(InternalWrenchWorkspace& ws) {
   ws.Gw.noalias() = G * ws.w;
   // [Walker1991]: G⁺ = Gᵀ (G Gᵀ)⁺, so (I − G⁺G) w = w − Gᵀ (G Gᵀ)⁺ G w.
   ws.S.noalias() = G * G.transpose();
-  pinv_into(ws.S, ws.svd6, ws.inv6, ws.tmp6, ws.S6);
+  ws.S6 = pinv6_psd(ws.S);
   ws.y6.noalias() = ws.S6 * ws.Gw;
   ws.walker = ws.w;
   ws.walker.noalias() -= G.transpose() * ws.y6;
@@ -164,10 +204,10 @@ void internal_wrenches(InternalWrenchWorkspace& ws) {
   ws.MinvJt = ws.J.transpose();
   ws.llt.solveInPlace(ws.MinvJt);
   ws.K.noalias() = ws.J * ws.MinvJt;
-  pinv_into(ws.K, ws.svd_big, ws.inv_big, ws.tmpN, ws.Lambda);
+  pinv_psd_into(ws.K, ws.llt_big, ws.svd_big, ws.inv_big, ws.tmpN, ws.Lambda);
   ws.LGt.noalias() = ws.Lambda * G.transpose();
   ws.S.noalias() = G * ws.LGt;
-  pinv_into(ws.S, ws.svd6, ws.inv6, ws.tmp6, ws.S6);
+  ws.S6 = pinv6_psd(ws.S);
   ws.y6.noalias() = ws.S6 * ws.Gw;
   ws.weighted = ws.w;
   ws.weighted.noalias() -= ws.LGt * ws.y6;

@@ -82,14 +82,17 @@ struct InternalWrenchWorkspace {
   Vec walker, weighted;      ///< 6N: (I − G⁺G) w and (I − G*G) w
   bool weighted_ok = false;  ///< M was positive definite (else `weighted` is NaN)
   // the buffers
-  Mat G, MinvJt, K, Lambda, LGt, tmpN, S, S6, tmp6;
+  Mat G, MinvJt, K, Lambda, LGt, tmpN, S, S6;
   Eigen::LLT<Mat> llt;
-  Eigen::JacobiSVD<Mat> svd_big, svd6;
-  Vec inv_big, inv6, Gw, y6;
+  Eigen::LLT<Mat> llt_big;
+  Eigen::JacobiSVD<Mat> svd_big;
+  Vec inv_big, Gw, y6;
 };
 
 /// internal_wrench_walker() and internal_wrench_weighted() with Λ = task_space_inertia(M, J), the
-/// same formulas (G⁺ = Gᵀ(G Gᵀ)⁺, the pseudo-inverses by SVD with the same cut-off), into ws's
+/// same formulas (G⁺ = Gᵀ(G Gᵀ)⁺; the pseudo-inverses of the symmetric positive semidefinite
+/// G Gᵀ, J M⁻¹ Jᵀ and G Λ Gᵀ by Cholesky when well conditioned, where they equal the inverse,
+/// else by SVD with the same cut-off), into ws's
 /// buffers: no heap allocation once ws exists (tests/test_no_alloc.cpp). The reference point is
 /// the first grasp point (both internal parts do not depend on it: null(G) does not, nor G*G).
 void internal_wrenches(InternalWrenchWorkspace& ws);
