@@ -495,6 +495,21 @@ struct Run {
     return py::array_t<double>({rows}, {static_cast<py::ssize_t>(sizeof(double))},
                                values + j * rows, owner);
   }
+  /// The columns prefix + suffixes[0..], adjacent in trajectory.csv, as one rows × k view (the
+  /// buffer is column-major: adjacent columns are one strided block, no copy).
+  [[nodiscard]] py::array block(const std::string& prefix,
+                                const std::vector<std::string>& suffixes) const {
+    const Index j = column_index(prefix + suffixes.front());
+    for (std::size_t i = 1; i < suffixes.size(); ++i) {
+      const auto c = static_cast<std::size_t>(j) + i;
+      if (c >= columns.size() || columns[c] != prefix + suffixes[i])
+        throw py::key_error("no column '" + prefix + suffixes[i] + "' after '" + prefix +
+                            suffixes.front() + "'");
+    }
+    const auto s = static_cast<py::ssize_t>(sizeof(double));
+    return py::array_t<double>({rows, static_cast<Index>(suffixes.size())}, {s, s * rows},
+                               values + j * rows, owner);
+  }
   [[nodiscard]] py::array data() const {
     const auto s = static_cast<py::ssize_t>(sizeof(double));
     return py::array_t<double>({rows, static_cast<Index>(columns.size())}, {s, s * rows}, values,
@@ -863,6 +878,43 @@ column of trajectory.csv of that name as a numpy array; every column is a view o
       .def_property_readonly("data", &Run::data,
                              "all columns: rows x columns (Fortran order), a view of the buffer")
       .def_property_readonly("rows", [](const Run& r) { return r.rows; })
+      .def(
+          "wrench",
+          [](const Run& r, const std::string& constraint, const std::string& form) {
+            const std::string prefix = form == "world"               ? "W_"
+                                       : form == "grasp"             ? "Wg_"
+                                       : form == "internal_walker"   ? "Wint_walker_"
+                                       : form == "internal_weighted" ? "Wint_weighted_"
+                                                                     : "";
+            if (prefix.empty())
+              throw py::value_error(
+                  "form must be world, grasp, internal_walker or "
+                  "internal_weighted, not '" +
+                  form + "'");
+            return r.block(prefix + constraint + "_", {"fx", "fy", "fz", "mx", "my", "mz"});
+          },
+          py::arg("constraint"), py::arg("form") = "world",
+          R"doc(The wrench of frame constraint `constraint` on its frame b, rows x 6 (fx, fy, fz,
+mx, my, mz; a view of the W_ columns): form "world" (world axes, moment about the frame origin),
+"grasp" (the frame's own axes, Wg_), "internal_walker" / "internal_weighted" (the internal part
+of a grasp on a load held by two or more welds, Wint_; docs/frame-constraints.md).)doc")
+      .def(
+          "pose",
+          [](const Run& r, const std::string& constraint) {
+            return r.block("pose_" + constraint + "_", {"x", "y", "z", "qw", "qx", "qy", "qz"});
+          },
+          py::arg("constraint"),
+          "frame b of frame constraint `constraint`: rows x 7 (x, y, z, qw, qx, qy, qz; the "
+          "pose_ columns, a unit quaternion frame -> world with qw >= 0)")
+      .def_property_readonly(
+          "velocity_level_rows",
+          [](const Run& r) {
+            std::vector<std::string> rows;
+            for (const auto& c : r.columns)
+              if (c.rfind("vres_", 0) == 0) rows.push_back(c.substr(5));
+            return rows;
+          },
+          "the nonholonomic constraint rows: their columns are vres_<row> (B qd + c), not res_")
       .def_readonly("summary", &Run::summary,
                     "summary.json of the run as a dict (as `ukdyn simulate` writes it)")
       .def_readonly("warnings", &Run::warnings, "the run's warnings: dicts t, kind, message")

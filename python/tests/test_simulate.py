@@ -86,6 +86,41 @@ def test_frame_constraint_columns_equal_the_cli_csv(tmp_path):
     assert [w["kind"] for w in run.warnings] == [w["kind"] for w in summary["warnings"]]
 
 
+def test_wrench_pose_and_velocity_rows(tmp_path):
+    # The grasp wrenches, internal wrenches and grasp poses of four robots welded to a load, as
+    # views of the columns; the load's net force from the grasps is its m (a - g) (Newton), from
+    # the arrays alone. The rolling disk's rows are velocity-level (vres_ columns).
+    text = scenario_path("n_robots_4_weld.yaml").read_text()
+    assert "  t_end: 1\n" in text
+    path = tmp_path / "weld_short.yaml"
+    path.write_text(text.replace("  t_end: 1\n", "  t_end: 0.1\n"))
+    run = ukdyn.load_scenario(path).simulate()
+    assert run.complete
+    grasps = ["grasp%d" % k for k in range(4)]
+    force = sum(run.wrench(g)[:, :3] for g in grasps)
+    acc = np.column_stack([run["load_%s_ddot" % a] for a in "xyz"])
+    newton = 3.0 * (acc - np.array([0.0, 0.0, -9.81]))
+    assert np.max(np.abs(force - newton)) <= 1e-12 * np.max(np.abs(newton))
+    for form in ("internal_walker", "internal_weighted"):
+        w = run.wrench("grasp1", form)
+        assert w.shape == (len(run), 6) and np.shares_memory(w, run.data)
+        assert np.array_equal(w[:, 2], run["Wint_%s_grasp1_fz" % form[len("internal_"):]])
+        net = sum(run.wrench(g, form)[:, :3] for g in grasps)
+        assert np.max(np.abs(net)) <= 1e-12 * np.max(np.abs(newton))
+    pose = run.pose("grasp0")
+    assert pose.shape == (len(run), 7)
+    assert np.allclose(np.linalg.norm(pose[:, 3:], axis=1), 1.0, atol=1e-14)
+    assert (pose[:, 3] >= 0).all()
+    with pytest.raises(ValueError):
+        run.wrench("grasp0", "sideways")
+    with pytest.raises(KeyError):
+        run.pose("grasp9")
+    assert run.velocity_level_rows == []
+    disk = ukdyn.load_scenario(scenario_path("rolling_disk.yaml")).simulate()
+    assert disk.velocity_level_rows == ["roll_x", "roll_y"]
+    assert "res_roll_x" not in disk and "vres_roll_x" in disk
+
+
 def test_columns_share_one_buffer():
     run = ukdyn.load_scenario(scenario_path("paper.yaml")).simulate()
     t, th = run["t"], run["theta1"]

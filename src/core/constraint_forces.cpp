@@ -3,6 +3,8 @@
 #include <Eigen/Cholesky>
 #include <Eigen/QR>
 #include <Eigen/SVD>
+#include <cmath>
+#include <limits>
 
 #include "core/cod_solve.hpp"
 
@@ -19,6 +21,59 @@ Mat pinv(const Mat& X, double rel_tol = 1e-12) {
   Vec inv = Vec::Zero(s.size());
   for (Index i = 0; i < s.size(); ++i) inv(i) = s(i) > cut ? 1.0 / s(i) : 0.0;
   return svd.matrixV() * inv.asDiagonal() * svd.matrixU().transpose();
+}
+
+// X⁺ into out with the buffers of svd (preallocated for X's size), inv and tmp: pinv()'s result
+// (the same cut-off), no allocation.
+void pinv_into(const Mat& X, Eigen::JacobiSVD<Mat>& svd, Vec& inv, Mat& tmp, Mat& out,
+               double rel_tol = 1e-12) {
+  svd.compute(X, Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const auto& s = svd.singularValues();
+  const double cut = s.size() > 0 ? rel_tol * s(0) : 0.0;
+  for (Index i = 0; i < s.size(); ++i) inv(i) = s(i) > cut ? 1.0 / s(i) : 0.0;
+  tmp.noalias() = svd.matrixV() * inv.asDiagonal();
+  out.noalias() = tmp * svd.matrixU().transpose();
+}
+
+// X⁺ of a symmetric positive semidefinite X (n × n) into out. When the Cholesky factor's diagonal
+// shows X well conditioned (λ_min / λ_max above 1e-8 by the diagonal's ratio squared), X⁺ = X⁻¹ by
+// that factor: several times faster than the SVD at 24 × 24. Otherwise pinv_into(). No allocation.
+void pinv_psd_into(const Mat& X, Eigen::LLT<Mat>& llt, Eigen::JacobiSVD<Mat>& svd, Vec& inv,
+                   Mat& tmp, Mat& out) {
+  llt.compute(X);
+  if (llt.info() == Eigen::Success) {
+    const auto d = llt.matrixLLT().diagonal();
+    const double lo = d.minCoeff(), hi = d.maxCoeff();
+    if (lo > 0.0 && lo * lo > 1e-8 * hi * hi) {
+      out.setIdentity();
+      llt.solveInPlace(out);
+      return;
+    }
+  }
+  pinv_into(X, svd, inv, tmp, out);
+}
+
+// The same for a fixed 6 × 6 X (no allocation by construction).
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+Mat6 pinv6(const Mat6& X, double rel_tol = 1e-12) {
+  const Eigen::JacobiSVD<Mat6> svd(X, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const auto& s = svd.singularValues();
+  const double cut = rel_tol * s(0);
+  Eigen::Matrix<double, 6, 1> inv;
+  for (Index i = 0; i < 6; ++i) inv(i) = s(i) > cut ? 1.0 / s(i) : 0.0;
+  return svd.matrixV() * inv.asDiagonal() * svd.matrixU().transpose();
+}
+
+// pinv6() of a symmetric positive semidefinite X: X⁻¹ by Cholesky when well conditioned (as
+// pinv_psd_into), else the SVD.
+Mat6 pinv6_psd(const Mat6& X) {
+  const Eigen::LLT<Mat6> llt(X);
+  if (llt.info() == Eigen::Success) {
+    const auto d = llt.matrixLLT().diagonal();
+    const double lo = d.minCoeff(), hi = d.maxCoeff();
+    if (lo > 0.0 && lo * lo > 1e-8 * hi * hi) return llt.solve(Mat6::Identity());
+  }
+  return pinv6(X);
 }
 
 }  // namespace
@@ -81,8 +136,14 @@ ConstraintForceSplit split_constraint_force(const Mat& A, const Vec& Qc,
 }
 
 Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference) {
+  Mat G(6, 6 * static_cast<Index>(points.size()));
+  grasp_matrix(points, reference, G);
+  return G;
+}
+
+void grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference, Mat& G) {
   const Index N = static_cast<Index>(points.size());
-  Mat G = Mat::Zero(6, 6 * N);
+  G.setZero();
   for (Index k = 0; k < N; ++k) {
     const Vec3 d = points[static_cast<std::size_t>(k)] - reference;
     G.block<3, 3>(0, 6 * k).setIdentity();
@@ -91,7 +152,6 @@ Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference) {
     D << 0, -d(2), d(1), d(2), 0, -d(0), -d(1), d(0), 0;
     G.block<3, 3>(3, 6 * k) = D;  // (p_k − r) × f_k
   }
-  return G;
 }
 
 Vec internal_wrench_walker(const Mat& G, const Vec& w) { return w - pinv(G) * (G * w); }
@@ -100,6 +160,57 @@ Vec internal_wrench_weighted(const Mat& G, const Mat& Lambda, const Vec& w) {
   const Mat LGt = Lambda * G.transpose();
   const Mat Gstar = LGt * pinv(G * LGt);
   return w - Gstar * (G * w);
+}
+
+InternalWrenchWorkspace::InternalWrenchWorkspace(Index grasps, Index agent_dof)
+    : points(static_cast<std::size_t>(grasps), Vec3::Zero()),
+      w(Vec::Zero(6 * grasps)),
+      J(Mat::Zero(6 * grasps, agent_dof)),
+      M(Mat::Zero(agent_dof, agent_dof)),
+      walker(Vec::Zero(6 * grasps)),
+      weighted(Vec::Zero(6 * grasps)),
+      G(6, 6 * grasps),
+      MinvJt(agent_dof, 6 * grasps),
+      K(6 * grasps, 6 * grasps),
+      Lambda(6 * grasps, 6 * grasps),
+      LGt(6 * grasps, 6),
+      tmpN(6 * grasps, 6 * grasps),
+      S(6, 6),
+      S6(6, 6),
+      llt(agent_dof),
+      llt_big(6 * grasps),
+      svd_big(6 * grasps, 6 * grasps, Eigen::ComputeThinU | Eigen::ComputeThinV),
+      inv_big(6 * grasps),
+      Gw(6),
+      y6(6) {}
+
+void internal_wrenches(InternalWrenchWorkspace& ws) {
+  grasp_matrix(ws.points, ws.points.empty() ? Vec3::Zero() : ws.points.front(), ws.G);
+  const Mat& G = ws.G;
+  ws.Gw.noalias() = G * ws.w;
+  // [Walker1991]: G⁺ = Gᵀ (G Gᵀ)⁺, so (I − G⁺G) w = w − Gᵀ (G Gᵀ)⁺ G w.
+  ws.S.noalias() = G * G.transpose();
+  ws.S6 = pinv6_psd(ws.S);
+  ws.y6.noalias() = ws.S6 * ws.Gw;
+  ws.walker = ws.w;
+  ws.walker.noalias() -= G.transpose() * ws.y6;
+  // [Verginis2019]: Λ = (J M⁻¹ Jᵀ)⁺, G* = Λ Gᵀ (G Λ Gᵀ)⁺, (I − G*G) w.
+  ws.llt.compute(ws.M);
+  ws.weighted_ok = ws.llt.info() == Eigen::Success;
+  if (!ws.weighted_ok) {
+    ws.weighted.setConstant(std::numeric_limits<double>::quiet_NaN());
+    return;
+  }
+  ws.MinvJt = ws.J.transpose();
+  ws.llt.solveInPlace(ws.MinvJt);
+  ws.K.noalias() = ws.J * ws.MinvJt;
+  pinv_psd_into(ws.K, ws.llt_big, ws.svd_big, ws.inv_big, ws.tmpN, ws.Lambda);
+  ws.LGt.noalias() = ws.Lambda * G.transpose();
+  ws.S.noalias() = G * ws.LGt;
+  ws.S6 = pinv6_psd(ws.S);
+  ws.y6.noalias() = ws.S6 * ws.Gw;
+  ws.weighted = ws.w;
+  ws.weighted.noalias() -= ws.LGt * ws.y6;
 }
 
 Mat task_space_inertia(const Mat& M, const Mat& J) {

@@ -202,6 +202,8 @@ void append_plot_groups_json(std::string& d, const TrajectoryTable& tab) {
   };
   d += group("position residuals Φ [m or rad]",
              [](const std::string& h) { return h.rfind("res_", 0) == 0; });
+  d += "," + group("velocity residuals of the nonholonomic rows [m/s or rad/s]",
+                   [](const std::string& h) { return h.rfind("vres_", 0) == 0; });
   d += "," + group("constraint force Qc [N or N·m]",
                    [](const std::string& h) { return h.rfind("Qc_", 0) == 0; });
   d += "," + group("energy [J]", [](const std::string& h) {

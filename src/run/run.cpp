@@ -29,10 +29,22 @@ std::vector<std::string> trajectory_header(const System& system, bool energy_bal
   for (const auto& n : names) h.push_back(n + "_dot");
   for (const auto& n : names) h.push_back(n + "_ddot");
   for (const auto& n : names) h.push_back("Qc_" + n);
-  for (const auto& r : system.constraint_row_names()) h.push_back("res_" + r);
+  const std::vector<bool> vel = velocity_level_rows(system);
+  const auto& rows = system.constraint_row_names();
+  for (std::size_t i = 0; i < rows.size(); ++i) h.push_back((vel[i] ? "vres_" : "res_") + rows[i]);
   h.insert(h.end(), {"T", "V", "E", "rank", "free_dof", "sigma_min", "acc_residual"});
   if (energy_balance) h.insert(h.end(), {"W", "E_balance"});  // W = ∫ (τ + Q_nc + Qc)ᵀ q̇ dt
   return h;
+}
+
+std::vector<bool> velocity_level_rows(const System& system) {
+  std::vector<bool> vel;
+  for (const auto& c : system.constraints()) {
+    const auto* d = dynamic_cast<const symbolic::DerivedConstraint*>(c.get());
+    const bool v = d != nullptr && !d->derivation().holonomic;
+    vel.insert(vel.end(), static_cast<std::size_t>(c->rows()), v);
+  }
+  return vel;
 }
 
 namespace {
@@ -45,6 +57,7 @@ std::vector<Figure> default_figures(const Scenario& sc) {
   const auto& rows = sys.constraint_row_names();
   const auto& cons = sys.constraints();
   const auto& offs = sys.constraint_row_offsets();
+  const std::vector<bool> vel = velocity_level_rows(sys);
   for (std::size_t c = 0; c < cons.size(); ++c) {
     Figure f;
     const std::string& first = rows[static_cast<std::size_t>(offs[c])];
@@ -52,11 +65,13 @@ std::vector<Figure> default_figures(const Scenario& sc) {
     const auto cut = first.rfind('_');
     const std::string block =
         cons[c]->rows() == 1 || cut == std::string::npos ? first : first.substr(0, cut);
+    const bool v = cons[c]->rows() > 0 && vel[static_cast<std::size_t>(offs[c])];
     f.file = "residuals_" + block + ".png";
-    f.title = "Constraint residuals Φ of '" + block + "' (position level)";
-    f.ylabel = "Φ [m or rad]";
+    f.title = v ? "Velocity residuals B qdot + c of '" + block + "' (nonholonomic rows)"
+                : "Constraint residuals Φ of '" + block + "' (position level)";
+    f.ylabel = v ? "B qdot + c [m/s or rad/s]" : "Φ [m or rad]";
     for (Index r = 0; r < cons[c]->rows(); ++r) {
-      f.columns.push_back("res_" + rows[static_cast<std::size_t>(offs[c] + r)]);
+      f.columns.push_back((v ? "vres_" : "res_") + rows[static_cast<std::size_t>(offs[c] + r)]);
     }
     figs.push_back(f);
   }
@@ -324,6 +339,15 @@ void summary_results(nlohmann::json& summary, const System& sys, const RunReport
   summary["max_abs_velocity_residual"] = vres;
   summary["max_abs_position_residual_all"] =
       finite_or_null(worst_position_residual(sys, rep).value);
+  if (const WorstResidual v = worst_velocity_residual(sys, rep); v.row != "-") {
+    // nonholonomic rows (the vres_ columns): no position residual, B q̇ + c is theirs
+    nlohmann::json rows = nlohmann::json::array();
+    const std::vector<bool> vel = velocity_level_rows(sys);
+    for (std::size_t i = 0; i < vel.size(); ++i)
+      if (vel[i]) rows.push_back(sys.constraint_row_names()[i]);
+    summary["velocity_level_rows"] = rows;
+    summary["max_abs_velocity_residual_nonholonomic"] = finite_or_null(v.value);
+  }
   summary["max_acceleration_residual"] = finite_or_null(rep.max_acc_residual);
   summary["energy"] = {{"E0", finite_or_null(rep.E0)},
                        {"max_abs_drift", finite_or_null(rep.max_energy_drift)},
@@ -374,16 +398,18 @@ RunReport start_report(const System& sys, const ControlRun* ctl,
   return rep;
 }
 
-// The CSV header: the trajectory's columns, the frame constraints' forces (if `forces`), then the
-// control columns.
-std::vector<std::string> run_csv_header(const System& sys, bool balance,
-                                        const ConstraintForceColumns* forces,
-                                        const ControlColumns& control_columns) {
+}  // namespace
+
+std::vector<std::string> io_detail::run_csv_header(const System& sys, bool balance,
+                                                   const ConstraintForceColumns* forces,
+                                                   const ControlColumns& control_columns) {
   auto header = trajectory_header(sys, balance);
   if (forces) header.insert(header.end(), forces->header().begin(), forces->header().end());
   header.insert(header.end(), control_columns.header().begin(), control_columns.header().end());
   return header;
 }
+
+namespace {
 
 // Integrates the scenario, every sample a row of `csv`; rep.stats and its warnings are the run's.
 // Returns whether the constraint force split was unique at every sample.
@@ -554,18 +580,34 @@ void summary_final(nlohmann::json& summary, const RunSetup& s, bool split_unique
 
 }  // namespace
 
-WorstResidual worst_position_residual(const System& system, const RunReport& rep) {
+namespace {
+
+// The largest of `values` over the rows of one level (velocity-level or not).
+WorstResidual worst_residual(const System& system, const std::vector<double>& values,
+                             bool velocity_level) {
   WorstResidual w;
   const auto& names = system.constraint_row_names();
-  for (std::size_t i = 0; i < rep.max_abs_residual.size() && i < names.size(); ++i) {
+  const std::vector<bool> vel = velocity_level_rows(system);
+  for (std::size_t i = 0; i < values.size() && i < names.size(); ++i) {
+    if (vel[i] != velocity_level) continue;
     // NaN counts as the worst (it is the least trustworthy).
-    const double v = rep.max_abs_residual[i];
+    const double v = values[i];
     if (w.row == "-" || v > w.value || (std::isnan(v) && !std::isnan(w.value))) {
       w.value = v;
       w.row = names[i];
     }
   }
   return w;
+}
+
+}  // namespace
+
+WorstResidual worst_position_residual(const System& system, const RunReport& rep) {
+  return worst_residual(system, rep.max_abs_residual, false);
+}
+
+WorstResidual worst_velocity_residual(const System& system, const RunReport& rep) {
+  return worst_residual(system, rep.max_abs_velocity_residual, true);
 }
 
 RunReport run_scenario(const Scenario& sc, const std::filesystem::path& out_dir,
@@ -596,7 +638,7 @@ RunReport io_detail::run_scenario_with_write_failures(const Scenario& sc,
   ControlColumns control_columns(sc, ctl ? ctl->loop.get() : nullptr);  // docs/control.md
   if (ctl) control_columns.set_plant(*ctl->plant);  // the closure / squeeze force
   const std::vector<std::string> header =
-      run_csv_header(sys, balance, ctl ? nullptr : &force_columns, control_columns);
+      io_detail::run_csv_header(sys, balance, ctl ? nullptr : &force_columns, control_columns);
   const RunSetup setup{sc, options, ctl.get(), sys, force_columns, control_columns, header};
   bool split_unique = true;
   std::optional<CsvWriter> csv;
@@ -817,7 +859,13 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
       rep.stats.structural_redundancy > 0
           ? fmt::format(", {} redundant around the motion", rep.stats.structural_redundancy)
           : "");
-  os << fmt::format("  max |residual|      {:.3e} ({})\n", worst.value, p(worst.row));
+  const System& sys = rep.plant ? *rep.plant : *sc.system;
+  const WorstResidual vworst = worst_velocity_residual(sys, rep);
+  if (worst.row != "-" || vworst.row == "-")
+    os << fmt::format("  max |residual|      {:.3e} ({})\n", worst.value, p(worst.row));
+  if (vworst.row != "-")  // nonholonomic rows: no position residual, B qdot + c instead
+    os << fmt::format("  max |vel. residual| {:.3e} ({}, velocity level: B qdot + c)\n",
+                      vworst.value, p(vworst.row));
   os << fmt::format("  max |A qdd - b|     {:.3e}\n", rep.max_acc_residual);
   if (const ErrorEstimate& e = rep.error_estimate; e.requested) {  // docs/accuracy.md
     os << (e.shadow_status.empty()

@@ -1,5 +1,6 @@
 #include "run/run_observer.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -12,6 +13,8 @@ SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balanc
       balance_(balance),
       needs_(needs),
       row_(row_size, 0.0),
+      vel_(velocity_level_rows(system)),
+      any_vel_(std::find(vel_.begin(), vel_.end(), true) != vel_.end()),
       phi_(Vec::Zero(system.rows())),
       phid_(Vec::Zero(system.rows())) {
   const auto m = static_cast<std::size_t>(system.rows());
@@ -26,7 +29,9 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   const Index n = sys_.dof();
   const Index m = sys_.rows();
   if (m > 0) position_residuals(sys_, t, q, phi_);
-  if (m > 0 && needs_.velocity_residuals) velocity_residuals(sys_, t, q, qd, phid_);
+  // (the row's vres_ columns need them too)
+  const bool phid = needs_.velocity_residuals || (needs_.row && any_vel_);
+  if (m > 0 && phid) velocity_residuals(sys_, t, q, qd, phid_);
   const double T = kinetic_energy(d, qd);
   const double V = potential_energy(sys_, t, q);
   const double E = T + V;
@@ -60,7 +65,7 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   for (Index i = 0; i < n; ++i) row[k++] = qd(i);
   for (Index i = 0; i < n; ++i) row[k++] = d.qdd(i);
   for (Index i = 0; i < n; ++i) row[k++] = d.Qc(i);
-  for (Index i = 0; i < m; ++i) row[k++] = phi_(i);
+  for (Index i = 0; i < m; ++i) row[k++] = vel_[static_cast<std::size_t>(i)] ? phid_(i) : phi_(i);
   row[k++] = T;
   row[k++] = V;
   row[k++] = E;

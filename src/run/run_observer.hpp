@@ -10,8 +10,10 @@
 #include <limits>
 #include <vector>
 
-#include "ukdyn/run/run.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/output/constraint_force_output.hpp"
+#include "ukdyn/output/control_output.hpp"
+#include "ukdyn/run/run.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -19,6 +21,13 @@ namespace ukdyn::io_detail {
 inline double nanmax(double a, double b) {
   return std::isnan(a) || std::isnan(b) ? std::numeric_limits<double>::quiet_NaN() : std::max(a, b);
 }
+
+/// The columns of a run's trajectory.csv (`ukdyn simulate`, the sweep's column metrics):
+/// trajectory_header(), the frame constraints' forces (`forces`; null for a control run), then
+/// the control and motor columns.
+std::vector<std::string> run_csv_header(const System& sys, bool balance,
+                                        const ConstraintForceColumns* forces,
+                                        const ControlColumns& control_columns);
 
 class SampleRecorder {
  public:
@@ -50,6 +59,8 @@ class SampleRecorder {
   bool balance_;
   Needs needs_;
   std::vector<double> row_;
+  std::vector<bool> vel_;  // per constraint row: velocity-level (its column is B q̇ + c)
+  bool any_vel_ = false;
   Vec phi_, phid_;
   double balance0_ = 0.0;
   long count_ = 0;

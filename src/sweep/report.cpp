@@ -71,6 +71,7 @@ void print_sweep_report(std::ostream& os, const Sweep& sw, const SweepReport& re
     os << fmt::format("  ... and {} more failed samples (summary.json)\n",
                       rep.failures.size() - shown);
   if (!rep.figure_error.empty()) os << "  figures: " << printable(rep.figure_error) << "\n";
+  for (const auto& note : rep.figure_notes) os << "  figure not drawn: " << printable(note) << "\n";
 }
 
 }  // namespace ukdyn

@@ -48,8 +48,8 @@ using io_detail::nanmax;
 // from the SampleRecorder that run_scenario() uses (run/run_observer.hpp); kept here: max |Qc|, the
 // final state and the statistics of chosen columns.
 struct SampleObserver {
-  SampleObserver(const System& s, bool balance, std::size_t row_size, std::vector<std::size_t> cols,
-                 bool need_sigma)
+  SampleObserver(const System& s, bool balance, std::size_t row_size,
+                 std::vector<std::vector<std::size_t>> cols, bool need_sigma)
       : recorder(s, rep, balance, row_size, {!cols.empty(), false, need_sigma}),
         col_index(std::move(cols)),
         max_qc(Vec::Zero(s.dof())),
@@ -60,7 +60,8 @@ struct SampleObserver {
         cabs(col_index.size(), 0.0) {}
   RunReport rep;  // (before the recorder, which writes into it)
   io_detail::SampleRecorder recorder;
-  std::vector<std::size_t> col_index;  // into the trajectory row, per ColumnMetric
+  // into the trajectory row, per ColumnMetric: its column, or the columns of its norm
+  std::vector<std::vector<std::size_t>> col_index;
   Vec max_qc, q_last, qd_last;
   std::vector<double> cmin, cmax, csq, clast, cabs;
   long count = 0;
@@ -68,6 +69,9 @@ struct SampleObserver {
   // and their extrema once the run is over.
   ControlColumns* control = nullptr;
   std::size_t control_at = 0;
+  // The frame constraints' columns (only when a metric names one), before the control columns.
+  ConstraintForceColumns* forces = nullptr;
+  std::size_t forces_at = 0;
   ControlColumns::Peaks peaks;
 
   [[nodiscard]] double max_residual() const {
@@ -78,13 +82,20 @@ struct SampleObserver {
 
   bool operator()(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
     recorder.record(t, q, qd, d);
+    if (forces != nullptr) forces->fill(q, d, recorder.row().data() + forces_at);
     if (control != nullptr) control->fill(t, q, qd, d, recorder.row().data() + control_at);
     for (Index i = 0; i < max_qc.size(); ++i) max_qc(i) = nanmax(max_qc(i), std::abs(d.Qc(i)));
     q_last = q;
     qd_last = qd;
     const std::vector<double>& row = recorder.row();
     for (std::size_t c = 0; c < col_index.size(); ++c) {
-      const double v = row[col_index[c]];
+      const std::vector<std::size_t>& ix = col_index[c];
+      double v = row[ix.front()];
+      if (ix.size() > 1) {  // a norm (docs/sweeps.md)
+        double sq = 0.0;
+        for (std::size_t i : ix) sq += row[i] * row[i];
+        v = std::sqrt(sq);
+      }
       if (count == 0) {
         cmin[c] = cmax[c] = v;
       } else {
@@ -206,17 +217,33 @@ bool SampleRunner::prepare_initial_state(Scenario& sc, SampleOutcome& out) const
 
 // The trajectory row's index of each column metric; need_sigma: one of them is sigma_min (an SVD
 // per sample only with simulation.sigma_min: svd).
-std::vector<std::size_t> SampleRunner::metric_column_indices(const std::vector<std::string>& th,
-                                                             bool& need_sigma) const {
-  std::vector<std::size_t> cols;
+std::vector<std::vector<std::size_t>> SampleRunner::metric_column_indices(
+    const std::vector<std::string>& th, bool& need_sigma) const {
+  std::vector<std::vector<std::size_t>> cols;
   need_sigma = false;
   for (const auto& c : sw_.metrics.columns) {
-    const auto it = std::find(th.begin(), th.end(), c.column);
-    if (it == th.end()) throw Error("no trajectory column named '" + c.column + "'");
-    cols.push_back(static_cast<std::size_t>(it - th.begin()));
-    need_sigma = need_sigma || c.column == "sigma_min";
+    std::vector<std::size_t> ix;
+    for (const auto& name : c.norm.empty() ? std::vector<std::string>{c.column} : c.norm) {
+      const auto it = std::find(th.begin(), th.end(), name);
+      if (it == th.end()) throw Error("no trajectory column named '" + name + "'");
+      ix.push_back(static_cast<std::size_t>(it - th.begin()));
+      need_sigma = need_sigma || name == "sigma_min";
+    }
+    cols.push_back(std::move(ix));
   }
   return cols;
+}
+
+// Whether a column metric names a column that only the frame constraints' columns have.
+bool SampleRunner::needs_force_columns(const std::vector<std::string>& th) const {
+  const auto missing = [&th](const std::string& n) {
+    return std::find(th.begin(), th.end(), n) == th.end();
+  };
+  for (const auto& c : sw_.metrics.columns) {
+    if (c.norm.empty() ? missing(c.column) : std::any_of(c.norm.begin(), c.norm.end(), missing))
+      return true;
+  }
+  return false;
 }
 
 // Integrates the sample, its metrics into out.obs. ctl: its control run, built here and released
@@ -232,23 +259,29 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
     ctl = make_control_run(sc);
   }
   const System& psys = ctl ? *ctl->plant : sys;
+  // The columns of the run's trajectory.csv (io_detail::run_csv_header, as `ukdyn simulate`); the
+  // frame constraints' columns are computed only when a metric names one of them.
   std::optional<ControlColumns> cc;
-  auto th = trajectory_header(psys, balance);
-  const std::size_t control_at = th.size();
-  if (ctl) {
-    cc.emplace(sc, ctl->loop.get());
-    cc->set_plant(*ctl->plant);
-    th.insert(th.end(), cc->header().begin(), cc->header().end());
-  }
+  cc.emplace(sc, ctl ? ctl->loop.get() : nullptr);
+  if (ctl) cc->set_plant(*ctl->plant);
+  std::optional<ConstraintForceColumns> fc;
+  if (!ctl && needs_force_columns(io_detail::run_csv_header(psys, balance, nullptr, *cc)))
+    fc.emplace(sc);
+  const auto th = io_detail::run_csv_header(psys, balance, fc ? &*fc : nullptr, *cc);
+  const std::size_t forces_at = trajectory_header(psys, balance).size();
+  const std::size_t control_at = forces_at + (fc ? fc->header().size() : 0);
   bool need_sigma = false;
-  std::vector<std::size_t> cols = metric_column_indices(th, need_sigma);
+  std::vector<std::vector<std::size_t>> cols = metric_column_indices(th, need_sigma);
   const Vec& q0 = ctl ? ctl->q0 : sc.q0;
   const Vec& qd0 = ctl ? ctl->qd0 : sc.qd0;
   out.obs.emplace(psys, balance, th.size(), std::move(cols), need_sigma && sc.sim.sigma_min_svd);
   out.obs->q_last = q0;
   out.obs->qd_last = qd0;
-  out.obs->control = cc ? &*cc : nullptr;
+  const bool row = !out.obs->col_index.empty();
+  out.obs->control = ctl || (row && !cc->empty()) ? &*cc : nullptr;
   out.obs->control_at = control_at;
+  out.obs->forces = row && fc && !fc->empty() ? &*fc : nullptr;
+  out.obs->forces_at = forces_at;
   SimulationSettings settings = sc.sim;
   settings.cancel = cancel;
   if (!ctl) settings.tau_jacobian = zero_force_jacobian;  // constant τ (bdf / esdirk's Jacobian)
@@ -260,8 +293,9 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
   out.stats = simulate(
       psys, q0, qd0, f, settings,
       [&o](double t, CVecRef q, CVecRef qd, const ForwardData& d) { return o(t, q, qd, d); });
-  if (cc) out.obs->peaks = cc->peaks();
+  if (ctl) out.obs->peaks = cc->peaks();
   out.obs->control = nullptr;
+  out.obs->forces = nullptr;
   cc.reset();
   out.status = to_string(out.stats.status);
   out.reason = out.stats.message;

@@ -41,8 +41,9 @@ class SampleRunner {
   struct SampleOutcome;
 
   bool prepare_initial_state(Scenario& sc, SampleOutcome& out) const;
-  std::vector<std::size_t> metric_column_indices(const std::vector<std::string>& th,
-                                                 bool& need_sigma) const;
+  std::vector<std::vector<std::size_t>> metric_column_indices(const std::vector<std::string>& th,
+                                                              bool& need_sigma) const;
+  [[nodiscard]] bool needs_force_columns(const std::vector<std::string>& th) const;
   void simulate_sample(const Scenario& sc, std::unique_ptr<ControlRun>& ctl,
                        const std::atomic<bool>* cancel, SampleOutcome& out);
   std::vector<std::string> metric_cells(const SampleObserver& o) const;

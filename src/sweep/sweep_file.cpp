@@ -14,6 +14,7 @@
 #include <utility>
 
 #include "core/fnv1a.hpp"
+#include "run/run_observer.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "scenario/yaml_paths.hpp"
 #include "sweep/sampling.hpp"
@@ -166,15 +167,28 @@ void load_metrics(const Loader& L, const Node& m, SweepMetrics& mx) {
       } else {
         L.fail(e, "unknown metric '" + s +
                       "' (expected max_residual, energy_drift, energy_balance_drift, "
-                      "max_abs_Qc, final_state, control, squeeze_force or {column: NAME, stats: "
-                      "[min, max, rms, "
-                      "max_abs, final]})");
+                      "max_abs_Qc, final_state, control, squeeze_force, {column: NAME, stats: "
+                      "[min, max, rms, max_abs, final]} or {norm: [COLUMN, ...], name: NAME, "
+                      "stats: [...]})");
       }
       continue;
     }
-    L.only_keys(e, {"column", "stats"});
+    L.only_keys(e, {"column", "norm", "name", "stats"});
     ColumnMetric c;
-    c.column = L.string(L.child(e, "column", true));
+    const Node col = L.child(e, "column", false), nm = L.child(e, "norm", false);
+    if (col.node.IsDefined() == nm.node.IsDefined())
+      L.fail(e, "a column metric takes either column: NAME or norm: [COLUMN, ...] with name: NAME");
+    if (col.node.IsDefined()) {
+      if (L.child(e, "name", false).node.IsDefined())
+        L.fail(L.child(e, "name", false),
+               "name: goes with norm: (a column metric is named by its column)");
+      c.column = L.string(col);
+    } else {
+      if (!nm.node.IsSequence() || nm.node.size() == 0) L.fail(nm, "expected a list of columns");
+      for (std::size_t k = 0; k < nm.node.size(); ++k)
+        c.norm.push_back(L.string(Node{nm.node[k], nm.key + "[" + std::to_string(k) + "]"}));
+      c.column = L.name(L.child(e, "name", true));
+    }
     const Node st = L.child(e, "stats", false);
     if (st.node.IsDefined()) {
       if (!st.node.IsSequence() || st.node.size() == 0) L.fail(st, "expected a list of stats");
@@ -361,8 +375,13 @@ void check_unique_columns(const Loader& L, const Node& root, const Node& ps, con
 // The trajectory columns a run of the base scenario has (those the column metrics may name).
 std::vector<std::string> base_run_columns(const Loader& L, const Node& bn, const Node& metrics_node,
                                           const Sweep& sw, const Scenario& base) {
-  std::vector<std::string> h = trajectory_header(*base.system, base.sim.energy_balance);
-  if (base.control) {
+  std::vector<std::string> h;
+  if (!base.control) {  // as trajectory.csv of `ukdyn simulate`
+    const ConstraintForceColumns forces(base);
+    return io_detail::run_csv_header(*base.system, base.sim.energy_balance, &forces,
+                                     ControlColumns(base, nullptr));
+  }
+  {
     // The columns of a control run: the plant's, then the control columns (as in trajectory.csv).
     std::unique_ptr<ControlRun> ctl;
     try {
@@ -382,6 +401,34 @@ std::vector<std::string> base_run_columns(const Loader& L, const Node& bn, const
   return h;
 }
 
+// Every column a column metric names (column:, the entries of norm:) must be one of the run's
+// columns `h`; the error names the metric's own line and key.
+void check_metric_columns(const Loader& L, const Node& m, const std::vector<std::string>& h) {
+  if (!m.node.IsDefined()) return;
+  const auto check = [&](const Node& n) {
+    const std::string c = L.string(n);
+    if (std::find(h.begin(), h.end(), c) != h.end()) return;
+    std::string near;  // the columns of the same family (up to the first '_'), a few of them
+    const std::string family = c.substr(0, c.find('_') + 1);
+    int shown = 0;
+    for (const auto& x : h) {
+      if (x.rfind(family, 0) != 0 || family.size() < 2) continue;
+      if (shown++ < 8) near += (near.empty() ? "" : ", ") + x;
+    }
+    L.fail(n, "no column named '" + c + "' in the base scenario's trajectory.csv" +
+                  (near.empty() ? std::string(" (docs/sweeps.md lists the column families)")
+                                : " (columns like it: " + near + (shown > 8 ? ", ..." : "") + ")"));
+  };
+  for (std::size_t i = 0; i < m.node.size(); ++i) {
+    const Node e{m.node[i], m.key + "[" + std::to_string(i) + "]"};
+    if (!e.node.IsMap()) continue;
+    if (const Node c = L.child(e, "column", false); c.node.IsDefined()) check(c);
+    if (const Node n = L.child(e, "norm", false); n.node.IsDefined())
+      for (std::size_t k = 0; k < n.node.size(); ++k)
+        check(Node{n.node[k], n.key + "[" + std::to_string(k) + "]"});
+  }
+}
+
 // The base scenario itself must load (its own errors name its own file and lines), and the
 // metrics must fit it.
 void check_against_base(const Loader& L, const Node& root, const Node& ps, const Node& bn,
@@ -395,16 +442,7 @@ void check_against_base(const Loader& L, const Node& root, const Node& ps, const
            "the metrics control and squeeze_force need a base scenario with a "
            "control: section (docs/control.md)");
   const std::vector<std::string> h = base_run_columns(L, bn, metrics_node, sw, base);
-  // Each {column: NAME} metric is named at its own key (metrics[i].column).
-  const Node mn = L.child(root, "metrics", false);
-  for (std::size_t i = 0; mn.node.IsSequence() && i < mn.node.size(); ++i) {
-    const Node e{mn.node[i], mn.key + "[" + std::to_string(i) + "]"};
-    if (!e.node.IsMap()) continue;
-    const Node cn = L.child(e, "column", true);
-    const std::string c = L.string(cn);
-    if (std::find(h.begin(), h.end(), c) == h.end())
-      L.fail(cn, "no trajectory column named '" + c + "' in a run of the base scenario");
-  }
+  check_metric_columns(L, L.child(root, "metrics", false), h);
 }
 
 }  // namespace

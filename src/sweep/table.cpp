@@ -116,6 +116,7 @@ void write_outputs(const OutputDir& out, const Sweep& sw, const Table& t, const 
   for (const auto& f : rep.figures) figs.push_back(f.lexically_relative(out.path()).string());
   j["figures"] = figs;
   if (!rep.figure_error.empty()) j["figure_error"] = rep.figure_error;
+  if (!rep.figure_notes.empty()) j["figures_left_out"] = rep.figure_notes;
   {
     AtomicFile f(out, out.fd(), "", kSummary);
     f.write(j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");

@@ -368,6 +368,15 @@ void FrameWrenchMap::jacobians(const Vec& q, Mat& Ja, Mat& Jb) const {
   }
 }
 
+void FrameWrenchMap::jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const {
+  tape_.eval(0.0, q.data(), nullptr, ws.out.data(), ws.work.data());
+  auto k = static_cast<std::size_t>(12 * rows() + 24);
+  for (Mat* J : {&Ja, &Jb}) {
+    for (Index r = 0; r < 6; ++r)
+      for (Index j = 0; j < n_; ++j) (*J)(r, j) = ws.out[k++];
+  }
+}
+
 FrameWrenchMap::Workspace FrameWrenchMap::workspace() const {
   return Workspace{std::vector<double>(tape_.outputs()), std::vector<double>(tape_.work_size()),
                    Mat(rows(), 6), Mat(rows(), 6)};

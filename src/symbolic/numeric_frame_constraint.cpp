@@ -636,6 +636,13 @@ class NumericFrameWrenches final : public FrameWrenches {
       twist_jacobian(b, core_->b().cols, n_, Jb);
     });
   }
+  void jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const override {
+    core_->with(q, q, Slot(ws.out),
+                [&](const FrameState& a, const FrameState& b, const RowValues<double>&) {
+                  twist_jacobian(a, core_->a().cols, n_, Ja);
+                  twist_jacobian(b, core_->b().cols, n_, Jb);
+                });
+  }
 
  private:
   std::shared_ptr<const Core> core_;

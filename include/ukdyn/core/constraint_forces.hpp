@@ -17,7 +17,9 @@
 // Both internal parts lie in null(G): G w_int = 0.
 #pragma once
 
+#include <Eigen/Cholesky>
 #include <Eigen/QR>
+#include <Eigen/SVD>
 #include <vector>
 
 #include "ukdyn/core/types.hpp"
@@ -65,6 +67,35 @@ Vec internal_wrench_walker(const Mat& G, const Vec& w);
 /// (I − G*G) w, G* = Λ Gᵀ (G Λ Gᵀ)⁺, [Verginis2019]. Λ: 6N × 6N, symmetric positive semidefinite
 /// with G Λ Gᵀ invertible.
 Vec internal_wrench_weighted(const Mat& G, const Mat& Lambda, const Vec& w);
+
+/// G for grasp points p_k and reference r into G (6 × 6N, sized by the caller): no allocation.
+void grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference, Mat& G);
+
+/// The buffers of internal_wrenches() for N grasps and agents of n_a coordinates, allocated once.
+/// The caller fills points, w, J and M; internal_wrenches() fills walker and weighted.
+struct InternalWrenchWorkspace {
+  InternalWrenchWorkspace(Index grasps, Index agent_dof);
+  std::vector<Vec3> points;  ///< N grasp points (world)
+  Vec w;                     ///< 6N: [f_k; m_k] on the load, moments about p_k (world axes)
+  Mat J;                     ///< 6N × n_a: the agents' twist Jacobians at the grasps
+  Mat M;                     ///< n_a × n_a: the agents' mass matrix
+  Vec walker, weighted;      ///< 6N: (I − G⁺G) w and (I − G*G) w
+  bool weighted_ok = false;  ///< M was positive definite (else `weighted` is NaN)
+  // the buffers
+  Mat G, MinvJt, K, Lambda, LGt, tmpN, S, S6;
+  Eigen::LLT<Mat> llt;
+  Eigen::LLT<Mat> llt_big;
+  Eigen::JacobiSVD<Mat> svd_big;
+  Vec inv_big, Gw, y6;
+};
+
+/// internal_wrench_walker() and internal_wrench_weighted() with Λ = task_space_inertia(M, J), the
+/// same formulas (G⁺ = Gᵀ(G Gᵀ)⁺; the pseudo-inverses of the symmetric positive semidefinite
+/// G Gᵀ, J M⁻¹ Jᵀ and G Λ Gᵀ by Cholesky when well conditioned, where they equal the inverse,
+/// else by SVD with the same cut-off), into ws's
+/// buffers: no heap allocation once ws exists (tests/test_no_alloc.cpp). The reference point is
+/// the first grasp point (both internal parts do not depend on it: null(G) does not, nor G*G).
+void internal_wrenches(InternalWrenchWorkspace& ws);
 
 /// Λ = (J M⁻¹ Jᵀ)⁺: the inertia seen at the grasp frames of twist Jacobian J (6N × n), M the mass
 /// matrix (positive definite). For a free rigid body J is square and Λ its spatial inertia at the

@@ -87,10 +87,20 @@ struct WorstResidual {
   double value = 0.0;
   std::string row = "-";
 };
+/// (Position-level rows only: a velocity-level row has no position residual.)
 WorstResidual worst_position_residual(const System& system, const RunReport& report);
+/// The largest velocity residual |B q̇ + c| of the velocity-level (nonholonomic) rows ("-" if the
+/// system has none).
+WorstResidual worst_velocity_residual(const System& system, const RunReport& report);
 
-/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row>, T, V, E,
-/// diagnostics, and with `energy_balance` W and E_balance = E − W at the end.
+/// For each constraint row: true if it is velocity-level (nonholonomic, B(q, t) q̇ + c(q, t) = 0:
+/// a `type: nonholonomic` block, the rolling rows of wheeled platforms), false if it is
+/// position-level (Φ(q, t) = 0).
+std::vector<bool> velocity_level_rows(const System& system);
+
+/// The CSV header for a system: t, q names, <name>_dot, <name>_ddot, Qc_<name>, res_<row> (Φ of a
+/// position-level row) or vres_<row> (B q̇ + c of a velocity-level row), T, V, E, diagnostics, and
+/// with `energy_balance` W and E_balance = E − W at the end.
 std::vector<std::string> trajectory_header(const System& system, bool energy_balance = false);
 
 /// Simulates the scenario into out_dir (created if needed; see output_dir.hpp for what ukdyn

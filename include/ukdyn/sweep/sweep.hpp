@@ -42,10 +42,12 @@ struct SweepParameter {
   SweepDistribution dist;
 };
 
-/// A statistic of one CSV column over the output samples of a run.
+/// A statistic of one trajectory.csv column, or of the Euclidean norm of several, over the output
+/// samples of a run.
 struct ColumnMetric {
-  std::string column;
+  std::string column;              ///< the column, or the name of the norm
   std::vector<std::string> stats;  ///< "min", "max", "rms", "max_abs", "final"
+  std::vector<std::string> norm;   ///< non-empty: √(Σ c²) over these columns at each sample
 };
 
 struct SweepMetrics {
@@ -128,7 +130,8 @@ struct SweepReport {
   std::filesystem::path table, summary;
   std::vector<std::filesystem::path> figures;
   std::string figure_error;
-  std::vector<std::string> failures;  ///< "sample K: status: reason"
+  std::vector<std::string> figure_notes;  ///< the figures not drawn, and why
+  std::vector<std::string> failures;      ///< "sample K: status: reason"
 };
 
 /// The most worker threads a sweep takes: 4 per hardware thread, at least 16, at most 256 (more

@@ -126,6 +126,9 @@ class FrameWrenches {
   virtual void maps(const Vec& q, Mat& Ga, Mat& Gb) const = 0;
   /// Twist Jacobians of the frames a and b (6 × n) at q.
   virtual void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const = 0;
+  /// The same into Ja, Jb already sized 6 × n, with the buffers of ws (from workspace()): no heap
+  /// allocation.
+  virtual void jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const = 0;
 
  protected:
   FrameWrenches(std::string name, std::string frame_a, std::string frame_b,
@@ -159,6 +162,7 @@ class FrameWrenchMap final : public FrameWrenches {
   void evaluate(CVecRef q, const Vec& lambda, Workspace& ws, FrameWrench& w) const override;
   void maps(const Vec& q, Mat& Ga, Mat& Gb) const override;
   void jacobians(const Vec& q, Mat& Ja, Mat& Jb) const override;
+  void jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const override;
 
  private:
   Index n_ = 0;
