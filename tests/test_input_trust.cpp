@@ -239,7 +239,25 @@ TEST(SweepFile, MetricColumnErrorNamesItsKey) {
         list_sweep("base.yaml", "metrics:\n  - max_residual\n  - {column: nope, stats: [max]}\n"));
   const std::string e = error_of([&] { ukdyn::load_sweep(dir.path / "s.yaml"); });
   EXPECT_NE(e.find("s.yaml:11:"), std::string::npos) << e;
-  EXPECT_NE(e.find("key 'metrics[1].column': no trajectory column named 'nope'"), std::string::npos)
+  EXPECT_NE(e.find("key 'metrics[1].column': no column named 'nope'"), std::string::npos) << e;
+}
+
+// A sweep runs no shadow per sample (docs/accuracy.md): a base that asks for the error estimate is
+// refused at its base: key rather than run without it.
+TEST(SweepFile, ABaseAskingForTheErrorEstimateIsRefused) {
+  ScratchDir dir("ukdyn_sweep_error_estimate");
+  std::string base = servo("");
+  const std::string sim = "simulation: {t_end: 0.2, sample_dt: 0.01}";
+  const auto pos = base.find(sim);
+  ASSERT_NE(pos, std::string::npos);
+  base.replace(pos, sim.size(),
+               "simulation: {t_end: 0.2, sample_dt: 0.01, error_estimate: shadow}");
+  write(dir.path / "base.yaml", base);
+  write(dir.path / "s.yaml", list_sweep("base.yaml"));
+  const std::string e = error_of([&] { ukdyn::load_sweep(dir.path / "s.yaml"); });
+  EXPECT_NE(e.find("key 'base'"), std::string::npos) << e;
+  EXPECT_NE(e.find("error_estimate: shadow, which a sweep does not run per sample"),
+            std::string::npos)
       << e;
 }
 

@@ -729,6 +729,31 @@ void load_jacobian(const Loader& L, const Node& s, SimulationSettings& sim) {
     L.fail(jn, "only used with integrator bdf or esdirk (the implicit integrators)");
 }
 
+// simulation: what each sample carries besides the state — the energy balance, the sigma_min
+// column, the shadow run's error estimate. applied: as load_simulation().
+void load_sample_options(const Loader& L, const Node& s, Scenario& sc, bool applied) {
+  auto& sim = sc.sim;
+  // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
+  sim.energy_balance = applied;
+  if (Node eb = L.child(s, "energy_balance", false); eb.node.IsDefined()) {
+    const std::string v = L.string(eb);
+    if (v != "true" && v != "false") L.fail(eb, "expected true or false");
+    sim.energy_balance = v == "true";
+  }
+  // The run's global error by a shadow run at tighter settings (docs/accuracy.md).
+  if (Node ee = L.child(s, "error_estimate", false); ee.node.IsDefined()) {
+    const std::string v = L.string(ee);
+    if (v != "shadow" && v != "none") L.fail(ee, "expected shadow or none");
+    sc.error_estimate = v == "shadow";
+  }
+  // The sigma_min column: the solve's pivot estimate, or an SVD per sample (simulate.hpp).
+  if (Node sm = L.child(s, "sigma_min", false); sm.node.IsDefined()) {
+    const std::string v = L.string(sm);
+    if (v != "estimate" && v != "svd") L.fail(sm, "expected estimate or svd");
+    sim.sigma_min_svd = v == "svd";
+  }
+}
+
 // simulation: the time span, sampling, integrator, tolerances and drift control.
 // applied: the system has state-dependent applied forces (energy balance on by default).
 void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool applied) {
@@ -780,25 +805,7 @@ void load_simulation(const Loader& L, const Node& root, Scenario& sc, bool appli
       L.fail(ad, "the esdirk integrator is always adaptive");
   }
   load_jacobian(L, s, sim);
-  // Energy balance E − W (simulate.hpp): on by default with state-dependent forces.
-  sim.energy_balance = applied;
-  if (Node eb = L.child(s, "energy_balance", false); eb.node.IsDefined()) {
-    const std::string v = L.string(eb);
-    if (v != "true" && v != "false") L.fail(eb, "expected true or false");
-    sim.energy_balance = v == "true";
-  }
-  // The run's global error by a shadow run at tighter settings (docs/accuracy.md).
-  if (Node ee = L.child(s, "error_estimate", false); ee.node.IsDefined()) {
-    const std::string v = L.string(ee);
-    if (v != "shadow" && v != "none") L.fail(ee, "expected shadow or none");
-    sc.error_estimate = v == "shadow";
-  }
-  // The sigma_min column: the solve's pivot estimate, or an SVD per sample (simulate.hpp).
-  if (Node sm = L.child(s, "sigma_min", false); sm.node.IsDefined()) {
-    const std::string v = L.string(sm);
-    if (v != "estimate" && v != "svd") L.fail(sm, "expected estimate or svd");
-    sim.sigma_min_svd = v == "svd";
-  }
+  load_sample_options(L, s, sc, applied);
   if (Node dr = L.child(s, "drift", false); dr.node.IsDefined()) {
     L.only_keys(dr, {"method", "alpha", "beta", "branch_factor", "on_branch_switch"});
     // The branch check of the projection (docs/singular-positions.md).

@@ -282,6 +282,9 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
   out.obs->control_at = control_at;
   out.obs->forces = row && fc && !fc->empty() ? &*fc : nullptr;
   out.obs->forces_at = forces_at;
+  if (sc.error_estimate)  // set: by the sweep (the base is refused at load): not run per sample
+    throw Error(
+        "simulation.error_estimate: shadow is not run per sample by a sweep (docs/accuracy.md)");
   SimulationSettings settings = sc.sim;
   settings.cancel = cancel;
   if (!ctl) settings.tau_jacobian = zero_force_jacobian;  // constant τ (bdf / esdirk's Jacobian)

@@ -376,6 +376,11 @@ void check_unique_columns(const Loader& L, const Node& root, const Node& ps, con
 std::vector<std::string> base_run_columns(const Loader& L, const Node& bn, const Node& metrics_node,
                                           const Sweep& sw, const Scenario& base) {
   std::vector<std::string> h;
+  // A sweep runs no shadow per sample (docs/accuracy.md): refused rather than silently left out.
+  if (base.error_estimate)
+    L.fail(bn,
+           "the base scenario asks for simulation.error_estimate: shadow, which a sweep does not "
+           "run per sample (extract a sample with --extract N and run it with ukdyn simulate)");
   if (!base.control) {  // as trajectory.csv of `ukdyn simulate`
     const ConstraintForceColumns forces(base);
     return io_detail::run_csv_header(*base.system, base.sim.energy_balance, &forces,
