@@ -15,7 +15,11 @@
 // - linearize(): exact ∂q̈/∂q, ∂q̈/∂q̇ against central differences of forward().
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <numbers>
 #include <random>
 #include <string>
@@ -23,6 +27,7 @@
 
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
@@ -63,7 +68,7 @@ std::string constant_torques(double t1, double t2, double t3, double t4) {
 
 struct Sample {
   double t;
-  Vec q, qd, qdd;
+  Vec q, qd, qdd, Qc;
 };
 
 // Runs the scenario; every sample with q̈ from an independent forward() call.
@@ -75,7 +80,7 @@ std::vector<Sample> run(const ukdyn::Scenario& sc) {
       ukdyn::simulate(*sc.system, sc.q0, sc.qd0, tau, sc.sim,
                       [&](double t, CVecRef q, CVecRef qd, const ukdyn::ForwardData&) {
                         ukdyn::forward(*sc.system, d, t, q, qd, sc.tau);
-                        out.push_back({t, q, qd, d.qdd});
+                        out.push_back({t, q, qd, d.qdd, d.Qc});
                         return true;
                       });
   EXPECT_EQ(stats.status, ukdyn::RunStatus::completed) << stats.message;
@@ -678,6 +683,141 @@ TEST(WheeledPaper, ReproducesThePapersRunWithTheYawHeld) {
   }
   EXPECT_LT(worst, 1e-10);     // measured 2.8e-15
   EXPECT_LT(worst_ik, 1e-10);  // the wheels' rates up to 15.7 rad/s
+}
+
+// Hᵀ τ for the X layout: the wheel torques τ (FL, FR, RL, RR) as the platform force (F_u, F_w, M_z)
+// in the platform frame; H is mecanum_ik's matrix, φ̇ = H ν, and virtual work gives Hᵀ.
+std::array<double, 3> mecanum_wrench(const std::array<double, 4>& tau) {
+  const double L = kLx + kLy;
+  return {(tau[0] + tau[1] + tau[2] + tau[3]) / kRadius,
+          (-tau[0] + tau[1] + tau[2] - tau[3]) / kRadius,
+          L * (-tau[0] + tau[1] - tau[2] + tau[3]) / kRadius};
+}
+
+// The paper's platform force carried by the wheels instead. In paper_mecanum.yaml only the rolling
+// rows act on the wheel angles, so Qc at a wheel angle is the torque the floor puts on that wheel
+// through its row, and the rows' force on the platform is −Hᵀ of it. Moving the platform's whole
+// constraint force F onto the wheels as torques τ with Hᵀ τ = F (least norm: τ = H (HᵀH)⁻¹ F)
+// changes the generalized force by a combination of the rolling rows, so the platform with the
+// rolling rows only, driven by those torques and by the other coordinates' Qc, must move as the
+// run does ([Muir1987]: the wheel forces' resultant on the platform is the transpose of the
+// inverse kinematics).
+TEST(WheeledPaper, WheelTorquesCarryThePapersPlatformForce) {
+  const std::filesystem::path root = std::filesystem::path(UKDYN_SOURCE_DIR) / "scenarios";
+  ukdyn::Scenario wheels = ukdyn::load_scenario(root / "paper_mecanum.yaml");
+  ukdyn::Scenario paper = ukdyn::load_scenario(root / "paper_chain.yaml");
+  wheels.sim.t_end = paper.sim.t_end = 1.0;
+  const std::vector<Sample> sw = run(wheels), sp = run(paper);
+  ASSERT_EQ(sw.size(), sp.size());
+  // The same scenario with the rolling rows only: every other row's force becomes an applied one.
+  std::ifstream in(root / "paper_mecanum.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto cut = text.find("  # Eq. (12)"), end = text.find("\ninitial:");
+  ASSERT_NE(cut, std::string::npos);
+  ASSERT_NE(end, std::string::npos);
+  text.erase(cut, end + 1 - cut);
+  const ukdyn::Scenario rolling = ukdyn::load_scenario_text(text, "rolling_only.yaml");
+  ASSERT_EQ(rolling.system->dof(), wheels.system->dof());
+  ukdyn::ForwardData d(*rolling.system);
+  const double L = kLx + kLy;
+  double err_f = 0, f_max = 0, err_spin = 0, spin_max = 0, err_qdd = 0, qdd_max = 0, tau_max = 0;
+  double err_map = 0;
+  for (std::size_t i = 0; i < sw.size(); ++i) {
+    const Sample &w = sw[i], &p = sp[i];
+    Vec applied = w.Qc;
+    for (int robot = 0; robot < 2; ++robot) {
+      const int base = 11 * robot, pb = 6 * robot;
+      for (int k = 0; k < 2; ++k) {  // the platform's total force is the paper's
+        err_f = std::max(err_f, std::abs(w.Qc(base + k) - p.Qc(pb + k)));
+        f_max = std::max(f_max, std::abs(p.Qc(pb + k)));
+      }
+      std::array<double, 4> floor{}, tau_w{};
+      for (int k = 0; k < 4; ++k) {  // passive wheels: the floor spins each one up, J φ̈
+        floor[k] = w.Qc(base + 3 + k);
+        err_spin = std::max(err_spin, std::abs(floor[k] - kSpin * w.qdd(base + 3 + k)));
+        spin_max = std::max(spin_max, std::abs(floor[k]));
+      }
+      const double c = std::cos(w.q(base + 2)), s = std::sin(w.q(base + 2));
+      const double fx = w.Qc(base), fy = w.Qc(base + 1), mz = w.Qc(base + 2);
+      const std::array<double, 3> f = {c * fx + s * fy, -s * fx + c * fy, mz};
+      const double h = kRadius * kRadius / 4;
+      const std::array<double, 4> tau = mecanum_ik({h * f[0], h * f[1], h * f[2] / (L * L)});
+      for (int k = 0; k < 4; ++k) {
+        tau_w[k] = floor[k] + tau[k];
+        applied(base + 3 + k) = tau_w[k];
+        tau_max = std::max(tau_max, std::abs(tau_w[k]));
+      }
+      for (int k = 0; k < 3; ++k) applied(base + k) = 0;
+      // Hᵀ τ_w = F + Hᵀ J φ̈: the paper's force plus the wheels' own spin-up.
+      const auto mapped = mecanum_wrench(tau_w), spinup = mecanum_wrench(floor);
+      for (int k = 0; k < 3; ++k)
+        err_map = std::max(err_map, std::abs(mapped[k] - f[k] - spinup[k]));
+    }
+    ukdyn::forward(*rolling.system, d, w.t, w.q, w.qd, applied);
+    err_qdd = std::max(err_qdd, (d.qdd - w.qdd).lpNorm<Eigen::Infinity>());
+    qdd_max = std::max(qdd_max, w.qdd.lpNorm<Eigen::Infinity>());
+  }
+  std::printf(
+      "[ measured ] paper_mecanum: platform force up to %.4g N (vs paper_chain %.2g), "
+      "floor torque on the passive wheels up to %.3g N m (vs J phi'' %.2g), wheel torques "
+      "up to %.4g N m (H^T tau - F - spin-up %.2g N), q'' with the rolling rows only %.2g "
+      "of %.3g\n",
+      f_max, err_f, spin_max, err_spin, tau_max, err_map, err_qdd, qdd_max);
+  EXPECT_LT(err_f, 1e-9 * f_max);
+  EXPECT_LT(err_spin, 1e-9 * spin_max);
+  EXPECT_LT(err_map, 1e-9 * f_max);
+  EXPECT_LT(err_qdd, 1e-9 * qdd_max);
+}
+
+// scenarios/paper_mecanum_wheels.yaml: the task servo-controlled through the wheel and joint
+// torques alone (law stabilized, ω = 5, the plant is the model). Evidence: the yaw row started
+// 0.02 rad off obeys ë + 2ωė + ω²e = 0 from (e0, 0), e = e0 (1 + ωt) e^{−ωt}; the other servo rows
+// stay at 0; the actuation is exact (no residual); and the four wheels of each platform carry no
+// share along null(Hᵀ) = (1, 1, −1, −1) (FL, FR, RL, RR: torques that only strain the platform
+// against the floor), as the least-norm solution of the redundant actuation must.
+TEST(WheeledPaper, WheelsServoTheTask) {
+  const std::filesystem::path root = std::filesystem::path(UKDYN_SOURCE_DIR) / "scenarios";
+  ukdyn::Scenario sc = ukdyn::load_scenario(root / "paper_mecanum_wheels.yaml");
+  sc.sim.t_end = 2.0;
+  const ukdyn::MemoryRun run = ukdyn::run_scenario_in_memory(sc);
+  ASSERT_TRUE(run.report.complete()) << run.report.stats.message;
+  const std::size_t cols = run.header.size();
+  auto col = [&](const std::string& name) {
+    const auto it = std::find(run.header.begin(), run.header.end(), name);
+    EXPECT_NE(it, run.header.end()) << name;
+    return static_cast<std::size_t>(it - run.header.begin());
+  };
+  const std::size_t t_col = col("t"), psi_e = col("e_hold_psi1"), res = col("act_residual");
+  std::vector<std::size_t> others;
+  for (const char* n : {"e_traj_x", "e_traj_y", "e_traj_z", "e_hold_dx1", "e_hold_dx2",
+                        "e_hold_delta1", "e_hold_psi2"})
+    others.push_back(col(n));
+  const std::size_t w1 = col("u_w1fl"), w2 = col("u_w2fl");
+  ASSERT_EQ(w1 + 3, col("u_w1rr"));
+  ASSERT_EQ(w2 + 3, col("u_w2rr"));
+  const double omega = 5, e0 = 0.02;
+  double err_psi = 0, err_other = 0, worst_res = 0, strain = 0, u_max = 0;
+  for (std::size_t r = 0; r * cols < run.values.size(); ++r) {
+    const double* row = run.values.data() + r * cols;
+    const double t = row[t_col];
+    err_psi = std::max(err_psi, std::abs(row[psi_e] - e0 * (1 + omega * t) * std::exp(-omega * t)));
+    for (const std::size_t c : others) err_other = std::max(err_other, std::abs(row[c]));
+    worst_res = std::max(worst_res, row[res]);
+    for (const std::size_t w : {w1, w2}) {
+      strain = std::max(strain, std::abs(row[w] + row[w + 1] - row[w + 2] - row[w + 3]));
+      for (int k = 0; k < 4; ++k) u_max = std::max(u_max, std::abs(row[w + k]));
+    }
+  }
+  std::printf(
+      "[ measured ] paper_mecanum_wheels: yaw error vs closed form %.2g rad, other servo "
+      "rows %.2g, actuation residual %.2g, wheel torques up to %.4g N m, share along "
+      "null(H^T) %.2g N m\n",
+      err_psi, err_other, worst_res, u_max, strain);
+  EXPECT_LT(err_psi, 1e-8);
+  EXPECT_LT(err_other, 1e-8);
+  EXPECT_LT(worst_res, 1e-8);
+  EXPECT_GT(u_max, 0.1);
+  EXPECT_LT(strain, 1e-9 * u_max);
 }
 
 }  // namespace
