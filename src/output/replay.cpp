@@ -145,6 +145,17 @@ void append_model_json(std::string& d, const Scenario& sc, const ReplayOptions& 
     const auto& s = geo.segments()[i];
     d += fmt::format("{}[{},{},{}]", i ? "," : "", s.a, s.b, js_string(s.kind));
   }
+  d += "],\"solids\":[";
+  for (std::size_t i = 0; i < geo.solids().size(); ++i) {
+    const auto& s = geo.solids()[i];
+    d += (i ? ",{\"name\":" : "{\"name\":") + js_string(s.name) +
+         ",\"shape\":" + js_string(s.shape) + ",\"size\":[";
+    for (int k = 0; k < 3; ++k) {
+      if (k) d += ',';
+      number(d, s.size(k));
+    }
+    d += fmt::format("],\"point\":{}}}", s.point);
+  }
 }
 
 // Comma-separated values of column c over every frame.
@@ -168,6 +179,26 @@ void append_positions_json(std::string& d, const TrajectoryTable& tab,
       for (int k = 0; k < 3; ++k) {
         if (i || k) d += ',';
         number(d, xyz[i](k));
+      }
+    }
+    d += ']';
+  }
+}
+
+// Solid orientations per frame (w, x, y, z of each solid), from q of the CSV row.
+void append_orientations_json(std::string& d, const TrajectoryTable& tab,
+                              const std::vector<std::size_t>& qcol, const Geometry& geo,
+                              Index dof) {
+  Vec q(dof);
+  std::vector<std::array<double, 4>> rot;
+  for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+    for (std::size_t i = 0; i < qcol.size(); ++i) q(static_cast<Index>(i)) = tab.rows[f][qcol[i]];
+    geo.evaluate_orientations(q, rot);
+    d += f ? ",[" : "[";
+    for (std::size_t i = 0; i < rot.size(); ++i) {
+      for (std::size_t k = 0; k < 4; ++k) {
+        if (i || k) d += ',';
+        number(d, rot[i][k]);
       }
     }
     d += ']';
@@ -222,6 +253,8 @@ std::string replay_data_json(const Scenario& sc, const ReplayOptions& options,
   append_column_values(d, tab, 0);
   d += "],\"pos\":[";
   append_positions_json(d, tab, qcol, geo, sc.system->dof());
+  d += "],\"rot\":[";
+  append_orientations_json(d, tab, qcol, geo, sc.system->dof());
   d += "],\"columns\":{";
   append_plot_columns_json(d, tab, qcol);
   d += "},\"groups\":{";
