@@ -2,7 +2,7 @@
 //   t[frames], points[{name, kind}], segments[[a, b, kind]], pos[frames][3·points] (world, z up),
 //   solids[{name, shape: box, size: [edges], point: its centre}], rot[frames][4·solids] (w, x, y, z),
 //   columns{name: values[frames]}, groups{title: [column names]}.
-// Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, project, ready).
+// Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, frames3d, project, ready).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
@@ -87,6 +87,17 @@ const solidMeshes = solids.map((s) => {
   world.add(m);
   return m;
 });
+// Frame constraints' frames (the grasp frames of a weld): small axes (x red, y green, z blue) posed by
+// the CSV's pose_<c>_x, _y, _z, _qw, _qx, _qy, _qz columns (docs/frame-constraints.md).
+const poseKeys = ['x', 'y', 'z', 'qw', 'qx', 'qy', 'qz'];
+const frameAxes = Object.keys(D.columns).filter((n) => /^pose_.+_x$/.test(n)).map((n) => n.slice(5, -2))
+  .filter((c) => poseKeys.every((k) => `pose_${c}_${k}` in D.columns))
+  .map((c) => {
+    const m = new THREE.AxesHelper(extent * 0.08);
+    m.userData = { name: c, cols: poseKeys.map((k) => D.columns[`pose_${c}_${k}`]) };
+    world.add(m);
+    return m;
+  });
 {
   const kinds = [...new Set(D.points.map((p) => p.kind))];
   $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
@@ -143,6 +154,11 @@ function place(f) {
     const q = D.rot[f];
     m.quaternion.set(q[4 * i + 1] ?? 0, q[4 * i + 2] ?? 0, q[4 * i + 3] ?? 0, q[4 * i] ?? 1);
   });
+  for (const m of frameAxes) {
+    const v = m.userData.cols.map((c) => c[f] ?? NaN);
+    m.visible = v.every(Number.isFinite);
+    if (m.visible) { m.position.set(v[0], v[1], v[2]); m.quaternion.set(v[4], v[5], v[6], v[3]).normalize(); }
+  }
   if (markerPoint >= 0) { pointAt(f, markerPoint, va); marker.position.copy(va); }
   if (markerSolid >= 0) {
     const m = solidMeshes[markerSolid];
@@ -310,6 +326,10 @@ window.ukdyn = {
       corners.push([v.x, v.y, v.z]);
     }
     return { position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z], corners };
+  },
+  /// The frame constraints drawn as axes: [{name, position, quaternion [w, x, y, z]}] at this frame.
+  frames3d() {
+    return frameAxes.map((m) => ({ name: m.userData.name, position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z] }));
   },
   /// The canvas pixel (x right, y down, CSS pixels from the canvas' top-left) of world point xyz
   /// through the page's camera.

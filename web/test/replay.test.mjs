@@ -148,6 +148,27 @@ async function checkFreeBody(context, refused, errors) {
     console.log(`weld frame ${f}: box centroid (${s.x.toFixed(2)}, ${s.y.toFixed(2)}) px over ${s.n.toFixed(0)} px, CSV load position projected (${p[0].toFixed(2)}, ${p[1].toFixed(2)}), ${err.toFixed(2)} px`);
     await page.evaluate(() => window.ukdyn.solidOnly(null));
   }
+  // the grasp frames' axes: at the load's position + R(q) (the weld's offset on the load, from the
+  // scenario) at the last frame
+  const text = fs.readFileSync(yaml, 'utf8');
+  const offsets = [...text.matchAll(/name: (\w+), a: \S+, b: \{frame: load\.load, xyz: \[([^\]]+)\]/g)].map((g) => [g[1], g[2].split(',').map(Number)]);
+  if (offsets.length !== 4) fail(`n_robots_4_weld.yaml: ${offsets.length} welds to the load found, expected 4`);
+  const axes = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.frames3d()), last);
+  let worstAxes = 0;
+  {
+    const nq = Math.hypot(qw[last], qx[last], qy[last], qz[last]);
+    const [w, a, b, d] = [qw[last], qx[last], qy[last], qz[last]].map((v) => v / nq);
+    const R = [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
+      [2 * (a * b + w * d), 1 - 2 * (a * a + d * d), 2 * (b * d - w * a)],
+      [2 * (a * d - w * b), 2 * (b * d + w * a), 1 - 2 * (a * a + b * b)]];
+    for (const [name, o] of offsets) {
+      const got = axes.find((g) => g.name === name);
+      if (!got) fail(`no axes drawn for ${name} (${axes.map((g) => g.name).join(', ')})`);
+      const want = [x[last], y[last], z[last]].map((p, k) => p + R[k][0] * o[0] + R[k][1] * o[1] + R[k][2] * o[2]);
+      worstAxes = Math.max(worstAxes, Math.hypot(...want.map((v, k) => v - got.position[k])));
+    }
+  }
+  check(worstAxes < 1e-4, `the ${offsets.length} grasp frames' axes within ${worstAxes.toExponential(2)} m of the load pose + the welds' offsets`);
   const movedM = Math.hypot(seen[1][2] - seen[0][2], seen[1][3] - seen[0][3], seen[1][4] - seen[0][4]);
   const movedPx = Math.hypot(seen[1][0] - seen[0][0], seen[1][1] - seen[0][1]);
   check(movedM > 0.05, `the load moves ${movedM.toFixed(3)} m in the CSV from t = 0 to the end`);
