@@ -108,12 +108,15 @@ async function checkFreeBody(context, refused, errors) {
   const hd = ls[0].split(','), rs = ls.slice(1).map((l) => l.split(',').map(Number));
   const c = (n) => { const i = hd.indexOf(n); if (i < 0) fail(`weld: no column ${n}`); return rs.map((r) => r[i]); };
   const [x, y, z, qw, qx, qy, qz] = ['x', 'y', 'z', 'qw', 'qx', 'qy', 'qz'].map((k) => c(`load_${k}`));
-  const corners = (f) => {  // centre + R(q) (±a/2, ±b/2, ±c/2), R of the normalised quaternion
+  const rotation = (f) => {  // R of the normalised quaternion at frame f
     const nq = Math.hypot(qw[f], qx[f], qy[f], qz[f]);
     const [w, a, b, d] = [qw[f], qx[f], qy[f], qz[f]].map((v) => v / nq);
-    const R = [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
+    return [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
       [2 * (a * b + w * d), 1 - 2 * (a * a + d * d), 2 * (b * d - w * a)],
       [2 * (a * d - w * b), 2 * (b * d + w * a), 1 - 2 * (a * a + b * b)]];
+  };
+  const corners = (f) => {  // centre + R(q) (±a/2, ±b/2, ±c/2)
+    const R = rotation(f);
     const out = [];
     for (const sx of [-0.5, 0.5]) for (const sy of [-0.5, 0.5]) for (const sz of [-0.5, 0.5]) {
       const v = [sx * edge[0], sy * edge[1], sz * edge[2]];
@@ -156,11 +159,7 @@ async function checkFreeBody(context, refused, errors) {
   const axes = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.frames3d()), last);
   let worstAxes = 0;
   {
-    const nq = Math.hypot(qw[last], qx[last], qy[last], qz[last]);
-    const [w, a, b, d] = [qw[last], qx[last], qy[last], qz[last]].map((v) => v / nq);
-    const R = [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
-      [2 * (a * b + w * d), 1 - 2 * (a * a + d * d), 2 * (b * d - w * a)],
-      [2 * (a * d - w * b), 2 * (b * d + w * a), 1 - 2 * (a * a + b * b)]];
+    const R = rotation(last);
     for (const [name, o] of offsets) {
       const got = axes.find((g) => g.name === name);
       if (!got) fail(`no axes drawn for ${name} (${axes.map((g) => g.name).join(', ')})`);
