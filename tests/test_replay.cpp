@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -12,10 +13,10 @@
 #include "ukdyn/output/geometry.hpp"
 #include "ukdyn/output/plots.hpp"
 #include "ukdyn/output/replay.hpp"
-#include "ukdyn/run/run.hpp"
-#include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/output/trajectory_table.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
 
 namespace {
 
@@ -80,6 +81,56 @@ TEST(ReplayGeometry, ChainPointsAgreeWithThePapersClosedForm) {
       const std::string l2 = a == "left" ? ".link2" : ".link5";
       EXPECT_LT((point(gc, q, a + l2) - point(gp, q, a + ".j2")).norm(), 1e-12) << a;
     }
+  }
+}
+
+// A free body is drawn as the box of its mass and inertia: the drawn box's own inertia, the uniform
+// box's m (b² + c²) / 12, ... about its axes turned by the drawn orientation, equals the body's
+// inertia tensor (a full matrix: principal axes off the body axes) turned by R(q) of the
+// normalised quaternion, computed here; the box sits at the body's (x, y, z).
+TEST(ReplayGeometry, FreeBodyIsItsInertiaEquivalentBox) {
+  const std::string text = R"(ukdyn: 1
+name: free_box
+subsystems:
+  - name: box
+    type: free_body
+    parameters: {m: 2.5}
+    mass: m
+    inertia: [[0.30, 0.04, -0.02], [0.04, 0.25, 0.03], [-0.02, 0.03, 0.12]]
+initial: {q: [0, 0, 0, 1, 0, 0, 0], qd: zeros}
+simulation: {t_end: 1, sample_dt: 0.1}
+)";
+  const Scenario sc = load_scenario_text(text, "free_box.yaml");
+  std::vector<std::string> left_out;
+  const Geometry g = build_geometry(sc, &left_out);
+  EXPECT_TRUE(left_out.empty());
+  ASSERT_EQ(g.solids().size(), 1u);
+  const GeometrySolid& s = g.solids()[0];
+  EXPECT_EQ(s.name, "box");
+  EXPECT_EQ(g.points()[s.point].name, "box.box");
+  const double m = 2.5;
+  Eigen::Matrix3d J;
+  J << 0.30, 0.04, -0.02, 0.04, 0.25, 0.03, -0.02, 0.03, 0.12;
+  const Vec3 e2 = s.size.cwiseProduct(s.size);
+  const Eigen::Matrix3d Jbox =
+      Vec3(e2(1) + e2(2), e2(0) + e2(2), e2(0) + e2(1)).asDiagonal() * (m / 12.0);
+  std::mt19937 rng(5);
+  std::vector<std::array<double, 4>> rot;
+  std::vector<Vec3> xyz;
+  for (int k = 0; k < 10; ++k) {
+    const Vec q = random_q(rng, 7);  // a quaternion off the unit sphere: normalised when drawn
+    g.evaluate(q, xyz);
+    g.evaluate_orientations(q, rot);
+    EXPECT_EQ(xyz[s.point], Vec3(q(0), q(1), q(2)));
+    const double n = q.segment(3, 4).norm();
+    const double w = q(3) / n, x = q(4) / n, y = q(5) / n, z = q(6) / n;
+    Eigen::Matrix3d R;  // the rotation of the unit quaternion (w, x, y, z)
+    R << 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),  //
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),   //
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y);
+    const Eigen::Matrix3d B =
+        Eigen::Quaterniond(rot[0][0], rot[0][1], rot[0][2], rot[0][3]).toRotationMatrix();
+    EXPECT_LT((B * Jbox * B.transpose() - R * J * R.transpose()).norm(), 1e-12) << k;
   }
 }
 

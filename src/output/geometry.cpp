@@ -1,5 +1,7 @@
 #include "ukdyn/output/geometry.hpp"
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -38,6 +40,16 @@ long Geometry::find(const std::string& name) const {
 void Geometry::evaluate(CVecRef q, std::vector<Vec3>& out) const {
   out.resize(points_.size());
   for (const auto& p : parts_) p.f(q, out, p.first);
+}
+
+void Geometry::add_solid(GeometrySolid s, OrientationFunction orientation) {
+  solids_.push_back(std::move(s));
+  orientations_.push_back(std::move(orientation));
+}
+
+void Geometry::evaluate_orientations(CVecRef q, std::vector<std::array<double, 4>>& out) const {
+  out.resize(solids_.size());
+  for (std::size_t i = 0; i < solids_.size(); ++i) out[i] = orientations_[i](q);
 }
 
 namespace {
@@ -203,6 +215,45 @@ void add_bodies(Geometry& g, const std::string& name,
              });
 }
 
+// A free body (docs/free-bodies.md): its CoM, and the box of the same mass and principal moments of
+// inertia about it (MuJoCo draws the same equivalent-inertia box, mjVIS_INERTIA). A uniform box of
+// edges a, b, c has I1 = m (b² + c²) / 12 and so on (any table of moments of inertia), hence
+// a = sqrt(6 (I2 + I3 − I1) / m), b = sqrt(6 (I3 + I1 − I2) / m), c = sqrt(6 (I1 + I2 − I3) / m)
+// along the principal axes. Posed by the coordinates (x, y, z, qw, qx, qy, qz): CoM at (x, y, z),
+// turned by the normalised quaternion and then by the principal axes in the body frame. A side the
+// formula makes zero (a rod, a point mass) is drawn at 2 % of the largest; no box at all if every
+// side is zero or the mass is not positive (then only the CoM is drawn).
+void add_free_body(Geometry& g, const std::string& name, const io_detail::FreeBodyInertia& fb,
+                   Index offset) {
+  const std::size_t centre =
+      g.add_part({{name + "." + name, "com"}}, {},
+                 [offset](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
+                   out[first] = q.segment<3>(offset);
+                 });
+  Eigen::Matrix3d J;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) J(i, j) = fb.inertia[static_cast<std::size_t>(3 * i + j)];
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (J + J.transpose()));
+  const Vec3 I = es.eigenvalues();
+  Eigen::Matrix3d V = es.eigenvectors();
+  if (V.determinant() < 0) V.col(2) *= -1.0;  // a rotation
+  Vec3 size = Vec3::Zero();
+  for (int i = 0; i < 3; ++i) {
+    const double s = 6.0 * (I((i + 1) % 3) + I((i + 2) % 3) - I(i)) / fb.mass;
+    size(i) = fb.mass > 0.0 && s > 0.0 ? std::sqrt(s) : 0.0;
+  }
+  if (!(size.maxCoeff() > 0.0)) return;
+  size = size.cwiseMax(0.02 * size.maxCoeff());
+  const Eigen::Quaterniond principal(V);
+  g.add_solid({name, "box", size, centre}, [offset, principal](CVecRef q) {
+    Eigen::Quaterniond r(q(offset + 3), q(offset + 4), q(offset + 5), q(offset + 6));
+    const double n = r.norm();
+    r = n > 0.0 ? Eigen::Quaterniond(r.coeffs() / n) : Eigen::Quaterniond::Identity();
+    const Eigen::Quaterniond o = r * principal;
+    return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+  });
+}
+
 }  // namespace
 
 Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) {
@@ -225,6 +276,9 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
       add_bodies(
           g, info.name, bodies, sys,
           *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
+    } else if (const auto fb = io_detail::free_body_inertia(sc.definitions.get(), info.name);
+               fb && info.type == "free_body") {
+      add_free_body(g, info.name, *fb, info.offset);
     } else if (left_out) {
       left_out->push_back(info.name);
     }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <nlohmann/json.hpp>
 
 #include "output/replay_assets.hpp"
@@ -145,6 +146,17 @@ void append_model_json(std::string& d, const Scenario& sc, const ReplayOptions& 
     const auto& s = geo.segments()[i];
     d += fmt::format("{}[{},{},{}]", i ? "," : "", s.a, s.b, js_string(s.kind));
   }
+  d += "],\"solids\":[";
+  for (std::size_t i = 0; i < geo.solids().size(); ++i) {
+    const auto& s = geo.solids()[i];
+    d += (i ? ",{\"name\":" : "{\"name\":") + js_string(s.name) +
+         ",\"shape\":" + js_string(s.shape) + ",\"size\":[";
+    for (int k = 0; k < 3; ++k) {
+      if (k) d += ',';
+      number(d, s.size(k));
+    }
+    d += fmt::format("],\"point\":{}}}", s.point);
+  }
 }
 
 // Comma-separated values of column c over every frame.
@@ -155,20 +167,20 @@ void append_column_values(std::string& d, const TrajectoryTable& tab, std::size_
   }
 }
 
-// Point positions per frame, from q of the CSV row.
-void append_positions_json(std::string& d, const TrajectoryTable& tab,
-                           const std::vector<std::size_t>& qcol, const Geometry& geo, Index dof) {
+// Per frame, the numbers `values(q, out)` gives for q of the CSV row (point positions, solid
+// orientations), flattened into one array.
+void append_per_frame_json(std::string& d, const TrajectoryTable& tab,
+                           const std::vector<std::size_t>& qcol, Index dof,
+                           const std::function<void(CVecRef, std::vector<double>&)>& values) {
   Vec q(dof);
-  std::vector<Vec3> xyz;
+  std::vector<double> v;
   for (std::size_t f = 0; f < tab.rows.size(); ++f) {
     for (std::size_t i = 0; i < qcol.size(); ++i) q(static_cast<Index>(i)) = tab.rows[f][qcol[i]];
-    geo.evaluate(q, xyz);
+    values(q, v);
     d += f ? ",[" : "[";
-    for (std::size_t i = 0; i < xyz.size(); ++i) {
-      for (int k = 0; k < 3; ++k) {
-        if (i || k) d += ',';
-        number(d, xyz[i](k));
-      }
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      if (i) d += ',';
+      number(d, v[i]);
     }
     d += ']';
   }
@@ -221,7 +233,21 @@ std::string replay_data_json(const Scenario& sc, const ReplayOptions& options,
   d += "],\"t\":[";
   append_column_values(d, tab, 0);
   d += "],\"pos\":[";
-  append_positions_json(d, tab, qcol, geo, sc.system->dof());
+  std::vector<Vec3> xyz;
+  append_per_frame_json(d, tab, qcol, sc.system->dof(), [&](CVecRef q, std::vector<double>& v) {
+    geo.evaluate(q, xyz);  // x, y, z of every point
+    v.resize(3 * xyz.size());
+    for (std::size_t i = 0; i < xyz.size(); ++i)
+      for (int k = 0; k < 3; ++k) v[3 * i + static_cast<std::size_t>(k)] = xyz[i](k);
+  });
+  d += "],\"rot\":[";
+  std::vector<std::array<double, 4>> rot;
+  append_per_frame_json(d, tab, qcol, sc.system->dof(), [&](CVecRef q, std::vector<double>& v) {
+    geo.evaluate_orientations(q, rot);  // w, x, y, z of every solid
+    v.resize(4 * rot.size());
+    for (std::size_t i = 0; i < rot.size(); ++i)
+      for (std::size_t k = 0; k < 4; ++k) v[4 * i + k] = rot[i][k];
+  });
   d += "],\"columns\":{";
   append_plot_columns_json(d, tab, qcol);
   d += "},\"groups\":{";

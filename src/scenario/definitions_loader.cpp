@@ -211,6 +211,8 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
   /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
   std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
+  /// Per free_body subsystem: its mass and inertia (body frame, row-major), as numbers.
+  std::map<std::string, io_detail::FreeBodyInertia> free_bodies;
   /// Per chain: the constraints between its links (an MJCF file's weld / connect equalities).
   std::map<std::string, std::vector<symbolic::LinkConstraintDef>> link_constraints;
   /// LoadOptions::symbolic_chains: `dynamics: auto` chains derived symbolically.
@@ -307,6 +309,27 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
   }
 }
 
+namespace {
+
+// The free body's mass and inertia as numbers, for drawing (geometry.cpp); not recorded if they are
+// not numbers once the parameters are substituted.
+void record_free_body(DefinitionContext& context, const std::string& name,
+                      const sym::SubsystemDef& def, const sym::BodyDef& body) {
+  const GiNaC::exmap values = def.parameter_values();
+  const auto value = [&](const ex& e, double& out) {
+    const ex v = e.subs(values).evalf();
+    if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real()) return false;
+    out = GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+    return true;
+  };
+  FreeBodyInertia fb;
+  bool ok = value(body.mass, fb.mass);
+  for (std::size_t k = 0; k < 9; ++k) ok = ok && value(body.inertia_tensor[k], fb.inertia[k]);
+  if (ok) context.free_bodies[name] = fb;
+}
+
+}  // namespace
+
 std::shared_ptr<const Subsystem> load_free_body_subsystem(
     const Loader& L, const Node& s, const std::string& name,
     const std::vector<std::string>& coordinates, double gravity, DefinitionContext* context) {
@@ -339,8 +362,11 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
     J = parse_matrix(L, *def, in, true);
   }
   try {
-    sym::add_free_body(*def, mass, J);
-    if (context != nullptr) context->frames.add_bodies(*def);  // frame constraints
+    const sym::BodyDef& body = sym::add_free_body(*def, mass, J);
+    if (context != nullptr) {
+      context->frames.add_bodies(*def);  // frame constraints
+      record_free_body(*context, name, *def, body);
+    }
     return sym::make_subsystem(*def);
   } catch (const sym::DefinitionError& e) {
     L.fail(e.body >= 0 ? in : s, e.what());
@@ -422,6 +448,14 @@ std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
   auto it = context->bodies.find(name);
   return it == context->bodies.end() ? std::vector<std::pair<std::string, symbolic::Vec3Ex>>{}
                                      : it->second;
+}
+
+std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* context,
+                                                 const std::string& name) {
+  if (!context) return std::nullopt;
+  auto it = context->free_bodies.find(name);
+  if (it == context->free_bodies.end()) return std::nullopt;
+  return it->second;
 }
 
 std::vector<std::string> chain_base_coordinates(const DefinitionContext* context,

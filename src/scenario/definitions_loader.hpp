@@ -4,6 +4,7 @@
 // an expression point at the column of the offending character.
 #pragma once
 
+#include <array>
 #include <map>
 #include <memory>
 #include <optional>
@@ -109,6 +110,14 @@ std::vector<CoordinateLimits> chain_coordinate_limits(const DefinitionContext* c
                                                       const std::string& name);
 /// What the robot file readers noted (meshes ignored, limits taken as absent), each line once.
 std::vector<std::string> robot_file_notes(const DefinitionContext* context);
+/// The mass and inertia (about the CoM, body frame, row-major) of a free body, as numbers.
+struct FreeBodyInertia {
+  double mass = 0;
+  std::array<double, 9> inertia{};
+};
+/// Those of free_body subsystem `name` (nullopt if none, no context, or not numbers).
+std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* context,
+                                                 const std::string& name);
 /// The bodies (name, CoM in the world) of definitions subsystem `name`.
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name);

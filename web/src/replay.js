@@ -1,13 +1,15 @@
 // ukdyn replay page (docs/replay.md). Data: the JSON block #ukdyn-data written by `ukdyn replay`:
 //   t[frames], points[{name, kind}], segments[[a, b, kind]], pos[frames][3·points] (world, z up),
+//   solids[{name, shape: box, size: [edges], point: its centre}], rot[frames][4·solids] (w, x, y, z),
 //   columns{name: values[frames]}, groups{title: [column names]}.
-// Test hook: window.ukdyn (setFrame, setTime, markerOnly, project, ready).
+// Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, frames3d, project, ready).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 const D = JSON.parse(document.getElementById('ukdyn-data').textContent);
 const frames = D.t.length;
 const np = D.points.length;
+const solids = D.solids ?? [];
 const $ = (id) => document.getElementById(id);
 let frame = 0, playing = false, dirty = true, tPlay = D.t[0], last = null;
 const plots = [];
@@ -78,10 +80,28 @@ const segMeshes = D.segments.map(([a, b, kind]) => {
   world.add(m);
   return m;
 });
+// Solids (a free body's inertia-equivalent box), posed by their centre point and D.rot.
+const solidMeshes = solids.map((s) => {
+  const m = new THREE.Mesh(box, new THREE.MeshStandardMaterial({ color: segColours.load }));
+  m.scale.set(s.size[0], s.size[1], s.size[2]);
+  world.add(m);
+  return m;
+});
+// Frame constraints' frames (the grasp frames of a weld): small axes (x red, y green, z blue) posed by
+// the CSV's pose_<c>_x, _y, _z, _qw, _qx, _qy, _qz columns (docs/frame-constraints.md).
+const poseKeys = ['x', 'y', 'z', 'qw', 'qx', 'qy', 'qz'];
+const frameAxes = Object.keys(D.columns).filter((n) => /^pose_.+_x$/.test(n)).map((n) => n.slice(5, -2))
+  .filter((c) => poseKeys.every((k) => `pose_${c}_${k}` in D.columns))
+  .map((c) => {
+    const m = new THREE.AxesHelper(extent * 0.08);
+    m.userData = { name: c, cols: poseKeys.map((k) => D.columns[`pose_${c}_${k}`]) };
+    world.add(m);
+    return m;
+  });
 {
   const kinds = [...new Set(D.points.map((p) => p.kind))];
   $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
-    (D.segments.some((s) => s[2] === 'load') ? `<i style="background:#ef6c00"></i>load` : '');
+    (D.segments.some((s) => s[2] === 'load') || solids.length ? `<i style="background:#ef6c00"></i>load` : '');
 }
 
 // The test marker: one unlit sphere of pure red, shown alone (window.ukdyn.markerOnly).
@@ -89,6 +109,11 @@ const marker = new THREE.Mesh(sphere, new THREE.MeshBasicMaterial({ color: 0xff0
 marker.visible = false;
 scene.add(marker);
 let markerPoint = -1;
+// The same for one solid: its box alone, unlit pure red (window.ukdyn.solidOnly).
+const solidMarker = new THREE.Mesh(box, new THREE.MeshBasicMaterial({ color: 0xff0000 }));
+solidMarker.visible = false;
+scene.add(solidMarker);
+let markerSolid = -1;
 
 // Path of a chosen point over the whole run.
 let pathLine = null;
@@ -124,7 +149,21 @@ function place(f) {
     m.quaternion.setFromUnitVectors(up, dir.divideScalar(len));
     m.scale.set(m.userData.radius, len, m.userData.radius);
   }
+  solidMeshes.forEach((m, i) => {
+    pointAt(f, solids[i].point, m.position);
+    const q = D.rot[f];
+    m.quaternion.set(q[4 * i + 1] ?? 0, q[4 * i + 2] ?? 0, q[4 * i + 3] ?? 0, q[4 * i] ?? 1);
+  });
+  for (const m of frameAxes) {
+    const v = m.userData.cols.map((c) => c[f] ?? NaN);
+    m.visible = v.every(Number.isFinite);
+    if (m.visible) { m.position.set(v[0], v[1], v[2]); m.quaternion.set(v[4], v[5], v[6], v[3]).normalize(); }
+  }
   if (markerPoint >= 0) { pointAt(f, markerPoint, va); marker.position.copy(va); }
+  if (markerSolid >= 0) {
+    const m = solidMeshes[markerSolid];
+    solidMarker.position.copy(m.position); solidMarker.quaternion.copy(m.quaternion); solidMarker.scale.copy(m.scale);
+  }
 }
 
 // ---- camera: looking at the centre from the front-left, above
@@ -262,6 +301,35 @@ window.ukdyn = {
     place(frame);
     renderer.render(scene, camera);
     return markerPoint;
+  },
+  /// Shows only solid `name` as an unlit red box on black (or everything again with null).
+  solidOnly(name) {
+    markerSolid = name === null ? -1 : solids.findIndex((s) => s.name === name);
+    world.visible = markerSolid < 0;
+    $('legend').style.display = markerSolid < 0 ? '' : 'none';
+    solidMarker.visible = markerSolid >= 0;
+    scene.background = markerSolid >= 0 ? new THREE.Color(0x000000) : background;
+    place(frame);
+    renderer.render(scene, camera);
+    return markerSolid;
+  },
+  /// Solid `name` as drawn at the current frame: its position, quaternion [w, x, y, z] and the
+  /// world positions of its 8 corners (null if there is no such solid).
+  solid(name) {
+    const i = solids.findIndex((s) => s.name === name);
+    if (i < 0) return null;
+    const m = solidMeshes[i];
+    m.updateMatrixWorld(true);
+    const corners = [];
+    for (const x of [-0.5, 0.5]) for (const y of [-0.5, 0.5]) for (const z of [-0.5, 0.5]) {
+      const v = new THREE.Vector3(x, y, z).applyMatrix4(m.matrixWorld);
+      corners.push([v.x, v.y, v.z]);
+    }
+    return { position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z], corners };
+  },
+  /// The frame constraints drawn as axes: [{name, position, quaternion [w, x, y, z]}] at this frame.
+  frames3d() {
+    return frameAxes.map((m) => ({ name: m.userData.name, position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z] }));
   },
   /// The canvas pixel (x right, y down, CSS pixels from the canvas' top-left) of world point xyz
   /// through the page's camera.

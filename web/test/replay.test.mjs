@@ -5,7 +5,10 @@
 // no console error; the canvas is not blank; two screenshots of the same frame are identical; the
 // pixel centroid of one marker at the left arm's cut point follows the simulated coordinate,
 // computed here from trajectory.csv's q by the paper's closed form (not by ukdyn's geometry code)
-// and projected through the page's camera.
+// and projected through the page's camera. Then the free-body load of n_robots_4_weld.yaml: the
+// drawn box's corners against the inertia-equivalent box computed here from the scenario's mass and
+// inertia, posed by the CSV's load_x..load_qz, and the red pixels' centroid of the box alone against
+// the projection of the CSV's load position, at the first and the last frame.
 import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -75,6 +78,102 @@ function decodePng(buf) {
     prev = line;
   }
   return { w, h, px };
+}
+
+// Weighted centroid of the red pixels of a screenshot (antialiased edges count in part).
+function redCentroid(s) {
+  let n = 0, sx = 0, sy = 0;
+  for (let y = 0; y < s.h; y++) for (let x = 0; x < s.w; x++) {
+    const k = 4 * (y * s.w + x);
+    const wgt = s.px[k] / 255;
+    if (s.px[k + 1] > 40 || s.px[k + 2] > 40 || wgt < 0.05) continue;
+    n += wgt; sx += wgt * (x + 0.5); sy += wgt * (y + 0.5);
+  }
+  return { n, x: sx / n, y: sy / n };
+}
+
+// The free-body load of scenarios/n_robots_4_weld.yaml: drawn, where and how the CSV says.
+async function checkFreeBody(context, refused, errors) {
+  const yaml = path.join(source, 'scenarios/n_robots_4_weld.yaml');
+  const dir = path.join(scratch, 'weld');
+  fs.rmSync(dir, { recursive: true, force: true });
+  execFileSync(ukdyn, ['simulate', yaml, '--out', dir, '--no-figures', '--html', '--quiet'], { stdio: 'inherit' });
+  // mass and inertia (diagonal, body frame) as the scenario declares them
+  const m = /- name: load\n\s+type: free_body\n\s+mass: (\S+)\n\s+inertia: \[([^\]]+)\]/.exec(fs.readFileSync(yaml, 'utf8'));
+  if (!m) fail('n_robots_4_weld.yaml: no free_body load with mass and diagonal inertia');
+  const mass = Number(m[1]), I = m[2].split(',').map(Number);
+  // the uniform box of the same mass and moments: I1 = mass (b² + c²) / 12, ...
+  const edge = [0, 1, 2].map((i) => Math.sqrt(6 * (I[(i + 1) % 3] + I[(i + 2) % 3] - I[i]) / mass));
+  const ls = fs.readFileSync(path.join(dir, 'trajectory.csv'), 'utf8').trim().split('\n');
+  const hd = ls[0].split(','), rs = ls.slice(1).map((l) => l.split(',').map(Number));
+  const c = (n) => { const i = hd.indexOf(n); if (i < 0) fail(`weld: no column ${n}`); return rs.map((r) => r[i]); };
+  const [x, y, z, qw, qx, qy, qz] = ['x', 'y', 'z', 'qw', 'qx', 'qy', 'qz'].map((k) => c(`load_${k}`));
+  const rotation = (f) => {  // R of the normalised quaternion at frame f
+    const nq = Math.hypot(qw[f], qx[f], qy[f], qz[f]);
+    const [w, a, b, d] = [qw[f], qx[f], qy[f], qz[f]].map((v) => v / nq);
+    return [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
+      [2 * (a * b + w * d), 1 - 2 * (a * a + d * d), 2 * (b * d - w * a)],
+      [2 * (a * d - w * b), 2 * (b * d + w * a), 1 - 2 * (a * a + b * b)]];
+  };
+  const corners = (f) => {  // centre + R(q) (±a/2, ±b/2, ±c/2)
+    const R = rotation(f);
+    const out = [];
+    for (const sx of [-0.5, 0.5]) for (const sy of [-0.5, 0.5]) for (const sz of [-0.5, 0.5]) {
+      const v = [sx * edge[0], sy * edge[1], sz * edge[2]];
+      out.push([x[f], y[f], z[f]].map((p, k) => p + R[k][0] * v[0] + R[k][1] * v[1] + R[k][2] * v[2]));
+    }
+    return out;
+  };
+  const page = await context.newPage();
+  const url = pathToFileURL(path.join(dir, 'replay.html')).href;
+  await page.route('**/*', (route) => (route.request().url() === url ? route.continue() : (refused.push(route.request().url()), route.abort())));
+  page.on('console', (msg) => { if (msg.type() === 'error') errors.push(`weld: ${msg.text()}`); });
+  page.on('pageerror', (e) => errors.push(`weld page error: ${e.message}`));
+  await page.goto(url);
+  await page.waitForFunction(() => window.ukdyn && window.ukdyn.ready, null, { timeout: 20000 });
+  const note = await page.evaluate(() => document.getElementById('note').textContent);
+  check(!/\bload\b/.test(note), `the load is not listed as not drawn (note: '${note}')`);
+  const last = rs.length - 1;
+  let worst = 0, worstPx = 0;
+  const seen = [];
+  for (const f of [0, last]) {
+    const got = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.solid('load')), f);
+    if (!got) fail('no solid named load in the page');
+    const want = corners(f);
+    for (let k = 0; k < 8; k++) worst = Math.max(worst, Math.hypot(...want[k].map((v, j) => v - got.corners[k][j])));
+    await page.evaluate(() => window.ukdyn.solidOnly('load'));
+    const s = redCentroid(decodePng(await page.locator('#view canvas').screenshot()));
+    if (s.n < 100) fail(`frame ${f}: the load's box is not visible (${s.n} px)`);
+    const p = await page.evaluate((v) => window.ukdyn.project(v), [x[f], y[f], z[f]]);
+    const err = Math.hypot(s.x - p[0], s.y - p[1]);
+    worstPx = Math.max(worstPx, err);
+    seen.push([s.x, s.y, x[f], y[f], z[f]]);
+    console.log(`weld frame ${f}: box centroid (${s.x.toFixed(2)}, ${s.y.toFixed(2)}) px over ${s.n.toFixed(0)} px, CSV load position projected (${p[0].toFixed(2)}, ${p[1].toFixed(2)}), ${err.toFixed(2)} px`);
+    await page.evaluate(() => window.ukdyn.solidOnly(null));
+  }
+  // the grasp frames' axes: at the load's position + R(q) (the weld's offset on the load, from the
+  // scenario) at the last frame
+  const text = fs.readFileSync(yaml, 'utf8');
+  const offsets = [...text.matchAll(/name: (\w+), a: \S+, b: \{frame: load\.load, xyz: \[([^\]]+)\]/g)].map((g) => [g[1], g[2].split(',').map(Number)]);
+  if (offsets.length !== 4) fail(`n_robots_4_weld.yaml: ${offsets.length} welds to the load found, expected 4`);
+  const axes = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.frames3d()), last);
+  let worstAxes = 0;
+  {
+    const R = rotation(last);
+    for (const [name, o] of offsets) {
+      const got = axes.find((g) => g.name === name);
+      if (!got) fail(`no axes drawn for ${name} (${axes.map((g) => g.name).join(', ')})`);
+      const want = [x[last], y[last], z[last]].map((p, k) => p + R[k][0] * o[0] + R[k][1] * o[1] + R[k][2] * o[2]);
+      worstAxes = Math.max(worstAxes, Math.hypot(...want.map((v, k) => v - got.position[k])));
+    }
+  }
+  check(worstAxes < 1e-4, `the ${offsets.length} grasp frames' axes within ${worstAxes.toExponential(2)} m of the load pose + the welds' offsets`);
+  const movedM = Math.hypot(seen[1][2] - seen[0][2], seen[1][3] - seen[0][3], seen[1][4] - seen[0][4]);
+  const movedPx = Math.hypot(seen[1][0] - seen[0][0], seen[1][1] - seen[0][1]);
+  check(movedM > 0.05, `the load moves ${movedM.toFixed(3)} m in the CSV from t = 0 to the end`);
+  check(worst < 1e-4, `the drawn box's corners within ${worst.toExponential(2)} m of the inertia box (edges ${edge.map((e) => e.toFixed(4)).join(' × ')} m) posed by the CSV`);
+  check(movedPx > 20 && worstPx < 3, `the box's pixel centroid follows the CSV position (moved ${movedPx.toFixed(1)} px, within ${worstPx.toFixed(2)} px)`);
+  await page.close();
 }
 
 // ---- the browser: Debian's chromium, no network
@@ -150,6 +249,8 @@ try {
   const moved = Math.hypot(seen[2][0] - seen[0][0], seen[2][1] - seen[0][1]);
   check(moved > 30, `the marker moved ${moved.toFixed(1)} px from t = 0 to 1 s`);
   check(worst < 0.5, `centroid within ${worst.toFixed(3)} px of the projected simulated cut point`);
+  await page.close();
+  await checkFreeBody(context, refused, errors);
   check(refused.length === 0, `no request but the file itself (${refused.length} refused: ${refused.slice(0, 3).join(' ')})`);
   check(errors.length === 0, `no console error (${errors.slice(0, 3).join(' | ')})`);
 } finally {
