@@ -6,6 +6,7 @@
 #include <limits>
 #include <memory>
 
+#include "run/run_observer.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/simulate/control.hpp"
 
@@ -42,10 +43,7 @@ ShadowEstimate::ShadowEstimate(const Scenario& sc, const std::atomic<bool>* canc
   stride_ = std::max<long>(1, (samples * std::max<Index>(n_, 1) + budget - 1) / budget);
   q_.reserve(static_cast<std::size_t>((samples / stride_ + 1) * n_));
   t_.reserve(static_cast<std::size_t>(samples / stride_ + 1));
-  const ForceFunction tau =
-      ctl ? ctl->loop->force_function()
-          : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
-  if (!ctl) settings_.tau_jacobian = zero_force_jacobian;
+  const ForceFunction tau = run_forces(sc, ctl.get(), settings_);
   long k = 0;
   const auto start = std::chrono::steady_clock::now();
   shadow_stats_ = simulate(sys, ctl ? ctl->q0 : sc.q0, ctl ? ctl->qd0 : sc.qd0, tau, settings_,

@@ -425,14 +425,9 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
       s.options.cancel};
   observer.forces = ctl ? nullptr : &s.force_columns;
   observer.control = &s.control_columns;
-  const ForceFunction tau =
-      ctl ? ctl->loop->force_function()
-          : ForceFunction([&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; });
   SimulationSettings settings = sc.sim;
   settings.cancel = s.options.cancel;
-  // The scenario's τ is constant: ∂τ/∂(q, q̇) = 0 (the exact Jacobian of bdf / esdirk). A control
-  // law's has none (the difference-quotient Jacobian, said in the summary).
-  if (!ctl) settings.tau_jacobian = zero_force_jacobian;
+  const ForceFunction tau = io_detail::run_forces(sc, ctl, settings);
   try {
     // The shadow run first (a closed loop of its own), so that the run's samples are compared as
     // they come (docs/accuracy.md).
@@ -724,15 +719,11 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
   observer.memory = &run.values;
   observer.forces = ctl ? nullptr : &force_columns;
   observer.control = &control_columns;
-  const ForceFunction constant = [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
-  const ForceFunction tau = ctl           ? ctl->loop->force_function()
-                            : options.tau ? options.tau
-                                          : constant;
   SimulationSettings settings = sc.sim;
   settings.cancel = options.cancel;
-  // The constant τ has ∂τ/∂(q, q̇) = 0 (bdf / esdirk's exact Jacobian); a control law or a Python
-  // controller has none (difference quotients, said in the stats' jacobian_note).
-  if (!ctl && !options.tau) settings.tau_jacobian = zero_force_jacobian;
+  // A Python controller has no ∂τ (difference quotients, said in the stats' jacobian_note).
+  const ForceFunction tau =
+      !ctl && options.tau ? options.tau : io_detail::run_forces(sc, ctl.get(), settings);
   // The shadow run re-runs the scenario's own forces or law; a Python force function or law is not
   // re-run (it may keep state), so the estimate is missing then, and says why.
   std::optional<io_detail::ShadowEstimate> shadow;

@@ -89,4 +89,10 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
   return k;
 }
 
+ForceFunction run_forces(const Scenario& sc, const ControlRun* ctl, SimulationSettings& settings) {
+  if (ctl) return ctl->loop->force_function();
+  settings.tau_jacobian = zero_force_jacobian;
+  return [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
+}
+
 }  // namespace ukdyn::io_detail

@@ -25,6 +25,12 @@ inline double nanmax(double a, double b) {
 /// The columns of a run's trajectory.csv (`ukdyn simulate`, the sweep's column metrics):
 /// trajectory_header(), the frame constraints' forces (`forces`; null for a control run), then
 /// the control and motor columns.
+/// The applied forces τ(t, q, q̇) of a run of `sc`: the closed loop's (ctl, docs/control.md) or the
+/// scenario's constant forces.tau (which must outlive the function). For the constant τ,
+/// `settings` gets ∂τ/∂(q, q̇) = 0 (the exact Jacobian of bdf / esdirk); a control law has none
+/// (difference quotients, said in the stats' jacobian_note).
+ForceFunction run_forces(const Scenario& sc, const ControlRun* ctl, SimulationSettings& settings);
+
 std::vector<std::string> run_csv_header(const System& sys, bool balance,
                                         const ConstraintForceColumns* forces,
                                         const ControlColumns& control_columns);

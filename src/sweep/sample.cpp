@@ -287,11 +287,7 @@ void SampleRunner::simulate_sample(const Scenario& sc, std::unique_ptr<ControlRu
         "simulation.error_estimate: shadow is not run per sample by a sweep (docs/accuracy.md)");
   SimulationSettings settings = sc.sim;
   settings.cancel = cancel;
-  if (!ctl) settings.tau_jacobian = zero_force_jacobian;  // constant τ (bdf / esdirk's Jacobian)
-  const Vec tau = sc.tau;
-  const ForceFunction f =
-      ctl ? ctl->loop->force_function()
-          : ForceFunction([&tau](double, CVecRef, CVecRef, VecRef o) { o = tau; });
+  const ForceFunction f = io_detail::run_forces(sc, ctl.get(), settings);
   SampleObserver& o = *out.obs;
   out.stats = simulate(
       psys, q0, qd0, f, settings,
