@@ -11,6 +11,7 @@ pkgs=(cmake make g++ ccache pkg-config libeigen3-dev libboost-dev libyaml-cpp-de
       libmujoco-dev                                  # MJCF files (ukdyn/robot_files/mjcf.hpp)
       libsimbody-dev  # tests/test_simbody_three_robots.cpp (skipped without it) and the bench
       python3-dev python3-pybind11 python3-numpy python3-pytest  # the Python module (python/)
+      python3-venv python3-setuptools python3-wheel  # `pip install .` of it (pyproject.toml)
       python3-scipy  # python/examples/lqr_minimal.py (solve_continuous_are)
       coinor-libipopt-dev  # IPOPT: `ukdyn optimize` (docs/optimization.md), optional at build time
       libopenmpi-dev openmpi-bin  # MPI: the optional backend of `ukdyn sweep` (docs/sweeps.md)
