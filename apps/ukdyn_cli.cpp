@@ -142,8 +142,12 @@ int write_replay_page(const ukdyn::Scenario& sc, const std::string& out, bool qu
                      : std::string());
   }
   for (const auto& s : r.left_out) {
-    std::cerr << "ukdyn: note: replay: subsystem '" << ukdyn::printable(s)
-              << "' is not drawn (no geometry)\n";
+    if (s.find(" (") != std::string::npos) {  // a shape of a link: "NAME.LINK (why)"
+      std::cerr << "ukdyn: note: replay: not drawn: " << ukdyn::printable(s) << "\n";
+    } else {
+      std::cerr << "ukdyn: note: replay: subsystem '" << ukdyn::printable(s)
+                << "' is not drawn (no geometry)\n";
+    }
   }
   return 0;
 }

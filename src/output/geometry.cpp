@@ -1,7 +1,10 @@
 #include "ukdyn/output/geometry.hpp"
 
+#include <fmt/format.h>
+
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -9,6 +12,7 @@
 #include "scenario/definitions_loader.hpp"
 #include "ukdyn/paper_robot/cooperative_constraints.hpp"
 #include "ukdyn/paper_robot/mobile_manipulator.hpp"
+#include "ukdyn/robot_files/visuals.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/tape.hpp"
@@ -215,6 +219,174 @@ void add_bodies(Geometry& g, const std::string& name,
              });
 }
 
+// The rotation (link → world) and origin of chosen links at q.
+using LinkPoses =
+    std::function<void(CVecRef q, std::vector<Eigen::Matrix3d>& R, std::vector<Vec3>& p)>;
+
+// The shapes a chain's robot file gives its links (ukdyn/robot_files/visuals.hpp) that the page
+// draws, each with the index of its link in `links`.
+struct LinkShapes {
+  std::vector<symbolic::LinkVisual> shapes;
+  std::vector<std::size_t> link;
+  std::vector<std::string> links;
+};
+
+// Whether the shape is one the page draws.
+bool drawn_kind(const std::string& shape) {
+  return shape == "box" || shape == "sphere" || shape == "ellipsoid" || shape == "cylinder" ||
+         shape == "capsule";
+}
+
+// Whether its extents are finite and positive and its pose finite.
+bool drawable(const symbolic::LinkVisual& v) {
+  bool ok = true;
+  for (double x : v.size) ok = ok && std::isfinite(x) && x > 0.0;
+  for (double x : v.xyz) ok = ok && std::isfinite(x);
+  double n = 0.0;
+  for (double x : v.quat) n += x * x;
+  return ok && std::isfinite(n) && n > 0.0;
+}
+
+// Those of serial chain `name` (none if it was not read from a robot file): the file's root frame
+// (an empty link) is the chain's `root`; what is not drawn (meshes: they are not loaded; planes,
+// height fields; a shape on a link the chain does not have; a file that cannot be read now) is
+// named in left_out as "NAME.LINK (why)".
+LinkShapes read_link_shapes(const Scenario& sc, const std::string& name, const std::string& root,
+                            const std::function<bool(const std::string&)>& has_link,
+                            std::vector<std::string>* left_out) {
+  LinkShapes out;
+  const auto file = io_detail::chain_robot_file(sc.definitions.get(), name);
+  if (!file) return out;
+  const auto note = [&](const std::string& what) {
+    if (left_out) left_out->push_back(what);
+  };
+  std::vector<symbolic::LinkVisual> all;
+  try {
+    all = file->first == "urdf" ? symbolic::urdf_visuals(file->second)
+                                : symbolic::mjcf_visuals(file->second);
+  } catch (const Error& e) {
+    note(fmt::format("{} (its shapes: {})", name, e.what()));
+    return out;
+  }
+  std::map<std::string, std::size_t> index, count;
+  for (auto& v : all) {
+    if (v.link.empty()) v.link = root;
+    const std::string where = name + "." + v.link;
+    if (v.shape == "mesh") {
+      note(fmt::format("{} (mesh{}{}: meshes are not loaded)", where, v.detail.empty() ? "" : " ",
+                       v.detail));
+    } else if (!has_link(v.link)) {
+      note(fmt::format("{} ({}: no such link in the chain)", where, v.shape));
+    } else if (!drawn_kind(v.shape)) {
+      note(fmt::format("{} ({}: only boxes, spheres, ellipsoids, cylinders and capsules are drawn)",
+                       where, v.shape));
+    } else if (!drawable(v)) {
+      note(fmt::format("{} ({}: a size that is not > 0, or a pose that is not finite)", where,
+                       v.shape));
+    } else {
+      auto [it, added] = index.emplace(v.link, out.links.size());
+      if (added) out.links.push_back(v.link);
+      out.link.push_back(it->second);
+      v.detail = fmt::format("{}.visual{}", where, count[v.link]++);  // the solid's name
+      out.shapes.push_back(std::move(v));
+    }
+  }
+  return out;
+}
+
+// The shapes as solids (kind link), each centred at a point (kind shape) of its link's pose:
+// centre p + R xyz, orientation R R_shape.
+void add_link_shapes(Geometry& g, const LinkShapes& ls, LinkPoses poses) {
+  if (ls.shapes.empty()) return;
+  std::vector<GeometryPoint> pts;
+  std::vector<Vec3> xyz;
+  std::vector<Eigen::Quaterniond> rot;
+  for (const auto& v : ls.shapes) {
+    pts.push_back({v.detail, "shape"});
+    xyz.emplace_back(v.xyz[0], v.xyz[1], v.xyz[2]);
+    rot.push_back(Eigen::Quaterniond(v.quat[0], v.quat[1], v.quat[2], v.quat[3]).normalized());
+  }
+  auto shared = std::make_shared<const LinkPoses>(std::move(poses));
+  const std::vector<std::size_t> link = ls.link;
+  const std::size_t first = g.add_part(
+      std::move(pts), {}, [shared, link, xyz](CVecRef q, std::vector<Vec3>& out, std::size_t at) {
+        std::vector<Eigen::Matrix3d> R;
+        std::vector<Vec3> p;
+        (*shared)(q, R, p);
+        for (std::size_t k = 0; k < link.size(); ++k)
+          out[at + k] = p[link[k]] + R[link[k]] * xyz[k];
+      });
+  for (std::size_t k = 0; k < ls.shapes.size(); ++k) {
+    const auto& v = ls.shapes[k];
+    const std::size_t l = link[k];
+    const Eigen::Quaterniond r = rot[k];
+    g.add_solid({v.detail, v.shape, Vec3(v.size[0], v.size[1], v.size[2]), first + k, "link"},
+                [shared, l, r](CVecRef q) {
+                  std::vector<Eigen::Matrix3d> R;
+                  std::vector<Vec3> p;
+                  (*shared)(q, R, p);
+                  const Eigen::Quaterniond o = Eigen::Quaterniond(R[l]) * r;
+                  return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+                });
+  }
+}
+
+// The poses of `links` of a chain with symbolic kinematics: one compiled tape of their
+// build_chain origins and rotations (parameters substituted), as add_chain's points.
+LinkPoses chain_link_poses(const symbolic::ChainModel& model, const std::vector<std::string>& links,
+                           const System& sys) {
+  namespace sym = symbolic;
+  if (links.empty()) return {};
+  const sym::InputMap in = sym::coordinate_inputs(model.def.symbols(), sys.coordinate_names(),
+                                                  sym::InputSet::q_interned);
+  const GiNaC::exmap values = model.def.parameter_values();
+  std::vector<GiNaC::ex> ex;
+  for (const auto& l : links) {
+    const sym::LinkPose& pose = model.links.at(l);
+    for (const auto& e : pose.position) ex.push_back(e.subs(values).expand());
+    for (const auto& e : pose.rotation) ex.push_back(e.subs(values).expand());  // row-major
+  }
+  auto tape = std::make_shared<const sym::Tape>(ex, in);
+  const std::size_t n = links.size();
+  return [tape, n](CVecRef q, std::vector<Eigen::Matrix3d>& R, std::vector<Vec3>& p) {
+    std::vector<double> v(12 * n);
+    tape->eval(0.0, q.data(), nullptr, v.data());
+    R.resize(n);
+    p.resize(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      p[k] = Vec3(v[12 * k], v[12 * k + 1], v[12 * k + 2]);
+      R[k] = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(v.data() + 12 * k + 3);
+    }
+  };
+}
+
+// The same from the tree algorithms' link poses (the root frame for the model's root name).
+LinkPoses tree_link_poses(std::shared_ptr<const tree::TreeSubsystem> t,
+                          const std::vector<std::string>& links, Index offset) {
+  const tree::Model& m = t->model();
+  std::vector<int> idx;
+  for (const auto& l : links) {
+    int i = -1;
+    for (std::size_t k = 0; k < m.links.size(); ++k)
+      if (m.links[k].name == l) i = static_cast<int>(k);
+    idx.push_back(i);
+  }
+  const Index n = t->dof();
+  return [t, idx, offset, n](CVecRef q, std::vector<Eigen::Matrix3d>& R, std::vector<Vec3>& p) {
+    std::vector<Eigen::Matrix3d> RL;
+    std::vector<Eigen::Vector3d> pL;
+    t->link_poses(q.segment(offset, n), RL, pL);
+    const tree::Model& mm = t->model();
+    R.resize(idx.size());
+    p.resize(idx.size());
+    for (std::size_t k = 0; k < idx.size(); ++k) {
+      const int i = idx[k];
+      R[k] = i < 0 ? mm.root_rotation : RL[static_cast<std::size_t>(i)];
+      p[k] = i < 0 ? Vec3(mm.root_translation) : Vec3(pL[static_cast<std::size_t>(i)]);
+    }
+  };
+}
+
 // A free body (docs/free-bodies.md): its CoM, and the box of the same mass and principal moments of
 // inertia about it (MuJoCo draws the same equivalent-inertia box, mjVIS_INERTIA). A uniform box of
 // edges a, b, c has I1 = m (b² + c²) / 12 and so on (any table of moments of inertia), hence
@@ -222,14 +394,29 @@ void add_bodies(Geometry& g, const std::string& name,
 // along the principal axes. Posed by the coordinates (x, y, z, qw, qx, qy, qz): CoM at (x, y, z),
 // turned by the normalised quaternion and then by the principal axes in the body frame. A side the
 // formula makes zero (a rod, a point mass) is drawn at 2 % of the largest; no box at all if every
-// side is zero or the mass is not positive (then only the CoM is drawn).
+// side is zero or the mass is not positive (then only the CoM is drawn). A free body with a
+// `shape:` is drawn as that shape instead, centred at the CoM, its axes the body's.
 void add_free_body(Geometry& g, const std::string& name, const io_detail::FreeBodyInertia& fb,
-                   Index offset) {
+                   const std::optional<io_detail::FreeBodyShape>& shape, Index offset) {
   const std::size_t centre =
       g.add_part({{name + "." + name, "com"}}, {},
                  [offset](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
                    out[first] = q.segment<3>(offset);
                  });
+  const auto posed = [offset](const Eigen::Quaterniond& in_body) {
+    return [offset, in_body](CVecRef q) {
+      Eigen::Quaterniond r(q(offset + 3), q(offset + 4), q(offset + 5), q(offset + 6));
+      const double n = r.norm();
+      r = n > 0.0 ? Eigen::Quaterniond(r.coeffs() / n) : Eigen::Quaterniond::Identity();
+      const Eigen::Quaterniond o = r * in_body;
+      return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+    };
+  };
+  if (shape) {
+    const Vec3 size(shape->size[0], shape->size[1], shape->size[2]);
+    g.add_solid({name, shape->shape, size, centre}, posed(Eigen::Quaterniond::Identity()));
+    return;
+  }
   Eigen::Matrix3d J;
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) J(i, j) = fb.inertia[static_cast<std::size_t>(3 * i + j)];
@@ -244,14 +431,7 @@ void add_free_body(Geometry& g, const std::string& name, const io_detail::FreeBo
   }
   if (!(size.maxCoeff() > 0.0)) return;
   size = size.cwiseMax(0.02 * size.maxCoeff());
-  const Eigen::Quaterniond principal(V);
-  g.add_solid({name, "box", size, centre}, [offset, principal](CVecRef q) {
-    Eigen::Quaterniond r(q(offset + 3), q(offset + 4), q(offset + 5), q(offset + 6));
-    const double n = r.norm();
-    r = n > 0.0 ? Eigen::Quaterniond(r.coeffs() / n) : Eigen::Quaterniond::Identity();
-    const Eigen::Quaterniond o = r * principal;
-    return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
-  });
+  g.add_solid({name, "box", size, centre}, posed(Eigen::Quaterniond(V)));
 }
 
 }  // namespace
@@ -265,10 +445,25 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
     if (auto arm = std::dynamic_pointer_cast<const MobileManipulator>(sub)) {
       add_mobile_manipulator(g, info.name, arm, info.offset);
     } else if (const auto* chain = io_detail::chain_model(sc.definitions.get(), info.name)) {
-      add_chain(g, info.name, *chain, io_detail::chain_edges(sc.definitions.get(), info.name), sys);
+      const auto edges = io_detail::chain_edges(sc.definitions.get(), info.name);
+      add_chain(g, info.name, *chain, edges, sys);
+      const LinkShapes ls = read_link_shapes(
+          sc, info.name, edges.empty() ? "" : edges.front().first,
+          [&](const std::string& l) { return chain->links.count(l) > 0; }, left_out);
+      add_link_shapes(g, ls, chain_link_poses(*chain, ls.links, sys));
     } else if (auto tr = std::dynamic_pointer_cast<const tree::TreeSubsystem>(sub)) {
-      add_tree_chain(g, info.name, tr, io_detail::chain_edges(sc.definitions.get(), info.name),
-                     info.offset);
+      const auto edges = io_detail::chain_edges(sc.definitions.get(), info.name);
+      add_tree_chain(g, info.name, tr, edges, info.offset);
+      const tree::Model& m = tr->model();
+      const LinkShapes ls = read_link_shapes(
+          sc, info.name, edges.empty() ? m.root_name : edges.front().first,
+          [&](const std::string& l) {
+            return l == m.root_name ||
+                   std::any_of(m.links.begin(), m.links.end(),
+                               [&](const tree::Link& link) { return link.name == l; });
+          },
+          left_out);
+      add_link_shapes(g, ls, tree_link_poses(tr, ls.links, info.offset));
     } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
                !bodies.empty() &&
                std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
@@ -278,7 +473,8 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
           *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
     } else if (const auto fb = io_detail::free_body_inertia(sc.definitions.get(), info.name);
                fb && info.type == "free_body") {
-      add_free_body(g, info.name, *fb, info.offset);
+      add_free_body(g, info.name, *fb, io_detail::free_body_shape(sc.definitions.get(), info.name),
+                    info.offset);
     } else if (left_out) {
       left_out->push_back(info.name);
     }

@@ -155,7 +155,7 @@ void append_model_json(std::string& d, const Scenario& sc, const ReplayOptions& 
       if (k) d += ',';
       number(d, s.size(k));
     }
-    d += fmt::format("],\"point\":{}}}", s.point);
+    d += fmt::format("],\"point\":{},\"kind\":", s.point) + js_string(s.kind) + "}";
   }
 }
 

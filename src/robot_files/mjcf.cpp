@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/input_file.hpp"
+#include "ukdyn/robot_files/visuals.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 
 #ifdef UKDYN_HAVE_MUJOCO
@@ -24,6 +25,12 @@ namespace ukdyn::symbolic {
 bool mjcf_supported() { return false; }
 
 void append_mjcf(ChainDef&, const std::string& path, bool) {
+  throw DefinitionError(path +
+                        ": this ukdyn was built without MuJoCo, so it cannot read MJCF files "
+                        "(install libmujoco-dev, scripts/install-deps.sh, and rebuild)");
+}
+
+std::vector<LinkVisual> mjcf_visuals(const std::string& path) {
   throw DefinitionError(path +
                         ": this ukdyn was built without MuJoCo, so it cannot read MJCF files "
                         "(install libmujoco-dev, scripts/install-deps.sh, and rebuild)");
@@ -96,6 +103,16 @@ struct ModelGuard {
     if (m) mj_deleteModel(m);
   }
 };
+
+// The compiled model of the file (its files checked first); DefinitionError naming the file if
+// MuJoCo cannot load it.
+void load_model(const std::string& path, ModelGuard& g) {
+  int files = 0;
+  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "", files);
+  char err[1000] = "";
+  g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
+  if (!g.m) throw DefinitionError(path + ": MuJoCo could not load it: " + err);
+}
 
 // The compiled model and its file, for the messages.
 struct MjcfSource {
@@ -363,12 +380,8 @@ void append_equalities(ChainDef& chain, const MjcfSource& src,
 bool mjcf_supported() { return true; }
 
 void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
-  int files = 0;
-  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "", files);
-  char err[1000] = "";
   ModelGuard g;
-  g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
-  if (!g.m) throw DefinitionError(path + ": MuJoCo could not load it: " + err);
+  load_model(path, g);
   const MjcfSource src{*g.m, path};
   const std::vector<std::string> free = joint_coordinates(chain);
   check_supported(src, free.size());
@@ -385,6 +398,68 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
         path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
         " ignored: ukdyn reads kinematics and inertia only; visuals are not drawn");
   }
+}
+
+namespace {
+
+// Geom k as a LinkVisual: MuJoCo's half-sizes (geom_size) as extents (docs/replay.md); capsules and
+// cylinders along the geom's z (MuJoCo's fromto already turned into geom_pos / geom_quat).
+LinkVisual geom_visual(const MjcfSource& src, int k) {
+  const mjModel& m = src.m;
+  LinkVisual v;
+  const int b = m.geom_bodyid[k];
+  v.link = b == 0 ? "" : src.name_of(mjOBJ_BODY, b, "body" + std::to_string(b));
+  const double* p = m.geom_pos + 3 * k;
+  const double* q = m.geom_quat + 4 * k;
+  const double* h = m.geom_size + 3 * k;
+  v.xyz = {p[0], p[1], p[2]};
+  v.quat = {q[0], q[1], q[2], q[3]};
+  switch (m.geom_type[k]) {
+    case mjGEOM_BOX:
+      v.shape = "box";
+      v.size = {2 * h[0], 2 * h[1], 2 * h[2]};
+      break;
+    case mjGEOM_SPHERE:
+      v.shape = "sphere";
+      v.size = {2 * h[0], 2 * h[0], 2 * h[0]};
+      break;
+    case mjGEOM_ELLIPSOID:
+      v.shape = "ellipsoid";
+      v.size = {2 * h[0], 2 * h[1], 2 * h[2]};
+      break;
+    case mjGEOM_CYLINDER:  // radius, half-length
+      v.shape = "cylinder";
+      v.size = {2 * h[0], 2 * h[0], 2 * h[1]};
+      break;
+    case mjGEOM_CAPSULE:  // radius, half-length of the cylinder part
+      v.shape = "capsule";
+      v.size = {2 * h[0], 2 * h[0], 2 * h[1] + 2 * h[0]};
+      break;
+    case mjGEOM_MESH:
+      v.shape = "mesh";
+      v.detail = src.name_of(mjOBJ_MESH, m.geom_dataid[k], "");
+      break;
+    case mjGEOM_PLANE:
+      v.shape = "plane";
+      break;
+    case mjGEOM_HFIELD:
+      v.shape = "hfield";
+      break;
+    default:
+      v.shape = "geom type " + std::to_string(m.geom_type[k]);
+  }
+  return v;
+}
+
+}  // namespace
+
+std::vector<LinkVisual> mjcf_visuals(const std::string& path) {
+  ModelGuard g;
+  load_model(path, g);
+  const MjcfSource src{*g.m, path};
+  std::vector<LinkVisual> out;
+  for (int k = 0; k < g.m->ngeom; ++k) out.push_back(geom_visual(src, k));
+  return out;
 }
 
 #endif

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "core/input_file.hpp"
+#include "ukdyn/robot_files/visuals.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 
 #ifdef UKDYN_HAVE_URDFDOM
@@ -25,6 +26,10 @@ namespace ukdyn::symbolic {
 bool urdf_supported() { return false; }
 
 void append_urdf(ChainDef&, const std::string& path, const std::map<std::string, GiNaC::ex>&) {
+  throw DefinitionError(path + ": this ukdyn was built without urdfdom (install liburdfdom-dev)");
+}
+
+std::vector<LinkVisual> urdf_visuals(const std::string& path) {
   throw DefinitionError(path + ": this ukdyn was built without urdfdom (install liburdfdom-dev)");
 }
 
@@ -435,6 +440,52 @@ void append_urdf(ChainDef& chain, const std::string& path,
         path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
         " ignored: ukdyn reads kinematics and inertia only; visuals are not drawn");
   }
+}
+
+namespace {
+
+// One <visual>'s geometry as a LinkVisual (sizes as extents; docs/replay.md).
+LinkVisual link_visual(const std::string& link, const urdf::Visual& v) {
+  LinkVisual lv;
+  lv.link = link;
+  const urdf::Pose& o = v.origin;
+  lv.xyz = {o.position.x, o.position.y, o.position.z};
+  lv.quat = {o.rotation.w, o.rotation.x, o.rotation.y, o.rotation.z};
+  const urdf::GeometrySharedPtr& g = v.geometry;
+  if (const auto box = std::dynamic_pointer_cast<urdf::Box>(g)) {
+    lv.shape = "box";
+    lv.size = {box->dim.x, box->dim.y, box->dim.z};
+  } else if (const auto cyl = std::dynamic_pointer_cast<urdf::Cylinder>(g)) {
+    lv.shape = "cylinder";  // along the visual frame's z (URDF)
+    lv.size = {2 * cyl->radius, 2 * cyl->radius, cyl->length};
+  } else if (const auto sph = std::dynamic_pointer_cast<urdf::Sphere>(g)) {
+    lv.shape = "sphere";
+    lv.size = {2 * sph->radius, 2 * sph->radius, 2 * sph->radius};
+  } else if (const auto mesh = std::dynamic_pointer_cast<urdf::Mesh>(g)) {
+    lv.shape = "mesh";
+    lv.detail = shown(mesh->filename);
+  } else {
+    lv.shape = "unknown";
+  }
+  return lv;
+}
+
+}  // namespace
+
+std::vector<LinkVisual> urdf_visuals(const std::string& path) {
+  const std::string xml = read_urdf(path);
+  std::string messages;
+  const urdf::ModelInterfaceSharedPtr model = parse_file(xml, messages);
+  const Unlink unlink{model};  // whatever the outcome
+  if (!model) throw DefinitionError(path + ": urdfdom could not read it: " + messages);
+  std::vector<LinkVisual> out;
+  for (const auto& [name, link] : model->links_) {
+    if (!link) continue;
+    for (const auto& v : link->visual_array) {
+      if (v && v->geometry) out.push_back(link_visual(name, *v));
+    }
+  }
+  return out;
 }
 
 #endif

@@ -213,6 +213,11 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
   /// Per free_body subsystem: its mass and inertia (body frame, row-major), as numbers.
   std::map<std::string, io_detail::FreeBodyInertia> free_bodies;
+  /// Per free_body subsystem with a `shape:`: that shape (the replay page).
+  std::map<std::string, io_detail::FreeBodyShape> free_body_shapes;
+  /// Per serial chain read from a robot file: ("urdf" or "mjcf", the file), for its shapes on the
+  /// replay page (read only when drawn: robot_files/visuals.hpp).
+  std::map<std::string, std::pair<std::string, std::string>> robot_files;
   /// Per chain: the constraints between its links (an MJCF file's weld / connect equalities).
   std::map<std::string, std::vector<symbolic::LinkConstraintDef>> link_constraints;
   /// LoadOptions::symbolic_chains: `dynamics: auto` chains derived symbolically.
@@ -328,13 +333,40 @@ void record_free_body(DefinitionContext& context, const std::string& name,
   if (ok) context.free_bodies[name] = fb;
 }
 
+// shape: {box: [lx, ly, lz]} | {sphere: r} | {cylinder: [r, h]} (docs/free-bodies.md), lengths in m.
+FreeBodyShape load_free_body_shape(const Loader& L, const Node& n) {
+  const char* expected = "expected one of {box: [lx, ly, lz]}, {sphere: r}, {cylinder: [r, h]}";
+  if (!n.node.IsMap() || n.node.size() != 1) L.fail(n, expected);
+  L.only_keys(n, {"box", "sphere", "cylinder"});
+  const std::string kind = n.node.begin()->first.Scalar();
+  const Node v = L.child(n, kind, true);
+  const std::size_t count = kind == "box" ? 3 : kind == "cylinder" ? 2 : 1;
+  std::array<double, 3> x{0, 0, 0};
+  if (count == 1) {
+    x[0] = L.positive(v);
+  } else {
+    if (!v.node.IsSequence() || v.node.size() != count)
+      L.fail(v, kind == "box" ? "expected [lx, ly, lz]: the box's 3 edge lengths (m)"
+                              : "expected [r, h]: the cylinder's radius and length (m)");
+    for (std::size_t i = 0; i < count; ++i)
+      x[i] = L.positive(Node{v.node[i], v.key + "[" + std::to_string(i) + "]"});
+  }
+  if (kind == "box") return {kind, x};
+  if (kind == "sphere") return {kind, {2 * x[0], 2 * x[0], 2 * x[0]}};
+  return {kind, {2 * x[0], 2 * x[0], x[1]}};
+}
+
 }  // namespace
 
 std::shared_ptr<const Subsystem> load_free_body_subsystem(
     const Loader& L, const Node& s, const std::string& name,
     const std::vector<std::string>& coordinates, double gravity, DefinitionContext* context) {
   L.only_keys(s, {"name", "type", "coordinates", "parameters", "let", "mass", "inertia", "gravity",
-                  "potential"});
+                  "potential", "shape"});
+  if (Node sh = L.child(s, "shape", false); sh.node.IsDefined()) {
+    const FreeBodyShape shape = load_free_body_shape(L, sh);
+    if (context != nullptr) context->free_body_shapes[name] = shape;
+  }
   if (coordinates.size() != 7) {
     L.fail(
         L.child(s, "coordinates", true),
@@ -455,6 +487,22 @@ std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* contex
   if (!context) return std::nullopt;
   auto it = context->free_bodies.find(name);
   if (it == context->free_bodies.end()) return std::nullopt;
+  return it->second;
+}
+
+std::optional<FreeBodyShape> free_body_shape(const DefinitionContext* context,
+                                             const std::string& name) {
+  if (!context) return std::nullopt;
+  auto it = context->free_body_shapes.find(name);
+  if (it == context->free_body_shapes.end()) return std::nullopt;
+  return it->second;
+}
+
+std::optional<std::pair<std::string, std::string>> chain_robot_file(
+    const DefinitionContext* context, const std::string& name) {
+  if (!context) return std::nullopt;
+  auto it = context->robot_files.find(name);
+  if (it == context->robot_files.end()) return std::nullopt;
   return it->second;
 }
 
@@ -856,6 +904,10 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
   const ChainCoordinateNames coordinate_name{L, coordinates, instance};
   load_base(L, s, coordinate_name, *def);
   load_links(L, s, coordinate_name, *def);
+  for (const char* format : {"urdf", "mjcf"}) {  // its shapes for the replay page
+    if (Node f = L.child(s, format, false); f.node.IsDefined())
+      context.robot_files[name] = {format, model_file(L, f).string()};
+  }
   load_points(L, s, *def);
   try {
     // The recursive algorithms when every number is known (docs/tree-algorithms.md); the

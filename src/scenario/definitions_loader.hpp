@@ -118,6 +118,20 @@ struct FreeBodyInertia {
 /// Those of free_body subsystem `name` (nullopt if none, no context, or not numbers).
 std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* context,
                                                  const std::string& name);
+/// The shape a free body's `shape:` key gives it on the replay page (docs/free-bodies.md): box,
+/// sphere or cylinder (along the body's z), centred at its CoM, its extents along the body axes
+/// (m): a box's edges, a sphere's diameter (3 times), a cylinder's (2 r, 2 r, h).
+struct FreeBodyShape {
+  std::string shape;
+  std::array<double, 3> size{0, 0, 0};
+};
+/// That of free_body subsystem `name` (nullopt if it has no `shape:`, or no context).
+std::optional<FreeBodyShape> free_body_shape(const DefinitionContext* context,
+                                             const std::string& name);
+/// The robot file serial_chain subsystem `name` was read from: ("urdf" or "mjcf", its path);
+/// nullopt for a chain of `joints:` (or no context).
+std::optional<std::pair<std::string, std::string>> chain_robot_file(
+    const DefinitionContext* context, const std::string& name);
 /// The bodies (name, CoM in the world) of definitions subsystem `name`.
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name);

@@ -1,6 +1,8 @@
 // ukdyn replay page (docs/replay.md). Data: the JSON block #ukdyn-data written by `ukdyn replay`:
 //   t[frames], points[{name, kind}], segments[[a, b, kind]], pos[frames][3·points] (world, z up),
-//   solids[{name, shape: box, size: [edges], point: its centre}], rot[frames][4·solids] (w, x, y, z),
+//   solids[{name, shape: box|sphere|ellipsoid|cylinder|capsule, size: [extents along its own axes;
+//   cylinders and capsules along z], point: its centre, kind: load|link}], rot[frames][4·solids]
+//   (w, x, y, z),
 //   columns{name: values[frames]}, groups{title: [column names]}.
 // Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, frames3d, project, ready).
 import * as THREE from 'three';
@@ -63,7 +65,9 @@ const cylinder = new THREE.CylinderGeometry(1, 1, 1, 16);
 const box = new THREE.BoxGeometry(1, 1, 1);
 const pointMeshes = D.points.map((p) => {
   let m;
-  if (p.kind === 'platform') {
+  if (p.kind === 'shape') {  // a solid's centre: the solid is drawn
+    m = new THREE.Object3D();
+  } else if (p.kind === 'platform') {
     m = new THREE.Mesh(box, new THREE.MeshStandardMaterial({ color: colours.platform }));
     m.scale.set(extent * 0.25, extent * 0.17, extent * 0.04);
   } else {
@@ -80,10 +84,26 @@ const segMeshes = D.segments.map(([a, b, kind]) => {
   world.add(m);
   return m;
 });
-// Solids (a free body's inertia-equivalent box), posed by their centre point and D.rot.
+// Solids (a free body's inertia-equivalent box or its shape; a robot file's shapes on its links),
+// posed by their centre point and D.rot. The geometry of each is built at unit size and scaled to
+// the solid's extents (a capsule, whose caps do not scale, at its size); cylinders and capsules
+// turned from three.js's y axis to the solid's z.
+const unitSphere = new THREE.SphereGeometry(0.5, 24, 16);
+const unitCylinder = new THREE.CylinderGeometry(0.5, 0.5, 1, 24).rotateX(Math.PI / 2);
+function solidGeometry(s) {
+  if (s.shape === 'sphere' || s.shape === 'ellipsoid') return [unitSphere, s.size];
+  if (s.shape === 'cylinder') return [unitCylinder, s.size];
+  if (s.shape === 'capsule') {
+    const rad = s.size[0] / 2;
+    return [new THREE.CapsuleGeometry(rad, Math.max(s.size[2] - 2 * rad, 0), 8, 16).rotateX(Math.PI / 2), [1, 1, 1]];
+  }
+  return [box, s.size];
+}
 const solidMeshes = solids.map((s) => {
-  const m = new THREE.Mesh(box, new THREE.MeshStandardMaterial({ color: segColours.load }));
-  m.scale.set(s.size[0], s.size[1], s.size[2]);
+  const [geometry, scale] = solidGeometry(s);
+  const colour = s.kind === 'link' ? segColours.link : segColours.load;
+  const m = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: colour }));
+  m.scale.set(scale[0], scale[1], scale[2]);
   world.add(m);
   return m;
 });
@@ -99,7 +119,7 @@ const frameAxes = Object.keys(D.columns).filter((n) => /^pose_.+_x$/.test(n)).ma
     return m;
   });
 {
-  const kinds = [...new Set(D.points.map((p) => p.kind))];
+  const kinds = [...new Set(D.points.map((p) => p.kind))].filter((k) => k !== 'shape');
   $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
     (D.segments.some((s) => s[2] === 'load') || solids.length ? `<i style="background:#ef6c00"></i>load` : '');
 }
@@ -308,24 +328,24 @@ window.ukdyn = {
     world.visible = markerSolid < 0;
     $('legend').style.display = markerSolid < 0 ? '' : 'none';
     solidMarker.visible = markerSolid >= 0;
+    if (markerSolid >= 0) solidMarker.geometry = solidMeshes[markerSolid].geometry;
     scene.background = markerSolid >= 0 ? new THREE.Color(0x000000) : background;
     place(frame);
     renderer.render(scene, camera);
     return markerSolid;
   },
-  /// Solid `name` as drawn at the current frame: its position, quaternion [w, x, y, z] and the
-  /// world positions of its 8 corners (null if there is no such solid).
+  /// Solid `name` as drawn at the current frame: its shape, position, quaternion [w, x, y, z] and
+  /// the world positions of the 8 corners of its box of extents (null if there is no such solid).
   solid(name) {
     const i = solids.findIndex((s) => s.name === name);
     if (i < 0) return null;
-    const m = solidMeshes[i];
-    m.updateMatrixWorld(true);
+    const m = solidMeshes[i], e = solids[i].size;
     const corners = [];
     for (const x of [-0.5, 0.5]) for (const y of [-0.5, 0.5]) for (const z of [-0.5, 0.5]) {
-      const v = new THREE.Vector3(x, y, z).applyMatrix4(m.matrixWorld);
+      const v = new THREE.Vector3(x * e[0], y * e[1], z * e[2]).applyQuaternion(m.quaternion).add(m.position);
       corners.push([v.x, v.y, v.z]);
     }
-    return { position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z], corners };
+    return { shape: solids[i].shape, position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z], corners };
   },
   /// The frame constraints drawn as axes: [{name, position, quaternion [w, x, y, z]}] at this frame.
   frames3d() {

@@ -30,12 +30,17 @@ struct GeometrySegment {
 };
 
 /// A solid drawn at one of the points (its centre), turned by an orientation of q: a free body's
-/// inertia-equivalent box.
+/// inertia-equivalent box or its `shape:`, a robot file's shape on a link (URDF <visual>, MJCF
+/// geom).
 struct GeometrySolid {
-  std::string name;          ///< "load": the free body's
-  std::string shape;         ///< box
-  Vec3 size = Vec3::Zero();  ///< edge lengths along the solid's own axes (m)
-  std::size_t point = 0;     ///< index into Geometry::points of its centre
+  std::string name;  ///< "load": the free body's; "arm.link2.visual0": a link's
+  /// box, sphere, ellipsoid, cylinder, capsule (the last two along the solid's own z)
+  std::string shape;
+  /// Extents along the solid's own axes (m): a box's edges, a sphere's or ellipsoid's diameters,
+  /// a cylinder's or capsule's (2 r, 2 r, full length with a capsule's caps).
+  Vec3 size = Vec3::Zero();
+  std::size_t point = 0;      ///< index into Geometry::points of its centre
+  std::string kind = "load";  ///< load (a free body), link (a robot file's shape)
 };
 
 class Geometry {

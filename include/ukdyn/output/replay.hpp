@@ -26,7 +26,9 @@ struct ReplayResult {
   std::filesystem::path file;
   std::size_t bytes = 0;
   std::size_t frames = 0, source_rows = 0, stride = 1;
-  std::vector<std::string> left_out;  ///< subsystems the page does not draw
+  /// What the page does not draw: subsystems (by name), and robot-file shapes as "NAME.LINK (why)"
+  /// (meshes, which are not loaded; planes; ...).
+  std::vector<std::string> left_out;
 };
 
 /// Whether this ukdyn was built with three.js (web/node_modules present at configure time).

@@ -1,0 +1,300 @@
+// What the replay page draws besides points and sticks (docs/replay.md): a robot file's shapes on
+// its links (URDF <visual> primitives, MJCF geoms) and a free body's `shape:`. Every pose is
+// checked against one computed here by other means: the closed form of the URDF's joints,
+// MuJoCo's own forward kinematics (mj_kinematics), the quaternion of the free body.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+
+#include "cli_run.hpp"
+#include "ukdyn/output/geometry.hpp"
+#include "ukdyn/output/replay.hpp"
+#include "ukdyn/output/trajectory_table.hpp"
+#include "ukdyn/robot_files/mjcf.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
+#include "ukdyn/run/run.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+
+#ifdef UKDYN_TEST_HAVE_MUJOCO
+#include <mujoco/mujoco.h>
+#endif
+
+namespace {
+
+using namespace ukdyn;
+namespace fs = std::filesystem;
+using Mat3 = Eigen::Matrix3d;
+
+void write_file(const fs::path& p, const std::string& text) {
+  std::ofstream out(p);
+  out << text;
+}
+
+// R = Rz(yaw) Ry(pitch) Rx(roll) (URDF's rpy).
+Mat3 rpy(double r, double p, double y) {
+  return (Eigen::AngleAxisd(y, Vec3::UnitZ()) * Eigen::AngleAxisd(p, Vec3::UnitY()) *
+          Eigen::AngleAxisd(r, Vec3::UnitX()))
+      .toRotationMatrix();
+}
+
+// The rotation of the (not necessarily unit) quaternion (w, x, y, z), written out.
+Mat3 quat_matrix(double w, double x, double y, double z) {
+  const double n = std::sqrt(w * w + x * x + y * y + z * z);
+  w /= n, x /= n, y /= n, z /= n;
+  Mat3 R;
+  R << 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),  //
+      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),   //
+      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y);
+  return R;
+}
+
+Vec vec2(double a, double b) {
+  Vec q(2);
+  q << a, b;
+  return q;
+}
+
+struct Drawn {
+  const GeometrySolid* solid = nullptr;
+  Vec3 centre;
+  Mat3 R;  // solid axes → world
+};
+
+// Solid `name` of g at q: its centre point and its orientation as a matrix.
+Drawn drawn(const Geometry& g, CVecRef q, const std::string& name) {
+  std::vector<Vec3> xyz;
+  std::vector<std::array<double, 4>> rot;
+  g.evaluate(q, xyz);
+  g.evaluate_orientations(q, rot);
+  for (std::size_t i = 0; i < g.solids().size(); ++i) {
+    if (g.solids()[i].name != name) continue;
+    const auto& o = rot[i];
+    return {&g.solids()[i], xyz[g.solids()[i].point],
+            Eigen::Quaterniond(o[0], o[1], o[2], o[3]).toRotationMatrix()};
+  }
+  ADD_FAILURE() << "no solid " << name;
+  return {};
+}
+
+const char* kUrdf = R"(<robot name="shapes">
+  <link name="base"/>
+  <link name="upper">
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual><origin xyz="0.2 0 0" rpy="0 0 0.4"/><geometry><box size="0.4 0.1 0.05"/></geometry></visual>
+    <visual><origin xyz="0.1 0.05 0" rpy="1.2 0.3 0"/><geometry><cylinder radius="0.03" length="0.2"/></geometry></visual>
+    <visual><origin xyz="0.4 0 0"/><geometry><sphere radius="0.05"/></geometry></visual>
+    <visual><geometry><mesh filename="package://shapes/upper.stl"/></geometry></visual>
+  </link>
+  <link name="slider">
+    <inertial><mass value="0.5"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual><origin xyz="0 0 0.02" rpy="0.1 -0.2 0.3"/><geometry><box size="0.1 0.06 0.04"/></geometry></visual>
+  </link>
+  <joint name="turn" type="revolute">
+    <parent link="base"/><child link="upper"/><origin xyz="0 0 0.5" rpy="0 0.2 0"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10" velocity="5"/>
+  </joint>
+  <joint name="slide" type="prismatic">
+    <parent link="upper"/><child link="slider"/><origin xyz="0.4 0 0"/>
+    <axis xyz="1 0 0"/><limit lower="-1" upper="1" effort="10" velocity="5"/>
+  </joint>
+</robot>
+)";
+
+// URDF <visual> box, cylinder and sphere drawn at their link frames: centre p + R xyz and axes
+// R R_visual, against the closed form of the two joints (turn: Ry(0.2) Rz(a) at height 0.5;
+// slide: 0.4 + s along the upper link's x), on the tree algorithms and on the symbolic chain. The
+// mesh is named in what is not drawn.
+TEST(ReplayShapes, UrdfVisualsAtTheirLinkFrames) {
+  if (!symbolic::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  ukdyn_test::ScratchDir dir("ukdyn_urdf_shapes");
+  write_file(dir.path / "shapes.urdf", kUrdf);
+  for (const char* dynamics : {"tree", "symbolic"}) {
+    write_file(dir.path / "s.yaml", fmt::format(R"(ukdyn: 1
+name: urdf_shapes
+subsystems:
+  - {{name: arm, type: serial_chain, coordinates: [a, s], urdf: shapes.urdf, dynamics: {}}}
+initial: {{q: [0, 0], qd: zeros}}
+simulation: {{t_end: 1, sample_dt: 0.1}}
+)",
+                                                dynamics));
+    const Scenario sc = load_scenario(dir.path / "s.yaml");
+    std::vector<std::string> left_out;
+    const Geometry g = build_geometry(sc, &left_out);
+    ASSERT_EQ(left_out.size(), 1u) << dynamics;
+    EXPECT_EQ(left_out[0], "arm.upper (mesh package://shapes/upper.stl: meshes are not loaded)");
+    ASSERT_EQ(g.solids().size(), 4u) << dynamics;
+    struct Expected {
+      const char* name;
+      const char* shape;
+      Vec3 size, xyz;
+      Mat3 R;
+      bool on_slider;
+    };
+    const std::vector<Expected> want{
+        {"arm.upper.visual0", "box", {0.4, 0.1, 0.05}, {0.2, 0, 0}, rpy(0, 0, 0.4), false},
+        {"arm.upper.visual1",
+         "cylinder",
+         {0.06, 0.06, 0.2},
+         {0.1, 0.05, 0},
+         rpy(1.2, 0.3, 0),
+         false},
+        {"arm.upper.visual2", "sphere", {0.1, 0.1, 0.1}, {0.4, 0, 0}, Mat3::Identity(), false},
+        {"arm.slider.visual0", "box", {0.1, 0.06, 0.04}, {0, 0, 0.02}, rpy(0.1, -0.2, 0.3), true}};
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-1.5, 1.5);
+    for (int k = 0; k < 8; ++k) {
+      const double a = u(rng), s = u(rng) / 3;
+      const Mat3 Ru = rpy(0, 0.2, 0) * Eigen::AngleAxisd(a, Vec3::UnitZ()).toRotationMatrix();
+      const Vec3 pu(0, 0, 0.5);
+      const Vec3 ps = pu + Ru * Vec3(0.4 + s, 0, 0);
+      for (const auto& e : want) {
+        const Drawn d = drawn(g, vec2(a, s), e.name);
+        ASSERT_NE(d.solid, nullptr);
+        EXPECT_EQ(d.solid->shape, e.shape);
+        EXPECT_EQ(d.solid->kind, "link");
+        EXPECT_LT((d.solid->size - e.size).norm(), 1e-15) << e.name;
+        const Vec3 p = e.on_slider ? ps : pu;
+        EXPECT_LT((d.centre - (p + Ru * e.xyz)).norm(), 1e-12) << dynamics << " " << e.name;
+        EXPECT_LT((d.R - Ru * e.R).norm(), 1e-12) << dynamics << " " << e.name;
+      }
+    }
+  }
+}
+
+const char* kMjcf = R"(<mujoco model="shapes">
+  <compiler angle="radian" inertiafromgeom="false"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <geom name="post" type="cylinder" pos="0 0 0.25" size="0.03 0.25"/>
+    <body name="arm" pos="0 0 0.5" euler="0.1 0.2 0.3">
+      <joint name="hinge" type="hinge" axis="0 0 1" pos="0.01 0 0"/>
+      <inertial pos="0.2 0 0" mass="1" diaginertia="0.01 0.02 0.03"/>
+      <geom name="upper" type="capsule" fromto="0 0 0 0.4 0.1 0" size="0.04"/>
+      <geom name="elbow" type="sphere" pos="0.4 0.1 0" size="0.05"/>
+      <body name="forearm" pos="0.4 0.1 0" quat="0.9 0.1 0.3 0.2">
+        <joint name="slide" type="slide" axis="1 0 0.2"/>
+        <inertial pos="0.1 0 0" mass="0.5" diaginertia="0.01 0.01 0.01"/>
+        <geom name="block" type="box" pos="0.15 0 0" euler="0.3 0 0.2" size="0.15 0.03 0.02"/>
+        <geom name="egg" type="ellipsoid" pos="0.3 0 0" size="0.05 0.03 0.02"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+)";
+
+// MJCF geoms (cylinder on the world body, a capsule given by fromto, sphere, box, ellipsoid)
+// drawn where MuJoCo's own mj_kinematics puts them (geom_xpos, geom_xmat) at random qpos, with
+// MuJoCo's half-sizes as full extents; the plane is named in what is not drawn.
+TEST(ReplayShapes, MjcfGeomsWhereMuJoCoPutsThem) {
+#ifndef UKDYN_TEST_HAVE_MUJOCO
+  GTEST_SKIP() << "tests built without MuJoCo";
+#else
+  if (!symbolic::mjcf_supported()) GTEST_SKIP() << "built without MuJoCo";
+  ukdyn_test::ScratchDir dir("ukdyn_mjcf_shapes");
+  write_file(dir.path / "shapes.xml", kMjcf);
+  char err[1000] = "";
+  mjModel* m = mj_loadXML((dir.path / "shapes.xml").c_str(), nullptr, err, sizeof err);
+  ASSERT_NE(m, nullptr) << err;
+  mjData* md = mj_makeData(m);
+  for (const char* dynamics : {"tree", "symbolic"}) {
+    write_file(dir.path / "s.yaml", fmt::format(R"(ukdyn: 1
+name: mjcf_shapes
+subsystems:
+  - {{name: arm, type: serial_chain, coordinates: [a, s], mjcf: shapes.xml, dynamics: {}}}
+initial: {{q: [0, 0], qd: zeros}}
+simulation: {{t_end: 1, sample_dt: 0.1}}
+)",
+                                                dynamics));
+    const Scenario sc = load_scenario(dir.path / "s.yaml");
+    std::vector<std::string> left_out;
+    const Geometry g = build_geometry(sc, &left_out);
+    ASSERT_EQ(left_out.size(), 1u);
+    EXPECT_EQ(
+        left_out[0],
+        "arm.root (plane: only boxes, spheres, ellipsoids, cylinders and capsules are drawn)");
+    ASSERT_EQ(g.solids().size(), 5u);
+    // geom id (MuJoCo) → the solid drawn for it, and its extents from the half-sizes
+    const std::vector<std::pair<int, std::string>> geoms{{1, "arm.root.visual0"},
+                                                         {2, "arm.arm.visual0"},
+                                                         {3, "arm.arm.visual1"},
+                                                         {4, "arm.forearm.visual0"},
+                                                         {5, "arm.forearm.visual1"}};
+    const double cap = std::sqrt(0.4 * 0.4 + 0.1 * 0.1);
+    const std::vector<Vec3> sizes{{0.06, 0.06, 0.5},
+                                  {0.08, 0.08, cap + 0.08},
+                                  {0.1, 0.1, 0.1},
+                                  {0.3, 0.06, 0.04},
+                                  {0.1, 0.06, 0.04}};
+    std::mt19937 rng(9);
+    std::uniform_real_distribution<double> u(-1.5, 1.5);
+    for (int k = 0; k < 8; ++k) {
+      const double a = u(rng), s = u(rng) / 3;
+      const Vec q = vec2(a, s);
+      md->qpos[0] = q(0);
+      md->qpos[1] = q(1);
+      mj_kinematics(m, md);
+      for (std::size_t i = 0; i < geoms.size(); ++i) {
+        const auto& [id, name] = geoms[i];
+        const Drawn d = drawn(g, q, name);
+        ASSERT_NE(d.solid, nullptr);
+        EXPECT_LT((d.solid->size - sizes[i]).norm(), 1e-12) << name;
+        const Vec3 xpos(md->geom_xpos[3 * id], md->geom_xpos[3 * id + 1],
+                        md->geom_xpos[3 * id + 2]);
+        const Mat3 xmat =
+            Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(md->geom_xmat + 9 * id);
+        EXPECT_LT((d.centre - xpos).norm(), 1e-12) << dynamics << " " << name;
+        EXPECT_LT((d.R - xmat).norm(), 1e-12) << dynamics << " " << name;
+      }
+    }
+  }
+  mj_deleteData(md);
+  mj_deleteModel(m);
+#endif
+}
+
+// shape: {box | sphere | cylinder} of a free body: that solid, its extents, at the body's (x, y, z)
+// with the axes of the body (R of the normalised quaternion, not the principal axes).
+TEST(ReplayShapes, FreeBodyShapeReplacesTheInertiaBox) {
+  const std::vector<std::tuple<std::string, std::string, Vec3>> cases{
+      {"{box: [0.3, 0.2, 0.1]}", "box", {0.3, 0.2, 0.1}},
+      {"{sphere: 0.15}", "sphere", {0.3, 0.3, 0.3}},
+      {"{cylinder: [0.05, 0.4]}", "cylinder", {0.1, 0.1, 0.4}}};
+  for (const auto& [yaml, shape, size] : cases) {
+    const Scenario sc = load_scenario_text(fmt::format(R"(ukdyn: 1
+name: shaped
+subsystems:
+  - name: can
+    type: free_body
+    mass: 2
+    inertia: [[0.30, 0.04, -0.02], [0.04, 0.25, 0.03], [-0.02, 0.03, 0.12]]
+    shape: {}
+initial: {{q: [0, 0, 0, 1, 0, 0, 0], qd: zeros}}
+simulation: {{t_end: 1, sample_dt: 0.1}}
+)",
+                                                       yaml),
+                                           "shaped.yaml");
+    std::vector<std::string> left_out;
+    const Geometry g = build_geometry(sc, &left_out);
+    EXPECT_TRUE(left_out.empty());
+    ASSERT_EQ(g.solids().size(), 1u);
+    std::mt19937 rng(2);
+    std::uniform_real_distribution<double> u(-2.0, 2.0);
+    for (int k = 0; k < 5; ++k) {
+      Vec q(7);
+      for (Index i = 0; i < 7; ++i) q(i) = u(rng);
+      const Drawn d = drawn(g, q, "can");
+      ASSERT_NE(d.solid, nullptr);
+      EXPECT_EQ(d.solid->shape, shape);
+      EXPECT_EQ(d.solid->kind, "load");
+      EXPECT_LT((d.solid->size - size).norm(), 1e-15);
+      EXPECT_EQ(d.centre, Vec3(q(0), q(1), q(2)));
+      EXPECT_LT((d.R - quat_matrix(q(3), q(4), q(5), q(6))).norm(), 1e-12) << yaml;
+    }
+  }
+}
+
+}  // namespace
