@@ -1,7 +1,8 @@
 // What the replay page draws besides points and sticks (docs/replay.md): a robot file's shapes on
-// its links (URDF <visual> primitives, MJCF geoms) and a free body's `shape:`. Every pose is
-// checked against one computed here by other means: the closed form of the URDF's joints,
-// MuJoCo's own forward kinematics (mj_kinematics), the quaternion of the free body.
+// its links (URDF <visual> primitives, MJCF geoms), a free body's `shape:`, and the orientation of
+// the frame constraints' axes. Every pose is checked against one computed here by other means:
+// the closed form of the URDF's joints, MuJoCo's own forward kinematics (mj_kinematics), the
+// quaternion of the free body and, for the grasp axes, the robot's wrist in closed form.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
@@ -295,6 +296,99 @@ simulation: {{t_end: 1, sample_dt: 0.1}}
       EXPECT_LT((d.R - quat_matrix(q(3), q(4), q(5), q(6))).norm(), 1e-12) << yaml;
     }
   }
+}
+
+// The frame constraints' axes on the page (docs/replay.md): the page poses them by the pose_<c>_*
+// columns it embeds. A free-body load welded to a 3-joint wrist swings in 3D under gravity; at every
+// frame the embedded quaternion's rotation must equal (1) the load's rotation R(qw, qx, qy, qz)
+// times the weld's offset on the load, Rz Ry Rx of its rpy (frame b), and (2) the wrist in closed
+// form, R_mount Rz(r1) Ry(r2) Rx(r3), times the offset on the hand (frame a: the same frame while
+// the weld holds). A transposed rotation is several tenths away from both (checked too).
+TEST(ReplayFrames, GraspAxesHaveTheGraspFramesOrientation) {
+  if (!replay_available()) GTEST_SKIP() << "built without three.js (web/node_modules missing)";
+  const Mat3 Rm = rpy(0.2, -0.1, 0.3), Ra = rpy(-0.2, 0.1, 0.4), Rb = rpy(0.3, -0.4, 0.5);
+  const Vec3 pm(0, 0, 1), xa(0.1, 0, 0), xb(0.1, 0.05, -0.02);
+  const auto wrist = [&](double r1, double r2, double r3) {
+    return Mat3(Rm * Eigen::AngleAxisd(r1, Vec3::UnitZ()) * Eigen::AngleAxisd(r2, Vec3::UnitY()) *
+                Eigen::AngleAxisd(r3, Vec3::UnitX()));
+  };
+  // The welded start: R_load Rb = R_hand Ra, p_load + R_load xb = p_mount + R_hand xa.
+  const double r1 = 0.3, r2 = -0.2, r3 = 0.5;
+  const Mat3 Rh = wrist(r1, r2, r3);
+  const Mat3 Rl = Rh * Ra * Rb.transpose();
+  const Vec3 pl = pm + Rh * xa - Rl * xb;
+  const Eigen::Quaterniond ql(Rl);
+  const std::string text =
+      fmt::format(R"(ukdyn: 1
+name: grasp_axes
+gravity: 9.81
+subsystems:
+  - name: wrist
+    type: serial_chain
+    coordinates: [r1, r2, r3]
+    gravity: [0, 0, 0]
+    mount: {{xyz: [0, 0, 1], rpy: [0.2, -0.1, 0.3]}}
+    joints:
+      - {{name: w1, type: revolute, link: l1, axis: [0, 0, 1], coordinate: r1, mass: 0.3,
+         inertia: [0.002, 0.002, 0.003]}}
+      - {{name: w2, type: revolute, link: l2, axis: [0, 1, 0], coordinate: r2, mass: 0.3,
+         inertia: [0.002, 0.003, 0.002]}}
+      - {{name: w3, type: revolute, link: hand, axis: [1, 0, 0], coordinate: r3, mass: 0.5,
+         com: [0.05, 0, 0], inertia: [0.003, 0.002, 0.002]}}
+  - {{name: load, type: free_body, mass: 2, inertia: [0.02, 0.03, 0.04]}}
+constraints:
+  - {{type: weld, name: grasp, a: {{frame: wrist.hand, xyz: [0.1, 0, 0], rpy: [-0.2, 0.1, 0.4]}},
+     b: {{frame: load.load, xyz: [0.1, 0.05, -0.02], rpy: [0.3, -0.4, 0.5]}}}}
+initial:
+  q: [{}, {}, {}, {:.17g}, {:.17g}, {:.17g}, {:.17g}, {:.17g}, {:.17g}, {:.17g}]
+  qd: zeros
+simulation: {{t_end: 0.6, sample_dt: 0.02, integrator: dopri5, abs_tol: 1e-11, rel_tol: 1e-11}}
+)",
+                  r1, r2, r3, pl.x(), pl.y(), pl.z(), ql.w(), ql.x(), ql.y(), ql.z());
+  const Scenario sc = load_scenario_text(text, "grasp_axes.yaml");
+  ukdyn_test::ScratchDir dir("ukdyn_grasp_axes");
+  RunOptions ro;
+  ro.figures = false;
+  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
+  write_replay(sc, dir.path);
+  const std::string page = ukdyn_test::slurp(dir.path / kReplayFile);
+  const std::string open = "<script type=\"application/json\" id=\"ukdyn-data\">";
+  const auto a = page.find(open) + open.size();
+  const auto data = nlohmann::json::parse(page.substr(a, page.find("</script>", a) - a));
+  const auto& col = data["columns"];
+  const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
+  const auto& names = sc.system->coordinate_names();
+  const auto qcol = [&](const std::string& n) {
+    return static_cast<std::size_t>(std::find(tab.header.begin(), tab.header.end(), n) -
+                                    tab.header.begin());
+  };
+  ASSERT_EQ(col["pose_grasp_qw"].size(), tab.rows.size());
+  double worst_b = 0, worst_a = 0, least_transposed = 1e9, turned = 0;
+  for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+    const auto v = [&](const char* k) {
+      return col[std::string("pose_grasp_") + k][f].get<double>();
+    };
+    const Mat3 drawn_R = quat_matrix(v("qw"), v("qx"), v("qy"), v("qz"));
+    const auto& row = tab.rows[f];
+    double q[10];
+    for (std::size_t i = 0; i < 10; ++i) q[i] = row[qcol(names[i])];
+    const Mat3 Rload = quat_matrix(q[6], q[7], q[8], q[9]);
+    const Mat3 frame_b = Rload * Rb, frame_a = wrist(q[0], q[1], q[2]) * Ra;
+    worst_b = std::max(worst_b, (drawn_R - frame_b).norm());
+    worst_a = std::max(worst_a, (drawn_R - frame_a).norm());
+    least_transposed = std::min(least_transposed, (drawn_R.transpose() - frame_b).norm());
+    turned = std::max(turned, Eigen::AngleAxisd(Rload.transpose() * Rl).angle());
+    const Vec3 pb = Vec3(q[3], q[4], q[5]) + Rload * xb;
+    EXPECT_LT((Vec3(v("x"), v("y"), v("z")) - pb).norm(), 1e-5) << f;
+  }
+  std::cout << fmt::format(
+      "grasp axes: {} frames, the load turned up to {:.3f} rad; drawn vs frame b {:.2e}, vs "
+      "frame a (wrist closed form) {:.2e}; a transposed rotation would be >= {:.3f} off\n",
+      tab.rows.size(), turned, worst_b, worst_a, least_transposed);
+  EXPECT_GT(turned, 0.2);    // the load does turn: the comparison is not of constant rotations
+  EXPECT_LT(worst_b, 2e-5);  // 6 significant digits in the page
+  EXPECT_LT(worst_a, 2e-5);
+  EXPECT_GT(least_transposed, 0.1);
 }
 
 }  // namespace

@@ -108,12 +108,18 @@ async function checkFreeBody(context, refused, errors) {
   const hd = ls[0].split(','), rs = ls.slice(1).map((l) => l.split(',').map(Number));
   const c = (n) => { const i = hd.indexOf(n); if (i < 0) fail(`weld: no column ${n}`); return rs.map((r) => r[i]); };
   const [x, y, z, qw, qx, qy, qz] = ['x', 'y', 'z', 'qw', 'qx', 'qy', 'qz'].map((k) => c(`load_${k}`));
-  const rotation = (f) => {  // R of the normalised quaternion at frame f
-    const nq = Math.hypot(qw[f], qx[f], qy[f], qz[f]);
-    const [w, a, b, d] = [qw[f], qx[f], qy[f], qz[f]].map((v) => v / nq);
+  const quatMatrix = (q4) => {  // R of the normalised quaternion [w, x, y, z]
+    const nq = Math.hypot(...q4);
+    const [w, a, b, d] = q4.map((v) => v / nq);
     return [[1 - 2 * (b * b + d * d), 2 * (a * b - w * d), 2 * (a * d + w * b)],
       [2 * (a * b + w * d), 1 - 2 * (a * a + d * d), 2 * (b * d - w * a)],
       [2 * (a * d - w * b), 2 * (b * d + w * a), 1 - 2 * (a * a + b * b)]];
+  };
+  const rotation = (f) => quatMatrix([qw[f], qx[f], qy[f], qz[f]]);  // the load's at frame f
+  const mul = (A, B) => A.map((r) => [0, 1, 2].map((j) => r[0] * B[0][j] + r[1] * B[1][j] + r[2] * B[2][j]));
+  const rpyMatrix = ([r, p, y]) => {  // Rz(yaw) Ry(pitch) Rx(roll), the scenario's offsets
+    const [cr, sr, cp, sp, cy, sy] = [Math.cos(r), Math.sin(r), Math.cos(p), Math.sin(p), Math.cos(y), Math.sin(y)];
+    return mul(mul([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]], [[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]), [[1, 0, 0], [0, cr, -sr], [0, sr, cr]]);
   };
   const corners = (f) => {  // centre + R(q) (±a/2, ±b/2, ±c/2)
     const R = rotation(f);
@@ -154,20 +160,28 @@ async function checkFreeBody(context, refused, errors) {
   // the grasp frames' axes: at the load's position + R(q) (the weld's offset on the load, from the
   // scenario) at the last frame
   const text = fs.readFileSync(yaml, 'utf8');
-  const offsets = [...text.matchAll(/name: (\w+), a: \S+, b: \{frame: load\.load, xyz: \[([^\]]+)\]/g)].map((g) => [g[1], g[2].split(',').map(Number)]);
+  const offsets = [...text.matchAll(/name: (\w+), a: \S+, b: \{frame: load\.load, xyz: \[([^\]]+)\], rpy: \[([^\]]+)\]/g)]
+    .map((g) => [g[1], g[2].split(',').map(Number), g[3].split(',').map(Number)]);
   if (offsets.length !== 4) fail(`n_robots_4_weld.yaml: ${offsets.length} welds to the load found, expected 4`);
   const axes = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.frames3d()), last);
-  let worstAxes = 0;
+  let worstAxes = 0, worstTurn = 0, transposed = Infinity;
   {
     const R = rotation(last);
-    for (const [name, o] of offsets) {
+    for (const [name, o, rpy] of offsets) {
       const got = axes.find((g) => g.name === name);
       if (!got) fail(`no axes drawn for ${name} (${axes.map((g) => g.name).join(', ')})`);
       const want = [x[last], y[last], z[last]].map((p, k) => p + R[k][0] * o[0] + R[k][1] * o[1] + R[k][2] * o[2]);
       worstAxes = Math.max(worstAxes, Math.hypot(...want.map((v, k) => v - got.position[k])));
+      // the axes' orientation: the load's R(q) times the weld's rpy on the load (frame b)
+      const wantR = mul(R, rpyMatrix(rpy)), gotR = quatMatrix(got.quaternion);
+      const dist = (A, B) => Math.hypot(...A.flatMap((r, i) => r.map((v, j) => v - B[i][j])));
+      worstTurn = Math.max(worstTurn, dist(gotR, wantR));
+      const asym = dist(wantR, wantR[0].map((_, j) => wantR.map((r) => r[j])));  // |R − Rᵀ|
+      if (asym > 0.5) transposed = Math.min(transposed, dist(gotR[0].map((_, j) => gotR.map((r) => r[j])), wantR));
     }
   }
   check(worstAxes < 1e-4, `the ${offsets.length} grasp frames' axes within ${worstAxes.toExponential(2)} m of the load pose + the welds' offsets`);
+  check(worstTurn < 1e-4 && transposed > 0.5, `their orientations within ${worstTurn.toExponential(2)} of R(q) Rz Ry Rx(rpy) (Frobenius; drawn transposed they would be ${transposed.toFixed(2)} off)`);
   const movedM = Math.hypot(seen[1][2] - seen[0][2], seen[1][3] - seen[0][3], seen[1][4] - seen[0][4]);
   const movedPx = Math.hypot(seen[1][0] - seen[0][0], seen[1][1] - seen[0][1]);
   check(movedM > 0.05, `the load moves ${movedM.toFixed(3)} m in the CSV from t = 0 to the end`);
