@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <iosfwd>
 #include <string>
+#include <vector>
 
 #include "ukdyn/scenario/scenario.hpp"
 
@@ -41,6 +42,10 @@ EvalCounts run_eval_protocol(const Scenario& scenario, std::istream& in, std::os
 struct LinearizeOptions {
   bool minimal = false;
   double dt = 0.0;  ///< > 0: also the discrete model with this step
+  /// Named parameters of the scenario file (ukdyn/run/sensitivity.hpp): also the object
+  /// "parameters" with ∂q̈/∂p, ∂Qc/∂p and d(q0, q̇0)/dp (docs/derivatives.md, "Sensitivities to
+  /// parameters").
+  std::vector<std::string> parameters = {};
 };
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                          const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});
