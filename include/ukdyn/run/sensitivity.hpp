@@ -71,6 +71,10 @@ struct RunSensitivities {
   /// where and why; or when the run stopped before t_end (not finite).
   bool trusted = true;
   std::string message;
+  /// One line per parameter that moves the constraints away from the initial state
+  /// (max |dΦ(q0, t0)/dp| or max |dΦ̇(q0, q̇0, t0)/dp| above 1e-8): its perturbed runs start off
+  /// the constraints, so dq/dp is that of the ODE from the file's q0, not of a consistent motion.
+  std::vector<std::string> warnings;
 };
 
 /// Integrates x = (q, q̇) with the variational equations s' = (∂f/∂x) s + ∂f/∂p, s(t0) = dx0/dp,
