@@ -1,0 +1,66 @@
+"""Scenario.parameter_derivatives and Scenario.sensitivities (docs/derivatives.md, "Sensitivities to
+parameters") against independent evidence: central differences of forward() on scenario files
+edited here as text, and the CLI's sensitivities.csv (the same numbers through the other door)."""
+import csv
+
+import numpy as np
+import pytest
+
+import ukdyn
+from conftest import run_cli, scenario_path
+
+
+def edited(tmp_path, name, old, new, tag):
+    text = scenario_path(name).read_text()
+    assert old in text
+    p = tmp_path / f"{tag}_{name}"
+    p.write_text(text.replace(old, new))
+    return p
+
+
+def test_parameter_derivatives_match_differences_of_forward(tmp_path):
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    n = sc.dof
+    qd = 0.2 * np.cos(np.arange(n) + 0.3)
+    tau = 0.3 * np.sin(np.arange(n) + 0.4)
+    d = sc.parameter_derivatives(["l1", "m2"], 0.0, sc.q0, qd, tau)
+    assert d["trusted"], d["message"]
+    assert d["dqdd_dp"].shape == (n, 2) and d["dQc_dp"].shape == (n, 2)
+    for j, (key, value) in enumerate([("l1", 0.3), ("m2", 0.8)]):
+        h = 1e-3 * value
+
+        def at(v, tag):
+            p = edited(tmp_path, "five_bar_redundant.yaml", f"{key}: {value}", f"{key}: {v!r}", tag)
+            r = ukdyn.load_scenario(p, check_initial=False).forward(0.0, sc.q0, qd, tau)
+            return np.concatenate([r.qdd, r.Qc])
+
+        d1 = (at(value + h, "p1") - at(value - h, "m1")) / (2 * h)
+        d2 = (at(value + h / 2, "p2") - at(value - h / 2, "m2")) / h
+        fd = (4 * d2 - d1) / 3
+        ours = np.concatenate([d["dqdd_dp"][:, j], d["dQc_dp"][:, j]])
+        assert np.max(np.abs(ours - fd)) < 1e-6 * np.max(np.abs(fd)), key
+
+
+def test_sensitivities_equal_the_cli_csv(tmp_path):
+    p = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3", "t_end: 0.5", "short")
+    sc = ukdyn.load_scenario(p)
+    s = sc.sensitivities(["m1", "gravity"])
+    assert s["trusted"], s["message"]
+    assert s["dq_dp"].shape == (2, len(s["t"]), sc.dof)
+    # time scaling at rest under gravity alone: dq/dg = qd t / (2 g)
+    scale = s["qd"] * s["t"][:, None] / (2 * 9.81)
+    assert np.max(np.abs(s["dq_dp"][1] - scale)) < 1e-8 * np.max(np.abs(scale))
+    code, out, err = run_cli("sensitivities", str(p), "-p", "m1", "-p", "gravity", "--out",
+                             str(tmp_path / "o"))
+    assert code == 0, err
+    with open(tmp_path / "o" / "sensitivities.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(s["t"])
+    col = np.array([float(r["dq_a2/dm1"]) for r in rows])
+    assert np.max(np.abs(col - s["dq_dp"][0][:, 1])) <= 1e-15 * np.max(np.abs(col)) + 1e-300
+
+
+def test_unknown_parameter_is_an_error_naming_it():
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    with pytest.raises(ukdyn.ScenarioError, match="parameter 'm9'"):
+        sc.parameter_derivatives(["m9"], 0.0, sc.q0, sc.qd0)
