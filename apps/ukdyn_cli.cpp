@@ -34,6 +34,7 @@
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -502,7 +503,14 @@ int main(int argc, char** argv) {
       if (html && !ukdyn::replay_available()) {  // said before the run, not after it
         ukdyn::write_replay(sc, out);            // throws the message: how to get three.js
       }
-      const int rc = cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+      // outputs.sensitivities: resolved before the run (bad input exits 2 with nothing written),
+      // integrated after it into OUT/sensitivities.csv (docs/derivatives.md).
+      const auto sens_ps = ukdyn::requested_parameters(sc);
+      int rc = cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+      std::ostringstream unshown;  // --quiet: the report line is not printed
+      if (!sens_ps.empty() &&
+          !ukdyn::write_run_sensitivities(sc, sens_ps, out, quiet ? unshown : std::cout))
+        rc = rc == 0 ? 1 : rc;
       if (!html) return rc;
       try {
         write_replay_page(sc, out, quiet, rc == 0 ? "complete" : "incomplete");
@@ -522,7 +530,8 @@ int main(int argc, char** argv) {
       return cmd_linearize(sc, la);
     }
     if (*sens) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
-      return ukdyn::write_run_sensitivities(sc, sens_params, sens_out, std::cout) ? 0 : 1;
+      const auto ps = ukdyn::scenario_parameters(sc, sens_params);
+      return ukdyn::write_run_sensitivities(sc, ps, sens_out, std::cout) ? 0 : 1;
     }
     if (*drv) {
       std::cout << ukdyn::symbolic::format_system(*sc.system,
@@ -530,6 +539,7 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (*chk) {
+      ukdyn::requested_parameters(sc);  // outputs.sensitivities names numbers the run uses
       std::cout << fmt::format("{}: ok: '{}', {} coordinates, {} constraint rows\n",
                                ukdyn::printable(scenario), ukdyn::printable(sc.name),
                                sc.system->dof(), sc.system->rows());

@@ -64,3 +64,23 @@ def test_unknown_parameter_is_an_error_naming_it():
     sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
     with pytest.raises(ukdyn.ScenarioError, match="parameter 'm9'"):
         sc.parameter_derivatives(["m9"], 0.0, sc.q0, sc.qd0)
+
+
+def test_simulate_writes_the_sensitivities_the_scenario_asks_for(tmp_path):
+    p = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3", "t_end: 0.3", "asked")
+    p.write_text(p.read_text() + "outputs:\n  sensitivities: [m1]\n")
+    code, out, err = run_cli("simulate", str(p), "--out", str(tmp_path / "run"), "--no-figures",
+                             "--quiet")
+    assert code == 0, err
+    with open(tmp_path / "run" / "sensitivities.csv") as f:
+        rows = list(csv.DictReader(f))
+    s = ukdyn.load_scenario(p).sensitivities(["m1"])
+    col = np.array([float(r["dqd_b2/dm1"]) for r in rows])
+    assert np.array_equal(col, s["dqd_dp"][0][:, 3])
+    # a name the file does not have: exit 2, the list entry named, nothing written
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(p.read_text().replace("sensitivities: [m1]", "sensitivities: [m1, m7]"))
+    code, out, err = run_cli("simulate", str(bad), "--out", str(tmp_path / "bad_run"))
+    assert code == 2
+    assert "key 'outputs.sensitivities[1]': parameter 'm7'" in err
+    assert not (tmp_path / "bad_run").exists()

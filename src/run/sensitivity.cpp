@@ -55,11 +55,16 @@ void find_parameter_keys(const YAML::Node& n, const std::string& at, const std::
   }
 }
 
-[[noreturn]] void refuse(const Scenario& sc, const std::string& name, int line,
-                         const std::string& why) {
+// The error for parameter p: at the scenario file (and the line of its number, when known), or at
+// the entry of outputs.sensitivities that asked for it.
+[[noreturn]] void refuse(const Scenario& sc, const ScenarioParameter& p, const std::string& why) {
+  const std::string line = p.line > 0 ? std::to_string(p.line) : std::string();
   const std::string where =
-      sc.path.string() + (line > 0 ? ":" + std::to_string(line) : std::string());
-  throw ScenarioError(escape_controls(where + ": parameter '" + name + "': " + why));
+      !p.asked_at.empty()
+          ? p.asked_at + ": parameter '" + p.name + "'" +
+                (line.empty() ? "" : " (its number at line " + line + ")")
+          : sc.path.string() + (line.empty() ? "" : ":" + line) + ": parameter '" + p.name + "'";
+  throw ScenarioError(escape_controls(where + ": " + why));
 }
 
 // The paths of `name` in doc and its value and line: a path, or a key of parameters / params maps.
@@ -81,8 +86,7 @@ void locate(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
       if (number(h) != number(hits.front())) {
         std::string list;
         for (const auto& g : hits) list += (list.empty() ? "" : ", ") + g;
-        refuse(sc, name, 0,
-               "names different numbers of the file (" + list + "): give the path of one");
+        refuse(sc, p, "names different numbers of the file (" + list + "): give the path of one");
       }
       p.paths.push_back(h);
     }
@@ -90,7 +94,7 @@ void locate(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
   if (p.paths.empty()) p.paths.push_back(name);  // a path, or a top-level key such as gravity
   const auto node = io_detail::find_number(doc, p.paths.front(), why);
   if (!node) {
-    refuse(sc, name, 0,
+    refuse(sc, p,
            (p.paths.front() == name && name.find_first_of(".[") == std::string::npos
                 ? "no key '" + name + "' in a parameters: or params: map of the file, and " + why
                 : why) +
@@ -98,7 +102,7 @@ void locate(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
   }
   p.line = node->Mark().line + 1;
   if (!io_detail::Loader::parse_number(node->Scalar(), p.value) || !std::isfinite(p.value))
-    refuse(sc, name, p.line, "not a finite number");
+    refuse(sc, p, "not a finite number");
   p.step = 1e-3 * (p.value != 0.0 ? std::abs(p.value) : 1.0);
 }
 
@@ -113,12 +117,12 @@ void reload(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
     std::string why;
     for (const auto& path : p.paths) {
       auto node = io_detail::find_number(copy, path, why);
-      if (!node) refuse(sc, p.name, p.line, why);
+      if (!node) refuse(sc, p, why);
       *node = fmt::format("{}", p.value + kOffsets[k] * p.step);
     }
     auto s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
     if (s->system->dof() != sc.system->dof() || s->system->rows() != sc.system->rows())
-      refuse(sc, p.name, p.line, "changes the number of coordinates or constraint rows");
+      refuse(sc, p, "changes the number of coordinates or constraint rows");
     p.perturbed[k] = std::move(s);
   }
 }
@@ -188,7 +192,7 @@ void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
   }
   for (std::size_t j = 0; j < ps.size(); ++j) {
     if (!used[j]) {
-      refuse(sc, ps[j].name, ps[j].line,
+      refuse(sc, ps[j],
              "the scenario's dynamics does not use it (it changes none of M, Q, A, b and the "
              "initial state; a controller's gains and the run's settings are not differentiated)");
     }
@@ -197,23 +201,52 @@ void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
 
 }  // namespace
 
+namespace {
+
+// The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
+std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
+                                       std::vector<ScenarioParameter> asked) {
+  for (std::size_t i = 0; i < asked.size(); ++i) {
+    ScenarioParameter& p = asked[i];
+    for (std::size_t k = 0; k < i; ++k)
+      if (asked[k].name == p.name) refuse(sc, p, "named twice");
+    locate(sc, doc, p);
+    reload(sc, doc, p);
+  }
+  check_used(sc, asked);
+  return asked;
+}
+
+}  // namespace
+
 std::vector<ScenarioParameter> scenario_parameters(const Scenario& sc,
                                                    const std::vector<std::string>& names) {
   if (!sc.system) throw Error("scenario_parameters: the scenario has no system");
-  const std::string text = read_scenario_text(sc.path);
-  const YAML::Node doc = io_detail::parse_scenario_yaml(text, sc.path);
-  std::vector<ScenarioParameter> ps;
-  for (const auto& name : names) {
-    for (const auto& p : ps)
-      if (p.name == name) refuse(sc, name, p.line, "named twice");
-    ScenarioParameter p;
-    p.name = name;
-    locate(sc, doc, p);
-    reload(sc, doc, p);
-    ps.push_back(std::move(p));
+  const YAML::Node doc = io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path);
+  std::vector<ScenarioParameter> asked(names.size());
+  for (std::size_t i = 0; i < names.size(); ++i) asked[i].name = names[i];
+  return resolve(sc, doc, std::move(asked));
+}
+
+std::vector<ScenarioParameter> requested_parameters(const Scenario& sc) {
+  if (!sc.system) throw Error("requested_parameters: the scenario has no system");
+  const YAML::Node doc = io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path);
+  const YAML::Node outputs = doc["outputs"];
+  if (!outputs || !outputs.IsMap() || !outputs["sensitivities"]) return {};
+  const YAML::Node list = outputs["sensitivities"];  // its form checked by the loader
+  std::vector<ScenarioParameter> asked(list.size());
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const YAML::Mark m = list[i].Mark();
+    asked[i].name = list[i].Scalar();
+    asked[i].asked_at = fmt::format("{}:{}:{}: key 'outputs.sensitivities[{}]'", sc.path.string(),
+                                    m.line + 1, m.column + 1, i);
   }
-  check_used(sc, ps);
-  return ps;
+  if (sc.control && !asked.empty()) {
+    refuse(sc, asked.front(),
+           "a scenario with a control: section has no run sensitivities (control laws have no "
+           "derivatives)");
+  }
+  return resolve(sc, doc, std::move(asked));
 }
 
 std::vector<ModelParameterDerivative> model_parameter_derivatives(
@@ -410,9 +443,8 @@ std::vector<double> sensitivity_row(const RunSensitivities& rs, Index k) {
   return row;
 }
 
-bool write_run_sensitivities(const Scenario& sc, const std::vector<std::string>& names,
+bool write_run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
                              const std::filesystem::path& out_dir, std::ostream& report) {
-  const auto ps = scenario_parameters(sc, names);
   OutputDir dir(out_dir);  // refused (a root, a folder in use) before the run
   const RunSensitivities rs = run_sensitivities(sc, ps);
   CsvWriter csv(dir, "sensitivities.csv", sensitivity_columns(sc, rs));

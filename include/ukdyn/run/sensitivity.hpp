@@ -31,6 +31,9 @@ struct ScenarioParameter {
   int line = 0;                    ///< 1-based line of its number in the file
   double value = 0.0;
   double step = 0.0;  ///< h = 1e-3 |p| (1e-3 for p = 0)
+  /// "FILE:LINE:COL: key 'outputs.sensitivities[i]'" when the scenario asked for it (errors are
+  /// then reported there), empty otherwise.
+  std::string asked_at = {};
   /// The scenario re-loaded with p + h, p − h, p + h/2, p − h/2 (initial state not checked).
   std::array<std::shared_ptr<const Scenario>, 4> perturbed;
 };
@@ -42,6 +45,11 @@ struct ScenarioParameter {
 /// dynamics does not use.
 std::vector<ScenarioParameter> scenario_parameters(const Scenario& sc,
                                                    const std::vector<std::string>& names);
+
+/// The parameters of the scenario's `outputs: {sensitivities: [...]}` (none without it), resolved
+/// as scenario_parameters() does; errors name the list entry's line, column and key. A scenario
+/// with a `control:` section is refused (its run has no sensitivities).
+std::vector<ScenarioParameter> requested_parameters(const Scenario& sc);
 
 /// ∂M, ∂Q, ∂A, ∂b at (t, q, q̇, τ) for each parameter (Q with τ + (τ_p − τ_scenario): a parameter
 /// of forces.tau counts). Richardson-extrapolated central differences of the re-loaded models.
@@ -91,10 +99,11 @@ std::vector<std::string> sensitivity_columns(const Scenario& sc, const RunSensit
 /// Row k of the table sensitivity_columns() heads.
 std::vector<double> sensitivity_row(const RunSensitivities& rs, Index k);
 
-/// `ukdyn sensitivities`: run_sensitivities() of the named parameters, written to
-/// OUT_DIR/sensitivities.csv (the output folder's rules, ukdyn/output/output_dir.hpp), and one
-/// line of JSON on `report` (parameters, samples, steps, trusted, message). Returns trusted.
-bool write_run_sensitivities(const Scenario& sc, const std::vector<std::string>& names,
+/// `ukdyn sensitivities` (and `ukdyn simulate` of a scenario with outputs.sensitivities):
+/// run_sensitivities() written to OUT_DIR/sensitivities.csv (the output folder's rules,
+/// ukdyn/output/output_dir.hpp), and one line of JSON on `report` (file, parameters, samples,
+/// steps, trusted, message, warnings). Returns trusted.
+bool write_run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
                              const std::filesystem::path& out_dir, std::ostream& report);
 
 }  // namespace ukdyn
