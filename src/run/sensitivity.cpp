@@ -203,6 +203,20 @@ void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
 
 namespace {
 
+// The scenario's file as a YAML document: the text it was loaded from (its hash checked), since
+// the parameters are found, and the model re-loaded, there.
+YAML::Node scenario_document(const Scenario& sc) {
+  if (!sc.system) throw Error("sensitivities: the scenario has no system");
+  const std::string text = read_scenario_text(sc.path);
+  if (scenario_text_hash(text) != sc.hash) {
+    throw ScenarioError(escape_controls(
+        sc.path.string() +
+        ": the file changed since the scenario was loaded (or it was loaded from other text): "
+        "its parameters are read from the file, load it again"));
+  }
+  return io_detail::parse_scenario_yaml(text, sc.path);
+}
+
 // The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
 std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
                                        std::vector<ScenarioParameter> asked) {
@@ -221,16 +235,14 @@ std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc
 
 std::vector<ScenarioParameter> scenario_parameters(const Scenario& sc,
                                                    const std::vector<std::string>& names) {
-  if (!sc.system) throw Error("scenario_parameters: the scenario has no system");
-  const YAML::Node doc = io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path);
+  const YAML::Node doc = scenario_document(sc);
   std::vector<ScenarioParameter> asked(names.size());
   for (std::size_t i = 0; i < names.size(); ++i) asked[i].name = names[i];
   return resolve(sc, doc, std::move(asked));
 }
 
 std::vector<ScenarioParameter> requested_parameters(const Scenario& sc) {
-  if (!sc.system) throw Error("requested_parameters: the scenario has no system");
-  const YAML::Node doc = io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path);
+  const YAML::Node doc = scenario_document(sc);
   const YAML::Node outputs = doc["outputs"];
   if (!outputs || !outputs.IsMap() || !outputs["sensitivities"]) return {};
   const YAML::Node list = outputs["sensitivities"];  // its form checked by the loader
