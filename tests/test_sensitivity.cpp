@@ -170,12 +170,27 @@ TEST(ParameterSensitivity, ClosedFormsGravityAndMassScaling) {
   EXPECT_LT(euler_qdd.cwiseAbs().maxCoeff(), 1e-9 * qdd.cwiseAbs().maxCoeff());
   EXPECT_LT((euler_Qc - Qc).cwiseAbs().maxCoeff(), 1e-9 * Qc.cwiseAbs().maxCoeff());
 
+  // A torque of forces.tau as a parameter: its column is the exact ∂q̈/∂τ_j and ∂Qc/∂τ_j of
+  // linearize() (the state columns, another formulation), at a moving state.
+  const auto pt = scenario_parameters(sc, {"forces.tau[1]"});
+  Vec qd(n);
+  qd << 0.1, -0.2, 0.3, 0.05;
+  const auto lt = state_sensitivities(sc, pt, 0.2, sc.q0, qd, sc.tau, true);
+  const double r_tau = (lt.dqdd_dp.col(0) - lt.lin.dqdd_dtau.col(1)).cwiseAbs().maxCoeff() /
+                       lt.lin.dqdd_dtau.col(1).cwiseAbs().maxCoeff();
+  const double r_tau_qc = (lt.dQc_dp.col(0) - lt.lin.dQc_dtau.col(1)).cwiseAbs().maxCoeff() /
+                          lt.lin.dQc_dtau.col(1).cwiseAbs().maxCoeff();
+  std::cout << "[ sensitivity ] five_bar forces.tau[1] against dqdd_dtau, dQc_dtau: " << r_tau
+            << ", " << r_tau_qc << "\n";
+  EXPECT_LT(r_tau, 1e-9);
+  EXPECT_LT(r_tau_qc, 1e-9);
+
   // Bricard (redundant rows): every rod has mass m and inertias ∝ m, so ∂q̈/∂m = 0 and
   // m ∂Qc/∂m = Qc, with a velocity.
   const Scenario br = load_scenario(kSource / "scenarios" / "benchmarks" / "bricard.yaml");
   const auto pb = scenario_parameters(br, {"m"});
-  Vec qd = Vec::Zero(br.system->dof());
-  const auto lb = state_sensitivities(br, pb, 0.0, br.q0, qd, Vec::Zero(qd.size()));
+  const Vec rest = Vec::Zero(br.system->dof());
+  const auto lb = state_sensitivities(br, pb, 0.0, br.q0, rest, rest);
   EXPECT_LT(lb.lin.rank, br.system->rows());
   EXPECT_LT(lb.dqdd_dp.cwiseAbs().maxCoeff(), 1e-9 * lb.lin.qdd.cwiseAbs().maxCoeff());
   EXPECT_LT((lb.dQc_dp.col(0) - lb.lin.Qc).cwiseAbs().maxCoeff(),
