@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <ostream>
 #include <utility>
@@ -45,12 +46,22 @@ void find_parameter_keys(const YAML::Node& n, const std::string& at, const std::
       find_parameter_keys(kv.second, here, key, hits, depth + 1);
     }
   } else if (n.IsSequence()) {
-    for (std::size_t i = 0; i < n.size(); ++i) {
-      const YAML::Node& e = n[i];
-      std::string sel = "[" + std::to_string(i) + "]";
-      if (e.IsMap() && e["name"] && e["name"].IsScalar() && plain_name(e["name"].Scalar()))
-        sel = "[" + e["name"].Scalar() + "]";
+    // An element is [name] when its name is plain and its own in the list (a path's [name] takes
+    // the first element of that name), else [index].
+    auto name_of = [](const YAML::Node& e) {
+      return e.IsMap() && e["name"] && e["name"].IsScalar() && plain_name(e["name"].Scalar())
+                 ? e["name"].Scalar()
+                 : std::string();
+    };
+    std::map<std::string, int> count;
+    for (const auto& e : n) ++count[name_of(e)];
+    std::size_t i = 0;
+    for (const auto& e : n) {
+      const std::string nm = name_of(e);
+      const std::string sel =
+          !nm.empty() && count[nm] == 1 ? "[" + nm + "]" : "[" + std::to_string(i) + "]";
       find_parameter_keys(e, at + sel, key, hits, depth + 1);
+      ++i;
     }
   }
 }
