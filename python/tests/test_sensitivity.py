@@ -2,6 +2,7 @@
 parameters") against independent evidence: central differences of forward() on scenario files
 edited here as text, and the CLI's sensitivities.csv (the same numbers through the other door)."""
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -84,3 +85,23 @@ def test_simulate_writes_the_sensitivities_the_scenario_asks_for(tmp_path):
     assert code == 2
     assert "key 'outputs.sensitivities[1]': parameter 'm7'" in err
     assert not (tmp_path / "bad_run").exists()
+
+
+def test_linearize_param_json_and_npz_equal_python(tmp_path):
+    path = scenario_path("five_bar_redundant.yaml")
+    code, out, err = run_cli("linearize", str(path), "-p", "gravity", "-p", "l2")
+    assert code == 0, err
+    j = json.loads(out)["parameters"]
+    assert j["names"] == ["gravity", "l2"] and j["values"] == [9.81, 0.4]
+    sc = ukdyn.load_scenario(path)
+    d = sc.parameter_derivatives(["gravity", "l2"], sc.t0, sc.q0, sc.qd0, sc.tau)
+    assert np.array_equal(np.array(j["dqdd_dp"]), d["dqdd_dp"])
+    assert np.array_equal(np.array(j["dQc_dp"]), d["dQc_dp"])
+    code, out, err = run_cli("linearize", str(path), "-p", "gravity", "--out",
+                             str(tmp_path / "l.npz"))
+    assert code == 0, err
+    z = np.load(tmp_path / "l.npz")
+    assert z["parameters_dqdd_dp"].shape == (sc.dof, 1)
+    assert z["parameters_trusted"] == 1.0 and z["trusted"] == 1.0
+    code, out, err = run_cli("linearize", str(path), "-p", "nope")
+    assert code == 2 and "parameter 'nope'" in err

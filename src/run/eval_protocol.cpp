@@ -237,8 +237,8 @@ json parameters_json(const Scenario& sc, double t, const Vec& q, const Vec& qd, 
   }
   j["names"] = names;
   j["paths"] = paths;
-  j["parameter_values"] = values;
-  j["parameter_steps"] = steps;
+  j["values"] = values;
+  j["steps"] = steps;
   j["dqdd_dp"] = rows_of(pl.dqdd_dp);
   j["dQc_dp"] = rows_of(pl.dQc_dp);
   j["dq0_dp"] = rows_of(dq0);
@@ -282,14 +282,19 @@ json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec&
 
 // The numbers of the object as float64 arrays: a number or a boolean → shape (), a list of
 // numbers → (n,), a list of rows → (r, c); the "derivatives" entries by their own names, the
-// "minimal" ones as minimal_<name>; strings (names, messages) are left out.
+// "minimal" ones as minimal_<name>, the "parameters" ones as parameters_<name>; strings (names,
+// messages) are left out.
 void collect_arrays(const json& j, const std::string& prefix,
                     std::vector<io_detail::NpyArray>& out) {
   for (const auto& [key, v] : j.items()) {
     io_detail::NpyArray a;
     a.name = prefix + key;
     if (v.is_object()) {
-      collect_arrays(v, key == "minimal" ? "minimal_" : "", out);
+      collect_arrays(v,
+                     key == "minimal"      ? "minimal_"
+                     : key == "parameters" ? "parameters_"
+                                           : "",
+                     out);
       continue;
     }
     if (v.is_number() || v.is_boolean()) {

@@ -60,7 +60,8 @@ struct LinearizeState {
 };
 /// The same numbers as numpy's .npz (uncompressed; numpy.load reads it): every number, boolean,
 /// vector and matrix of the JSON object as a float64 array under its key, the "derivatives" ones
-/// under their own names, the "minimal" ones as minimal_<key>; names and messages are JSON only.
+/// under their own names, the "minimal" ones as minimal_<key>, the "parameters" ones as
+/// parameters_<key>; names and messages are JSON only.
 bool write_linearization_npz(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                              const Vec& tau, std::ostream& out,
                              const LinearizeOptions& options = {});
