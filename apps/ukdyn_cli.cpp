@@ -8,6 +8,8 @@
 //   ukdyn linearize SCENARIO [--minimal] [--dt H] [--state FILE.json | --row RUN.csv:N]
 //                  [--out FILE.json|FILE.npz]   (exact derivatives of q̈ and Qc at the initial state or the
 //                  given one, JSON; in minimal coordinates; discrete; docs/derivatives.md)
+//   ukdyn sensitivities SCENARIO --param P [--param P2 ...] [--out DIR]   (dq/dp, dqd/dp of the
+//                  run by the variational equations, DIR/sensitivities.csv; docs/derivatives.md)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
 //   docs/definitions.md)
 //   ukdyn sweep SWEEP [--out DIR] [--threads N] [--shard i/N] [--extract K]   (docs/sweeps.md;
@@ -32,6 +34,7 @@
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -41,6 +44,7 @@
 #include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/run/sensitivity.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/sweep/sizing.hpp"
 #include "ukdyn/sweep/sweep.hpp"
@@ -192,6 +196,7 @@ struct LinearizeArgs {
   bool minimal = false;
   double dt = 0.0;
   std::string state, row, out;
+  std::vector<std::string> parameters;
 };
 
 // `ukdyn optimize`: solve, write the run folder, print what was found. Exit 0 when IPOPT
@@ -293,7 +298,7 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
       throw ukdyn::Error("--row " + a.row + ": expected RUN.csv:N (N >= 0, the data row)");
     st = ukdyn::read_state_csv_row(sc, a.row.substr(0, colon), n);
   }
-  const ukdyn::LinearizeOptions opt{a.minimal, a.dt};
+  const ukdyn::LinearizeOptions opt{a.minimal, a.dt, a.parameters};
   if (a.out.empty())
     return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
   const bool npz = a.out.ends_with(".npz");
@@ -374,6 +379,20 @@ int main(int argc, char** argv) {
       ->excludes(lin_state);
   lin->add_option("--out,-o", la.out,
                   "write FILE.json (the JSON) or FILE.npz (numpy arrays) instead of stdout");
+  lin->add_option("--param,-p", la.parameters,
+                  "also the derivatives with respect to this number of the scenario file (a "
+                  "parameters: key or a path; repeatable; docs/derivatives.md)");
+
+  std::vector<std::string> sens_params;
+  std::string sens_out = "out";
+  auto* sens = app.add_subcommand(
+      "sensitivities",
+      "Write OUT/sensitivities.csv: dq/dp and dqd/dp of the scenario's run for named parameters");
+  sens->add_option("scenario", scenario, "scenario file (YAML)")->required();
+  sens->add_option("--param,-p", sens_params,
+                   "a number of the scenario file (a parameters: key or a path; repeatable)")
+      ->required();
+  sens->add_option("--out,-o", sens_out, "output folder")->capture_default_str();
 
   auto* chk =
       app.add_subcommand("check", "Load and validate a scenario (the initial state included)");
@@ -488,7 +507,14 @@ int main(int argc, char** argv) {
       if (html && !ukdyn::replay_available()) {  // said before the run, not after it
         ukdyn::write_replay(sc, out);            // throws the message: how to get three.js
       }
-      const int rc = cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+      // outputs.sensitivities: resolved before the run (bad input exits 2 with nothing written),
+      // integrated after it into OUT/sensitivities.csv (docs/derivatives.md).
+      const auto sens_ps = ukdyn::requested_parameters(sc);
+      int rc = cmd_simulate(sc, out, !no_figures, quiet, progress_every);
+      std::ostringstream unshown;  // --quiet: the report line is not printed
+      if (!sens_ps.empty() &&
+          !ukdyn::write_run_sensitivities(sc, sens_ps, out, quiet ? unshown : std::cout))
+        rc = rc == 0 ? 1 : rc;
       if (!html) return rc;
       try {
         write_replay_page(sc, out, quiet, rc == 0 ? "complete" : "incomplete");
@@ -507,12 +533,17 @@ int main(int argc, char** argv) {
     if (*lin) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
       return cmd_linearize(sc, la);
     }
+    if (*sens) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
+      const auto ps = ukdyn::scenario_parameters(sc, sens_params);
+      return ukdyn::write_run_sensitivities(sc, ps, sens_out, std::cout) ? 0 : 1;
+    }
     if (*drv) {
       std::cout << ukdyn::symbolic::format_system(*sc.system,
                                                   ukdyn::symbolic::parse_format(derive_format));
       return 0;
     }
     if (*chk) {
+      ukdyn::requested_parameters(sc);  // outputs.sensitivities names numbers the run uses
       std::cout << fmt::format("{}: ok: '{}', {} coordinates, {} constraint rows\n",
                                ukdyn::printable(scenario), ukdyn::printable(sc.name),
                                sc.system->dof(), sc.system->rows());

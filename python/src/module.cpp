@@ -182,8 +182,6 @@ void rethrow_recorded(const CallbackErrors& errors) {
 
 // ---------------------------------------------------------------------------- control laws
 
-py::array_t<double> numpy_of(const Mat& M);
-
 // What a Python control law sees besides (t, q, q̇): the controller's model at the measured state
 // (ForwardData of forward() with the model's tau, all rows), its residuals Φ, Φ̇, which rows are
 // servo rows, and the actuators (docs/python.md "Control laws in Python"). Copies: the law may
@@ -275,6 +273,9 @@ py::object control_law_callable(const py::object& law) {
 
 // ---------------------------------------------------------------------------- scenario
 
+}  // namespace
+
+// Shared with sensitivity.cpp (scenario_bindings.hpp).
 py::array_t<double> numpy_of(const Vec& v) { return copy_of(v); }
 py::array_t<double> numpy_of(const Mat& M) {
   py::array_t<double> a({M.rows(), M.cols()});
@@ -284,6 +285,8 @@ py::array_t<double> numpy_of(const Mat& M) {
   }
   return a;
 }
+
+namespace {
 
 template <class Enum>
 Enum enum_of(const std::string& name, std::initializer_list<Enum> values, const char* what) {
@@ -1122,4 +1125,5 @@ instead (run.assembly says what it did). Ctrl-C stops the run and raises Keyboar
                " coordinates, " + std::to_string(s.sc.system->rows()) + " constraint rows>";
       });
   bind_state(m, scenario_class);
+  bind_sensitivity(scenario_class);
 }

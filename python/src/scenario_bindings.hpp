@@ -28,6 +28,13 @@ ukdyn::Vec vector_arg(const py::object& v, ukdyn::Index n, const char* what);
 /// ValueError unless t is finite.
 void require_finite(double t, const char* what);
 
+/// Copies into new numpy arrays (module.cpp).
+py::array_t<double> numpy_of(const ukdyn::Vec& v);
+py::array_t<double> numpy_of(const ukdyn::Mat& M);
+
+/// Binds Scenario.parameter_derivatives and Scenario.sensitivities (sensitivity.cpp).
+void bind_sensitivity(PyScenarioClass& cls);
+
 /// Binds Data, Scenario.forward(q, qd, t=, tau=, out=), forward_qdd, forward_batch, energies,
 /// constraints and inverse_dynamics (state.cpp).
 void bind_state(py::module_& m, PyScenarioClass& cls);

@@ -453,5 +453,19 @@ class Scenario:
         """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted; minimal: the model
         in minimal coordinates on the constraint manifold; dt: the zero-order-hold discrete model
         (docs/derivatives.md)"""
+    def parameter_derivatives(
+        self,
+        parameters: Sequence[str],
+        t: float,
+        q: ArrayLike,
+        qd: ArrayLike,
+        tau: Optional[ArrayLike] = None,
+    ) -> dict[str, Any]:
+        """dqdd_dp, dQc_dp (n x P) at (t, q, qd, tau) for numbers of the scenario file (a
+        parameters: key or a path), dq0_dp, dqd0_dp, paths, trusted, message
+        (docs/derivatives.md, "Sensitivities to parameters")"""
+    def sensitivities(self, parameters: Sequence[str]) -> dict[str, Any]:
+        """dq/dp, dqd/dp (P x T x n) of the scenario's run by the variational equations, with t,
+        q, qd, steps, rhs_evaluations, trusted, message, warnings"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

@@ -11,6 +11,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "ukdyn/model/parameter_sensitivity.hpp"
+
 namespace ukdyn {
 
 namespace {
@@ -150,60 +152,67 @@ void store_solutions(Linearization& lin, const Eigen::PartialPivLU<Mat>& lu, con
 
 }  // namespace
 
-Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
-                        const UkSettings& settings) {
+namespace {
+
+// The KKT system of the kept rows at a state, [M −A_Rᵀ; A_R 0] factorised once, and [q̈; μ]: what
+// every column of the derivatives (state directions, parameters) is solved with.
+struct Kkt {
+  explicit Kkt(const System& system) : d(system) {}
+  ForwardData d;
+  RowChoice rc;
+  Mat AR;
+  Eigen::PartialPivLU<Mat> lu;
+  Vec mu, lambda;  // μ over the kept rows; λ over all rows (0 on the dropped ones)
+};
+
+void build_kkt(const System& system, Kkt& k, Linearization& lin, double t, CVecRef q, CVecRef qd,
+               CVecRef tau, const UkSettings& settings) {
   const Index n = system.dof(), m = system.rows();
-  check_size("q", n, q.size());
-  check_size("qd", n, qd.size());
-  check_size("tau", n, tau.size());
-  if (const auto missing = components_without_derivatives(system); !missing.empty()) {
-    std::string list;
-    for (const auto& s : missing) list += (list.empty() ? "" : ", ") + s;
-    throw Error("linearize: no exact derivatives for " + list +
-                " (docs/derivatives.md lists the kinds that have them)");
-  }
   if (!(std::isfinite(t) && q.allFinite() && qd.allFinite() && tau.allFinite()))
     throw std::invalid_argument("linearize: t, q, qd and tau must be finite");
-
-  Linearization lin;
-  ForwardData d(system);
+  ForwardData& d = k.d;
   forward(system, d, t, q, qd, tau, settings);
   if (!d.result.finite) throw Error("linearize: the forward dynamics is not finite at this state");
   const Mat Ms = solved_mass(system, d);
-  const RowChoice rc = independent_rows(Ms, d.A, settings.rank_rel_tol);
-  const Index r = static_cast<Index>(rc.kept.size());
+  k.rc = independent_rows(Ms, d.A, settings.rank_rel_tol);
+  const Index r = static_cast<Index>(k.rc.kept.size());
   lin.rank = static_cast<int>(r);
-  lin.kept_rows = rc.kept;
-  vouch(lin, rc, d.result, settings, m);
+  lin.kept_rows = k.rc.kept;
+  vouch(lin, k.rc, d.result, settings, m);
 
   // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], and [q̈; μ] at the state.
-  Mat AR(r, n);
+  k.AR.resize(r, n);
   Vec bR(r);
-  for (Index k = 0; k < r; ++k) {
-    AR.row(k) = d.A.row(rc.kept[static_cast<std::size_t>(k)]);
-    bR(k) = d.b(rc.kept[static_cast<std::size_t>(k)]);
+  for (Index i = 0; i < r; ++i) {
+    k.AR.row(i) = d.A.row(k.rc.kept[static_cast<std::size_t>(i)]);
+    bR(i) = d.b(k.rc.kept[static_cast<std::size_t>(i)]);
   }
   Mat K = Mat::Zero(n + r, n + r);
   K.topLeftCorner(n, n) = d.M;
-  K.topRightCorner(n, r) = -AR.transpose();
-  K.bottomLeftCorner(r, n) = AR;
-  Eigen::PartialPivLU<Mat> lu(K);
+  K.topRightCorner(n, r) = -k.AR.transpose();
+  K.bottomLeftCorner(r, n) = k.AR;
+  k.lu.compute(K);
   Vec rhs(n + r);
   rhs.head(n) = d.Q;
   rhs.tail(r) = bR;
-  const Vec sol = lu.solve(rhs);
+  const Vec sol = k.lu.solve(rhs);
   if (!sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
   lin.qdd = sol.head(n);
-  const Vec mu = sol.tail(r);
-  lin.Qc = AR.transpose() * mu;
+  k.mu = sol.tail(r);
+  lin.Qc = k.AR.transpose() * k.mu;
   lin.kkt_agreement = (lin.qdd - d.qdd).cwiseAbs().maxCoeff() / (1.0 + d.qdd.cwiseAbs().maxCoeff());
   if (!(lin.kkt_agreement <= 1e-8)) {
     mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
   }
-  // λ over all rows (0 on the dropped ones) for the constraints' tangents.
-  Vec lambda = Vec::Zero(m);
-  for (Index k = 0; k < r; ++k) lambda(rc.kept[static_cast<std::size_t>(k)]) = mu(k);
+  k.lambda = Vec::Zero(m);
+  for (Index i = 0; i < r; ++i) k.lambda(k.rc.kept[static_cast<std::size_t>(i)]) = k.mu(i);
+}
 
+// The state columns (∂/∂q, ∂/∂q̇, ∂/∂τ) of lin from the components' exact tangents.
+void state_columns(const System& system, Kkt& k, Linearization& lin, double t, CVecRef q,
+                   CVecRef qd) {
+  const Index n = system.dof(), m = system.rows(), r = k.AR.rows();
+  ForwardData& d = k.d;
   // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
   // column each, solved together with the one factorisation. A subsystem's inverse dynamics
   // depends on its own coordinates only (M, C, G are block-diagonal, paper Eq. (10)-(11)): along
@@ -215,18 +224,18 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
   Mat rhs_all = Mat::Zero(n + r, 2 * n), dforce_all(n, 2 * n);
   Vec dID(n), dQa(n), dres(m), dforce_c(n);
   std::vector<std::size_t> owner(static_cast<std::size_t>(n), 0);
-  for (std::size_t k = 0; k < subs.size(); ++k)
-    for (Index i = 0; i < L.size[k]; ++i) owner[static_cast<std::size_t>(L.start[k] + i)] = k;
+  for (std::size_t s = 0; s < subs.size(); ++s)
+    for (Index i = 0; i < L.size[s]; ++i) owner[static_cast<std::size_t>(L.start[s] + i)] = s;
   Vec dq = Vec::Zero(n), dqd = Vec::Zero(n);
   auto direction = [&](Index col) {
     dID.setZero();
     const Index j = col % n;
-    const std::size_t k = owner[static_cast<std::size_t>(j)];
-    const Index s = L.start[k], nk = L.size[k];
-    if (!subs[k]->inverse_dynamics_tangent(
-            {t, d.subsystem_slot(k)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
+    const std::size_t sk = owner[static_cast<std::size_t>(j)];
+    const Index s = L.start[sk], nk = L.size[sk];
+    if (!subs[sk]->inverse_dynamics_tangent(
+            {t, d.subsystem_slot(sk)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
             dq.segment(s, nk), dqd.segment(s, nk), dID.segment(s, nk)))
-      throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
+      throw Error("linearize: subsystem '" + subs[sk]->name() + "' has no exact derivatives");
     dQa.setZero();
     for (const auto& f : system.applied_forces()) {
       if (!f->add_tangent(t, q, qd, dq, dqd, dQa))
@@ -239,13 +248,14 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
       const Index rows = cons[c]->rows();
       dforce_c.setZero();
       if (!cons[c]->tangent({t, d.constraint_slots(c)}, q, qd, lin.qdd,
-                            lambda.segment(offs[c], rows), dq, dqd, dres.segment(offs[c], rows),
+                            k.lambda.segment(offs[c], rows), dq, dqd, dres.segment(offs[c], rows),
                             dforce_c))
         throw Error("linearize: a constraint has no exact derivatives");
       dforce += dforce_c;
     }
     rhs_all.col(col).head(n) = -dID + dQa + dforce;
-    for (Index i = 0; i < r; ++i) rhs_all(n + i, col) = -dres(rc.kept[static_cast<std::size_t>(i)]);
+    for (Index i = 0; i < r; ++i)
+      rhs_all(n + i, col) = -dres(k.rc.kept[static_cast<std::size_t>(i)]);
   };
   for (Index j = 0; j < n; ++j) {
     dq(j) = 1.0;
@@ -255,8 +265,73 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
     direction(n + j);
     dqd(j) = 0.0;
   }
-  store_solutions(lin, lu, lu.solve(rhs_all), dforce_all, AR, mu);
+  store_solutions(lin, k.lu, k.lu.solve(rhs_all), dforce_all, k.AR, k.mu);
+}
+
+void check_sizes(const System& system, CVecRef q, CVecRef qd, CVecRef tau) {
+  const Index n = system.dof();
+  check_size("q", n, q.size());
+  check_size("qd", n, qd.size());
+  check_size("tau", n, tau.size());
+}
+
+void require_derivatives(const System& system) {
+  if (const auto missing = components_without_derivatives(system); !missing.empty()) {
+    std::string list;
+    for (const auto& s : missing) list += (list.empty() ? "" : ", ") + s;
+    throw Error("linearize: no exact derivatives for " + list +
+                " (docs/derivatives.md lists the kinds that have them)");
+  }
+}
+
+}  // namespace
+
+Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
+                        const UkSettings& settings) {
+  check_sizes(system, q, qd, tau);
+  require_derivatives(system);
+  Linearization lin;
+  Kkt k(system);
+  build_kkt(system, k, lin, t, q, qd, tau, settings);
+  state_columns(system, k, lin, t, q, qd);
   return lin;
+}
+
+ParameterLinearization linearize_parameters(const System& system, double t, CVecRef q, CVecRef qd,
+                                            CVecRef tau,
+                                            const std::vector<ModelParameterDerivative>& dp,
+                                            const UkSettings& settings, bool with_state) {
+  check_sizes(system, q, qd, tau);
+  if (with_state) require_derivatives(system);
+  const Index n = system.dof(), m = system.rows();
+  for (const auto& p : dp) {
+    if (p.dM.rows() != n || p.dM.cols() != n || p.dQ.size() != n || p.dA.rows() != m ||
+        p.dA.cols() != n || p.db.size() != m)
+      throw std::invalid_argument(
+          "linearize_parameters: a parameter's dM, dQ, dA, db do not match the system's sizes");
+  }
+  ParameterLinearization out;
+  Kkt k(system);
+  build_kkt(system, k, out.lin, t, q, qd, tau, settings);
+  if (with_state) state_columns(system, k, out.lin, t, q, qd);
+  // Implicit differentiation of the KKT system in p at fixed (t, q, q̇):
+  //   M ∂q̈ − A_Rᵀ ∂μ = ∂Q − ∂M q̈ + (∂A_R)ᵀ μ,   A_R ∂q̈ = ∂b_R − ∂A_R q̈,
+  //   ∂Qc = (∂A_R)ᵀ μ + A_Rᵀ ∂μ   (the same factorisation as the state columns).
+  const Index r = k.AR.rows(), P = static_cast<Index>(dp.size());
+  const Vec& qdd = out.lin.qdd;
+  Mat rhs(n + r, P), dforce(n, P);
+  for (Index j = 0; j < P; ++j) {
+    const auto& p = dp[static_cast<std::size_t>(j)];
+    dforce.col(j) = p.dA.transpose() * k.lambda;
+    rhs.col(j).head(n) = p.dQ - p.dM * qdd + dforce.col(j);
+    const Vec dres = p.dA * qdd - p.db;
+    for (Index i = 0; i < r; ++i) rhs(n + i, j) = -dres(k.rc.kept[static_cast<std::size_t>(i)]);
+  }
+  const Mat X = k.lu.solve(rhs);
+  out.dqdd_dp = X.topRows(n);
+  out.dmu_dp = X.bottomRows(r);
+  out.dQc_dp = dforce + k.AR.transpose() * out.dmu_dp;
+  return out;
 }
 
 }  // namespace ukdyn

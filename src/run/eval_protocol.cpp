@@ -14,6 +14,7 @@
 #include "output/npz.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/run/sensitivity.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
 namespace ukdyn {
@@ -216,6 +217,38 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
 
 namespace {
 
+// The derivatives with respect to the named parameters (docs/derivatives.md, "Sensitivities to
+// parameters"); trusted becomes false when they cannot be vouched for at the state.
+json parameters_json(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
+                     const LinearizeOptions& opt, bool& trusted) {
+  const auto ps = scenario_parameters(sc, opt.parameters);
+  const ParameterLinearization pl = state_sensitivities(sc, ps, t, q, qd, tau);
+  Mat dq0, dqd0;
+  initial_state_derivatives(sc, ps, dq0, dqd0);
+  json j;
+  json names = json::array(), paths = json::array(), values = json::array(), steps = json::array();
+  for (const auto& p : ps) {
+    names.push_back(p.name);
+    std::string where;  // the places written, one string (the npz keeps numbers only)
+    for (const auto& w : p.paths) where += (where.empty() ? "" : ", ") + w;
+    paths.push_back(where);
+    values.push_back(p.value);
+    steps.push_back(p.step);
+  }
+  j["names"] = names;
+  j["paths"] = paths;
+  j["values"] = values;
+  j["steps"] = steps;
+  j["dqdd_dp"] = rows_of(pl.dqdd_dp);
+  j["dQc_dp"] = rows_of(pl.dQc_dp);
+  j["dq0_dp"] = rows_of(dq0);
+  j["dqd0_dp"] = rows_of(dqd0);
+  j["trusted"] = pl.lin.trusted;
+  j["message"] = pl.lin.message;
+  trusted = trusted && pl.lin.trusted;
+  return j;
+}
+
 // The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
 json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
                           const LinearizeOptions& opt, bool& trusted) {
@@ -243,19 +276,25 @@ json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec&
   }
   if (opt.minimal) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
   trusted = lin.trusted;
+  if (!opt.parameters.empty()) j["parameters"] = parameters_json(sc, t, q, qd, tau, opt, trusted);
   return j;
 }
 
 // The numbers of the object as float64 arrays: a number or a boolean → shape (), a list of
 // numbers → (n,), a list of rows → (r, c); the "derivatives" entries by their own names, the
-// "minimal" ones as minimal_<name>; strings (names, messages) are left out.
+// "minimal" ones as minimal_<name>, the "parameters" ones as parameters_<name>; strings (names,
+// messages) are left out.
 void collect_arrays(const json& j, const std::string& prefix,
                     std::vector<io_detail::NpyArray>& out) {
   for (const auto& [key, v] : j.items()) {
     io_detail::NpyArray a;
     a.name = prefix + key;
     if (v.is_object()) {
-      collect_arrays(v, key == "minimal" ? "minimal_" : "", out);
+      collect_arrays(v,
+                     key == "minimal"      ? "minimal_"
+                     : key == "parameters" ? "parameters_"
+                                           : "",
+                     out);
       continue;
     }
     if (v.is_number() || v.is_boolean()) {

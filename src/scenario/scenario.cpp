@@ -140,8 +140,9 @@ YAML::Node parse_yaml(const std::string& text, const std::filesystem::path& path
 
 // The format version, name and description; returns the scenario's gravity g.
 double load_header(const Loader& L, const Node& root, Scenario& sc) {
-  L.only_keys(root, {"ukdyn", "name", "description", "gravity", "subsystems", "constraints",
-                     "initial", "forces", "simulation", "solver", "actuators", "control"});
+  L.only_keys(root,
+              {"ukdyn", "name", "description", "gravity", "subsystems", "constraints", "initial",
+               "forces", "simulation", "solver", "actuators", "control", "outputs"});
   {
     Node v = L.child(root, "ukdyn", true);
     if (L.number(v) != 1.0) L.fail(v, "unsupported format version (this ukdyn reads version 1)");
@@ -984,6 +985,31 @@ void collect_limits_and_notes(Scenario& sc) {
   sc.notes = io_detail::robot_file_notes(sc.definitions.get());
 }
 
+// outputs: {sensitivities: [NAME, ...]}: the numbers of the file whose sensitivities `ukdyn simulate`
+// writes to sensitivities.csv (docs/derivatives.md, "Sensitivities to parameters"). Checked here for
+// their form; ukdyn/run/sensitivity.hpp resolves them (requested_parameters).
+void load_outputs(const Loader& L, const Node& root) {
+  const Node o = L.child(root, "outputs", false);
+  if (!o.node.IsDefined()) return;
+  L.only_keys(o, {"sensitivities"});
+  const Node s = L.child(o, "sensitivities", true);
+  if (!s.node.IsSequence() || s.node.size() == 0)
+    L.fail(s, "expected a non-empty list of parameters (keys of a parameters: map, or paths)");
+  std::set<std::string> seen;
+  for (std::size_t i = 0; i < s.node.size(); ++i) {
+    const Node e{s.node[i], s.key + "[" + std::to_string(i) + "]"};
+    const std::string name = L.string(e);
+    const bool ok =
+        !name.empty() && name.size() <= 200 && std::all_of(name.begin(), name.end(), [](char c) {
+          return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                 c == '_' || c == '.' || c == '[' || c == ']' || c == '-';
+        });
+    if (!ok)
+      L.fail(e, "a parameter is a key or a path: 1 to 200 characters from A-Z a-z 0-9 _ . [ ] -");
+    if (!seen.insert(name).second) L.fail(e, "parameter '" + name + "' named twice");
+  }
+}
+
 Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string& hash,
                                  const std::filesystem::path& path, const LoadOptions& options) {
   // The symbols of this system's derivation: shared by every definition loaded below, held by the
@@ -1008,6 +1034,7 @@ Scenario load_scenario_unguarded(const YAML::Node& root_node, const std::string&
   load_simulation(L, root, sc, applied);
   check_masses_of_t(L, sc, st);
   load_solver(L, root, sc);
+  load_outputs(L, root);
   sc.system = st.system;
   io_detail::load_control_sections(L, root, sc, *st.system, st.coord_index);  // docs/control.md
   check_singular_mass(L, sc, st);

@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <iosfwd>
 #include <string>
+#include <vector>
 
 #include "ukdyn/scenario/scenario.hpp"
 
@@ -41,6 +42,10 @@ EvalCounts run_eval_protocol(const Scenario& scenario, std::istream& in, std::os
 struct LinearizeOptions {
   bool minimal = false;
   double dt = 0.0;  ///< > 0: also the discrete model with this step
+  /// Named parameters of the scenario file (ukdyn/run/sensitivity.hpp): also the object
+  /// "parameters" with ∂q̈/∂p, ∂Qc/∂p and d(q0, q̇0)/dp (docs/derivatives.md, "Sensitivities to
+  /// parameters").
+  std::vector<std::string> parameters = {};
 };
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                          const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});
@@ -55,7 +60,8 @@ struct LinearizeState {
 };
 /// The same numbers as numpy's .npz (uncompressed; numpy.load reads it): every number, boolean,
 /// vector and matrix of the JSON object as a float64 array under its key, the "derivatives" ones
-/// under their own names, the "minimal" ones as minimal_<key>; names and messages are JSON only.
+/// under their own names, the "minimal" ones as minimal_<key>, the "parameters" ones as
+/// parameters_<key>; names and messages are JSON only.
 bool write_linearization_npz(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                              const Vec& tau, std::ostream& out,
                              const LinearizeOptions& options = {});

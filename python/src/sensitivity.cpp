@@ -1,0 +1,105 @@
+// Scenario.parameter_derivatives and Scenario.sensitivities (docs/python.md, docs/derivatives.md
+// "Sensitivities to parameters"): ukdyn/run/sensitivity.hpp with numpy arrays, the C++ work with
+// the GIL released.
+#include "ukdyn/run/sensitivity.hpp"
+
+#include <pybind11/stl.h>
+
+#include <string>
+#include <vector>
+
+#include "scenario_bindings.hpp"
+
+namespace ukdyn_python {
+
+namespace {
+
+using ukdyn::Index;
+
+py::list paths_of(const std::vector<ukdyn::ScenarioParameter>& ps) {
+  py::list out;
+  for (const auto& p : ps) out.append(py::cast(p.paths));
+  return out;
+}
+
+py::dict parameter_derivatives(const PyScenario& s, const std::vector<std::string>& params,
+                               double t, const py::object& q_in, const py::object& qd_in,
+                               const py::object& tau_in) {
+  const ukdyn::Scenario& sc = s.sc;
+  const Index n = sc.system->dof();
+  require_finite(t, "t");
+  const ukdyn::Vec q = vector_arg(q_in, n, "q");
+  const ukdyn::Vec qd = vector_arg(qd_in, n, "qd");
+  const ukdyn::Vec tau = tau_in.is_none() ? sc.tau : vector_arg(tau_in, n, "tau");
+  std::vector<ukdyn::ScenarioParameter> ps;
+  ukdyn::ParameterLinearization pl;
+  ukdyn::Mat dq0, dqd0;
+  {
+    py::gil_scoped_release release;
+    ps = ukdyn::scenario_parameters(sc, params);
+    pl = ukdyn::state_sensitivities(sc, ps, t, q, qd, tau);
+    ukdyn::initial_state_derivatives(sc, ps, dq0, dqd0);
+  }
+  py::dict d;
+  d["parameters"] = params;
+  d["paths"] = paths_of(ps);
+  d["qdd"] = numpy_of(pl.lin.qdd);
+  d["Qc"] = numpy_of(pl.lin.Qc);
+  d["dqdd_dp"] = numpy_of(pl.dqdd_dp);
+  d["dQc_dp"] = numpy_of(pl.dQc_dp);
+  d["dq0_dp"] = numpy_of(dq0);
+  d["dqd0_dp"] = numpy_of(dqd0);
+  d["trusted"] = pl.lin.trusted;
+  d["message"] = pl.lin.message;
+  return d;
+}
+
+// (P, T, n) from one T × n matrix per parameter.
+py::array_t<double> stacked(const std::vector<ukdyn::Mat>& ms, Index rows, Index cols) {
+  py::array_t<double> a({static_cast<Index>(ms.size()), rows, cols});
+  auto w = a.mutable_unchecked<3>();
+  for (std::size_t j = 0; j < ms.size(); ++j)
+    for (Index k = 0; k < rows; ++k)
+      for (Index i = 0; i < cols; ++i) w(static_cast<Index>(j), k, i) = ms[j](k, i);
+  return a;
+}
+
+py::dict sensitivities(const PyScenario& s, const std::vector<std::string>& params) {
+  const ukdyn::Scenario& sc = s.sc;
+  ukdyn::RunSensitivities rs;
+  {
+    py::gil_scoped_release release;
+    rs = ukdyn::run_sensitivities(sc, ukdyn::scenario_parameters(sc, params));
+  }
+  const auto T = static_cast<Index>(rs.t.size());
+  py::dict d;
+  d["parameters"] = rs.parameters;
+  d["t"] = numpy_of(ukdyn::Vec(Eigen::Map<const ukdyn::Vec>(rs.t.data(), T)));
+  d["q"] = numpy_of(rs.q);
+  d["qd"] = numpy_of(rs.qd);
+  d["dq_dp"] = stacked(rs.dq_dp, T, sc.system->dof());
+  d["dqd_dp"] = stacked(rs.dqd_dp, T, sc.system->dof());
+  d["steps"] = rs.steps;
+  d["rhs_evaluations"] = rs.rhs_evaluations;
+  d["trusted"] = rs.trusted;
+  d["message"] = rs.message;
+  d["warnings"] = rs.warnings;
+  return d;
+}
+
+}  // namespace
+
+void bind_sensitivity(PyScenarioClass& cls) {
+  cls.def("parameter_derivatives", &parameter_derivatives, py::arg("parameters"), py::arg("t"),
+          py::arg("q"), py::arg("qd"), py::arg("tau") = py::none(),
+          "Derivatives of qdd and Qc at (t, q, qd, tau) with respect to numbers of the scenario "
+          "file (a parameters: key such as 'm1', or a path such as 'forces.tau[2]'): a dict with "
+          "dqdd_dp, dQc_dp (n x P), dq0_dp, dqd0_dp, paths, trusted, message "
+          "(docs/derivatives.md, \"Sensitivities to parameters\"). tau: the scenario's if None.")
+      .def("sensitivities", &sensitivities, py::arg("parameters"),
+           "dq/dp and dqd/dp of the scenario's run from its initial state (variational "
+           "equations, no drift control): a dict with t (T), q, qd (T x n), dq_dp, dqd_dp "
+           "(P x T x n), steps, rhs_evaluations, trusted, message, warnings.");
+}
+
+}  // namespace ukdyn_python

@@ -1,0 +1,107 @@
+"""Scenario.parameter_derivatives and Scenario.sensitivities (docs/derivatives.md, "Sensitivities to
+parameters") against independent evidence: central differences of forward() on scenario files
+edited here as text, and the CLI's sensitivities.csv (the same numbers through the other door)."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+import ukdyn
+from conftest import run_cli, scenario_path
+
+
+def edited(tmp_path, name, old, new, tag):
+    text = scenario_path(name).read_text()
+    assert old in text
+    p = tmp_path / f"{tag}_{name}"
+    p.write_text(text.replace(old, new))
+    return p
+
+
+def test_parameter_derivatives_match_differences_of_forward(tmp_path):
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    n = sc.dof
+    qd = 0.2 * np.cos(np.arange(n) + 0.3)
+    tau = 0.3 * np.sin(np.arange(n) + 0.4)
+    d = sc.parameter_derivatives(["l1", "m2"], 0.0, sc.q0, qd, tau)
+    assert d["trusted"], d["message"]
+    assert d["dqdd_dp"].shape == (n, 2) and d["dQc_dp"].shape == (n, 2)
+    for j, (key, value) in enumerate([("l1", 0.3), ("m2", 0.8)]):
+        h = 1e-3 * value
+
+        def at(v, tag):
+            p = edited(tmp_path, "five_bar_redundant.yaml", f"{key}: {value}", f"{key}: {v!r}", tag)
+            r = ukdyn.load_scenario(p, check_initial=False).forward(0.0, sc.q0, qd, tau)
+            return np.concatenate([r.qdd, r.Qc])
+
+        d1 = (at(value + h, "p1") - at(value - h, "m1")) / (2 * h)
+        d2 = (at(value + h / 2, "p2") - at(value - h / 2, "m2")) / h
+        fd = (4 * d2 - d1) / 3
+        ours = np.concatenate([d["dqdd_dp"][:, j], d["dQc_dp"][:, j]])
+        assert np.max(np.abs(ours - fd)) < 1e-6 * np.max(np.abs(fd)), key
+
+
+def test_sensitivities_equal_the_cli_csv(tmp_path):
+    p = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3", "t_end: 0.5", "short")
+    sc = ukdyn.load_scenario(p)
+    s = sc.sensitivities(["m1", "gravity"])
+    assert s["trusted"], s["message"]
+    assert s["dq_dp"].shape == (2, len(s["t"]), sc.dof)
+    # time scaling at rest under gravity alone: dq/dg = qd t / (2 g)
+    scale = s["qd"] * s["t"][:, None] / (2 * 9.81)
+    assert np.max(np.abs(s["dq_dp"][1] - scale)) < 1e-8 * np.max(np.abs(scale))
+    code, out, err = run_cli("sensitivities", str(p), "-p", "m1", "-p", "gravity", "--out",
+                             str(tmp_path / "o"))
+    assert code == 0, err
+    with open(tmp_path / "o" / "sensitivities.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(s["t"])
+    col = np.array([float(r["dq_a2/dm1"]) for r in rows])
+    assert np.max(np.abs(col - s["dq_dp"][0][:, 1])) <= 1e-15 * np.max(np.abs(col)) + 1e-300
+
+
+def test_unknown_parameter_is_an_error_naming_it():
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))
+    with pytest.raises(ukdyn.ScenarioError, match="parameter 'm9'"):
+        sc.parameter_derivatives(["m9"], 0.0, sc.q0, sc.qd0)
+
+
+def test_simulate_writes_the_sensitivities_the_scenario_asks_for(tmp_path):
+    p = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3", "t_end: 0.3", "asked")
+    p.write_text(p.read_text() + "outputs:\n  sensitivities: [m1]\n")
+    code, out, err = run_cli("simulate", str(p), "--out", str(tmp_path / "run"), "--no-figures",
+                             "--quiet")
+    assert code == 0, err
+    with open(tmp_path / "run" / "sensitivities.csv") as f:
+        rows = list(csv.DictReader(f))
+    s = ukdyn.load_scenario(p).sensitivities(["m1"])
+    col = np.array([float(r["dqd_b2/dm1"]) for r in rows])
+    assert np.array_equal(col, s["dqd_dp"][0][:, 3])
+    # a name the file does not have: exit 2, the list entry named, nothing written
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(p.read_text().replace("sensitivities: [m1]", "sensitivities: [m1, m7]"))
+    code, out, err = run_cli("simulate", str(bad), "--out", str(tmp_path / "bad_run"))
+    assert code == 2
+    assert "key 'outputs.sensitivities[1]': parameter 'm7'" in err
+    assert not (tmp_path / "bad_run").exists()
+
+
+def test_linearize_param_json_and_npz_equal_python(tmp_path):
+    path = scenario_path("five_bar_redundant.yaml")
+    code, out, err = run_cli("linearize", str(path), "-p", "gravity", "-p", "l2")
+    assert code == 0, err
+    j = json.loads(out)["parameters"]
+    assert j["names"] == ["gravity", "l2"] and j["values"] == [9.81, 0.4]
+    sc = ukdyn.load_scenario(path)
+    d = sc.parameter_derivatives(["gravity", "l2"], sc.t0, sc.q0, sc.qd0, sc.tau)
+    assert np.array_equal(np.array(j["dqdd_dp"]), d["dqdd_dp"])
+    assert np.array_equal(np.array(j["dQc_dp"]), d["dQc_dp"])
+    code, out, err = run_cli("linearize", str(path), "-p", "gravity", "--out",
+                             str(tmp_path / "l.npz"))
+    assert code == 0, err
+    z = np.load(tmp_path / "l.npz")
+    assert z["parameters_dqdd_dp"].shape == (sc.dof, 1)
+    assert z["parameters_trusted"] == 1.0 and z["trusted"] == 1.0
+    code, out, err = run_cli("linearize", str(path), "-p", "nope")
+    assert code == 2 and "parameter 'nope'" in err

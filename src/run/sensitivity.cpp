@@ -1,0 +1,489 @@
+// Sensitivities to the numbers of a scenario file (ukdyn/run/sensitivity.hpp,
+// docs/derivatives.md, "Sensitivities to parameters").
+#include "ukdyn/run/sensitivity.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <boost/numeric/odeint.hpp>
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <ostream>
+#include <utility>
+
+#include "scenario/yaml_loader.hpp"
+#include "scenario/yaml_paths.hpp"
+#include "ukdyn/output/csv_writer.hpp"
+#include "ukdyn/output/output_dir.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/text/safe_text.hpp"
+
+namespace ukdyn {
+
+namespace {
+
+bool plain_name(const std::string& s) {
+  return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_';
+  });
+}
+
+// Every `parameters.KEY` / `params.KEY` scalar under n (the document passed the loader's size and
+// depth limits, io_detail::kMaxYamlDepth, so the recursion is bounded).
+void find_parameter_keys(const YAML::Node& n, const std::string& at, const std::string& key,
+                         std::vector<std::string>& hits, std::size_t depth) {
+  if (depth > io_detail::kMaxYamlDepth) return;
+  if (n.IsMap()) {
+    for (const auto& kv : n) {
+      if (!kv.first.IsScalar()) continue;
+      const std::string k = kv.first.Scalar();
+      const std::string here = at.empty() ? k : at + "." + k;
+      if ((k == "parameters" || k == "params") && kv.second.IsMap()) {
+        const YAML::Node& m = kv.second;
+        if (const YAML::Node v = m[key]; v && v.IsScalar()) hits.push_back(here + "." + key);
+      }
+      find_parameter_keys(kv.second, here, key, hits, depth + 1);
+    }
+  } else if (n.IsSequence()) {
+    // An element is [name] when its name is plain and its own in the list (a path's [name] takes
+    // the first element of that name), else [index].
+    auto name_of = [](const YAML::Node& e) {
+      return e.IsMap() && e["name"] && e["name"].IsScalar() && plain_name(e["name"].Scalar())
+                 ? e["name"].Scalar()
+                 : std::string();
+    };
+    std::map<std::string, int> count;
+    for (const auto& e : n) ++count[name_of(e)];
+    std::size_t i = 0;
+    for (const auto& e : n) {
+      const std::string nm = name_of(e);
+      const std::string sel =
+          !nm.empty() && count[nm] == 1 ? "[" + nm + "]" : "[" + std::to_string(i) + "]";
+      find_parameter_keys(e, at + sel, key, hits, depth + 1);
+      ++i;
+    }
+  }
+}
+
+// The error for parameter p: at the scenario file (and the line of its number, when known), or at
+// the entry of outputs.sensitivities that asked for it.
+[[noreturn]] void refuse(const Scenario& sc, const ScenarioParameter& p, const std::string& why) {
+  const std::string line = p.line > 0 ? std::to_string(p.line) : std::string();
+  const std::string where =
+      !p.asked_at.empty()
+          ? p.asked_at + ": parameter '" + p.name + "'" +
+                (line.empty() ? "" : " (its number at line " + line + ")")
+          : sc.path.string() + (line.empty() ? "" : ":" + line) + ": parameter '" + p.name + "'";
+  throw ScenarioError(escape_controls(where + ": " + why));
+}
+
+// The paths of `name` in doc and its value and line: a path, or a key of parameters / params maps.
+void locate(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
+  const std::string& name = p.name;
+  std::string why;
+  if (name.find_first_of(".[") == std::string::npos) {
+    std::vector<std::string> hits;
+    find_parameter_keys(doc, "", name, hits, 0);
+    // Every place holding the same number (an alias's repetitions, or the same value written in
+    // the maps of several blocks, such as a length a body and a constraint share) is the
+    // parameter; places with different numbers make the name ambiguous.
+    auto number = [&](const std::string& path) {
+      const std::string text = io_detail::find_scalar(doc, path, why)->Scalar();
+      double v = 0.0;
+      return io_detail::Loader::parse_number(text, v) ? fmt::format("{}", v) : text;
+    };
+    for (const auto& h : hits) {
+      if (number(h) != number(hits.front())) {
+        std::string list;
+        for (const auto& g : hits) list += (list.empty() ? "" : ", ") + g;
+        refuse(sc, p, "names different numbers of the file (" + list + "): give the path of one");
+      }
+      p.paths.push_back(h);
+    }
+  }
+  if (p.paths.empty()) p.paths.push_back(name);  // a path, or a top-level key such as gravity
+  const auto node = io_detail::find_number(doc, p.paths.front(), why);
+  if (!node) {
+    refuse(sc, p,
+           (p.paths.front() == name && name.find_first_of(".[") == std::string::npos
+                ? "no key '" + name + "' in a parameters: or params: map of the file, and " + why
+                : why) +
+               " (docs/derivatives.md, \"Sensitivities to parameters\")");
+  }
+  p.line = node->Mark().line + 1;
+  if (!io_detail::Loader::parse_number(node->Scalar(), p.value) || !std::isfinite(p.value))
+    refuse(sc, p, "not a finite number");
+  p.step = 1e-3 * (p.value != 0.0 ? std::abs(p.value) : 1.0);
+}
+
+constexpr std::array<double, 4> kOffsets = {1.0, -1.0, 0.5, -0.5};  // × h
+
+// The scenario re-loaded with each perturbed value.
+void reload(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
+  LoadOptions opt;
+  opt.check_initial = false;
+  for (std::size_t k = 0; k < kOffsets.size(); ++k) {
+    YAML::Node copy = io_detail::clone_yaml(doc);
+    std::string why;
+    for (const auto& path : p.paths) {
+      auto node = io_detail::find_number(copy, path, why);
+      if (!node) refuse(sc, p, why);
+      *node = fmt::format("{}", p.value + kOffsets[k] * p.step);
+    }
+    auto s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
+    if (s->system->dof() != sc.system->dof() || s->system->rows() != sc.system->rows())
+      refuse(sc, p, "changes the number of coordinates or constraint rows");
+    p.perturbed[k] = std::move(s);
+  }
+}
+
+// Richardson's extrapolation of two central differences: (4 D(h/2) − D(h)) / 3, with
+// D(h) = (f(p + h) − f(p − h)) / 2h: error O(h⁴) for f smooth in p.
+template <typename T>
+auto richardson(const T& fph, const T& fmh, const T& fph2, const T& fmh2, double h) {
+  return ((4.0 / h) * (fph2 - fmh2) - (0.5 / h) * (fph - fmh)) / 3.0;
+}
+
+// The model derivatives with the forward data of the perturbed systems kept in `data` (4 per
+// parameter, built on first use).
+std::vector<ModelParameterDerivative> model_derivatives(
+    const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+    std::vector<std::unique_ptr<ForwardData>>& data, double t, CVecRef q, CVecRef qd, CVecRef tau) {
+  std::vector<ModelParameterDerivative> out;
+  out.reserve(ps.size());
+  if (data.size() != 4 * ps.size()) {
+    data.clear();
+    for (const auto& p : ps)
+      for (const auto& s : p.perturbed) data.push_back(std::make_unique<ForwardData>(*s->system));
+  }
+  for (std::size_t j = 0; j < ps.size(); ++j) {
+    std::array<ForwardData*, 4> d{};
+    for (std::size_t k = 0; k < 4; ++k) {
+      const Scenario& s = *ps[j].perturbed[k];
+      d[k] = data[4 * j + k].get();
+      const Vec tau_k = tau + (s.tau - sc.tau);
+      forward(*s.system, *d[k], t, q, qd, tau_k, s.sim.uk);
+    }
+    const double h = ps[j].step;
+    ModelParameterDerivative m;
+    m.dM = richardson(d[0]->M, d[1]->M, d[2]->M, d[3]->M, h);
+    m.dQ = richardson(d[0]->Q, d[1]->Q, d[2]->Q, d[3]->Q, h);
+    m.dA = richardson(d[0]->A, d[1]->A, d[2]->A, d[3]->A, h);
+    m.db = richardson(d[0]->b, d[1]->b, d[2]->b, d[3]->b, h);
+    out.push_back(std::move(m));
+  }
+  return out;
+}
+
+bool all_zero(const ModelParameterDerivative& m) {
+  return m.dM.isZero(0.0) && m.dQ.isZero(0.0) && m.dA.isZero(0.0) && m.db.isZero(0.0);
+}
+
+// A parameter that changes none of M, Q, A, b (at the initial state and two states near it) nor
+// the initial state is not used by the dynamics: refused by name.
+void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
+  const Index n = sc.system->dof();
+  Mat dq0, dqd0;
+  initial_state_derivatives(sc, ps, dq0, dqd0);
+  std::vector<bool> used(ps.size(), false);
+  for (std::size_t j = 0; j < ps.size(); ++j)
+    used[j] =
+        !dq0.col(static_cast<Index>(j)).isZero(0.0) || !dqd0.col(static_cast<Index>(j)).isZero(0.0);
+  std::vector<std::unique_ptr<ForwardData>> data;
+  for (int s = 0; s < 3; ++s) {
+    Vec q = sc.q0, qd = sc.qd0;
+    for (Index i = 0; i < n && s > 0; ++i) {
+      q(i) += 0.01 * s * std::sin(1.0 + static_cast<double>(i));
+      qd(i) += 0.1 * s * std::cos(2.0 + static_cast<double>(i));
+    }
+    const double t = sc.sim.t0 + 0.1 * s * (sc.sim.t_end - sc.sim.t0);
+    const auto md = model_derivatives(sc, ps, data, t, q, qd, sc.tau);
+    for (std::size_t j = 0; j < ps.size(); ++j) used[j] = used[j] || !all_zero(md[j]);
+  }
+  for (std::size_t j = 0; j < ps.size(); ++j) {
+    if (!used[j]) {
+      refuse(sc, ps[j],
+             "the scenario's dynamics does not use it (it changes none of M, Q, A, b and the "
+             "initial state; a controller's gains and the run's settings are not differentiated)");
+    }
+  }
+}
+
+}  // namespace
+
+namespace {
+
+// The scenario's file as a YAML document: the text it was loaded from (its hash checked), since
+// the parameters are found, and the model re-loaded, there.
+YAML::Node scenario_document(const Scenario& sc) {
+  if (!sc.system) throw Error("sensitivities: the scenario has no system");
+  const std::string text = read_scenario_text(sc.path);
+  if (scenario_text_hash(text) != sc.hash) {
+    throw ScenarioError(escape_controls(
+        sc.path.string() +
+        ": the file changed since the scenario was loaded (or it was loaded from other text): "
+        "its parameters are read from the file, load it again"));
+  }
+  return io_detail::parse_scenario_yaml(text, sc.path);
+}
+
+// The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
+std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
+                                       std::vector<ScenarioParameter> asked) {
+  for (std::size_t i = 0; i < asked.size(); ++i) {
+    ScenarioParameter& p = asked[i];
+    for (std::size_t k = 0; k < i; ++k)
+      if (asked[k].name == p.name) refuse(sc, p, "named twice");
+    locate(sc, doc, p);
+    reload(sc, doc, p);
+  }
+  check_used(sc, asked);
+  return asked;
+}
+
+}  // namespace
+
+std::vector<ScenarioParameter> scenario_parameters(const Scenario& sc,
+                                                   const std::vector<std::string>& names) {
+  const YAML::Node doc = scenario_document(sc);
+  std::vector<ScenarioParameter> asked(names.size());
+  for (std::size_t i = 0; i < names.size(); ++i) asked[i].name = names[i];
+  return resolve(sc, doc, std::move(asked));
+}
+
+std::vector<ScenarioParameter> requested_parameters(const Scenario& sc) {
+  const YAML::Node doc = scenario_document(sc);
+  const YAML::Node outputs = doc["outputs"];
+  if (!outputs || !outputs.IsMap() || !outputs["sensitivities"]) return {};
+  const YAML::Node list = outputs["sensitivities"];  // its form checked by the loader
+  std::vector<ScenarioParameter> asked(list.size());
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const YAML::Mark m = list[i].Mark();
+    asked[i].name = list[i].Scalar();
+    asked[i].asked_at = fmt::format("{}:{}:{}: key 'outputs.sensitivities[{}]'", sc.path.string(),
+                                    m.line + 1, m.column + 1, i);
+  }
+  if (sc.control && !asked.empty()) {
+    refuse(sc, asked.front(),
+           "a scenario with a control: section has no run sensitivities (control laws have no "
+           "derivatives)");
+  }
+  return resolve(sc, doc, std::move(asked));
+}
+
+std::vector<ModelParameterDerivative> model_parameter_derivatives(
+    const Scenario& sc, const std::vector<ScenarioParameter>& ps, double t, CVecRef q, CVecRef qd,
+    CVecRef tau) {
+  std::vector<std::unique_ptr<ForwardData>> data;
+  return model_derivatives(sc, ps, data, t, q, qd, tau);
+}
+
+void initial_state_derivatives(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                               Mat& dq0, Mat& dqd0) {
+  const Index n = sc.system->dof(), P = static_cast<Index>(ps.size());
+  dq0.resize(n, P);
+  dqd0.resize(n, P);
+  for (Index j = 0; j < P; ++j) {
+    const auto& p = ps[static_cast<std::size_t>(j)];
+    const auto& s = p.perturbed;
+    dq0.col(j) = richardson(s[0]->q0, s[1]->q0, s[2]->q0, s[3]->q0, p.step);
+    dqd0.col(j) = richardson(s[0]->qd0, s[1]->qd0, s[2]->qd0, s[3]->qd0, p.step);
+  }
+}
+
+ParameterLinearization state_sensitivities(const Scenario& sc,
+                                           const std::vector<ScenarioParameter>& ps, double t,
+                                           CVecRef q, CVecRef qd, CVecRef tau, bool with_state) {
+  return linearize_parameters(*sc.system, t, q, qd, tau,
+                              model_parameter_derivatives(sc, ps, t, q, qd, tau), sc.sim.uk,
+                              with_state);
+}
+
+namespace {
+
+using OdeState = std::vector<double>;
+
+// The right-hand side of x = (q, q̇) and, per parameter j, s_j = (dq/dp_j, dq̇/dp_j):
+// q̈ = f(q, q̇, p) and ṡ_j = [s_q̇; ∂q̈/∂q s_q + ∂q̈/∂q̇ s_q̇ + ∂q̈/∂p_j].
+struct VariationalRhs {
+  const Scenario& sc;
+  const std::vector<ScenarioParameter>& ps;
+  std::vector<std::unique_ptr<ForwardData>> data;
+  RunSensitivities& out;
+
+  void operator()(const OdeState& x, OdeState& dx, double t) {
+    const Index n = sc.system->dof();
+    ++out.rhs_evaluations;
+    const Eigen::Map<const Vec> q(x.data(), n), qd(x.data() + n, n);
+    dx.resize(x.size());
+    if (!(q.allFinite() && qd.allFinite())) {
+      std::fill(dx.begin(), dx.end(), std::nan(""));
+      return;
+    }
+    const auto md = model_derivatives(sc, ps, data, t, q, qd, sc.tau);
+    const auto pl = linearize_parameters(*sc.system, t, q, qd, sc.tau, md, sc.sim.uk, true);
+    if (!pl.lin.trusted && out.trusted) {
+      out.trusted = false;
+      out.message = fmt::format("at t = {:.6g}: {}", t, pl.lin.message);
+    }
+    Eigen::Map<Vec>(dx.data(), n) = qd;
+    Eigen::Map<Vec>(dx.data() + n, n) = pl.lin.qdd;
+    for (std::size_t j = 0; j < ps.size(); ++j) {
+      const std::size_t o = 2 * static_cast<std::size_t>(n) * (j + 1);
+      const Eigen::Map<const Vec> sq(x.data() + o, n), sqd(x.data() + o + n, n);
+      Eigen::Map<Vec>(dx.data() + o, n) = sqd;
+      Eigen::Map<Vec>(dx.data() + o + n, n) =
+          pl.lin.dqdd_dq * sq + pl.lin.dqdd_dqd * sqd + pl.dqdd_dp.col(static_cast<Index>(j));
+    }
+  }
+};
+
+// RunSensitivities::warnings: the parameters whose perturbed scenarios' initial states are off
+// their constraints (Richardson derivatives of Φ and Φ̇ at each perturbed scenario's own q0, q̇0).
+void initial_constraint_warnings(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                                 RunSensitivities& rs) {
+  const Index m = sc.system->rows();
+  if (m == 0) return;
+  for (const auto& p : ps) {
+    std::array<Vec, 4> phi, phid;
+    for (std::size_t k = 0; k < 4; ++k) {
+      const Scenario& s = *p.perturbed[k];
+      phi[k].resize(m);
+      phid[k].resize(m);
+      position_residuals(*s.system, s.sim.t0, s.q0, phi[k]);
+      velocity_residuals(*s.system, s.sim.t0, s.q0, s.qd0, phid[k]);
+    }
+    const double dphi = richardson(phi[0], phi[1], phi[2], phi[3], p.step).cwiseAbs().maxCoeff();
+    const double dphid =
+        richardson(phid[0], phid[1], phid[2], phid[3], p.step).cwiseAbs().maxCoeff();
+    if (dphi > 1e-8 || dphid > 1e-8) {
+      rs.warnings.push_back(fmt::format(
+          "parameter '{}' moves the constraints away from the initial state (max |dPhi/dp| = "
+          "{:.3g}, max |dPhidot/dp| = {:.3g}): its perturbed runs start off the constraints, so "
+          "dq/dp is that of the motion from the file's q0, qd0 (write initial.q with the "
+          "parameter to move q0 with it)",
+          p.name, dphi, dphid));
+    }
+  }
+}
+
+}  // namespace
+
+RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
+  if (sc.control)
+    throw Error(
+        "run_sensitivities: the scenario has a control: section and control laws have no "
+        "derivatives (docs/derivatives.md): sensitivities of a run need a constant tau");
+  namespace odeint = boost::numeric::odeint;
+  const Index n = sc.system->dof();
+  const std::size_t P = ps.size(), un = static_cast<std::size_t>(n);
+  RunSensitivities rs;
+  for (const auto& p : ps) rs.parameters.push_back(p.name);
+  initial_constraint_warnings(sc, ps, rs);
+  Mat dq0, dqd0;
+  initial_state_derivatives(sc, ps, dq0, dqd0);
+  OdeState x(2 * un * (P + 1));
+  Eigen::Map<Vec>(x.data(), n) = sc.q0;
+  Eigen::Map<Vec>(x.data() + n, n) = sc.qd0;
+  for (std::size_t j = 0; j < P; ++j) {
+    Eigen::Map<Vec>(x.data() + 2 * un * (j + 1), n) = dq0.col(static_cast<Index>(j));
+    Eigen::Map<Vec>(x.data() + 2 * un * (j + 1) + un, n) = dqd0.col(static_cast<Index>(j));
+  }
+  const auto& sim = sc.sim;
+  std::vector<double> times;
+  const auto samples = static_cast<long>(std::floor((sim.t_end - sim.t0) / sim.sample_dt + 1e-9));
+  for (long k = 0; k <= samples; ++k)
+    times.push_back(sim.t0 + static_cast<double>(k) * sim.sample_dt);
+  if (times.back() < sim.t_end - 1e-12 * std::max(1.0, std::abs(sim.t_end)))
+    times.push_back(sim.t_end);
+  std::vector<OdeState> xs;
+  auto observe = [&](const OdeState& xk, double tk) {
+    rs.t.push_back(tk);
+    xs.push_back(xk);
+  };
+  VariationalRhs rhs{sc, ps, {}, rs};
+  auto stepper =
+      odeint::make_dense_output(sim.abs_tol, sim.rel_tol, odeint::runge_kutta_dopri5<OdeState>());
+  try {
+    rs.steps = static_cast<long>(odeint::integrate_times(
+        stepper, [&rhs](const OdeState& xs_, OdeState& dx, double t) { rhs(xs_, dx, t); }, x,
+        times.begin(), times.end(), std::min(sim.step, sim.sample_dt), observe,
+        odeint::max_step_checker(100000)));
+  } catch (const odeint::step_adjustment_error& e) {
+    rs.trusted = false;
+    rs.message = std::string("the run stopped: ") + e.what();
+  } catch (const odeint::no_progress_error& e) {
+    rs.trusted = false;
+    rs.message = std::string("the run stopped: ") + e.what();
+  }
+  const Index T = static_cast<Index>(xs.size());
+  rs.q.resize(T, n);
+  rs.qd.resize(T, n);
+  rs.dq_dp.assign(P, Mat(T, n));
+  rs.dqd_dp.assign(P, Mat(T, n));
+  for (Index k = 0; k < T; ++k) {
+    const auto& xk = xs[static_cast<std::size_t>(k)];
+    rs.q.row(k) = Eigen::Map<const Vec>(xk.data(), n).transpose();
+    rs.qd.row(k) = Eigen::Map<const Vec>(xk.data() + n, n).transpose();
+    for (std::size_t j = 0; j < P; ++j) {
+      rs.dq_dp[j].row(k) = Eigen::Map<const Vec>(xk.data() + 2 * un * (j + 1), n).transpose();
+      rs.dqd_dp[j].row(k) = Eigen::Map<const Vec>(xk.data() + 2 * un * (j + 1) + un, n).transpose();
+    }
+  }
+  if (T == 0 ||
+      !Eigen::Map<const Vec>(xs.back().data(), static_cast<Index>(x.size())).allFinite() ||
+      rs.t.back() < sim.t_end - 1e-9) {
+    rs.trusted = false;
+    if (rs.message.empty()) rs.message = "the run did not reach t_end with a finite state";
+  }
+  return rs;
+}
+
+std::vector<std::string> sensitivity_columns(const Scenario& sc, const RunSensitivities& rs) {
+  const auto& names = sc.system->coordinate_names();
+  std::vector<std::string> h{"t"};
+  for (const auto& c : names) h.push_back(c);
+  for (const auto& c : names) h.push_back(c + "_dot");
+  for (const auto& p : rs.parameters) {
+    for (const auto& c : names) h.push_back("dq_" + c + "/d" + p);
+    for (const auto& c : names) h.push_back("dqd_" + c + "/d" + p);
+  }
+  return h;
+}
+
+std::vector<double> sensitivity_row(const RunSensitivities& rs, Index k) {
+  std::vector<double> row{rs.t[static_cast<std::size_t>(k)]};
+  auto add = [&](const Mat& m) {
+    for (Index i = 0; i < m.cols(); ++i) row.push_back(m(k, i));
+  };
+  add(rs.q);
+  add(rs.qd);
+  for (std::size_t j = 0; j < rs.dq_dp.size(); ++j) {
+    add(rs.dq_dp[j]);
+    add(rs.dqd_dp[j]);
+  }
+  return row;
+}
+
+bool write_run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                             const std::filesystem::path& out_dir, std::ostream& report) {
+  OutputDir dir(out_dir);  // refused (a root, a folder in use) before the run
+  const RunSensitivities rs = run_sensitivities(sc, ps);
+  CsvWriter csv(dir, "sensitivities.csv", sensitivity_columns(sc, rs));
+  for (Index k = 0; k < static_cast<Index>(rs.t.size()); ++k) csv.row(sensitivity_row(rs, k));
+  csv.commit();
+  nlohmann::json j;
+  j["file"] = (out_dir / "sensitivities.csv").string();
+  j["parameters"] = rs.parameters;
+  j["samples"] = rs.t.size();
+  j["steps"] = rs.steps;
+  j["rhs_evaluations"] = rs.rhs_evaluations;
+  j["trusted"] = rs.trusted;
+  j["message"] = rs.message;
+  j["warnings"] = rs.warnings;
+  report << j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) << "\n";
+  return rs.trusted;
+}
+
+}  // namespace ukdyn
