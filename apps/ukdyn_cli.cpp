@@ -205,6 +205,9 @@ int cmd_optimize(const std::string& problem, const std::string& out, bool quiet)
         ukdyn::printable(f.name), s.status, s.iterations, rep.wall_seconds, s.cost, s.duration,
         ukdyn::to_string(f.problem.method), f.problem.intervals, s.max_defect,
         s.max_position_residual, s.max_velocity_residual, s.max_correction);
+    if (!f.problem.waypoints.empty())
+      std::cout << fmt::format("  {} waypoint(s): max |Phi_w| {:.2e}\n", f.problem.waypoints.size(),
+                               s.max_waypoint_residual);
     if (rep.replay.done)
       std::cout << fmt::format(
           "  open-loop replay of u(t): {}, max |q - q_opt| {:.2e}, |Phi| {:.2e}\n",

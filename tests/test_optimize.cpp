@@ -113,10 +113,26 @@ class DenseSink final : public optimize::JacobianSink {
 // Every entry of the constraint Jacobian and of the cost gradient against central differences,
 // at a point off the guess (random u, γ, perturbed states), both methods, free duration, every
 // cost term on: the derivatives of a (the U-K acceleration), of A_R(q)ᵀγ and of A_R v included.
-void check_derivatives(CollocationMethod method) {
+// A waypoint: a body's point through (0.5, 0, -0.3) (off the ring: only the derivatives are
+// checked), a ball constraint against the world frame, built as a problem file builds it. Its rows
+// are functions of q alone, so the body is the bead's with y = x z (the bead's own y is 0 for
+// every q, a row the loader refuses as involving no coordinate).
+Waypoint bead_waypoint(double t) {
+  LoadOptions opt;
+  opt.check_initial = false;
+  std::string text = circle_text(9.81);
+  text.replace(text.find("com: [x, 0, z]"), 14, "com: [x, x*z, z]");
+  text.insert(text.find("actuators:"),
+              "  - {type: ball, name: wp, a: bead.mass, b: {frame: world, xyz: [0.5, 0, -0.3]}}\n");
+  const auto with = load_scenario_text(text, "circle.yaml", opt);
+  return {"wp", with.system->constraints().back(), t};
+}
+
+void check_derivatives(CollocationMethod method, bool waypoint = false) {
   const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
   TrajectoryProblem p = problem_for(sc, method, 4, 1.2, on_circle(1.0));
-  p.free_duration = true;
+  if (waypoint) p.waypoints.push_back(bead_waypoint(0.6));
+  p.free_duration = !waypoint;  // (waypoints take a fixed duration)
   p.min_duration = 0.5;
   p.max_duration = 3.0;
   p.costs.power = 0.3;
@@ -131,7 +147,7 @@ void check_derivatives(CollocationMethod method) {
   Vec x = tr.initial_guess();
   std::srand(7);
   x += 0.05 * Vec::Random(x.size());
-  x(tr.time_index()) = 1.3;
+  if (!waypoint) x(tr.time_index()) = 1.3;
   const Index nv = tr.variables(), ng = tr.constraints();
   Mat J = Mat::Zero(ng, nv);
   DenseSink sink(J);
@@ -168,6 +184,11 @@ TEST(Optimize, HermiteSimpsonDerivativesMatchCentralDifferences) {
   check_derivatives(CollocationMethod::hermite_simpson);
 }
 
+TEST(Optimize, WaypointDerivativesMatchCentralDifferences) {
+  check_derivatives(CollocationMethod::hermite_simpson, true);
+  check_derivatives(CollocationMethod::trapezoidal, true);
+}
+
 TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
   const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
   auto expect_error = [](const TrajectoryProblem& p, const std::string& what) {
@@ -195,6 +216,11 @@ TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
   bad = p;
   bad.costs.effort = Vec::Ones(3);
   expect_error(bad, "costs.effort has 3 entries, 2 expected");
+  bad = p;
+  bad.waypoints.push_back(bead_waypoint(0.55));
+  expect_error(bad, "waypoint 'wp': t = 0.55 is not at a knot (the knots are 0.1 s apart)");
+  bad.waypoints.back().t = 1.5;
+  expect_error(bad, "waypoint 'wp': t = 1.5 is not in (0, duration]");
 }
 
 // Closed form: a mass m moved rest to rest a distance D in time T at minimum ∫|u|² needs only the
@@ -297,6 +323,71 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"costs:", "actuated: [dx1, dx1]\ncosts:",
        "key 'actuated[1]': coordinate 'dx1' is listed twice"},
       {"costs:", "max_correction: 0\ncosts:", "key 'max_correction': must be > 0"},
+  };
+  for (const auto& c : cases) {
+    std::string text = good;
+    const auto at = text.find(c.from);
+    ASSERT_NE(at, std::string::npos) << c.from;
+    text.replace(at, std::string(c.from).size(), c.to);
+    try {
+      load_optimization_text(text, dir / "bad.yaml");
+      ADD_FAILURE() << "accepted: " << c.to;
+    } catch (const ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The left robot's cut point of the paper's chains by hand (scenarios/paper_chain.yaml: base at
+// (dx1, dy1), the arm turned by delta1, joints lifting in its vertical plane from z = lr = 0.5,
+// links 0.7, 0.8, 0.4 at the absolute angles theta1..3): independent of the frame machinery.
+Vec3 left_cut(const Mat& q, Index row) {
+  const double reach =
+      0.7 * std::cos(q(row, 3)) + 0.8 * std::cos(q(row, 4)) + 0.4 * std::cos(q(row, 5));
+  return {q(row, 0) + std::cos(q(row, 2)) * reach, q(row, 1) + std::sin(q(row, 2)) * reach,
+          0.5 + 0.7 * std::sin(q(row, 3)) + 0.8 * std::sin(q(row, 4)) + 0.4 * std::sin(q(row, 5))};
+}
+
+// A waypoint of a chain's point: the optimum passes through it at its knot (the cut point by
+// hand), which the optimum without it does not (it lags 0.42 m below), and it costs more.
+TEST(OptimizeFile, AWaypointIsPassedAndCosts) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "paper_lift_waypoint.yaml");
+  ASSERT_EQ(f.problem.waypoints.size(), 1u);
+  const auto with = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(with.converged) << with.status;
+  EXPECT_TRUE(with.trusted) << with.message;
+  TrajectoryProblem free = f.problem;
+  free.waypoints.clear();
+  const auto without = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(without.converged) << without.status;
+  const Index mid = 20;  // t = 0.5: knot 10 of 20, Hermite–Simpson point 20
+  ASSERT_NEAR(with.t(mid), 0.5, 1e-12);
+  const Vec3 target(0.8, 0.5, 1.0);
+  EXPECT_LT((left_cut(with.q, mid) - target).norm(), 1e-9) << left_cut(with.q, mid).transpose();
+  EXPECT_GT((left_cut(without.q, mid) - target).norm(), 0.3);
+  EXPECT_LT(with.max_waypoint_residual, 1e-9);
+  EXPECT_GT(with.cost, without.cost * 1.001);
+  std::printf("waypoint: cost %.6g without, %.6g with; cut at t = 0.5 z %.4f -> %.4f\n",
+              without.cost, with.cost, left_cut(without.q, mid)(2), left_cut(with.q, mid)(2));
+}
+
+TEST(OptimizeFile, WaypointErrorsNameTheKey) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const std::string good = ukdyn_test::slurp(dir / "paper_lift_waypoint.yaml");
+  struct Case {
+    const char* from;
+    const char* to;
+    const char* expect;
+  };
+  const Case cases[] = {
+      {"frame: left.cut", "frame: left.nope", "key 'waypoints': a waypoint: "},
+      {"t: 0.5,", "t: 0.52,",
+       "key 'waypoints': optimize: waypoint 'halfway': t = 0.52 is not at a knot"},
+      {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
+      {"name: halfway", "colour: red", "key 'waypoints[0].colour': unknown key"},
   };
   for (const auto& c : cases) {
     std::string text = good;

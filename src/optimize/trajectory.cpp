@@ -102,6 +102,23 @@ void check_costs_and_time(const TrajectoryProblem& pr, Index k) {
   }
 }
 
+// A waypoint's rows are holonomic and exact, at a knot of a fixed duration.
+void check_waypoints(const TrajectoryProblem& pr) {
+  for (const auto& w : pr.waypoints) {
+    const std::string what = "optimize: waypoint '" + w.name + "'";
+    if (!w.rows || w.rows->rows() == 0) throw Error(what + " has no rows");
+    if (pr.free_duration)
+      throw Error(what + ": waypoints need a fixed duration (their time is a knot's)");
+    const double steps = w.t / pr.duration * static_cast<double>(pr.intervals);
+    const double knot = std::round(steps);
+    if (!(std::isfinite(w.t) && w.t > 0.0 && w.t <= pr.duration * (1.0 + 1e-12)))
+      throw Error(what + ": t = " + sci(w.t) + " is not in (0, duration]");
+    if (std::abs(steps - knot) > 1e-9 * static_cast<double>(pr.intervals))
+      throw Error(what + ": t = " + sci(w.t) + " is not at a knot (the knots are " +
+                  sci(pr.duration / static_cast<double>(pr.intervals)) + " s apart)");
+  }
+}
+
 }  // namespace
 
 void validate(const TrajectoryProblem& pr) {
@@ -137,6 +154,7 @@ void validate(const TrajectoryProblem& pr) {
         pr.B.allFinite()))
     throw Error("optimize: the start state, tau and B must be finite");
   check_costs_and_time(pr, k);
+  check_waypoints(pr);
   const Index P =
       pr.method == CollocationMethod::hermite_simpson ? 2 * pr.intervals + 1 : pr.intervals + 1;
   for (const auto& [what, G, cols] :

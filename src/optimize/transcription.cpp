@@ -54,6 +54,13 @@ Transcription::Transcription(const TrajectoryProblem& problem)
   multiplier_rows_start_ = row + 4 * static_cast<Index>(problem.envelopes.size()) * P_;
   select_multiplier_rows();
   ng_ = multiplier_rows_start_ + static_cast<Index>(bounded_.size()) * P_;
+  waypoint_rows_start_ = ng_;
+  for (const auto& w : problem.waypoints) {  // snapped to its knot (validate(): t is on one)
+    const auto j =
+        static_cast<Index>(std::llround(w.t / problem.duration * static_cast<double>(N_)));
+    waypoint_point_.push_back(knot_point(j));
+    ng_ += w.rows->rows();
+  }
   eval_.resize(static_cast<std::size_t>(P_));
 }
 
@@ -352,6 +359,27 @@ void Transcription::constraint_values(const Vec& x, Vec& g) {
   }
   for (Index p = 0; p < P_; ++p)
     for (const Index k : bounded_) g(row++) = eval_[static_cast<std::size_t>(p)].lin.mu(k);
+  Vec phi;
+  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
+    waypoint_rows(x, w, phi, nullptr);
+    g.segment(row, phi.size()) = phi;
+    row += phi.size();
+  }
+}
+
+void Transcription::waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const {
+  const Constraint& c = *problem_.waypoints[w].rows;
+  const Index p = waypoint_point_[w];
+  ConstraintContext ctx;
+  ctx.t = point_time(x, p);
+  const auto q = x.segment(q_of(p), n_);
+  phi.resize(c.rows());
+  c.position_residual(ctx, q, phi);
+  if (!A) return;
+  // A holonomic row's A is ∂Φ/∂q (b is not needed: evaluated at q̇ = 0).
+  A->setZero(c.rows(), n_);
+  Vec b(c.rows());
+  c.evaluate(ctx, q, Vec::Zero(n_), *A, b);
 }
 
 void Transcription::interval_jacobian(const Vec& x, Index i, double h, JacobianSink& sink) const {
@@ -453,6 +481,14 @@ void Transcription::jacobian(const Vec& x, JacobianSink& sink) {
     for (Index p = 0; p < P_; ++p) envelope_jacobian(p, sink);
   if (!bounded_.empty())
     for (Index p = 0; p < P_; ++p) multiplier_jacobian(p, sink);
+  Index row = waypoint_rows_start_;
+  Vec phi;
+  Mat A;
+  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
+    waypoint_rows(x, w, phi, &A);
+    sink.dense(row, q_of(waypoint_point_[w]), A);
+    row += A.rows();
+  }
 }
 
 void Transcription::multiplier_jacobian(Index p, JacobianSink& sink) const {
@@ -520,6 +556,8 @@ TrajectorySolution Transcription::solution(const Vec& x) {
   Vec g;
   constraint_values(x, g);
   if (knot_rows_start_ > 0) s.max_defect = g.head(knot_rows_start_).cwiseAbs().maxCoeff();
+  if (ng_ > waypoint_rows_start_)
+    s.max_waypoint_residual = g.tail(ng_ - waypoint_rows_start_).cwiseAbs().maxCoeff();
   if (r_ > 0) s.max_correction = x.segment(gq_of(0), N_ * 2 * r_).cwiseAbs().maxCoeff();
   // The corrections against the steps they correct: a resolved trajectory has |A_Rᵀγ| = O(h³)
   // against steps O(h); a correction of a tenth of its step means the knots jump across the

@@ -77,6 +77,8 @@ class Transcription {
   void knot_jacobian(Index j, JacobianSink& sink) const;
   void envelope_jacobian(Index p, JacobianSink& sink) const;
   void multiplier_jacobian(Index p, JacobianSink& sink) const;
+  /// Waypoint w's rows Φ_w at its knot, and (A non-null) their Jacobian ∂Φ_w/∂q = A_w.
+  void waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const;
   Mat straight_line_guess(Mat& qd) const;
   void select_multiplier_rows();
 
@@ -85,7 +87,8 @@ class Transcription {
   std::vector<Index> kept_;
   bool constrain_end_q_ = true, constrain_end_v_ = true;
   Index interval_rows_ = 0, knot_rows_start_ = 0, envelope_rows_start_ = 0;
-  Index multiplier_rows_start_ = 0;
+  Index multiplier_rows_start_ = 0, waypoint_rows_start_ = 0;
+  std::vector<Index> waypoint_point_;  ///< per waypoint: its knot's point
   /// Positions in kept_ of the rows with multiplier bounds, and of the rows with a weight.
   std::vector<Index> bounded_, weighted_;
   std::vector<Index> knot_row_;  ///< per knot: first row of its manifold rows (−1: none)

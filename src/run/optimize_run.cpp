@@ -62,6 +62,7 @@ nlohmann::json summary(const OptimizationFile& f, const OptimizeReport& rep) {
   j["max_velocity_residual"] = s.max_velocity_residual;
   j["max_correction"] = s.max_correction;
   j["max_correction_ratio"] = s.max_correction_ratio;
+  if (!p.waypoints.empty()) j["max_waypoint_residual"] = s.max_waypoint_residual;
   j["constraint_rank"] = s.kept_rows.size();
   j["trusted"] = s.trusted;
   j["message"] = s.message;

@@ -2,6 +2,7 @@
 #include "ukdyn/scenario/optimization_file.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <sstream>
 
@@ -311,6 +312,73 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   }
 }
 
+std::string exact(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+// `waypoints: [{name, frame, t, position, orientation}]`: each a ball constraint (a position) or a
+// weld (with an orientation, roll-pitch-yaw as a frame offset's) between the frame and the world
+// frame at the waypoint. They are appended to the scenario's constraints and the scenario loaded
+// again with them (so the frame is resolved, and its rows and exact A built, as any frame
+// constraint's: docs/frame-constraints.md); the waypoints' rows are then taken out of that copy.
+void waypoints(const Loader& L, const Node& root, const Scenario& sc, TrajectoryProblem& p) {
+  const Node wn = L.child(root, "waypoints", false);
+  if (!wn.node.IsDefined()) return;
+  if (!wn.node.IsSequence() || wn.node.size() == 0)
+    L.fail(wn, "expected a list of {frame, t, position[, orientation, name]}");
+  YAML::Node doc =
+      YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  std::vector<std::pair<std::string, double>> named;
+  for (std::size_t i = 0; i < wn.node.size(); ++i) {
+    const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
+    L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
+    const Node nn = L.child(item, "name", false);
+    const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
+    const Node frame = L.child(item, "frame", true);
+    if (!frame.node.IsScalar() && !frame.node.IsMap())
+      L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
+    const double t = L.number(L.child(item, "t", true));
+    const Vec x = L.vector(L.child(item, "position", true), 3);
+    const Node on = L.child(item, "orientation", false);
+    YAML::Node c, b, xyz, rpy;
+    c["type"] = on.node.IsDefined() ? "weld" : "ball";
+    c["name"] = name;
+    c["a"] = YAML::Clone(frame.node);
+    b["frame"] = "world";
+    for (Index k = 0; k < 3; ++k) xyz.push_back(exact(x(k)));
+    b["xyz"] = xyz;
+    if (on.node.IsDefined()) {
+      const Vec r = L.vector(on, 3);
+      for (Index k = 0; k < 3; ++k) rpy.push_back(exact(r(k)));
+      b["rpy"] = rpy;
+    }
+    c["b"] = b;
+    doc["constraints"].push_back(c);
+    named.emplace_back(name, t);
+  }
+  YAML::Emitter out;
+  out << doc;
+  LoadOptions opt;
+  opt.check_initial = false;  // the start need not pass through the waypoints
+  std::shared_ptr<const System> with;
+  try {
+    with = load_scenario_text(out.c_str(), sc.path, opt).system;
+  } catch (const ScenarioError& e) {
+    // The scenario loaded without the waypoints: what fails is a waypoint's frame or numbers.
+    L.fail(wn, std::string("a waypoint: ") + e.what());
+  }
+  for (std::size_t i = 0; i < named.size(); ++i) {
+    const std::string prefix = named[i].first + "_";
+    std::shared_ptr<const Constraint> rows;
+    for (const auto& c : with->constraints())
+      if (c->rows() > 0 && c->row_names().front().compare(0, prefix.size(), prefix) == 0) rows = c;
+    if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
+    p.waypoints.push_back({named[i].first, rows, named[i].second});
+  }
+}
+
 }  // namespace
 
 OptimizationFile load_optimization_text(const std::string& text,
@@ -319,7 +387,7 @@ OptimizationFile load_optimization_text(const std::string& text,
   const Node root{io_detail::parse_scenario_yaml(text, path), ""};
   L.only_keys(root, {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration",
                      "end", "costs", "bounds", "envelopes", "ipopt", "verify", "actuated",
-                     "max_correction", "guess"});
+                     "max_correction", "guess", "waypoints"});
   if (L.number(L.child(root, "ukdyn", true)) != 1)
     L.fail(L.child(root, "ukdyn", true), "expected 1");
   OptimizationFile f;
@@ -385,6 +453,7 @@ OptimizationFile load_optimization_text(const std::string& text,
   if (const Node mc = L.child(root, "max_correction", false); mc.node.IsDefined())
     p.max_correction = L.positive(mc);
   ipopt(L, root, f.ipopt);
+  waypoints(L, root, sc, p);
   if (const Node g = L.child(root, "guess", false); g.node.IsDefined()) {
     try {
       guess_from_csv(L, g, path.parent_path() / L.string(g), p);
@@ -406,6 +475,7 @@ OptimizationFile load_optimization_text(const std::string& text,
     const std::string m = e.what();
     const bool at_end = m.find("the end ") != std::string::npos;
     const bool at_bounds = m.find("outside its bounds") != std::string::npos;
+    if (m.find("waypoint '") != std::string::npos) L.fail(L.child(root, "waypoints", true), m);
     L.fail(at_end ? end : at_bounds ? L.child(root, "bounds", true) : sn, m);
   }
   return f;

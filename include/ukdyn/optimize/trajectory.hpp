@@ -58,6 +58,17 @@ struct TrajectoryCosts {
   double duration = 0.0;  ///< weight of T (free duration only)
 };
 
+/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at the knot at
+/// time t (from t0; it must fall on a knot, the duration fixed). A frame (a chain's link or point,
+/// a definitions body, a free body) through a given position is a ball constraint between the
+/// frame and a world frame at that position; with an orientation too, a weld
+/// (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A.
+struct Waypoint {
+  std::string name;
+  std::shared_ptr<const Constraint> rows;
+  double t = 0.0;
+};
+
 struct TrajectoryProblem {
   std::shared_ptr<const System> system;
   Mat B;                                    ///< n × k: τ = tau + B u
@@ -82,6 +93,7 @@ struct TrajectoryProblem {
   /// lets the knots jump across the manifold (to another branch of the constraints' roots).
   double max_correction = std::numeric_limits<double>::infinity();
   TrajectoryCosts costs;
+  std::vector<Waypoint> waypoints;
   /// Initial guess at the collocation points (rows: points, as TrajectorySolution::t); empty: the
   /// straight line in q from start to end, each point assembled onto the manifold, u = 0.
   Mat q_guess, qd_guess, u_guess;
@@ -115,6 +127,8 @@ struct TrajectorySolution {
   double max_correction = 0.0;         ///< max |γ| (the manifold corrections, → 0 as h → 0)
   /// max over intervals of |A_Rᵀγ| / |step| (position and velocity): > 0.1 is not trusted
   double max_correction_ratio = 0.0;
+  /// max |Φ_w| over the waypoints (at their knots; 0 without waypoints)
+  double max_waypoint_residual = 0.0;
   std::vector<Index> kept_rows;  ///< R
   std::string status;            ///< IPOPT's return status, e.g. "Solve_Succeeded"
   bool converged = false;        ///< IPOPT met its tolerances
