@@ -9,6 +9,7 @@
 
 #include "cli_run.hpp"
 #include "optimize/transcription.hpp"
+#include "output/csv_reader.hpp"
 #include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
 #include "ukdyn/run/optimize_run.hpp"
@@ -110,6 +111,36 @@ class DenseSink final : public optimize::JacobianSink {
   Mat& J_;
 };
 
+// The worst relative errors of the constraint Jacobian and of the cost gradient at x against
+// central differences; checks that the declared structure covers every non-zero.
+std::pair<double, double> derivative_errors(optimize::Transcription& tr, const Vec& x) {
+  const Index nv = tr.variables(), ng = tr.constraints();
+  Mat J = Mat::Zero(ng, nv);
+  DenseSink sink(J);
+  tr.jacobian(x, sink);
+  Vec grad;
+  tr.cost_gradient(x, grad);
+  double worst_j = 0, worst_g = 0;
+  Vec gp, gm;
+  for (Index i = 0; i < nv; ++i) {
+    const double h = 1e-6 * (1.0 + std::abs(x(i)));
+    Vec xp = x, xm = x;
+    xp(i) += h;
+    xm(i) -= h;
+    tr.constraint_values(xp, gp);
+    tr.constraint_values(xm, gm);
+    const Vec col = (gp - gm) / (2 * h);
+    worst_j = std::max(worst_j,
+                       (col - J.col(i)).cwiseAbs().maxCoeff() / (1.0 + col.cwiseAbs().maxCoeff()));
+    const double dc = (tr.cost(xp) - tr.cost(xm)) / (2 * h);
+    worst_g = std::max(worst_g, std::abs(dc - grad(i)) / (1.0 + std::abs(dc)));
+  }
+  Index nnz = 0;
+  for (Index i = 0; i < J.size(); ++i) nnz += J.data()[i] != 0.0;
+  EXPECT_LE(nnz, tr.jacobian_nonzeros());  // the declared structure covers every non-zero
+  return {worst_j, worst_g};
+}
+
 // Every entry of the constraint Jacobian and of the cost gradient against central differences,
 // at a point off the guess (random u, γ, perturbed states), both methods, free duration, every
 // cost term on: the derivatives of a (the U-K acceleration), of A_R(q)ᵀγ and of A_R v included.
@@ -148,32 +179,9 @@ void check_derivatives(CollocationMethod method, bool waypoint = false) {
   std::srand(7);
   x += 0.05 * Vec::Random(x.size());
   if (!waypoint) x(tr.time_index()) = 1.3;
-  const Index nv = tr.variables(), ng = tr.constraints();
-  Mat J = Mat::Zero(ng, nv);
-  DenseSink sink(J);
-  tr.jacobian(x, sink);
-  Vec grad;
-  tr.cost_gradient(x, grad);
-  double worst_j = 0, worst_g = 0;
-  Vec gp, gm;
-  for (Index i = 0; i < nv; ++i) {
-    const double h = 1e-6 * (1.0 + std::abs(x(i)));
-    Vec xp = x, xm = x;
-    xp(i) += h;
-    xm(i) -= h;
-    tr.constraint_values(xp, gp);
-    tr.constraint_values(xm, gm);
-    const Vec col = (gp - gm) / (2 * h);
-    worst_j = std::max(worst_j,
-                       (col - J.col(i)).cwiseAbs().maxCoeff() / (1.0 + col.cwiseAbs().maxCoeff()));
-    const double dc = (tr.cost(xp) - tr.cost(xm)) / (2 * h);
-    worst_g = std::max(worst_g, std::abs(dc - grad(i)) / (1.0 + std::abs(dc)));
-  }
+  const auto [worst_j, worst_g] = derivative_errors(tr, x);
   EXPECT_LT(worst_j, 1e-6) << to_string(method);
   EXPECT_LT(worst_g, 1e-6) << to_string(method);
-  Index nnz = 0;
-  for (Index i = 0; i < J.size(); ++i) nnz += J.data()[i] != 0.0;
-  EXPECT_LE(nnz, tr.jacobian_nonzeros());  // the declared structure covers every non-zero
 }
 
 TEST(Optimize, TrapezoidalDerivativesMatchCentralDifferences) {
@@ -323,6 +331,10 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"costs:", "actuated: [dx1, dx1]\ncosts:",
        "key 'actuated[1]': coordinate 'dx1' is listed twice"},
       {"costs:", "max_correction: 0\ncosts:", "key 'max_correction': must be > 0"},
+      {"costs:", "bounds:\n  internal_wrench: {load: left.cut, force: 1}\ncosts:",
+       "key 'bounds.internal_wrench.load': 'left.cut' is held by 0 weld(s)"},
+      {"costs:", "bounds:\n  internal_wrench: {load: left.cut}\ncosts:",
+       "key 'bounds.internal_wrench': expected force, torque or both"},
   };
   for (const auto& c : cases) {
     std::string text = good;
@@ -402,6 +414,96 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
       EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
     }
   }
+}
+
+// The internal-wrench rows' Jacobian (∂/∂μ exact through dμ/dx, ∂/∂q at fixed μ by central
+// differences inside) against central differences of the rows, off the guess.
+TEST(OptimizeFile, InternalWrenchDerivativesMatchCentralDifferences) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");
+  f.problem.intervals = 1;  // (each column re-evaluates every point: kept small)
+  f.problem.method = CollocationMethod::trapezoidal;
+  f.problem.internal_wrench_bounds.front().max_torque = 1.0;
+  optimize::Transcription tr(f.problem);
+  Vec x = tr.initial_guess();
+  std::srand(11);
+  x += 0.05 * Vec::Random(x.size());
+  for (Index p = 0; p < tr.points(); ++p)  // forces that squeeze: internal wrenches of O(10 N)
+    x.segment(tr.u_of(p), 12) += 20.0 * Vec::Random(12);
+  const auto [worst_j, worst_g] = derivative_errors(tr, x);
+  EXPECT_LT(worst_j, 1e-6);
+  EXPECT_LT(worst_g, 1e-6);
+}
+
+// The largest |f_int,k| of Walker's internal force over the points and grasps of a solution, from
+// its multipliers and the bound's own map.
+double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+  const InternalWrenchBound& b = p.internal_wrench_bounds.front();
+  Vec lambda = Vec::Zero(p.system->rows()), w(6 * b.grasps);
+  double peak = 0.0;
+  for (Index i = 0; i < s.t.size(); ++i) {
+    for (std::size_t r = 0; r < s.kept_rows.size(); ++r)
+      lambda(s.kept_rows[r]) = s.mu(i, static_cast<Index>(r));
+    b.walker(s.q.row(i).transpose(), lambda, w);
+    for (Index k = 0; k < b.grasps; ++k) peak = std::max(peak, w.segment<3>(6 * k).norm());
+  }
+  return peak;
+}
+
+// A bound on the squeeze: two agents of unequal mass carry a load; at minimum effort the grasps
+// squeeze it (Walker's internal force up to 10.3 N); bounded at 2 N, the run's Wint_walker_ columns
+// stay within it at every point, they are the internal part (G w_int = 0: the two grasps' internal
+// forces cancel), and the effort rises.
+TEST(OptimizeFile, AnInternalWrenchBoundHoldsAndCosts) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");
+  ASSERT_EQ(f.problem.internal_wrench_bounds.size(), 1u);
+  const double bound = f.problem.internal_wrench_bounds.front().max_force;
+  TrajectoryProblem free = f.problem;
+  free.internal_wrench_bounds.clear();
+  const auto unbounded = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(unbounded.converged) << unbounded.status;
+  const double free_peak = peak_internal_force(f.problem, unbounded);
+  EXPECT_GT(free_peak, 1.2 * bound);
+  const fs::path out = fs::temp_directory_path() / ("ukdyn_squeeze_" + std::to_string(::getpid()));
+  const OptimizeReport rep = run_optimization(f, out);
+  ASSERT_TRUE(rep.solution.converged) << rep.solution.status;
+  EXPECT_TRUE(rep.solution.trusted) << rep.solution.message;
+  EXPECT_GT(rep.solution.cost, unbounded.cost * 1.001);
+  std::ifstream in(out / "trajectory.csv");
+  io_detail::CsvLines lines(in);
+  std::string line;
+  ASSERT_TRUE(lines.next(line));
+  const auto header = io_detail::split_csv_line(line);
+  auto col = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    EXPECT_NE(it, header.end()) << name;
+    return static_cast<std::size_t>(it - header.begin());
+  };
+  double peak = 0.0, net = 0.0;
+  Index rows = 0;
+  while (lines.next(line)) {
+    const auto cells = io_detail::split_csv_line(line);
+    Vec3 sum = Vec3::Zero();
+    for (const char* g : {"grip_left", "grip_right"}) {
+      const std::string pre = std::string("Wint_walker_") + g + "_f";
+      Vec3 fk;
+      for (Index i = 0; i < 3; ++i) fk(i) = std::stod(cells[col(pre + static_cast<char>('x' + i))]);
+      peak = std::max(peak, fk.norm());
+      sum += fk;
+    }
+    net = std::max(net, sum.norm());
+    ++rows;
+  }
+  EXPECT_EQ(rows, rep.solution.t.size());
+  EXPECT_LE(peak, bound * (1 + 1e-6));
+  EXPECT_LT(net, 1e-9);
+  EXPECT_NEAR(peak, peak_internal_force(f.problem, rep.solution), 1e-9 * peak);
+  std::printf(
+      "squeeze: peak internal force %.4g N free, %.4g N bounded (%.3g); cost %.6g -> %.6g\n",
+      free_peak, peak, bound, unbounded.cost, rep.solution.cost);
+  fs::remove_all(out);
 }
 
 // The paper's lift at minimum effort against the paper's own cosine path between the same rest

@@ -119,6 +119,17 @@ void check_waypoints(const TrajectoryProblem& pr) {
   }
 }
 
+void check_internal_wrench_bounds(const TrajectoryProblem& pr) {
+  for (const auto& b : pr.internal_wrench_bounds) {
+    const std::string what = "optimize: the internal wrench bound of load '" + b.load + "'";
+    if (!b.walker || b.grasps < 2) throw Error(what + " needs a load held by two or more welds");
+    if (!(b.max_force > 0.0) || !(b.max_torque > 0.0))
+      throw Error(what + ": the bounds must be positive");
+    if (!std::isfinite(b.max_force) && !std::isfinite(b.max_torque))
+      throw Error(what + " bounds neither the force nor the torque");
+  }
+}
+
 }  // namespace
 
 void validate(const TrajectoryProblem& pr) {
@@ -155,6 +166,7 @@ void validate(const TrajectoryProblem& pr) {
     throw Error("optimize: the start state, tau and B must be finite");
   check_costs_and_time(pr, k);
   check_waypoints(pr);
+  check_internal_wrench_bounds(pr);
   const Index P =
       pr.method == CollocationMethod::hermite_simpson ? 2 * pr.intervals + 1 : pr.intervals + 1;
   for (const auto& [what, G, cols] :

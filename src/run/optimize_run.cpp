@@ -26,11 +26,15 @@ void write_csv(const OutputDir& dir, const OptimizationFile& f, const Trajectory
   for (const auto& c : names) header.push_back("Qc_" + c);
   const auto& rows = f.scenario->system->constraint_row_names();
   for (const Index k : s.kept_rows) header.push_back("mu_" + rows[static_cast<std::size_t>(k)]);
+  for (const auto& b : f.problem.internal_wrench_bounds)  // as `simulate` names them
+    for (const auto& g : b.grasp_names)
+      for (const char* w : {"fx", "fy", "fz", "mx", "my", "mz"})
+        header.push_back("Wint_walker_" + g + "_" + w);
   CsvWriter csv(dir, "trajectory.csv", header);
   std::vector<double> row;
   for (Index p = 0; p < s.t.size(); ++p) {
     row.assign({s.t(p), s.knot[static_cast<std::size_t>(p)] ? 1.0 : 0.0});
-    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc, &s.mu})
+    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc, &s.mu, &s.internal_wrench})
       for (Index j = 0; j < m->cols(); ++j) row.push_back((*m)(p, j));
     csv.row(row);
   }

@@ -8,7 +8,9 @@
 
 #include "output/csv_reader.hpp"
 #include "scenario/yaml_loader.hpp"
+#include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn {
 
@@ -312,6 +314,55 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   }
 }
 
+// `bounds: internal_wrench: {load: BODY.FRAME, force: F, torque: M}`: the welds whose frame b is
+// the load's (its grasps, as the Wint_ columns find them: docs/frame-constraints.md) and Walker's
+// internal part of their wrenches on it, (I − G⁺G) w, ukdyn/core/constraint_forces.hpp.
+void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
+                           TrajectoryProblem& p) {
+  if (!n.node.IsDefined()) return;
+  L.only_keys(n, {"load", "force", "torque"});
+  InternalWrenchBound b;
+  const Node ln = L.child(n, "load", true);
+  b.load = L.string(ln);
+  const Node fn = L.child(n, "force", false), tn = L.child(n, "torque", false);
+  if (fn.node.IsDefined()) b.max_force = L.positive(fn);
+  if (tn.node.IsDefined()) b.max_torque = L.positive(tn);
+  if (!fn.node.IsDefined() && !tn.node.IsDefined()) L.fail(n, "expected force, torque or both");
+  struct Grasp {
+    std::shared_ptr<const Constraint> owner;
+    const symbolic::FrameWrenches* map;
+    Index first_row;
+  };
+  std::vector<Grasp> grasps;
+  const System& sys = *sc.system;
+  for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+    const auto* f = dynamic_cast<const symbolic::FrameConstraint*>(sys.constraints()[c].get());
+    if (f && f->wrench().kind() == symbolic::FrameConstraintDef::Kind::weld &&
+        f->wrench().frame_b() == b.load)
+      grasps.push_back({sys.constraints()[c], &f->wrench(), sys.constraint_row_offsets()[c]});
+  }
+  if (grasps.size() < 2)
+    L.fail(ln, "'" + b.load + "' is held by " + std::to_string(grasps.size()) +
+                   " weld(s) (frame b): an internal wrench needs two or more");
+  b.grasps = static_cast<Index>(grasps.size());
+  for (const auto& g : grasps) b.grasp_names.push_back(g.map->name());
+  b.walker = [grasps](CVecRef q, CVecRef lambda, VecRef out) {
+    const Vec qv = q;
+    Vec w(6 * static_cast<Index>(grasps.size()));
+    std::vector<Vec3> points;
+    for (std::size_t k = 0; k < grasps.size(); ++k) {
+      const auto& g = grasps[k];
+      const symbolic::FrameWrench fw =
+          g.map->evaluate(qv, Vec(lambda.segment(g.first_row, g.map->rows())));
+      w.segment<3>(6 * static_cast<Index>(k)) = fw.force_b;
+      w.segment<3>(6 * static_cast<Index>(k) + 3) = fw.moment_b;
+      points.push_back(fw.position_b);
+    }
+    out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
+  };
+  p.internal_wrench_bounds.push_back(std::move(b));
+}
+
 std::string exact(double v) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.17g", v);
@@ -440,7 +491,8 @@ OptimizationFile load_optimization_text(const std::string& text,
                  : Vec::Zero(sys.dof());
   costs(L, root, p);
   if (const Node b = L.child(root, "bounds", false); b.node.IsDefined()) {
-    L.only_keys(b, {"q", "qd", "u", "constraint_rows"});
+    L.only_keys(b, {"q", "qd", "u", "constraint_rows", "internal_wrench"});
+    internal_wrench_bound(L, L.child(b, "internal_wrench", false), sc, p);
     auto coord = [&](const Node& at, const std::string& n) { return coordinate(L, at, sys, n); };
     bounds(L, L.child(b, "q", false), p.q_lower, p.q_upper, sys.dof(), coord);
     bounds(L, L.child(b, "qd", false), p.qd_lower, p.qd_upper, sys.dof(), coord);
