@@ -637,7 +637,8 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_NE(r.out.find("Solve_Succeeded"), std::string::npos) << r.out;
   }
-  for (const char* name : {"trajectory.csv", "summary.json"})
+  for (const char* name :
+       {"trajectory.csv", "summary.json", "replay.yaml", "replay_open_loop.yaml"})
     EXPECT_EQ(ukdyn_test::slurp(scratch / "a" / name), ukdyn_test::slurp(scratch / "b" / name))
         << name;
   const auto j = nlohmann::json::parse(ukdyn_test::slurp(scratch / "a" / "summary.json"));
@@ -647,6 +648,98 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
   const auto bad = ukdyn_test::run_cli(UKDYN_CLI, scratch, "optimize /nonexistent/p.yaml");
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("/nonexistent/p.yaml"), std::string::npos) << bad.err;
+}
+
+// Max |q − q_opt| of a simulate run's trajectory.csv at the optimum's points (its rows at the same
+// times: sample_dt is their spacing).
+double tracking_error(const fs::path& run, const fs::path& optimum) {
+  auto read = [](const fs::path& file, std::vector<std::string>& header) {
+    std::ifstream in(file);
+    io_detail::CsvLines lines(in);
+    std::string line;
+    std::vector<std::vector<double>> rows;
+    if (!lines.next(line)) return rows;
+    header = io_detail::split_csv_line(line);
+    while (lines.next(line)) {
+      std::vector<double> r;
+      for (const auto& c : io_detail::split_csv_line(line)) {
+        double v = std::nan("");
+        io_detail::parse_csv_number(c, v);
+        r.push_back(v);
+      }
+      rows.push_back(std::move(r));
+    }
+    return rows;
+  };
+  std::vector<std::string> hs, ho;
+  const auto sim = read(run / "trajectory.csv", hs), opt = read(optimum / "trajectory.csv", ho);
+  double worst = 0.0;
+  Index compared = 0;
+  for (const auto& o : opt)
+    for (const auto& r : sim)
+      if (std::abs(r[0] - o[0]) < 1e-9) {
+        for (const char* c : {"x", "z"}) {
+          const auto is = std::find(hs.begin(), hs.end(), c) - hs.begin();
+          const auto io = std::find(ho.begin(), ho.end(), c) - ho.begin();
+          worst = std::max(
+              worst, std::abs(r[static_cast<std::size_t>(is)] - o[static_cast<std::size_t>(io)]));
+        }
+        ++compared;
+      }
+  EXPECT_EQ(compared, static_cast<Index>(opt.size())) << run;
+  return worst;
+}
+
+// The replay scenarios `ukdyn optimize` writes, run by `ukdyn simulate` on a plant whose bead is 5 %
+// heavier than the model's: the optimal u(t) as feedforward plus the stabilised servo on the
+// optimal path tracks it closely; the feedforward alone (replay_open_loop.yaml, the same plant)
+// falls away under the unmodelled weight.
+TEST(OptimizeCli, ReplayScenarioTracksAPerturbedPlant) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_replay");
+  std::ofstream(scratch / "circle.yaml") << circle_text(9.81);
+  std::ofstream(scratch / "swing.yaml") << R"(ukdyn: 1
+name: swing
+scenario: circle.yaml
+intervals: 10
+duration: 1
+end:
+  q: [0.6731767878463172, -0.43224184447562804]
+costs:
+  effort: 0.01
+)";  // θ = 1 rad on the ring of radius 0.8
+  auto run = [&](const std::string& args) {
+    const auto r = ukdyn_test::run_cli(UKDYN_CLI, scratch, args);
+    EXPECT_EQ(r.exit_code, 0) << args << "\n" << r.err;
+    return r;
+  };
+  const auto at_scratch = [&](const std::string& name) {
+    return ukdyn_test::sh((scratch / name).string());
+  };
+  run("optimize " + at_scratch("swing.yaml") + " --out " + at_scratch("opt"));
+  std::string closed = ukdyn_test::slurp(scratch / "opt" / "replay.yaml");
+  ASSERT_NE(closed.find("law: stabilized"), std::string::npos) << closed;
+  ASSERT_NE(closed.find("track_x"), std::string::npos) << closed;  // x and the ring fix z
+  closed += "  plant_set:\n    - {path: \"subsystems[bead].parameters.m\", scale: 1.05}\n";
+  std::ofstream(scratch / "opt" / "closed.yaml") << closed;
+  std::string open = ukdyn_test::slurp(scratch / "opt" / "replay_open_loop.yaml");
+  const auto at = open.find("parameters: {m: 2}");
+  ASSERT_NE(at, std::string::npos) << open;
+  open.replace(at, 18, "parameters: {m: 2.1}");
+  std::ofstream(scratch / "opt" / "open.yaml") << open;
+  for (const char* name : {"replay", "closed", "open"})
+    run("simulate " + at_scratch(std::string("opt/") + name + ".yaml") + " --out " +
+        at_scratch(name));
+  const double nominal = tracking_error(scratch / "replay", scratch / "opt");
+  const double fb = tracking_error(scratch / "closed", scratch / "opt");
+  const double ff = tracking_error(scratch / "open", scratch / "opt");
+  std::printf(
+      "replay on the model %.3g m; on the 5 %% heavier plant: servo %.3g m, "
+      "feedforward only %.3g m\n",
+      nominal, fb, ff);
+  EXPECT_LT(nominal, 1e-4);
+  EXPECT_LT(fb, 5e-3);
+  EXPECT_GT(ff, 5.0 * fb);
 }
 #endif
 

@@ -1,12 +1,17 @@
 // `ukdyn optimize` (ukdyn/run/optimize_run.hpp).
 #include "ukdyn/run/optimize_run.hpp"
 
+#include <yaml-cpp/yaml.h>
+
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <nlohmann/json.hpp>
 
+#include "scenario/yaml_loader.hpp"
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/output_dir.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/version.hpp"
 
@@ -75,6 +80,9 @@ nlohmann::json summary(const OptimizationFile& f, const OptimizeReport& rep) {
     acts[p.actuator_names[static_cast<std::size_t>(a)]] = {
         {"peak_abs_u", s.u.col(a).cwiseAbs().maxCoeff()}};
   j["actuators"] = acts;
+  j["replay_scenario"] = {{"file", "replay.yaml"},
+                          {"open_loop_file", "replay_open_loop.yaml"},
+                          {"warning", rep.replay_scenario_note}};
   if (rep.replay.done)
     j["replay"] = {{"status", rep.replay.status},
                    {"max_q_deviation", finite_or_nan(rep.replay.max_q_deviation)},
@@ -127,6 +135,145 @@ ReplayCheck replay(const OptimizationFile& f, const TrajectorySolution& s) {
   return rc;
 }
 
+std::string exact_number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+YAML::Node flow_list(const std::vector<double>& v) {
+  YAML::Node n(YAML::NodeType::Sequence);
+  for (const double x : v) n.push_back(exact_number(x));
+  n.SetStyle(YAML::EmitterStyle::Flow);
+  return n;
+}
+
+// A cubic spline of time through the solution's points (docs/definitions.md, time functions).
+YAML::Node spline(const TrajectorySolution& s, const Vec& values, const double* end_slopes) {
+  YAML::Node n;
+  n["type"] = "spline";
+  n["times"] = flow_list(std::vector<double>(s.t.data(), s.t.data() + s.t.size()));
+  n["values"] = flow_list(std::vector<double>(values.data(), values.data() + values.size()));
+  if (end_slopes) {
+    n["end"] = "clamped";
+    n["slopes"] = flow_list({end_slopes[0], end_slopes[1]});
+  }
+  n.SetStyle(YAML::EmitterStyle::Flow);
+  return n;
+}
+
+// The coordinates the replay servo tracks: n − r of them, chosen at the start so that with the
+// kept rows they fix q (greedily, in the order of q: [A_R; e_jᵀ] gains rank); then checked at
+// every point. Returns a message naming the first point where they do not fix q (else empty).
+std::string tracked_coordinates(const TrajectoryProblem& p, const TrajectorySolution& s,
+                                std::vector<Index>& tracked) {
+  const System& sys = *p.system;
+  const Index n = sys.dof();
+  ForwardData d(sys);
+  auto stacked = [&](Index point, const std::vector<Index>& coords) {
+    const Vec q = s.q.row(point).transpose(), v = s.qd.row(point).transpose();
+    evaluate_dynamics(sys, d, s.t(point), q, v);
+    evaluate_constraints(sys, d, s.t(point), q, v);
+    Mat S(static_cast<Index>(s.kept_rows.size() + coords.size()), n);
+    Index r = 0;
+    for (const Index k : s.kept_rows) S.row(r++) = d.A.row(k);
+    for (const Index j : coords) S.row(r++) = Mat::Identity(n, n).row(j);
+    return Eigen::ColPivHouseholderQR<Mat>(S).setThreshold(1e-9).rank();
+  };
+  tracked.clear();
+  for (Index j = 0; j < n && static_cast<Index>(s.kept_rows.size() + tracked.size()) < n; ++j) {
+    std::vector<Index> trial = tracked;
+    trial.push_back(j);
+    if (stacked(0, trial) == static_cast<Index>(s.kept_rows.size() + trial.size()))
+      tracked = std::move(trial);
+  }
+  for (Index point = 0; point < s.t.size(); ++point)
+    if (stacked(point, tracked) < n)
+      return "the tracked coordinates and the constraints do not fix q at t = " +
+             exact_number(s.t(point)) + ": the servo rows are redundant there";
+  return {};
+}
+
+// replay.yaml and replay_open_loop.yaml (docs/optimization.md, "Replay scenario"): the problem's
+// scenario with the optimal τ₀ + B u(t) as time functions (torque elements, splines through the
+// points); replay.yaml also tracks the optimal path (angle_relation rows of role servo on n − r
+// coordinates, splines clamped to the end velocities) with the stabilised law.
+std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile& f,
+                                   const TrajectorySolution& s) {
+  const TrajectoryProblem& p = f.problem;
+  const Scenario& sc = *f.scenario;
+  const auto& names = p.system->coordinate_names();
+  YAML::Node doc =
+      YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  doc["name"] = f.name + "_replay";
+  doc["description"] = "The optimum of " + f.path.filename().string() +
+                       " replayed: its u(t) as feedforward (ukdyn optimize, replay scenario)";
+  const bool own_actuators =
+      sc.actuators.count() > 0 && sc.actuators.B.cols() == p.B.cols() && sc.actuators.B == p.B;
+  if (!own_actuators) {  // the problem's inputs (`actuated:`, or one per coordinate)
+    YAML::Node acts(YAML::NodeType::Sequence);
+    for (Index j = 0; j < p.B.cols(); ++j) {
+      YAML::Node a;
+      a["name"] = p.actuator_names[static_cast<std::size_t>(j)];
+      a["gains"] =
+          flow_list(std::vector<double>(p.B.col(j).data(), p.B.col(j).data() + p.B.rows()));
+      acts.push_back(a);
+    }
+    doc["actuators"] = acts;
+  }
+  const Mat tau = (s.u * p.B.transpose()).rowwise() + p.tau.transpose();  // points × n
+  doc["forces"].remove("tau");
+  for (Index i = 0; i < tau.cols(); ++i) {
+    if (tau.col(i).cwiseAbs().maxCoeff() == 0.0) continue;
+    YAML::Node e;
+    e["type"] = "torque";
+    e["name"] = "feedforward_" + names[static_cast<std::size_t>(i)];
+    e["coordinate"] = names[static_cast<std::size_t>(i)];
+    e["value"] = spline(s, tau.col(i), nullptr);
+    doc["forces"]["elements"].push_back(e);
+  }
+  YAML::Node sim = doc["simulation"];
+  sim["t_end"] = exact_number(s.t(s.t.size() - 1));
+  sim["sample_dt"] = exact_number(s.t(1) - s.t(0));
+  {
+    YAML::Emitter out;
+    out << doc;
+    AtomicFile file(dir, dir.fd(), "", "replay_open_loop.yaml");
+    file.write(
+        std::string("# ukdyn optimize: the optimal u(t) open loop (docs/optimization.md)\n") +
+        out.c_str() + "\n");
+    file.commit();
+  }
+  std::vector<Index> tracked;
+  const std::string note = tracked_coordinates(p, s, tracked);
+  for (const Index j : tracked) {
+    const double slopes[2] = {s.qd(0, j), s.qd(s.qd.rows() - 1, j)};
+    YAML::Node c;
+    c["type"] = "angle_relation";
+    c["name"] = "track_" + names[static_cast<std::size_t>(j)];
+    c["role"] = "servo";
+    YAML::Node terms;
+    terms[names[static_cast<std::size_t>(j)]] = 1;
+    terms.SetStyle(YAML::EmitterStyle::Flow);
+    c["terms"] = terms;
+    c["value"] = spline(s, s.q.col(j), slopes);
+    doc["constraints"].push_back(c);
+  }
+  doc["control"]["law"] = "stabilized";
+  doc["control"]["omega"] = 10;
+  // The plant: the open-loop file (the system without the servo rows; a `plant_set` added here
+  // perturbs it).
+  doc["control"]["plant"] = "replay_open_loop.yaml";
+  YAML::Emitter out;
+  out << doc;
+  AtomicFile file(dir, dir.fd(), "", "replay.yaml");
+  file.write(std::string("# ukdyn optimize: the optimal u(t) as feedforward plus the stabilised "
+                         "servo on the optimal path (docs/optimization.md)\n") +
+             out.c_str() + "\n");
+  file.commit();
+  return note;
+}
+
 }  // namespace
 
 void interpolate_u(const TrajectorySolution& s, CollocationMethod method, double t, VecRef u) {
@@ -160,6 +307,7 @@ OptimizeReport run_optimization(const OptimizationFile& file, const std::filesys
   rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (file.verify) rep.replay = replay(file, rep.solution);
   write_csv(dir, file, rep.solution);
+  rep.replay_scenario_note = write_replay_scenarios(dir, file, rep.solution);
   AtomicFile f(dir, dir.fd(), "", "summary.json");
   f.write(summary(file, rep).dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
   f.commit();
