@@ -148,11 +148,12 @@ YAML::Node flow_list(const std::vector<double>& v) {
   return n;
 }
 
-// A cubic spline of time through the solution's points (docs/definitions.md, time functions).
-YAML::Node spline(const TrajectorySolution& s, const Vec& values, const double* end_slopes) {
+// A cubic spline of time through (times, values) (docs/definitions.md, time functions); clamped to
+// the end slopes if given, else natural.
+YAML::Node spline(const Vec& times, const Vec& values, const double* end_slopes) {
   YAML::Node n;
   n["type"] = "spline";
-  n["times"] = flow_list(std::vector<double>(s.t.data(), s.t.data() + s.t.size()));
+  n["times"] = flow_list(std::vector<double>(times.data(), times.data() + times.size()));
   n["values"] = flow_list(std::vector<double>(values.data(), values.data() + values.size()));
   if (end_slopes) {
     n["end"] = "clamped";
@@ -195,8 +196,8 @@ std::string tracked_coordinates(const TrajectoryProblem& p, const TrajectorySolu
 }
 
 // replay.yaml and replay_open_loop.yaml (docs/optimization.md, "Replay scenario"): the problem's
-// scenario with the optimal τ₀ + B u(t) as time functions (torque elements, splines through the
-// points); replay.yaml also tracks the optimal path (angle_relation rows of role servo on n − r
+// scenario with the optimal τ₀ + B u(t) as time functions (torque elements, splines through dense
+// samples); replay.yaml also tracks the optimal path (angle_relation rows of role servo on n − r
 // coordinates, splines clamped to the end velocities) with the stabilised law.
 std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile& f,
                                    const TrajectorySolution& s) {
@@ -206,6 +207,11 @@ std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile&
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
   doc["name"] = f.name + "_replay";
+  // Every constraint of the problem's system is the plant's own (a `coordinate` row would default
+  // to servo: docs/control.md, "Roles").
+  if (YAML::Node cs = doc["constraints"]; cs.IsSequence())
+    for (YAML::Node c : cs)
+      if (c.IsMap()) c["role"] = "physical";
   doc["description"] = "The optimum of " + f.path.filename().string() +
                        " replayed: its u(t) as feedforward (ukdyn optimize, replay scenario)";
   const bool own_actuators =
@@ -221,7 +227,26 @@ std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile&
     }
     doc["actuators"] = acts;
   }
-  const Mat tau = (s.u * p.B.transpose()).rowwise() + p.tau.transpose();  // points × n
+  // τ₀ + B u(t) sampled 4 times per point spacing on the method's own u(t) (interpolate_u: the
+  // quadratic per Hermite–Simpson interval), so that the spline through the samples follows it.
+  constexpr Index kSub = 4;
+  const Index P = s.t.size(), S = (P - 1) * kSub + 1;
+  // The path likewise, on the cubic Hermite interpolant of (q, q̇) between points (the
+  // Hermite–Simpson state polynomial is that cubic).
+  Vec times(S), u(p.B.cols());
+  Mat tau(S, p.B.rows()), path(S, p.B.rows());
+  for (Index i = 0; i < S; ++i) {
+    const Index a = std::min(i / kSub, P - 2);
+    const double w = static_cast<double>(i - a * kSub) / static_cast<double>(kSub);
+    const double h = s.t(a + 1) - s.t(a);
+    times(i) = (1.0 - w) * s.t(a) + w * s.t(a + 1);
+    interpolate_u(s, p.method, times(i), u);
+    tau.row(i) = (p.tau + p.B * u).transpose();
+    path.row(i) = (2 * w * w * w - 3 * w * w + 1) * s.q.row(a) +
+                  (w * w * w - 2 * w * w + w) * h * s.qd.row(a) +
+                  (-2 * w * w * w + 3 * w * w) * s.q.row(a + 1) +
+                  (w * w * w - w * w) * h * s.qd.row(a + 1);
+  }
   doc["forces"].remove("tau");
   for (Index i = 0; i < tau.cols(); ++i) {
     if (tau.col(i).cwiseAbs().maxCoeff() == 0.0) continue;
@@ -229,7 +254,7 @@ std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile&
     e["type"] = "torque";
     e["name"] = "feedforward_" + names[static_cast<std::size_t>(i)];
     e["coordinate"] = names[static_cast<std::size_t>(i)];
-    e["value"] = spline(s, tau.col(i), nullptr);
+    e["value"] = spline(times, tau.col(i), nullptr);
     doc["forces"]["elements"].push_back(e);
   }
   YAML::Node sim = doc["simulation"];
@@ -256,7 +281,7 @@ std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile&
     terms[names[static_cast<std::size_t>(j)]] = 1;
     terms.SetStyle(YAML::EmitterStyle::Flow);
     c["terms"] = terms;
-    c["value"] = spline(s, s.q.col(j), slopes);
+    c["value"] = spline(times, path.col(j), slopes);
     doc["constraints"].push_back(c);
   }
   doc["control"]["law"] = "stabilized";
