@@ -435,6 +435,31 @@ TEST(OptimizeFile, InternalWrenchDerivativesMatchCentralDifferences) {
   EXPECT_LT(worst_g, 1e-6);
 }
 
+// replay.yaml's tracked coordinate must fix q with the constraints along the whole path: the bead
+// swung past the ring's side (θ = 2 rad) passes x's turning point (θ = π/2, where the ring's row
+// and x are dependent), which the run names.
+TEST(OptimizeFile, ReplayWarnsWhereTheTrackedCoordinatesDoNotFixQ) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir =
+      fs::temp_directory_path() / ("ukdyn_replay_warn_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  std::ofstream(dir / "circle.yaml") << circle_text(0.0);
+  char end[96];
+  std::snprintf(end, sizeof end, "[%.17g, %.17g]", on_circle(2.0)(0), on_circle(2.0)(1));
+  const OptimizationFile f = load_optimization_text(
+      std::string("ukdyn: 1\nname: past_the_side\nscenario: circle.yaml\nintervals: 10\n"
+                  "duration: 1\nend:\n  q: ") +
+          end + "\ncosts:\n  effort: 0.01\n",
+      dir / "p.yaml");
+  const OptimizeReport rep = run_optimization(f, dir / "out");
+  ASSERT_TRUE(rep.solution.converged) << rep.solution.status;
+  EXPECT_NE(rep.replay_scenario_note.find("do not fix q at t ="), std::string::npos)
+      << rep.replay_scenario_note;
+  const auto j = nlohmann::json::parse(ukdyn_test::slurp(dir / "out" / "summary.json"));
+  EXPECT_EQ(j["replay_scenario"]["warning"].get<std::string>(), rep.replay_scenario_note);
+  fs::remove_all(dir);
+}
+
 // The largest |f_int,k| of Walker's internal force over the points and grasps of a solution, from
 // its multipliers and the bound's own map.
 double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {

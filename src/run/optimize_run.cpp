@@ -3,6 +3,8 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <Eigen/LU>
+#include <Eigen/QR>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -179,19 +181,33 @@ std::string tracked_coordinates(const TrajectoryProblem& p, const TrajectorySolu
     Index r = 0;
     for (const Index k : s.kept_rows) S.row(r++) = d.A.row(k);
     for (const Index j : coords) S.row(r++) = Mat::Identity(n, n).row(j);
+    return S;
+  };
+  auto rank = [](const Mat& S) {
     return Eigen::ColPivHouseholderQR<Mat>(S).setThreshold(1e-9).rank();
   };
   tracked.clear();
   for (Index j = 0; j < n && static_cast<Index>(s.kept_rows.size() + tracked.size()) < n; ++j) {
     std::vector<Index> trial = tracked;
     trial.push_back(j);
-    if (stacked(0, trial) == static_cast<Index>(s.kept_rows.size() + trial.size()))
+    if (rank(stacked(0, trial)) == static_cast<Index>(s.kept_rows.size() + trial.size()))
       tracked = std::move(trial);
   }
-  for (Index point = 0; point < s.t.size(); ++point)
-    if (stacked(point, tracked) < n)
+  // At every point the stacked rows must have rank n, and between points their determinant must
+  // keep its sign (a change: they pass through a singular position between the points).
+  double previous = 0.0;
+  for (Index point = 0; point < s.t.size(); ++point) {
+    const Mat S = stacked(point, tracked);
+    if (rank(S) < n)
       return "the tracked coordinates and the constraints do not fix q at t = " +
              exact_number(s.t(point)) + ": the servo rows are redundant there";
+    const double det = S.rows() == n ? Eigen::FullPivLU<Mat>(S).determinant() : 0.0;
+    if (point > 0 && det * previous < 0.0)
+      return "the tracked coordinates and the constraints do not fix q at t = " +
+             exact_number(s.t(point - 1)) + " .. " + exact_number(s.t(point)) +
+             " (a singular position between the points): the servo rows are redundant there";
+    previous = det;
+  }
   return {};
 }
 
