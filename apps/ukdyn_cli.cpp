@@ -214,17 +214,25 @@ int cmd_optimize(const std::string& problem, const std::string& out, bool quiet)
         ukdyn::printable(f.name), s.status, s.iterations, rep.wall_seconds, s.cost, s.duration,
         ukdyn::to_string(f.problem.method), f.problem.intervals, s.max_defect,
         s.max_position_residual, s.max_velocity_residual, s.max_correction);
+    if (!f.problem.waypoints.empty())
+      std::cout << fmt::format("  {} waypoint(s): max |Phi_w| {:.2e}\n", f.problem.waypoints.size(),
+                               s.max_waypoint_residual);
     if (rep.replay.done)
       std::cout << fmt::format(
           "  open-loop replay of u(t): {}, max |q - q_opt| {:.2e}, |Phi| {:.2e}\n",
           rep.replay.status, rep.replay.max_q_deviation, rep.replay.max_position_residual);
-    std::cout << fmt::format("  wrote {}/trajectory.csv, summary.json\n", ukdyn::printable(out));
+    std::cout << fmt::format(
+        "  wrote {}/trajectory.csv, summary.json, replay.yaml, replay_open_loop.yaml\n",
+        ukdyn::printable(out));
   }
   if (rep.replay.done && !(rep.replay.max_q_deviation <= 1e-3))
     std::cerr << fmt::format(
         "ukdyn: warning: the optimal u(t) integrated open loop leaves the optimal motion by {:.2e} "
         "(an open-loop unstable system, or a mesh that does not resolve the motion)\n",
         rep.replay.max_q_deviation);
+  if (!rep.replay_scenario_note.empty())
+    std::cerr << "ukdyn: warning: replay.yaml: " << ukdyn::printable(rep.replay_scenario_note, true)
+              << "\n";
   if (!s.trusted) {
     std::cerr << "ukdyn: warning: " << ukdyn::printable(s.message, true) << "\n";
     return 1;

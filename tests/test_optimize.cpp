@@ -9,6 +9,7 @@
 
 #include "cli_run.hpp"
 #include "optimize/transcription.hpp"
+#include "output/csv_reader.hpp"
 #include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
 #include "ukdyn/run/optimize_run.hpp"
@@ -110,28 +111,9 @@ class DenseSink final : public optimize::JacobianSink {
   Mat& J_;
 };
 
-// Every entry of the constraint Jacobian and of the cost gradient against central differences,
-// at a point off the guess (random u, γ, perturbed states), both methods, free duration, every
-// cost term on: the derivatives of a (the U-K acceleration), of A_R(q)ᵀγ and of A_R v included.
-void check_derivatives(CollocationMethod method) {
-  const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
-  TrajectoryProblem p = problem_for(sc, method, 4, 1.2, on_circle(1.0));
-  p.free_duration = true;
-  p.min_duration = 0.5;
-  p.max_duration = 3.0;
-  p.costs.power = 0.3;
-  p.costs.constraint_force = 0.01;
-  p.costs.smoothness = 0.2;
-  p.costs.duration = 1.5;
-  p.envelopes.push_back({0, 40.0, 5.0});
-  p.costs.multiplier = Vec::Constant(1, 0.02);
-  p.multiplier_lower = Vec::Constant(1, -30.0);
-  p.multiplier_upper = Vec::Constant(1, 30.0);
-  optimize::Transcription tr(p);
-  Vec x = tr.initial_guess();
-  std::srand(7);
-  x += 0.05 * Vec::Random(x.size());
-  x(tr.time_index()) = 1.3;
+// The worst relative errors of the constraint Jacobian and of the cost gradient at x against
+// central differences; checks that the declared structure covers every non-zero.
+std::pair<double, double> derivative_errors(optimize::Transcription& tr, const Vec& x) {
   const Index nv = tr.variables(), ng = tr.constraints();
   Mat J = Mat::Zero(ng, nv);
   DenseSink sink(J);
@@ -153,11 +135,53 @@ void check_derivatives(CollocationMethod method) {
     const double dc = (tr.cost(xp) - tr.cost(xm)) / (2 * h);
     worst_g = std::max(worst_g, std::abs(dc - grad(i)) / (1.0 + std::abs(dc)));
   }
-  EXPECT_LT(worst_j, 1e-6) << to_string(method);
-  EXPECT_LT(worst_g, 1e-6) << to_string(method);
   Index nnz = 0;
   for (Index i = 0; i < J.size(); ++i) nnz += J.data()[i] != 0.0;
   EXPECT_LE(nnz, tr.jacobian_nonzeros());  // the declared structure covers every non-zero
+  return {worst_j, worst_g};
+}
+
+// Every entry of the constraint Jacobian and of the cost gradient against central differences,
+// at a point off the guess (random u, γ, perturbed states), both methods, free duration, every
+// cost term on: the derivatives of a (the U-K acceleration), of A_R(q)ᵀγ and of A_R v included.
+// A waypoint: a body's point through (0.5, 0, -0.3) (off the ring: only the derivatives are
+// checked), a ball constraint against the world frame, built as a problem file builds it. Its rows
+// are functions of q alone, so the body is the bead's with y = x z (the bead's own y is 0 for
+// every q, a row the loader refuses as involving no coordinate).
+Waypoint bead_waypoint(double t) {
+  LoadOptions opt;
+  opt.check_initial = false;
+  std::string text = circle_text(9.81);
+  text.replace(text.find("com: [x, 0, z]"), 14, "com: [x, x*z, z]");
+  text.insert(text.find("actuators:"),
+              "  - {type: ball, name: wp, a: bead.mass, b: {frame: world, xyz: [0.5, 0, -0.3]}}\n");
+  const auto with = load_scenario_text(text, "circle.yaml", opt);
+  return {"wp", with.system->constraints().back(), t};
+}
+
+void check_derivatives(CollocationMethod method, bool waypoint = false) {
+  const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
+  TrajectoryProblem p = problem_for(sc, method, 4, 1.2, on_circle(1.0));
+  if (waypoint) p.waypoints.push_back(bead_waypoint(0.6));
+  p.free_duration = !waypoint;  // (waypoints take a fixed duration)
+  p.min_duration = 0.5;
+  p.max_duration = 3.0;
+  p.costs.power = 0.3;
+  p.costs.constraint_force = 0.01;
+  p.costs.smoothness = 0.2;
+  p.costs.duration = 1.5;
+  p.envelopes.push_back({0, 40.0, 5.0});
+  p.costs.multiplier = Vec::Constant(1, 0.02);
+  p.multiplier_lower = Vec::Constant(1, -30.0);
+  p.multiplier_upper = Vec::Constant(1, 30.0);
+  optimize::Transcription tr(p);
+  Vec x = tr.initial_guess();
+  std::srand(7);
+  x += 0.05 * Vec::Random(x.size());
+  if (!waypoint) x(tr.time_index()) = 1.3;
+  const auto [worst_j, worst_g] = derivative_errors(tr, x);
+  EXPECT_LT(worst_j, 1e-6) << to_string(method);
+  EXPECT_LT(worst_g, 1e-6) << to_string(method);
 }
 
 TEST(Optimize, TrapezoidalDerivativesMatchCentralDifferences) {
@@ -166,6 +190,11 @@ TEST(Optimize, TrapezoidalDerivativesMatchCentralDifferences) {
 
 TEST(Optimize, HermiteSimpsonDerivativesMatchCentralDifferences) {
   check_derivatives(CollocationMethod::hermite_simpson);
+}
+
+TEST(Optimize, WaypointDerivativesMatchCentralDifferences) {
+  check_derivatives(CollocationMethod::hermite_simpson, true);
+  check_derivatives(CollocationMethod::trapezoidal, true);
 }
 
 TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
@@ -195,6 +224,11 @@ TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
   bad = p;
   bad.costs.effort = Vec::Ones(3);
   expect_error(bad, "costs.effort has 3 entries, 2 expected");
+  bad = p;
+  bad.waypoints.push_back(bead_waypoint(0.55));
+  expect_error(bad, "waypoint 'wp': t = 0.55 is not at a knot (the knots are 0.1 s apart)");
+  bad.waypoints.back().t = 1.5;
+  expect_error(bad, "waypoint 'wp': t = 1.5 is not in (0, duration]");
 }
 
 // Closed form: a mass m moved rest to rest a distance D in time T at minimum ∫|u|² needs only the
@@ -297,6 +331,10 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"costs:", "actuated: [dx1, dx1]\ncosts:",
        "key 'actuated[1]': coordinate 'dx1' is listed twice"},
       {"costs:", "max_correction: 0\ncosts:", "key 'max_correction': must be > 0"},
+      {"costs:", "bounds:\n  internal_wrench: {load: left.cut, force: 1}\ncosts:",
+       "key 'bounds.internal_wrench.load': 'left.cut' is held by 0 weld(s)"},
+      {"costs:", "bounds:\n  internal_wrench: {load: left.cut}\ncosts:",
+       "key 'bounds.internal_wrench': expected force, torque or both"},
   };
   for (const auto& c : cases) {
     std::string text = good;
@@ -311,6 +349,186 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
     }
   }
+}
+
+// The left robot's cut point of the paper's chains by hand (scenarios/paper_chain.yaml: base at
+// (dx1, dy1), the arm turned by delta1, joints lifting in its vertical plane from z = lr = 0.5,
+// links 0.7, 0.8, 0.4 at the absolute angles theta1..3): independent of the frame machinery.
+Vec3 left_cut(const Mat& q, Index row) {
+  const double reach =
+      0.7 * std::cos(q(row, 3)) + 0.8 * std::cos(q(row, 4)) + 0.4 * std::cos(q(row, 5));
+  return {q(row, 0) + std::cos(q(row, 2)) * reach, q(row, 1) + std::sin(q(row, 2)) * reach,
+          0.5 + 0.7 * std::sin(q(row, 3)) + 0.8 * std::sin(q(row, 4)) + 0.4 * std::sin(q(row, 5))};
+}
+
+// A waypoint of a chain's point: the optimum passes through it at its knot (the cut point by
+// hand), which the optimum without it does not (it lags 0.42 m below), and it costs more.
+TEST(OptimizeFile, AWaypointIsPassedAndCosts) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "paper_lift_waypoint.yaml");
+  ASSERT_EQ(f.problem.waypoints.size(), 1u);
+  const auto with = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(with.converged) << with.status;
+  EXPECT_TRUE(with.trusted) << with.message;
+  TrajectoryProblem free = f.problem;
+  free.waypoints.clear();
+  const auto without = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(without.converged) << without.status;
+  const Index mid = 20;  // t = 0.5: knot 10 of 20, Hermite–Simpson point 20
+  ASSERT_NEAR(with.t(mid), 0.5, 1e-12);
+  const Vec3 target(0.8, 0.5, 1.0);
+  EXPECT_LT((left_cut(with.q, mid) - target).norm(), 1e-9) << left_cut(with.q, mid).transpose();
+  EXPECT_GT((left_cut(without.q, mid) - target).norm(), 0.3);
+  EXPECT_LT(with.max_waypoint_residual, 1e-9);
+  EXPECT_GT(with.cost, without.cost * 1.001);
+  std::printf("waypoint: cost %.6g without, %.6g with; cut at t = 0.5 z %.4f -> %.4f\n",
+              without.cost, with.cost, left_cut(without.q, mid)(2), left_cut(with.q, mid)(2));
+}
+
+TEST(OptimizeFile, WaypointErrorsNameTheKey) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const std::string good = ukdyn_test::slurp(dir / "paper_lift_waypoint.yaml");
+  struct Case {
+    const char* from;
+    const char* to;
+    const char* expect;
+  };
+  const Case cases[] = {
+      {"frame: left.cut", "frame: left.nope", "key 'waypoints': a waypoint: "},
+      {"t: 0.5,", "t: 0.52,",
+       "key 'waypoints': optimize: waypoint 'halfway': t = 0.52 is not at a knot"},
+      {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
+      {"name: halfway", "colour: red", "key 'waypoints[0].colour': unknown key"},
+  };
+  for (const auto& c : cases) {
+    std::string text = good;
+    const auto at = text.find(c.from);
+    ASSERT_NE(at, std::string::npos) << c.from;
+    text.replace(at, std::string(c.from).size(), c.to);
+    try {
+      load_optimization_text(text, dir / "bad.yaml");
+      ADD_FAILURE() << "accepted: " << c.to;
+    } catch (const ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The internal-wrench rows' Jacobian (∂/∂μ exact through dμ/dx, ∂/∂q at fixed μ by central
+// differences inside) against central differences of the rows, off the guess.
+TEST(OptimizeFile, InternalWrenchDerivativesMatchCentralDifferences) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");
+  f.problem.intervals = 1;  // (each column re-evaluates every point: kept small)
+  f.problem.method = CollocationMethod::trapezoidal;
+  f.problem.internal_wrench_bounds.front().max_torque = 1.0;
+  optimize::Transcription tr(f.problem);
+  Vec x = tr.initial_guess();
+  std::srand(11);
+  x += 0.05 * Vec::Random(x.size());
+  for (Index p = 0; p < tr.points(); ++p)  // forces that squeeze: internal wrenches of O(10 N)
+    x.segment(tr.u_of(p), 12) += 20.0 * Vec::Random(12);
+  const auto [worst_j, worst_g] = derivative_errors(tr, x);
+  EXPECT_LT(worst_j, 1e-6);
+  EXPECT_LT(worst_g, 1e-6);
+}
+
+// replay.yaml's tracked coordinate must fix q with the constraints along the whole path: the bead
+// swung past the ring's side (θ = 2 rad) passes x's turning point (θ = π/2, where the ring's row
+// and x are dependent), which the run names.
+TEST(OptimizeFile, ReplayWarnsWhereTheTrackedCoordinatesDoNotFixQ) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir =
+      fs::temp_directory_path() / ("ukdyn_replay_warn_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  std::ofstream(dir / "circle.yaml") << circle_text(0.0);
+  char end[96];
+  std::snprintf(end, sizeof end, "[%.17g, %.17g]", on_circle(2.0)(0), on_circle(2.0)(1));
+  const OptimizationFile f = load_optimization_text(
+      std::string("ukdyn: 1\nname: past_the_side\nscenario: circle.yaml\nintervals: 10\n"
+                  "duration: 1\nend:\n  q: ") +
+          end + "\ncosts:\n  effort: 0.01\n",
+      dir / "p.yaml");
+  const OptimizeReport rep = run_optimization(f, dir / "out");
+  ASSERT_TRUE(rep.solution.converged) << rep.solution.status;
+  EXPECT_NE(rep.replay_scenario_note.find("do not fix q at t ="), std::string::npos)
+      << rep.replay_scenario_note;
+  const auto j = nlohmann::json::parse(ukdyn_test::slurp(dir / "out" / "summary.json"));
+  EXPECT_EQ(j["replay_scenario"]["warning"].get<std::string>(), rep.replay_scenario_note);
+  fs::remove_all(dir);
+}
+
+// The largest |f_int,k| of Walker's internal force over the points and grasps of a solution, from
+// its multipliers and the bound's own map.
+double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+  const InternalWrenchBound& b = p.internal_wrench_bounds.front();
+  Vec lambda = Vec::Zero(p.system->rows()), w(6 * b.grasps);
+  double peak = 0.0;
+  for (Index i = 0; i < s.t.size(); ++i) {
+    for (std::size_t r = 0; r < s.kept_rows.size(); ++r)
+      lambda(s.kept_rows[r]) = s.mu(i, static_cast<Index>(r));
+    b.walker(s.q.row(i).transpose(), lambda, w);
+    for (Index k = 0; k < b.grasps; ++k) peak = std::max(peak, w.segment<3>(6 * k).norm());
+  }
+  return peak;
+}
+
+// A bound on the squeeze: two agents of unequal mass carry a load; at minimum effort the grasps
+// squeeze it (Walker's internal force up to 10.3 N); bounded at 2 N, the run's Wint_walker_ columns
+// stay within it at every point, they are the internal part (G w_int = 0: the two grasps' internal
+// forces cancel), and the effort rises.
+TEST(OptimizeFile, AnInternalWrenchBoundHoldsAndCosts) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");
+  ASSERT_EQ(f.problem.internal_wrench_bounds.size(), 1u);
+  const double bound = f.problem.internal_wrench_bounds.front().max_force;
+  TrajectoryProblem free = f.problem;
+  free.internal_wrench_bounds.clear();
+  const auto unbounded = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(unbounded.converged) << unbounded.status;
+  const double free_peak = peak_internal_force(f.problem, unbounded);
+  EXPECT_GT(free_peak, 1.2 * bound);
+  const fs::path out = fs::temp_directory_path() / ("ukdyn_squeeze_" + std::to_string(::getpid()));
+  const OptimizeReport rep = run_optimization(f, out);
+  ASSERT_TRUE(rep.solution.converged) << rep.solution.status;
+  EXPECT_TRUE(rep.solution.trusted) << rep.solution.message;
+  EXPECT_GT(rep.solution.cost, unbounded.cost * 1.001);
+  std::ifstream in(out / "trajectory.csv");
+  io_detail::CsvLines lines(in);
+  std::string line;
+  ASSERT_TRUE(lines.next(line));
+  const auto header = io_detail::split_csv_line(line);
+  auto col = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    EXPECT_NE(it, header.end()) << name;
+    return static_cast<std::size_t>(it - header.begin());
+  };
+  double peak = 0.0, net = 0.0;
+  Index rows = 0;
+  while (lines.next(line)) {
+    const auto cells = io_detail::split_csv_line(line);
+    Vec3 sum = Vec3::Zero();
+    for (const char* g : {"grip_left", "grip_right"}) {
+      const std::string pre = std::string("Wint_walker_") + g + "_f";
+      Vec3 fk;
+      for (Index i = 0; i < 3; ++i) fk(i) = std::stod(cells[col(pre + static_cast<char>('x' + i))]);
+      peak = std::max(peak, fk.norm());
+      sum += fk;
+    }
+    net = std::max(net, sum.norm());
+    ++rows;
+  }
+  EXPECT_EQ(rows, rep.solution.t.size());
+  EXPECT_LE(peak, bound * (1 + 1e-6));
+  EXPECT_LT(net, 1e-9);
+  EXPECT_NEAR(peak, peak_internal_force(f.problem, rep.solution), 1e-9 * peak);
+  std::printf(
+      "squeeze: peak internal force %.4g N free, %.4g N bounded (%.3g); cost %.6g -> %.6g\n",
+      free_peak, peak, bound, unbounded.cost, rep.solution.cost);
+  fs::remove_all(out);
 }
 
 // The paper's lift at minimum effort against the paper's own cosine path between the same rest
@@ -444,7 +662,8 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_NE(r.out.find("Solve_Succeeded"), std::string::npos) << r.out;
   }
-  for (const char* name : {"trajectory.csv", "summary.json"})
+  for (const char* name :
+       {"trajectory.csv", "summary.json", "replay.yaml", "replay_open_loop.yaml"})
     EXPECT_EQ(ukdyn_test::slurp(scratch / "a" / name), ukdyn_test::slurp(scratch / "b" / name))
         << name;
   const auto j = nlohmann::json::parse(ukdyn_test::slurp(scratch / "a" / "summary.json"));
@@ -454,6 +673,98 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
   const auto bad = ukdyn_test::run_cli(UKDYN_CLI, scratch, "optimize /nonexistent/p.yaml");
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("/nonexistent/p.yaml"), std::string::npos) << bad.err;
+}
+
+// Max |q − q_opt| of a simulate run's trajectory.csv at the optimum's points (its rows at the same
+// times: sample_dt is their spacing).
+double tracking_error(const fs::path& run, const fs::path& optimum) {
+  auto read = [](const fs::path& file, std::vector<std::string>& header) {
+    std::ifstream in(file);
+    io_detail::CsvLines lines(in);
+    std::string line;
+    std::vector<std::vector<double>> rows;
+    if (!lines.next(line)) return rows;
+    header = io_detail::split_csv_line(line);
+    while (lines.next(line)) {
+      std::vector<double> r;
+      for (const auto& c : io_detail::split_csv_line(line)) {
+        double v = std::nan("");
+        io_detail::parse_csv_number(c, v);
+        r.push_back(v);
+      }
+      rows.push_back(std::move(r));
+    }
+    return rows;
+  };
+  std::vector<std::string> hs, ho;
+  const auto sim = read(run / "trajectory.csv", hs), opt = read(optimum / "trajectory.csv", ho);
+  double worst = 0.0;
+  Index compared = 0;
+  for (const auto& o : opt)
+    for (const auto& r : sim)
+      if (std::abs(r[0] - o[0]) < 1e-9) {
+        for (const char* c : {"x", "z"}) {
+          const auto is = std::find(hs.begin(), hs.end(), c) - hs.begin();
+          const auto io = std::find(ho.begin(), ho.end(), c) - ho.begin();
+          worst = std::max(
+              worst, std::abs(r[static_cast<std::size_t>(is)] - o[static_cast<std::size_t>(io)]));
+        }
+        ++compared;
+      }
+  EXPECT_EQ(compared, static_cast<Index>(opt.size())) << run;
+  return worst;
+}
+
+// The replay scenarios `ukdyn optimize` writes, run by `ukdyn simulate` on a plant whose bead is 5 %
+// heavier than the model's: the optimal u(t) as feedforward plus the stabilised servo on the
+// optimal path tracks it closely; the feedforward alone (replay_open_loop.yaml, the same plant)
+// falls away under the unmodelled weight.
+TEST(OptimizeCli, ReplayScenarioTracksAPerturbedPlant) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_replay");
+  std::ofstream(scratch / "circle.yaml") << circle_text(9.81);
+  std::ofstream(scratch / "swing.yaml") << R"(ukdyn: 1
+name: swing
+scenario: circle.yaml
+intervals: 10
+duration: 1
+end:
+  q: [0.6731767878463172, -0.43224184447562804]
+costs:
+  effort: 0.01
+)";  // θ = 1 rad on the ring of radius 0.8
+  auto run = [&](const std::string& args) {
+    const auto r = ukdyn_test::run_cli(UKDYN_CLI, scratch, args);
+    EXPECT_EQ(r.exit_code, 0) << args << "\n" << r.err;
+    return r;
+  };
+  const auto at_scratch = [&](const std::string& name) {
+    return ukdyn_test::sh((scratch / name).string());
+  };
+  run("optimize " + at_scratch("swing.yaml") + " --out " + at_scratch("opt"));
+  std::string closed = ukdyn_test::slurp(scratch / "opt" / "replay.yaml");
+  ASSERT_NE(closed.find("law: stabilized"), std::string::npos) << closed;
+  ASSERT_NE(closed.find("track_x"), std::string::npos) << closed;  // x and the ring fix z
+  closed += "  plant_set:\n    - {path: \"subsystems[bead].parameters.m\", scale: 1.05}\n";
+  std::ofstream(scratch / "opt" / "closed.yaml") << closed;
+  std::string open = ukdyn_test::slurp(scratch / "opt" / "replay_open_loop.yaml");
+  const auto at = open.find("parameters: {m: 2}");
+  ASSERT_NE(at, std::string::npos) << open;
+  open.replace(at, 18, "parameters: {m: 2.1}");
+  std::ofstream(scratch / "opt" / "open.yaml") << open;
+  for (const char* name : {"replay", "closed", "open"})
+    run("simulate " + at_scratch(std::string("opt/") + name + ".yaml") + " --out " +
+        at_scratch(name));
+  const double nominal = tracking_error(scratch / "replay", scratch / "opt");
+  const double fb = tracking_error(scratch / "closed", scratch / "opt");
+  const double ff = tracking_error(scratch / "open", scratch / "opt");
+  std::printf(
+      "replay on the model %.3g m; on the 5 %% heavier plant: servo %.3g m, "
+      "feedforward only %.3g m\n",
+      nominal, fb, ff);
+  EXPECT_LT(nominal, 1e-4);
+  EXPECT_LT(fb, 5e-3);
+  EXPECT_GT(ff, 5.0 * fb);
 }
 #endif
 

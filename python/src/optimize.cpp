@@ -86,6 +86,12 @@ void bind_optimize(py::module_& m) {
       .def_property_readonly("max_correction_ratio",
                              [](const PyOptimized& r) { return r.s.max_correction_ratio; })
       .def_property_readonly(
+          "max_waypoint_residual", [](const PyOptimized& r) { return r.s.max_waypoint_residual; },
+          "max |Phi_w| over the waypoints at their knots (0 without waypoints)")
+      .def_property_readonly(
+          "internal_wrench", [](const PyOptimized& r) { return r.s.internal_wrench; },
+          "points x 6 per grasp of each bounded load: Walker's internal wrench [f; m]")
+      .def_property_readonly(
           "replay_max_q_deviation",
           [](const PyOptimized& r) -> std::optional<double> {
             if (!r.replay.done) return std::nullopt;
@@ -95,7 +101,9 @@ void bind_optimize(py::module_& m) {
   m.def("ipopt_available", &ukdyn::ipopt_available, "Whether this build has IPOPT");
   m.def("optimize", &optimize, py::arg("path"), py::arg("out") = std::nullopt,
         "Solves a trajectory-optimisation problem file (docs/optimization.md); with out, also "
-        "writes the run folder (trajectory.csv, summary.json) and runs the open-loop replay check");
+        "writes the run folder (trajectory.csv, summary.json, replay.yaml, replay_open_loop.yaml) "
+        "and "
+        "runs the open-loop replay check");
 }
 
 }  // namespace ukdyn_python

@@ -68,6 +68,23 @@ def test_rail_closed_form_and_run_folder(tmp_path):
     assert header.startswith("t,knot,x,y,x_dot,y_dot") and "mu_rail_r" in header
 
 
+@needs_ipopt
+def test_waypoint_and_replay_scenarios(tmp_path):
+    # The shipped waypoint problem: the left cut point at (0.8, 0.5, 1.0) at t = 0.5 s (a knot).
+    r = ukdyn.optimize(SOURCE / "scenarios" / "optimize" / "paper_lift_waypoint.yaml",
+                       out=tmp_path / "out")
+    assert r.converged and r.trusted, r.message
+    assert r.max_waypoint_residual < 1e-9
+    i = int(np.argmin(np.abs(r.t - 0.5)))
+    q = r.q[i]
+    reach = 0.7 * np.cos(q[3]) + 0.8 * np.cos(q[4]) + 0.4 * np.cos(q[5])
+    cut = [q[0] + np.cos(q[2]) * reach, q[1] + np.sin(q[2]) * reach,
+           0.5 + 0.7 * np.sin(q[3]) + 0.8 * np.sin(q[4]) + 0.4 * np.sin(q[5])]
+    assert np.max(np.abs(np.array(cut) - [0.8, 0.5, 1.0])) < 1e-9
+    for name in ("replay.yaml", "replay_open_loop.yaml"):
+        assert (tmp_path / "out" / name).is_file()
+
+
 def test_bad_problem_names_the_key(tmp_path):
     (tmp_path / "rail.yaml").write_text(RAIL)
     (tmp_path / "p.yaml").write_text(PROBLEM.replace("intervals: 10", "intervals: 0"))

@@ -277,6 +277,8 @@ class Optimized:
     max_position_residual: float
     max_velocity_residual: float
     max_correction_ratio: float
+    max_waypoint_residual: float
+    internal_wrench: FloatArray
     replay_max_q_deviation: Optional[float]
 
 def ipopt_available() -> bool: ...

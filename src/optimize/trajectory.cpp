@@ -102,6 +102,34 @@ void check_costs_and_time(const TrajectoryProblem& pr, Index k) {
   }
 }
 
+// A waypoint's rows are holonomic and exact, at a knot of a fixed duration.
+void check_waypoints(const TrajectoryProblem& pr) {
+  for (const auto& w : pr.waypoints) {
+    const std::string what = "optimize: waypoint '" + w.name + "'";
+    if (!w.rows || w.rows->rows() == 0) throw Error(what + " has no rows");
+    if (pr.free_duration)
+      throw Error(what + ": waypoints need a fixed duration (their time is a knot's)");
+    const double steps = w.t / pr.duration * static_cast<double>(pr.intervals);
+    const double knot = std::round(steps);
+    if (!(std::isfinite(w.t) && w.t > 0.0 && w.t <= pr.duration * (1.0 + 1e-12)))
+      throw Error(what + ": t = " + sci(w.t) + " is not in (0, duration]");
+    if (std::abs(steps - knot) > 1e-9 * static_cast<double>(pr.intervals))
+      throw Error(what + ": t = " + sci(w.t) + " is not at a knot (the knots are " +
+                  sci(pr.duration / static_cast<double>(pr.intervals)) + " s apart)");
+  }
+}
+
+void check_internal_wrench_bounds(const TrajectoryProblem& pr) {
+  for (const auto& b : pr.internal_wrench_bounds) {
+    const std::string what = "optimize: the internal wrench bound of load '" + b.load + "'";
+    if (!b.walker || b.grasps < 2) throw Error(what + " needs a load held by two or more welds");
+    if (!(b.max_force > 0.0) || !(b.max_torque > 0.0))
+      throw Error(what + ": the bounds must be positive");
+    if (!std::isfinite(b.max_force) && !std::isfinite(b.max_torque))
+      throw Error(what + " bounds neither the force nor the torque");
+  }
+}
+
 }  // namespace
 
 void validate(const TrajectoryProblem& pr) {
@@ -137,6 +165,8 @@ void validate(const TrajectoryProblem& pr) {
         pr.B.allFinite()))
     throw Error("optimize: the start state, tau and B must be finite");
   check_costs_and_time(pr, k);
+  check_waypoints(pr);
+  check_internal_wrench_bounds(pr);
   const Index P =
       pr.method == CollocationMethod::hermite_simpson ? 2 * pr.intervals + 1 : pr.intervals + 1;
   for (const auto& [what, G, cols] :

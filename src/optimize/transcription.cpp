@@ -54,6 +54,20 @@ Transcription::Transcription(const TrajectoryProblem& problem)
   multiplier_rows_start_ = row + 4 * static_cast<Index>(problem.envelopes.size()) * P_;
   select_multiplier_rows();
   ng_ = multiplier_rows_start_ + static_cast<Index>(bounded_.size()) * P_;
+  waypoint_rows_start_ = ng_;
+  for (const auto& w : problem.waypoints) {  // snapped to its knot (validate(): t is on one)
+    const auto j =
+        static_cast<Index>(std::llround(w.t / problem.duration * static_cast<double>(N_)));
+    waypoint_point_.push_back(knot_point(j));
+    ng_ += w.rows->rows();
+  }
+  wint_rows_start_ = ng_;
+  for (const auto& b : problem.internal_wrench_bounds) {
+    wint_size_ += 6 * b.grasps;
+    wint_rows_per_point_ +=
+        b.grasps * ((std::isfinite(b.max_force) ? 1 : 0) + (std::isfinite(b.max_torque) ? 1 : 0));
+  }
+  ng_ += wint_rows_per_point_ * P_;
   eval_.resize(static_cast<std::size_t>(P_));
 }
 
@@ -137,6 +151,14 @@ void Transcription::bounds(Vec& xl, Vec& xu, Vec& gl, Vec& gu) const {
       gl(row) = pr.multiplier_lower(orig);
       gu(row) = pr.multiplier_upper(orig);
     }
+  for (Index p = 0, row = wint_rows_start_; p < P_; ++p)
+    for (const auto& b : pr.internal_wrench_bounds)
+      for (Index k = 0; k < b.grasps; ++k)
+        for (const double bound : {b.max_force, b.max_torque})
+          if (std::isfinite(bound)) {
+            gl(row) = -kInf;
+            gu(row++) = bound * bound;
+          }
   for (Index row = envelope_rows_start_; row < multiplier_rows_start_; ++row) {
     const auto e = static_cast<std::size_t>((row - envelope_rows_start_) / 4 %
                                             static_cast<Index>(pr.envelopes.size()));
@@ -199,7 +221,8 @@ void Transcription::evaluate(const Vec& x) {
     e.lin = linearize(sys, t, q, v, tau, pr.uk);
     e.dadu = e.lin.dqdd_dtau * pr.B;
     if (pr.costs.constraint_force > 0.0) e.dQcdu = e.lin.dQc_dtau * pr.B;
-    if (!bounded_.empty() || !weighted_.empty()) e.dmudu = e.lin.dmu_dtau * pr.B;
+    if (!bounded_.empty() || !weighted_.empty() || wint_size_ > 0) e.dmudu = e.lin.dmu_dtau * pr.B;
+    if (wint_size_ > 0) internal_wrenches(q, e);
     const bool is_knot = !hs() || p % 2 == 0;
     if (!is_knot) continue;
     const Index j = hs() ? p / 2 : p;
@@ -223,6 +246,66 @@ void Transcription::evaluate(const Vec& x) {
     }
   }
   last_x_ = x;
+}
+
+// The bounded loads' internal wrenches at (q, μ) and their derivatives: ∂/∂μ exactly (w_int is
+// linear in the multipliers: one evaluation per kept row at a unit multiplier), ∂/∂q at fixed μ by
+// central differences of the same function (the grasp wrench maps have no tangents).
+void Transcription::internal_wrenches(const Vec& q, PointEval& e) const {
+  const auto& bounds = problem_.internal_wrench_bounds;
+  const Index m = problem_.system->rows();
+  auto walker = [&](const Vec& at, const Vec& lambda, Vec& out) {
+    out.resize(wint_size_);
+    Index off = 0;
+    for (const auto& b : bounds) {
+      b.walker(at, lambda, out.segment(off, 6 * b.grasps));
+      off += 6 * b.grasps;
+    }
+  };
+  Vec lambda = Vec::Zero(m);
+  for (Index i = 0; i < r_; ++i) lambda(kept_[static_cast<std::size_t>(i)]) = e.lin.mu(i);
+  walker(q, lambda, e.wint);
+  e.dwint_dmu.resize(wint_size_, r_);
+  Vec unit = Vec::Zero(m), col;
+  for (Index i = 0; i < r_; ++i) {
+    unit(kept_[static_cast<std::size_t>(i)]) = 1.0;
+    walker(q, unit, col);
+    e.dwint_dmu.col(i) = col;
+    unit(kept_[static_cast<std::size_t>(i)]) = 0.0;
+  }
+  e.dwint_dq.resize(wint_size_, n_);
+  Vec qp = q, qm = q, wp, wm;
+  for (Index j = 0; j < n_; ++j) {
+    const double h = 1e-6 * (1.0 + std::abs(q(j)));
+    qp(j) = q(j) + h;
+    qm(j) = q(j) - h;
+    walker(qp, lambda, wp);
+    walker(qm, lambda, wm);
+    e.dwint_dq.col(j) = (wp - wm) / (2.0 * h);
+    qp(j) = qm(j) = q(j);
+  }
+}
+
+void Transcription::internal_wrench_rows(Index p, Index& row, Vec* g, JacobianSink* sink) const {
+  const PointEval& e = eval_[static_cast<std::size_t>(p)];
+  Index off = 0;
+  for (const auto& b : problem_.internal_wrench_bounds) {
+    for (Index k = 0; k < b.grasps; ++k, off += 6) {
+      for (const Index part : {0, 3}) {  // force, moment
+        if (!std::isfinite(part == 0 ? b.max_force : b.max_torque)) continue;
+        const auto w = e.wint.segment(off + part, 3);
+        if (g) (*g)(row) = w.squaredNorm();
+        if (sink) {  // 2 wᵀ ∂w/∂x, through μ(q, v, u) and q directly
+          const Vec dmu = 2.0 * e.dwint_dmu.middleRows(off + part, 3).transpose() * w;
+          const Vec dq = 2.0 * e.dwint_dq.middleRows(off + part, 3).transpose() * w;
+          sink->dense(row, q_of(p), (dq + e.lin.dmu_dq.transpose() * dmu).transpose());
+          sink->dense(row, v_of(p), (e.lin.dmu_dqd.transpose() * dmu).transpose());
+          if (k_ > 0) sink->dense(row, u_of(p), (e.dmudu.transpose() * dmu).transpose());
+        }
+        ++row;
+      }
+    }
+  }
 }
 
 double Transcription::running_cost(Index p, const Vec& x, Vec* gq, Vec* gv, Vec* gu) const {
@@ -352,6 +435,29 @@ void Transcription::constraint_values(const Vec& x, Vec& g) {
   }
   for (Index p = 0; p < P_; ++p)
     for (const Index k : bounded_) g(row++) = eval_[static_cast<std::size_t>(p)].lin.mu(k);
+  Vec phi;
+  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
+    waypoint_rows(x, w, phi, nullptr);
+    g.segment(row, phi.size()) = phi;
+    row += phi.size();
+  }
+  for (Index p = 0; p < P_ && wint_rows_per_point_ > 0; ++p)
+    internal_wrench_rows(p, row, &g, nullptr);
+}
+
+void Transcription::waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const {
+  const Constraint& c = *problem_.waypoints[w].rows;
+  const Index p = waypoint_point_[w];
+  ConstraintContext ctx;
+  ctx.t = point_time(x, p);
+  const auto q = x.segment(q_of(p), n_);
+  phi.resize(c.rows());
+  c.position_residual(ctx, q, phi);
+  if (!A) return;
+  // A holonomic row's A is ∂Φ/∂q (b is not needed: evaluated at q̇ = 0).
+  A->setZero(c.rows(), n_);
+  Vec b(c.rows());
+  c.evaluate(ctx, q, Vec::Zero(n_), *A, b);
 }
 
 void Transcription::interval_jacobian(const Vec& x, Index i, double h, JacobianSink& sink) const {
@@ -453,6 +559,16 @@ void Transcription::jacobian(const Vec& x, JacobianSink& sink) {
     for (Index p = 0; p < P_; ++p) envelope_jacobian(p, sink);
   if (!bounded_.empty())
     for (Index p = 0; p < P_; ++p) multiplier_jacobian(p, sink);
+  Index row = waypoint_rows_start_;
+  Vec phi;
+  Mat A;
+  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
+    waypoint_rows(x, w, phi, &A);
+    sink.dense(row, q_of(waypoint_point_[w]), A);
+    row += A.rows();
+  }
+  for (Index p = 0; p < P_ && wint_rows_per_point_ > 0; ++p)
+    internal_wrench_rows(p, row, nullptr, &sink);
 }
 
 void Transcription::multiplier_jacobian(Index p, JacobianSink& sink) const {
@@ -494,6 +610,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
   s.q.resize(P_, n_), s.qd.resize(P_, n_), s.qdd.resize(P_, n_), s.Qc.resize(P_, n_);
   s.u.resize(P_, k_);
   s.mu.resize(P_, r_);
+  s.internal_wrench.resize(P_, wint_size_);
   s.trusted = true;
   for (Index p = 0; p < P_; ++p) {
     const PointEval& e = eval_[static_cast<std::size_t>(p)];
@@ -505,6 +622,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
     s.qdd.row(p) = e.lin.qdd.transpose();
     s.Qc.row(p) = e.lin.Qc.transpose();
     if (e.lin.mu.size() == r_) s.mu.row(p) = e.lin.mu.transpose();
+    if (wint_size_ > 0) s.internal_wrench.row(p) = e.wint.transpose();
     if (s.trusted && (!e.lin.trusted || e.lin.kept_rows != kept_)) {
       s.trusted = false;
       s.message = "at t = " + std::to_string(s.t(p)) + ": " +
@@ -520,6 +638,11 @@ TrajectorySolution Transcription::solution(const Vec& x) {
   Vec g;
   constraint_values(x, g);
   if (knot_rows_start_ > 0) s.max_defect = g.head(knot_rows_start_).cwiseAbs().maxCoeff();
+  if (wint_rows_start_ > waypoint_rows_start_)
+    s.max_waypoint_residual =
+        g.segment(waypoint_rows_start_, wint_rows_start_ - waypoint_rows_start_)
+            .cwiseAbs()
+            .maxCoeff();
   if (r_ > 0) s.max_correction = x.segment(gq_of(0), N_ * 2 * r_).cwiseAbs().maxCoeff();
   // The corrections against the steps they correct: a resolved trajectory has |A_Rᵀγ| = O(h³)
   // against steps O(h); a correction of a tenth of its step means the knots jump across the

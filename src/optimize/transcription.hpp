@@ -30,7 +30,10 @@ struct PointEval {
   Vec phid;           ///< r: A_R v (knots)
   Mat AR;             ///< r × n
   Mat D;              ///< r × n: ∂(A_R v)/∂q (knots)
-  Mat Fq, Fv;  ///< n × n: ∂(A_Rᵀγ^q)/∂q, ∂(A_Rᵀγ^v)/∂q (knots ending an interval)
+  Mat Fq, Fv;     ///< n × n: ∂(A_Rᵀγ^q)/∂q, ∂(A_Rᵀγ^v)/∂q (knots ending an interval)
+  Vec wint;       ///< the internal wrenches of the bounded loads (6 per grasp)
+  Mat dwint_dq;   ///< ∂w_int/∂q at fixed μ
+  Mat dwint_dmu;  ///< ∂w_int/∂μ (r columns: the kept rows' multipliers)
 };
 
 class Transcription {
@@ -77,6 +80,11 @@ class Transcription {
   void knot_jacobian(Index j, JacobianSink& sink) const;
   void envelope_jacobian(Index p, JacobianSink& sink) const;
   void multiplier_jacobian(Index p, JacobianSink& sink) const;
+  void internal_wrenches(const Vec& q, PointEval& e) const;
+  /// The |f_int,k|², |m_int,k|² rows of point p (values into g from `row`, or the Jacobian).
+  void internal_wrench_rows(Index p, Index& row, Vec* g, JacobianSink* sink) const;
+  /// Waypoint w's rows Φ_w at its knot, and (A non-null) their Jacobian ∂Φ_w/∂q = A_w.
+  void waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const;
   Mat straight_line_guess(Mat& qd) const;
   void select_multiplier_rows();
 
@@ -85,7 +93,9 @@ class Transcription {
   std::vector<Index> kept_;
   bool constrain_end_q_ = true, constrain_end_v_ = true;
   Index interval_rows_ = 0, knot_rows_start_ = 0, envelope_rows_start_ = 0;
-  Index multiplier_rows_start_ = 0;
+  Index multiplier_rows_start_ = 0, waypoint_rows_start_ = 0;
+  std::vector<Index> waypoint_point_;  ///< per waypoint: its knot's point
+  Index wint_rows_start_ = 0, wint_rows_per_point_ = 0, wint_size_ = 0;
   /// Positions in kept_ of the rows with multiplier bounds, and of the rows with a weight.
   std::vector<Index> bounded_, weighted_;
   std::vector<Index> knot_row_;  ///< per knot: first row of its manifold rows (−1: none)

@@ -1,12 +1,19 @@
 // `ukdyn optimize` (ukdyn/run/optimize_run.hpp).
 #include "ukdyn/run/optimize_run.hpp"
 
+#include <yaml-cpp/yaml.h>
+
+#include <Eigen/LU>
+#include <Eigen/QR>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <nlohmann/json.hpp>
 
+#include "scenario/yaml_loader.hpp"
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/output_dir.hpp"
+#include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/version.hpp"
 
@@ -26,11 +33,15 @@ void write_csv(const OutputDir& dir, const OptimizationFile& f, const Trajectory
   for (const auto& c : names) header.push_back("Qc_" + c);
   const auto& rows = f.scenario->system->constraint_row_names();
   for (const Index k : s.kept_rows) header.push_back("mu_" + rows[static_cast<std::size_t>(k)]);
+  for (const auto& b : f.problem.internal_wrench_bounds)  // as `simulate` names them
+    for (const auto& g : b.grasp_names)
+      for (const char* w : {"fx", "fy", "fz", "mx", "my", "mz"})
+        header.push_back("Wint_walker_" + g + "_" + w);
   CsvWriter csv(dir, "trajectory.csv", header);
   std::vector<double> row;
   for (Index p = 0; p < s.t.size(); ++p) {
     row.assign({s.t(p), s.knot[static_cast<std::size_t>(p)] ? 1.0 : 0.0});
-    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc, &s.mu})
+    for (const Mat* m : {&s.q, &s.qd, &s.qdd, &s.u, &s.Qc, &s.mu, &s.internal_wrench})
       for (Index j = 0; j < m->cols(); ++j) row.push_back((*m)(p, j));
     csv.row(row);
   }
@@ -62,6 +73,7 @@ nlohmann::json summary(const OptimizationFile& f, const OptimizeReport& rep) {
   j["max_velocity_residual"] = s.max_velocity_residual;
   j["max_correction"] = s.max_correction;
   j["max_correction_ratio"] = s.max_correction_ratio;
+  if (!p.waypoints.empty()) j["max_waypoint_residual"] = s.max_waypoint_residual;
   j["constraint_rank"] = s.kept_rows.size();
   j["trusted"] = s.trusted;
   j["message"] = s.message;
@@ -70,6 +82,9 @@ nlohmann::json summary(const OptimizationFile& f, const OptimizeReport& rep) {
     acts[p.actuator_names[static_cast<std::size_t>(a)]] = {
         {"peak_abs_u", s.u.col(a).cwiseAbs().maxCoeff()}};
   j["actuators"] = acts;
+  j["replay_scenario"] = {{"file", "replay.yaml"},
+                          {"open_loop_file", "replay_open_loop.yaml"},
+                          {"warning", rep.replay_scenario_note}};
   if (rep.replay.done)
     j["replay"] = {{"status", rep.replay.status},
                    {"max_q_deviation", finite_or_nan(rep.replay.max_q_deviation)},
@@ -122,6 +137,184 @@ ReplayCheck replay(const OptimizationFile& f, const TrajectorySolution& s) {
   return rc;
 }
 
+std::string exact_number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+YAML::Node flow_list(const std::vector<double>& v) {
+  YAML::Node n(YAML::NodeType::Sequence);
+  for (const double x : v) n.push_back(exact_number(x));
+  n.SetStyle(YAML::EmitterStyle::Flow);
+  return n;
+}
+
+// A cubic spline of time through (times, values) (docs/definitions.md, time functions); clamped to
+// the end slopes if given, else natural.
+YAML::Node spline(const Vec& times, const Vec& values, const double* end_slopes) {
+  YAML::Node n;
+  n["type"] = "spline";
+  n["times"] = flow_list(std::vector<double>(times.data(), times.data() + times.size()));
+  n["values"] = flow_list(std::vector<double>(values.data(), values.data() + values.size()));
+  if (end_slopes) {
+    n["end"] = "clamped";
+    n["slopes"] = flow_list({end_slopes[0], end_slopes[1]});
+  }
+  n.SetStyle(YAML::EmitterStyle::Flow);
+  return n;
+}
+
+// The coordinates the replay servo tracks: n − r of them, chosen at the start so that with the
+// kept rows they fix q (greedily, in the order of q: [A_R; e_jᵀ] gains rank); then checked at
+// every point. Returns a message naming the first point where they do not fix q (else empty).
+std::string tracked_coordinates(const TrajectoryProblem& p, const TrajectorySolution& s,
+                                std::vector<Index>& tracked) {
+  const System& sys = *p.system;
+  const Index n = sys.dof();
+  ForwardData d(sys);
+  auto stacked = [&](Index point, const std::vector<Index>& coords) {
+    const Vec q = s.q.row(point).transpose(), v = s.qd.row(point).transpose();
+    evaluate_dynamics(sys, d, s.t(point), q, v);
+    evaluate_constraints(sys, d, s.t(point), q, v);
+    Mat S(static_cast<Index>(s.kept_rows.size() + coords.size()), n);
+    Index r = 0;
+    for (const Index k : s.kept_rows) S.row(r++) = d.A.row(k);
+    for (const Index j : coords) S.row(r++) = Mat::Identity(n, n).row(j);
+    return S;
+  };
+  auto rank = [](const Mat& S) {
+    return Eigen::ColPivHouseholderQR<Mat>(S).setThreshold(1e-9).rank();
+  };
+  tracked.clear();
+  for (Index j = 0; j < n && static_cast<Index>(s.kept_rows.size() + tracked.size()) < n; ++j) {
+    std::vector<Index> trial = tracked;
+    trial.push_back(j);
+    if (rank(stacked(0, trial)) == static_cast<Index>(s.kept_rows.size() + trial.size()))
+      tracked = std::move(trial);
+  }
+  // At every point the stacked rows must have rank n, and between points their determinant must
+  // keep its sign (a change: they pass through a singular position between the points).
+  double previous = 0.0;
+  for (Index point = 0; point < s.t.size(); ++point) {
+    const Mat S = stacked(point, tracked);
+    if (rank(S) < n)
+      return "the tracked coordinates and the constraints do not fix q at t = " +
+             exact_number(s.t(point)) + ": the servo rows are redundant there";
+    const double det = S.rows() == n ? Eigen::FullPivLU<Mat>(S).determinant() : 0.0;
+    if (point > 0 && det * previous < 0.0)
+      return "the tracked coordinates and the constraints do not fix q at t = " +
+             exact_number(s.t(point - 1)) + " .. " + exact_number(s.t(point)) +
+             " (a singular position between the points): the servo rows are redundant there";
+    previous = det;
+  }
+  return {};
+}
+
+// replay.yaml and replay_open_loop.yaml (docs/optimization.md, "Replay scenario"): the problem's
+// scenario with the optimal τ₀ + B u(t) as time functions (torque elements, splines through dense
+// samples); replay.yaml also tracks the optimal path (angle_relation rows of role servo on n − r
+// coordinates, splines clamped to the end velocities) with the stabilised law.
+std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile& f,
+                                   const TrajectorySolution& s) {
+  const TrajectoryProblem& p = f.problem;
+  const Scenario& sc = *f.scenario;
+  const auto& names = p.system->coordinate_names();
+  YAML::Node doc =
+      YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  doc["name"] = f.name + "_replay";
+  // Every constraint of the problem's system is the plant's own (a `coordinate` row would default
+  // to servo: docs/control.md, "Roles").
+  if (YAML::Node cs = doc["constraints"]; cs.IsSequence())
+    for (YAML::Node c : cs)
+      if (c.IsMap()) c["role"] = "physical";
+  doc["description"] = "The optimum of " + f.path.filename().string() +
+                       " replayed: its u(t) as feedforward (ukdyn optimize, replay scenario)";
+  const bool own_actuators =
+      sc.actuators.count() > 0 && sc.actuators.B.cols() == p.B.cols() && sc.actuators.B == p.B;
+  if (!own_actuators) {  // the problem's inputs (`actuated:`, or one per coordinate)
+    YAML::Node acts(YAML::NodeType::Sequence);
+    for (Index j = 0; j < p.B.cols(); ++j) {
+      YAML::Node a;
+      a["name"] = p.actuator_names[static_cast<std::size_t>(j)];
+      a["gains"] =
+          flow_list(std::vector<double>(p.B.col(j).data(), p.B.col(j).data() + p.B.rows()));
+      acts.push_back(a);
+    }
+    doc["actuators"] = acts;
+  }
+  // τ₀ + B u(t) sampled 4 times per point spacing on the method's own u(t) (interpolate_u: the
+  // quadratic per Hermite–Simpson interval), so that the spline through the samples follows it.
+  constexpr Index kSub = 4;
+  const Index P = s.t.size(), S = (P - 1) * kSub + 1;
+  // The path likewise, on the cubic Hermite interpolant of (q, q̇) between points (the
+  // Hermite–Simpson state polynomial is that cubic).
+  Vec times(S), u(p.B.cols());
+  Mat tau(S, p.B.rows()), path(S, p.B.rows());
+  for (Index i = 0; i < S; ++i) {
+    const Index a = std::min(i / kSub, P - 2);
+    const double w = static_cast<double>(i - a * kSub) / static_cast<double>(kSub);
+    const double h = s.t(a + 1) - s.t(a);
+    times(i) = (1.0 - w) * s.t(a) + w * s.t(a + 1);
+    interpolate_u(s, p.method, times(i), u);
+    tau.row(i) = (p.tau + p.B * u).transpose();
+    path.row(i) = (2 * w * w * w - 3 * w * w + 1) * s.q.row(a) +
+                  (w * w * w - 2 * w * w + w) * h * s.qd.row(a) +
+                  (-2 * w * w * w + 3 * w * w) * s.q.row(a + 1) +
+                  (w * w * w - w * w) * h * s.qd.row(a + 1);
+  }
+  doc["forces"].remove("tau");
+  for (Index i = 0; i < tau.cols(); ++i) {
+    if (tau.col(i).cwiseAbs().maxCoeff() == 0.0) continue;
+    YAML::Node e;
+    e["type"] = "torque";
+    e["name"] = "feedforward_" + names[static_cast<std::size_t>(i)];
+    e["coordinate"] = names[static_cast<std::size_t>(i)];
+    e["value"] = spline(times, tau.col(i), nullptr);
+    doc["forces"]["elements"].push_back(e);
+  }
+  YAML::Node sim = doc["simulation"];
+  sim["t_end"] = exact_number(s.t(s.t.size() - 1));
+  sim["sample_dt"] = exact_number(s.t(1) - s.t(0));
+  {
+    YAML::Emitter out;
+    out << doc;
+    AtomicFile file(dir, dir.fd(), "", "replay_open_loop.yaml");
+    file.write(
+        std::string("# ukdyn optimize: the optimal u(t) open loop (docs/optimization.md)\n") +
+        out.c_str() + "\n");
+    file.commit();
+  }
+  std::vector<Index> tracked;
+  const std::string note = tracked_coordinates(p, s, tracked);
+  for (const Index j : tracked) {
+    const double slopes[2] = {s.qd(0, j), s.qd(s.qd.rows() - 1, j)};
+    YAML::Node c;
+    c["type"] = "angle_relation";
+    c["name"] = "track_" + names[static_cast<std::size_t>(j)];
+    c["role"] = "servo";
+    YAML::Node terms;
+    terms[names[static_cast<std::size_t>(j)]] = 1;
+    terms.SetStyle(YAML::EmitterStyle::Flow);
+    c["terms"] = terms;
+    c["value"] = spline(times, path.col(j), slopes);
+    doc["constraints"].push_back(c);
+  }
+  doc["control"]["law"] = "stabilized";
+  doc["control"]["omega"] = 10;
+  // The plant: the open-loop file (the system without the servo rows; a `plant_set` added here
+  // perturbs it).
+  doc["control"]["plant"] = "replay_open_loop.yaml";
+  YAML::Emitter out;
+  out << doc;
+  AtomicFile file(dir, dir.fd(), "", "replay.yaml");
+  file.write(std::string("# ukdyn optimize: the optimal u(t) as feedforward plus the stabilised "
+                         "servo on the optimal path (docs/optimization.md)\n") +
+             out.c_str() + "\n");
+  file.commit();
+  return note;
+}
+
 }  // namespace
 
 void interpolate_u(const TrajectorySolution& s, CollocationMethod method, double t, VecRef u) {
@@ -155,6 +348,7 @@ OptimizeReport run_optimization(const OptimizationFile& file, const std::filesys
   rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (file.verify) rep.replay = replay(file, rep.solution);
   write_csv(dir, file, rep.solution);
+  rep.replay_scenario_note = write_replay_scenarios(dir, file, rep.solution);
   AtomicFile f(dir, dir.fd(), "", "summary.json");
   f.write(summary(file, rep).dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
   f.commit();

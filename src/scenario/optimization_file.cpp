@@ -2,12 +2,15 @@
 #include "ukdyn/scenario/optimization_file.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <sstream>
 
 #include "output/csv_reader.hpp"
 #include "scenario/yaml_loader.hpp"
+#include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace ukdyn {
 
@@ -311,6 +314,122 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   }
 }
 
+// `bounds: internal_wrench: {load: BODY.FRAME, force: F, torque: M}`: the welds whose frame b is
+// the load's (its grasps, as the Wint_ columns find them: docs/frame-constraints.md) and Walker's
+// internal part of their wrenches on it, (I − G⁺G) w, ukdyn/core/constraint_forces.hpp.
+void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
+                           TrajectoryProblem& p) {
+  if (!n.node.IsDefined()) return;
+  L.only_keys(n, {"load", "force", "torque"});
+  InternalWrenchBound b;
+  const Node ln = L.child(n, "load", true);
+  b.load = L.string(ln);
+  const Node fn = L.child(n, "force", false), tn = L.child(n, "torque", false);
+  if (fn.node.IsDefined()) b.max_force = L.positive(fn);
+  if (tn.node.IsDefined()) b.max_torque = L.positive(tn);
+  if (!fn.node.IsDefined() && !tn.node.IsDefined()) L.fail(n, "expected force, torque or both");
+  struct Grasp {
+    std::shared_ptr<const Constraint> owner;
+    const symbolic::FrameWrenches* map;
+    Index first_row;
+  };
+  std::vector<Grasp> grasps;
+  const System& sys = *sc.system;
+  for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+    const auto* f = dynamic_cast<const symbolic::FrameConstraint*>(sys.constraints()[c].get());
+    if (f && f->wrench().kind() == symbolic::FrameConstraintDef::Kind::weld &&
+        f->wrench().frame_b() == b.load)
+      grasps.push_back({sys.constraints()[c], &f->wrench(), sys.constraint_row_offsets()[c]});
+  }
+  if (grasps.size() < 2)
+    L.fail(ln, "'" + b.load + "' is held by " + std::to_string(grasps.size()) +
+                   " weld(s) (frame b): an internal wrench needs two or more");
+  b.grasps = static_cast<Index>(grasps.size());
+  for (const auto& g : grasps) b.grasp_names.push_back(g.map->name());
+  b.walker = [grasps](CVecRef q, CVecRef lambda, VecRef out) {
+    const Vec qv = q;
+    Vec w(6 * static_cast<Index>(grasps.size()));
+    std::vector<Vec3> points;
+    for (std::size_t k = 0; k < grasps.size(); ++k) {
+      const auto& g = grasps[k];
+      const symbolic::FrameWrench fw =
+          g.map->evaluate(qv, Vec(lambda.segment(g.first_row, g.map->rows())));
+      w.segment<3>(6 * static_cast<Index>(k)) = fw.force_b;
+      w.segment<3>(6 * static_cast<Index>(k) + 3) = fw.moment_b;
+      points.push_back(fw.position_b);
+    }
+    out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
+  };
+  p.internal_wrench_bounds.push_back(std::move(b));
+}
+
+std::string exact(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+// `waypoints: [{name, frame, t, position, orientation}]`: each a ball constraint (a position) or a
+// weld (with an orientation, roll-pitch-yaw as a frame offset's) between the frame and the world
+// frame at the waypoint. They are appended to the scenario's constraints and the scenario loaded
+// again with them (so the frame is resolved, and its rows and exact A built, as any frame
+// constraint's: docs/frame-constraints.md); the waypoints' rows are then taken out of that copy.
+void waypoints(const Loader& L, const Node& root, const Scenario& sc, TrajectoryProblem& p) {
+  const Node wn = L.child(root, "waypoints", false);
+  if (!wn.node.IsDefined()) return;
+  if (!wn.node.IsSequence() || wn.node.size() == 0)
+    L.fail(wn, "expected a list of {frame, t, position[, orientation, name]}");
+  YAML::Node doc =
+      YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  std::vector<std::pair<std::string, double>> named;
+  for (std::size_t i = 0; i < wn.node.size(); ++i) {
+    const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
+    L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
+    const Node nn = L.child(item, "name", false);
+    const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
+    const Node frame = L.child(item, "frame", true);
+    if (!frame.node.IsScalar() && !frame.node.IsMap())
+      L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
+    const double t = L.number(L.child(item, "t", true));
+    const Vec x = L.vector(L.child(item, "position", true), 3);
+    const Node on = L.child(item, "orientation", false);
+    YAML::Node c, b, xyz, rpy;
+    c["type"] = on.node.IsDefined() ? "weld" : "ball";
+    c["name"] = name;
+    c["a"] = YAML::Clone(frame.node);
+    b["frame"] = "world";
+    for (Index k = 0; k < 3; ++k) xyz.push_back(exact(x(k)));
+    b["xyz"] = xyz;
+    if (on.node.IsDefined()) {
+      const Vec r = L.vector(on, 3);
+      for (Index k = 0; k < 3; ++k) rpy.push_back(exact(r(k)));
+      b["rpy"] = rpy;
+    }
+    c["b"] = b;
+    doc["constraints"].push_back(c);
+    named.emplace_back(name, t);
+  }
+  YAML::Emitter out;
+  out << doc;
+  LoadOptions opt;
+  opt.check_initial = false;  // the start need not pass through the waypoints
+  std::shared_ptr<const System> with;
+  try {
+    with = load_scenario_text(out.c_str(), sc.path, opt).system;
+  } catch (const ScenarioError& e) {
+    // The scenario loaded without the waypoints: what fails is a waypoint's frame or numbers.
+    L.fail(wn, std::string("a waypoint: ") + e.what());
+  }
+  for (std::size_t i = 0; i < named.size(); ++i) {
+    const std::string prefix = named[i].first + "_";
+    std::shared_ptr<const Constraint> rows;
+    for (const auto& c : with->constraints())
+      if (c->rows() > 0 && c->row_names().front().compare(0, prefix.size(), prefix) == 0) rows = c;
+    if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
+    p.waypoints.push_back({named[i].first, rows, named[i].second});
+  }
+}
+
 }  // namespace
 
 OptimizationFile load_optimization_text(const std::string& text,
@@ -319,7 +438,7 @@ OptimizationFile load_optimization_text(const std::string& text,
   const Node root{io_detail::parse_scenario_yaml(text, path), ""};
   L.only_keys(root, {"ukdyn", "name", "description", "scenario", "method", "intervals", "duration",
                      "end", "costs", "bounds", "envelopes", "ipopt", "verify", "actuated",
-                     "max_correction", "guess"});
+                     "max_correction", "guess", "waypoints"});
   if (L.number(L.child(root, "ukdyn", true)) != 1)
     L.fail(L.child(root, "ukdyn", true), "expected 1");
   OptimizationFile f;
@@ -372,7 +491,8 @@ OptimizationFile load_optimization_text(const std::string& text,
                  : Vec::Zero(sys.dof());
   costs(L, root, p);
   if (const Node b = L.child(root, "bounds", false); b.node.IsDefined()) {
-    L.only_keys(b, {"q", "qd", "u", "constraint_rows"});
+    L.only_keys(b, {"q", "qd", "u", "constraint_rows", "internal_wrench"});
+    internal_wrench_bound(L, L.child(b, "internal_wrench", false), sc, p);
     auto coord = [&](const Node& at, const std::string& n) { return coordinate(L, at, sys, n); };
     bounds(L, L.child(b, "q", false), p.q_lower, p.q_upper, sys.dof(), coord);
     bounds(L, L.child(b, "qd", false), p.qd_lower, p.qd_upper, sys.dof(), coord);
@@ -385,6 +505,7 @@ OptimizationFile load_optimization_text(const std::string& text,
   if (const Node mc = L.child(root, "max_correction", false); mc.node.IsDefined())
     p.max_correction = L.positive(mc);
   ipopt(L, root, f.ipopt);
+  waypoints(L, root, sc, p);
   if (const Node g = L.child(root, "guess", false); g.node.IsDefined()) {
     try {
       guess_from_csv(L, g, path.parent_path() / L.string(g), p);
@@ -406,6 +527,7 @@ OptimizationFile load_optimization_text(const std::string& text,
     const std::string m = e.what();
     const bool at_end = m.find("the end ") != std::string::npos;
     const bool at_bounds = m.find("outside its bounds") != std::string::npos;
+    if (m.find("waypoint '") != std::string::npos) L.fail(L.child(root, "waypoints", true), m);
     L.fail(at_end ? end : at_bounds ? L.child(root, "bounds", true) : sn, m);
   }
   return f;

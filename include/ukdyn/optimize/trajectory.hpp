@@ -24,6 +24,7 @@
 // Hessian of the Lagrangian by L-BFGS.
 #pragma once
 
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -58,6 +59,32 @@ struct TrajectoryCosts {
   double duration = 0.0;  ///< weight of T (free duration only)
 };
 
+/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at the knot at
+/// time t (from t0; it must fall on a knot, the duration fixed). A frame (a chain's link or point,
+/// a definitions body, a free body) through a given position is a ball constraint between the
+/// frame and a world frame at that position; with an orientation too, a weld
+/// (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A.
+struct Waypoint {
+  std::string name;
+  std::shared_ptr<const Constraint> rows;
+  double t = 0.0;
+};
+
+/// A bound on the internal (squeeze) wrench of a load held by two or more welds, by [Walker1991]'s
+/// decomposition w_int = (I − G⁺G) w of the grasp wrenches w (ukdyn/core/constraint_forces.hpp):
+/// per grasp k, |f_int,k|² ≤ max_force² and |m_int,k|² ≤ max_torque² at every point (+inf:
+/// none). `walker` gives w_int (6 grasps: [f; m] per grasp, world axes, moment about the grasp) at
+/// q and the multipliers λ of every constraint row (m), linear in λ; ∂w_int/∂λ is taken exactly
+/// (by unit λ), ∂w_int/∂q at fixed λ by central differences (the wrench maps have no tangents).
+struct InternalWrenchBound {
+  std::string load;
+  Index grasps = 0;
+  std::vector<std::string> grasp_names;  ///< the welds' names (the CSV's Wint_walker_<name>_*)
+  std::function<void(CVecRef q, CVecRef lambda, VecRef w_int)> walker;
+  double max_force = std::numeric_limits<double>::infinity();
+  double max_torque = std::numeric_limits<double>::infinity();
+};
+
 struct TrajectoryProblem {
   std::shared_ptr<const System> system;
   Mat B;                                    ///< n × k: τ = tau + B u
@@ -82,6 +109,8 @@ struct TrajectoryProblem {
   /// lets the knots jump across the manifold (to another branch of the constraints' roots).
   double max_correction = std::numeric_limits<double>::infinity();
   TrajectoryCosts costs;
+  std::vector<Waypoint> waypoints;
+  std::vector<InternalWrenchBound> internal_wrench_bounds;
   /// Initial guess at the collocation points (rows: points, as TrajectorySolution::t); empty: the
   /// straight line in q from start to end, each point assembled onto the manifold, u = 0.
   Mat q_guess, qd_guess, u_guess;
@@ -107,6 +136,8 @@ struct TrajectorySolution {
   std::vector<bool> knot;  ///< per point: a knot (false: a Hermite–Simpson midpoint)
   Mat q, qd, qdd, u, Qc;   ///< rows: points; q, qd, qdd, Qc n columns, u k columns
   Mat mu;                  ///< rows: points; the multipliers of the kept rows (kept_rows)
+  /// rows: points; per internal-wrench bound its 6 grasps Walker values (in order of the bounds)
+  Mat internal_wrench;
   double duration = 0.0;
   double cost = 0.0;
   double max_defect = 0.0;             ///< max |collocation equation| over every interval
@@ -115,6 +146,8 @@ struct TrajectorySolution {
   double max_correction = 0.0;         ///< max |γ| (the manifold corrections, → 0 as h → 0)
   /// max over intervals of |A_Rᵀγ| / |step| (position and velocity): > 0.1 is not trusted
   double max_correction_ratio = 0.0;
+  /// max |Φ_w| over the waypoints (at their knots; 0 without waypoints)
+  double max_waypoint_residual = 0.0;
   std::vector<Index> kept_rows;  ///< R
   std::string status;            ///< IPOPT's return status, e.g. "Solve_Succeeded"
   bool converged = false;        ///< IPOPT met its tolerances

@@ -22,6 +22,8 @@ struct OptimizeReport {
   TrajectorySolution solution;
   ReplayCheck replay;
   double wall_seconds = 0.0;  ///< IPOPT's solve (console only: not in summary.json)
+  /// Why replay.yaml's servo rows cannot be vouched for (empty: they fix q along the path).
+  std::string replay_scenario_note;
 };
 
 /// u(t) of the solution between its points: linear (trapezoidal) or the quadratic through the
