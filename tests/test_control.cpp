@@ -12,9 +12,9 @@
 #include <sstream>
 
 #include "control_systems.hpp"
+#include "model/solve_stages.hpp"
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/core/uk_solve.hpp"
-#include "model/solve_stages.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -393,6 +393,25 @@ TEST(Control, PlantSetEqualsTheSamePlantWrittenAsAFile) {
       "'subsystems[bob].bodies[bob].mass' holds 'm', not a number: 'scale' needs one");
   bad("    - {path: gravity, value: -1e999}\n", "key 'control.plant_set[0].value'");
   std::filesystem::remove_all(dir);
+}
+
+// A row the file marks `role: servo` whose kind is physical by default (a scleronomic expression)
+// stays a servo row in a plant_set plant made from the same file: the plant is read from the
+// document as written, `role:` included.
+TEST(Control, PlantSetKeepsTheRolesAsWritten) {
+  std::string yaml = uktest::pendulum_servo_yaml(
+      1.0, control_yaml("  law: stabilized\n  omega: 5\n  plant_set:\n"
+                        "    - {path: \"subsystems[bob].parameters.m\", scale: 1.1}\n"));
+  const std::string swing =
+      "    let: {th: 0.3*(1 - cos(2*t))}\n    rows: {angle: x*cos(th) + z*sin(th)}\n";
+  const auto at = yaml.find(swing);
+  ASSERT_NE(at, std::string::npos);
+  yaml.replace(at, swing.size(), "    role: servo\n    rows: {angle: x}\n");
+  const auto sc = ukdyn::load_scenario_text(yaml, "model.yaml");
+  ASSERT_EQ(sc.constraint_roles.size(), 2U);
+  EXPECT_EQ(sc.constraint_roles[1], ukdyn::ConstraintRole::servo);
+  ASSERT_TRUE(sc.control && sc.control->plant);
+  EXPECT_EQ(sc.control->plant->constraint_roles, sc.constraint_roles);
 }
 
 // A Monte Carlo over the plant (issue 12): 50 seeded draws of the bob's mass, 0.8 to 1.4 times

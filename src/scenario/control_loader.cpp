@@ -30,9 +30,16 @@ RoleChoice take_role(const Loader& L, const Node& c, const std::string& type) {
     L.fail(rn, "unknown role '" + v + "' (expected physical or servo)");
   }
   r.by_time = false;
+  r.given = v;
   YAML::Node mut = c.node;  // a handle on the same map
   mut.remove("role");
   return r;
+}
+
+void restore_role(const Node& c, const RoleChoice& choice) {
+  if (choice.given.empty()) return;
+  YAML::Node mut = c.node;
+  mut["role"] = choice.given;
 }
 
 ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const Vec& q0) {

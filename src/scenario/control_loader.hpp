@@ -16,14 +16,20 @@ namespace ukdyn::io_detail {
 struct RoleChoice {
   ConstraintRole role = ConstraintRole::physical;
   bool by_time = false;  ///< expression without `role:`: servo iff rheonomic
+  std::string given;     ///< the `role:` text as written ("" if none), for restore_role
 };
 
 /// Reads and removes `role:` from the constraint node c (so that the type's own key check does not
-/// see it). Bad values: file:line:column and the key.
+/// see it). Bad values: file:line:column and the key. Put it back with restore_role once the
+/// constraint is built: the document is read again for a plant (control.plant_set without a plant
+/// file), and a row marked servo there must stay servo.
 RoleChoice take_role(const Loader& L, const Node& c, const std::string& type);
 
 /// The role of the built constraint (by_time: Φ(q0, t) or Φ̇(q0, 0, t) varies with t).
 ConstraintRole resolve_role(const RoleChoice& choice, const Constraint& c, const Vec& q0);
+
+/// Puts back the `role:` that take_role removed from c (nothing if none was given).
+void restore_role(const Node& c, const RoleChoice& choice);
 
 /// One numeric key of a `motor:` block (or of a catalogue's motor or gearbox,
 /// src/sweep/sizing_file.cpp): absent → fallback; present → a number for which ok() is true, else

@@ -675,6 +675,7 @@ void add_listed_constraints(const Loader& L, const Node& root, const Scenario& s
     sink.role = io_detail::take_role(L, c, type);  // `role:` (removed from c) or the type's default
     try {
       sink.add(c, listed_constraint(L, c, type_node, type, cname, sc, st));
+      io_detail::restore_role(c, sink.role);  // the document as written, for a plant_set plant
     } catch (const ScenarioError&) {
       throw;
     } catch (const Error& e) {
