@@ -871,10 +871,9 @@ void load_solver(const Loader& L, const Node& root, Scenario& sc) {
   sc.sim.uk.method = UkMethod::adaptive;
   // Its damping scale: 1e-5, as UkSettings' (the band starts at σ_min/σ_max = 1e-3). Measured
   // against 1e-6 (docs/accuracy.md, "The default damping scale"): the N-four-bar N = 40 over 20 s
-  // ends 1.5e-8 m from the exact motion instead of 6.7e-6 m (weaker damping leaves the solve
-  // nearly exact in a direction it cannot resolve; the velocity projection then moves q̇ by up to
-  // 2.7e-4), N = 2 keeps its energy to 2.6e-9 J instead of 2.8e-8 J; Bricard, paper.yaml and
-  // n_robots_4_weld are not damped at either scale (the same results).
+  // ends 1.5e-8 m from the exact motion instead of 6.7e-6 m (and the projection's largest q̇
+  // correction is 6.5e-6 instead of 2.7e-4), N = 2 at half speed 3.2e-8 m instead of 3.3e-6 m;
+  // Bricard, paper.yaml and n_robots_4_weld are not damped at either scale (the same results).
   constexpr double kAdaptiveRegularization = 1e-5;
   sc.sim.uk.regularization = kAdaptiveRegularization;
   if (Node s = L.child(root, "solver", false); s.node.IsDefined()) {
