@@ -813,7 +813,15 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     } catch (const Error& x) {
       throw DefinitionError(x.what(), -1, -1, ri);
     }
-    const ex e = simplify_trig(expr);
+    // Each simplification checked against the deadline, the refusal tagged with the row.
+    const auto simp = [&](const ex& x) {
+      try {
+        return simplify_trig(x, deadline, "row '" + rname + "'");
+      } catch (const DerivationTimeout& timeout) {
+        throw DefinitionError(timeout.what(), -1, -1, ri);
+      }
+    };
+    const ex e = simp(expr);
     ex vel = 0;
     if (hol) {
       if (has_any(e, qd)) {
@@ -825,14 +833,14 @@ ConstraintDerivation derive(const ConstraintDef& def) {
       }
       d.phi(r, 0) = e;
       for (unsigned j = 0; j < un; ++j) {
-        d.A(r, j) = simplify_trig(e.diff(q[j]));
+        d.A(r, j) = simp(e.diff(q[j]));
         vel += d.A(r, j) * qd[j];
       }
       vel += e.diff(t);
     } else {
       d.phi(r, 0) = 0;
       for (unsigned j = 0; j < un; ++j) {
-        const ex a = simplify_trig(e.diff(qd[j]));
+        const ex a = simp(e.diff(qd[j]));
         if (has_any(a, qd)) {
           throw DefinitionError("row '" + rname +
                                     "': a nonholonomic constraint must be linear in the velocities "
@@ -858,11 +866,11 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     } catch (const Error& x) {
       throw DefinitionError(x.what(), -1, -1, ri);
     }
-    vel = simplify_trig(vel);
+    vel = simp(vel);
     d.phid(r, 0) = vel;
     ex bb = vel.diff(t);
     for (unsigned k = 0; k < un; ++k) bb += vel.diff(q[k]) * qd[k];
-    d.b(r, 0) = simplify_trig(-bb);
+    d.b(r, 0) = simp(-bb);
   }
   d.derive_seconds = seconds_since(t0);
   return d;
