@@ -6,6 +6,8 @@
 #include <cmath>
 #include <string>
 
+#include "ukdyn/symbolic/chain.hpp"
+#include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/tape.hpp"
 
@@ -114,6 +116,69 @@ TEST(Limits, DeadlineNamesThePlace) {
     FAIL();
   } catch (const ukdyn::Error& e) {
     EXPECT_NE(std::string(e.what()).find("stopped at M(x, y)"), std::string::npos) << e.what();
+  }
+}
+
+// expand_checked builds the expansion term by term so that a deadline can stop it: it must give
+// GiNaC's own expand() (two formulations of one expansion), for sums, products of sums, integer
+// powers of sums, negative powers and functions of sums.
+TEST(Limits, CheckedExpansionIsGiNaCsExpansion) {
+  sym::SymbolTable symbols;
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"),
+                  y = sym::coordinate_symbol(symbols, "y"),
+                  z = sym::coordinate_symbol(symbols, "z");
+  const GiNaC::ex s = GiNaC::sin(x), c = GiNaC::cos(y);
+  const GiNaC::ex cases[] = {
+      (x + y) * (x - y + 3) * (s + c),
+      GiNaC::pow(x + 2 * y + s, 3) * (z - 1) + GiNaC::pow(x * y, 2),
+      (x + y) / (z + 1) + GiNaC::sin(x * (y + z)) * (x + 1),
+      GiNaC::numeric(3, 7) * (x + y) * (x + y) - 2 * (s * c + x) * (s * c - x),
+      (GiNaC::pow(s, 2) + GiNaC::pow(c, 2)) * ((x + 1) * (y + 2) + z),
+      GiNaC::ex(5),
+  };
+  const sym::Deadline deadline(60.0);
+  for (const GiNaC::ex& e : cases) {
+    const GiNaC::ex a = sym::expand_checked(e, deadline, "e"), b = e.expand();
+    EXPECT_TRUE((a - b).expand().is_zero()) << e << ": " << a << " vs " << b;
+    EXPECT_TRUE(a.is_equal(b)) << e << ": " << a << " vs " << b;
+  }
+}
+
+// An 8-link chain with skewed hinge axes (each not along a frame axis, so every rotation entry
+// mixes all angles): deriving it symbolically takes minutes, most of it inside single GiNaC
+// expansions of one link's angular velocity. With a 2 s budget the derivation stops at the
+// budget, not after the expansion in hand: this test would take minutes (and time out) if the
+// deadline were only checked between joints. The refusal names where it stopped.
+TEST(Limits, DeadlineStopsALongChainDerivationInsideAnExpansion) {
+  // The axes as MuJoCo compiles them (unit vectors in doubles; exact_number as the MJCF reader).
+  const double axes[8][3] = {{0.3, 0.7, 0.2}, {0.9, 0.1, 0.4}, {0.2, 0.5, 0.8}, {0.6, 0.3, 0.7},
+                             {0.1, 0.8, 0.5}, {0.7, 0.6, 0.1}, {0.4, 0.2, 0.9}, {0.8, 0.4, 0.3}};
+  std::vector<std::string> q;
+  for (int k = 0; k < 8; ++k) q.push_back("q" + std::to_string(k));
+  sym::ChainDef c("skewed", q);
+  c.gravity = {0, 0, GiNaC::numeric(-981, 100)};
+  for (int k = 0; k < 8; ++k) {
+    auto& j = c.add_joint("j" + std::to_string(k), sym::JointDef::Type::revolute,
+                          "l" + std::to_string(k));
+    const double* a = axes[k];
+    const double n = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    j.axis = {sym::exact_number(a[0] / n), sym::exact_number(a[1] / n),
+              sym::exact_number(a[2] / n)};
+    if (k > 0) j.origin.xyz = {GiNaC::numeric(3, 10), 0, 0};
+    j.coordinate = q[static_cast<std::size_t>(k)];
+    j.inertial.mass = 1;
+    j.inertial.com = {GiNaC::numeric(3, 20), 0, 0};
+    j.inertial.inertia = {GiNaC::numeric(1, 100), 0, 0, 0, GiNaC::numeric(1, 50), 0, 0, 0,
+                          GiNaC::numeric(3, 100)};
+  }
+  try {
+    const sym::Deadline deadline(2.0);
+    const sym::ChainModel model = sym::build_chain(c, deadline);
+    (void)sym::make_subsystem(model.def, deadline);
+    FAIL() << "derived within 2 s";
+  } catch (const sym::DerivationTimeout& e) {
+    EXPECT_NE(std::string(e.what()).find("took longer than 2 s (stopped at "), std::string::npos)
+        << e.what();
   }
 }
 

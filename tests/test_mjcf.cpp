@@ -2,8 +2,13 @@
 // its M and C q̇ + G against MuJoCo's own mj_fullM and qfrc_bias (both exact there: MuJoCo's
 // recursive Newton–Euler and composite-rigid-body algorithms) at 100 random states.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
+#include <filesystem>
+#include <fstream>
 #include <random>
+#include <sstream>
 
 #include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/symbolic/chain.hpp"
@@ -11,6 +16,8 @@
 
 #ifdef UKDYN_TEST_HAVE_MUJOCO
 #include <mujoco/mujoco.h>
+
+#include "robot_files/mjcf_files.hpp"
 #endif
 
 namespace {
@@ -175,6 +182,89 @@ TEST(Mjcf, FreeAndBallJointsMatchMuJoCo) {
   EXPECT_LE(worst_b, 1e-10);
   std::printf("MJCF free + ball + hinge vs MuJoCo (100 states): M %.3g, bias %.3g (relative)\n",
               worst_M, worst_b);
+}
+
+// MuJoCo compiles the bytes ukdyn's checked reader read (through its virtual file system), not
+// the files opened again by name: the model split into a file and an <include> gives the same
+// chain as the one file; an include changed on disk after ukdyn read it is compiled as read; an
+// include naming a missing file or a FIFO (also as <Include>, with a '>' in another attribute or
+// with its name as character references: MuJoCo reads all of these) is refused naming the file.
+TEST(Mjcf, IncludesAreCompiledFromTheBytesUkdynRead) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("ukdyn_mjcf_vfs_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const auto write = [&](const std::string& name, const std::string& text) {
+    std::ofstream(dir / name) << text;
+    return (dir / name).string();
+  };
+  const std::string body =
+      "<body name=\"b\" pos=\"0 0 1\"><joint name=\"h\" type=\"hinge\" axis=\"0 1 0\"/>"
+      "<inertial pos=\"0 0 -0.5\" mass=\"MASS\" diaginertia=\"0.1 0.1 0.1\"/></body>";
+  const auto with_mass = [&](const char* m) {
+    std::string t = body;
+    t.replace(t.find("MASS"), 4, m);
+    return t;
+  };
+  const std::string whole =
+      write("whole.xml", "<mujoco><worldbody>" + with_mass("2") + "</worldbody></mujoco>");
+  write("part.xml", "<mujoco>" + with_mass("2") + "</mujoco>");
+  const std::string split =
+      write("split.xml", "<mujoco><worldbody><include file=\"part.xml\"/></worldbody></mujoco>");
+  const auto chain_text = [](const std::string& file) {
+    sym::ChainDef c("m", {"a"});
+    sym::append_mjcf(c, file);
+    std::ostringstream t;
+    for (const auto& j : c.joints) {
+      t << j.name << ":" << j.inertial.mass << ";";
+      for (const auto& e : j.origin.xyz) t << e << ",";
+      for (const auto& e : j.inertial.com) t << e << ",";
+    }
+    return t.str();
+  };
+  EXPECT_EQ(chain_text(split), chain_text(whole));
+  EXPECT_NE(chain_text(split).find(":2;"), std::string::npos) << chain_text(split);
+
+  // Read, then the include is swapped on disk: MuJoCo compiles what was read (mass 2, not 7).
+  const auto files = sym::mjcf_detail::read_mjcf_files(split);
+  ASSERT_EQ(files.size(), 2u);
+  write("part.xml", "<mujoco>" + with_mass("7") + "</mujoco>");
+  const auto m = sym::mjcf_detail::compile_mjcf(split, files);
+  ASSERT_EQ(m->nbody, 2);
+  EXPECT_DOUBLE_EQ(m->body_mass[1], 2.0);
+  char err[1000] = "";
+  mjModel* by_name = mj_loadXML(split.c_str(), nullptr, err, sizeof err);  // the file now
+  ASSERT_NE(by_name, nullptr) << err;
+  EXPECT_DOUBLE_EQ(by_name->body_mass[1], 7.0);
+  mj_deleteModel(by_name);
+
+  ASSERT_EQ(::mkfifo((dir / "pipe.xml").c_str(), 0600), 0);
+  fs::create_directories(dir / "sub");
+  write("sub/SPLIT.xml", "<mujoco/>");  // MuJoCo's name for it: split.xml, as dir/split.xml
+  const struct {
+    const char* include;
+    const char* expect;
+  } cases[] = {
+      {"<include file=\"gone.xml\"/>", "gone.xml (included from top.xml): no such MJCF file"},
+      {"<include file=\"pipe.xml\"/>", "pipe.xml (included from top.xml): is a FIFO"},
+      {"<Include file=\"pipe.xml\"/>", "pipe.xml (included from top.xml): is a FIFO"},
+      {"<include note=\"a>b\" file='pipe.xml'/>", "pipe.xml (included from top.xml): is a FIFO"},
+      {"<include file=\"&#112;ipe&#x2e;xml\"/>", "pipe.xml (included from top.xml): is a FIFO"},
+      {"<include file=\"split.xml\"/><include file=\"sub/SPLIT.xml\"/>",
+       "SPLIT.xml (included from top.xml): MuJoCo's virtual file system knows a file by its name"},
+  };
+  for (const auto& c : cases) {
+    const std::string top =
+        write("top.xml", std::string("<mujoco><worldbody>") + c.include + "</worldbody></mujoco>");
+    sym::ChainDef chain("m", {"a"});
+    try {
+      sym::append_mjcf(chain, top);
+      ADD_FAILURE() << c.include << ": no error";
+    } catch (const sym::DefinitionError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+    }
+  }
+  fs::remove_all(dir);
 }
 
 TEST(Mjcf, UnsupportedJointsAndCountsAreNamed) {

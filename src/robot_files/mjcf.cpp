@@ -6,7 +6,6 @@
 #include <filesystem>
 #include <limits>
 #include <numbers>
-#include <regex>
 #include <set>
 #include <vector>
 
@@ -16,6 +15,10 @@
 
 #ifdef UKDYN_HAVE_MUJOCO
 #include <mujoco/mujoco.h>
+
+#include <cstring>
+
+#include "robot_files/mjcf_files.hpp"
 #endif
 
 namespace ukdyn::symbolic {
@@ -42,13 +45,128 @@ namespace {
 
 using GiNaC::ex;
 
-// Every file MuJoCo would open is checked before it opens any: the model file and, recursively,
-// its <include file="..."/> (relative to the model file's folder, as MuJoCo resolves them) must be
-// regular files of at most 16 MiB; a FIFO, a folder or a device is named as what it is (a FIFO
-// would block MuJoCo's reader forever), an include cycle or more than 32 levels is refused, and so
-// are more than 256 files in all (a file that includes itself twice would double at every level).
-void check_model_files(const std::filesystem::path& file, const std::filesystem::path& folder,
-                       int depth, const std::string& via, int& files) {
+// Decodes what tinyxml2 (MuJoCo's XML reader) decodes in an attribute value: &lt; &gt; &amp;
+// &quot; &apos; and character references &#N; &#xH; (as UTF-8). Anything else stays as written.
+std::string decode_xml_entities(const std::string& v) {
+  static const std::pair<const char*, char> named[] = {
+      {"lt", '<'}, {"gt", '>'}, {"amp", '&'}, {"quot", '"'}, {"apos", '\''}};
+  std::string out;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    const std::size_t semi = v[i] == '&' ? v.find(';', i) : std::string::npos;
+    if (semi == std::string::npos || semi - i > 10) {
+      out += v[i];
+      continue;
+    }
+    const std::string ent = v.substr(i + 1, semi - i - 1);
+    bool done = false;
+    for (const auto& [name, ch] : named) {
+      if (ent == name) {
+        out += ch;
+        done = true;
+      }
+    }
+    if (!done && ent.size() > 1 && ent[0] == '#') {
+      const bool hex = ent[1] == 'x' || ent[1] == 'X';
+      const std::string digits = ent.substr(hex ? 2 : 1);
+      const bool ok = !digits.empty() && std::all_of(digits.begin(), digits.end(), [&](char c) {
+        return hex ? std::isxdigit(static_cast<unsigned char>(c)) != 0
+                   : std::isdigit(static_cast<unsigned char>(c)) != 0;
+      });
+      const unsigned long cp = ok ? std::stoul(digits, nullptr, hex ? 16 : 10) : 0;
+      if (ok && cp > 0 && cp <= 0x10FFFF) {
+        if (cp < 0x80) {
+          out += static_cast<char>(cp);
+        } else if (cp < 0x800) {
+          out += static_cast<char>(0xC0 | (cp >> 6));
+          out += static_cast<char>(0x80 | (cp & 0x3F));
+        } else if (cp < 0x10000) {
+          out += static_cast<char>(0xE0 | (cp >> 12));
+          out += static_cast<char>(0x80 | ((cp >> 6) & 0x3F));
+          out += static_cast<char>(0x80 | (cp & 0x3F));
+        } else {
+          out += static_cast<char>(0xF0 | (cp >> 18));
+          out += static_cast<char>(0x80 | ((cp >> 12) & 0x3F));
+          out += static_cast<char>(0x80 | ((cp >> 6) & 0x3F));
+          out += static_cast<char>(0x80 | (cp & 0x3F));
+        }
+        done = true;
+      }
+    }
+    if (done) {
+      i = semi;
+    } else {
+      out += v[i];
+    }
+  }
+  return out;
+}
+
+std::size_t skip_space(const std::string& s, std::size_t k) {
+  while (k < s.size() && std::isspace(static_cast<unsigned char>(s[k]))) ++k;
+  return k;
+}
+
+// The file attributes of the <include> elements of an MJCF text as MuJoCo reads them: the element
+// name compared case-insensitively (MuJoCo's strcasecmp), quoted values that may hold '>', the
+// attribute name "file" exactly (tinyxml2), entities decoded. A linear scan (no backtracking
+// regex on a 16 MiB file). A commented-out <include> is read too: one file more is checked, never
+// one less.
+std::vector<std::string> include_files(const std::string& xml) {
+  std::vector<std::string> out;
+  const std::size_t n = xml.size();
+  std::size_t i = 0;
+  while ((i = xml.find('<', i)) != std::string::npos) {
+    std::size_t k = skip_space(xml, i + 1);
+    i = k;
+    const char* word = "include";
+    std::size_t w = 0;
+    while (word[w] && k + w < n && std::tolower(static_cast<unsigned char>(xml[k + w])) == word[w])
+      ++w;
+    if (word[w] || (k + w < n && !std::isspace(static_cast<unsigned char>(xml[k + w])) &&
+                    xml[k + w] != '/' && xml[k + w] != '>'))
+      continue;
+    k += w;
+    for (;;) {  // attributes: name = "value" | 'value'
+      k = skip_space(xml, k);
+      std::size_t e = k;
+      while (e < n && !std::isspace(static_cast<unsigned char>(xml[e])) && xml[e] != '=' &&
+             xml[e] != '/' && xml[e] != '>' && xml[e] != '<')
+        ++e;
+      const std::string name = xml.substr(k, e - k);
+      k = skip_space(xml, e);
+      if (name.empty() || k >= n || xml[k] != '=') break;
+      k = skip_space(xml, k + 1);
+      if (k >= n || (xml[k] != '"' && xml[k] != '\'')) break;
+      const std::size_t close = xml.find(xml[k], k + 1);
+      if (close == std::string::npos) break;
+      if (name == "file") out.push_back(decode_xml_entities(xml.substr(k + 1, close - k - 1)));
+      k = close + 1;
+    }
+    i = k;
+  }
+  return out;
+}
+
+// The name MuJoCo's virtual file system keys a file by (engine_vfs.c, vfs_strippath): the text
+// after the last '/' or '\\', in lower case.
+std::string vfs_key(const std::string& path) {
+  const std::size_t slash = path.find_last_of("/\\");
+  std::string key = slash == std::string::npos ? path : path.substr(slash + 1);
+  for (char& c : key) {
+    if (c >= 'A' && c <= 'Z') c = static_cast<char>(c - 'A' + 'a');
+  }
+  return key;
+}
+
+// Every file MuJoCo would open is read here, once per occurrence, before MuJoCo opens any: the
+// model file and, recursively, its <include file="..."/> (relative to the model file's folder, as
+// MuJoCo resolves them) must be regular files of at most 16 MiB; a FIFO, a folder or a device is
+// named as what it is (a FIFO would block MuJoCo's reader forever), an include cycle or more than
+// 32 levels is refused, and so are more than 256 files in all (a file that includes itself twice
+// would double at every level). MuJoCo then compiles these bytes (compile_mjcf), not the files.
+void read_model_files(const std::filesystem::path& file, const std::filesystem::path& folder,
+                      int depth, const std::string& via, std::vector<mjcf_detail::MjcfFile>& read,
+                      int& files) {
   const std::string name = file.string() + via;
   if (depth > 32) throw DefinitionError(name + ": more than 32 levels of <include> (a cycle?)");
   if (++files > 256) throw DefinitionError(name + ": more than 256 files with its <include>s");
@@ -58,12 +176,25 @@ void check_model_files(const std::filesystem::path& file, const std::filesystem:
   } catch (const detail::InputFileError& e) {
     throw DefinitionError(e.what());
   }
-  static const std::regex include(R"re(<\s*include\s[^>]*?file\s*=\s*["']([^"']*)["'])re");
-  for (std::sregex_iterator it(xml.begin(), xml.end(), include), end; it != end; ++it) {
-    std::filesystem::path inc = (*it)[1].str();
+  if (xml.empty()) throw DefinitionError(name + ": is empty, not a MJCF file");
+  const std::string key = vfs_key(file.string());
+  auto same = std::find_if(read.begin(), read.end(), [&](const mjcf_detail::MjcfFile& f) {
+    return vfs_key(f.path.string()) == key;
+  });
+  if (same != read.end() && same->bytes != xml) {
+    throw DefinitionError(name +
+                          ": MuJoCo's virtual file system knows a file by its name without "
+                          "the folder, case-insensitively, and " +
+                          same->path.string() +
+                          " has that name with other contents (or the file changed while "
+                          "ukdyn read it): rename one of them");
+  }
+  if (same == read.end()) read.push_back({file, xml});
+  for (const std::string& f : include_files(xml)) {
+    std::filesystem::path inc = f;
     if (inc.is_relative()) inc = folder / inc;
-    check_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")",
-                      files);
+    read_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")",
+                     read, files);
   }
 }
 
@@ -95,23 +226,6 @@ Vec3Ex rpy_of(const double* quat) {
 
 Vec3Ex vec_of(const double* v) {
   return {exact_number(v[0]), exact_number(v[1]), exact_number(v[2])};
-}
-
-struct ModelGuard {
-  mjModel* m = nullptr;
-  ~ModelGuard() {
-    if (m) mj_deleteModel(m);
-  }
-};
-
-// The compiled model of the file (its files checked first); DefinitionError naming the file if
-// MuJoCo cannot load it.
-void load_model(const std::string& path, ModelGuard& g) {
-  int files = 0;
-  check_model_files(path, std::filesystem::path(path).parent_path(), 0, "", files);
-  char err[1000] = "";
-  g.m = mj_loadXML(path.c_str(), nullptr, err, sizeof err);
-  if (!g.m) throw DefinitionError(path + ": MuJoCo could not load it: " + err);
 }
 
 // The compiled model and its file, for the messages.
@@ -379,20 +493,58 @@ void append_equalities(ChainDef& chain, const MjcfSource& src,
 
 bool mjcf_supported() { return true; }
 
+namespace mjcf_detail {
+
+std::vector<MjcfFile> read_mjcf_files(const std::filesystem::path& model) {
+  std::vector<MjcfFile> read;
+  int files = 0;
+  read_model_files(model, model.parent_path(), 0, "", read, files);
+  return read;
+}
+
+MjModelPtr compile_mjcf(const std::filesystem::path& model, const std::vector<MjcfFile>& files) {
+  // mjVFS holds 2000 names of 1000 bytes: on the heap. MuJoCo looks every file up here first
+  // (mjParseXML, mjIncludeXML); read_mjcf_files read all it includes and refused empty files
+  // (mj_makeEmptyFileVFS ends the process on a size of 0).
+  struct Vfs {
+    std::unique_ptr<mjVFS> v = std::make_unique<mjVFS>();
+    Vfs() { mj_defaultVFS(v.get()); }
+    ~Vfs() { mj_deleteVFS(v.get()); }
+    Vfs(const Vfs&) = delete;
+    Vfs& operator=(const Vfs&) = delete;
+  } vfs;
+  for (const MjcfFile& f : files) {
+    const std::string name = f.path.string();
+    const int r = mj_makeEmptyFileVFS(vfs.v.get(), name.c_str(), static_cast<int>(f.bytes.size()));
+    if (r != 0) {
+      throw DefinitionError(name + (r == 1 ? ": too many files for MuJoCo's virtual file system"
+                                           : ": a second file of this name for MuJoCo"));
+    }
+    const int id = mj_findFileVFS(vfs.v.get(), name.c_str());
+    std::memcpy(vfs.v->filedata[id], f.bytes.data(), f.bytes.size());
+  }
+  char err[1000] = "";
+  MjModelPtr m(mj_loadXML(model.string().c_str(), vfs.v.get(), err, sizeof err));
+  if (!m) throw DefinitionError(model.string() + ": MuJoCo could not load it: " + err);
+  return m;
+}
+
+}  // namespace mjcf_detail
+
 void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
-  ModelGuard g;
-  load_model(path, g);
-  const MjcfSource src{*g.m, path};
+  const mjcf_detail::MjModelPtr g =
+      mjcf_detail::compile_mjcf(path, mjcf_detail::read_mjcf_files(path));
+  const MjcfSource src{*g, path};
   const std::vector<std::string> free = joint_coordinates(chain);
   check_supported(src, free.size());
-  if (gravity) chain.gravity = vec_of(g.m->opt.gravity);
+  if (gravity) chain.gravity = vec_of(g->opt.gravity);
   const std::string root = chain.base.enabled ? chain.base.link : chain.root_link;
-  std::vector<std::string> link(static_cast<std::size_t>(g.m->nbody));
+  std::vector<std::string> link(static_cast<std::size_t>(g->nbody));
   link[0] = root;
-  for (int b = 1; b < g.m->nbody; ++b) append_body(chain, src, b, free, link);
+  for (int b = 1; b < g->nbody; ++b) append_body(chain, src, b, free, link);
   append_equalities(chain, src, link);
   int meshes = 0;
-  for (int k = 0; k < g.m->ngeom; ++k) meshes += g.m->geom_type[k] == mjGEOM_MESH ? 1 : 0;
+  for (int k = 0; k < g->ngeom; ++k) meshes += g->geom_type[k] == mjGEOM_MESH ? 1 : 0;
   if (meshes > 0) {
     chain.notes.push_back(
         path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
@@ -454,11 +606,11 @@ LinkVisual geom_visual(const MjcfSource& src, int k) {
 }  // namespace
 
 std::vector<LinkVisual> mjcf_visuals(const std::string& path) {
-  ModelGuard g;
-  load_model(path, g);
-  const MjcfSource src{*g.m, path};
+  const mjcf_detail::MjModelPtr g =
+      mjcf_detail::compile_mjcf(path, mjcf_detail::read_mjcf_files(path));
+  const MjcfSource src{*g, path};
   std::vector<LinkVisual> out;
-  for (int k = 0; k < g.m->ngeom; ++k) out.push_back(geom_visual(src, k));
+  for (int k = 0; k < g->ngeom; ++k) out.push_back(geom_visual(src, k));
   return out;
 }
 

@@ -925,10 +925,24 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
                         " (use dynamics: auto or symbolic)");
       }
     }
-    sym::ChainModel model = sym::build_chain(*def);
-    auto sub = sym::make_subsystem(model.def);
+    const sym::Deadline deadline;  // one budget for the chain and its dynamics
+    sym::ChainModel model = sym::build_chain(*def, deadline);
+    auto sub = sym::make_subsystem(model.def, deadline);
     record_chain(context, name, std::move(def), std::move(model));
     return sub;
+  } catch (const sym::DerivationTimeout& e) {
+    // The recursive algorithms need no derivation: say so when they can take this chain.
+    const bool tree = [&] {
+      try {
+        return def && dynamics == "symbolic" && static_cast<bool>(sym::chain_tree(*def).model);
+      } catch (const std::exception&) {
+        return false;
+      }
+    }();
+    L.fail(s, "subsystem '" + name + "': " + e.what() +
+                  (tree ? "; the tree algorithms can take this chain without deriving it: "
+                          "use dynamics: tree (or auto, the default)"
+                        : ""));
   } catch (const Error& e) {
     L.fail(s, e.what());
   } catch (const std::exception& e) {  // GiNaC: a division by zero, log(0)

@@ -207,19 +207,20 @@ struct Pose {
 };
 
 // The joint frame: the parent link frame P moved by the joint's fixed origin.
-Pose origin_frame(const Pose& P, const OriginDef& origin) {
+Pose origin_frame(const Pose& P, const OriginDef& origin, const Deadline& deadline,
+                  const std::string& where) {
   Pose jf = P;
   jf.p = add(P.p, mul(P.R, origin.xyz));
   if (P.floating && !all_zero(origin.rpy)) {
     jf.wb = mul_transposed(rpy_rotation(origin.rpy), P.wb);
-    for (auto& e : jf.wb) e = e.expand();
+    for (auto& e : jf.wb) e = expand_checked(e, deadline, where);
   }
   if (!all_zero(origin.rpy)) {
     // Expanded at every joint: left as products, a chain of a dozen fixed joints with rotated
     // origins grew 3-fold per joint (each entry refers to three of its parent's) and expanding
     // the positions below took minutes.
     jf.R = compose(P.R, rpy_rotation(origin.rpy));
-    for (auto& e : jf.R) e = e.expand();
+    for (auto& e : jf.R) e = expand_checked(e, deadline, where);
     jf.has_axis = false;
   }
   return jf;
@@ -229,7 +230,7 @@ Pose origin_frame(const Pose& P, const OriginDef& origin) {
 // before its children) and the model being filled.
 class ChainBuilder {
  public:
-  explicit ChainBuilder(const ChainDef& chain);
+  ChainBuilder(const ChainDef& chain, const Deadline& deadline);
   // The root (or the mobile base), then every joint in order, then the links and named points.
   ChainModel build();
 
@@ -244,10 +245,11 @@ class ChainBuilder {
   void apply_quaternion_joint(const JointDef& j, const std::string& where, Pose& jf);
   [[nodiscard]] ex joint_value(const JointDef& j, const std::string& where) const;
   void apply_axis_joint(const JointDef& j, const std::string& where, Pose& jf) const;
-  void place_joint(const JointDef& j, const Deadline& deadline);
+  void place_joint(const JointDef& j);
   void collect_links_and_points();
 
   const ChainDef& chain_;
+  const Deadline& deadline_;  // bounded work (docs/definitions.md, Limits)
   ChainModel m_;
   const GiNaC::exmap values_;
   const std::vector<std::string>& coords_;
@@ -257,8 +259,9 @@ class ChainBuilder {
   std::set<std::string> joint_names_;
 };
 
-ChainBuilder::ChainBuilder(const ChainDef& chain)
+ChainBuilder::ChainBuilder(const ChainDef& chain, const Deadline& deadline)
     : chain_(chain),
+      deadline_(deadline),
       m_{static_cast<const SubsystemDef&>(chain), {}, {}, {}},
       values_(chain.parameter_values()),
       coords_(chain.coordinates()) {
@@ -304,7 +307,7 @@ void ChainBuilder::add_body(const std::string& name, const Pose& f, const Inerti
     b.rotation = Rb;
     Vec3Ex wb = f.floating ? (all_zero(in.rpy) ? f.wb : mul_transposed(rpy_rotation(in.rpy), f.wb))
                            : mul_transposed(Rb, f.w);
-    for (auto& e : wb) e = simplify_trig(e);
+    for (auto& e : wb) e = simplify_trig(e, deadline_, "body '" + name + "'");
     b.angular_velocity = wb;
   }
 }
@@ -381,7 +384,7 @@ void ChainBuilder::apply_quaternion_joint(const JointDef& j, const std::string& 
   Vec3Ex wj = jf.wb;
   if (!jf.floating) {
     wj = mul_transposed(jf.R, jf.w);
-    for (auto& e : wj) e = simplify_trig(e.expand());
+    for (auto& e : wj) e = simplify_trig(e, deadline_, where);
   }
   std::vector<ex> c(nc), d(nc);
   for (std::size_t k = 0; k < nc; ++k) {
@@ -392,10 +395,10 @@ void ChainBuilder::apply_quaternion_joint(const JointDef& j, const std::string& 
   if (floating) jf.p = add(jf.p, mul(jf.R, Vec3Ex{c[0], c[1], c[2]}));
   const Mat3Ex Rq = quaternion_rotation(c[o], c[o + 1], c[o + 2], c[o + 3]);
   jf.R = compose(jf.R, Rq);
-  for (auto& e : jf.R) e = e.expand();
+  for (auto& e : jf.R) e = expand_checked(e, deadline_, where);
   jf.wb = add(mul_transposed(Rq, wj), quaternion_body_rate(c[o], c[o + 1], c[o + 2], c[o + 3], d[o],
                                                            d[o + 1], d[o + 2], d[o + 3]));
-  for (auto& e : jf.wb) e = e.expand();
+  for (auto& e : jf.wb) e = expand_checked(e, deadline_, where);
   jf.floating = true;
   jf.has_axis = false;
   m_.quaternions.emplace_back(
@@ -423,7 +426,7 @@ void ChainBuilder::apply_axis_joint(const JointDef& j, const std::string& where,
   if (j.type == JointDef::Type::revolute && jf.floating) {
     // Body-frame composition: ω_child = Rot(a, v)ᵀ ω_joint + a v̇.
     jf.wb = add(mul_transposed(axis_rotation(a, v), jf.wb), scale(a, rate(v)));
-    for (auto& e : jf.wb) e = e.expand();
+    for (auto& e : jf.wb) e = expand_checked(e, deadline_, where);
   }
   if (j.type == JointDef::Type::revolute) {
     if (!jf.floating) jf.w = add(jf.w, scale(mul(jf.R, a), rate(v)));
@@ -438,22 +441,22 @@ void ChainBuilder::apply_axis_joint(const JointDef& j, const std::string& where,
       jf.has_axis = true;
     }
     jf.R = compose(jf.Rpre, axis_rotation(a, jf.angle));
-    for (auto& e : jf.R) e = e.expand();
+    for (auto& e : jf.R) e = expand_checked(e, deadline_, where);
   } else {
     jf.p = add(jf.p, mul(jf.R, scale(a, v)));
   }
 }
 
-void ChainBuilder::place_joint(const JointDef& j, const Deadline& deadline) {
+void ChainBuilder::place_joint(const JointDef& j) {
   const std::string where = "joint '" + j.name + "'";
-  deadline.check(where);
-  Pose jf = origin_frame(parent_frame(j, where), j.origin);
+  deadline_.check(where);
+  Pose jf = origin_frame(parent_frame(j, where), j.origin, deadline_, where);
   if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball) {
     apply_quaternion_joint(j, where, jf);
   } else if (j.type != JointDef::Type::fixed) {
     apply_axis_joint(j, where, jf);
   }
-  for (auto& e : jf.p) e = e.expand();
+  for (auto& e : jf.p) e = expand_checked(e, deadline_, where);
   for (std::size_t k = 0; k < 3; ++k) check_expression_size(jf.p[k], where + ": its position");
   for (std::size_t k = 0; k < 9; ++k) check_expression_size(jf.R[k], where + ": its rotation");
   frames_[j.link] = jf;
@@ -472,7 +475,7 @@ void ChainBuilder::collect_links_and_points() {
     if (it == frames_.end())
       throw DefinitionError("point '" + p.name + "': no link '" + p.link + "'");
     Vec3Ex w = add(it->second.p, mul(it->second.R, p.xyz));
-    for (auto& e : w) e = e.expand();
+    for (auto& e : w) e = expand_checked(e, deadline_, "point '" + p.name + "'");
     m_.points[p.name] = w;
   }
 }
@@ -489,14 +492,17 @@ ChainModel ChainBuilder::build() {
   } else {
     frames_[chain_.root_link] = root;
   }
-  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
-  for (const JointDef& j : chain_.joints) place_joint(j, deadline);
+  for (const JointDef& j : chain_.joints) place_joint(j);
   collect_links_and_points();
   return std::move(m_);
 }
 
 }  // namespace
 
-ChainModel build_chain(const ChainDef& chain) { return ChainBuilder(chain).build(); }
+ChainModel build_chain(const ChainDef& chain) { return build_chain(chain, Deadline()); }
+
+ChainModel build_chain(const ChainDef& chain, const Deadline& deadline) {
+  return ChainBuilder(chain, deadline).build();
+}
 
 }  // namespace ukdyn::symbolic

@@ -51,6 +51,44 @@ ex simplify_trig(const ex& e) {
   return r;
 }
 
+namespace {
+
+// The substitution sin(x)^2 → 1 − cos(x)^2 term by term, the deadline checked between terms.
+class TrigPass : public GiNaC::map_function {
+ public:
+  TrigPass(const Deadline& deadline, const std::string& where)
+      : deadline_(deadline),
+        where_(where),
+        rule_(GiNaC::pow(GiNaC::sin(GiNaC::wild(0)), 2) ==
+              1 - GiNaC::pow(GiNaC::cos(GiNaC::wild(0)), 2)) {}
+  ex operator()(const ex& term) override {
+    deadline_.check(where_);
+    return term.subs(rule_, GiNaC::subs_options::algebraic);
+  }
+
+ private:
+  const Deadline& deadline_;
+  const std::string& where_;
+  const ex rule_;
+};
+
+}  // namespace
+
+ex simplify_trig(const ex& e, const Deadline& deadline, const std::string& where) {
+  ex r = expand_checked(e, deadline, where);
+  if (!r.has(GiNaC::sin(GiNaC::wild()))) return r;
+  TrigPass pass(deadline, where);
+  for (int i = 0; i < 8; ++i) {
+    deadline.check(where);
+    // A sum of a few hundred terms in one pass (as simplify_trig(e)), a longer one term by term.
+    const bool small = !GiNaC::is_a<GiNaC::add>(r) || r.nops() <= 500;
+    const ex s = small ? pass(r).expand() : expand_checked(r.map(pass), deadline, where);
+    if (s.is_equal(r)) break;
+    r = s;
+  }
+  return r;
+}
+
 // ------------------------------------------------------------------------------ DefinitionScope
 
 DefinitionScope::DefinitionScope(std::shared_ptr<SymbolTable> symbols)
@@ -386,7 +424,7 @@ void derive_mass_matrix(SubsystemDerivation& d, const DerivationSymbols& s,
     for (unsigned j = i; j < un; ++j) {
       const std::string at = "M(" + d.coordinates[i] + ", " + d.coordinates[j] + ")";
       deadline.check(at);
-      const ex m = simplify_trig(dTdqd[i].diff(s.qd[j]));
+      const ex m = simplify_trig(dTdqd[i].diff(s.qd[j]), deadline, at);
       check_expression_size(m, at);
       if (has_any(m, s.qd)) {
         throw DefinitionError(
@@ -432,7 +470,7 @@ void derive_velocity_and_gravity_terms(SubsystemDerivation& d, const DerivationS
       for (unsigned k = 0; k < un; ++k)
         c += (dM[k](i, j) + dM[j](i, k) - dM[i](j, k)) * s.qd[k] / 2;
       check_expression_size(c, at);
-      c = simplify_trig(c);
+      c = simplify_trig(c, deadline, at);
       d.C(i, j) = c;
       row += c * s.qd[j];
     }
@@ -444,18 +482,19 @@ void derive_velocity_and_gravity_terms(SubsystemDerivation& d, const DerivationS
       for (unsigned j = 0; j < un; ++j) mt += d.M(i, j).diff(s.t) * s.qd[j];
       row += mt;
     }
-    d.Cqd(i, 0) = simplify_trig(row);
-    d.G(i, 0) = simplify_trig(d.V.diff(s.q[i]));
+    d.Cqd(i, 0) = simplify_trig(row, deadline, "C q_dot(" + d.coordinates[i] + ")");
+    d.G(i, 0) = simplify_trig(d.V.diff(s.q[i]), deadline, "G(" + d.coordinates[i] + ")");
   }
 }
 
 }  // namespace
 
-SubsystemDerivation derive(const SubsystemDef& def) {
+SubsystemDerivation derive(const SubsystemDef& def) { return derive(def, Deadline()); }
+
+SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline) {
   const auto t0 = Clock::now();
   DerivationSymbols s(def);
   check_subsystem_size(def);
-  const Deadline deadline;
 
   ex T = 0, V = 0;
   for (std::size_t bi = 0; bi < def.bodies.size(); ++bi) {
@@ -475,8 +514,8 @@ SubsystemDerivation derive(const SubsystemDef& def) {
   d.coordinates = def.coordinates();
   d.parameter_values = s.values;
   d.symbols = def.symbol_table();
-  d.T = T.expand();
-  d.V = V.expand();
+  d.T = expand_checked(T, deadline, "the kinetic energy T");
+  d.V = expand_checked(V, deadline, "the potential energy V");
   // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
   // leaves the subsystem time-invariant).
   d.time_varying = (d.T.has(s.t) && !simplify_trig(d.T.diff(s.t)).is_zero()) ||
@@ -684,7 +723,12 @@ double DerivedSubsystem::kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) 
 }
 
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def) {
-  return std::make_shared<DerivedSubsystem>(derive(def), def.name());
+  return make_subsystem(def, Deadline());
+}
+
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def,
+                                                 const Deadline& deadline) {
+  return std::make_shared<DerivedSubsystem>(derive(def, deadline), def.name());
 }
 
 std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
@@ -769,7 +813,15 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     } catch (const Error& x) {
       throw DefinitionError(x.what(), -1, -1, ri);
     }
-    const ex e = simplify_trig(expr);
+    // Each simplification checked against the deadline, the refusal tagged with the row.
+    const auto simp = [&](const ex& x) {
+      try {
+        return simplify_trig(x, deadline, "row '" + rname + "'");
+      } catch (const DerivationTimeout& timeout) {
+        throw DefinitionError(timeout.what(), -1, -1, ri);
+      }
+    };
+    const ex e = simp(expr);
     ex vel = 0;
     if (hol) {
       if (has_any(e, qd)) {
@@ -781,14 +833,14 @@ ConstraintDerivation derive(const ConstraintDef& def) {
       }
       d.phi(r, 0) = e;
       for (unsigned j = 0; j < un; ++j) {
-        d.A(r, j) = simplify_trig(e.diff(q[j]));
+        d.A(r, j) = simp(e.diff(q[j]));
         vel += d.A(r, j) * qd[j];
       }
       vel += e.diff(t);
     } else {
       d.phi(r, 0) = 0;
       for (unsigned j = 0; j < un; ++j) {
-        const ex a = simplify_trig(e.diff(qd[j]));
+        const ex a = simp(e.diff(qd[j]));
         if (has_any(a, qd)) {
           throw DefinitionError("row '" + rname +
                                     "': a nonholonomic constraint must be linear in the velocities "
@@ -814,11 +866,11 @@ ConstraintDerivation derive(const ConstraintDef& def) {
     } catch (const Error& x) {
       throw DefinitionError(x.what(), -1, -1, ri);
     }
-    vel = simplify_trig(vel);
+    vel = simp(vel);
     d.phid(r, 0) = vel;
     ex bb = vel.diff(t);
     for (unsigned k = 0; k < un; ++k) bb += vel.diff(q[k]) * qd[k];
-    d.b(r, 0) = simplify_trig(-bb);
+    d.b(r, 0) = simp(-bb);
   }
   d.derive_seconds = seconds_since(t0);
   return d;

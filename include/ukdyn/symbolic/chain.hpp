@@ -157,6 +157,9 @@ struct ChainModel {
 /// Builds the link poses and bodies. Throws DefinitionError for unknown links or coordinates,
 /// joints whose value depends on t or velocities, a zero axis, duplicate names.
 ChainModel build_chain(const ChainDef& chain);
+/// The same within `deadline` (throws DerivationTimeout once it is spent), e.g. one budget for the
+/// chain and the derivation of its dynamics (make_subsystem(model.def, deadline)).
+ChainModel build_chain(const ChainDef& chain, const Deadline& deadline);
 
 /// Rotation about a unit (normalized here) axis by angle q (Rodrigues), row-major.
 Mat3Ex axis_rotation(const Vec3Ex& axis, const GiNaC::ex& q);

@@ -139,9 +139,14 @@ struct SubsystemDerivation {
 /// Derives M, C, G and C q̇. Throws DefinitionError (a coordinate in no body, a body without mass, a
 /// velocity or time in a position, ...).
 SubsystemDerivation derive(const SubsystemDef& def);
+/// The same within `deadline` (one budget shared with build_chain for a chain): throws
+/// DerivationTimeout once it is spent.
+SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline);
 
 /// Simplification used everywhere: expand, then sin(x)^2 → 1 − cos(x)^2, expand again.
 GiNaC::ex simplify_trig(const GiNaC::ex& e);
+/// The same, with the expansions and each substitution pass checked against `deadline`.
+GiNaC::ex simplify_trig(const GiNaC::ex& e, const Deadline& deadline, const std::string& where);
 
 /// A ukdyn::Subsystem evaluated from compiled tapes of a derivation.
 class DerivedSubsystem final : public Subsystem {
@@ -205,6 +210,8 @@ class DerivedSubsystem final : public Subsystem {
 
 /// derive + compile.
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def);
+/// derive within `deadline` + compile.
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def, const Deadline& deadline);
 
 /// A mass of t negative during a run: the subsystem (its index in the system) and
 /// "subsystem 'S', body 'B': the mass '…' is m at t = T"; message empty if none.

@@ -119,7 +119,15 @@ inline constexpr std::size_t kDerivedCoordinates = 120;
 /// limits::kExpandedTerms or limits::kNumberBits. Linear in the size of e as a DAG.
 void check_expression_size(const GiNaC::ex& e, const std::string& what);
 
-/// A time budget for one derivation; check() throws Error naming `where` once it is spent.
+/// A derivation stopped by its Deadline; what() says where it stopped.
+class DerivationTimeout : public Error {
+ public:
+  using Error::Error;
+};
+
+/// A time budget for one derivation; check() throws DerivationTimeout naming `where` once it is
+/// spent. GiNaC's own operations cannot be interrupted, so a derivation checks between steps that
+/// are each small: every entry and row, every term of an expansion (expand_checked).
 class Deadline {
  public:
   explicit Deadline(double seconds = limits::kDeriveSeconds);
@@ -129,5 +137,10 @@ class Deadline {
   double seconds_;
   std::int64_t end_ns_;
 };
+
+/// e.expand(), the same expression, built one term at a time (a product of sums: one term of the
+/// first sum times the rest at a time) with deadline.check(where) between the terms, so that a
+/// large expansion stops within about one term's work of the deadline.
+GiNaC::ex expand_checked(const GiNaC::ex& e, const Deadline& deadline, const std::string& where);
 
 }  // namespace ukdyn::symbolic
