@@ -130,9 +130,10 @@ struct Pair {
   std::vector<Index> quaternions;  // the first coordinate (qw) of each quaternion
 };
 
-Pair make_pair(const sym::ChainDef& c) {
+// derive false: the symbolic link poses only (no Lagrange's equations).
+Pair make_pair(const sym::ChainDef& c, bool derive = true) {
   Pair p{sym::build_chain(c), nullptr, nullptr, {}};
-  p.symbolic = sym::make_subsystem(p.model.def);
+  if (derive) p.symbolic = sym::make_subsystem(p.model.def);
   sym::ChainTree t = sym::chain_tree(c);
   EXPECT_TRUE(t.model) << t.reason;
   if (t.model) p.tree = tree::make_subsystem(std::move(*t.model));
@@ -264,7 +265,7 @@ TEST(TreeQuaternion, BallJointInTheMiddleMatchesTheSymbolicDerivation) {
 // directions (with radial components), at unit and non-unit quaternions.
 TEST(TreeQuaternion, InverseDynamicsTangentMatchesDifferences) {
   for (const auto& c : {floating_arm(9.81), ball_arm(9.81)}) {
-    const Pair p = make_pair(c);
+    const Pair p = make_pair(c, false);
     ASSERT_TRUE(p.tree);
     const auto& tr = *p.tree;
     const Index n = tr.dof();
@@ -331,7 +332,7 @@ void symbolic_pose(const sym::ChainDef& c, const sym::ChainModel& model, const s
 // frame_state.
 TEST(TreeQuaternion, FramesMatchTheSymbolicKinematics) {
   for (const auto& c : {floating_arm(9.81), ball_arm(9.81)}) {
-    const Pair p = make_pair(c);
+    const Pair p = make_pair(c, false);
     ASSERT_TRUE(p.tree);
     const auto& tr = *p.tree;
     const Index n = tr.dof();
@@ -415,7 +416,7 @@ TEST(TreeQuaternion, FramesMatchTheSymbolicKinematics) {
 TEST(TreeQuaternion, FreeFlightKeepsMomentumAndEnergy) {
   sym::ChainDef c = floating_arm(0.0);
   c.gravity = {0, 0, 0};
-  const Pair p = make_pair(c);
+  const Pair p = make_pair(c, false);
   ASSERT_TRUE(p.tree);
   const auto system = with_norm_rows(p.tree, p.model);
   const Index n = system->dof();
