@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <random>
 
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/robot_files/mjcf.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -585,5 +586,47 @@ TEST(TreeQuaternion, ChristoffelMatrixMatchesTheSymbolicDerivation) {
     EXPECT_LE(skew, 1e-7);
     std::printf("%s: Christoffel C tree vs symbolic %.3g, C qd vs RNEA %.3g, Mdot - 2C skew %.3g\n",
                 c.name().c_str(), dC, dCqd, skew);
+  }
+}
+
+// The exact derivatives of q̈ of the constrained system (ukdyn::linearize: the tree's
+// inverse_dynamics_tangent and the norm rows' tapes) against Richardson-extrapolated central
+// differences of forward(), every column of ∂q̈/∂q (radial quaternion directions included),
+// ∂q̈/∂q̇ and ∂q̈/∂τ, at a state moving along the constraints.
+TEST(TreeQuaternion, LinearizationMatchesDifferencesOfForward) {
+  for (const auto& c : {floating_arm(9.81), ball_arm(9.81)}) {
+    const Pair p = make_pair(c, false);
+    ASSERT_TRUE(p.tree);
+    const auto sys = with_norm_rows(p.tree, p.model);
+    ASSERT_TRUE(ukdyn::components_without_derivatives(*sys).empty());
+    const Index n = sys->dof();
+    std::mt19937_64 rng(31);
+    Vec q, qd;
+    random_state(rng, p.quaternions, n, q, qd, true);
+    const Vec tau = Vec::LinSpaced(n, -0.5, 0.7);
+    const ukdyn::Linearization l = ukdyn::linearize(*sys, 0.0, q, qd, tau);
+    EXPECT_TRUE(l.trusted) << l.message;
+    ForwardData d(*sys);
+    double worst = 0;
+    for (int which = 0; which < 3; ++which) {
+      const Mat& exact = which == 0 ? l.dqdd_dq : which == 1 ? l.dqdd_dqd : l.dqdd_dtau;
+      for (Index j = 0; j < n; ++j) {
+        auto central = [&](double h) {
+          Vec x[3] = {q, qd, tau}, y[3] = {q, qd, tau};
+          x[which](j) += h;
+          y[which](j) -= h;
+          ukdyn::forward(*sys, d, 0.0, x[0], x[1], x[2]);
+          const Vec a = d.qdd;
+          ukdyn::forward(*sys, d, 0.0, y[0], y[1], y[2]);
+          return Vec((a - d.qdd) / (2 * h));
+        };
+        const Vec diff = (4 * central(5e-4) - central(1e-3)) / 3;
+        worst = std::max(worst, (exact.col(j) - diff).cwiseAbs().maxCoeff() /
+                                    (1.0 + diff.cwiseAbs().maxCoeff()));
+      }
+    }
+    EXPECT_LE(worst, 1e-6);
+    std::printf("%s: linearize() vs central differences of forward(), all columns: %.3g\n",
+                c.name().c_str(), worst);
   }
 }
