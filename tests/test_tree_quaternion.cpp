@@ -630,3 +630,38 @@ TEST(TreeQuaternion, LinearizationMatchesDifferencesOfForward) {
                 c.name().c_str(), worst);
   }
 }
+
+// A tree's floating or ball joint with the wrong number of coordinates, or a variable that is not
+// one coordinate, is refused naming the link (tree::validate).
+TEST(TreeQuaternion, BadQuaternionJointsAreRefusedNamingTheLink) {
+  tree::Model m;
+  m.name = "t";
+  m.coordinates = {"x", "y", "z", "qw", "qx", "qy", "qz"};
+  tree::Link L;
+  L.name = "body";
+  L.joint = "float";
+  L.type = tree::JointType::floating;
+  L.mass = 1.0;
+  L.inertia = M3::Identity();
+  for (Index k = 0; k < 6; ++k) L.terms.push_back({k, 1.0});
+  m.links.push_back(L);
+  auto message = [](const tree::Model& model) {
+    try {
+      tree::validate(model);
+    } catch (const ukdyn::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_NE(message(m).find("link 'body': a floating joint has 7 coordinates, got 6"),
+            std::string::npos)
+      << message(m);
+  m.links[0].terms.push_back({6, 2.0});
+  EXPECT_NE(message(m).find("link 'body': its variables must be coordinates"), std::string::npos)
+      << message(m);
+  m.links[0].terms.back().coefficient = 1.0;
+  EXPECT_EQ(message(m), "accepted");
+  m.links[0].type = tree::JointType::ball;
+  EXPECT_NE(message(m).find("a ball joint has 4 coordinates, got 7"), std::string::npos)
+      << message(m);
+}
