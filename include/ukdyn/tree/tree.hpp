@@ -17,7 +17,9 @@
 // Ball and floating joints take unit-quaternion coordinates with the symbolic chain's conventions
 // (symbolic/chain.hpp, free_body.hpp; docs/tree-algorithms.md, "Quaternion joints"): a ball joint
 // turns its link by R(u), the homogeneous quaternion matrix of u = (qw, qx, qy, qz), about the
-// joint origin; a floating joint first moves it by (x, y, z) along the joint frame's axes.
+// joint origin; a floating joint first moves it by (x, y, z) along the joint frame's axes. R(u) is
+// |u|² times a rotation, so off |u| = 1 the link poses below (link_pose, frame_state) are scaled as
+// the symbolic link poses are; M, C q̇, G equal the symbolic ones on |u| = 1.
 #pragma once
 
 #include <Eigen/Core>
@@ -118,6 +120,8 @@ class TreeSubsystem : public Subsystem {
   /// The Christoffel matrix C_ij = Σ_k ½(∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k (Ṁ − 2C
   /// skew-symmetric), with ∂M/∂θ_k by forward-mode automatic differentiation of the
   /// composite-rigid-body algorithm (Eigen's AutoDiffScalar): one pass per joint, allocates.
+  /// With ball joints, ∂M/∂q along each quaternion's radial direction is the symbolic chain's
+  /// (docs/tree-algorithms.md, "Quaternion joints"), so C is the symbolic C on |u| = 1.
   void coriolis(const EvalContext& c, CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(const EvalContext& c, CVecRef q, VecRef G) const override;
