@@ -115,24 +115,14 @@ void TreeBuilder::variable(const JointDef& j, const std::string& where, tree::Li
     throw NotNumbers{where + ": its value '" + str(*j.value) + "' is constant"};
 }
 
-// A floating joint's 7 (a ball joint's 4) coordinates, as build_chain checks them
-// (check_quaternion_joint): its variables are these coordinates.
+// A floating joint's 7 (a ball joint's 4) coordinates, checked as build_chain checks them: its
+// variables are these coordinates.
 void TreeBuilder::quaternion_joint(const JointDef& j, const std::string& where,
                                    tree::Link& link) const {
-  const bool floating = j.type == JointDef::Type::floating;
-  const std::size_t nc = floating ? 7 : 4;
-  const std::string kind = floating ? "a floating" : "a ball";
-  if (j.coordinates.size() != nc) {
-    throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
-                          " coordinates (" +
-                          (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") + "), got " +
-                          std::to_string(j.coordinates.size()));
-  }
+  check_quaternion_joint(c_, j, where);
   for (const auto& c : j.coordinates) link.terms.push_back({coordinate(c, where), 1.0});
-  if (j.value || !j.coordinate.empty())
-    throw DefinitionError(where + ": " + kind +
-                          " joint takes coordinates, not a coordinate or value");
-  link.type = floating ? tree::JointType::floating : tree::JointType::ball;
+  link.type =
+      j.type == JointDef::Type::floating ? tree::JointType::floating : tree::JointType::ball;
 }
 
 // x and y along the mount's axes, then the yaw about its z (build_chain's place_base).

@@ -27,4 +27,9 @@ struct ChainTree {
 /// build_chain refuses too (duplicate joints or links, unknown parents or coordinates, zero axes).
 ChainTree chain_tree(const ChainDef& chain);
 
+/// What build_chain checks of a floating or ball joint `j` (shared with chain_tree): 7 (4)
+/// coordinates, each a coordinate of the chain, and no coordinate or value. Throws
+/// DefinitionError with `where` (the joint) in front.
+void check_quaternion_joint(const ChainDef& chain, const JointDef& j, const std::string& where);
+
 }  // namespace ukdyn::symbolic
