@@ -20,6 +20,8 @@
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/simulate/simulate.hpp"
+#include "ukdyn/symbolic/chain_tree.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "control_systems.hpp"
 #include "ukdyn/output/constraint_force_output.hpp"
@@ -258,6 +260,64 @@ TEST(NoAlloc, DefinitionsSystemRightHandSideAllocatesNothing) {
     for (int k = 0; k < 20; ++k) ukdyn::forward(*sys, data, 0.05 * k, q0, qd, tau);
   });
   EXPECT_EQ(n, 0) << "forward() on the definitions system allocated " << n << " times";
+}
+
+// A floating body carrying a revolute and a ball joint on the tree algorithms (quaternion joints,
+// docs/tree-algorithms.md) with the unit-norm rows: forward(), the exact derivatives and a frame's
+// state in the subsystem's slot allocate nothing.
+TEST(NoAlloc, QuaternionTreeForwardAllocatesNothing) {
+  namespace sym = ukdyn::symbolic;
+  sym::ChainDef c("qt", {"x", "y", "z", "qw", "qx", "qy", "qz", "t1", "bw", "bx", "by", "bz"});
+  c.gravity = {0, 0, -9.81};
+  auto& f = c.add_joint("float", sym::JointDef::Type::floating, "body");
+  f.coordinates = {"x", "y", "z", "qw", "qx", "qy", "qz"};
+  f.inertial.mass = 2;
+  f.inertial.com = {0.1, 0, 0};
+  f.inertial.inertia = {0.1, 0, 0, 0, 0.2, 0, 0, 0, 0.3};
+  auto& j = c.add_joint("j1", sym::JointDef::Type::revolute, "arm");
+  j.coordinate = "t1";
+  j.origin.xyz = {0.2, 0, 0};
+  j.inertial.mass = 1;
+  j.inertial.com = {0.1, 0, 0};
+  j.inertial.inertia = {0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.02};
+  auto& b = c.add_joint("wrist", sym::JointDef::Type::ball, "hand");
+  b.coordinates = {"bw", "bx", "by", "bz"};
+  b.origin.xyz = {0.3, 0, 0};
+  b.inertial.mass = 0.5;
+  b.inertial.com = {0.05, 0.01, 0};
+  b.inertial.inertia = {0.002, 0, 0, 0, 0.003, 0, 0, 0, 0.004};
+  sym::ChainTree t = sym::chain_tree(c);
+  ASSERT_TRUE(t.model) << t.reason;
+  const auto tree = ukdyn::tree::make_subsystem(std::move(*t.model));
+  auto sys = std::make_shared<ukdyn::System>();
+  sys->add_subsystem(tree);
+  const std::vector<std::vector<std::string>> quats = {{"qw", "qx", "qy", "qz"},
+                                                       {"bw", "bx", "by", "bz"}};
+  for (const auto& qn : quats)
+    sys->add_constraint(sym::make_constraint(
+        sym::free_body_norm_constraint("qt_" + qn[0], qn, sys->coordinate_names())));
+  const Eigen::Index n = sys->dof();
+  Vec q = Vec::LinSpaced(n, -0.8, 0.9), qd = Vec::LinSpaced(n, 0.4, -0.3);
+  q.segment(3, 4).normalize();
+  q.segment(8, 4).normalize();
+  const Vec tau = Vec::Zero(n), dq = Vec::Ones(n);
+  ukdyn::ForwardData data(*sys);
+  ukdyn::forward(*sys, data, 0.0, q, qd, tau);
+  ASSERT_TRUE(data.result.finite);
+  std::vector<double> slot(static_cast<std::size_t>(tree->slot_size()));
+  std::vector<double> buf(static_cast<std::size_t>(12 * n));
+  ukdyn::tree::FrameState fs(buf.data(), buf.data() + 3 * n, n);
+  Vec dID(n);
+  const int hand = tree->link_index("hand");
+  const long count = allocations_in([&] {
+    for (int k = 0; k < 20; ++k) {
+      ukdyn::forward(*sys, data, 0.01 * k, q, qd, tau);
+      tree->inverse_dynamics_tangent({0.0, ukdyn::Slot(slot)}, q, qd, data.qdd, dq, dq, dID);
+      tree->frame_state(q, qd, hand, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
+                        ukdyn::Slot(slot), fs);
+    }
+  });
+  EXPECT_EQ(count, 0) << "the quaternion tree allocated " << count << " times";
 }
 
 // The block-arrow solve (ukdyn/core/uk_arrow.hpp) at several N, with every rank decision taken

@@ -229,6 +229,9 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::shared_ptr<const tree::TreeSubsystem>> trees;
   /// Per chain with a limit: the limits of its coordinates (ChainDef::coordinate_limits).
   std::map<std::string, std::vector<CoordinateLimits>> limits;
+  /// Per chain: its floating and ball joints' quaternion coordinates (ChainModel::quaternions),
+  /// whether it runs on the tree algorithms or not (their unit-norm rows).
+  std::map<std::string, std::vector<std::pair<std::string, std::vector<std::string>>>> quaternions;
   /// What the robot file readers noted (ChainDef::notes), each line once.
   std::vector<std::string> notes;
 };
@@ -524,6 +527,15 @@ const sym::ChainModel* chain_model(const DefinitionContext* context, const std::
   if (!context) return nullptr;
   auto it = context->chains.find(name);
   return it == context->chains.end() ? nullptr : &it->second;
+}
+
+std::vector<std::pair<std::string, std::vector<std::string>>> chain_quaternions(
+    const DefinitionContext* context, const std::string& name) {
+  if (!context) return {};
+  auto it = context->quaternions.find(name);
+  return it == context->quaternions.end()
+             ? std::vector<std::pair<std::string, std::vector<std::string>>>{}
+             : it->second;
 }
 
 std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
@@ -873,6 +885,13 @@ void record_chain(DefinitionContext& context, const std::string& name,
   }
   for (const auto& pt : def->points) edges.emplace_back(pt.link, pt.name);
   if (def->base.enabled) context.base_coordinates[name] = {def->base.x, def->base.y};
+  for (const auto& j : def->joints) {  // as build_chain lists them (ChainModel::quaternions)
+    if (j.type == sym::JointDef::Type::floating || j.type == sym::JointDef::Type::ball) {
+      const long o = j.type == sym::JointDef::Type::floating ? 3 : 0;
+      context.quaternions[name].emplace_back(
+          j.name, std::vector<std::string>(j.coordinates.begin() + o, j.coordinates.end()));
+    }
+  }
   for (const auto& j : def->joints) {
     if (j.type == sym::JointDef::Type::prismatic && !j.coordinate.empty())
       context.prismatic_coordinates[name].push_back(j.coordinate);

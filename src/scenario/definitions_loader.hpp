@@ -96,6 +96,10 @@ std::vector<symbolic::LinkConstraintDef> chain_link_constraints(const Definition
                                                                 const std::string& name);
 /// The chain model of serial_chain subsystem `name` (null if none, or no context).
 const symbolic::ChainModel* chain_model(const DefinitionContext* context, const std::string& name);
+/// Its floating and ball joints: (joint, its quaternion coordinates qw, qx, qy, qz), on the tree
+/// algorithms as on the symbolic derivation.
+std::vector<std::pair<std::string, std::vector<std::string>>> chain_quaternions(
+    const DefinitionContext* context, const std::string& name);
 /// Its link tree: (parent link, child link) per joint, then (link, point name) per named point.
 std::vector<std::pair<std::string, std::string>> chain_edges(const DefinitionContext* context,
                                                              const std::string& name);

@@ -380,10 +380,8 @@ void check_initial_quaternions(const Loader& L, const Scenario& sc, const Loadin
   std::vector<std::pair<std::string, std::vector<std::string>>> all;
   for (const auto& [fb, quat] : st.free_bodies) all.push_back({"free body '" + fb + "'", quat});
   for (const auto& info : sc.subsystems) {
-    const symbolic::ChainModel* chain =
-        io_detail::chain_model(st.definition_context.get(), info.name);
-    if (!chain) continue;
-    for (const auto& [joint, quat] : chain->quaternions)
+    for (const auto& [joint, quat] :
+         io_detail::chain_quaternions(st.definition_context.get(), info.name))
       all.push_back({"joint '" + joint + "' of chain '" + info.name + "'", quat});
   }
   for (const auto& [what, quat] : all) {
@@ -508,10 +506,8 @@ void add_quaternion_norms(const Loader& L, const Scenario& sc, const Loading& st
     }
   }
   for (const auto& info : sc.subsystems) {  // floating joints of chains: NAME_JOINT_unit
-    const symbolic::ChainModel* chain =
-        io_detail::chain_model(st.definition_context.get(), info.name);
-    if (!chain) continue;
-    for (const auto& [joint, quat] : chain->quaternions) {
+    for (const auto& [joint, quat] :
+         io_detail::chain_quaternions(st.definition_context.get(), info.name)) {
       try {
         sink.add(st.subs,
                  symbolic::make_constraint(symbolic::free_body_norm_constraint(

@@ -10,6 +10,7 @@
 #include "symbolic/ex_helpers.hpp"
 #include "symbolic/mat3.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/chain_tree.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
 
 namespace ukdyn::symbolic {
@@ -241,7 +242,6 @@ class ChainBuilder {
   void add_body(const std::string& name, const Pose& f, const InertialDef& in);
   void place_base(const Pose& root, const Mat3Ex& Rm);
   [[nodiscard]] const Pose& parent_frame(const JointDef& j, const std::string& where);
-  void check_quaternion_joint(const JointDef& j, const std::string& where, bool floating) const;
   void apply_quaternion_joint(const JointDef& j, const std::string& where, Pose& jf);
   [[nodiscard]] ex joint_value(const JointDef& j, const std::string& where) const;
   void apply_axis_joint(const JointDef& j, const std::string& where, Pose& jf) const;
@@ -351,34 +351,13 @@ const Pose& ChainBuilder::parent_frame(const JointDef& j, const std::string& whe
   return pit->second;
 }
 
-// A floating joint's 7 (a ball joint's 4) coordinates, all of the chain, and no coordinate or
-// value.
-void ChainBuilder::check_quaternion_joint(const JointDef& j, const std::string& where,
-                                          bool floating) const {
-  const std::size_t nc = floating ? 7 : 4;
-  const std::string kind = floating ? "a floating" : "a ball";
-  if (j.coordinates.size() != nc) {
-    throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
-                          " coordinates (" +
-                          (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") + "), got " +
-                          std::to_string(j.coordinates.size()));
-  }
-  for (const auto& c : j.coordinates) {
-    if (!has_coord(c))
-      throw DefinitionError(where + ": '" + c + "' is not a coordinate of the chain");
-  }
-  if (j.value || !j.coordinate.empty())
-    throw DefinitionError(where + ": " + kind +
-                          " joint takes coordinates, not a coordinate or value");
-}
-
 void ChainBuilder::apply_quaternion_joint(const JointDef& j, const std::string& where, Pose& jf) {
   // Position + unit quaternion (docs/free-bodies.md, "Floating joints"): p = p_joint +
   // R_joint (x, y, z) (floating only), R = R_joint R(q), ω_body = R(q)ᵀ ω_joint + 2 E(q) q̇,
   // the free body's rate (free_body.hpp) plus the joint frame's own angular velocity.
   const bool floating = j.type == JointDef::Type::floating;
   const std::size_t nc = floating ? 7 : 4;
-  check_quaternion_joint(j, where, floating);
+  check_quaternion_joint(chain_, j, where);
   // The joint frame's angular velocity in its own axes (jf.R is orthonormal off a floating
   // part: products of rotations about axes).
   Vec3Ex wj = jf.wb;
@@ -498,6 +477,26 @@ ChainModel ChainBuilder::build() {
 }
 
 }  // namespace
+
+void check_quaternion_joint(const ChainDef& chain, const JointDef& j, const std::string& where) {
+  const bool floating = j.type == JointDef::Type::floating;
+  const std::size_t nc = floating ? 7 : 4;
+  const std::string kind = floating ? "a floating" : "a ball";
+  if (j.coordinates.size() != nc) {
+    throw DefinitionError(where + ": " + kind + " joint has " + std::to_string(nc) +
+                          " coordinates (" +
+                          (floating ? "x, y, z, qw, qx, qy, qz" : "qw, qx, qy, qz") + "), got " +
+                          std::to_string(j.coordinates.size()));
+  }
+  const auto& cs = chain.coordinates();
+  for (const auto& c : j.coordinates) {
+    if (std::find(cs.begin(), cs.end(), c) == cs.end())
+      throw DefinitionError(where + ": '" + c + "' is not a coordinate of the chain");
+  }
+  if (j.value || !j.coordinate.empty())
+    throw DefinitionError(where + ": " + kind +
+                          " joint takes coordinates, not a coordinate or value");
+}
 
 ChainModel build_chain(const ChainDef& chain) { return build_chain(chain, Deadline()); }
 

@@ -34,6 +34,7 @@ class TreeBuilder {
   [[nodiscard]] Index coordinate(const std::string& name, const std::string& where) const;
   void inertial(const InertialDef& in, const std::string& where, tree::Link& link) const;
   void variable(const JointDef& j, const std::string& where, tree::Link& link) const;
+  void quaternion_joint(const JointDef& j, const std::string& where, tree::Link& link) const;
   void base();
   void joint(const JointDef& j);
 
@@ -114,6 +115,16 @@ void TreeBuilder::variable(const JointDef& j, const std::string& where, tree::Li
     throw NotNumbers{where + ": its value '" + str(*j.value) + "' is constant"};
 }
 
+// A floating joint's 7 (a ball joint's 4) coordinates, checked as build_chain checks them: its
+// variables are these coordinates.
+void TreeBuilder::quaternion_joint(const JointDef& j, const std::string& where,
+                                   tree::Link& link) const {
+  check_quaternion_joint(c_, j, where);
+  for (const auto& c : j.coordinates) link.terms.push_back({coordinate(c, where), 1.0});
+  link.type =
+      j.type == JointDef::Type::floating ? tree::JointType::floating : tree::JointType::ball;
+}
+
 // x and y along the mount's axes, then the yaw about its z (build_chain's place_base).
 void TreeBuilder::base() {
   const MobileBaseDef& B = c_.base;
@@ -165,8 +176,6 @@ void TreeBuilder::joint(const JointDef& j) {
       throw DefinitionError(where + ": no parent link '" + j.parent + "' defined before it");
     parent = it->second;
   }
-  if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball)
-    throw NotNumbers{where + " is a floating or ball joint"};
   tree::Link L;
   L.name = j.link;
   L.joint = j.name;
@@ -175,6 +184,8 @@ void TreeBuilder::joint(const JointDef& j) {
   L.origin_rotation = rpy(j.origin.rpy, where + ": the origin rpy");
   if (j.type == JointDef::Type::fixed) {
     L.type = tree::JointType::fixed;
+  } else if (j.type == JointDef::Type::floating || j.type == JointDef::Type::ball) {
+    quaternion_joint(j, where, L);
   } else {
     L.type =
         j.type == JointDef::Type::revolute ? tree::JointType::revolute : tree::JointType::prismatic;
@@ -193,7 +204,6 @@ void TreeBuilder::joint(const JointDef& j) {
 }
 
 tree::Model TreeBuilder::build() {
-  if (!c_.floating_root.empty()) throw NotNumbers{"the root is on a floating joint"};
   if (!c_.extra_potential.is_zero()) throw NotNumbers{"the chain has an extra potential"};
   if (!c_.bodies.empty()) throw NotNumbers{"the chain has bodies besides its links"};
   m_.name = c_.name();

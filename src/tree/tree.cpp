@@ -23,19 +23,43 @@ using V3 = Eigen::Matrix<S, 3, 1>;
 template <class S>
 using M3 = Eigen::Matrix<S, 3, 3>;
 
+// Joint variables of a joint: a ball joint has four (its quaternion), a revolute or prismatic
+// joint one, a fixed joint none (floating joints are split into three prismatic joints and a
+// ball joint before the passes: TreeSubsystem's constructor).
+int variables(JointType t) {
+  if (t == JointType::fixed) return 0;
+  return t == JointType::ball ? 4 : 1;
+}
+
 // What one evaluation computes per link (the workspace).
+//
+// Motion and force vectors are those of Featherstone's absolute coordinates (§2.9) extended by one
+// component for the quaternion joints. R(u), the homogeneous quaternion matrix the symbolic chain
+// uses, is |u|² times a rotation, so a link below a ball joint is placed by a similarity (a
+// rotation and a scale); its velocity field is v(x) = v_O + ω × x + λ x (λ: the rate of the log of
+// the scale), a motion (ω, λ, v_O), and a force (n_O, e, f) pairs with it as ω·n_O + λ e + v_O·f
+// (e = Σ x·f, the virial). In trees without ball joints λ = 0 and every pass is the rigid one.
 template <class S>
 struct LinkState {
-  M3<S> R;       // link frame → world
-  V3<S> p;       // link frame origin in the world
-  V3<S> sw, sv;  // motion axis S = (sw, sv) about the world origin (movable joints)
+  M3<S> R;  // link frame → world (|u|² times a rotation per ball joint above)
+  V3<S> p;  // link frame origin in the world
+  // Motion axes S_k = (sw, sl, sv) about the world origin, one per joint variable.
+  V3<S> sw[4], sv[4];
+  S sl[4];
+  S sc, qs;  // the scale of R (Π |u|² of the ball joints at or above); a ball joint's 2 / |u|²
   // Spatial inertia about the world origin as (mass m, first moment h = m c, rotational inertia
-  // Ī = I_c + m(|c|² 1 − c cᵀ)): the link's own and the composite of its subtree (CRBA).
-  S m_own, m;
-  V3<S> h_own, h;
-  M3<S> I_own, I;
-  V3<S> vw, vv, aw, av;  // velocity and velocity-product acceleration (RNEA)
+  // Ī = I_c + m(|c|² 1 − c cᵀ), k = m |c|²): the link's own and the composite of its subtree.
+  S m_own, m, k_own, k;
+  V3<S> h_own, h, c;     // c: the CoM in the world
+  M3<S> I_own, I, Ic;    // Ic: the link's inertia about its CoM in world axes
+  V3<S> vw, vv, aw, av;  // velocity and acceleration (RNEA)
+  S vl, al, lj;          // their λ parts; lj: a ball joint's own λ
   V3<S> fn, ff;          // force of the subtree (RNEA)
+  S fe;
+  // The terms of the symbolic body rate (rate_scale_terms): Σ Ic ω and Σ Ic of the subtree, Σ λ ω
+  // of the ball joints at or above, Σ λ (H + Ir ω) of those at or below.
+  M3<S> Ir;
+  V3<S> H, Y, Z;
 };
 
 static_assert(sizeof(LinkState<double>) % sizeof(double) == 0 &&
@@ -70,54 +94,102 @@ M3<S> axis_rotation(const Eigen::Vector3d& a, const S& th) {
   return R;
 }
 
-// Link poses, motion axes and own inertias at the joint variables theta (Featherstone §4.1: the
-// forward pass of placement, parent before child).
+// A ball joint at pj with joint frame Rj (scale sc) and quaternion u = (w, x, y, z): the link's
+// R = Rj R(u), R(u) as the symbolic chain's quaternion_rotation (symbolic/free_body.cpp), and the
+// motion axes of its four variables: the rotation ω = 2 G(u) u̇ / |u|² in the joint frame
+// (G(u) = [−x w −z y; −y z w −x; −z −y x w], the space-frame rate matrix: R(u) E(u) = |u|² G(u)
+// with the body-frame E of free_body.hpp), turned to the world by Rj / sc, and the scale's rate
+// λ = 2 u·u̇ / |u|², both about pj.
 template <class S>
-void place(const Model& m, const std::vector<int>& ti, const S* theta, LinkState<S>* ws) {
+void place_ball(const M3<S>& Rj, const V3<S>& pj, const S& sc, const S* u, LinkState<S>& w) {
+  const S qw = u[0], qx = u[1], qy = u[2], qz = u[3];
+  M3<S> Ru;
+  Ru(0, 0) = qw * qw + qx * qx - qy * qy - qz * qz;
+  Ru(0, 1) = S(2.0) * (qx * qy - qw * qz);
+  Ru(0, 2) = S(2.0) * (qx * qz + qw * qy);
+  Ru(1, 0) = S(2.0) * (qx * qy + qw * qz);
+  Ru(1, 1) = qw * qw - qx * qx + qy * qy - qz * qz;
+  Ru(1, 2) = S(2.0) * (qy * qz - qw * qx);
+  Ru(2, 0) = S(2.0) * (qx * qz - qw * qy);
+  Ru(2, 1) = S(2.0) * (qy * qz + qw * qx);
+  Ru(2, 2) = qw * qw - qx * qx - qy * qy + qz * qz;
+  const S n2 = qw * qw + qx * qx + qy * qy + qz * qz;
+  w.R = Rj * Ru;
+  w.p = pj;
+  w.qs = S(2.0) / n2;
+  w.sc = sc * n2;
+  const V3<S> g[4] = {V3<S>(S(-qx), S(-qy), S(-qz)), V3<S>(qw, qz, S(-qy)), V3<S>(S(-qz), qw, qx),
+                      V3<S>(qy, S(-qx), qw)};
+  const M3<S> Rw = Rj * (w.qs / sc);
+  for (int k = 0; k < 4; ++k) {
+    w.sw[k] = Rw * g[k];
+    w.sl[k] = u[k] * w.qs;
+    w.sv[k] = pj.cross(w.sw[k]) - pj * w.sl[k];
+  }
+}
+
+// Link poses, motion axes and own inertias at the joint variables theta (Featherstone §4.1: the
+// forward pass of placement, parent before child). quat: the tree has ball joints (scales).
+template <class S>
+void place(const Model& m, const std::vector<int>& ti, bool quat, const S* theta,
+           LinkState<S>* ws) {
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     const Link& L = m.links[i];
     LinkState<S>& w = ws[i];
     M3<S> Rp;
     V3<S> pp;
+    S sc(1.0);
     if (L.parent < 0) {
       Rp = m.root_rotation.cast<S>();
       pp = m.root_translation.cast<S>();
     } else {
       Rp = ws[L.parent].R;
       pp = ws[L.parent].p;
+      if (quat) sc = ws[L.parent].sc;
     }
     const M3<S> Rj = Rp * L.origin_rotation.cast<S>();
     const V3<S> pj = pp + Rp * L.origin_translation.cast<S>();
+    w.sc = sc;
+    w.sl[0] = S(0.0);
     if (L.type == JointType::revolute) {
       w.R = Rj * axis_rotation<S>(L.axis, theta[ti[i]]);
       w.p = pj;
-      w.sw = Rj * L.axis.cast<S>();
-      w.sv = pj.cross(w.sw);  // v_O = ω × (0 − p_j) = p_j × z
+      w.sw[0] = Rj * L.axis.cast<S>();
+      if (quat) w.sw[0] /= sc;      // the axis of the rotation part of Rj
+      w.sv[0] = pj.cross(w.sw[0]);  // v_O = ω × (0 − p_j) = p_j × z
     } else if (L.type == JointType::prismatic) {
       w.R = Rj;
-      w.sw.setZero();
-      w.sv = Rj * L.axis.cast<S>();
-      w.p = pj + w.sv * theta[ti[i]];
+      w.sw[0].setZero();
+      w.sv[0] = Rj * L.axis.cast<S>();
+      w.p = pj + w.sv[0] * theta[ti[i]];
+    } else if (L.type == JointType::ball) {
+      place_ball<S>(Rj, pj, sc, theta + ti[i], w);
     } else {
       w.R = Rj;
       w.p = pj;
     }
     if (L.mass == 0.0 && L.inertia.isZero(0.0)) {  // a massless frame (flange, tool0)
       w.m_own = S(0.0);
+      w.k_own = S(0.0);
       w.h_own.setZero();
       w.I_own.setZero();
+      w.Ic.setZero();
+      w.c = w.p;
       continue;
     }
     const V3<S> c = w.p + w.R * L.com.cast<S>();
+    w.c = c;
     w.m_own = S(L.mass);
     w.h_own = c * w.m_own;
-    w.I_own = w.R * L.inertia.cast<S>() * w.R.transpose() +
-              w.m_own * (dot3(c, c) * M3<S>::Identity() - c * c.transpose());
+    w.k_own = w.m_own * dot3(c, c);
+    w.Ic = w.R * L.inertia.cast<S>() * w.R.transpose();
+    w.I_own = w.Ic + w.m_own * (dot3(c, c) * M3<S>::Identity() - c * c.transpose());
   }
 }
 
-// (n, f) = I (w, v) for the spatial inertia (m, h, Ī) about the world origin:
-// n = Ī ω + h × v, f = m v − h × ω.
+// (n, e, f) = I (w, l, v) for the spatial inertia (m, h, Ī, k) about the world origin (the
+// gradient of the kinetic energy ½ m |v + ω × c + λ c|² + ½ ωᵀ I_c ω): n = Ī ω + h × v,
+// f = m v − h × ω + λ h, e = h · v + k λ.
 template <class S>
 void apply_inertia(const S& m, const V3<S>& h, const M3<S>& I, const V3<S>& w, const V3<S>& v,
                    V3<S>& n, V3<S>& f) {
@@ -133,6 +205,7 @@ void composite(const Model& m, LinkState<S>* ws) {
     ws[i].m = ws[i].m_own;
     ws[i].h = ws[i].h_own;
     ws[i].I = ws[i].I_own;
+    ws[i].k = ws[i].k_own;
   }
   for (std::size_t i = n; i-- > 0;) {
     const int p = m.links[i].parent;
@@ -140,138 +213,238 @@ void composite(const Model& m, LinkState<S>* ws) {
     ws[p].m += ws[i].m;
     ws[p].h += ws[i].h;
     ws[p].I += ws[i].I;
+    ws[p].k += ws[i].k;
   }
+}
+
+// ⟨S_k of link w, (n, e, f)⟩ = sw · n + sl e + sv · f.
+template <class S>
+S pair(const LinkState<S>& w, int k, const V3<S>& n, const S& e, const V3<S>& f, bool quat) {
+  const S r = dot3(w.sw[k], n) + dot3(w.sv[k], f);
+  return quat ? S(r + w.sl[k] * e) : r;
 }
 
 // M_θ (nt × nt, column-major in Mt) from the composite inertias: M_ii = S_iᵀ I^c_i S_i and, for
-// each ancestor j of i, M_ij = M_ji = S_jᵀ (I^c_i S_i) (Featherstone Table 6.2).
+// each ancestor j of i, M_ij = M_ji = S_jᵀ (I^c_i S_i) (Featherstone Table 6.2), one row and
+// column per joint variable.
 template <class S>
-void crba(const Model& m, const std::vector<int>& ti, const LinkState<S>* ws, S* Mt, Index nt) {
+void crba(const Model& m, const std::vector<int>& ti, bool quat, const LinkState<S>* ws, S* Mt,
+          Index nt) {
   for (Index k = 0; k < nt * nt; ++k) Mt[k] = S(0.0);
   for (std::size_t i = 0; i < m.links.size(); ++i) {
-    const int a = ti[i];
-    if (a < 0) continue;
-    V3<S> n, f;
-    apply_inertia(ws[i].m, ws[i].h, ws[i].I, ws[i].sw, ws[i].sv, n, f);
-    Mt[a + a * nt] = dot3(ws[i].sw, n) + dot3(ws[i].sv, f);
-    for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
-      const int b = ti[static_cast<std::size_t>(j)];
-      if (b < 0) continue;
-      const S v = dot3(ws[j].sw, n) + dot3(ws[j].sv, f);
-      Mt[a + b * nt] = v;
-      Mt[b + a * nt] = v;
+    if (ti[i] < 0) continue;
+    const LinkState<S>& w = ws[i];
+    const int nv = variables(m.links[i].type);
+    for (int ka = 0; ka < nv; ++ka) {
+      const int a = ti[i] + ka;
+      V3<S> n, f;
+      apply_inertia(w.m, w.h, w.I, w.sw[ka], w.sv[ka], n, f);
+      S e(0.0);
+      if (quat) {
+        f += w.h * w.sl[ka];
+        e = dot3(w.h, w.sv[ka]) + w.k * w.sl[ka];
+      }
+      for (int kb = 0; kb < nv; ++kb) Mt[a + (ti[i] + kb) * nt] = pair(w, kb, n, e, f, quat);
+      for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+        const auto ju = static_cast<std::size_t>(j);
+        if (ti[ju] < 0) continue;
+        for (int kb = 0; kb < variables(m.links[ju].type); ++kb) {
+          const int b = ti[ju] + kb;
+          const S v = pair(ws[ju], kb, n, e, f, quat);
+          Mt[a + b * nt] = v;
+          Mt[b + a * nt] = v;
+        }
+      }
     }
   }
 }
 
-// C(θ, θ̇) θ̇ by the RNEA with no gravity and θ̈ = 0 (Featherstone Table 5.1 in world coordinates):
-// v_i = v_p + S_i θ̇_i, a_i = a_p + (v_p × S_i) θ̇_i (Ṡ_i = v_i × S_i = v_p × S_i),
-// f_i = I_i a_i + v_i ×* I_i v_i, then τ_i = S_iᵀ f_i with f summed into the parent.
+// The link's velocity and acceleration from its parent's (already in w) and its joint's motion
+// (Featherstone Table 5.1 in world coordinates): V = V_p + Σ S_k θ̇_k, A = A_p + Σ S_k θ̈_k +
+// [V_p, S_k] θ̇_k (Ṡ_k = V × S_k for an axis fixed in the parent) with the bracket of the
+// similarity motions, [(ω1, λ1, v1), (ω2, λ2, v2)] = (ω1 × ω2, 0, ω1 × v2 + λ1 v2 − ω2 × v1 −
+// λ2 v1); a ball joint adds the rate of its own axes, d/dt (2 G(u) / |u|², 2 u / |u|²) u̇ =
+// (−λ ω, 2 |u̇|² / |u|² − λ²) about its origin (G(u̇) u̇ = 0). thetadd null: θ̈ = 0.
 template <class S>
-void velocity_products(const Model& m, const std::vector<int>& ti, const S* thetad,
-                       LinkState<S>* ws, S* tau) {
-  const std::size_t n = m.links.size();
-  for (std::size_t i = 0; i < n; ++i) {
+void joint_motion(const Link& L, int first, bool quat, const S* thetad, const S* thetadd,
+                  LinkState<S>& w) {
+  const int nv = variables(L.type);
+  V3<S> jw = V3<S>::Zero(), jv = V3<S>::Zero();
+  S jl(0.0), ud2(0.0);
+  for (int k = 0; k < nv; ++k) {
+    const S qd = thetad[first + k];
+    w.aw += w.vw.cross(w.sw[k]) * qd;
+    w.av += (w.vw.cross(w.sv[k]) + w.vv.cross(w.sw[k])) * qd;
+    if (quat) {
+      w.av += (w.sv[k] * w.vl - w.vv * w.sl[k]) * qd;
+      jl += w.sl[k] * qd;
+      ud2 += qd * qd;
+    }
+    if (thetadd) {
+      const S qdd = thetadd[first + k];
+      w.aw += w.sw[k] * qdd;
+      w.av += w.sv[k] * qdd;
+      if (quat) w.al += w.sl[k] * qdd;
+    }
+    jw += w.sw[k] * qd;
+    jv += w.sv[k] * qd;
+  }
+  if (L.type == JointType::ball) {
+    const V3<S> aw = -jw * jl;
+    const S al = ud2 * w.qs - jl * jl;
+    w.aw += aw;
+    w.al += al;
+    w.av += w.p.cross(aw) - w.p * al;
+    w.lj = jl;
+  }
+  w.vw += jw;
+  w.vv += jv;
+  w.vl += jl;
+}
+
+// Link velocities and accelerations, parent before child: a_0 = (0, 0, a0) at the root (−g for
+// the inverse dynamics, §5.3; 0 for the velocity products).
+template <class S>
+void link_motion(const Model& m, const std::vector<int>& ti, bool quat, const S* thetad,
+                 const S* thetadd, const V3<S>& a0, LinkState<S>* ws) {
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
     LinkState<S>& w = ws[i];
     const int p = m.links[i].parent;
     if (p < 0) {
       w.vw.setZero();
       w.vv.setZero();
       w.aw.setZero();
-      w.av.setZero();
+      w.av = a0;
+      w.vl = S(0.0);
+      w.al = S(0.0);
     } else {
       w.vw = ws[p].vw;
       w.vv = ws[p].vv;
       w.aw = ws[p].aw;
       w.av = ws[p].av;
+      w.vl = ws[p].vl;
+      w.al = ws[p].al;
     }
-    if (ti[i] >= 0) {
-      const S qd = thetad[ti[i]];
-      // (v_p × S) = (ω_p × s_w, ω_p × s_v + v_p × s_w)
-      w.aw += w.vw.cross(w.sw) * qd;
-      w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd;
-      w.vw += w.sw * qd;
-      w.vv += w.sv * qd;
-    }
-    const Link& L = m.links[i];
-    if (L.mass == 0.0 && L.inertia.isZero(0.0)) {  // a massless frame: no force of its own
-      w.fn.setZero();
-      w.ff.setZero();
-      continue;
-    }
-    V3<S> n1, f1, n2, f2;
-    apply_inertia(w.m_own, w.h_own, w.I_own, w.vw, w.vv, n1, f1);  // momentum I v
-    apply_inertia(w.m_own, w.h_own, w.I_own, w.aw, w.av, n2, f2);  // I a
-    // (ω, v) ×* (n, f) = (ω × n + v × f, ω × f)
-    w.fn = n2 + w.vw.cross(n1) + w.vv.cross(f1);
-    w.ff = f2 + w.vw.cross(f1);
+    if (ti[i] >= 0) joint_motion(m.links[i], ti[i], quat, thetad, thetadd, w);
+  }
+}
+
+// The link's own force f_i = I_i a_i + v_i ×* I_i v_i (Newton–Euler). With scales (quat): the
+// CoM's acceleration c̈ = a_O + α × c + λ̇ c + ω × ċ + λ ċ (ċ = v_O + ω × c + λ c), f = m c̈,
+// n = c × f + I_c α + ω × I_c ω, e = c · f: Lagrange's equations of ½ m |ċ|² + ½ ωᵀ I_c ω.
+template <class S>
+void link_force(const Link& L, bool quat, LinkState<S>& w) {
+  w.fe = S(0.0);
+  if (L.mass == 0.0 && L.inertia.isZero(0.0)) {  // a massless frame: no force of its own
+    w.fn.setZero();
+    w.ff.setZero();
+    return;
+  }
+  if (quat) {
+    const V3<S> cd = w.vv + w.vw.cross(w.c) + w.c * w.vl;
+    const V3<S> cdd = w.av + w.aw.cross(w.c) + w.c * w.al + w.vw.cross(cd) + cd * w.vl;
+    w.ff = cdd * w.m_own;
+    w.fn = w.c.cross(w.ff) + w.Ic * w.aw + w.vw.cross(V3<S>(w.Ic * w.vw));
+    w.fe = dot3(w.c, w.ff);
+    return;
+  }
+  V3<S> n1, f1, n2, f2;
+  apply_inertia(w.m_own, w.h_own, w.I_own, w.vw, w.vv, n1, f1);  // momentum I v
+  apply_inertia(w.m_own, w.h_own, w.I_own, w.aw, w.av, n2, f2);  // I a
+  // (ω, v) ×* (n, f) = (ω × n + v × f, ω × f)
+  w.fn = n2 + w.vw.cross(n1) + w.vv.cross(f1);
+  w.ff = f2 + w.vw.cross(f1);
+}
+
+// The symbolic chain's body rate below a ball joint is ω_b = R(u)ᵀ ω_joint + 2 E(u) u̇ (chain.cpp),
+// which off |u| = 1 is not the rate of the rotation: d/dρ of it along the joint's radial direction
+// (ρ = ln |u|) is 2 ω_k (the rate of the link on the joint k, in the body's axes) where the
+// rotation's is 0. On |u| = 1 the two agree for every u̇, so their kinetic energies differ by ΔT
+// with ΔT = ∂ΔT/∂q̇ = 0 there and ∂ΔT/∂ρ_k = 2 ω_k · Σ_{b below k} I_b ω_b; Lagrange's equations
+// of ΔT add, with λ_k = 2 ρ̇_k:
+//   Δτ_i = S_iᵀ [Σ_{k at or below i} λ_k (H_k + Ir_k ω_k) + Ir_i Σ_{k above i} λ_k ω_k]
+//          − [q_i in k] (2 u_i / |u|²) ω_k · H_k,
+// H_k = Σ I_b ω_b and Ir_k = Σ I_b over the subtree of k (the derivation in
+// docs/tree-algorithms.md, "Quaternion joints"). Run after link_motion, on the velocities.
+template <class S>
+void rate_scale_terms(const Model& m, const std::vector<int>& ti, LinkState<S>* ws, S* tau) {
+  const std::size_t n = m.links.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    LinkState<S>& w = ws[i];
+    const int p = m.links[i].parent;
+    const bool ball = m.links[i].type == JointType::ball;
+    w.Y = p < 0 ? V3<S>::Zero() : ws[p].Y;
+    if (ball) w.Y += w.vw * w.lj;
+    w.H = w.Ic * w.vw;
+    w.Ir = w.Ic;
+    w.Z.setZero();
   }
   for (std::size_t i = n; i-- > 0;) {
     LinkState<S>& w = ws[i];
-    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw, w.fn) + dot3(w.sv, w.ff);
+    const Link& L = m.links[i];
+    const int p = L.parent;
+    if (L.type == JointType::ball) w.Z += (w.H + w.Ir * w.vw) * w.lj;
+    if (ti[i] >= 0) {
+      V3<S> t = w.Z;
+      if (p >= 0) t += w.Ir * ws[p].Y;
+      const S wh = dot3(w.vw, w.H);
+      for (int k = 0; k < variables(L.type); ++k) {
+        tau[ti[i] + k] += dot3(w.sw[k], t);
+        if (L.type == JointType::ball) tau[ti[i] + k] -= w.sl[k] * wh;
+      }
+    }
+    if (p >= 0) {
+      ws[p].H += w.H;
+      ws[p].Ir += w.Ir;
+      ws[p].Z += w.Z;
+    }
+  }
+}
+
+// τ_i = S_iᵀ Σ_subtree f, the forces summed into the parents (the RNEA's backward pass).
+template <class S>
+void joint_forces(const Model& m, const std::vector<int>& ti, bool quat, LinkState<S>* ws, S* tau) {
+  for (std::size_t i = m.links.size(); i-- > 0;) {
+    LinkState<S>& w = ws[i];
+    if (ti[i] >= 0) {
+      for (int k = 0; k < variables(m.links[i].type); ++k)
+        tau[ti[i] + k] = pair(w, k, w.fn, w.fe, w.ff, quat);
+    }
     const int p = m.links[i].parent;
     if (p >= 0) {
       ws[p].fn += w.fn;
       ws[p].ff += w.ff;
+      ws[p].fe += w.fe;
     }
   }
+}
+
+// The inverse dynamics τ = M(θ) θ̈ + C(θ, θ̇) θ̇ + G(θ) by the RNEA (Featherstone Table 5.1 in
+// world coordinates), gravity as the fictitious base acceleration a_0 = (0, −g) (§5.3); thetadd
+// null and gravity false: C(θ, θ̇) θ̇, the velocity products. Run on dual numbers it gives the
+// exact directional derivatives of τ (the derivatives of the dynamics, docs/derivatives.md).
+template <class S>
+void inverse_dynamics(const Model& m, const std::vector<int>& ti, bool quat, const S* thetad,
+                      const S* thetadd, bool gravity, LinkState<S>* ws, S* tau) {
+  const V3<S> a0 = gravity ? V3<S>(-m.gravity.cast<S>()) : V3<S>(V3<S>::Zero());
+  link_motion(m, ti, quat, thetad, thetadd, a0, ws);
+  for (std::size_t i = 0; i < m.links.size(); ++i) link_force(m.links[i], quat, ws[i]);
+  joint_forces(m, ti, quat, ws, tau);
+  if (quat) rate_scale_terms(m, ti, ws, tau);
 }
 
 // G_θ from the composite inertias: the force I^c_i (0, −g) of each subtree held against gravity,
-// G_i = S_iᵀ (−h^c_i × g, −m^c_i g).
+// G_i = S_iᵀ (−h^c_i × g, −h^c_i · g, −m^c_i g).
 template <class S>
-void gravity_forces(const Model& m, const std::vector<int>& ti, const LinkState<S>* ws, S* G) {
+void gravity_forces(const Model& m, const std::vector<int>& ti, bool quat, const LinkState<S>* ws,
+                    S* G) {
   const V3<S> g = m.gravity.cast<S>();
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     if (ti[i] < 0) continue;
-    G[ti[i]] = -dot3(ws[i].sw, V3<S>(ws[i].h.cross(g))) - dot3(ws[i].sv, g) * ws[i].m;
-  }
-}
-
-// The inverse dynamics τ = M(θ) θ̈ + C(θ, θ̇) θ̇ + G(θ) by the RNEA with θ̈ (Featherstone Table 5.1
-// in world coordinates), gravity as the fictitious base acceleration a_0 = (0, −g) (§5.3):
-// v_i = v_p + S_i θ̇_i, a_i = a_p + S_i θ̈_i + (v_p × S_i) θ̇_i, f_i = I_i a_i + v_i ×* I_i v_i,
-// τ_i = S_iᵀ f_i with f summed into the parent. Run on dual numbers it gives the exact
-// directional derivatives of τ (the derivatives of the dynamics, docs/derivatives.md).
-template <class S>
-void inverse_dynamics(const Model& m, const std::vector<int>& ti, const S* thetad, const S* thetadd,
-                      LinkState<S>* ws, S* tau) {
-  const std::size_t n = m.links.size();
-  for (std::size_t i = 0; i < n; ++i) {
-    LinkState<S>& w = ws[i];
-    const int p = m.links[i].parent;
-    if (p < 0) {
-      w.vw.setZero();
-      w.vv.setZero();
-      w.aw.setZero();
-      w.av = -m.gravity.cast<S>();
-    } else {
-      w.vw = ws[p].vw;
-      w.vv = ws[p].vv;
-      w.aw = ws[p].aw;
-      w.av = ws[p].av;
-    }
-    if (ti[i] >= 0) {
-      const S qd = thetad[ti[i]], qdd = thetadd[ti[i]];
-      w.aw += w.vw.cross(w.sw) * qd + w.sw * qdd;
-      w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd + w.sv * qdd;
-      w.vw += w.sw * qd;
-      w.vv += w.sv * qd;
-    }
-    V3<S> n1, f1, n2, f2;
-    apply_inertia(w.m_own, w.h_own, w.I_own, w.vw, w.vv, n1, f1);
-    apply_inertia(w.m_own, w.h_own, w.I_own, w.aw, w.av, n2, f2);
-    w.fn = n2 + w.vw.cross(n1) + w.vv.cross(f1);
-    w.ff = f2 + w.vw.cross(f1);
-  }
-  for (std::size_t i = n; i-- > 0;) {
-    LinkState<S>& w = ws[i];
-    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw, w.fn) + dot3(w.sv, w.ff);
-    const int p = m.links[i].parent;
-    if (p >= 0) {
-      ws[p].fn += w.fn;
-      ws[p].ff += w.ff;
-    }
+    const LinkState<S>& w = ws[i];
+    const V3<S> n = -w.h.cross(g), f = -g * w.m;
+    const S e = -dot3(w.h, g);
+    for (int k = 0; k < variables(m.links[i].type); ++k) G[ti[i] + k] = pair(w, k, n, e, f, quat);
   }
 }
 
@@ -304,6 +477,15 @@ void validate(const Model& model) {
       throw Error(where + ": the origin rotation is not a rotation");
     if (L.type == JointType::fixed) {
       if (!L.terms.empty()) throw Error(where + ": a fixed joint has no variable");
+    } else if (L.type == JointType::floating || L.type == JointType::ball) {
+      const std::size_t nc = L.type == JointType::floating ? 7 : 4;
+      if (L.terms.size() != nc)
+        throw Error(where + ": a " + (nc == 7 ? "floating" : "ball") + " joint has " +
+                    std::to_string(nc) + " coordinates, got " + std::to_string(L.terms.size()));
+      for (const Term& t : L.terms) {
+        if (t.coordinate < 0 || t.coordinate >= nq || t.coefficient != 1.0)
+          throw Error(where + ": its variables must be coordinates of the tree");
+      }
     } else {
       if (std::abs(L.axis.norm() - 1.0) > 1e-9)
         throw Error(where + ": the axis is not a unit vector");
@@ -407,24 +589,66 @@ void lump(Link& K, double m, const Eigen::Vector3d& c, const Eigen::Matrix3d& I)
 // The tree with every link on a fixed joint merged into its nearest movable ancestor (its inertia
 // lumped there, its children re-parented with the composed origin), where each link of `m` is in
 // it, and V0: the potential of the masses whose joints up to the root are all fixed.
-Model merge_fixed_links(const Model& m, std::vector<TreeSubsystem::Placement>& where, double& V0) {
+// A floating joint as the passes take it: three prismatic joints along the joint frame's x, y, z
+// (massless links NAME/x, NAME/y, NAME/z) and a ball joint at their end, as the symbolic chain
+// composes it (p = p_joint + R_joint (x, y, z), R = R_joint R(u)).
+void split_floating(Link K, std::vector<Link>& out) {
+  for (int a = 0; a < 3; ++a) {
+    Link P;
+    P.name = K.name + "/" + "xyz"[a];
+    P.joint = K.joint + "/" + "xyz"[a];
+    P.type = JointType::prismatic;
+    P.axis = Eigen::Vector3d::Unit(a);
+    P.terms = {K.terms[static_cast<std::size_t>(a)]};
+    if (a == 0) {
+      P.parent = K.parent;
+      P.origin_rotation = K.origin_rotation;
+      P.origin_translation = K.origin_translation;
+    } else {
+      P.parent = static_cast<int>(out.size()) - 1;
+    }
+    out.push_back(std::move(P));
+  }
+  K.type = JointType::ball;
+  K.parent = static_cast<int>(out.size()) - 1;
+  K.origin_rotation.setIdentity();
+  K.origin_translation.setZero();
+  K.terms.erase(K.terms.begin(), K.terms.begin() + 3);
+  out.push_back(std::move(K));
+}
+
+Model merge_fixed_links(const Model& m, bool merge, std::vector<TreeSubsystem::Placement>& where,
+                        double& V0) {
   Model out = m;
   out.links.clear();
   out.points.clear();
   where.assign(m.links.size(), {});
   V0 = 0.0;
+  // Per link of out: below a ball or floating joint. A massive link fixed there stays a link of
+  // its own: the symbolic chain's kinetic energy gives each body ½ m |ċ|² + ½ ωᵀ J ω, which off
+  // |u| = 1 (the scale's rate λ: ċ gains λ (c − o)) is not that of the lumped body (short of
+  // λ² Σ m |c_i − c|² / 2), and the two must agree to first order there.
+  std::vector<bool> scaled;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     const Link& L = m.links[i];
     TreeSubsystem::Placement parent;  // the root frame
     if (L.parent >= 0) parent = where[static_cast<std::size_t>(L.parent)];
     const Eigen::Matrix3d Rj = parent.R * L.origin_rotation;
     const Eigen::Vector3d pj = parent.p + parent.R * L.origin_translation;
-    if (L.type != JointType::fixed) {
+    const bool below = parent.link >= 0 && scaled[static_cast<std::size_t>(parent.link)];
+    const bool massive = !(L.mass == 0.0 && L.inertia.isZero(0.0));
+    if (L.type != JointType::fixed || !merge || (below && massive)) {
       Link K = L;
       K.parent = parent.link;
       K.origin_rotation = Rj;
       K.origin_translation = pj;
-      out.links.push_back(std::move(K));
+      if (K.type == JointType::floating) {
+        split_floating(std::move(K), out.links);
+      } else {
+        out.links.push_back(std::move(K));
+      }
+      scaled.resize(out.links.size(),
+                    below || L.type == JointType::floating || L.type == JointType::ball);
       where[i].link = static_cast<int>(out.links.size()) - 1;
       continue;
     }
@@ -445,16 +669,21 @@ Model merge_fixed_links(const Model& m, std::vector<TreeSubsystem::Placement>& w
 
 TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(model)) {
   validate(model_);
-  if (merge_fixed) {
-    merged_ = merge_fixed_links(model_, placement_, potential0_);
-  } else {
-    merged_ = model_;
-    placement_.resize(model_.links.size());
-    for (std::size_t i = 0; i < placement_.size(); ++i) placement_[i].link = static_cast<int>(i);
-  }
+  merged_ = merge_fixed_links(model_, merge_fixed, placement_, potential0_);
   theta_index_.assign(merged_.links.size(), -1);
   for (std::size_t i = 0; i < merged_.links.size(); ++i) {
-    if (merged_.links[i].type != JointType::fixed) theta_index_[i] = static_cast<int>(n_theta_++);
+    const Link& L = merged_.links[i];
+    const int nv = variables(L.type);
+    if (nv == 0) continue;
+    theta_index_[i] = static_cast<int>(n_theta_);
+    quaternions_ = quaternions_ || L.type == JointType::ball;
+    for (int k = 0; k < nv; ++k) {  // a ball joint's variable k is its coordinate k
+      theta_terms_.push_back(L.type == JointType::ball
+                                 ? std::vector<Term>{L.terms[static_cast<std::size_t>(k)]}
+                                 : L.terms);
+      theta_offset_.push_back(L.type == JointType::ball ? 0.0 : L.offset);
+      ++n_theta_;
+    }
   }
   // The forward workspace, then the derivatives' (dual numbers, inverse_dynamics_tangent()).
   slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
@@ -482,34 +711,30 @@ void with_workspace(Slot slot, Index size, std::size_t links, Index nt, F&& f) {
   }
 }
 
-// θ = offset + T q and θ̇ = T q̇ (qd may be null).
-void theta_of(const Model& m, const std::vector<int>& ti, const double* q, const double* qd,
-              double* theta, double* thetad) {
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    if (ti[i] < 0) continue;
-    const Link& L = m.links[i];
-    double th = L.offset, thd = 0.0;
-    for (const Term& t : L.terms) {
+// θ = offset + T q and θ̇ = T q̇ (qd may be null), T by its rows: the terms of each variable.
+void theta_of(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
+              const double* q, const double* qd, double* theta, double* thetad) {
+  for (std::size_t a = 0; a < T.size(); ++a) {
+    double th = offset[a], thd = 0.0;
+    for (const Term& t : T[a]) {
       th += t.coefficient * q[t.coordinate];
       if (qd) thd += t.coefficient * qd[t.coordinate];
     }
-    theta[ti[i]] = th;
-    if (qd) thetad[ti[i]] = thd;
+    theta[a] = th;
+    if (qd) thetad[a] = thd;
   }
 }
 
 // M_q = Tᵀ M_θ T.
-void to_coordinates(const Model& m, const std::vector<int>& ti, const double* Mt, Index nt,
-                    MatRef M) {
+void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, MatRef M) {
+  const auto nt = static_cast<Index>(T.size());
   M.setZero();
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    if (ti[i] < 0) continue;
-    for (std::size_t j = 0; j < m.links.size(); ++j) {
-      if (ti[j] < 0) continue;
-      const double v = Mt[ti[i] + ti[j] * nt];
+  for (Index i = 0; i < nt; ++i) {
+    for (Index j = 0; j < nt; ++j) {
+      const double v = Mt[i + j * nt];
       if (v == 0.0) continue;
-      for (const Term& a : m.links[i].terms) {
-        for (const Term& b : m.links[j].terms)
+      for (const Term& a : T[static_cast<std::size_t>(i)]) {
+        for (const Term& b : T[static_cast<std::size_t>(j)])
           M(a.coordinate, b.coordinate) += a.coefficient * b.coefficient * v;
       }
     }
@@ -517,11 +742,10 @@ void to_coordinates(const Model& m, const std::vector<int>& ti, const double* Mt
 }
 
 // x_q = Tᵀ x_θ.
-void to_coordinates(const Model& m, const std::vector<int>& ti, const double* x, VecRef out) {
+void to_coordinates(const std::vector<std::vector<Term>>& T, const double* x, VecRef out) {
   out.setZero();
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    if (ti[i] < 0) continue;
-    for (const Term& a : m.links[i].terms) out(a.coordinate) += a.coefficient * x[ti[i]];
+  for (std::size_t i = 0; i < T.size(); ++i) {
+    for (const Term& a : T[i]) out(a.coordinate) += a.coefficient * x[i];
   }
 }
 
@@ -529,39 +753,40 @@ void to_coordinates(const Model& m, const std::vector<int>& ti, const double* x,
 
 void TreeSubsystem::mass(const EvalContext& c, CVecRef q, MatRef M) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, w.theta, w.links);
+    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
     composite(merged_, w.links);
-    crba(merged_, theta_index_, w.links, w.Mt, n_theta_);
-    to_coordinates(merged_, theta_index_, w.Mt, n_theta_, M);
+    crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
+    to_coordinates(theta_terms_, w.Mt, M);
   });
 }
 
 void TreeSubsystem::coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd,
                                       VecRef Cqd) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(merged_, theta_index_, w.theta, w.links);
-    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
-    to_coordinates(merged_, theta_index_, w.tau, Cqd);
+    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
+    inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false, w.links,
+                             w.tau);
+    to_coordinates(theta_terms_, w.tau, Cqd);
   });
 }
 
 void TreeSubsystem::gravity(const EvalContext& c, CVecRef q, VecRef G) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, w.theta, w.links);
+    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
     composite(merged_, w.links);
-    gravity_forces(merged_, theta_index_, w.links, w.tau);
-    to_coordinates(merged_, theta_index_, w.tau, G);
+    gravity_forces(merged_, theta_index_, quaternions_, w.links, w.tau);
+    to_coordinates(theta_terms_, w.tau, G);
   });
 }
 
 double TreeSubsystem::potential(const EvalContext& c, CVecRef q) const {
   double V = 0.0;
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, w.theta, w.links);
+    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
     Eigen::Vector3d h = Eigen::Vector3d::Zero();
     for (std::size_t i = 0; i < merged_.links.size(); ++i) h += w.links[i].h_own;
     V = -dot3<double>(merged_.gravity, h) + potential0_;  // V = −Σ m g·c
@@ -572,33 +797,92 @@ double TreeSubsystem::potential(const EvalContext& c, CVecRef q) const {
 double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                                VecRef G) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(merged_, theta_index_, w.theta, w.links);
+    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
     composite(merged_, w.links);
-    crba(merged_, theta_index_, w.links, w.Mt, n_theta_);
-    to_coordinates(merged_, theta_index_, w.Mt, n_theta_, M);
-    gravity_forces(merged_, theta_index_, w.links, w.tau);
-    to_coordinates(merged_, theta_index_, w.tau, G);
-    velocity_products(merged_, theta_index_, w.thetad, w.links, w.tau);
-    to_coordinates(merged_, theta_index_, w.tau, Cqd);
+    crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
+    to_coordinates(theta_terms_, w.Mt, M);
+    gravity_forces(merged_, theta_index_, quaternions_, w.links, w.tau);
+    to_coordinates(theta_terms_, w.tau, G);
+    inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false, w.links,
+                             w.tau);
+    to_coordinates(theta_terms_, w.tau, Cqd);
   });
   return 0.0;
 }
+
+namespace {
+
+// The symbolic chain's M(q) and the tree's agree on |u| = 1 but not in their derivatives along a
+// ball joint k's radial direction (ρ_k = ln |u_k|): the symbolic body rates grow there as
+// ∂Ω_b/∂ρ_k = 2 Ω_b^(≤k) (the columns of the joints at or above k; rate_scale_terms), the tree's
+// as the rotation's while its I_b = R J Rᵀ grows as |u_k|⁴. So ∂M_sym/∂ρ_k = ∂M_tree/∂ρ_k + D_k,
+// D_k = Σ_{b below k} 2 (Ω^(≤k)ᵀ I_b Ω + Ωᵀ I_b Ω^(≤k)) − 4 Ωᵀ I_b Ω (Ω: the bodies' angular
+// columns S_w, 3 × nt), and the Christoffel matrix of M_sym adds, with ∂ρ_k/∂θ_c = u_c / |u|²,
+// ½ (ρ̇_k D_k + (D_k θ̇) ∂ρ_kᵀ − ∂ρ_k (D_k θ̇)ᵀ) to the tree's (column-major Ct, nt × nt).
+void radial_christoffel(const Model& m, const std::vector<int>& ti,
+                        const std::vector<double>& theta, const std::vector<double>& thetad,
+                        std::vector<double>& Ct) {
+  const std::size_t nl = m.links.size();
+  const auto nt = static_cast<Index>(theta.size());
+  std::vector<LinkState<double>> ws(nl);
+  place(m, ti, true, theta.data(), ws.data());
+  const Eigen::Map<const Vec> thd(thetad.data(), nt);
+  for (std::size_t k = 0; k < nl; ++k) {
+    if (m.links[k].type != JointType::ball) continue;
+    const auto a = static_cast<Index>(ti[k]);
+    const Eigen::Map<const Eigen::Vector4d> u(theta.data() + a);
+    const Eigen::Vector4d drho = u / u.squaredNorm();
+    Mat D = Mat::Zero(nt, nt);
+    for (std::size_t b = k; b < nl; ++b) {
+      bool below = false;  // b in the subtree of k
+      for (int j = static_cast<int>(b); j >= 0 && !below;
+           j = m.links[static_cast<std::size_t>(j)].parent)
+        below = static_cast<std::size_t>(j) == k;
+      if (!below || ws[b].Ic.isZero(0.0)) continue;
+      Mat W = Mat::Zero(3, nt), Wk = Mat::Zero(3, nt);
+      bool at_or_above_k = false;
+      for (int j = static_cast<int>(b); j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+        const auto ju = static_cast<std::size_t>(j);
+        at_or_above_k = at_or_above_k || ju == k;
+        if (ti[ju] < 0) continue;
+        for (int c = 0; c < variables(m.links[ju].type); ++c) {
+          W.col(ti[ju] + c) = ws[ju].sw[c];
+          if (at_or_above_k) Wk.col(ti[ju] + c) = ws[ju].sw[c];
+        }
+      }
+      const Mat IW = ws[b].Ic * W, IWk = ws[b].Ic * Wk;
+      D += 2.0 * (Wk.transpose() * IW + W.transpose() * IWk) - 4.0 * W.transpose() * IW;
+    }
+    const double rhod = drho.dot(thd.segment(a, 4));
+    const Vec Dq = D * thd;
+    for (Index i = 0; i < nt; ++i) {
+      for (Index j = 0; j < nt; ++j) {
+        double c = rhod * D(i, j);
+        if (j >= a && j < a + 4) c += drho(j - a) * Dq(i);
+        if (i >= a && i < a + 4) c -= drho(i - a) * Dq(j);
+        Ct[static_cast<std::size_t>(i + j * nt)] += 0.5 * c;
+      }
+    }
+  }
+}
+
+}  // namespace
 
 void TreeSubsystem::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, MatRef C) const {
   using AD = Eigen::AutoDiffScalar<Eigen::VectorXd>;
   const Index nt = n_theta_;
   std::vector<double> theta(static_cast<std::size_t>(nt)), thetad(static_cast<std::size_t>(nt));
-  theta_of(merged_, theta_index_, q.data(), qd.data(), theta.data(), thetad.data());
+  theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), theta.data(), thetad.data());
   std::vector<AD> th(static_cast<std::size_t>(nt));
   for (Index k = 0; k < nt; ++k)
     th[static_cast<std::size_t>(k)] =
         AD(theta[static_cast<std::size_t>(k)], static_cast<int>(nt), static_cast<int>(k));
   std::vector<LinkState<AD>> ws(merged_.links.size());
   std::vector<AD> Mt(static_cast<std::size_t>(nt * nt));
-  place(merged_, theta_index_, th.data(), ws.data());
+  place(merged_, theta_index_, quaternions_, th.data(), ws.data());
   composite(merged_, ws.data());
-  crba(merged_, theta_index_, ws.data(), Mt.data(), nt);
+  crba(merged_, theta_index_, quaternions_, ws.data(), Mt.data(), nt);
   // ∂M_ij/∂θ_k, zero where crba left a constant (no derivatives).
   auto dM = [&](Index i, Index j, Index k) {
     const auto& d = Mt[static_cast<std::size_t>(i + j * nt)].derivatives();
@@ -613,7 +897,8 @@ void TreeSubsystem::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, Ma
       Ct[static_cast<std::size_t>(i + j * nt)] = s;
     }
   }
-  to_coordinates(merged_, theta_index_, Ct.data(), nt, C);  // C_q = Tᵀ C_θ T
+  if (quaternions_) radial_christoffel(merged_, theta_index_, theta, thetad, Ct);
+  to_coordinates(theta_terms_, Ct.data(), C);  // C_q = Tᵀ C_θ T
 }
 
 void TreeSubsystem::link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Vector3d& p) const {
@@ -623,9 +908,9 @@ void TreeSubsystem::link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Ve
   const Placement& at = placement_[static_cast<std::size_t>(link)];
   if (at.link >= 0) {
     std::vector<double> theta(static_cast<std::size_t>(n_theta_));
-    theta_of(merged_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
+    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, theta.data(), nullptr);
     std::vector<LinkState<double>> ws(merged_.links.size());
-    place(merged_, theta_index_, theta.data(), ws.data());
+    place(merged_, theta_index_, quaternions_, theta.data(), ws.data());
     R = ws[static_cast<std::size_t>(at.link)].R;
     p = ws[static_cast<std::size_t>(at.link)].p;
   }
@@ -636,9 +921,9 @@ void TreeSubsystem::link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Ve
 void TreeSubsystem::link_poses(CVecRef q, std::vector<Eigen::Matrix3d>& R,
                                std::vector<Eigen::Vector3d>& p) const {
   std::vector<double> theta(static_cast<std::size_t>(n_theta_));
-  theta_of(merged_, theta_index_, q.data(), nullptr, theta.data(), nullptr);
+  theta_of(theta_terms_, theta_offset_, q.data(), nullptr, theta.data(), nullptr);
   std::vector<LinkState<double>> ws(merged_.links.size());
-  place(merged_, theta_index_, theta.data(), ws.data());
+  place(merged_, theta_index_, quaternions_, theta.data(), ws.data());
   R.resize(model_.links.size());
   p.resize(model_.links.size());
   for (std::size_t i = 0; i < model_.links.size(); ++i) {
@@ -661,43 +946,11 @@ M3<S> skew(const V3<S>& w) {
   return K;
 }
 
-// Link twists (ω, v_O) about the world origin and spatial accelerations (α, a_O) without gravity
-// at θ̇ and θ̈ (thetadd null: θ̈ = 0, the velocity-product acceleration): the forward pass of the
-// RNEA (Featherstone Table 5.1 in world coordinates) without the forces.
-template <class S>
-void link_motion(const Model& m, const std::vector<int>& ti, const S* thetad, const S* thetadd,
-                 LinkState<S>* ws) {
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    LinkState<S>& w = ws[i];
-    const int p = m.links[i].parent;
-    if (p < 0) {
-      w.vw.setZero();
-      w.vv.setZero();
-      w.aw.setZero();
-      w.av.setZero();
-    } else {
-      w.vw = ws[p].vw;
-      w.vv = ws[p].vv;
-      w.aw = ws[p].aw;
-      w.av = ws[p].av;
-    }
-    if (ti[i] < 0) continue;
-    const S qd = thetad[ti[i]];
-    w.aw += w.vw.cross(w.sw) * qd;
-    w.av += (w.vw.cross(w.sv) + w.vv.cross(w.sw)) * qd;
-    if (thetadd) {
-      w.aw += w.sw * thetadd[ti[i]];
-      w.av += w.sv * thetadd[ti[i]];
-    }
-    w.vw += w.sw * qd;
-    w.vv += w.sv * qd;
-  }
-}
-
-// A point p fixed in link i moves with the link's twist (ω, v_O) about the world origin:
-// ṗ = v_O + ω × p, Ṙ = [ω]× R, p̈ = a_O + α × p + ω × ṗ, R̈ = ([α]× + [ω]×[ω]×) R, with (α, a_O)
-// the link's spatial acceleration (link_motion). Each joint k above the link moves it by
-// ∂p/∂θ_k = s_v + s_w × p, ∂R/∂θ_k = [s_w]× R (S_k = (s_w, s_v)); through θ = T q + c,
+// A point p fixed in link i moves with the link's motion (ω, λ, v_O) about the world origin:
+// ṗ = v_O + ω × p + λ p, Ṙ = ([ω]× + λ) R, p̈ = a_O + α × p + λ̇ p + ω × ṗ + λ ṗ,
+// R̈ = ([α]× + λ̇ + ([ω]× + λ)²) R, with (α, λ̇, a_O) the link's acceleration (link_motion; λ = 0
+// without ball joints). Each joint variable k above the link moves it by ∂p/∂θ_k = s_v + s_w × p
+// + s_l p, ∂R/∂θ_k = ([s_w]× + s_l) R (S_k = (s_w, s_l, s_v)); through θ = T q + c,
 // ∂/∂q_j = Σ_k T_kj ∂/∂θ_k.
 template <class S>
 struct FrameMotion {
@@ -711,6 +964,7 @@ FrameMotion<S> frame_motion(const Model& m, const LinkState<S>* ws, int link,
   M3<S> Rl = m.root_rotation.cast<S>();
   V3<S> pl = m.root_translation.cast<S>(), vw = V3<S>::Zero(), vv = V3<S>::Zero(),
         aw = V3<S>::Zero(), av = V3<S>::Zero();
+  S vl(0.0), al(0.0);
   if (link >= 0) {
     const LinkState<S>& L = ws[link];
     Rl = L.R;
@@ -719,16 +973,25 @@ FrameMotion<S> frame_motion(const Model& m, const LinkState<S>* ws, int link,
     vv = L.vv;
     aw = L.aw;
     av = L.av;
+    vl = L.vl;
+    al = L.al;
   }
   FrameMotion<S> f;
   f.p = pl + Rl * x_offset.cast<S>();
   f.R = Rl * R_offset.cast<S>();
-  f.pd = vv + vw.cross(f.p);
-  f.pdd = av + aw.cross(f.p) + vw.cross(f.pd);
-  const M3<S> W = skew<S>(vw);
+  f.pd = vv + vw.cross(f.p) + f.p * vl;
+  f.pdd = av + aw.cross(f.p) + f.p * al + vw.cross(f.pd) + f.pd * vl;
+  const M3<S> W = skew<S>(vw) + M3<S>::Identity() * vl;
   f.Rd = W * f.R;
-  f.Rdd = (skew<S>(aw) + W * W) * f.R;
+  f.Rdd = (skew<S>(aw) + M3<S>::Identity() * al + W * W) * f.R;
   return f;
+}
+
+// The terms of joint variable k of link L: a ball joint's variable k is its coordinate k.
+std::pair<const Term*, const Term*> variable_terms(const Link& L, int k) {
+  if (L.type == JointType::ball)
+    return {&L.terms[static_cast<std::size_t>(k)], &L.terms[static_cast<std::size_t>(k)] + 1};
+  return {L.terms.data(), L.terms.data() + L.terms.size()};
 }
 
 // The columns ∂p/∂q_j, ∂R/∂q_j (R row-major) of the frame at (p, R) on link `link`: col(j, dp,
@@ -739,9 +1002,18 @@ void frame_columns(const Model& m, const std::vector<int>& ti, const LinkState<S
   for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
     const auto ju = static_cast<std::size_t>(j);
     if (ti[ju] < 0) continue;
-    const V3<S> dp = ws[ju].sv + ws[ju].sw.cross(p);
-    const M3<S> dR = skew<S>(ws[ju].sw) * R;
-    for (const Term& t : m.links[ju].terms) col(t.coordinate, t.coefficient, dp, dR);
+    const Link& L = m.links[ju];
+    for (int k = 0; k < variables(L.type); ++k) {
+      const LinkState<S>& w = ws[ju];
+      V3<S> dp = w.sv[k] + w.sw[k].cross(p);
+      M3<S> dR = skew<S>(w.sw[k]) * R;
+      if (L.type == JointType::ball) {
+        dp += p * w.sl[k];
+        dR += R * w.sl[k];
+      }
+      const auto [first, last] = variable_terms(L, k);
+      for (const Term* t = first; t != last; ++t) col(t->coordinate, t->coefficient, dp, dR);
+    }
   }
 }
 
@@ -762,9 +1034,10 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
     x_offset = at.p + at.R * frame_x_offset;
   }
   with_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(merged_, theta_index_, q.data(), qd.data(), w.theta, w.thetad);
-    place(merged_, theta_index_, w.theta, w.links);
-    link_motion<double>(merged_, theta_index_, w.thetad, nullptr, w.links);
+    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
+    link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
+                        Eigen::Vector3d::Zero(), w.links);
     const FrameMotion<double> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
     out.p = f.p;
     out.R = f.R;
@@ -817,20 +1090,18 @@ DualWorkspace dual_workspace(Slot slot, Index slot_size, std::size_t nl, Index n
 }
 
 // θ, θ̇ seeded with dθ = T dq, dθ̇ = T dq̇; θ̈ = T q̈ held (no tangent).
-void seed_duals(const Model& m, const std::vector<int>& ti, CVecRef q, CVecRef qd, CVecRef qdd,
-                CVecRef dq, CVecRef dqd, const DualWorkspace& w) {
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    if (ti[i] < 0) continue;
-    const Link& L = m.links[i];
-    double v = L.offset, dv = 0.0, s = 0.0, ds = 0.0, a = 0.0;
-    for (const Term& t : L.terms) {
+void seed_duals(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
+                CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
+                const DualWorkspace& w) {
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    double v = offset[k], dv = 0.0, s = 0.0, ds = 0.0, a = 0.0;
+    for (const Term& t : T[k]) {
       v += t.coefficient * q(t.coordinate);
       dv += t.coefficient * dq(t.coordinate);
       s += t.coefficient * qd(t.coordinate);
       ds += t.coefficient * dqd(t.coordinate);
       a += t.coefficient * qdd(t.coordinate);
     }
-    const auto k = static_cast<std::size_t>(ti[i]);
     w.theta[k] = dual(v, dv);
     w.thetad[k] = dual(s, ds);
     w.thetadd[k] = dual(a, 0.0);
@@ -867,9 +1138,10 @@ void TreeSubsystem::frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVec
   }
   std::vector<double> own;
   const DualWorkspace w = dual_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
-  seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
-  place(merged_, theta_index_, w.theta, w.links);
-  link_motion<Dual>(merged_, theta_index_, w.thetad, w.thetadd, w.links);
+  seed_duals(theta_terms_, theta_offset_, q, qd, qdd, dq, dqd, w);
+  place(merged_, theta_index_, quaternions_, w.theta, w.links);
+  link_motion<Dual>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd, V3<Dual>::Zero(),
+                    w.links);
   const FrameMotion<Dual> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
   split(f.p, value.p, tangent.p);
   split(f.R, value.R, tangent.R);
@@ -903,14 +1175,14 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
   const std::size_t nl = merged_.links.size();
   std::vector<double> own;
   const DualWorkspace w = dual_workspace(c.slot, slot_size_, nl, n_theta_, own);
-  seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
-  place(merged_, theta_index_, w.theta, w.links);
-  inverse_dynamics(merged_, theta_index_, w.thetad, w.thetadd, w.links, w.tau);
+  seed_duals(theta_terms_, theta_offset_, q, qd, qdd, dq, dqd, w);
+  place(merged_, theta_index_, quaternions_, w.theta, w.links);
+  inverse_dynamics<Dual>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd, true, w.links,
+                         w.tau);
   dID.setZero();
-  for (std::size_t i = 0; i < nl; ++i) {
-    if (theta_index_[i] < 0) continue;
-    const double d = tangent_of(w.tau[theta_index_[i]]);
-    for (const Term& t : merged_.links[i].terms) dID(t.coordinate) += t.coefficient * d;
+  for (std::size_t k = 0; k < theta_terms_.size(); ++k) {
+    const double d = tangent_of(w.tau[k]);
+    for (const Term& t : theta_terms_[k]) dID(t.coordinate) += t.coefficient * d;
   }
   return true;
 }

@@ -9,10 +9,17 @@
 // world origin, a force vector (n_O, f). Joint k's motion axis is S_k = (z_k, p_k × z_k) for a
 // revolute joint about the world axis z_k through p_k, S_k = (0, z_k) for a prismatic one.
 //
-// Joint variables: each movable joint's variable is affine in the subsystem's coordinates,
-// θ_k = offset_k + Σ_j c_kj q_j (a coordinate, or the paper's relative angle θ2 − θ1), θ = T q + c.
-// Lagrange's equations in q are Tᵀ times those in θ, so M_q = Tᵀ M_θ T, (C q̇)_q = Tᵀ (C θ̇)_θ,
-// G_q = Tᵀ G_θ (T constant).
+// Joint variables: each revolute or prismatic joint's variable is affine in the subsystem's
+// coordinates, θ_k = offset_k + Σ_j c_kj q_j (a coordinate, or the paper's relative angle θ2 − θ1),
+// θ = T q + c. Lagrange's equations in q are Tᵀ times those in θ, so M_q = Tᵀ M_θ T,
+// (C q̇)_q = Tᵀ (C θ̇)_θ, G_q = Tᵀ G_θ (T constant).
+//
+// Ball and floating joints take unit-quaternion coordinates with the symbolic chain's conventions
+// (symbolic/chain.hpp, free_body.hpp; docs/tree-algorithms.md, "Quaternion joints"): a ball joint
+// turns its link by R(u), the homogeneous quaternion matrix of u = (qw, qx, qy, qz), about the
+// joint origin; a floating joint first moves it by (x, y, z) along the joint frame's axes. R(u) is
+// |u|² times a rotation, so off |u| = 1 the link poses below (link_pose, frame_state) are scaled as
+// the symbolic link poses are; M, C q̇, G equal the symbolic ones on |u| = 1.
 #pragma once
 
 #include <Eigen/Core>
@@ -24,7 +31,9 @@
 
 namespace ukdyn::tree {
 
-enum class JointType { revolute, prismatic, fixed };
+/// floating: 7 terms (x, y, z, qw, qx, qy, qz), ball: 4 terms (qw, qx, qy, qz), one coordinate each
+/// with coefficient 1; their axis and offset are not used.
+enum class JointType { revolute, prismatic, fixed, floating, ball };
 
 /// One term c · q_coordinate of a joint variable.
 struct Term {
@@ -111,6 +120,8 @@ class TreeSubsystem : public Subsystem {
   /// The Christoffel matrix C_ij = Σ_k ½(∂M_ij/∂q_k + ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k (Ṁ − 2C
   /// skew-symmetric), with ∂M/∂θ_k by forward-mode automatic differentiation of the
   /// composite-rigid-body algorithm (Eigen's AutoDiffScalar): one pass per joint, allocates.
+  /// With ball joints, ∂M/∂q along each quaternion's radial direction is the symbolic chain's
+  /// (docs/tree-algorithms.md, "Quaternion joints"), so C is the symbolic C on |u| = 1.
   void coriolis(const EvalContext& c, CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(const EvalContext& c, CVecRef q, VecRef G) const override;
@@ -143,7 +154,8 @@ class TreeSubsystem : public Subsystem {
   void frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd, int link,
                            const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
                            Slot scratch, FrameState& value, FrameState& tangent) const;
-  /// Number of movable joints (the joint variables θ).
+  /// Number of joint variables θ (one per revolute or prismatic joint, four per ball joint, seven
+  /// per floating joint).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
   /// Number of links the recursive passes run on (model().links less the merged fixed ones).
   [[nodiscard]] std::size_t pass_links() const { return merged_.links.size(); }
@@ -161,7 +173,10 @@ class TreeSubsystem : public Subsystem {
   Model merged_;                      // what the passes run on (model_ itself if not merged)
   std::vector<Placement> placement_;  // per link of model_
   double potential0_ = 0.0;           // V of the masses fixed to the root frame (merged away)
-  std::vector<int> theta_index_;  // per link of merged_: its joint variable's index, −1: fixed
+  std::vector<int> theta_index_;  // per link of merged_: its (first) joint variable, −1: fixed
+  std::vector<std::vector<Term>> theta_terms_;  // per joint variable: θ = Σ terms (+ offset)
+  std::vector<double> theta_offset_;            // per joint variable
+  bool quaternions_ = false;                    // merged_ has ball joints (floating ones split)
   Index n_theta_ = 0;
   Index slot_size_ = 0;
 };
