@@ -816,6 +816,11 @@ DualWorkspace dual_workspace(Slot slot, Index slot_size, std::size_t nl, Index n
   return w;
 }
 
+// The forward workspace at the start of a full slot (empty without one: a buffer of its own).
+Slot forward_part(Slot slot, Index slot_size) {
+  return static_cast<Index>(slot.size()) >= slot_size ? slot : Slot();
+}
+
 // θ, θ̇ seeded with dθ = T dq, dθ̇ = T dq̇; θ̈ = T q̈ held (no tangent).
 void seed_duals(const Model& m, const std::vector<int>& ti, CVecRef q, CVecRef qd, CVecRef qdd,
                 CVecRef dq, CVecRef dqd, const DualWorkspace& w) {
@@ -835,6 +840,35 @@ void seed_duals(const Model& m, const std::vector<int>& ti, CVecRef q, CVecRef q
     w.thetad[k] = dual(s, ds);
     w.thetadd[k] = dual(a, 0.0);
   }
+}
+
+// The link poses, axes and inertias on dual numbers at θ (w.theta). Along a direction that moves
+// no joint (dθ = T dq = 0: a direction of q̇) they have no tangent: placed on doubles in `flat`
+// (the slot's forward workspace, or a buffer of its own without one) and lifted, the same values
+// with zero tangents, at a fraction of the dual numbers' cost.
+void place_duals(const Model& m, const std::vector<int>& ti, Index nt, const DualWorkspace& w,
+                 Slot flat) {
+  bool still = true;
+  for (Index k = 0; k < nt && still; ++k) still = w.theta[k].derivatives()(0) == 0.0;
+  if (!still) {
+    place(m, ti, w.theta, w.links);
+    return;
+  }
+  with_workspace(flat, workspace_doubles(m.links.size(), nt), m.links.size(), nt, [&](Workspace f) {
+    for (Index k = 0; k < nt; ++k) f.theta[k] = w.theta[k].value();
+    place(m, ti, f.theta, f.links);
+    for (std::size_t i = 0; i < m.links.size(); ++i) {
+      const LinkState<double>& a = f.links[i];
+      LinkState<Dual>& b = w.links[i];
+      b.R = a.R.cast<Dual>();
+      b.p = a.p.cast<Dual>();
+      b.sw = a.sw.cast<Dual>();
+      b.sv = a.sv.cast<Dual>();
+      b.m_own = Dual(a.m_own);
+      b.h_own = a.h_own.cast<Dual>();
+      b.I_own = a.I_own.cast<Dual>();
+    }
+  });
 }
 
 double value_of(const Dual& x) { return x.value(); }
@@ -868,7 +902,7 @@ void TreeSubsystem::frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVec
   std::vector<double> own;
   const DualWorkspace w = dual_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
   seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
-  place(merged_, theta_index_, w.theta, w.links);
+  place_duals(merged_, theta_index_, n_theta_, w, forward_part(scratch, slot_size_));
   link_motion<Dual>(merged_, theta_index_, w.thetad, w.thetadd, w.links);
   const FrameMotion<Dual> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
   split(f.p, value.p, tangent.p);
@@ -904,7 +938,7 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
   std::vector<double> own;
   const DualWorkspace w = dual_workspace(c.slot, slot_size_, nl, n_theta_, own);
   seed_duals(merged_, theta_index_, q, qd, qdd, dq, dqd, w);
-  place(merged_, theta_index_, w.theta, w.links);
+  place_duals(merged_, theta_index_, n_theta_, w, forward_part(c.slot, slot_size_));
   inverse_dynamics(merged_, theta_index_, w.thetad, w.thetadd, w.links, w.tau);
   dID.setZero();
   for (std::size_t i = 0; i < nl; ++i) {
