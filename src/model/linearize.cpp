@@ -7,6 +7,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "ukdyn/core/uk_singular.hpp"
+
 namespace ukdyn {
 
 namespace {
@@ -247,10 +249,14 @@ void store_solutions(LinearizeData& d, Index n, LinearizeParts parts) {
     lin.dmu_dq.resize(0, 0);
     lin.dmu_dqd.resize(0, 0);
   }
-  lin.dQc_dtau.resize(0, 0);
-  lin.dmu_dtau.resize(0, 0);
-  lin.dqdd_dtau.resize(0, 0);
-  if (!parts.tau) return;
+  if (!parts.tau || !parts.constraint_force) {
+    lin.dQc_dtau.resize(0, 0);
+    lin.dmu_dtau.resize(0, 0);
+  }
+  if (!parts.tau) {
+    lin.dqdd_dtau.resize(0, 0);
+    return;
+  }
   // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
   d.rhs_tau.resize(n + r, n);
   d.rhs_tau.setZero();
@@ -292,11 +298,18 @@ void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVec
   forward(system, d.fwd, t, q, qd, tau, settings);
   if (!d.fwd.result.finite)
     throw Error("linearize: the forward dynamics is not finite at this state");
-  // M, or the augmented M_a the solve used (a copy only then).
-  const RowChoice rc =
-      d.fwd.singular.active
-          ? independent_rows(d, solved_mass(system, d.fwd), d.fwd.A, settings.rank_rel_tol)
-          : independent_rows(d, d.fwd.M, d.fwd.A, settings.rank_rel_tol);
+  // M, or the augmented M_a the solve used (solved_mass(), formed here in d.Ms after the arrow
+  // solve).
+  const ForwardData& f = d.fwd;
+  const Mat* Ms = &f.M;
+  if (f.singular.active && !f.used_arrow) Ms = &f.singular.Ma;
+  if (f.singular.active && f.used_arrow) {
+    d.Ms = f.M;
+    d.Qa = f.Q;
+    augmented_blocks(system.layout(), f.A, f.b, f.singular, d.Ms, d.Qa);
+    Ms = &d.Ms;
+  }
+  const RowChoice rc = independent_rows(d, *Ms, f.A, settings.rank_rel_tol);
   const auto r = static_cast<Index>(lin.kept_rows.size());
   lin.rank = static_cast<int>(r);
   vouch(lin, rc, d.fwd.result, settings, m);

@@ -71,13 +71,13 @@ struct LinearizeData {
   Linearization lin;  ///< the result of the last call
   ForwardData fwd;    ///< forward() at the state (q̈ of the U-K solve, M, Q, A, b)
   // The row choice (independent_rows), the KKT system and its right-hand sides.
-  Mat Xt, R;
+  Mat Ms, Xt, R;
   Eigen::LLT<Mat> llt;
   Eigen::ColPivHouseholderQR<Mat> qr;
   Eigen::JacobiSVD<Mat> svd;
   Mat K, AR, rhs_all, X, dforce_all, rhs_tau, X_tau;
   Eigen::PartialPivLU<Mat> lu;
-  Vec bR, rhs, sol, lambda, dID, dQa, dres, dforce_c, dq, dqd;
+  Vec Qa, bR, rhs, sol, lambda, dID, dQa, dres, dforce_c, dq, dqd;
   std::vector<std::size_t> owner;  ///< the subsystem of each coordinate
 };
 
