@@ -38,6 +38,22 @@ struct RowChoice {
   double sigma_ratio_dropped = 0.0;  // σ_{r+1} / σ_1
 };
 
+// The common case without an SVD: R square (m ≤ n) and so well conditioned that every row is kept
+// and none of vouch()'s rank tests can fire. σ_min(R) = 1/‖R⁻¹‖₂ ≥ 1/‖R⁻¹‖_F and σ_max(R) ≤
+// ‖R‖_F (Golub & Van Loan, Matrix Computations, 4th ed., §2.3.2), so 1/(‖R⁻¹‖_F ‖R‖_F) is a lower
+// bound of σ_m/σ_1; above 200 rank_rel_tol (twice vouch()'s 100, for the round-off of R⁻¹) the SVD
+// would keep all m rows and raise no flag: the same rows, the same result. rc.sigma_ratio_kept gets
+// the bound. False (the SVD decides) otherwise.
+bool all_rows_kept(LinearizeData& d, double rel_tol, RowChoice& rc) {
+  const Index m = d.R.rows();
+  d.Rinv.setIdentity(m, m);
+  d.R.triangularView<Eigen::Upper>().solveInPlace(d.Rinv);
+  const double bound = 1.0 / (d.Rinv.norm() * d.R.norm());
+  if (!(std::isfinite(bound) && bound > 200.0 * rel_tol)) return false;
+  rc.sigma_ratio_kept = bound;
+  return true;
+}
+
 RowChoice independent_rows(LinearizeData& d, const Mat& Ms, const Mat& A, double rel_tol) {
   RowChoice rc;
   d.lin.kept_rows.clear();
@@ -52,6 +68,10 @@ RowChoice independent_rows(LinearizeData& d, const Mat& Ms, const Mat& A, double
   d.qr.compute(d.Xt);
   const Index k = std::min(n, m);
   d.R = d.qr.matrixQR().topRows(k).triangularView<Eigen::Upper>();
+  if (k == m && all_rows_kept(d, rel_tol, rc)) {
+    for (Index j = 0; j < m; ++j) d.lin.kept_rows.push_back(j);
+    return rc;
+  }
   d.svd.compute(d.R);
   const Vec& s = d.svd.singularValues();
   const double top = s.size() > 0 ? s(0) : 0.0;

@@ -71,7 +71,7 @@ struct LinearizeData {
   Linearization lin;  ///< the result of the last call
   ForwardData fwd;    ///< forward() at the state (q̈ of the U-K solve, M, Q, A, b)
   // The row choice (independent_rows), the KKT system and its right-hand sides.
-  Mat Ms, Xt, R;
+  Mat Ms, Xt, R, Rinv;
   Eigen::LLT<Mat> llt;
   Eigen::ColPivHouseholderQR<Mat> qr;
   Eigen::JacobiSVD<Mat> svd;
