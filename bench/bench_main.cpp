@@ -215,6 +215,15 @@ void print_summary(const Timings& ts) {
     print_ratio(ts, sc + ": central differences / exact derivatives",
                 "derivatives/" + sc + "_central_differences", "derivatives/" + sc + "_linearize",
                 10.0);
+    for (const std::string v : {"_linearize_workspace", "_linearize_dqdd_dx"}) {
+      const Timing* w = find(ts, "derivatives/" + sc + v);
+      if (w != nullptr && f != nullptr)
+        std::printf("  %-64s %8.1fx (target <= 8x: %s)\n",
+                    (sc + ": derivatives (" + v.substr(11) + ") / one forward call").c_str(),
+                    w->median / f->median, w->median <= 8.0 * f->median ? "met" : "NOT met");
+      print_ratio(ts, sc + ": central differences / exact derivatives (" + v.substr(11) + ")",
+                  "derivatives/" + sc + "_central_differences", "derivatives/" + sc + v, 10.0);
+    }
   }
   print_ratio(ts, "two Pandas welded: MuJoCo mjd_transitionFD / ukdyn exact derivatives",
               "mujoco/two_pandas_weld_mjd_transitionFD", "derivatives/two_pandas_weld_linearize");

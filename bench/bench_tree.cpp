@@ -216,6 +216,26 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
           }
           st.counters["dof"] = static_cast<double>(sc.system->dof());
         }));
+    // The same into a LinearizeData kept across calls (no allocation), all parts or only
+    // ∂q̈/∂(q, q̇) (what the implicit integrators' Jacobian takes).
+    for (const bool all : {true, false}) {
+      with_min_max(benchmark::RegisterBenchmark(
+          ("derivatives/" + name + (all ? "_linearize_workspace" : "_linearize_dqdd_dx")).c_str(),
+          [path, all](benchmark::State& st) {
+            const ukdyn::Scenario sc = ukdyn::load_scenario(path);
+            if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
+              st.SkipWithError("a component has no exact derivatives");
+              return;
+            }
+            const DerivativeState s = derivative_state(sc);
+            ukdyn::LinearizeData data(*sc.system);
+            const ukdyn::LinearizeParts parts{all, all};
+            for (auto _ : st) {
+              ukdyn::linearize(*sc.system, data, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, parts);
+              benchmark::DoNotOptimize(data.lin.dqdd_dq.data());
+            }
+          }));
+    }
     with_min_max(benchmark::RegisterBenchmark(
         ("derivatives/" + name + "_central_differences").c_str(), [path](benchmark::State& st) {
           const ukdyn::Scenario sc = ukdyn::load_scenario(path);

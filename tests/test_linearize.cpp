@@ -3,7 +3,9 @@
 // (Richardson-extrapolated), redundant rows, and the states where ukdyn cannot vouch for them.
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <Eigen/SVD>
 #include <cmath>
 #include <random>
 
@@ -299,6 +301,44 @@ TEST(Derivatives, SingularStatesAreFlagged) {
 }
 
 // A component without exact derivatives is named, never approximated.
+// When every row is kept, linearize() skips the SVD of the row choice (a lower bound of
+// σ_min/σ_max of A M^{-1/2} from R⁻¹ of its QR, above 200 rank_rel_tol). With rank_rel_tol just
+// under σ_min/σ_max / 100 the bound falls below 200 rank_rel_tol and the SVD decides: the same rows
+// and the same derivatives, and no flag (the tip of a 2R arm held at a point, two rows, rank 2).
+TEST(Derivatives, RowChoiceWithoutTheSvdKeepsTheSameRows) {
+  Vec q(2), tau(2);
+  q << 0.4, -1.1;
+  tau << 0.3, -0.8;
+  System sys;
+  sys.add_subsystem(double_pendulum());
+  sys.add_constraint(
+      std::make_shared<TipOnLine>(-l1 * std::sin(q(0)) - l2 * std::sin(q(0) + q(1)), 1, 0));
+  sys.add_constraint(
+      std::make_shared<TipOnLine>(-l1 * std::cos(q(0)) - l2 * std::cos(q(0) + q(1)), 1, 2));
+  ForwardData d(sys);
+  forward(sys, d, 0.0, q, Vec::Zero(2), tau);
+  Eigen::LLT<Mat> llt(d.M);
+  const Mat Xt = llt.matrixL().solve(d.A.transpose());
+  const Vec sv = Eigen::JacobiSVD<Mat>(Xt).singularValues();
+  const double ratio = sv(1) / sv(0);
+  // Far from the stretched arm: W = A M⁻¹ Aᵀ (ratio² between its extreme eigenvalues) stays above
+  // the forward solve's cut-off ratio / 150 too, which keeps both rows.
+  ASSERT_GT(ratio, 0.02);
+  UkSettings svd_decides;
+  svd_decides.rank_rel_tol = ratio / 150.0;  // 200 tol > ratio ≥ the bound; ratio > 100 tol
+  const Linearization fast = linearize(sys, 0.0, q, Vec::Zero(2), tau);
+  const Linearization slow = linearize(sys, 0.0, q, Vec::Zero(2), tau, svd_decides);
+  EXPECT_TRUE(fast.trusted) << fast.message;
+  EXPECT_TRUE(slow.trusted) << slow.message;
+  EXPECT_EQ(fast.rank, 2);
+  EXPECT_EQ(slow.rank, 2);
+  EXPECT_EQ(fast.kept_rows, slow.kept_rows);
+  const double scale = 1.0 + fast.dqdd_dq.cwiseAbs().maxCoeff();
+  EXPECT_LE((fast.dqdd_dq - slow.dqdd_dq).cwiseAbs().maxCoeff(), 1e-14 * scale);
+  EXPECT_LE((fast.dQc_dq - slow.dQc_dq).cwiseAbs().maxCoeff(),
+            1e-14 * (1.0 + fast.dQc_dq.cwiseAbs().maxCoeff()));
+}
+
 TEST(Derivatives, ComponentsWithoutDerivativesAreNamed) {
   class Plain final : public Constraint {
    public:

@@ -2,15 +2,12 @@
 // form of Gauss's principle (ukdyn/model/linearize.hpp, docs/derivatives.md).
 #include "ukdyn/model/linearize.hpp"
 
-#include <Eigen/Cholesky>
-#include <Eigen/LU>
-#include <Eigen/QR>
-#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
 
+#include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/parameter_sensitivity.hpp"
 
 namespace ukdyn {
@@ -33,32 +30,58 @@ void check_size(const char* what, Index expected, Index got) {
 
 // The independent rows of A under the solve's rank rule (σ_k(A M^{-1/2}) > rank_rel_tol σ_1),
 // chosen by a column-pivoted QR of (A L^{-T})ᵀ, M = L Lᵀ (the singular values of A L^{-T} are
-// those of A M^{-1/2}); and how far the state is from a change of rank.
+// those of A M^{-1/2}); and how far the state is from a change of rank. The singular values are
+// those of the QR's triangular factor R (Xᵀ P = Q R: the same singular values), so that the one
+// factorisation serves both (JacobiSVD would otherwise factorise Xᵀ again as its preconditioner).
+// The kept rows go to d.lin.kept_rows; d's buffers are reused (no allocation at the same size).
 struct RowChoice {
-  std::vector<Index> kept;
   double sigma_ratio_kept = 1.0;     // σ_r / σ_1
   double sigma_ratio_dropped = 0.0;  // σ_{r+1} / σ_1
 };
 
-RowChoice independent_rows(const Mat& Ms, const Mat& A, double rel_tol) {
+// The common case without an SVD: R square (m ≤ n) and so well conditioned that every row is kept
+// and none of vouch()'s rank tests can fire. σ_min(R) = 1/‖R⁻¹‖₂ ≥ 1/‖R⁻¹‖_F and σ_max(R) ≤
+// ‖R‖_F (Golub & Van Loan, Matrix Computations, 4th ed., §2.3.2), so 1/(‖R⁻¹‖_F ‖R‖_F) is a lower
+// bound of σ_m/σ_1; above 200 rank_rel_tol (twice vouch()'s 100, for the round-off of R⁻¹) the SVD
+// would keep all m rows and raise no flag: the same rows, the same result. rc.sigma_ratio_kept gets
+// the bound. False (the SVD decides) otherwise.
+bool all_rows_kept(LinearizeData& d, double rel_tol, RowChoice& rc) {
+  const Index m = d.R.rows();
+  d.Rinv.setIdentity(m, m);
+  d.R.triangularView<Eigen::Upper>().solveInPlace(d.Rinv);
+  const double bound = 1.0 / (d.Rinv.norm() * d.R.norm());
+  if (!(std::isfinite(bound) && bound > 200.0 * rel_tol)) return false;
+  rc.sigma_ratio_kept = bound;
+  return true;
+}
+
+RowChoice independent_rows(LinearizeData& d, const Mat& Ms, const Mat& A, double rel_tol) {
   RowChoice rc;
-  const Index m = A.rows();
+  d.lin.kept_rows.clear();
+  const Index m = A.rows(), n = A.cols();
   if (m == 0) return rc;
-  Eigen::LLT<Mat> llt(Ms);
-  if (llt.info() != Eigen::Success)
+  d.llt.compute(Ms);
+  if (d.llt.info() != Eigen::Success)
     throw Error("linearize: the mass matrix is not positive definite");
   // X = A L^{-T}: Xᵀ = L^{-1} Aᵀ.
-  const Mat Xt = llt.matrixL().solve(A.transpose());
-  Eigen::JacobiSVD<Mat> svd(Xt);
-  const Vec& s = svd.singularValues();
+  d.Xt = A.transpose();
+  d.llt.matrixL().solveInPlace(d.Xt);
+  d.qr.compute(d.Xt);
+  const Index k = std::min(n, m);
+  d.R = d.qr.matrixQR().topRows(k).triangularView<Eigen::Upper>();
+  if (k == m && all_rows_kept(d, rel_tol, rc)) {
+    for (Index j = 0; j < m; ++j) d.lin.kept_rows.push_back(j);
+    return rc;
+  }
+  d.svd.compute(d.R);
+  const Vec& s = d.svd.singularValues();
   const double top = s.size() > 0 ? s(0) : 0.0;
   Index r = 0;
   while (r < s.size() && top > 0.0 && s(r) > rel_tol * top) ++r;
   if (r > 0) rc.sigma_ratio_kept = s(r - 1) / top;
   if (r < s.size() && top > 0.0) rc.sigma_ratio_dropped = s(r) / top;
-  Eigen::ColPivHouseholderQR<Mat> qr(Xt);
-  for (Index k = 0; k < r; ++k) rc.kept.push_back(qr.colsPermutation().indices()(k));
-  std::sort(rc.kept.begin(), rc.kept.end());
+  for (Index j = 0; j < r; ++j) d.lin.kept_rows.push_back(d.qr.colsPermutation().indices()(j));
+  std::sort(d.lin.kept_rows.begin(), d.lin.kept_rows.end());
   return rc;
 }
 
@@ -71,7 +94,7 @@ void mark(Linearization& lin, const std::string& why) {
 // (docs/derivatives.md, "When ukdyn cannot vouch for them").
 void vouch(Linearization& lin, const RowChoice& rc, const UkResult& result,
            const UkSettings& settings, Index m) {
-  const Index r = static_cast<Index>(rc.kept.size());
+  const Index r = static_cast<Index>(lin.kept_rows.size());
   if (r > 0 && rc.sigma_ratio_kept < 1e2 * settings.rank_rel_tol) {
     mark(lin, "near a singular position: the smallest kept singular value of A M^-1/2 is " +
                   sci(rc.sigma_ratio_kept) + " of the largest, the rank of A may change");
@@ -126,153 +149,155 @@ void state_space(const Linearization& lin, Mat& F, Mat& G) {
   G.bottomRows(n) = lin.dqdd_dtau;
 }
 
-namespace {
-
-// The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
-// over dμ) and the τ columns, solved here with the same factorisation.
-void store_solutions(Linearization& lin, const Eigen::PartialPivLU<Mat>& lu, const Mat& X,
-                     const Mat& dforce_all, const Mat& AR, const Vec& mu) {
-  const Index n = AR.cols(), r = AR.rows();
-  lin.dqdd_dq = X.topLeftCorner(n, n);
-  lin.dqdd_dqd = X.topRightCorner(n, n);
-  const Mat dQc = dforce_all + AR.transpose() * X.bottomRows(r);  // (dA_R)ᵀ μ + A_Rᵀ dμ
-  lin.dQc_dq = dQc.leftCols(n);
-  lin.dQc_dqd = dQc.rightCols(n);
-  lin.mu = mu;
-  lin.dmu_dq = X.bottomLeftCorner(r, n);
-  lin.dmu_dqd = X.bottomRightCorner(r, n);
-  // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
-  Mat rhs_tau = Mat::Zero(n + r, n);
-  rhs_tau.topRows(n).setIdentity();
-  const Mat Xt = lu.solve(rhs_tau);
-  lin.dqdd_dtau = Xt.topRows(n);
-  lin.dQc_dtau = AR.transpose() * Xt.bottomRows(r);
-  lin.dmu_dtau = Xt.bottomRows(r);
+LinearizeData::LinearizeData(const System& system)
+    : fwd(system),
+      Xt(system.dof(), system.rows()),
+      llt(system.dof()),
+      qr(system.dof(), system.rows()),
+      svd(std::min(system.dof(), system.rows()), system.rows()),
+      lambda(system.rows()),
+      dID(system.dof()),
+      dQa(system.dof()),
+      dres(system.rows()),
+      dforce_c(system.dof()),
+      dq(Vec::Zero(system.dof())),
+      dqd(Vec::Zero(system.dof())),
+      owner(static_cast<std::size_t>(system.dof()), 0) {
+  const auto& L = system.layout();
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)
+    for (Index i = 0; i < L.size[k]; ++i) owner[static_cast<std::size_t>(L.start[k] + i)] = k;
 }
 
-}  // namespace
-
 namespace {
 
-// The KKT system of the kept rows at a state, [M −A_Rᵀ; A_R 0] factorised once, and [q̈; μ]: what
-// every column of the derivatives (state directions, parameters) is solved with.
-struct Kkt {
-  explicit Kkt(const System& system) : d(system) {}
-  ForwardData d;
-  RowChoice rc;
-  Mat AR;
-  Eigen::PartialPivLU<Mat> lu;
-  Vec mu, lambda;  // μ over the kept rows; λ over all rows (0 on the dropped ones)
-};
-
-void build_kkt(const System& system, Kkt& k, Linearization& lin, double t, CVecRef q, CVecRef qd,
-               CVecRef tau, const UkSettings& settings) {
-  const Index n = system.dof(), m = system.rows();
-  if (!(std::isfinite(t) && q.allFinite() && qd.allFinite() && tau.allFinite()))
-    throw std::invalid_argument("linearize: t, q, qd and tau must be finite");
-  ForwardData& d = k.d;
-  forward(system, d, t, q, qd, tau, settings);
-  if (!d.result.finite) throw Error("linearize: the forward dynamics is not finite at this state");
-  const Mat Ms = solved_mass(system, d);
-  k.rc = independent_rows(Ms, d.A, settings.rank_rel_tol);
-  const Index r = static_cast<Index>(k.rc.kept.size());
-  lin.rank = static_cast<int>(r);
-  lin.kept_rows = k.rc.kept;
-  vouch(lin, k.rc, d.result, settings, m);
-
-  // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], and [q̈; μ] at the state.
-  k.AR.resize(r, n);
-  Vec bR(r);
-  for (Index i = 0; i < r; ++i) {
-    k.AR.row(i) = d.A.row(k.rc.kept[static_cast<std::size_t>(i)]);
-    bR(i) = d.b(k.rc.kept[static_cast<std::size_t>(i)]);
+// The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised, and [q̈; μ] at the state
+// (d.sol); Qc, μ, q̈ and the agreement with forward()'s q̈ into d.lin.
+void solve_kkt(LinearizeData& d, Index n) {
+  const ForwardData& f = d.fwd;
+  Linearization& lin = d.lin;
+  const auto r = static_cast<Index>(lin.kept_rows.size());
+  d.AR.resize(r, n);
+  d.bR.resize(r);
+  for (Index k = 0; k < r; ++k) {
+    d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
+    d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
-  Mat K = Mat::Zero(n + r, n + r);
-  K.topLeftCorner(n, n) = d.M;
-  K.topRightCorner(n, r) = -k.AR.transpose();
-  K.bottomLeftCorner(r, n) = k.AR;
-  k.lu.compute(K);
-  Vec rhs(n + r);
-  rhs.head(n) = d.Q;
-  rhs.tail(r) = bR;
-  const Vec sol = k.lu.solve(rhs);
-  if (!sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
-  lin.qdd = sol.head(n);
-  k.mu = sol.tail(r);
-  lin.Qc = k.AR.transpose() * k.mu;
-  lin.kkt_agreement = (lin.qdd - d.qdd).cwiseAbs().maxCoeff() / (1.0 + d.qdd.cwiseAbs().maxCoeff());
+  d.K.resize(n + r, n + r);
+  d.K.setZero();
+  d.K.topLeftCorner(n, n) = f.M;
+  d.K.topRightCorner(n, r) = -d.AR.transpose();
+  d.K.bottomLeftCorner(r, n) = d.AR;
+  d.lu.compute(d.K);
+  d.rhs.resize(n + r);
+  d.rhs.head(n) = f.Q;
+  d.rhs.tail(r) = d.bR;
+  d.sol.resize(n + r);
+  d.sol = d.lu.solve(d.rhs);
+  if (!d.sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
+  lin.qdd = d.sol.head(n);
+  lin.mu = d.sol.tail(r);
+  lin.Qc.resize(n);
+  lin.Qc.noalias() = d.AR.transpose() * lin.mu;
+  lin.kkt_agreement = (lin.qdd - f.qdd).cwiseAbs().maxCoeff() / (1.0 + f.qdd.cwiseAbs().maxCoeff());
   if (!(lin.kkt_agreement <= 1e-8)) {
     mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
   }
-  k.lambda = Vec::Zero(m);
-  for (Index i = 0; i < r; ++i) k.lambda(k.rc.kept[static_cast<std::size_t>(i)]) = k.mu(i);
+  // λ over all rows (0 on the dropped ones) for the constraints' tangents.
+  d.lambda.setZero();
+  for (Index k = 0; k < r; ++k) d.lambda(lin.kept_rows[static_cast<std::size_t>(k)]) = lin.mu(k);
 }
 
-// The state columns (∂/∂q, ∂/∂q̇, ∂/∂τ) of lin from the components' exact tangents.
-void state_columns(const System& system, Kkt& k, Linearization& lin, double t, CVecRef q,
-                   CVecRef qd) {
-  const Index n = system.dof(), m = system.rows(), r = k.AR.rows();
-  ForwardData& d = k.d;
-  // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
-  // column each, solved together with the one factorisation. A subsystem's inverse dynamics
-  // depends on its own coordinates only (M, C, G are block-diagonal, paper Eq. (10)-(11)): along
-  // e_j only the subsystem holding j has a tangent, the others' is zero and is not computed.
+// The right-hand side of the differentiated KKT system along one direction (d.dq, d.dqd) into
+// column `col` of d.rhs_all, and d(Aᵀλ) into column `col` of d.dforce_all. A subsystem's inverse
+// dynamics depends on its own coordinates only (M, C, G are block-diagonal, paper Eq. (10)-(11)):
+// along e_j only the subsystem holding j has a tangent, the others' is zero and is not computed.
+void direction(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, Index j,
+               Index col) {
+  const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
   const auto& cons = system.constraints();
   const auto& offs = system.constraint_row_offsets();
-  Mat rhs_all = Mat::Zero(n + r, 2 * n), dforce_all(n, 2 * n);
-  Vec dID(n), dQa(n), dres(m), dforce_c(n);
-  std::vector<std::size_t> owner(static_cast<std::size_t>(n), 0);
-  for (std::size_t s = 0; s < subs.size(); ++s)
-    for (Index i = 0; i < L.size[s]; ++i) owner[static_cast<std::size_t>(L.start[s] + i)] = s;
-  Vec dq = Vec::Zero(n), dqd = Vec::Zero(n);
-  auto direction = [&](Index col) {
-    dID.setZero();
-    const Index j = col % n;
-    const std::size_t sk = owner[static_cast<std::size_t>(j)];
-    const Index s = L.start[sk], nk = L.size[sk];
-    if (!subs[sk]->inverse_dynamics_tangent(
-            {t, d.subsystem_slot(sk)}, q.segment(s, nk), qd.segment(s, nk), lin.qdd.segment(s, nk),
-            dq.segment(s, nk), dqd.segment(s, nk), dID.segment(s, nk)))
-      throw Error("linearize: subsystem '" + subs[sk]->name() + "' has no exact derivatives");
-    dQa.setZero();
-    for (const auto& f : system.applied_forces()) {
-      if (!f->add_tangent(t, q, qd, dq, dqd, dQa))
-        throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
-    }
-    auto dforce = dforce_all.col(col);
-    dforce.setZero();
-    dres.setZero();
-    for (std::size_t c = 0; c < cons.size(); ++c) {
-      const Index rows = cons[c]->rows();
-      dforce_c.setZero();
-      if (!cons[c]->tangent({t, d.constraint_slots(c)}, q, qd, lin.qdd,
-                            k.lambda.segment(offs[c], rows), dq, dqd, dres.segment(offs[c], rows),
-                            dforce_c))
-        throw Error("linearize: a constraint has no exact derivatives");
-      dforce += dforce_c;
-    }
-    rhs_all.col(col).head(n) = -dID + dQa + dforce;
-    for (Index i = 0; i < r; ++i)
-      rhs_all(n + i, col) = -dres(k.rc.kept[static_cast<std::size_t>(i)]);
-  };
-  for (Index j = 0; j < n; ++j) {
-    dq(j) = 1.0;
-    direction(j);
-    dq(j) = 0.0;
-    dqd(j) = 1.0;
-    direction(n + j);
-    dqd(j) = 0.0;
+  const Vec& qdd = d.lin.qdd;
+  d.dID.setZero();
+  const std::size_t k = d.owner[static_cast<std::size_t>(j)];
+  const Index s = L.start[k], nk = L.size[k];
+  if (!subs[k]->inverse_dynamics_tangent({t, d.fwd.subsystem_slot(k)}, q.segment(s, nk),
+                                         qd.segment(s, nk), qdd.segment(s, nk), d.dq.segment(s, nk),
+                                         d.dqd.segment(s, nk), d.dID.segment(s, nk)))
+    throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
+  d.dQa.setZero();
+  for (const auto& f : system.applied_forces()) {
+    if (!f->add_tangent(t, q, qd, d.dq, d.dqd, d.dQa))
+      throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
   }
-  store_solutions(lin, k.lu, k.lu.solve(rhs_all), dforce_all, k.AR, k.mu);
+  auto dforce = d.dforce_all.col(col);
+  dforce.setZero();
+  d.dres.setZero();
+  for (std::size_t c = 0; c < cons.size(); ++c) {
+    const Index rows = cons[c]->rows();
+    d.dforce_c.setZero();
+    if (!cons[c]->tangent({t, d.fwd.constraint_slots(c)}, q, qd, qdd,
+                          d.lambda.segment(offs[c], rows), d.dq, d.dqd,
+                          d.dres.segment(offs[c], rows), d.dforce_c))
+      throw Error("linearize: a constraint has no exact derivatives");
+    dforce += d.dforce_c;
+  }
+  d.rhs_all.col(col).head(n) = -d.dID + d.dQa + dforce;
+  for (Index i = 0; i < r; ++i)
+    d.rhs_all(n + i, col) = -d.dres(d.lin.kept_rows[static_cast<std::size_t>(i)]);
 }
 
-void check_sizes(const System& system, CVecRef q, CVecRef qd, CVecRef tau) {
+// The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
+// over dμ) and the τ columns, solved here with the same factorisation.
+void store_solutions(LinearizeData& d, Index n, LinearizeParts parts) {
+  Linearization& lin = d.lin;
+  const Index r = d.AR.rows();
+  const Mat& X = d.X;
+  lin.dqdd_dq = X.topLeftCorner(n, n);
+  lin.dqdd_dqd = X.topRightCorner(n, n);
+  if (parts.constraint_force) {
+    // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
+    lin.dQc_dq = d.dforce_all.leftCols(n);
+    lin.dQc_dq.noalias() += d.AR.transpose() * X.bottomLeftCorner(r, n);
+    lin.dQc_dqd = d.dforce_all.rightCols(n);
+    lin.dQc_dqd.noalias() += d.AR.transpose() * X.bottomRightCorner(r, n);
+    lin.dmu_dq = X.bottomLeftCorner(r, n);
+    lin.dmu_dqd = X.bottomRightCorner(r, n);
+  } else {
+    lin.dQc_dq.resize(0, 0);
+    lin.dQc_dqd.resize(0, 0);
+    lin.dmu_dq.resize(0, 0);
+    lin.dmu_dqd.resize(0, 0);
+  }
+  if (!parts.tau || !parts.constraint_force) {
+    lin.dQc_dtau.resize(0, 0);
+    lin.dmu_dtau.resize(0, 0);
+  }
+  if (!parts.tau) {
+    lin.dqdd_dtau.resize(0, 0);
+    return;
+  }
+  // τ enters Q alone: M dq̈ − A_Rᵀ dμ = e_j, A_R dq̈ = 0.
+  d.rhs_tau.resize(n + r, n);
+  d.rhs_tau.setZero();
+  d.rhs_tau.topRows(n).setIdentity();
+  d.X_tau.resize(n + r, n);
+  d.X_tau = d.lu.solve(d.rhs_tau);
+  lin.dqdd_dtau = d.X_tau.topRows(n);
+  if (!parts.constraint_force) return;
+  lin.dQc_dtau.resize(n, n);
+  lin.dQc_dtau.noalias() = d.AR.transpose() * d.X_tau.bottomRows(r);
+  lin.dmu_dtau = d.X_tau.bottomRows(r);
+}
+
+void check_sizes(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau) {
   const Index n = system.dof();
   check_size("q", n, q.size());
   check_size("qd", n, qd.size());
   check_size("tau", n, tau.size());
+  if (!(std::isfinite(t) && q.allFinite() && qd.allFinite() && tau.allFinite()))
+    throw std::invalid_argument("linearize: t, q, qd and tau must be finite");
 }
 
 void require_derivatives(const System& system) {
@@ -284,24 +309,83 @@ void require_derivatives(const System& system) {
   }
 }
 
+void check_inputs(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau) {
+  check_sizes(system, t, q, qd, tau);
+  require_derivatives(system);
+}
+
+// forward() at the state, the kept rows, the trust of the result and the KKT solve: what every
+// column of the derivatives (state directions, parameters) is solved with.
+void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                 CVecRef tau, const UkSettings& settings) {
+  const Index n = system.dof(), m = system.rows();
+  check_data_for(system, d.fwd, "linearize");
+  Linearization& lin = d.lin;
+  lin.trusted = true;
+  lin.message.clear();
+  forward(system, d.fwd, t, q, qd, tau, settings);
+  if (!d.fwd.result.finite)
+    throw Error("linearize: the forward dynamics is not finite at this state");
+  // M, or the augmented M_a the solve used (solved_mass(), formed here in d.Ms after the arrow
+  // solve).
+  const ForwardData& f = d.fwd;
+  const Mat* Ms = &f.M;
+  if (f.singular.active && !f.used_arrow) Ms = &f.singular.Ma;
+  if (f.singular.active && f.used_arrow) {
+    d.Ms = f.M;
+    d.Qa = f.Q;
+    augmented_blocks(system.layout(), f.A, f.b, f.singular, d.Ms, d.Qa);
+    Ms = &d.Ms;
+  }
+  const RowChoice rc = independent_rows(d, *Ms, f.A, settings.rank_rel_tol);
+  lin.rank = static_cast<int>(lin.kept_rows.size());
+  vouch(lin, rc, d.fwd.result, settings, m);
+  solve_kkt(d, n);
+}
+
+// The state columns (∂/∂q, ∂/∂q̇ and, as `parts` asks, ∂/∂τ) from the components' exact tangents.
+void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                   LinearizeParts parts) {
+  const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
+  // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
+  // column each, solved together with the one factorisation.
+  d.rhs_all.resize(n + r, 2 * n);
+  d.dforce_all.resize(n, 2 * n);
+  for (Index j = 0; j < n; ++j) {
+    d.dq(j) = 1.0;
+    direction(system, d, t, q, qd, j, j);
+    d.dq(j) = 0.0;
+    d.dqd(j) = 1.0;
+    direction(system, d, t, q, qd, j, n + j);
+    d.dqd(j) = 0.0;
+  }
+  d.X.resize(n + r, 2 * n);
+  d.X = d.lu.solve(d.rhs_all);
+  store_solutions(d, n, parts);
+}
+
 }  // namespace
+
+void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, CVecRef tau,
+               const UkSettings& settings, LinearizeParts parts) {
+  check_inputs(system, t, q, qd, tau);
+  prepare_kkt(system, d, t, q, qd, tau, settings);
+  state_columns(system, d, t, q, qd, parts);
+}
 
 Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
                         const UkSettings& settings) {
-  check_sizes(system, q, qd, tau);
-  require_derivatives(system);
-  Linearization lin;
-  Kkt k(system);
-  build_kkt(system, k, lin, t, q, qd, tau, settings);
-  state_columns(system, k, lin, t, q, qd);
-  return lin;
+  check_inputs(system, t, q, qd, tau);
+  LinearizeData d(system);
+  linearize(system, d, t, q, qd, tau, settings);
+  return std::move(d.lin);
 }
 
 ParameterLinearization linearize_parameters(const System& system, double t, CVecRef q, CVecRef qd,
                                             CVecRef tau,
                                             const std::vector<ModelParameterDerivative>& dp,
                                             const UkSettings& settings, bool with_state) {
-  check_sizes(system, q, qd, tau);
+  check_sizes(system, t, q, qd, tau);
   if (with_state) require_derivatives(system);
   const Index n = system.dof(), m = system.rows();
   for (const auto& p : dp) {
@@ -310,27 +394,29 @@ ParameterLinearization linearize_parameters(const System& system, double t, CVec
       throw std::invalid_argument(
           "linearize_parameters: a parameter's dM, dQ, dA, db do not match the system's sizes");
   }
-  ParameterLinearization out;
-  Kkt k(system);
-  build_kkt(system, k, out.lin, t, q, qd, tau, settings);
-  if (with_state) state_columns(system, k, out.lin, t, q, qd);
+  LinearizeData d(system);
+  prepare_kkt(system, d, t, q, qd, tau, settings);
+  if (with_state) state_columns(system, d, t, q, qd, LinearizeParts{});
   // Implicit differentiation of the KKT system in p at fixed (t, q, q̇):
   //   M ∂q̈ − A_Rᵀ ∂μ = ∂Q − ∂M q̈ + (∂A_R)ᵀ μ,   A_R ∂q̈ = ∂b_R − ∂A_R q̈,
   //   ∂Qc = (∂A_R)ᵀ μ + A_Rᵀ ∂μ   (the same factorisation as the state columns).
-  const Index r = k.AR.rows(), P = static_cast<Index>(dp.size());
-  const Vec& qdd = out.lin.qdd;
+  const Index r = static_cast<Index>(d.lin.kept_rows.size()), P = static_cast<Index>(dp.size());
+  const Vec& qdd = d.lin.qdd;
   Mat rhs(n + r, P), dforce(n, P);
   for (Index j = 0; j < P; ++j) {
     const auto& p = dp[static_cast<std::size_t>(j)];
-    dforce.col(j) = p.dA.transpose() * k.lambda;
+    dforce.col(j) = p.dA.transpose() * d.lambda;
     rhs.col(j).head(n) = p.dQ - p.dM * qdd + dforce.col(j);
     const Vec dres = p.dA * qdd - p.db;
-    for (Index i = 0; i < r; ++i) rhs(n + i, j) = -dres(k.rc.kept[static_cast<std::size_t>(i)]);
+    for (Index i = 0; i < r; ++i)
+      rhs(n + i, j) = -dres(d.lin.kept_rows[static_cast<std::size_t>(i)]);
   }
-  const Mat X = k.lu.solve(rhs);
+  const Mat X = d.lu.solve(rhs);
+  ParameterLinearization out;
   out.dqdd_dp = X.topRows(n);
   out.dmu_dp = X.bottomRows(r);
-  out.dQc_dp = dforce + k.AR.transpose() * out.dmu_dp;
+  out.dQc_dp = dforce + d.AR.transpose() * out.dmu_dp;
+  out.lin = std::move(d.lin);
   return out;
 }
 

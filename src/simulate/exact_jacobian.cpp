@@ -2,8 +2,6 @@
 
 #include <exception>
 
-#include "ukdyn/model/linearize.hpp"
-
 namespace ukdyn::detail {
 
 std::string exact_jacobian_gap(const System& system, const ForceFunction& tau,
@@ -37,7 +35,8 @@ ExactJacobian::ExactJacobian(const System& system, const ForceFunction& tau,
       size_(2 * system.dof() + (settings.energy_balance ? 1 : 0)),
       tau_(Vec::Zero(system.dof())),
       dtau_dq_(Mat::Zero(n_, n_)),
-      dtau_dqd_(Mat::Zero(n_, n_)) {}
+      dtau_dqd_(Mat::Zero(n_, n_)),
+      lin_(system) {}
 
 bool ExactJacobian::operator()(double t, const double* x, double* J) {
   const Eigen::Map<const Vec> q(x, n_);
@@ -47,7 +46,10 @@ bool ExactJacobian::operator()(double t, const double* x, double* J) {
   // Called from SUNDIALS (C): nothing may propagate out of it.
   try {
     if (tau_fn_) tau_fn_(t, q, qd, tau_);
-    const Linearization lin = linearize(system_, t, q, qd, tau_, s_.uk);
+    // ∂q̈/∂τ only for the chain rule through τ(t, q, q̇); ∂Qc is not a term of f.
+    linearize(system_, lin_, t, q, qd, tau_, s_.uk,
+              LinearizeParts{/*tau=*/static_cast<bool>(tau_fn_), /*constraint_force=*/false});
+    const Linearization& lin = lin_.lin;
     if (!lin.trusted) return false;
     for (Index i = 0; i < n_; ++i) Jm(i, n_ + i) = 1.0;  // ∂q̇/∂q̇ = I
     Jm.block(n_, 0, n_, n_) = lin.dqdd_dq;

@@ -17,6 +17,7 @@
 
 #include <string>
 
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 
 namespace ukdyn::detail {
@@ -28,7 +29,8 @@ std::string exact_jacobian_gap(const System& system, const ForceFunction& tau,
                                const SimulationSettings& settings);
 
 /// The exact ∂f/∂x at a state. References system, tau and settings (they must outlive it); its
-/// buffers are allocated once (linearize() itself allocates its result).
+/// buffers are allocated once: linearize() runs into its LinearizeData and computes ∂q̈/∂(q, q̇)
+/// alone (∂q̈/∂τ too with a force function; never ∂Qc).
 class ExactJacobian {
  public:
   ExactJacobian(const System& system, const ForceFunction& tau, const SimulationSettings& settings);
@@ -43,6 +45,7 @@ class ExactJacobian {
   Index n_, size_;
   Vec tau_;
   Mat dtau_dq_, dtau_dqd_;
+  LinearizeData lin_;
 };
 
 }  // namespace ukdyn::detail

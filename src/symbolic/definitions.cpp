@@ -636,9 +636,30 @@ void DerivedSubsystem::mass(const EvalContext& ctx, CVecRef q, MatRef M) const {
   symmetric_from_upper(out, n_, M);
 }
 
+// The dynamics tape's outputs and work, twice: the tangents' (dynamics_tangent()) follow.
 Index DerivedSubsystem::slot_size() const {
-  return static_cast<Index>(dyn_.outputs() + dyn_.work_size());
+  return static_cast<Index>(2 * (dyn_.outputs() + dyn_.work_size()));
 }
+
+namespace {
+
+// The tape's values (returned) and, after them, their tangents along (dq, dq̇): in the slot when it
+// has `size` doubles (2 (outputs + work)), else in `own`.
+const double* tape_tangent(const Tape& tape, const EvalContext& ctx, Index size, CVecRef q,
+                           CVecRef qd, CVecRef dq, CVecRef dqd, std::vector<double>& own) {
+  const std::size_t no = tape.outputs(), nw = tape.work_size();
+  double* base = ctx.slot.data();
+  if (ctx.slot.size() != static_cast<std::size_t>(size)) {
+    own.resize(2 * (no + nw));
+    base = own.data();
+  }
+  // (CVecRef is contiguous.)
+  tape.eval_tangent(ctx.t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), base, base + no,
+                    base + 2 * no, base + 2 * no + nw);
+  return base;
+}
+
+}  // namespace
 
 double DerivedSubsystem::dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M,
                                   VecRef Cqd, VecRef G) const {
@@ -669,23 +690,31 @@ double DerivedSubsystem::unpack_dynamics(const double* out, MatRef M, VecRef Cqd
 void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef dq,
                                         CVecRef dqd, MatRef M, VecRef Cqd, VecRef G, MatRef dM,
                                         VecRef dCqd, VecRef dG) const {
-  // Contiguous copies: the refs may be strided.
-  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
-  std::vector<double> out(dyn_.outputs()), dout(dyn_.outputs()), work(dyn_.work_size()),
-      dwork(dyn_.work_size());
-  dyn_.eval_tangent(ctx.t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
-                    dout.data(), work.data(), dwork.data());
-  unpack_dynamics(out.data(), M, Cqd, G);
-  unpack_dynamics(dout.data(), dM, dCqd, dG);
+  std::vector<double> own;
+  const double* out = tape_tangent(dyn_, ctx, slot_size(), q, qd, dq, dqd, own);
+  unpack_dynamics(out, M, Cqd, G);
+  unpack_dynamics(out + dyn_.outputs(), dM, dCqd, dG);
 }
 
+// dID = dM q̈ + d(C q̇) + dG straight from the tangents of the packed outputs (M's upper triangle
+// row by row, then C q̇, G): no matrix is formed.
 bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd,
                                                 CVecRef qdd, CVecRef dq, CVecRef dqd,
                                                 VecRef dID) const {
-  Mat M(n_, n_), dM(n_, n_);
-  Vec Cqd(n_), G(n_), dCqd(n_), dG(n_);
-  dynamics_tangent(ctx, q, qd, dq, dqd, M, Cqd, G, dM, dCqd, dG);
-  dID = dM * qdd + dCqd + dG;
+  std::vector<double> own;
+  const double* dout = tape_tangent(dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_.outputs();
+  dID.setZero();
+  std::size_t k = 0;
+  for (Index i = 0; i < n_; ++i) {
+    for (Index j = i; j < n_; ++j) {
+      const double v = dout[k++];
+      dID(i) += v * qdd(j);
+      if (j != i) dID(j) += v * qdd(i);
+    }
+  }
+  for (Index i = 0; i < n_; ++i) dID(i) += dout[k + static_cast<std::size_t>(i)];
+  k += static_cast<std::size_t>(n_);
+  for (Index i = 0; i < n_; ++i) dID(i) += dout[k + static_cast<std::size_t>(i)];
   return true;
 }
 
@@ -899,9 +928,10 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
   phid_ = Tape(phid, in);
 }
 
+// The A, b tape's outputs and work, twice: tangent() puts their tangents in the second half.
 Index DerivedConstraint::slot_size() const {
   return static_cast<Index>(
-      std::max({ab_.outputs() + ab_.work_size(), phi_.work_size(), phid_.work_size()}));
+      std::max({2 * (ab_.outputs() + ab_.work_size()), phi_.work_size(), phid_.work_size()}));
 }
 
 // A, b from the tape: its outputs and work buffer in this constraint's slot, or (no slot: the
@@ -934,13 +964,21 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
 bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef lambda, CVecRef dq, CVecRef dqd, VecRef d_residual,
                                 VecRef d_force) const {
-  // Contiguous copies: the refs may be strided. The tape's outputs: A's structural entries (nz_),
-  // then b.
-  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
-  std::vector<double> out(ab_.outputs()), dout(ab_.outputs()), work(ab_.work_size()),
-      dwork(ab_.work_size());
-  ab_.eval_tangent(ctx.t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
-                   dout.data(), work.data(), dwork.data());
+  // The tape's outputs: A's structural entries (nz_), then b; with their tangents and the work
+  // buffers in this constraint's slot, or (no slot) in a buffer of its own. (CVecRef is contiguous.)
+  const std::size_t no = ab_.outputs(), nw = ab_.work_size();
+  const Slot own = ctx.slots.own();
+  std::vector<double> buffer;
+  double* base = own.data();
+  if (own.size() != static_cast<std::size_t>(slot_size())) {
+    buffer.resize(2 * (no + nw));
+    base = buffer.data();
+  }
+  double* out = base;
+  double* dout = out + no;
+  double* work = dout + no;
+  double* dwork = work + nw;
+  ab_.eval_tangent(ctx.t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), out, dout, work, dwork);
   for (Index r = 0; r < m_; ++r) d_residual(r) = 0.0;
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) {

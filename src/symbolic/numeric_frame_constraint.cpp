@@ -327,12 +327,11 @@ Dual dual(double value, double tangent) {
 double tangent_of(const Dual& x) { return x.derivatives()(0); }
 
 // A frame's state on dual numbers along one direction (dq, dq̇) at fixed q̈: pdd, Rdd are the
-// acceleration AT q̈ (so that A q̈ − b = D ẍ + ẋᵀHẋ), dp, dR the columns of its end.
+// acceleration AT q̈ (so that A q̈ − b = D ẍ + ẋᵀHẋ). The columns dp, dR of its end are kept as
+// values and tangents in two FrameStates (in the constraint's slot: no allocation per direction).
 struct DualFrame {
   DV3 p, pd, pdd;
   DM3 R, Rd, Rdd;
-  Eigen::Matrix<Dual, 3, Eigen::Dynamic> dp;
-  Eigen::Matrix<Dual, 9, Eigen::Dynamic> dR;
 };
 
 template <class M, class DM>
@@ -341,102 +340,142 @@ void combine(const M& value, const M& tangent, DM& out) {
     for (Index j = 0; j < value.cols(); ++j) out(i, j) = dual(value(i, j), tangent(i, j));
 }
 
-// A tree end: frame_state_tangent (the recursive pass on dual numbers).
-void tree_end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
-                      double* scratch, DualFrame& s) {
-  const NumericFrameEnd& spec = e.spec;
-  const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
-  std::vector<double> buf(static_cast<std::size_t>(24 * n));
-  FrameState v(buf.data(), buf.data() + 3 * n, n), t(buf.data() + 12 * n, buf.data() + 15 * n, n);
-  spec.tree->frame_state_tangent(q.segment(c0, n), qd.segment(c0, n), qdd.segment(c0, n),
-                                 dq.segment(c0, n), dqd.segment(c0, n), spec.link, spec.offset_R,
-                                 spec.offset_p, Slot(scratch, static_cast<std::size_t>(e.scratch)),
-                                 v, t);
+void combine(const FrameState& v, const FrameState& t, DualFrame& s) {
   combine(v.p, t.p, s.p);
   combine(v.R, t.R, s.R);
   combine(v.pd, t.pd, s.pd);
   combine(v.Rd, t.Rd, s.Rd);
   combine(v.pdd, t.pdd, s.pdd);
   combine(v.Rdd, t.Rdd, s.Rdd);
-  s.dp.resize(3, n);
-  s.dR.resize(9, n);
-  combine(v.dp, t.dp, s.dp);
-  combine(v.dR, t.dR, s.dR);
+}
+
+// An end's room in the slot: its scratch (End::scratch: the tree's workspace, or the tape's work
+// and outputs) and, for an expressions end, as much again for the tape's tangents.
+struct EndScratch {
+  double* scratch;
+  double* room;
+};
+
+Index tangent_room(const End& e) {
+  return e.spec.kind == NumericFrameEnd::Kind::expressions ? e.scratch : 0;
+}
+
+// A tree end: frame_state_tangent (the recursive pass on dual numbers).
+void tree_end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
+                      double* scratch, FrameState& v, FrameState& t, DualFrame& s) {
+  const NumericFrameEnd& spec = e.spec;
+  const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
+  spec.tree->frame_state_tangent(q.segment(c0, n), qd.segment(c0, n), qdd.segment(c0, n),
+                                 dq.segment(c0, n), dqd.segment(c0, n), spec.link, spec.offset_R,
+                                 spec.offset_p, Slot(scratch, static_cast<std::size_t>(e.scratch)),
+                                 v, t);
+  combine(v, t, s);
 }
 
 // An expressions end: its tape (x, ∂x/∂q_c, ẍ|q̈=0) along the direction (Tape::eval_tangent),
-// then ẋ = Σ_c ∂x/∂q_c q̇_c and ẍ = ẍ|q̈=0 + Σ_c ∂x/∂q_c q̈_c on dual numbers.
+// then ẋ = Σ_c ∂x/∂q_c q̇_c and ẍ = ẍ|q̈=0 + Σ_c ∂x/∂q_c q̈_c on dual numbers. scratch: out, work
+// (End::scratch), then dwork, dout in `room` (as many).
 void expression_end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq,
-                            CVecRef dqd, DualFrame& s) {
-  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;  // contiguous (the refs may be strided)
-  const std::size_t no = e.tape.outputs(), nw = e.tape.work_size();
-  std::vector<double> out(no), dout(no), work(nw), dwork(nw);
-  e.tape.eval_tangent(0.0, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(),
-                      dout.data(), work.data(), dwork.data());
-  auto x = [&](std::size_t i) { return dual(out[i], dout[i]); };
+                            CVecRef dqd, EndScratch x, FrameState& v, FrameState& t, DualFrame& s) {
+  const std::size_t nw = e.tape.work_size();
+  double* work = x.scratch;
+  double* out = x.scratch + nw;
+  double* dwork = x.room;
+  double* dout = x.room + nw;
+  e.tape.eval_tangent(0.0, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), out, dout, work, dwork);
+  auto at = [&](std::size_t i) { return dual(out[i], dout[i]); };
   const auto nc = static_cast<Index>(e.cols.size());
-  s.dp.resize(3, nc);
-  s.dR.resize(9, nc);
-  for (int i = 0; i < 3; ++i) s.p(i) = x(static_cast<std::size_t>(i));
-  for (int i = 0; i < 9; ++i) s.R(i / 3, i % 3) = x(static_cast<std::size_t>(3 + i));
+  for (int i = 0; i < 3; ++i) s.p(i) = at(static_cast<std::size_t>(i));
+  for (int i = 0; i < 9; ++i) s.R(i / 3, i % 3) = at(static_cast<std::size_t>(3 + i));
   const std::size_t acc = 12 * static_cast<std::size_t>(nc + 1);
-  for (int i = 0; i < 3; ++i) s.pdd(i) = x(acc + static_cast<std::size_t>(i));
-  for (int i = 0; i < 9; ++i) s.Rdd(i / 3, i % 3) = x(acc + 3 + static_cast<std::size_t>(i));
+  for (int i = 0; i < 3; ++i) s.pdd(i) = at(acc + static_cast<std::size_t>(i));
+  for (int i = 0; i < 9; ++i) s.Rdd(i / 3, i % 3) = at(acc + 3 + static_cast<std::size_t>(i));
   s.pd.setZero();
   s.Rd.setZero();
   for (Index c = 0; c < nc; ++c) {
     const std::size_t d = 12 * static_cast<std::size_t>(c + 1);
     const Index col = e.cols[static_cast<std::size_t>(c)];
-    const Dual v = dual(qd(col), dqd(col));
+    const Dual w = dual(qd(col), dqd(col));
     const double a = qdd(col);
     for (int i = 0; i < 3; ++i) {
-      s.dp(i, c) = x(d + static_cast<std::size_t>(i));
-      s.pd(i) += s.dp(i, c) * v;
-      s.pdd(i) += s.dp(i, c) * a;
+      const Dual dp = at(d + static_cast<std::size_t>(i));
+      v.dp(i, c) = out[d + static_cast<std::size_t>(i)];
+      t.dp(i, c) = dout[d + static_cast<std::size_t>(i)];
+      s.pd(i) += dp * w;
+      s.pdd(i) += dp * a;
     }
     for (int i = 0; i < 9; ++i) {
-      s.dR(i, c) = x(d + 3 + static_cast<std::size_t>(i));
-      s.Rd(i / 3, i % 3) += s.dR(i, c) * v;
-      s.Rdd(i / 3, i % 3) += s.dR(i, c) * a;
+      const Dual dR = at(d + 3 + static_cast<std::size_t>(i));
+      v.dR(i, c) = out[d + 3 + static_cast<std::size_t>(i)];
+      t.dR(i, c) = dout[d + 3 + static_cast<std::size_t>(i)];
+      s.Rd(i / 3, i % 3) += dR * w;
+      s.Rdd(i / 3, i % 3) += dR * a;
     }
   }
+}
+
+// An end the direction does not move (its coordinates' dq, dq̇ all zero): its state in doubles
+// (end_state) with zero tangents, the acceleration at q̈ = ẍ|q̈=0 + Σ_c ∂x/∂q_c q̈_c.
+void still_end(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, double* scratch, FrameState& v,
+               FrameState& t, DualFrame& s) {
+  end_state(e, q, qd, scratch, v);
+  for (std::size_t c = 0; c < e.cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    const double a = qdd(e.cols[c]);
+    v.pdd += v.dp.col(ci) * a;
+    for (int i = 0; i < 9; ++i) v.Rdd(i / 3, i % 3) += v.dR(i, ci) * a;
+  }
+  t.p.setZero();
+  t.R.setZero();
+  t.pd.setZero();
+  t.Rd.setZero();
+  t.pdd.setZero();
+  t.Rdd.setZero();
+  t.dp.setZero();
+  t.dR.setZero();
+  combine(v, t, s);
+}
+
+bool moves(const End& e, CVecRef dq, CVecRef dqd) {
+  return std::any_of(e.cols.begin(), e.cols.end(),
+                     [&](Index c) { return dq(c) != 0.0 || dqd(c) != 0.0; });
 }
 
 void end_tangent(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd,
-                 double* scratch, DualFrame& s) {
-  switch (e.spec.kind) {
-    case NumericFrameEnd::Kind::fixed:
-      s.p = e.spec.offset_p.cast<Dual>();
-      s.R = e.spec.offset_R.cast<Dual>();
-      s.pd.setZero();
-      s.pdd.setZero();
-      s.Rd.setZero();
-      s.Rdd.setZero();
-      s.dp.resize(3, 0);
-      s.dR.resize(9, 0);
-      return;
-    case NumericFrameEnd::Kind::tree:
-      tree_end_tangent(e, q, qd, qdd, dq, dqd, scratch, s);
-      return;
-    case NumericFrameEnd::Kind::expressions:
-      expression_end_tangent(e, q, qd, qdd, dq, dqd, s);
-      return;
+                 EndScratch x, FrameState& v, FrameState& t, DualFrame& s) {
+  if (e.spec.kind == NumericFrameEnd::Kind::fixed) {
+    s.p = e.spec.offset_p.cast<Dual>();
+    s.R = e.spec.offset_R.cast<Dual>();
+    s.pd.setZero();
+    s.pdd.setZero();
+    s.Rd.setZero();
+    s.Rdd.setZero();
+  } else if (!moves(e, dq, dqd)) {
+    still_end(e, q, qd, qdd, x.scratch, v, t, s);
+  } else if (e.spec.kind == NumericFrameEnd::Kind::tree) {
+    tree_end_tangent(e, q, qd, qdd, dq, dqd, x.scratch, v, t, s);
+  } else {
+    expression_end_tangent(e, q, qd, qdd, dq, dqd, x, v, t, s);
   }
 }
 
-// d_force(cols) += d(J_endᵀ D_endᵀ λ): the end's part of d(Aᵀλ).
-void add_force_tangent(const DualFrame& s, const std::vector<Index>& cols, const RowValues<Dual>& r,
-                       int p0, int r0, CVecRef lambda, VecRef d_force) {
+// d_force(cols) += d(J_endᵀ D_endᵀ λ): the end's part of d(Aᵀλ), its columns ∂x/∂q_c as values v
+// and tangents t. Dᵀλ over the end's 12 entries is formed once (g), then dotted with each column.
+void add_force_tangent(const FrameState& v, const FrameState& t, const std::vector<Index>& cols,
+                       const RowValues<Dual>& r, int p0, int r0, CVecRef lambda, VecRef d_force) {
+  Eigen::Matrix<Dual, 12, 1> g;
+  for (int k = 0; k < 12; ++k) {
+    g(k) = Dual(0.0);
+    const int col = k < 3 ? p0 + k : r0 + (k - 3);
+    for (int i = 0; i < r.m; ++i) g(k) += r.D(i, col) * lambda(i);
+  }
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const auto ci = static_cast<Index>(c);
-    Dual f(0.0);
-    for (int i = 0; i < r.m; ++i) {
-      Dual a(0.0);
-      for (int k = 0; k < 3; ++k) a += r.D(i, p0 + k) * s.dp(k, ci);
-      for (int k = 0; k < 9; ++k) a += r.D(i, r0 + k) * s.dR(k, ci);
-      f += a * lambda(i);
-    }
-    d_force(cols[c]) += tangent_of(f);
+    double f = 0.0;  // the tangent of Σ_k g_k x_kc: Σ_k (dg_k x_kc + g_k dx_kc)
+    for (int k = 0; k < 3; ++k) f += tangent_of(g(k)) * v.dp(k, ci) + g(k).value() * t.dp(k, ci);
+    for (int k = 0; k < 9; ++k)
+      f += tangent_of(g(3 + k)) * v.dR(k, ci) + g(3 + k).value() * t.dR(k, ci);
+    d_force(cols[c]) += f;
   }
 }
 
@@ -452,8 +491,11 @@ class Core {
   [[nodiscard]] const NumericFrameSpec& spec() const { return f_; }
   [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
   [[nodiscard]] const std::vector<Index>& columns() const { return cols_; }
+  // The ends' scratch and columns (with()), then for tangent() the columns' tangents and the
+  // tape tangents' room of an expressions end (as much as its scratch).
   [[nodiscard]] Index slot_size() const {
-    return a_.scratch + b_.scratch + 12 * static_cast<Index>(a_.cols.size() + b_.cols.size());
+    const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
+    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
   }
 
   // The two ends' states and the rows at (q, q̇) with `slot` (slot_size() doubles); f gets
@@ -504,9 +546,20 @@ class Core {
       own.assign(static_cast<std::size_t>(slot_size()), 0.0);
       base = own.data();
     }
+    const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
+    double* sa = base;
+    double* sb = sa + a_.scratch;
+    double* va = sb + b_.scratch;  // the columns' values (as in with()), then their tangents
+    double* vb = va + 12 * na;
+    double* ta = vb + 12 * nb;
+    double* tb = ta + 12 * na;
+    double* xa = tb + 12 * nb;  // an expressions end's tape tangents follow its scratch
+    double* xb = xa + tangent_room(a_);
+    FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
+    FrameState Ta(ta, ta + 3 * na, na), Tb(tb, tb + 3 * nb, nb);
     DualFrame A, B;
-    end_tangent(a_, q, qd, qdd, dq, dqd, base, A);
-    end_tangent(b_, q, qd, qdd, dq, dqd, base + a_.scratch, B);
+    end_tangent(a_, q, qd, qdd, dq, dqd, {sa, xa}, Va, Ta, A);
+    end_tangent(b_, q, qd, qdd, dq, dqd, {sb, xb}, Vb, Tb, B);
     RowValues<Dual> r;
     row_values(f_, A, B, r);
     for (int i = 0; i < r.m; ++i) {
@@ -519,8 +572,8 @@ class Core {
       }
       d_residual(i) = tangent_of(res);
     }
-    add_force_tangent(A, a_.cols, r, kPa, kRa, lambda, d_force);
-    add_force_tangent(B, b_.cols, r, kPb, kRb, lambda, d_force);
+    add_force_tangent(Va, Ta, a_.cols, r, kPa, kRa, lambda, d_force);
+    add_force_tangent(Vb, Tb, b_.cols, r, kPb, kRb, lambda, d_force);
   }
 
   [[nodiscard]] const End& a() const { return a_; }

@@ -16,6 +16,10 @@
 // differences. One factorisation of the KKT matrix serves every column.
 #pragma once
 
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <Eigen/QR>
+#include <Eigen/SVD>
 #include <string>
 #include <vector>
 
@@ -47,6 +51,39 @@ struct Linearization {
 /// State-space form of a linearisation for x = (q, q̇), u = τ: ẋ ≈ F δx + G δu with
 /// F = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]], G = [[0], [∂q̈/∂τ]] (2n × 2n and 2n × n).
 void state_space(const Linearization& lin, Mat& F, Mat& G);
+
+/// Which parts of a Linearization to compute. ∂q̈/∂q and ∂q̈/∂q̇ always; the rest on request:
+/// the implicit integrators' Jacobian needs ∂q̈/∂(q, q̇) alone (∂q̈/∂τ only for a force function
+/// with a Jacobian of its own). The members not asked for are left empty (size 0).
+struct LinearizeParts {
+  bool tau = true;  ///< ∂q̈/∂τ (and, with constraint_force, ∂Qc/∂τ and ∂μ/∂τ)
+  bool constraint_force = true;  ///< ∂Qc/∂(q, q̇) and ∂μ/∂(q, q̇) (Qc and μ are always given)
+};
+
+/// Everything one linearize() call writes, for one system, owned by the caller (Model / Data: the
+/// System stays constant). Built once, it is reused: linearize(system, data, ...) then allocates
+/// nothing while the rank of A stays the same (Eigen keeps a buffer of the same size), for systems
+/// whose components' tangents allocate nothing (trees, numeric frame constraints, `coordinate`
+/// rows); the result is `data.lin`.
+struct LinearizeData {
+  explicit LinearizeData(const System& system);
+
+  Linearization lin;  ///< the result of the last call
+  ForwardData fwd;    ///< forward() at the state (q̈ of the U-K solve, M, Q, A, b)
+  // The row choice (independent_rows), the KKT system and its right-hand sides.
+  Mat Ms, Xt, R, Rinv;
+  Eigen::LLT<Mat> llt;
+  Eigen::ColPivHouseholderQR<Mat> qr;
+  Eigen::JacobiSVD<Mat> svd;
+  Mat K, AR, rhs_all, X, dforce_all, rhs_tau, X_tau;
+  Eigen::PartialPivLU<Mat> lu;
+  Vec Qa, bR, rhs, sol, lambda, dID, dQa, dres, dforce_c, dq, dqd;
+  std::vector<std::size_t> owner;  ///< the subsystem of each coordinate
+};
+
+/// The linearisation at (t, q, q̇, τ) into `data.lin` (see linearize() below for the errors).
+void linearize(const System& system, LinearizeData& data, double t, CVecRef q, CVecRef qd,
+               CVecRef tau, const UkSettings& settings = {}, LinearizeParts parts = {});
 
 /// The linearisation at (t, q, q̇, τ). Throws ukdyn::Error naming the component when a subsystem,
 /// constraint or applied force has no exact derivatives, and std::invalid_argument for wrong
