@@ -210,11 +210,41 @@ TEST(Benchmarks, ShadowErrorEstimateMatchesTheTrueError) {
   EXPECT_GT(e.max_abs_q, err / 1.5) << err;
   EXPECT_LT(e.max_abs_q, err * 1.5) << err;
   EXPECT_NE(run.summary_json.find("\"error_estimate\""), std::string::npos);
+  EXPECT_TRUE(e.reliable) << e.note;  // no singular position: nothing damped
+  EXPECT_NE(run.summary_json.find("\"reliable\": true"), std::string::npos);
   // Off by default: nothing is computed or reported.
   sc.error_estimate = false;
   const ukdyn::MemoryRun plain = ukdyn::run_scenario_in_memory(sc);
   EXPECT_FALSE(plain.report.error_estimate.requested);
   EXPECT_EQ(plain.summary_json.find("\"error_estimate\""), std::string::npos);
+}
+
+// Through a singular position the damped solve acts in the run and in its shadow alike, so the
+// difference is not the run's error (docs/accuracy.md): the estimate says it is not reliable, in
+// the report and the summary. The N = 2 four-bar passes its flat position at t ≈ 0.71 s; the
+// regularized solve damps everywhere.
+TEST(Benchmarks, ShadowErrorEstimateIsNotVouchedForThroughDamping) {
+  auto fb = ukdyn::load_scenario(kBench / "n_four_bar_N2.yaml");
+  fb.sim.t_end = 1.0;
+  fb.error_estimate = true;
+  const ukdyn::MemoryRun run = ukdyn::run_scenario_in_memory(fb);
+  ASSERT_TRUE(run.report.complete()) << run.report.stats.message;
+  bool damped = false;
+  for (const auto& w : run.report.stats.warnings) damped = damped || w.kind == "damped_solve";
+  ASSERT_TRUE(damped);  // the premise: the run was damped near the flat position
+  const ukdyn::ErrorEstimate& e = run.report.error_estimate;
+  EXPECT_FALSE(e.reliable);
+  EXPECT_NE(e.note.find("not reliable"), std::string::npos) << e.note;
+  EXPECT_NE(run.summary_json.find("\"reliable\": false"), std::string::npos);
+
+  auto pendulum = ukdyn::load_scenario(kBench / "simple_pendulum.yaml");
+  pendulum.sim.t_end = 0.5;
+  pendulum.sim.uk.method = ukdyn::UkMethod::regularized;
+  pendulum.error_estimate = true;
+  const ukdyn::MemoryRun reg = ukdyn::run_scenario_in_memory(pendulum);
+  ASSERT_TRUE(reg.report.complete()) << reg.report.stats.message;
+  EXPECT_FALSE(reg.report.error_estimate.reliable);
+  EXPECT_NE(reg.report.error_estimate.note.find("regularized"), std::string::npos);
 }
 
 // ---- A04 Bricard's mechanism ------------------------------------------------------------------

@@ -28,7 +28,7 @@ class ShadowEstimate {
   void compare(double t, CVecRef q);
 
   /// What summary.json and the console report (ErrorEstimate).
-  [[nodiscard]] ErrorEstimate result(const System& system) const;
+  [[nodiscard]] ErrorEstimate result(const System& system, const SimulationStats& run) const;
 
  private:
   SimulationSettings settings_;

@@ -285,7 +285,7 @@ nlohmann::json summary_start(const Scenario& sc) {
 // The results of a run, into its summary.
 // simulation.error_estimate: shadow (docs/accuracy.md).
 nlohmann::json error_estimate_json(const ErrorEstimate& e) {
-  nlohmann::json j = {{"method", "shadow"}, {"note", e.note}};
+  nlohmann::json j = {{"method", "shadow"}, {"note", e.note}, {"reliable", e.reliable}};
   if (e.shadow_status.empty()) return j;  // not computed (the note says why)
   j["max_abs_q_difference"] = finite_or_null(e.max_abs_q);
   j["t"] = e.t;
@@ -445,7 +445,7 @@ bool simulate_to_csv(const RunSetup& s, CsvWriter& csv, Progress& progress, RunR
     }
     for (auto& w : s.control_columns.warnings()) rep.stats.warnings.push_back(std::move(w));
     rep.motors_line = s.control_columns.motors().console_line();
-    if (shadow) rep.error_estimate = shadow->result(s.sys);
+    if (shadow) rep.error_estimate = shadow->result(s.sys, rep.stats);
   } catch (const std::exception& e) {
     // Invalid settings: the summary must not be left saying "running".
     progress.done();
@@ -740,7 +740,7 @@ MemoryRun run_scenario_in_memory(const Scenario& sc, const MemoryRunOptions& opt
                        [&observer](double t, CVecRef q, CVecRef qd, const ForwardData& d) {
                          return observer(t, q, qd, d);
                        });
-  if (shadow) rep.error_estimate = shadow->result(sys);
+  if (shadow) rep.error_estimate = shadow->result(sys, rep.stats);
   rep.wall_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   rep.csv_rows = static_cast<long>(run.values.size() / cols);

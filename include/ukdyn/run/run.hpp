@@ -46,6 +46,10 @@ struct ErrorEstimate {
   double shadow_regularization = 0.0;
   double shadow_seconds = 0.0;
   std::string note;  ///< why the estimate is partial or missing (empty: complete)
+  /// false when the run (or its shadow) damped the constraint force near a singular position, or
+  /// used the regularized solve throughout: both runs then carry the damping's error, and the
+  /// difference is not the run's error in either direction (docs/accuracy.md); `note` says so.
+  bool reliable = true;
 };
 
 struct RunReport {
