@@ -10,6 +10,7 @@
 #include "cli_run.hpp"
 #include "optimize/transcription.hpp"
 #include "output/csv_reader.hpp"
+#include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
 #include "ukdyn/run/optimize_run.hpp"
@@ -416,8 +417,84 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
   }
 }
 
-// The internal-wrench rows' Jacobian (∂/∂μ exact through dμ/dx, ∂/∂q at fixed μ by central
-// differences inside) against central differences of the rows, off the guess.
+// ∂w_int/∂q at fixed λ of a bound (walker_dq: the welds' wrench derivatives and Walker's projection
+// differentiated) against central differences of walker (w_int alone) at q off the manifold and
+// multipliers that squeeze; the relative error of the whole 12 × n block.
+double internal_wrench_dq_error(const InternalWrenchBound& b, const Vec& q, const Vec& lambda) {
+  const Index n = q.size(), rows = 6 * b.grasps;
+  Vec w(rows), w_dq(rows), wp(rows), wm(rows);
+  Mat d;
+  b.walker(q, lambda, w);
+  b.walker_dq(q, lambda, w_dq, d);
+  EXPECT_LT((w - w_dq).norm(), 1e-14 * (1.0 + w.norm()));
+  Mat fd(rows, n);
+  Vec qp = q, qm = q;
+  for (Index j = 0; j < n; ++j) {
+    const double h = 1e-6 * (1.0 + std::abs(q(j)));
+    qp(j) = q(j) + h;
+    qm(j) = q(j) - h;
+    b.walker(qp, lambda, wp);
+    b.walker(qm, lambda, wm);
+    fd.col(j) = (wp - wm) / (2.0 * h);
+    qp(j) = qm(j) = q(j);
+  }
+  EXPECT_GT(fd.cwiseAbs().maxCoeff(), 1.0);  // the block is not trivially zero
+  return (d - fd).cwiseAbs().maxCoeff() / fd.cwiseAbs().maxCoeff();
+}
+
+// Two scenarios: load_squeeze's free bodies (roll-pitch-yaw coordinates, symbolic frames) and two
+// UR5e arms welded to a free-body bar (its quaternion among the coordinates).
+TEST(OptimizeFile, InternalWrenchQDerivativeIsExact) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");
+  EXPECT_TRUE(f.problem.internal_wrench_bounds.front().differenced.empty());
+  std::srand(7);
+  for (int trial = 0; trial < 3; ++trial) {
+    const Vec q = f.problem.q_start + 0.3 * Vec::Random(f.problem.q_start.size());
+    const Vec lambda = 10.0 * Vec::Random(f.problem.system->rows());
+    EXPECT_LT(internal_wrench_dq_error(f.problem.internal_wrench_bounds.front(), q, lambda), 1e-6);
+  }
+  const OptimizationFile u = load_optimization_text(
+      "ukdyn: 1\nname: ur\nscenario: ../two_ur5e_load.yaml\nintervals: 1\nduration: 1\n"
+      "end:\n  q: [0, 0, 0, 0, -1.2, 1.6, -1.97, -1.5707963267948966, 0, 0, 0, 0, 0, -1.2, 1.6, "
+      "-1.97, -1.5707963267948966, 0, 1.1, 0, 0.7062073754895476, 1, 0, 0, 0]\n"
+      "costs:\n  effort: 0\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
+      dir / "ur.yaml");
+  const auto& names = u.problem.system->coordinate_names();  // only the bar's quaternion
+  std::vector<std::string> differenced;
+  for (const Index c : u.problem.internal_wrench_bounds.front().differenced)
+    differenced.push_back(names[static_cast<std::size_t>(c)]);
+  EXPECT_EQ(differenced.size(), 4u);
+  for (const auto& c : differenced) EXPECT_EQ(c.rfind("load", 0), 0u) << c;
+  const Vec q = u.problem.q_start + 0.1 * Vec::Random(u.problem.q_start.size());
+  const Vec lambda = 10.0 * Vec::Random(u.problem.system->rows());
+  EXPECT_LT(internal_wrench_dq_error(u.problem.internal_wrench_bounds.front(), q, lambda), 1e-6);
+}
+
+// Walker's projection differentiated (points and wrenches moving together) against central
+// differences, three grasps; with the points held (dG = 0) it is off, so dG's terms are tested.
+TEST(OptimizeFile, WalkerProjectionDerivativeMatchesCentralDifferences) {
+  std::srand(5);
+  const std::vector<Vec3> p0 = {Vec3::Random(), Vec3::Random(), Vec3::Random()};
+  const Vec w0 = 10.0 * Vec::Random(18);
+  const Mat dp = Mat::Random(9, 4), dw = Mat::Random(18, 4);
+  auto at = [&](Index j, double s) {
+    std::vector<Vec3> p = p0;
+    for (std::size_t k = 0; k < 3; ++k) p[k] += s * dp.block<3, 1>(3 * static_cast<Index>(k), j);
+    return internal_wrench_walker(grasp_matrix(p, p.front()), Vec(w0 + s * dw.col(j)));
+  };
+  const Mat d = internal_wrench_walker_derivative(p0, w0, dp, dw);
+  const Mat held = internal_wrench_walker_derivative(p0, w0, Mat::Zero(9, 4), dw);
+  for (Index j = 0; j < 4; ++j) {
+    const double h = 1e-6;
+    const Vec fd = (at(j, h) - at(j, -h)) / (2.0 * h);
+    EXPECT_LT((d.col(j) - fd).norm(), 1e-7 * fd.norm()) << j;
+    EXPECT_GT((held.col(j) - fd).norm(), 1e-2 * fd.norm()) << j;
+  }
+}
+
+// The internal-wrench rows' Jacobian (∂/∂μ exact through dμ/dx, ∂/∂q at fixed μ by walker_dq)
+// against central differences of the rows, off the guess.
 TEST(OptimizeFile, InternalWrenchDerivativesMatchCentralDifferences) {
   const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
   OptimizationFile f = load_optimization_file(dir / "load_squeeze.yaml");

@@ -156,6 +156,33 @@ void grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference, Mat& G
 
 Vec internal_wrench_walker(const Mat& G, const Vec& w) { return w - pinv(G) * (G * w); }
 
+// With S = G Gᵀ, y = S⁻¹ G w and w_int = w − Gᵀ y [Walker1991], along s ([GolubPereyra1973]
+// for the full-row-rank G⁺ = Gᵀ S⁻¹):
+//   dy = S⁻¹ (dG w + G dw − (dG Gᵀ + G dGᵀ) y),  dw_int = dw − dGᵀ y − Gᵀ dy,
+// dG: the blocks [d(p_k − p_0)]× at rows 3..5, columns 6k..6k+2 (grasp_matrix()), zero elsewhere.
+Mat internal_wrench_walker_derivative(const std::vector<Vec3>& points, const Vec& w,
+                                      const Mat& dpoints, const Mat& dw) {
+  const Mat G = grasp_matrix(points, points.front());
+  const Eigen::LLT<Mat> S(G * G.transpose());
+  const Vec y = S.solve(G * w);
+  const Index N = static_cast<Index>(points.size()), n = dw.cols();
+  Mat out(6 * N, n), dG(6, 6 * N);
+  std::vector<Vec3> dd(points.size());
+  for (Index j = 0; j < n; ++j) {
+    for (Index k = 0; k < N; ++k)
+      dd[static_cast<std::size_t>(k)] = dpoints.block<3, 1>(3 * k, j) - dpoints.block<3, 1>(0, j);
+    grasp_matrix(dd, Vec3::Zero(), dG);
+    for (Index k = 0; k < N; ++k) {  // keep only the (p_k − p_0)× blocks
+      dG.block<3, 3>(0, 6 * k).setZero();
+      dG.block<3, 3>(3, 6 * k + 3).setZero();
+    }
+    const Vec dy =
+        S.solve(dG * w + G * dw.col(j) - dG * (G.transpose() * y) - G * (dG.transpose() * y));
+    out.col(j) = dw.col(j) - dG.transpose() * y - G.transpose() * dy;
+  }
+  return out;
+}
+
 Vec internal_wrench_weighted(const Mat& G, const Mat& Lambda, const Vec& w) {
   const Mat LGt = Lambda * G.transpose();
   const Mat Gstar = LGt * pinv(G * LGt);

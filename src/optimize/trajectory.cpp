@@ -122,7 +122,8 @@ void check_waypoints(const TrajectoryProblem& pr) {
 void check_internal_wrench_bounds(const TrajectoryProblem& pr) {
   for (const auto& b : pr.internal_wrench_bounds) {
     const std::string what = "optimize: the internal wrench bound of load '" + b.load + "'";
-    if (!b.walker || b.grasps < 2) throw Error(what + " needs a load held by two or more welds");
+    if (!b.walker || !b.walker_dq || b.grasps < 2)
+      throw Error(what + " needs a load held by two or more welds");
     if (!(b.max_force > 0.0) || !(b.max_torque > 0.0))
       throw Error(what + ": the bounds must be positive");
     if (!std::isfinite(b.max_force) && !std::isfinite(b.max_torque))

@@ -250,39 +250,29 @@ void Transcription::evaluate(const Vec& x) {
 
 // The bounded loads' internal wrenches at (q, μ) and their derivatives: ∂/∂μ exactly (w_int is
 // linear in the multipliers: one evaluation per kept row at a unit multiplier), ∂/∂q at fixed μ by
-// central differences of the same function (the grasp wrench maps have no tangents).
+// walker_dq (the weld maps' derivatives and Walker's projection's, [GolubPereyra1973]; central
+// differences in the columns of quaternion coordinates).
 void Transcription::internal_wrenches(const Vec& q, PointEval& e) const {
   const auto& bounds = problem_.internal_wrench_bounds;
   const Index m = problem_.system->rows();
-  auto walker = [&](const Vec& at, const Vec& lambda, Vec& out) {
-    out.resize(wint_size_);
-    Index off = 0;
-    for (const auto& b : bounds) {
-      b.walker(at, lambda, out.segment(off, 6 * b.grasps));
-      off += 6 * b.grasps;
-    }
-  };
   Vec lambda = Vec::Zero(m);
   for (Index i = 0; i < r_; ++i) lambda(kept_[static_cast<std::size_t>(i)]) = e.lin.mu(i);
-  walker(q, lambda, e.wint);
-  e.dwint_dmu.resize(wint_size_, r_);
-  Vec unit = Vec::Zero(m), col;
-  for (Index i = 0; i < r_; ++i) {
-    unit(kept_[static_cast<std::size_t>(i)]) = 1.0;
-    walker(q, unit, col);
-    e.dwint_dmu.col(i) = col;
-    unit(kept_[static_cast<std::size_t>(i)]) = 0.0;
-  }
+  e.wint.resize(wint_size_);
   e.dwint_dq.resize(wint_size_, n_);
-  Vec qp = q, qm = q, wp, wm;
-  for (Index j = 0; j < n_; ++j) {
-    const double h = 1e-6 * (1.0 + std::abs(q(j)));
-    qp(j) = q(j) + h;
-    qm(j) = q(j) - h;
-    walker(qp, lambda, wp);
-    walker(qm, lambda, wm);
-    e.dwint_dq.col(j) = (wp - wm) / (2.0 * h);
-    qp(j) = qm(j) = q(j);
+  e.dwint_dmu.resize(wint_size_, r_);
+  Vec unit = Vec::Zero(m);
+  Mat d;
+  Index off = 0;
+  for (const auto& b : bounds) {
+    const Index rows = 6 * b.grasps;
+    b.walker_dq(q, lambda, e.wint.segment(off, rows), d);
+    e.dwint_dq.middleRows(off, rows) = d;
+    for (Index i = 0; i < r_; ++i) {
+      unit(kept_[static_cast<std::size_t>(i)]) = 1.0;
+      b.walker(q, unit, e.dwint_dmu.col(i).segment(off, rows));
+      unit(kept_[static_cast<std::size_t>(i)]) = 0.0;
+    }
+    off += rows;
   }
 }
 

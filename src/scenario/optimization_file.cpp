@@ -1,6 +1,7 @@
 // Trajectory-optimisation problem files (ukdyn/scenario/optimization_file.hpp).
 #include "ukdyn/scenario/optimization_file.hpp"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -314,6 +315,55 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   }
 }
 
+// The derivatives along q at fixed λ (6 rows: position, then rotation) of a weld's wrench on its
+// frame b, and of b's origin (dp, 3 × n: J_b's velocity rows). The weld's rows
+// (ukdyn/symbolic/frame_constraints.hpp) are p_a − p_b and ½ (X_ij − X_ji), X = R_aᵀR_b, for
+// (i, j) = (2, 1), (0, 2), (1, 0); with a_i, b_j the columns of R_a, R_b and ḃ_j = ω_b × b_j,
+// the rotation rows' rate along ω_b is ½ ω_b·(b_j × a_i − b_i × a_j), so w_b = G_bᵀλ is
+//   f_b = −λ_p (constant),  m_b = ½ Σ λ_r (b_j × a_i − b_i × a_j),
+// and along q_c (α, β the columns c of J_a's and J_b's angular rows: ȧ_i = α × a_i, ḃ_j = β × b_j)
+//   dm_b = ½ Σ λ_r ((β × b_j) × a_i + b_j × (α × a_i) − (β × b_i) × a_j − b_i × (α × a_j)).
+void weld_wrench_derivatives(const symbolic::FrameWrench& fw, const Vec& lambda, const Mat& Ja,
+                             const Mat& Jb, Eigen::Ref<Mat> dw, Eigen::Ref<Mat> dp) {
+  dp = Jb.topRows<3>();
+  const Eigen::Matrix3d &Ra = fw.rotation_a, &Rb = fw.rotation_b;
+  constexpr int kPairs[3][2] = {{2, 1}, {0, 2}, {1, 0}};
+  for (Index c = 0; c < Ja.cols(); ++c) {
+    const Vec3 alpha = Ja.block<3, 1>(3, c), beta = Jb.block<3, 1>(3, c);
+    Vec3 dm = Vec3::Zero();
+    for (int r = 0; r < 3; ++r) {
+      const int i = kPairs[r][0], j = kPairs[r][1];
+      const Vec3 ai = Ra.col(i), aj = Ra.col(j), bi = Rb.col(i), bj = Rb.col(j);
+      dm += 0.5 * lambda(3 + r) *
+            (beta.cross(bj).cross(ai) + bj.cross(alpha.cross(ai)) - beta.cross(bi).cross(aj) -
+             bi.cross(alpha.cross(aj)));
+    }
+    dw.block<3, 1>(3, c) = dm;
+  }
+}
+
+// The coordinates along which a grasp frame's rotation leaves the rotations: the homogeneous
+// quaternion matrix R(u) = |u|² Rot(u/|u|) of a free body's or a ball joint's quaternion u
+// (ukdyn/symbolic/free_body.hpp) has the radial derivative 2 u_c R, which the twist Jacobian's
+// ω = vee(∂R/∂q Rᵀ) leaves out, so weld_wrench_derivatives() does not hold along them. Found at q
+// by a step of 1e-2 in each coordinate: R Rᵀ stays I to rounding (≈ 1e-15) for a rotation, and
+// moves by ≥ 1e-4 for a quaternion's coordinate (2 h u_c + h²).
+std::vector<Index> scaling_coordinates(
+    const Vec& q, const std::function<std::vector<Eigen::Matrix3d>(CVecRef)>& rotations) {
+  std::vector<Index> out;
+  Vec at = q;
+  for (Index c = 0; c < q.size(); ++c) {
+    at(c) = q(c) + 1e-2;
+    for (const auto& R : rotations(at))
+      if ((R * R.transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-8) {
+        out.push_back(c);
+        break;
+      }
+    at(c) = q(c);
+  }
+  return out;
+}
+
 // `bounds: internal_wrench: {load: BODY.FRAME, force: F, torque: M}`: the welds whose frame b is
 // the load's (its grasps, as the Wint_ columns find them: docs/frame-constraints.md) and Walker's
 // internal part of their wrenches on it, (I − G⁺G) w, ukdyn/core/constraint_forces.hpp.
@@ -346,19 +396,62 @@ void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
                    " weld(s) (frame b): an internal wrench needs two or more");
   b.grasps = static_cast<Index>(grasps.size());
   for (const auto& g : grasps) b.grasp_names.push_back(g.map->name());
-  b.walker = [grasps](CVecRef q, CVecRef lambda, VecRef out) {
+  // The grasps' wrenches w and points at (q, λ); with dw, dp non-null also their derivatives along
+  // q at fixed λ (weld_wrench_derivatives()).
+  auto grasp_wrenches = [grasps](CVecRef q, CVecRef lambda, Vec& w, std::vector<Vec3>& points,
+                                 Mat* dw, Mat* dp) {
     const Vec qv = q;
-    Vec w(6 * static_cast<Index>(grasps.size()));
-    std::vector<Vec3> points;
-    for (std::size_t k = 0; k < grasps.size(); ++k) {
-      const auto& g = grasps[k];
-      const symbolic::FrameWrench fw =
-          g.map->evaluate(qv, Vec(lambda.segment(g.first_row, g.map->rows())));
-      w.segment<3>(6 * static_cast<Index>(k)) = fw.force_b;
-      w.segment<3>(6 * static_cast<Index>(k) + 3) = fw.moment_b;
+    const auto N = static_cast<Index>(grasps.size());
+    w.resize(6 * N);
+    points.clear();
+    if (dw) dw->setZero(6 * N, q.size()), dp->resize(3 * N, q.size());
+    Mat Ja, Jb;
+    for (Index k = 0; k < N; ++k) {
+      const auto& g = grasps[static_cast<std::size_t>(k)];
+      const Vec lk = lambda.segment(g.first_row, g.map->rows());
+      const symbolic::FrameWrench fw = g.map->evaluate(qv, lk);
+      w.segment<3>(6 * k) = fw.force_b;
+      w.segment<3>(6 * k + 3) = fw.moment_b;
       points.push_back(fw.position_b);
+      if (!dw) continue;
+      g.map->jacobians(qv, Ja, Jb);
+      weld_wrench_derivatives(fw, lk, Ja, Jb, dw->middleRows<6>(6 * k), dp->middleRows<3>(3 * k));
     }
+  };
+  b.walker = [grasp_wrenches](CVecRef q, CVecRef lambda, VecRef out) {
+    Vec w;
+    std::vector<Vec3> points;
+    grasp_wrenches(q, lambda, w, points, nullptr, nullptr);
     out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
+  };
+  const std::vector<Index> scaled = scaling_coordinates(sc.q0, [&](CVecRef q) {
+    std::vector<Eigen::Matrix3d> R;
+    for (const auto& g : grasps) {
+      const symbolic::FrameWrench fw = g.map->evaluate(q, Vec::Zero(g.map->rows()));
+      R.push_back(fw.rotation_a);
+      R.push_back(fw.rotation_b);
+    }
+    return R;
+  });
+  b.differenced = scaled;
+  b.walker_dq = [grasp_wrenches, walker = b.walker, scaled](CVecRef q, CVecRef lambda, VecRef out,
+                                                            Mat& dout) {
+    Vec w;
+    std::vector<Vec3> points;
+    Mat dw, dp;
+    grasp_wrenches(q, lambda, w, points, &dw, &dp);
+    out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
+    dout = internal_wrench_walker_derivative(points, w, dp, dw);
+    Vec qp = q, qm = q, wp(out.size()), wm(out.size());
+    for (const Index c : scaled) {  // central differences (scaling_coordinates())
+      const double h = 1e-6 * (1.0 + std::abs(q(c)));
+      qp(c) = q(c) + h;
+      qm(c) = q(c) - h;
+      walker(qp, lambda, wp);
+      walker(qm, lambda, wm);
+      dout.col(c) = (wp - wm) / (2.0 * h);
+      qp(c) = qm(c) = q(c);
+    }
   };
   p.internal_wrench_bounds.push_back(std::move(b));
 }

@@ -64,6 +64,13 @@ Mat grasp_matrix(const std::vector<Vec3>& points, const Vec3& reference);
 /// (I − G⁺G) w, [Walker1991].
 Vec internal_wrench_walker(const Mat& G, const Vec& w);
 
+/// The derivative of internal_wrench_walker(grasp_matrix(points, points.front()), w) along n
+/// directions s: dpoints (3N × n) holds dp_k/ds in rows 3k..3k+2, dw (6N × n) dw/ds; returns
+/// d(I − G⁺G)w/ds (6N × n). G has full row rank (its first block is the identity), so G⁺ =
+/// Gᵀ(G Gᵀ)⁻¹ has the derivative of a pseudo-inverse of constant rank [GolubPereyra1973].
+Mat internal_wrench_walker_derivative(const std::vector<Vec3>& points, const Vec& w,
+                                      const Mat& dpoints, const Mat& dw);
+
 /// (I − G*G) w, G* = Λ Gᵀ (G Λ Gᵀ)⁺, [Verginis2019]. Λ: 6N × 6N, symmetric positive semidefinite
 /// with G Λ Gᵀ invertible.
 Vec internal_wrench_weighted(const Mat& G, const Mat& Lambda, const Vec& w);
