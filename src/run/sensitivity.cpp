@@ -131,7 +131,16 @@ void reload(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
       if (!node) refuse(sc, p, why);
       *node = fmt::format("{}", p.value + kOffsets[k] * p.step);
     }
-    auto s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
+    std::shared_ptr<Scenario> s;
+    try {
+      s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
+    } catch (const ScenarioError& e) {
+      // The file loads as written but not with this number moved by a step (a format version, a
+      // count, a number the loader requires exactly): not a parameter of the dynamics.
+      refuse(sc, p,
+             fmt::format("the file does not load with it changed to {}: {}",
+                         p.value + kOffsets[k] * p.step, e.what()));
+    }
     if (s->system->dof() != sc.system->dof() || s->system->rows() != sc.system->rows())
       refuse(sc, p, "changes the number of coordinates or constraint rows");
     p.perturbed[k] = std::move(s);
@@ -228,6 +237,21 @@ YAML::Node scenario_document(const Scenario& sc) {
   return io_detail::parse_scenario_yaml(text, sc.path);
 }
 
+// A place of `b` that is also one of `a` (the same node of doc, however the two paths spell it:
+// `subsystems[0]` and `subsystems[left]`, a key and its path), or empty.
+std::string shared_place(const YAML::Node& doc, const ScenarioParameter& a,
+                         const ScenarioParameter& b) {
+  std::string why;
+  for (const auto& pa : a.paths) {
+    const auto na = io_detail::find_scalar(doc, pa, why);
+    for (const auto& pb : b.paths) {
+      const auto nb = io_detail::find_scalar(doc, pb, why);
+      if (na && nb && na->is(*nb)) return pb;
+    }
+  }
+  return {};
+}
+
 // The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
 std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
                                        std::vector<ScenarioParameter> asked) {
@@ -236,6 +260,12 @@ std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc
     for (std::size_t k = 0; k < i; ++k)
       if (asked[k].name == p.name) refuse(sc, p, "named twice");
     locate(sc, doc, p);
+    for (std::size_t k = 0; k < i; ++k) {
+      if (const std::string at = shared_place(doc, asked[k], p); !at.empty())
+        refuse(sc, p,
+               "names the number at '" + at + "', as parameter '" + asked[k].name +
+                   "' does: a parameter named twice");
+    }
     reload(sc, doc, p);
   }
   check_used(sc, asked);

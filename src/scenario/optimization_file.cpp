@@ -1,6 +1,7 @@
 // Trajectory-optimisation problem files (ukdyn/scenario/optimization_file.hpp).
 #include "ukdyn/scenario/optimization_file.hpp"
 
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -369,6 +370,39 @@ std::string exact(double v) {
   return buf;
 }
 
+// An error of the scenario loaded with the waypoints appended from constraint `first` on: the
+// message of the loader ("FILE:L:C: key 'constraints[K].a.xyz[0]': why") said at the waypoint's
+// own key and line (constraints[K].a: waypoints[K - first].frame, .b.xyz: its position, .b.rpy:
+// its orientation), since the text it names is one ukdyn wrote, not the user's file.
+[[noreturn]] void waypoint_error(const Loader& L, const Node& wn, std::size_t first,
+                                 const std::string& message) {
+  const std::string tag = "key 'constraints[";
+  const auto at = message.find(tag);
+  std::size_t k = 0;
+  std::size_t end = at == std::string::npos ? at : at + tag.size();
+  while (end != std::string::npos && end < message.size() && std::isdigit(message[end]))
+    k = 10 * k + static_cast<std::size_t>(message[end++] - '0');
+  const auto close = end == std::string::npos ? end : message.find("': ", end);
+  if (close == std::string::npos || message[end] != ']' || k < first || k - first >= wn.node.size())
+    L.fail(wn, "a waypoint: " + message);
+  const std::string rest = message.substr(end + 1, close - end - 1);  // ".a.xyz[0]" or ""
+  const std::string why = message.substr(close + 3);
+  const Node item{wn.node[k - first], wn.key + "[" + std::to_string(k - first) + "]"};
+  struct Field {
+    const char* from;
+    const char* to;
+  };
+  for (const Field f : {Field{".a", "frame"}, Field{".b.xyz", "position"},
+                        Field{".b.rpy", "orientation"}, Field{".name", "name"}}) {
+    const std::string from = f.from;
+    if (rest.compare(0, from.size(), from) != 0) continue;
+    const Node field = L.child(item, f.to, false);
+    if (!field.node.IsDefined()) break;
+    L.fail(Node{field.node, field.key + rest.substr(from.size())}, why);
+  }
+  L.fail(item, why);
+}
+
 // `waypoints: [{name, frame, t, position, orientation}]`: each a ball constraint (a position) or a
 // weld (with an orientation, roll-pitch-yaw as a frame offset's) between the frame and the world
 // frame at the waypoint. They are appended to the scenario's constraints and the scenario loaded
@@ -381,12 +415,15 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     L.fail(wn, "expected a list of {frame, t, position[, orientation, name]}");
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  const std::size_t first = doc["constraints"].IsSequence() ? doc["constraints"].size() : 0;
   std::vector<std::pair<std::string, double>> named;
   for (std::size_t i = 0; i < wn.node.size(); ++i) {
     const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
     L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
     const Node nn = L.child(item, "name", false);
     const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
+    for (const auto& [other, t_other] : named)
+      if (other == name) L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
     const Node frame = L.child(item, "frame", true);
     if (!frame.node.IsScalar() && !frame.node.IsMap())
       L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
@@ -417,14 +454,17 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
   try {
     with = load_scenario_text(out.c_str(), sc.path, opt).system;
   } catch (const ScenarioError& e) {
-    // The scenario loaded without the waypoints: what fails is a waypoint's frame or numbers.
-    L.fail(wn, std::string("a waypoint: ") + e.what());
+    // The scenario loaded without the waypoints: what fails is a waypoint's frame, numbers or
+    // name, reported at that waypoint's key of the problem file.
+    waypoint_error(L, wn, first, e.what());
   }
   for (std::size_t i = 0; i < named.size(); ++i) {
-    const std::string prefix = named[i].first + "_";
+    // A waypoint's rows are NAME_x, NAME_y, NAME_z (then NAME_rx.. for an orientation), and row
+    // names are unique: the first row names it (a prefix would also match waypoint NAME_b's).
+    const std::string row = named[i].first + "_x";
     std::shared_ptr<const Constraint> rows;
     for (const auto& c : with->constraints())
-      if (c->rows() > 0 && c->row_names().front().compare(0, prefix.size(), prefix) == 0) rows = c;
+      if (c->rows() > 0 && c->row_names().front() == row) rows = c;
     if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
     p.waypoints.push_back({named[i].first, rows, named[i].second});
   }
