@@ -177,6 +177,13 @@ ukdyn::Scenario scenario_of(const std::string& out_dir, const nlohmann::json& j)
   const std::string summary = ukdyn::printable(out_dir + "/summary.json");
   const auto path = nlohmann::json::json_pointer("/scenario/path");
   const auto hash = nlohmann::json::json_pointer("/scenario/hash_fnv1a64");
+  if (j.is_null()) {
+    throw ukdyn::ScenarioError(summary +
+                               ": no such file: not the output folder of a run (give a folder "
+                               "`ukdyn simulate` wrote, or the scenario with --scenario)");
+  }
+  if (j.is_discarded())
+    throw ukdyn::ScenarioError(summary + ": not JSON (give the scenario with --scenario)");
   if (!j.is_object() || !j.contains(path) || !j[path].is_string() || !j.contains(hash) ||
       !j[hash].is_string())
     throw ukdyn::ScenarioError(summary +
