@@ -401,6 +401,8 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
       {"frame: left.cut", "frame: ''", "key 'waypoints[0].frame': expected SUBSYSTEM.FRAME"},
       {"frame: left.cut", "frame: {frame: left.cut, xyz: [.nan, 0, 0]}",
        "key 'waypoints[0].frame.xyz[0]': malformed number"},
+      {"frame: left.cut", "frame: {xyz: [0, 0, 0]}",
+       "key 'waypoints[0].frame': missing required key 'waypoints[0].frame.frame'"},
       {"name: halfway", "name: closure", "key 'waypoints[0]': duplicate constraint row name"},
       {"position: [0.8, 0.5, 1.0]}",
        "position: [0.8, 0.5, 1.0]}\n  - {frame: left.cut, t: 0.5, "

@@ -386,21 +386,35 @@ std::string exact(double v) {
   if (close == std::string::npos || message[end] != ']' || k < first || k - first >= wn.node.size())
     L.fail(wn, "a waypoint: " + message);
   const std::string rest = message.substr(end + 1, close - end - 1);  // ".a.xyz[0]" or ""
-  const std::string why = message.substr(close + 3);
   const Node item{wn.node[k - first], wn.key + "[" + std::to_string(k - first) + "]"};
-  struct Field {
-    const char* from;
-    const char* to;
+  // A key of the constraint written for the waypoint as the waypoint's key: "constraints[K].a.xyz"
+  // as "waypoints[i].frame.xyz", ".b.xyz" as its position, ".b.rpy" as its orientation.
+  const std::string written = "constraints[" + std::to_string(k) + "]";
+  auto own_key = [&](const std::string& sub, Node* field) {
+    const std::pair<const char*, const char*> fields[] = {
+        {".a", "frame"}, {".b.xyz", "position"}, {".b.rpy", "orientation"}, {".name", "name"}};
+    for (const auto& [from, to] : fields) {
+      const std::size_t n = std::string(from).size();
+      if (sub.compare(0, n, from) != 0 || (sub.size() > n && sub[n] != '.' && sub[n] != '['))
+        continue;
+      const Node f = L.child(item, to, false);
+      if (field && f.node.IsDefined()) *field = f;
+      return item.key + "." + to + sub.substr(n);
+    }
+    return item.key + sub;
   };
-  for (const Field f : {Field{".a", "frame"}, Field{".b.xyz", "position"},
-                        Field{".b.rpy", "orientation"}, Field{".name", "name"}}) {
-    const std::string from = f.from;
-    if (rest.compare(0, from.size(), from) != 0) continue;
-    const Node field = L.child(item, f.to, false);
-    if (!field.node.IsDefined()) break;
-    L.fail(Node{field.node, field.key + rest.substr(from.size())}, why);
+  std::string why = message.substr(close + 3);
+  for (auto w = why.find(written); w != std::string::npos; w = why.find(written, w)) {
+    auto e = why.find_first_of("' ", w);  // the key ends at its quote or a space
+    if (e == std::string::npos) e = why.size();
+    const std::string mapped =
+        own_key(why.substr(w + written.size(), e - w - written.size()), nullptr);
+    why.replace(w, e - w, mapped);
+    w += mapped.size();
   }
-  L.fail(item, why);
+  Node field = item;
+  const std::string key = own_key(rest, &field);
+  L.fail(Node{field.node, key}, why);
 }
 
 // `waypoints: [{name, frame, t, position, orientation}]`: each a ball constraint (a position) or a
