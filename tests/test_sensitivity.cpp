@@ -337,6 +337,13 @@ TEST(ParameterSensitivity, RefusesWhatIsNotAParameterItUses) {
                                "at 'subsystems[left_arm].parameters.m1', as parameter 'm1' does"),
             std::string::npos)
       << spelled_twice;
+  // A name from the command line (not checked by the loader) as the list's are, and not quoted
+  // whole: a 100 000-character name gives a short message.
+  const std::string huge = message({std::string(100000, 'a')});
+  EXPECT_NE(huge.find("a parameter is a key or a path: 1 to 200 characters"), std::string::npos)
+      << huge.substr(0, 300);
+  EXPECT_LT(huge.size(), 400u);
+  EXPECT_NE(message({"m1*2"}).find("1 to 200 characters"), std::string::npos);
   // A number the file does not load with once moved: refused naming the parameter.
   const std::string version = message({"ukdyn"});
   EXPECT_NE(version.find("parameter 'ukdyn': the file does not load with it changed to 1.001"),

@@ -257,6 +257,13 @@ std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc
                                        std::vector<ScenarioParameter> asked) {
   for (std::size_t i = 0; i < asked.size(); ++i) {
     ScenarioParameter& p = asked[i];
+    if (!io_detail::parameter_name_ok(p.name)) {
+      // A name given on the command line has not passed the loader's check: not quoted whole
+      // (it may be megabytes long).
+      ScenarioParameter shown = p;
+      if (shown.name.size() > 40) shown.name = shown.name.substr(0, 40) + "...";
+      refuse(sc, shown, io_detail::kParameterNameRule);
+    }
     for (std::size_t k = 0; k < i; ++k)
       if (asked[k].name == p.name) refuse(sc, p, "named twice");
     locate(sc, doc, p);
