@@ -237,15 +237,16 @@ YAML::Node scenario_document(const Scenario& sc) {
   return io_detail::parse_scenario_yaml(text, sc.path);
 }
 
-// A place of `b` that is also one of `a` (the same node of doc, however the two paths spell it:
-// `subsystems[0]` and `subsystems[left]`, a key and its path), or empty.
-std::string shared_place(const YAML::Node& doc, const ScenarioParameter& a,
+// A place of `b` that is also one of `a` (the same node of `expanded`, the document with its
+// aliases copied as reload() writes them, however the two paths spell it: `subsystems[0]` and
+// `subsystems[left]`, a key and its path), or empty.
+std::string shared_place(const YAML::Node& expanded, const ScenarioParameter& a,
                          const ScenarioParameter& b) {
   std::string why;
   for (const auto& pa : a.paths) {
-    const auto na = io_detail::find_scalar(doc, pa, why);
+    const auto na = io_detail::find_scalar(expanded, pa, why);
     for (const auto& pb : b.paths) {
-      const auto nb = io_detail::find_scalar(doc, pb, why);
+      const auto nb = io_detail::find_scalar(expanded, pb, why);
       if (na && nb && na->is(*nb)) return pb;
     }
   }
@@ -255,6 +256,7 @@ std::string shared_place(const YAML::Node& doc, const ScenarioParameter& a,
 // The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
 std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
                                        std::vector<ScenarioParameter> asked) {
+  const YAML::Node expanded = io_detail::clone_yaml(doc);
   for (std::size_t i = 0; i < asked.size(); ++i) {
     ScenarioParameter& p = asked[i];
     if (!io_detail::parameter_name_ok(p.name)) {
@@ -268,7 +270,7 @@ std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc
       if (asked[k].name == p.name) refuse(sc, p, "named twice");
     locate(sc, doc, p);
     for (std::size_t k = 0; k < i; ++k) {
-      if (const std::string at = shared_place(doc, asked[k], p); !at.empty())
+      if (const std::string at = shared_place(expanded, asked[k], p); !at.empty())
         refuse(sc, p,
                "names the number at '" + at + "', as parameter '" + asked[k].name +
                    "' does: a parameter named twice");
