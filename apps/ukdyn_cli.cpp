@@ -177,6 +177,13 @@ ukdyn::Scenario scenario_of(const std::string& out_dir, const nlohmann::json& j)
   const std::string summary = ukdyn::printable(out_dir + "/summary.json");
   const auto path = nlohmann::json::json_pointer("/scenario/path");
   const auto hash = nlohmann::json::json_pointer("/scenario/hash_fnv1a64");
+  if (j.is_null()) {
+    throw ukdyn::ScenarioError(summary +
+                               ": no such file: not the output folder of a run (give a folder "
+                               "`ukdyn simulate` wrote, or the scenario with --scenario)");
+  }
+  if (j.is_discarded())
+    throw ukdyn::ScenarioError(summary + ": not JSON (give the scenario with --scenario)");
   if (!j.is_object() || !j.contains(path) || !j[path].is_string() || !j.contains(hash) ||
       !j[hash].is_string())
     throw ukdyn::ScenarioError(summary +
@@ -190,6 +197,24 @@ ukdyn::Scenario scenario_of(const std::string& out_dir, const nlohmann::json& j)
         ", is not the run's (its hash differs from summary.json's): give the scenario with "
         "--scenario");
   return ukdyn::load_scenario_text(text, file);
+}
+
+// f(), with an error of the model at the scenario's state (the linearisation's "the forward
+// dynamics is not finite at this state": a mass of 1e308 times gravity) said with the scenario
+// file, as bad input; the errors that already name a file or an output are passed on.
+template <typename F>
+int naming_the_scenario(const std::string& scenario, F f) {
+  try {
+    return f();
+  } catch (const ukdyn::ScenarioError&) {
+    throw;
+  } catch (const ukdyn::OutputRefused&) {
+    throw;
+  } catch (const ukdyn::WriteFailed&) {
+    throw;
+  } catch (const ukdyn::Error& e) {
+    throw ukdyn::ScenarioError(ukdyn::printable(scenario) + ": " + e.what());
+  }
 }
 
 struct LinearizeArgs {
@@ -307,15 +332,23 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
     st = ukdyn::read_state_csv_row(sc, a.row.substr(0, colon), n);
   }
   const ukdyn::LinearizeOptions opt{a.minimal, a.dt, a.parameters};
-  if (a.out.empty())
-    return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
+  if (a.out.empty()) {
+    return naming_the_scenario(sc.path.string(), [&] {
+      return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
+    });
+  }
   const bool npz = a.out.ends_with(".npz");
   if (!npz && !a.out.ends_with(".json"))
     throw ukdyn::Error("--out " + a.out + ": name it FILE.json (JSON) or FILE.npz (numpy)");
+  // Computed whole before the file is opened: an error leaves no empty or partial FILE behind.
+  std::ostringstream bytes(std::ios::binary);
+  const bool trusted = naming_the_scenario(sc.path.string(), [&] {
+    return npz ? ukdyn::write_linearization_npz(sc, st.t, st.q, st.qd, st.tau, bytes, opt)
+               : ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, bytes, opt);
+  });
   std::ofstream f(a.out, std::ios::binary);
   if (!f) throw ukdyn::WriteFailed("cannot write " + a.out);
-  const bool trusted = npz ? ukdyn::write_linearization_npz(sc, st.t, st.q, st.qd, st.tau, f, opt)
-                           : ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, f, opt);
+  f << bytes.str();
   f.close();
   if (!f) throw ukdyn::WriteFailed("writing " + a.out + " failed");
   return trusted ? 0 : 1;
@@ -542,8 +575,10 @@ int main(int argc, char** argv) {
       return cmd_linearize(sc, la);
     }
     if (*sens) {  // exit 1: computed, but ukdyn cannot vouch for them ("trusted": false)
-      const auto ps = ukdyn::scenario_parameters(sc, sens_params);
-      return ukdyn::write_run_sensitivities(sc, ps, sens_out, std::cout) ? 0 : 1;
+      return naming_the_scenario(scenario, [&] {
+        const auto ps = ukdyn::scenario_parameters(sc, sens_params);
+        return ukdyn::write_run_sensitivities(sc, ps, sens_out, std::cout) ? 0 : 1;
+      });
     }
     if (*drv) {
       std::cout << ukdyn::symbolic::format_system(*sc.system,

@@ -437,6 +437,29 @@ TEST(MinimalCoordinates, CliOptions) {
   EXPECT_NE(r4.err.find("RUN.csv:N"), std::string::npos) << r4.err;
   const auto r5 = run("--dt -1");
   EXPECT_NE(r5.exit_code, 0);
+  // An error once --out is named (a parameter that is not one, here) leaves no FILE behind.
+  for (const char* name : {"half.json", "half.npz"}) {
+    const auto rb = run("--param nope --out " + ukdyn_test::sh((scratch / name).string()));
+    EXPECT_EQ(rb.exit_code, 2);
+    EXPECT_NE(rb.err.find("parameter 'nope'"), std::string::npos) << rb.err;
+    EXPECT_FALSE(fs::exists(scratch / name)) << name;
+  }
+  // A model that is not finite at the state (a mass of 1.7e308 times gravity): exit 2, the
+  // scenario named, no FILE.
+  const fs::path big = scratch / "huge_mass.yaml";
+  std::ofstream(big) << "ukdyn: 1\nname: huge\nsubsystems:\n  - name: p\n    type: definitions\n"
+                        "    coordinates: [x, y]\n    parameters: {m: 1.7e308}\n"
+                        "    gravity: [0, -9.81, 0]\n    bodies:\n"
+                        "      - {name: P1, mass: m, com: [x, y, 0]}\n"
+                        "initial:\n  q: [1, 0]\nsimulation: {t_end: 0.1, sample_dt: 0.01}\n";
+  const auto rh = ukdyn_test::run_cli(UKDYN_CLI, scratch,
+                                      "linearize " + ukdyn_test::sh(big.string()) + " --out " +
+                                          ukdyn_test::sh((scratch / "huge.json").string()));
+  EXPECT_EQ(rh.exit_code, 2);
+  EXPECT_NE(rh.err.find("huge_mass.yaml: linearize: the forward dynamics is not finite"),
+            std::string::npos)
+      << rh.err;
+  EXPECT_FALSE(fs::exists(scratch / "huge.json"));
   // --row: a trajectory.csv with t, the coordinates and their _dot columns.
   std::string header = "t", row = "0.25";
   for (std::size_t i = 0; i < j["coordinates"].size(); ++i) {

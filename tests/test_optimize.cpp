@@ -396,7 +396,19 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
     const char* expect;
   };
   const Case cases[] = {
-      {"frame: left.cut", "frame: left.nope", "key 'waypoints': a waypoint: "},
+      // Errors of the frame or the numbers, found when the scenario is loaded with the waypoints'
+      // rows, are said at the waypoint's own key and line, not at the text ukdyn wrote.
+      {"frame: left.cut", "frame: left.nope", "bad.yaml:20:28: key 'waypoints[0].frame': no frame"},
+      {"frame: left.cut", "frame: ''", "key 'waypoints[0].frame': expected SUBSYSTEM.FRAME"},
+      {"frame: left.cut", "frame: {frame: left.cut, xyz: [.nan, 0, 0]}",
+       "key 'waypoints[0].frame.xyz[0]': malformed number"},
+      {"frame: left.cut", "frame: {xyz: [0, 0, 0]}",
+       "key 'waypoints[0].frame': missing required key 'waypoints[0].frame.frame'"},
+      {"name: halfway", "name: closure", "key 'waypoints[0]': duplicate constraint row name"},
+      {"position: [0.8, 0.5, 1.0]}",
+       "position: [0.8, 0.5, 1.0]}\n  - {frame: left.cut, t: 0.5, "
+       "position: [0.8, 0.5, 1.0], name: halfway}",
+       "key 'waypoints[1].name': waypoint 'halfway' twice"},
       {"t: 0.5,", "t: 0.52,",
        "key 'waypoints': optimize: waypoint 'halfway': t = 0.52 is not at a knot"},
       {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
@@ -415,6 +427,24 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
       EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
     }
   }
+}
+
+// Each waypoint gets its own rows, also when one's name is another's with a suffix (rows a_x.. and
+// a_b_x..: a match on the prefix "a_" would give waypoint a the rows of a_b).
+TEST(OptimizeFile, EachWaypointGetsItsOwnRows) {
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  std::string text = ukdyn_test::slurp(dir / "paper_lift_waypoint.yaml");
+  const std::string from =
+      "  - {name: halfway, frame: left.cut, t: 0.5, position: [0.8, 0.5, 1.0]}";
+  const auto at = text.find(from);
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, from.size(),
+               "  - {name: a, frame: left.cut, t: 0.5, position: [0.8, 0.5, 1.0]}\n"
+               "  - {name: a_b, frame: right.cut, t: 0.25, position: [0.8, 0.5, 1.0]}");
+  const OptimizationFile f = load_optimization_text(text, dir / "two.yaml");
+  ASSERT_EQ(f.problem.waypoints.size(), 2u);
+  EXPECT_EQ(f.problem.waypoints[0].rows->row_names().front(), "a_x");
+  EXPECT_EQ(f.problem.waypoints[1].rows->row_names().front(), "a_b_x");
 }
 
 // ∂w_int/∂q at fixed λ of a bound (walker_dq: the welds' wrench derivatives and Walker's projection

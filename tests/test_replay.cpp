@@ -296,7 +296,21 @@ TEST(Replay, CliNamesWhatIsMissing) {
   const auto rr = ukdyn_test::run_cli(UKDYN_CLI, dir.path,
                                       "replay " + ukdyn_test::sh((dir.path / "none").string()));
   EXPECT_EQ(rr.exit_code, 2);
-  EXPECT_NE(rr.err.find("summary.json"), std::string::npos) << rr.err;
+  EXPECT_NE(rr.err.find("none/summary.json: no such file: not the output folder of a run"),
+            std::string::npos)
+      << rr.err;
+  // A summary.json that is not JSON, and one without the scenario: each said as what it is.
+  fs::create_directories(dir.path / "bad");
+  std::ofstream(dir.path / "bad" / "summary.json") << "{ not json";
+  const std::string bad = ukdyn_test::sh((dir.path / "bad").string());
+  const auto rb = ukdyn_test::run_cli(UKDYN_CLI, dir.path, "replay " + bad);
+  EXPECT_EQ(rb.exit_code, 2);
+  EXPECT_NE(rb.err.find("bad/summary.json: not JSON"), std::string::npos) << rb.err;
+  std::ofstream(dir.path / "bad" / "summary.json") << "{}";
+  const auto re = ukdyn_test::run_cli(UKDYN_CLI, dir.path, "replay " + bad);
+  EXPECT_EQ(re.exit_code, 2);
+  EXPECT_NE(re.err.find("bad/summary.json: no scenario.path and hash_fnv1a64"), std::string::npos)
+      << re.err;
 }
 #endif
 

@@ -330,6 +330,25 @@ TEST(ParameterSensitivity, RefusesWhatIsNotAParameterItUses) {
   const std::string expression = message({"subsystems[left_arm].bodies[0].mass"});
   EXPECT_NE(expression.find("holds 'm1', not a number"), std::string::npos) << expression;
   EXPECT_NE(message({"m1", "m1"}).find("named twice"), std::string::npos);
+  // One number named twice in two spellings (its key and a path through the alias to it): two
+  // equal columns, refused as a name given twice.
+  const std::string spelled_twice = message({"m1", "subsystems[left_arm].parameters.m1"});
+  EXPECT_NE(spelled_twice.find("parameter 'subsystems[left_arm].parameters.m1': names the number "
+                               "at 'subsystems[left_arm].parameters.m1', as parameter 'm1' does"),
+            std::string::npos)
+      << spelled_twice;
+  // A name from the command line (not checked by the loader) as the list's are, and not quoted
+  // whole: a 100 000-character name gives a short message.
+  const std::string huge = message({std::string(100000, 'a')});
+  EXPECT_NE(huge.find("a parameter is a key or a path: 1 to 200 characters"), std::string::npos)
+      << huge.substr(0, 300);
+  EXPECT_LT(huge.size(), 400u);
+  EXPECT_NE(message({"m1*2"}).find("1 to 200 characters"), std::string::npos);
+  // A number the file does not load with once moved: refused naming the parameter.
+  const std::string version = message({"ukdyn"});
+  EXPECT_NE(version.find("parameter 'ukdyn': the file does not load with it changed to 1.001"),
+            std::string::npos)
+      << version;
 
   // The same key written twice with different numbers: ambiguous, the paths named.
   std::string text = read_text(path);

@@ -131,7 +131,16 @@ void reload(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
       if (!node) refuse(sc, p, why);
       *node = fmt::format("{}", p.value + kOffsets[k] * p.step);
     }
-    auto s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
+    std::shared_ptr<Scenario> s;
+    try {
+      s = std::make_shared<Scenario>(io_detail::load_scenario_yaml(copy, sc.hash, sc.path, opt));
+    } catch (const ScenarioError& e) {
+      // The file loads as written but not with this number moved by a step (a format version, a
+      // count, a number the loader requires exactly): not a parameter of the dynamics.
+      refuse(sc, p,
+             fmt::format("the file does not load with it changed to {}: {}",
+                         p.value + kOffsets[k] * p.step, e.what()));
+    }
     if (s->system->dof() != sc.system->dof() || s->system->rows() != sc.system->rows())
       refuse(sc, p, "changes the number of coordinates or constraint rows");
     p.perturbed[k] = std::move(s);
@@ -228,14 +237,44 @@ YAML::Node scenario_document(const Scenario& sc) {
   return io_detail::parse_scenario_yaml(text, sc.path);
 }
 
+// A place of `b` that is also one of `a` (the same node of `expanded`, the document with its
+// aliases copied as reload() writes them, however the two paths spell it: `subsystems[0]` and
+// `subsystems[left]`, a key and its path), or empty.
+std::string shared_place(const YAML::Node& expanded, const ScenarioParameter& a,
+                         const ScenarioParameter& b) {
+  std::string why;
+  for (const auto& pa : a.paths) {
+    const auto na = io_detail::find_scalar(expanded, pa, why);
+    for (const auto& pb : b.paths) {
+      const auto nb = io_detail::find_scalar(expanded, pb, why);
+      if (na && nb && na->is(*nb)) return pb;
+    }
+  }
+  return {};
+}
+
 // The parameters `asked` (name and asked_at set) of the scenario, resolved in its document.
 std::vector<ScenarioParameter> resolve(const Scenario& sc, const YAML::Node& doc,
                                        std::vector<ScenarioParameter> asked) {
+  const YAML::Node expanded = io_detail::clone_yaml(doc);
   for (std::size_t i = 0; i < asked.size(); ++i) {
     ScenarioParameter& p = asked[i];
+    if (!io_detail::parameter_name_ok(p.name)) {
+      // A name given on the command line has not passed the loader's check: not quoted whole
+      // (it may be megabytes long).
+      ScenarioParameter shown = p;
+      if (shown.name.size() > 40) shown.name = shown.name.substr(0, 40) + "...";
+      refuse(sc, shown, io_detail::kParameterNameRule);
+    }
     for (std::size_t k = 0; k < i; ++k)
       if (asked[k].name == p.name) refuse(sc, p, "named twice");
     locate(sc, doc, p);
+    for (std::size_t k = 0; k < i; ++k) {
+      if (const std::string at = shared_place(expanded, asked[k], p); !at.empty())
+        refuse(sc, p,
+               "names the number at '" + at + "', as parameter '" + asked[k].name +
+                   "' does: a parameter named twice");
+    }
     reload(sc, doc, p);
   }
   check_used(sc, asked);

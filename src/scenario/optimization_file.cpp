@@ -2,6 +2,7 @@
 #include "ukdyn/scenario/optimization_file.hpp"
 
 #include <Eigen/Geometry>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -462,6 +463,53 @@ std::string exact(double v) {
   return buf;
 }
 
+// An error of the scenario loaded with the waypoints appended from constraint `first` on: the
+// message of the loader ("FILE:L:C: key 'constraints[K].a.xyz[0]': why") said at the waypoint's
+// own key and line (constraints[K].a: waypoints[K - first].frame, .b.xyz: its position, .b.rpy:
+// its orientation), since the text it names is one ukdyn wrote, not the user's file.
+[[noreturn]] void waypoint_error(const Loader& L, const Node& wn, std::size_t first,
+                                 const std::string& message) {
+  const std::string tag = "key 'constraints[";
+  const auto at = message.find(tag);
+  std::size_t k = 0;
+  std::size_t end = at == std::string::npos ? at : at + tag.size();
+  while (end != std::string::npos && end < message.size() && std::isdigit(message[end]))
+    k = 10 * k + static_cast<std::size_t>(message[end++] - '0');
+  const auto close = end == std::string::npos ? end : message.find("': ", end);
+  if (close == std::string::npos || message[end] != ']' || k < first || k - first >= wn.node.size())
+    L.fail(wn, "a waypoint: " + message);
+  const std::string rest = message.substr(end + 1, close - end - 1);  // ".a.xyz[0]" or ""
+  const Node item{wn.node[k - first], wn.key + "[" + std::to_string(k - first) + "]"};
+  // A key of the constraint written for the waypoint as the waypoint's key: "constraints[K].a.xyz"
+  // as "waypoints[i].frame.xyz", ".b.xyz" as its position, ".b.rpy" as its orientation.
+  const std::string written = "constraints[" + std::to_string(k) + "]";
+  auto own_key = [&](const std::string& sub, Node* field) {
+    const std::pair<const char*, const char*> fields[] = {
+        {".a", "frame"}, {".b.xyz", "position"}, {".b.rpy", "orientation"}, {".name", "name"}};
+    for (const auto& [from, to] : fields) {
+      const std::size_t n = std::string(from).size();
+      if (sub.compare(0, n, from) != 0 || (sub.size() > n && sub[n] != '.' && sub[n] != '['))
+        continue;
+      const Node f = L.child(item, to, false);
+      if (field && f.node.IsDefined()) *field = f;
+      return item.key + "." + to + sub.substr(n);
+    }
+    return item.key + sub;
+  };
+  std::string why = message.substr(close + 3);
+  for (auto w = why.find(written); w != std::string::npos; w = why.find(written, w)) {
+    auto e = why.find_first_of("' ", w);  // the key ends at its quote or a space
+    if (e == std::string::npos) e = why.size();
+    const std::string mapped =
+        own_key(why.substr(w + written.size(), e - w - written.size()), nullptr);
+    why.replace(w, e - w, mapped);
+    w += mapped.size();
+  }
+  Node field = item;
+  const std::string key = own_key(rest, &field);
+  L.fail(Node{field.node, key}, why);
+}
+
 // `waypoints: [{name, frame, t, position, orientation}]`: each a ball constraint (a position) or a
 // weld (with an orientation, roll-pitch-yaw as a frame offset's) between the frame and the world
 // frame at the waypoint. They are appended to the scenario's constraints and the scenario loaded
@@ -474,12 +522,15 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     L.fail(wn, "expected a list of {frame, t, position[, orientation, name]}");
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
+  const std::size_t first = doc["constraints"].IsSequence() ? doc["constraints"].size() : 0;
   std::vector<std::pair<std::string, double>> named;
   for (std::size_t i = 0; i < wn.node.size(); ++i) {
     const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
     L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
     const Node nn = L.child(item, "name", false);
     const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
+    for (const auto& [other, t_other] : named)
+      if (other == name) L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
     const Node frame = L.child(item, "frame", true);
     if (!frame.node.IsScalar() && !frame.node.IsMap())
       L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
@@ -510,14 +561,17 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
   try {
     with = load_scenario_text(out.c_str(), sc.path, opt).system;
   } catch (const ScenarioError& e) {
-    // The scenario loaded without the waypoints: what fails is a waypoint's frame or numbers.
-    L.fail(wn, std::string("a waypoint: ") + e.what());
+    // The scenario loaded without the waypoints: what fails is a waypoint's frame, numbers or
+    // name, reported at that waypoint's key of the problem file.
+    waypoint_error(L, wn, first, e.what());
   }
   for (std::size_t i = 0; i < named.size(); ++i) {
-    const std::string prefix = named[i].first + "_";
+    // A waypoint's rows are NAME_x, NAME_y, NAME_z (then NAME_rx.. for an orientation), and row
+    // names are unique: the first row names it (a prefix would also match waypoint NAME_b's).
+    const std::string row = named[i].first + "_x";
     std::shared_ptr<const Constraint> rows;
     for (const auto& c : with->constraints())
-      if (c->rows() > 0 && c->row_names().front().compare(0, prefix.size(), prefix) == 0) rows = c;
+      if (c->rows() > 0 && c->row_names().front() == row) rows = c;
     if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
     p.waypoints.push_back({named[i].first, rows, named[i].second});
   }

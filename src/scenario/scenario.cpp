@@ -997,13 +997,7 @@ void load_outputs(const Loader& L, const Node& root) {
   for (std::size_t i = 0; i < s.node.size(); ++i) {
     const Node e{s.node[i], s.key + "[" + std::to_string(i) + "]"};
     const std::string name = L.string(e);
-    const bool ok =
-        !name.empty() && name.size() <= 200 && std::all_of(name.begin(), name.end(), [](char c) {
-          return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-                 c == '_' || c == '.' || c == '[' || c == ']' || c == '-';
-        });
-    if (!ok)
-      L.fail(e, "a parameter is a key or a path: 1 to 200 characters from A-Z a-z 0-9 _ . [ ] -");
+    if (!io_detail::parameter_name_ok(name)) L.fail(e, io_detail::kParameterNameRule);
     if (!seen.insert(name).second) L.fail(e, "parameter '" + name + "' named twice");
   }
 }

@@ -179,4 +179,11 @@ std::optional<YAML::Node> find_number(YAML::Node doc, const std::string& path, s
   return at;
 }
 
+bool parameter_name_ok(const std::string& name) {
+  return !name.empty() && name.size() <= 200 && std::all_of(name.begin(), name.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_' ||
+           c == '.' || c == '[' || c == ']' || c == '-';
+  });
+}
+
 }  // namespace ukdyn::io_detail

@@ -35,4 +35,10 @@ std::optional<YAML::Node> find_scalar(YAML::Node doc, const std::string& path, s
 /// silently replaces the expression.
 std::optional<YAML::Node> find_number(YAML::Node doc, const std::string& path, std::string& why);
 
+/// Whether `name` can name a number of a scenario file (docs/derivatives.md, "Sensitivities to
+/// parameters"): 1 to 200 characters from A-Z a-z 0-9 _ . [ ] -, as kParameterNameRule says.
+bool parameter_name_ok(const std::string& name);
+inline constexpr const char* kParameterNameRule =
+    "a parameter is a key or a path: 1 to 200 characters from A-Z a-z 0-9 _ . [ ] -";
+
 }  // namespace ukdyn::io_detail
