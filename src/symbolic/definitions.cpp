@@ -843,9 +843,11 @@ ConstraintDerivation derive(const ConstraintDef& def) {
       throw DefinitionError(x.what(), -1, -1, ri);
     }
     // Each simplification checked against the deadline, the refusal tagged with the row.
+    // (A named copy: C++20 lets a lambda capture a structured binding, clang 14 does not.)
+    const std::string row_where = "row '" + rname + "'";
     const auto simp = [&](const ex& x) {
       try {
-        return simplify_trig(x, deadline, "row '" + rname + "'");
+        return simplify_trig(x, deadline, row_where);
       } catch (const DerivationTimeout& timeout) {
         throw DefinitionError(timeout.what(), -1, -1, ri);
       }
