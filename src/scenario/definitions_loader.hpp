@@ -139,6 +139,10 @@ std::optional<std::pair<std::string, std::string>> chain_robot_file(
 /// The bodies (name, CoM in the world) of definitions subsystem `name`.
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name);
+/// The bodies of definitions subsystem `name` as defined (mass, CoM, rotation, inertia; parameters
+/// substituted), in the order of definitions_bodies.
+std::vector<symbolic::BodyDef> definitions_body_defs(const DefinitionContext* context,
+                                                     const std::string& name);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.
