@@ -407,6 +407,95 @@ simulation: {t_end: 2, sample_dt: 0.05}
   EXPECT_LT(worst_bob, 1e-5);
 }
 
+// The wheels of a wheeled platform (docs/wheeled-platforms.md) as cylinders (docs/replay.md): a
+// three-wheel omni platform whose wheels have headings π/2, 7π/6 and −π/6, driven so that it
+// moves and turns. At every frame of a run the page's embedded centre of each wheel is its mount
+// (a, b) carried by the CSV's platform pose, (x + a cos ψ − b sin ψ, y + a sin ψ + b cos ψ, r),
+// the cylinder's axis (its own z, turned by the embedded orientation) is the axle Rz(ψ) (−sin β,
+// cos β, 0), and its diameter is 2 r.
+TEST(ReplayShapes, PlatformWheelsAreCylindersOnTheirAxles) {
+  if (!replay_available()) GTEST_SKIP() << "built without three.js (web/node_modules missing)";
+  const double r = 0.1;
+  const std::vector<std::array<double, 3>> wheels{// a, b, β
+                                                  {0.3, 0.0, M_PI / 2},
+                                                  {-0.15, 0.2598, 7 * M_PI / 6},
+                                                  {-0.15, -0.2598, -M_PI / 6}};
+  const std::string text = R"(ukdyn: 1
+name: kiwi
+subsystems:
+  - name: base
+    type: omni
+    mass: 20
+    yaw_inertia: 1.2
+    wheel_radius: 0.1
+    wheel_inertia: 0.005
+    wheels:
+      - {position: [0.3, 0], heading: pi/2}
+      - {position: [-0.15, 0.2598], heading: 7*pi/6}
+      - {position: [-0.15, -0.2598], heading: -pi/6}
+initial: {q: [0.5, -0.2, 0.3, 0, 0, 0], qd: zeros}
+forces:
+  elements:
+    - {type: torque, name: t1, coordinate: base_phi1, value: 0.3}
+    - {type: torque, name: t2, coordinate: base_phi2, value: 0.1 + 0.2*cos(t)}
+    - {type: torque, name: t3, coordinate: base_phi3, value: -0.2}
+simulation: {t_end: 2, sample_dt: 0.05}
+)";
+  const Scenario sc = load_scenario_text(text, "kiwi.yaml");
+  ukdyn_test::ScratchDir dir("ukdyn_platform_wheels");
+  RunOptions ro;
+  ro.figures = false;
+  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
+  write_replay(sc, dir.path);
+  const auto data = page_data(dir.path);
+  const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
+  const auto col = [&](const std::string& n) {
+    return static_cast<std::size_t>(std::find(tab.header.begin(), tab.header.end(), n) -
+                                    tab.header.begin());
+  };
+  ASSERT_EQ(data["pos"].size(), tab.rows.size());
+  double worst_p = 0, worst_axis = 0, turned = 0, moved = 0;
+  for (std::size_t k = 0; k < wheels.size(); ++k) {
+    const std::string name = "base.wheel" + std::to_string(k + 1);
+    std::size_t s = data["solids"].size();
+    for (std::size_t i = 0; i < data["solids"].size(); ++i)
+      if (data["solids"][i]["name"] == name) s = i;
+    ASSERT_LT(s, data["solids"].size()) << "no solid " << name;
+    const auto& solid = data["solids"][s];
+    EXPECT_EQ(solid["shape"], "cylinder");
+    EXPECT_NEAR(solid["size"][0].get<double>(), 2 * r, 1e-12);
+    EXPECT_NEAR(solid["size"][1].get<double>(), 2 * r, 1e-12);
+    const std::size_t p = solid["point"];
+    const auto [a, b, beta] = wheels[k];
+    for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+      const auto& row = tab.rows[f];
+      const double x = row[col("base_x")], y = row[col("base_y")], psi = row[col("base_yaw")];
+      const auto& pos = data["pos"][f];
+      const auto& rot = data["rot"][f];
+      const Vec3 centre(pos[3 * p].get<double>(), pos[3 * p + 1].get<double>(),
+                        pos[3 * p + 2].get<double>());
+      const Vec3 want(x + a * std::cos(psi) - b * std::sin(psi),
+                      y + a * std::sin(psi) + b * std::cos(psi), r);
+      worst_p = std::max(worst_p, (centre - want).norm());
+      const Vec3 axis = quat_matrix(rot[4 * s].get<double>(), rot[4 * s + 1].get<double>(),
+                                    rot[4 * s + 2].get<double>(), rot[4 * s + 3].get<double>())
+                            .col(2);
+      const Vec3 axle(-std::sin(beta + psi), std::cos(beta + psi), 0.0);  // Rz(ψ) s
+      worst_axis = std::max(worst_axis, std::min((axis - axle).norm(), (axis + axle).norm()));
+      turned = std::max(turned, std::abs(psi - 0.3));
+      moved = std::max(moved, std::hypot(x - 0.5, y + 0.2));
+    }
+  }
+  std::cout << fmt::format(
+      "platform wheels: {} frames, the platform moved {:.3f} m and turned {:.3f} rad; wheel "
+      "centres vs the CSV pose {:.2e} m, axes vs the axles {:.2e}\n",
+      tab.rows.size(), moved, turned, worst_p, worst_axis);
+  EXPECT_GT(moved, 0.05);  // it moves and turns: not a comparison of constant poses
+  EXPECT_GT(turned, 0.1);
+  EXPECT_LT(worst_p, 1e-5);  // 6 significant digits in the page
+  EXPECT_LT(worst_axis, 1e-5);
+}
+
 // The frame constraints' axes on the page (docs/replay.md): the page poses them by the pose_<c>_*
 // columns it embeds. A free-body load welded to a 3-joint wrist swings in 3D under gravity; at every
 // frame the embedded quaternion's rotation must equal (1) the load's rotation R(qw, qx, qy, qz)

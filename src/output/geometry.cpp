@@ -246,8 +246,10 @@ std::optional<std::pair<Vec3, Eigen::Quaterniond>> body_box(const symbolic::Body
 // with a mass (body_box), solid NAME.BODY centred at its CoM: turned by R(q) of its `rotation`
 // (the same tape) times the box's principal axes, or by the principal axes alone (axis-aligned for
 // a diagonal or scalar inertia) if it has no rotation or its inertia is given in the world frame.
-void add_bodies(Geometry& g, const std::string& name, const std::vector<symbolic::BodyDef>& bodies,
-                const System& sys, symbolic::SymbolTable& syms) {
+// Returns the index of its first point (the CoM of the first body).
+std::size_t add_bodies(Geometry& g, const std::string& name,
+                       const std::vector<symbolic::BodyDef>& bodies, const System& sys,
+                       symbolic::SymbolTable& syms) {
   namespace sym = symbolic;
   // Coordinates without a symbol are in none of the expressions (and not added).
   const sym::InputMap in =
@@ -294,6 +296,7 @@ void add_bodies(Geometry& g, const std::string& name, const std::vector<symbolic
           return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
         });
   }
+  return first;
 }
 
 // The rotation (link → world) and origin of chosen links at q.
@@ -403,6 +406,31 @@ void add_link_shapes(Geometry& g, const LinkShapes& ls, LinkPoses poses) {
                   std::vector<Vec3> p;
                   (*shared)(q, R, p);
                   const Eigen::Quaterniond o = Eigen::Quaterniond(R[l]) * r;
+                  return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+                });
+  }
+}
+
+// The wheels of a wheeled platform (docs/wheeled-platforms.md) drawn by add_bodies' points: wheel K
+// (body wheelK, its hub at height r) as the cylinder NAME.wheelK of diameter 2 r and width 0.4 r
+// (the model has no width) along its axle: the cylinder's z turned to s = (−sin β, cos β, 0) of the
+// platform frame by Rz(β) Rx(−π/2), then by the platform's yaw Rz(ψ), ψ its third coordinate.
+void add_wheels(Geometry& g, const std::string& name, const io_detail::PlatformWheels& wheels,
+                const std::vector<symbolic::BodyDef>& bodies, std::size_t first, Index offset) {
+  const double r = wheels.radius;
+  for (std::size_t k = 0; k < wheels.headings.size(); ++k) {
+    const std::string body = "wheel" + std::to_string(k + 1);
+    const auto it = std::find_if(bodies.begin(), bodies.end(),
+                                 [&](const symbolic::BodyDef& b) { return b.name == body; });
+    if (it == bodies.end()) continue;
+    const Eigen::Quaterniond axle =
+        Eigen::Quaterniond(Eigen::AngleAxisd(wheels.headings[k], Vec3::UnitZ())) *
+        Eigen::Quaterniond(Eigen::AngleAxisd(-M_PI / 2, Vec3::UnitX()));
+    const std::size_t point = first + static_cast<std::size_t>(it - bodies.begin());
+    g.add_solid({name + "." + body, "cylinder", Vec3(2 * r, 2 * r, 0.4 * r), point, "link"},
+                [axle, offset](CVecRef q) {
+                  const Eigen::Quaterniond o =
+                      Eigen::Quaterniond(Eigen::AngleAxisd(q(offset + 2), Vec3::UnitZ())) * axle;
                   return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
                 });
   }
@@ -531,9 +559,11 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
                !bodies.empty() &&
                std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
       // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
-      add_bodies(
+      const std::size_t first = add_bodies(
           g, info.name, bodies, sys,
           *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
+      if (const auto wheels = io_detail::platform_wheels(sc.definitions.get(), info.name))
+        add_wheels(g, info.name, *wheels, bodies, first, info.offset);
     } else if (const auto fb = io_detail::free_body_inertia(sc.definitions.get(), info.name);
                fb && info.type == "free_body") {
       add_free_body(g, info.name, *fb, io_detail::free_body_shape(sc.definitions.get(), info.name),

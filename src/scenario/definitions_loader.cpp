@@ -213,6 +213,8 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
   /// Per definitions subsystem: its bodies (parameters substituted), for their boxes on the page.
   std::map<std::string, std::vector<symbolic::BodyDef>> body_defs;
+  /// Per wheeled platform: its wheels' radius and headings, for drawing them.
+  std::map<std::string, io_detail::PlatformWheels> platform_wheels;
   /// Per free_body subsystem: its mass and inertia (body frame, row-major), as numbers.
   std::map<std::string, io_detail::FreeBodyInertia> free_bodies;
   /// Per free_body subsystem with a `shape:`: that shape (the replay page).
@@ -501,6 +503,19 @@ std::vector<symbolic::BodyDef> definitions_body_defs(const DefinitionContext* co
   if (!context) return {};
   auto it = context->body_defs.find(name);
   return it == context->body_defs.end() ? std::vector<symbolic::BodyDef>{} : it->second;
+}
+
+void record_platform_wheels(DefinitionContext* context, const std::string& name,
+                            PlatformWheels wheels) {
+  if (context) context->platform_wheels[name] = std::move(wheels);
+}
+
+std::optional<PlatformWheels> platform_wheels(const DefinitionContext* context,
+                                              const std::string& name) {
+  if (!context) return std::nullopt;
+  auto it = context->platform_wheels.find(name);
+  if (it == context->platform_wheels.end()) return std::nullopt;
+  return it->second;
 }
 
 std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* context,
