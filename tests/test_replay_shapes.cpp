@@ -257,6 +257,86 @@ simulation: {{t_end: 1, sample_dt: 0.1}}
 #endif
 }
 
+// An MJCF mesh geom (its vertices inline: no mesh file) drawn as its bounding box: at random qpos,
+// every vertex as written in the file, placed by MuJoCo's own body pose (mj_kinematics xpos, xmat)
+// and the geom's pos and quat, lies inside the drawn box, and each of the box's 6 faces touches a
+// vertex (the box is tight in its own axes). The mesh is named as drawn as its bounding box.
+TEST(ReplayShapes, MjcfMeshIsDrawnAsItsBoundingBox) {
+#ifndef UKDYN_TEST_HAVE_MUJOCO
+  GTEST_SKIP() << "tests built without MuJoCo";
+#else
+  if (!symbolic::mjcf_supported()) GTEST_SKIP() << "built without MuJoCo";
+  const std::vector<Vec3> vertices{{0, 0, 0},   {0.3, 0, 0},      {0, 0.2, 0},
+                                   {0, 0, 0.1}, {0.3, 0.2, 0.05}, {0.1, 0.15, 0.12}};
+  std::string list;
+  for (const auto& v : vertices) list += fmt::format("{} {} {}  ", v.x(), v.y(), v.z());
+  const Vec3 gpos(0.1, -0.05, 0.02);
+  const Eigen::Quaterniond gquat = Eigen::Quaterniond(0.9, 0.1, -0.2, 0.3).normalized();
+  ukdyn_test::ScratchDir dir("ukdyn_mjcf_mesh");
+  write_file(dir.path / "mesh.xml", fmt::format(R"(<mujoco model="meshy">
+  <compiler angle="radian" inertiafromgeom="false"/>
+  <asset><mesh name="wedge" vertex="{}"/></asset>
+  <worldbody>
+    <body name="arm" pos="0 0 0.5" euler="0.1 0.2 0.3">
+      <joint name="hinge" type="hinge" axis="0 1 1"/>
+      <inertial pos="0.1 0 0" mass="1" diaginertia="0.01 0.02 0.03"/>
+      <geom name="shell" type="mesh" mesh="wedge" pos="{} {} {}" quat="{} {} {} {}"/>
+    </body>
+  </worldbody>
+</mujoco>
+)",
+                                                list, gpos.x(), gpos.y(), gpos.z(), gquat.w(),
+                                                gquat.x(), gquat.y(), gquat.z()));
+  write_file(dir.path / "s.yaml", R"(ukdyn: 1
+name: mjcf_mesh
+subsystems:
+  - {name: arm, type: serial_chain, coordinates: [a], mjcf: mesh.xml}
+initial: {q: [0], qd: zeros}
+simulation: {t_end: 1, sample_dt: 0.1}
+)");
+  char err[1000] = "";
+  mjModel* m = mj_loadXML((dir.path / "mesh.xml").c_str(), nullptr, err, sizeof err);
+  ASSERT_NE(m, nullptr) << err;
+  mjData* md = mj_makeData(m);
+  const Scenario sc = load_scenario(dir.path / "s.yaml");
+  std::vector<std::string> left_out;
+  const Geometry g = build_geometry(sc, &left_out);
+  ASSERT_EQ(left_out.size(), 1u);
+  EXPECT_EQ(left_out[0], "arm.arm (mesh wedge: drawn as its bounding box)");
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-2.0, 2.0);
+  double outside = 0, loose = 0;
+  for (int k = 0; k < 6; ++k) {
+    const Vec q = Vec::Constant(1, u(rng));
+    md->qpos[0] = q(0);
+    mj_kinematics(m, md);
+    const Drawn d = drawn(g, q, "arm.arm.visual0");
+    ASSERT_NE(d.solid, nullptr);
+    EXPECT_EQ(d.solid->shape, "box");
+    const Vec3 xpos(md->xpos[3], md->xpos[4], md->xpos[5]);  // body 1
+    const Mat3 xmat = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(md->xmat + 9);
+    Vec3 lo = Vec3::Constant(1e9), hi = -lo;
+    for (const auto& v : vertices) {
+      const Vec3 world = xpos + xmat * (gpos + gquat * v);
+      const Vec3 in_box = d.R.transpose() * (world - d.centre);  // in the box's own axes
+      lo = lo.cwiseMin(in_box);
+      hi = hi.cwiseMax(in_box);
+    }
+    const Vec3 half = 0.5 * d.solid->size;
+    outside = std::max({outside, (hi - half).maxCoeff(), (-half - lo).maxCoeff()});
+    loose = std::max({loose, (half - hi).cwiseAbs().maxCoeff(), (lo + half).cwiseAbs().maxCoeff()});
+  }
+  std::cout << fmt::format(
+      "mesh bounding box: vertices outside by at most {:.2e} m, faces off "
+      "the nearest vertex by at most {:.2e} m\n",
+      outside, loose);
+  EXPECT_LT(outside, 1e-6);  // MuJoCo keeps mesh vertices as floats
+  EXPECT_LT(loose, 1e-6);
+  mj_deleteData(md);
+  mj_deleteModel(m);
+#endif
+}
+
 // shape: {box | sphere | cylinder} of a free body: that solid, its extents, at the body's (x, y, z)
 // with the axes of the body (R of the normalised quaternion, not the principal axes).
 TEST(ReplayShapes, FreeBodyShapeReplacesTheInertiaBox) {

@@ -328,7 +328,9 @@ bool drawable(const symbolic::LinkVisual& v) {
 }
 
 // Those of serial chain `name` (none if it was not read from a robot file): the file's root frame
-// (an empty link) is the chain's `root`; what is not drawn (meshes: they are not loaded; planes,
+// (an empty link) is the chain's `root`; an MJCF mesh drawn as its bounding box is named in
+// left_out as "NAME.LINK (mesh M: drawn as its bounding box)"; what is not drawn (URDF meshes:
+// they are not loaded; planes,
 // height fields; a shape on a link the chain does not have; a file that cannot be read now) is
 // named in left_out as "NAME.LINK (why)".
 LinkShapes read_link_shapes(const Scenario& sc, const std::string& name, const std::string& root,
@@ -364,6 +366,8 @@ LinkShapes read_link_shapes(const Scenario& sc, const std::string& name, const s
       note(fmt::format("{} ({}: a size that is not > 0, or a pose that is not finite)", where,
                        v.shape));
     } else {
+      if (v.bounding_box)
+        note(fmt::format("{} (mesh {}: drawn as its bounding box)", where, v.detail));
       auto [it, added] = index.emplace(v.link, out.links.size());
       if (added) out.links.push_back(v.link);
       out.link.push_back(it->second);

@@ -19,7 +19,12 @@ const plots = [];
 $('name').textContent = D.name;
 $('info').textContent = `${D.scenario} · t ∈ [${D.t[0]}, ${D.t[frames - 1]}] s · ${frames} frames` +
   (D.stride > 1 ? ` (1 in ${D.stride} of ${D.source_rows} samples)` : '') + ` · status ${D.status}`;
-if (D.left_out && D.left_out.length) $('note').textContent = `not drawn: ${D.left_out.join(', ')}`;
+{  // what is not drawn, and the meshes drawn as their bounding boxes ("(mesh M: drawn as its bounding box)")
+  const boxed = (D.left_out ?? []).filter((s) => s.endsWith(': drawn as its bounding box)'));
+  const missing = (D.left_out ?? []).filter((s) => !boxed.includes(s));
+  $('note').textContent = [missing.length ? `not drawn: ${missing.join(', ')}` : '',
+    boxed.length ? `as bounding boxes: ${boxed.join(', ')}` : ''].filter((s) => s).join(' · ');
+}
 
 // ---- scene (world frame of the simulation: z up)
 const view = $('view');
