@@ -629,10 +629,7 @@ simulation: {{t_end: 0.6, sample_dt: 0.02, integrator: dopri5, abs_tol: 1e-11, r
   ro.figures = false;
   ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
   write_replay(sc, dir.path);
-  const std::string page = ukdyn_test::slurp(dir.path / kReplayFile);
-  const std::string open = "<script type=\"application/json\" id=\"ukdyn-data\">";
-  const auto a = page.find(open) + open.size();
-  const auto data = nlohmann::json::parse(page.substr(a, page.find("</script>", a) - a));
+  const auto data = page_data(dir.path);
   const auto& col = data["columns"];
   const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
   const auto& names = sc.system->coordinate_names();
