@@ -566,10 +566,34 @@ simulation: {t_end: 2, sample_dt: 0.05}
       moved = std::max(moved, std::hypot(x - 0.5, y + 0.2));
     }
   }
+  // the platform's deck: a square slab of yaw moment m (s² + s²) / 12 = I at (x, y, r), turned by ψ
+  std::size_t deck = data["solids"].size();
+  for (std::size_t i = 0; i < data["solids"].size(); ++i)
+    if (data["solids"][i]["name"] == "base.platform") deck = i;
+  ASSERT_LT(deck, data["solids"].size()) << "no solid base.platform";
+  const double side = data["solids"][deck]["size"][0].get<double>();
+  EXPECT_NEAR(20 * (side * side + std::pow(data["solids"][deck]["size"][1].get<double>(), 2)) / 12,
+              1.2, 1e-5);
+  const std::size_t dp = data["solids"][deck]["point"];
+  double worst_deck = 0;
+  for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+    const auto& row = tab.rows[f];
+    const double psi = row[col("base_yaw")];
+    const auto& pos = data["pos"][f];
+    const auto& rot = data["rot"][f];
+    const Vec3 centre(pos[3 * dp].get<double>(), pos[3 * dp + 1].get<double>(),
+                      pos[3 * dp + 2].get<double>());
+    const Mat3 R = quat_matrix(rot[4 * deck].get<double>(), rot[4 * deck + 1].get<double>(),
+                               rot[4 * deck + 2].get<double>(), rot[4 * deck + 3].get<double>());
+    worst_deck =
+        std::max({worst_deck, (centre - Vec3(row[col("base_x")], row[col("base_y")], r)).norm(),
+                  (R - Eigen::AngleAxisd(psi, Vec3::UnitZ()).toRotationMatrix()).norm()});
+  }
+  EXPECT_LT(worst_deck, 1e-5);
   std::cout << fmt::format(
       "platform wheels: {} frames, the platform moved {:.3f} m and turned {:.3f} rad; wheel "
-      "centres vs the CSV pose {:.2e} m, axes vs the axles {:.2e}\n",
-      tab.rows.size(), moved, turned, worst_p, worst_axis);
+      "centres vs the CSV pose {:.2e} m, axes vs the axles {:.2e}; the deck {:.2e}\n",
+      tab.rows.size(), moved, turned, worst_p, worst_axis, worst_deck);
   EXPECT_GT(moved, 0.05);  // it moves and turns: not a comparison of constant poses
   EXPECT_GT(turned, 0.1);
   EXPECT_LT(worst_p, 1e-5);  // 6 significant digits in the page

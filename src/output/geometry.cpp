@@ -419,9 +419,32 @@ void add_link_shapes(Geometry& g, const LinkShapes& ls, LinkPoses poses) {
 // (body wheelK, its hub at height r) as the cylinder NAME.wheelK of diameter 2 r and width 0.4 r
 // (the model has no width) along its axle: the cylinder's z turned to s = (−sin β, cos β, 0) of the
 // platform frame by Rz(β) Rx(−π/2), then by the platform's yaw Rz(ψ), ψ its third coordinate.
+// The platform itself (its scalar inertia is the yaw inertia I alone) as a deck: a square slab
+// whose moment about z is I, m (s² + s²) / 12 = I, so s = sqrt(6 I / m), 0.3 r thick, at its CoM
+// raised to the hubs' height r (the planar model puts the CoM at z = 0), turned by Rz(ψ).
+void add_platform_deck(Geometry& g, const std::string& name, double r, const symbolic::BodyDef& b,
+                       std::size_t com, Index offset) {
+  const auto m = number_of(b.mass);
+  const auto I = number_of(b.inertia_scalar);
+  if (!m || !I || !(*m > 0.0) || !(*I > 0.0)) return;
+  const double side = std::sqrt(6.0 * *I / *m);
+  // Parts are evaluated in order (Geometry::evaluate): the CoM is written before this point.
+  const std::size_t deck = g.add_part({{name + ".deck", "shape"}}, {},
+                                      [com, r](CVecRef, std::vector<Vec3>& out, std::size_t at) {
+                                        out[at] = out[com] + Vec3(0, 0, r);
+                                      });
+  g.add_solid({name + ".platform", "box", Vec3(side, side, 0.3 * r), deck, "link"},
+              [offset](CVecRef q) {
+                const Eigen::Quaterniond o(Eigen::AngleAxisd(q(offset + 2), Vec3::UnitZ()));
+                return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+              });
+}
+
 void add_wheels(Geometry& g, const std::string& name, const io_detail::PlatformWheels& wheels,
                 const std::vector<symbolic::BodyDef>& bodies, std::size_t first, Index offset) {
   const double r = wheels.radius;
+  for (std::size_t k = 0; k < bodies.size(); ++k)
+    if (bodies[k].name == "platform") add_platform_deck(g, name, r, bodies[k], first + k, offset);
   for (std::size_t k = 0; k < wheels.headings.size(); ++k) {
     const std::string body = "wheel" + std::to_string(k + 1);
     const auto it = std::find_if(bodies.begin(), bodies.end(),
@@ -563,11 +586,14 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
                !bodies.empty() &&
                std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
       // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
+      const auto wheels = io_detail::platform_wheels(sc.definitions.get(), info.name);
+      auto drawn = bodies;  // a platform's body is drawn as its deck (add_wheels), not a cube
+      for (auto& b : drawn)
+        if (wheels && b.name == "platform") b.inertia_kind = symbolic::BodyDef::InertiaKind::none;
       const std::size_t first = add_bodies(
-          g, info.name, bodies, sys,
+          g, info.name, drawn, sys,
           *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
-      if (const auto wheels = io_detail::platform_wheels(sc.definitions.get(), info.name))
-        add_wheels(g, info.name, *wheels, bodies, first, info.offset);
+      if (wheels) add_wheels(g, info.name, *wheels, bodies, first, info.offset);
     } else if (const auto fb = io_detail::free_body_inertia(sc.definitions.get(), info.name);
                fb && info.type == "free_body") {
       add_free_body(g, info.name, *fb, io_detail::free_body_shape(sc.definitions.get(), info.name),

@@ -155,7 +155,7 @@ if (squeezeArrows.length) {
 {
   const kinds = [...new Set(D.points.map((p) => p.kind))].filter((k) => k !== 'shape');
   $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
-    (D.segments.some((s) => s[2] === 'load') || solids.length ? `<i style="background:#ef6c00"></i>load` : '') +
+    (D.segments.some((s) => s[2] === 'load') || solids.some((s) => s.kind !== 'link') ? `<i style="background:#ef6c00"></i>load` : '') +
     (squeezeArrows.length ? `<i style="background:#${squeezeColour.toString(16).padStart(6, '0')}"></i>internal force (Walker), ` +
       `<span id="squeezeScale">${squeezeScale > 0 ? `1 m = ${(1 / squeezeScale).toPrecision(3)} N` : 'zero throughout'}</span>` : '');
 }
