@@ -146,7 +146,9 @@ int write_replay_page(const ukdyn::Scenario& sc, const std::string& out, bool qu
                      : std::string());
   }
   for (const auto& s : r.left_out) {
-    if (s.find(" (") != std::string::npos) {  // a shape of a link: "NAME.LINK (why)"
+    if (s.find("drawn as its bounding box") != std::string::npos) {  // an MJCF mesh
+      std::cerr << "ukdyn: note: replay: " << ukdyn::printable(s) << "\n";
+    } else if (s.find(" (") != std::string::npos) {  // a shape of a link: "NAME.LINK (why)"
       std::cerr << "ukdyn: note: replay: not drawn: " << ukdyn::printable(s) << "\n";
     } else {
       std::cerr << "ukdyn: note: replay: subsystem '" << ukdyn::printable(s)

@@ -257,6 +257,86 @@ simulation: {{t_end: 1, sample_dt: 0.1}}
 #endif
 }
 
+// An MJCF mesh geom (its vertices inline: no mesh file) drawn as its bounding box: at random qpos,
+// every vertex as written in the file, placed by MuJoCo's own body pose (mj_kinematics xpos, xmat)
+// and the geom's pos and quat, lies inside the drawn box, and each of the box's 6 faces touches a
+// vertex (the box is tight in its own axes). The mesh is named as drawn as its bounding box.
+TEST(ReplayShapes, MjcfMeshIsDrawnAsItsBoundingBox) {
+#ifndef UKDYN_TEST_HAVE_MUJOCO
+  GTEST_SKIP() << "tests built without MuJoCo";
+#else
+  if (!symbolic::mjcf_supported()) GTEST_SKIP() << "built without MuJoCo";
+  const std::vector<Vec3> vertices{{0, 0, 0},   {0.3, 0, 0},      {0, 0.2, 0},
+                                   {0, 0, 0.1}, {0.3, 0.2, 0.05}, {0.1, 0.15, 0.12}};
+  std::string list;
+  for (const auto& v : vertices) list += fmt::format("{} {} {}  ", v.x(), v.y(), v.z());
+  const Vec3 gpos(0.1, -0.05, 0.02);
+  const Eigen::Quaterniond gquat = Eigen::Quaterniond(0.9, 0.1, -0.2, 0.3).normalized();
+  ukdyn_test::ScratchDir dir("ukdyn_mjcf_mesh");
+  write_file(dir.path / "mesh.xml", fmt::format(R"(<mujoco model="meshy">
+  <compiler angle="radian" inertiafromgeom="false"/>
+  <asset><mesh name="wedge" vertex="{}"/></asset>
+  <worldbody>
+    <body name="arm" pos="0 0 0.5" euler="0.1 0.2 0.3">
+      <joint name="hinge" type="hinge" axis="0 1 1"/>
+      <inertial pos="0.1 0 0" mass="1" diaginertia="0.01 0.02 0.03"/>
+      <geom name="shell" type="mesh" mesh="wedge" pos="{} {} {}" quat="{} {} {} {}"/>
+    </body>
+  </worldbody>
+</mujoco>
+)",
+                                                list, gpos.x(), gpos.y(), gpos.z(), gquat.w(),
+                                                gquat.x(), gquat.y(), gquat.z()));
+  write_file(dir.path / "s.yaml", R"(ukdyn: 1
+name: mjcf_mesh
+subsystems:
+  - {name: arm, type: serial_chain, coordinates: [a], mjcf: mesh.xml}
+initial: {q: [0], qd: zeros}
+simulation: {t_end: 1, sample_dt: 0.1}
+)");
+  char err[1000] = "";
+  mjModel* m = mj_loadXML((dir.path / "mesh.xml").c_str(), nullptr, err, sizeof err);
+  ASSERT_NE(m, nullptr) << err;
+  mjData* md = mj_makeData(m);
+  const Scenario sc = load_scenario(dir.path / "s.yaml");
+  std::vector<std::string> left_out;
+  const Geometry g = build_geometry(sc, &left_out);
+  ASSERT_EQ(left_out.size(), 1u);
+  EXPECT_EQ(left_out[0], "arm.arm (mesh wedge: drawn as its bounding box)");
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-2.0, 2.0);
+  double outside = 0, loose = 0;
+  for (int k = 0; k < 6; ++k) {
+    const Vec q = Vec::Constant(1, u(rng));
+    md->qpos[0] = q(0);
+    mj_kinematics(m, md);
+    const Drawn d = drawn(g, q, "arm.arm.visual0");
+    ASSERT_NE(d.solid, nullptr);
+    EXPECT_EQ(d.solid->shape, "box");
+    const Vec3 xpos(md->xpos[3], md->xpos[4], md->xpos[5]);  // body 1
+    const Mat3 xmat = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(md->xmat + 9);
+    Vec3 lo = Vec3::Constant(1e9), hi = -lo;
+    for (const auto& v : vertices) {
+      const Vec3 world = xpos + xmat * (gpos + gquat * v);
+      const Vec3 in_box = d.R.transpose() * (world - d.centre);  // in the box's own axes
+      lo = lo.cwiseMin(in_box);
+      hi = hi.cwiseMax(in_box);
+    }
+    const Vec3 half = 0.5 * d.solid->size;
+    outside = std::max({outside, (hi - half).maxCoeff(), (-half - lo).maxCoeff()});
+    loose = std::max({loose, (half - hi).cwiseAbs().maxCoeff(), (lo + half).cwiseAbs().maxCoeff()});
+  }
+  std::cout << fmt::format(
+      "mesh bounding box: vertices outside by at most {:.2e} m, faces off "
+      "the nearest vertex by at most {:.2e} m\n",
+      outside, loose);
+  EXPECT_LT(outside, 1e-6);  // MuJoCo keeps mesh vertices as floats
+  EXPECT_LT(loose, 1e-6);
+  mj_deleteData(md);
+  mj_deleteModel(m);
+#endif
+}
+
 // shape: {box | sphere | cylinder} of a free body: that solid, its extents, at the body's (x, y, z)
 // with the axes of the body (R of the normalised quaternion, not the principal axes).
 TEST(ReplayShapes, FreeBodyShapeReplacesTheInertiaBox) {
@@ -296,6 +376,228 @@ simulation: {{t_end: 1, sample_dt: 0.1}}
       EXPECT_LT((d.R - quat_matrix(q(3), q(4), q(5), q(6))).norm(), 1e-12) << yaml;
     }
   }
+}
+
+// The page's embedded JSON data block of a written replay page.
+nlohmann::json page_data(const fs::path& dir) {
+  const std::string page = ukdyn_test::slurp(dir / kReplayFile);
+  const std::string open = "<script type=\"application/json\" id=\"ukdyn-data\">";
+  const auto a = page.find(open) + open.size();
+  return nlohmann::json::parse(page.substr(a, page.find("</script>", a) - a));
+}
+
+// Bodies of a definitions subsystem drawn as their inertia-equivalent boxes (docs/replay.md): a
+// pendulum about the world x axis, CoM (0, l sin θ, −l cos θ) and rotation Rx(θ), with a diagonal
+// inertia of three different moments, and a bob with a scalar inertia and no rotation (a cube,
+// axis-aligned). At every frame of a run the page's embedded position of the pendulum's box is the
+// closed form at the CSV's θ, and its embedded orientation B satisfies B J_box Bᵀ = Rx(θ) J Rx(θ)ᵀ
+// (J_box the inertia of the drawn box, J the body's): the box has the body's inertia, turned.
+TEST(ReplayShapes, DefinitionsBodiesAreTheirInertiaBoxesAtTheirCom) {
+  if (!replay_available()) GTEST_SKIP() << "built without three.js (web/node_modules missing)";
+  const double l = 0.6, m = 2.0, mb = 0.5, Ib = 0.004;
+  const Vec3 Id(0.02, 0.05, 0.06);
+  const std::string text = R"(ukdyn: 1
+name: pendulum_box
+subsystems:
+  - name: pend
+    type: definitions
+    coordinates: [th, y]
+    parameters: {l: 0.6, m: 2}
+    bodies:
+      - name: rod
+        mass: m
+        com: [0, l*sin(th), -l*cos(th)]
+        rotation: [[1, 0, 0], [0, cos(th), -sin(th)], [0, sin(th), cos(th)]]
+        inertia: [0.02, 0.05, 0.06]
+      - name: bob
+        mass: 0.5
+        com: [0.3, y, 0]
+        inertia: 0.004
+        angular_velocity: [0, 0, 0]
+initial: {q: [1.2, 0], qd: [0, 0.4]}
+simulation: {t_end: 2, sample_dt: 0.05}
+)";
+  const Scenario sc = load_scenario_text(text, "pendulum_box.yaml");
+  std::vector<std::string> left_out;
+  const Geometry g = build_geometry(sc, &left_out);
+  EXPECT_TRUE(left_out.empty());
+  ukdyn_test::ScratchDir dir("ukdyn_definitions_boxes");
+  RunOptions ro;
+  ro.figures = false;
+  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
+  write_replay(sc, dir.path);
+  const auto data = page_data(dir.path);
+  const auto index = [&](const nlohmann::json& list, const std::string& name) {
+    for (std::size_t i = 0; i < list.size(); ++i)
+      if (list[i]["name"] == name) return i;
+    ADD_FAILURE() << "no " << name;
+    return std::size_t{0};
+  };
+  const std::size_t rod = index(data["solids"], "pend.rod"),
+                    bob = index(data["solids"], "pend.bob");
+  ASSERT_EQ(data["solids"][rod]["shape"], "box");
+  const std::size_t rp = data["solids"][rod]["point"], bp = data["solids"][bob]["point"];
+  const auto box_inertia = [](const nlohmann::json& size, double mass) {
+    const Vec3 e(size[0].get<double>(), size[1].get<double>(), size[2].get<double>());
+    const Vec3 e2 = e.cwiseProduct(e);
+    return Mat3(Vec3(e2(1) + e2(2), e2(0) + e2(2), e2(0) + e2(1)).asDiagonal() * (mass / 12.0));
+  };
+  const Mat3 Jrod = box_inertia(data["solids"][rod]["size"], m);
+  const Mat3 Jbob = box_inertia(data["solids"][bob]["size"], mb);
+  const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
+  const auto col = [&](const std::string& n) {
+    return static_cast<std::size_t>(std::find(tab.header.begin(), tab.header.end(), n) -
+                                    tab.header.begin());
+  };
+  ASSERT_EQ(data["pos"].size(), tab.rows.size());
+  double worst_p = 0, worst_J = 0, worst_bob = 0, swing = 0, unturned = 0;
+  for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+    const double th = tab.rows[f][col("th")], y = tab.rows[f][col("y")];
+    const auto& pos = data["pos"][f];
+    const auto& rot = data["rot"][f];
+    const auto at = [&](std::size_t p) {
+      return Vec3(pos[3 * p].get<double>(), pos[3 * p + 1].get<double>(),
+                  pos[3 * p + 2].get<double>());
+    };
+    const auto turn = [&](std::size_t s) {
+      return quat_matrix(rot[4 * s].get<double>(), rot[4 * s + 1].get<double>(),
+                         rot[4 * s + 2].get<double>(), rot[4 * s + 3].get<double>());
+    };
+    const Mat3 R = Eigen::AngleAxisd(th, Vec3::UnitX()).toRotationMatrix();
+    worst_p = std::max(worst_p, (at(rp) - Vec3(0, l * std::sin(th), -l * std::cos(th))).norm());
+    const Mat3 B = turn(rod);
+    worst_J =
+        std::max(worst_J, (B * Jrod * B.transpose() - R * Id.asDiagonal() * R.transpose()).norm());
+    const Mat3 Bb = turn(bob);
+    worst_bob = std::max({worst_bob, (at(bp) - Vec3(0.3, y, 0)).norm(),
+                          (Bb * Jbob * Bb.transpose() - Ib * Mat3::Identity()).norm()});
+    swing = std::max(swing, std::abs(th - 1.2));
+    // what a box drawn axis-aligned (its rotation left out) would be off by
+    unturned =
+        std::max(unturned, (Mat3(Id.asDiagonal()) - R * Id.asDiagonal() * R.transpose()).norm());
+  }
+  std::cout << fmt::format(
+      "definitions boxes: {} frames, θ swings up to {:.3f} rad from its start; rod centre vs "
+      "closed form {:.2e} m, inertia of the drawn box vs Rx(θ) J Rx(θ)ᵀ {:.2e} kg m² (drawn "
+      "unturned: {:.2e}), bob {:.2e}\n",
+      tab.rows.size(), swing, worst_p, worst_J, unturned, worst_bob);
+  EXPECT_GT(swing, 1.0);     // it swings: not a comparison of constant poses
+  EXPECT_LT(worst_p, 1e-5);  // 6 significant digits in the page
+  EXPECT_LT(worst_J, 1e-6);  // of moments ~0.05
+  EXPECT_LT(worst_bob, 1e-5);
+}
+
+// The wheels of a wheeled platform (docs/wheeled-platforms.md) as cylinders (docs/replay.md): a
+// three-wheel omni platform whose wheels have headings π/2, 7π/6 and −π/6, driven so that it
+// moves and turns. At every frame of a run the page's embedded centre of each wheel is its mount
+// (a, b) carried by the CSV's platform pose, (x + a cos ψ − b sin ψ, y + a sin ψ + b cos ψ, r),
+// the cylinder's axis (its own z, turned by the embedded orientation) is the axle Rz(ψ) (−sin β,
+// cos β, 0), and its diameter is 2 r.
+TEST(ReplayShapes, PlatformWheelsAreCylindersOnTheirAxles) {
+  if (!replay_available()) GTEST_SKIP() << "built without three.js (web/node_modules missing)";
+  const double r = 0.1;
+  const std::vector<std::array<double, 3>> wheels{// a, b, β
+                                                  {0.3, 0.0, M_PI / 2},
+                                                  {-0.15, 0.2598, 7 * M_PI / 6},
+                                                  {-0.15, -0.2598, -M_PI / 6}};
+  const std::string text = R"(ukdyn: 1
+name: kiwi
+subsystems:
+  - name: base
+    type: omni
+    mass: 20
+    yaw_inertia: 1.2
+    wheel_radius: 0.1
+    wheel_inertia: 0.005
+    wheels:
+      - {position: [0.3, 0], heading: pi/2}
+      - {position: [-0.15, 0.2598], heading: 7*pi/6}
+      - {position: [-0.15, -0.2598], heading: -pi/6}
+initial: {q: [0.5, -0.2, 0.3, 0, 0, 0], qd: zeros}
+forces:
+  elements:
+    - {type: torque, name: t1, coordinate: base_phi1, value: 0.3}
+    - {type: torque, name: t2, coordinate: base_phi2, value: 0.1 + 0.2*cos(t)}
+    - {type: torque, name: t3, coordinate: base_phi3, value: -0.2}
+simulation: {t_end: 2, sample_dt: 0.05}
+)";
+  const Scenario sc = load_scenario_text(text, "kiwi.yaml");
+  ukdyn_test::ScratchDir dir("ukdyn_platform_wheels");
+  RunOptions ro;
+  ro.figures = false;
+  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
+  write_replay(sc, dir.path);
+  const auto data = page_data(dir.path);
+  const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
+  const auto col = [&](const std::string& n) {
+    return static_cast<std::size_t>(std::find(tab.header.begin(), tab.header.end(), n) -
+                                    tab.header.begin());
+  };
+  ASSERT_EQ(data["pos"].size(), tab.rows.size());
+  double worst_p = 0, worst_axis = 0, turned = 0, moved = 0;
+  for (std::size_t k = 0; k < wheels.size(); ++k) {
+    const std::string name = "base.wheel" + std::to_string(k + 1);
+    std::size_t s = data["solids"].size();
+    for (std::size_t i = 0; i < data["solids"].size(); ++i)
+      if (data["solids"][i]["name"] == name) s = i;
+    ASSERT_LT(s, data["solids"].size()) << "no solid " << name;
+    const auto& solid = data["solids"][s];
+    EXPECT_EQ(solid["shape"], "cylinder");
+    EXPECT_NEAR(solid["size"][0].get<double>(), 2 * r, 1e-12);
+    EXPECT_NEAR(solid["size"][1].get<double>(), 2 * r, 1e-12);
+    const std::size_t p = solid["point"];
+    const auto [a, b, beta] = wheels[k];
+    for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+      const auto& row = tab.rows[f];
+      const double x = row[col("base_x")], y = row[col("base_y")], psi = row[col("base_yaw")];
+      const auto& pos = data["pos"][f];
+      const auto& rot = data["rot"][f];
+      const Vec3 centre(pos[3 * p].get<double>(), pos[3 * p + 1].get<double>(),
+                        pos[3 * p + 2].get<double>());
+      const Vec3 want(x + a * std::cos(psi) - b * std::sin(psi),
+                      y + a * std::sin(psi) + b * std::cos(psi), r);
+      worst_p = std::max(worst_p, (centre - want).norm());
+      const Vec3 axis = quat_matrix(rot[4 * s].get<double>(), rot[4 * s + 1].get<double>(),
+                                    rot[4 * s + 2].get<double>(), rot[4 * s + 3].get<double>())
+                            .col(2);
+      const Vec3 axle(-std::sin(beta + psi), std::cos(beta + psi), 0.0);  // Rz(ψ) s
+      worst_axis = std::max(worst_axis, std::min((axis - axle).norm(), (axis + axle).norm()));
+      turned = std::max(turned, std::abs(psi - 0.3));
+      moved = std::max(moved, std::hypot(x - 0.5, y + 0.2));
+    }
+  }
+  // the platform's deck: a square slab of yaw moment m (s² + s²) / 12 = I at (x, y, r), turned by ψ
+  std::size_t deck = data["solids"].size();
+  for (std::size_t i = 0; i < data["solids"].size(); ++i)
+    if (data["solids"][i]["name"] == "base.platform") deck = i;
+  ASSERT_LT(deck, data["solids"].size()) << "no solid base.platform";
+  const double side = data["solids"][deck]["size"][0].get<double>();
+  EXPECT_NEAR(20 * (side * side + std::pow(data["solids"][deck]["size"][1].get<double>(), 2)) / 12,
+              1.2, 1e-5);
+  const std::size_t dp = data["solids"][deck]["point"];
+  double worst_deck = 0;
+  for (std::size_t f = 0; f < tab.rows.size(); ++f) {
+    const auto& row = tab.rows[f];
+    const double psi = row[col("base_yaw")];
+    const auto& pos = data["pos"][f];
+    const auto& rot = data["rot"][f];
+    const Vec3 centre(pos[3 * dp].get<double>(), pos[3 * dp + 1].get<double>(),
+                      pos[3 * dp + 2].get<double>());
+    const Mat3 R = quat_matrix(rot[4 * deck].get<double>(), rot[4 * deck + 1].get<double>(),
+                               rot[4 * deck + 2].get<double>(), rot[4 * deck + 3].get<double>());
+    worst_deck =
+        std::max({worst_deck, (centre - Vec3(row[col("base_x")], row[col("base_y")], r)).norm(),
+                  (R - Eigen::AngleAxisd(psi, Vec3::UnitZ()).toRotationMatrix()).norm()});
+  }
+  EXPECT_LT(worst_deck, 1e-5);
+  std::cout << fmt::format(
+      "platform wheels: {} frames, the platform moved {:.3f} m and turned {:.3f} rad; wheel "
+      "centres vs the CSV pose {:.2e} m, axes vs the axles {:.2e}; the deck {:.2e}\n",
+      tab.rows.size(), moved, turned, worst_p, worst_axis, worst_deck);
+  EXPECT_GT(moved, 0.05);  // it moves and turns: not a comparison of constant poses
+  EXPECT_GT(turned, 0.1);
+  EXPECT_LT(worst_p, 1e-5);  // 6 significant digits in the page
+  EXPECT_LT(worst_axis, 1e-5);
 }
 
 // The frame constraints' axes on the page (docs/replay.md): the page poses them by the pose_<c>_*
@@ -351,10 +653,7 @@ simulation: {{t_end: 0.6, sample_dt: 0.02, integrator: dopri5, abs_tol: 1e-11, r
   ro.figures = false;
   ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
   write_replay(sc, dir.path);
-  const std::string page = ukdyn_test::slurp(dir.path / kReplayFile);
-  const std::string open = "<script type=\"application/json\" id=\"ukdyn-data\">";
-  const auto a = page.find(open) + open.size();
-  const auto data = nlohmann::json::parse(page.substr(a, page.find("</script>", a) - a));
+  const auto data = page_data(dir.path);
   const auto& col = data["columns"];
   const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
   const auto& names = sc.system->coordinate_names();

@@ -193,30 +193,110 @@ void add_tree_chain(Geometry& g, const std::string& name,
              });
 }
 
-// A definitions subsystem: the CoM of every body (no segments: the file says nothing of links).
-void add_bodies(Geometry& g, const std::string& name,
-                const std::vector<std::pair<std::string, symbolic::Vec3Ex>>& bodies,
-                const System& sys, symbolic::SymbolTable& syms) {
+// The inertia-equivalent box of a body of mass m and inertia tensor J about its CoM (docs/replay.md):
+// the uniform box of the same mass and principal moments (MuJoCo draws the same box,
+// mjVIS_INERTIA). A uniform box of edges a, b, c has I1 = m (b² + c²) / 12 and so on (any table of
+// moments of inertia), hence a = sqrt(6 (I2 + I3 − I1) / m), b = sqrt(6 (I3 + I1 − I2) / m),
+// c = sqrt(6 (I1 + I2 − I3) / m) along the principal axes: its edges, and the rotation whose
+// columns are those axes. A side the formula makes zero (a rod) is drawn at 2 % of the largest;
+// nullopt if every side is zero or the mass is not positive (a point mass: its CoM only).
+std::optional<std::pair<Vec3, Eigen::Quaterniond>> inertia_box(double mass,
+                                                               const Eigen::Matrix3d& J) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (J + J.transpose()));
+  const Vec3 I = es.eigenvalues();
+  Eigen::Matrix3d V = es.eigenvectors();
+  if (V.determinant() < 0) V.col(2) *= -1.0;  // a rotation
+  Vec3 size = Vec3::Zero();
+  for (int i = 0; i < 3; ++i) {
+    const double s = 6.0 * (I((i + 1) % 3) + I((i + 2) % 3) - I(i)) / mass;
+    size(i) = mass > 0.0 && std::isfinite(s) && s > 0.0 ? std::sqrt(s) : 0.0;
+  }
+  if (!(size.maxCoeff() > 0.0)) return std::nullopt;
+  return std::make_pair(size.cwiseMax(0.02 * size.maxCoeff()), Eigen::Quaterniond(V));
+}
+
+// The number an expression (parameters substituted) evaluates to, or nullopt (a mass of t).
+std::optional<double> number_of(const GiNaC::ex& e) {
+  const GiNaC::ex v = e.evalf();
+  if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real())
+    return std::nullopt;
+  return GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+}
+
+// A definitions body's inertia-equivalent box (inertia_box) and its rotation in the body frame, or
+// in the world frame for `inertia_frame: world`; nullopt if its mass or inertia is not a number
+// (of t) or gives no box. A scalar inertia I is the tensor I·1 (a cube).
+std::optional<std::pair<Vec3, Eigen::Quaterniond>> body_box(const symbolic::BodyDef& b) {
+  using Kind = symbolic::BodyDef::InertiaKind;
+  const auto m = number_of(b.mass);
+  if (!m || b.inertia_kind == Kind::none) return std::nullopt;
+  Eigen::Matrix3d J = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 9; ++k) {
+    const auto v =
+        number_of(b.inertia_kind == Kind::scalar ? (k % 4 == 0 ? b.inertia_scalar : GiNaC::ex(0))
+                                                 : b.inertia_tensor[static_cast<std::size_t>(k)]);
+    if (!v) return std::nullopt;
+    J(k / 3, k % 3) = *v;
+  }
+  return inertia_box(*m, J);
+}
+
+// A definitions subsystem: the CoM of every body (no segments: the file says nothing of links),
+// each from the tape of its `com` expressions at q, and the inertia-equivalent box of every body
+// with a mass (body_box), solid NAME.BODY centred at its CoM: turned by R(q) of its `rotation`
+// (the same tape) times the box's principal axes, or by the principal axes alone (axis-aligned for
+// a diagonal or scalar inertia) if it has no rotation or its inertia is given in the world frame.
+// Returns the index of its first point (the CoM of the first body).
+std::size_t add_bodies(Geometry& g, const std::string& name,
+                       const std::vector<symbolic::BodyDef>& bodies, const System& sys,
+                       symbolic::SymbolTable& syms) {
   namespace sym = symbolic;
   // Coordinates without a symbol are in none of the expressions (and not added).
   const sym::InputMap in =
       sym::coordinate_inputs(syms, sys.coordinate_names(), sym::InputSet::q_interned);
   std::vector<GeometryPoint> pts;
   std::vector<GiNaC::ex> ex;
-  for (const auto& [bn, com] : bodies) {
-    pts.push_back({name + "." + bn, "com"});
-    for (const auto& e : com) ex.push_back(e);
+  for (const auto& b : bodies) {
+    pts.push_back({name + "." + b.name, "com"});
+    for (const auto& e : b.com) ex.push_back(e.expand());
+  }
+  const std::size_t count = pts.size();
+  std::vector<long> rot_at(count, -1);  // the first output of its rotation (row-major) in the tape
+  for (std::size_t k = 0; k < count; ++k) {
+    if (!bodies[k].rotation || bodies[k].inertia_frame == sym::Frame::world) continue;
+    rot_at[k] = static_cast<long>(ex.size());
+    for (const auto& e : *bodies[k].rotation) ex.push_back(e);
   }
   auto tape = std::make_shared<const sym::Tape>(ex, in);
-  const std::size_t count = pts.size();
-  g.add_part(std::move(pts), {},
-             [tape, count](CVecRef q, std::vector<Vec3>& out, std::size_t first) {
-               std::vector<double> v(3 * count);
-               tape->eval(0.0, q.data(), nullptr, v.data());
-               for (std::size_t k = 0; k < count; ++k) {
-                 out[first + k] = Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
-               }
-             });
+  const std::size_t outputs = ex.size();
+  const std::size_t first =
+      g.add_part(std::move(pts), {},
+                 [tape, count, outputs](CVecRef q, std::vector<Vec3>& out, std::size_t at) {
+                   std::vector<double> v(outputs);
+                   tape->eval(0.0, q.data(), nullptr, v.data());
+                   for (std::size_t k = 0; k < count; ++k)
+                     out[at + k] = Vec3(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+                 });
+  for (std::size_t k = 0; k < count; ++k) {
+    const auto box = body_box(bodies[k]);
+    if (!box) continue;
+    const Eigen::Quaterniond axes = box->second;
+    const long r = rot_at[k];
+    g.add_solid(
+        {name + "." + bodies[k].name, "box", box->first, first + k, "link"},
+        [tape, outputs, r, axes](CVecRef q) {
+          Eigen::Quaterniond o = axes;
+          if (r >= 0) {
+            std::vector<double> v(outputs);
+            tape->eval(0.0, q.data(), nullptr, v.data());
+            const Eigen::Matrix3d R =
+                Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(v.data() + r);
+            o = Eigen::Quaterniond(R) * axes;
+          }
+          return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+        });
+  }
+  return first;
 }
 
 // The rotation (link → world) and origin of chosen links at q.
@@ -248,7 +328,9 @@ bool drawable(const symbolic::LinkVisual& v) {
 }
 
 // Those of serial chain `name` (none if it was not read from a robot file): the file's root frame
-// (an empty link) is the chain's `root`; what is not drawn (meshes: they are not loaded; planes,
+// (an empty link) is the chain's `root`; an MJCF mesh drawn as its bounding box is named in
+// left_out as "NAME.LINK (mesh M: drawn as its bounding box)"; what is not drawn (URDF meshes:
+// they are not loaded; planes,
 // height fields; a shape on a link the chain does not have; a file that cannot be read now) is
 // named in left_out as "NAME.LINK (why)".
 LinkShapes read_link_shapes(const Scenario& sc, const std::string& name, const std::string& root,
@@ -284,6 +366,8 @@ LinkShapes read_link_shapes(const Scenario& sc, const std::string& name, const s
       note(fmt::format("{} ({}: a size that is not > 0, or a pose that is not finite)", where,
                        v.shape));
     } else {
+      if (v.bounding_box)
+        note(fmt::format("{} (mesh {}: drawn as its bounding box)", where, v.detail));
       auto [it, added] = index.emplace(v.link, out.links.size());
       if (added) out.links.push_back(v.link);
       out.link.push_back(it->second);
@@ -326,6 +410,54 @@ void add_link_shapes(Geometry& g, const LinkShapes& ls, LinkPoses poses) {
                   std::vector<Vec3> p;
                   (*shared)(q, R, p);
                   const Eigen::Quaterniond o = Eigen::Quaterniond(R[l]) * r;
+                  return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+                });
+  }
+}
+
+// The wheels of a wheeled platform (docs/wheeled-platforms.md) drawn by add_bodies' points: wheel K
+// (body wheelK, its hub at height r) as the cylinder NAME.wheelK of diameter 2 r and width 0.4 r
+// (the model has no width) along its axle: the cylinder's z turned to s = (−sin β, cos β, 0) of the
+// platform frame by Rz(β) Rx(−π/2), then by the platform's yaw Rz(ψ), ψ its third coordinate.
+// The platform itself (its scalar inertia is the yaw inertia I alone) as a deck: a square slab
+// whose moment about z is I, m (s² + s²) / 12 = I, so s = sqrt(6 I / m), 0.3 r thick, at its CoM
+// raised to the hubs' height r (the planar model puts the CoM at z = 0), turned by Rz(ψ).
+void add_platform_deck(Geometry& g, const std::string& name, double r, const symbolic::BodyDef& b,
+                       std::size_t com, Index offset) {
+  const auto m = number_of(b.mass);
+  const auto I = number_of(b.inertia_scalar);
+  if (!m || !I || !(*m > 0.0) || !(*I > 0.0)) return;
+  const double side = std::sqrt(6.0 * *I / *m);
+  // Parts are evaluated in order (Geometry::evaluate): the CoM is written before this point.
+  const std::size_t deck = g.add_part({{name + ".deck", "shape"}}, {},
+                                      [com, r](CVecRef, std::vector<Vec3>& out, std::size_t at) {
+                                        out[at] = out[com] + Vec3(0, 0, r);
+                                      });
+  g.add_solid({name + ".platform", "box", Vec3(side, side, 0.3 * r), deck, "link"},
+              [offset](CVecRef q) {
+                const Eigen::Quaterniond o(Eigen::AngleAxisd(q(offset + 2), Vec3::UnitZ()));
+                return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
+              });
+}
+
+void add_wheels(Geometry& g, const std::string& name, const io_detail::PlatformWheels& wheels,
+                const std::vector<symbolic::BodyDef>& bodies, std::size_t first, Index offset) {
+  const double r = wheels.radius;
+  for (std::size_t k = 0; k < bodies.size(); ++k)
+    if (bodies[k].name == "platform") add_platform_deck(g, name, r, bodies[k], first + k, offset);
+  for (std::size_t k = 0; k < wheels.headings.size(); ++k) {
+    const std::string body = "wheel" + std::to_string(k + 1);
+    const auto it = std::find_if(bodies.begin(), bodies.end(),
+                                 [&](const symbolic::BodyDef& b) { return b.name == body; });
+    if (it == bodies.end()) continue;
+    const Eigen::Quaterniond axle =
+        Eigen::Quaterniond(Eigen::AngleAxisd(wheels.headings[k], Vec3::UnitZ())) *
+        Eigen::Quaterniond(Eigen::AngleAxisd(-M_PI / 2, Vec3::UnitX()));
+    const std::size_t point = first + static_cast<std::size_t>(it - bodies.begin());
+    g.add_solid({name + "." + body, "cylinder", Vec3(2 * r, 2 * r, 0.4 * r), point, "link"},
+                [axle, offset](CVecRef q) {
+                  const Eigen::Quaterniond o =
+                      Eigen::Quaterniond(Eigen::AngleAxisd(q(offset + 2), Vec3::UnitZ())) * axle;
                   return std::array<double, 4>{o.w(), o.x(), o.y(), o.z()};
                 });
   }
@@ -387,14 +519,9 @@ LinkPoses tree_link_poses(std::shared_ptr<const tree::TreeSubsystem> t,
   };
 }
 
-// A free body (docs/free-bodies.md): its CoM, and the box of the same mass and principal moments of
-// inertia about it (MuJoCo draws the same equivalent-inertia box, mjVIS_INERTIA). A uniform box of
-// edges a, b, c has I1 = m (b² + c²) / 12 and so on (any table of moments of inertia), hence
-// a = sqrt(6 (I2 + I3 − I1) / m), b = sqrt(6 (I3 + I1 − I2) / m), c = sqrt(6 (I1 + I2 − I3) / m)
-// along the principal axes. Posed by the coordinates (x, y, z, qw, qx, qy, qz): CoM at (x, y, z),
-// turned by the normalised quaternion and then by the principal axes in the body frame. A side the
-// formula makes zero (a rod, a point mass) is drawn at 2 % of the largest; no box at all if every
-// side is zero or the mass is not positive (then only the CoM is drawn). A free body with a
+// A free body (docs/free-bodies.md): its CoM, and its inertia-equivalent box (inertia_box). Posed
+// by the coordinates (x, y, z, qw, qx, qy, qz): CoM at (x, y, z), turned by the normalised
+// quaternion and then by the principal axes in the body frame (no box: only the CoM is drawn). A free body with a
 // `shape:` is drawn as that shape instead, centred at the CoM, its axes the body's.
 void add_free_body(Geometry& g, const std::string& name, const io_detail::FreeBodyInertia& fb,
                    const std::optional<io_detail::FreeBodyShape>& shape, Index offset) {
@@ -420,18 +547,8 @@ void add_free_body(Geometry& g, const std::string& name, const io_detail::FreeBo
   Eigen::Matrix3d J;
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) J(i, j) = fb.inertia[static_cast<std::size_t>(3 * i + j)];
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (J + J.transpose()));
-  const Vec3 I = es.eigenvalues();
-  Eigen::Matrix3d V = es.eigenvectors();
-  if (V.determinant() < 0) V.col(2) *= -1.0;  // a rotation
-  Vec3 size = Vec3::Zero();
-  for (int i = 0; i < 3; ++i) {
-    const double s = 6.0 * (I((i + 1) % 3) + I((i + 2) % 3) - I(i)) / fb.mass;
-    size(i) = fb.mass > 0.0 && s > 0.0 ? std::sqrt(s) : 0.0;
-  }
-  if (!(size.maxCoeff() > 0.0)) return;
-  size = size.cwiseMax(0.02 * size.maxCoeff());
-  g.add_solid({name, "box", size, centre}, posed(Eigen::Quaterniond(V)));
+  const auto box = inertia_box(fb.mass, J);
+  if (box) g.add_solid({name, "box", box->first, centre}, posed(box->second));
 }
 
 }  // namespace
@@ -464,13 +581,19 @@ Geometry build_geometry(const Scenario& sc, std::vector<std::string>* left_out) 
           },
           left_out);
       add_link_shapes(g, ls, tree_link_poses(tr, ls.links, info.offset));
-    } else if (const auto bodies = io_detail::definitions_bodies(sc.definitions.get(), info.name);
+    } else if (const auto bodies =
+                   io_detail::definitions_body_defs(sc.definitions.get(), info.name);
                !bodies.empty() &&
                std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)) {
       // The table of the CoMs' symbols: the derived subsystem's (the scenario's).
-      add_bodies(
-          g, info.name, bodies, sys,
+      const auto wheels = io_detail::platform_wheels(sc.definitions.get(), info.name);
+      auto drawn = bodies;  // a platform's body is drawn as its deck (add_wheels), not a cube
+      for (auto& b : drawn)
+        if (wheels && b.name == "platform") b.inertia_kind = symbolic::BodyDef::InertiaKind::none;
+      const std::size_t first = add_bodies(
+          g, info.name, drawn, sys,
           *std::dynamic_pointer_cast<const symbolic::DerivedSubsystem>(sub)->derivation().symbols);
+      if (wheels) add_wheels(g, info.name, *wheels, bodies, first, info.offset);
     } else if (const auto fb = io_detail::free_body_inertia(sc.definitions.get(), info.name);
                fb && info.type == "free_body") {
       add_free_body(g, info.name, *fb, io_detail::free_body_shape(sc.definitions.get(), info.name),

@@ -1,5 +1,6 @@
 #include "ukdyn/robot_files/mjcf.hpp"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -548,11 +549,35 @@ void append_mjcf(ChainDef& chain, const std::string& path, bool gravity) {
   if (meshes > 0) {
     chain.notes.push_back(
         path + ": " + std::to_string(meshes) + (meshes == 1 ? " mesh" : " meshes") +
-        " ignored: ukdyn reads kinematics and inertia only; visuals are not drawn");
+        " ignored: ukdyn reads kinematics and inertia only; the replay page draws meshes as "
+        "their bounding boxes");
   }
 }
 
 namespace {
+
+// Mesh geom k as its bounding box in the geom's frame: MuJoCo's compiled model holds the mesh's
+// vertices in the geom frame (mesh_vert; the mesh's own offset is in geom_pos / geom_quat), so the
+// box is [lo, hi] of them, centred at p + R (lo + hi) / 2 of the link frame. Left a mesh if it has
+// no vertices.
+void mesh_bounding_box(const mjModel& m, int k, LinkVisual& v) {
+  const int id = m.geom_dataid[k];
+  if (id < 0 || m.mesh_vertnum[id] <= 0) return;
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL), hi = -lo;
+  const float* vert = m.mesh_vert + 3 * m.mesh_vertadr[id];
+  for (int i = 0; i < m.mesh_vertnum[id]; ++i) {
+    const Eigen::Vector3d x(vert[3 * i], vert[3 * i + 1], vert[3 * i + 2]);
+    lo = lo.cwiseMin(x);
+    hi = hi.cwiseMax(x);
+  }
+  const Eigen::Quaterniond r(v.quat[0], v.quat[1], v.quat[2], v.quat[3]);
+  const Eigen::Vector3d c =
+      Eigen::Vector3d(v.xyz[0], v.xyz[1], v.xyz[2]) + r.normalized() * (0.5 * (lo + hi));
+  v.shape = "box";
+  v.bounding_box = true;
+  v.xyz = {c.x(), c.y(), c.z()};
+  v.size = {hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z()};
+}
 
 // Geom k as a LinkVisual: MuJoCo's half-sizes (geom_size) as extents (docs/replay.md); capsules and
 // cylinders along the geom's z (MuJoCo's fromto already turned into geom_pos / geom_quat).
@@ -590,6 +615,7 @@ LinkVisual geom_visual(const MjcfSource& src, int k) {
     case mjGEOM_MESH:
       v.shape = "mesh";
       v.detail = src.name_of(mjOBJ_MESH, m.geom_dataid[k], "");
+      mesh_bounding_box(m, k, v);
       break;
     case mjGEOM_PLANE:
       v.shape = "plane";

@@ -211,6 +211,10 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::string>> base_coordinates, prismatic_coordinates;
   /// Per definitions subsystem: its bodies' CoMs (parameters substituted).
   std::map<std::string, std::vector<std::pair<std::string, symbolic::Vec3Ex>>> bodies;
+  /// Per definitions subsystem: its bodies (parameters substituted), for their boxes on the page.
+  std::map<std::string, std::vector<symbolic::BodyDef>> body_defs;
+  /// Per wheeled platform: its wheels' radius and headings, for drawing them.
+  std::map<std::string, io_detail::PlatformWheels> platform_wheels;
   /// Per free_body subsystem: its mass and inertia (body frame, row-major), as numbers.
   std::map<std::string, io_detail::FreeBodyInertia> free_bodies;
   /// Per free_body subsystem with a `shape:`: that shape (the replay page).
@@ -245,10 +249,19 @@ void record_definition_bodies(DefinitionContext* context, const std::string& nam
   context->frames.add_bodies(def);     // frame constraints
   auto& list = context->bodies[name];  // the bodies' CoMs, for drawing (geometry.cpp)
   const GiNaC::exmap values = def.parameter_values();
+  auto& defs = context->body_defs[name];
   for (const auto& b : def.bodies) {
     list.push_back({b.name,
                     {b.com[0].subs(values).expand(), b.com[1].subs(values).expand(),
                      b.com[2].subs(values).expand()}});
+    sym::BodyDef d = b;
+    d.mass = b.mass.subs(values);
+    for (auto& e : d.com) e = e.subs(values).expand();
+    d.inertia_scalar = b.inertia_scalar.subs(values);
+    for (auto& e : d.inertia_tensor) e = e.subs(values);
+    if (d.rotation)
+      for (auto& e : *d.rotation) e = e.subs(values).expand();
+    defs.push_back(std::move(d));
   }
 }
 
@@ -483,6 +496,26 @@ std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
   auto it = context->bodies.find(name);
   return it == context->bodies.end() ? std::vector<std::pair<std::string, symbolic::Vec3Ex>>{}
                                      : it->second;
+}
+
+std::vector<symbolic::BodyDef> definitions_body_defs(const DefinitionContext* context,
+                                                     const std::string& name) {
+  if (!context) return {};
+  auto it = context->body_defs.find(name);
+  return it == context->body_defs.end() ? std::vector<symbolic::BodyDef>{} : it->second;
+}
+
+void record_platform_wheels(DefinitionContext* context, const std::string& name,
+                            PlatformWheels wheels) {
+  if (context) context->platform_wheels[name] = std::move(wheels);
+}
+
+std::optional<PlatformWheels> platform_wheels(const DefinitionContext* context,
+                                              const std::string& name) {
+  if (!context) return std::nullopt;
+  auto it = context->platform_wheels.find(name);
+  if (it == context->platform_wheels.end()) return std::nullopt;
+  return it->second;
 }
 
 std::optional<FreeBodyInertia> free_body_inertia(const DefinitionContext* context,

@@ -139,6 +139,23 @@ std::optional<std::pair<std::string, std::string>> chain_robot_file(
 /// The bodies (name, CoM in the world) of definitions subsystem `name`.
 std::vector<std::pair<std::string, symbolic::Vec3Ex>> definitions_bodies(
     const DefinitionContext* context, const std::string& name);
+/// The wheels of a wheeled platform (docs/wheeled-platforms.md), for drawing them: their radius
+/// and each wheel's heading β (its axle along (−sin β, cos β) in the platform frame), in the order
+/// of the bodies wheel1..N.
+struct PlatformWheels {
+  double radius = 0.0;
+  std::vector<double> headings;
+};
+/// Records those of wheeled platform `name` in `context` (if given).
+void record_platform_wheels(DefinitionContext* context, const std::string& name,
+                            PlatformWheels wheels);
+/// Those of wheeled platform `name` (nullopt if it is none, or no context).
+std::optional<PlatformWheels> platform_wheels(const DefinitionContext* context,
+                                              const std::string& name);
+/// The bodies of definitions subsystem `name` as defined (mass, CoM, rotation, inertia; parameters
+/// substituted), in the order of definitions_bodies.
+std::vector<symbolic::BodyDef> definitions_body_defs(const DefinitionContext* context,
+                                                     const std::string& name);
 
 /// A subsystem node with type: serial_chain (joints in the file, or urdf: FILE). Its points are
 /// recorded in `context` for points_coincide and point_trajectory.

@@ -158,6 +158,9 @@ std::shared_ptr<const Subsystem> load_wheeled_platform(
         sym::wheeled_platform_definition(name, def, coordinates, L.symbol_table());
     auto sub = sym::make_subsystem(d);
     record_definition_bodies(context, name, d, {coordinates[0], coordinates[1]});
+    PlatformWheels drawn{def.wheel_radius, {}};
+    for (const auto& w : def.wheels) drawn.headings.push_back(w.heading);
+    record_platform_wheels(context, name, std::move(drawn));
     return sub;
   } catch (const sym::DefinitionError& e) {  // a coordinate named like a parameter (m, I, J)
     L.fail(at_coords, e.what());

@@ -3,8 +3,8 @@
 //   solids[{name, shape: box|sphere|ellipsoid|cylinder|capsule, size: [extents along its own axes;
 //   cylinders and capsules along z], point: its centre, kind: load|link}], rot[frames][4·solids]
 //   (w, x, y, z),
-//   columns{name: values[frames]}, groups{title: [column names]}.
-// Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, frames3d, project, ready).
+//   columns{name: values[frames]} (pose_<c>_* and Wint_walker_<c>_* pose the internal-force arrows), groups{title: [column names]}.
+// Test hook: window.ukdyn (setFrame, setTime, markerOnly, solidOnly, solid, frames3d, squeeze, project, ready).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
@@ -19,7 +19,12 @@ const plots = [];
 $('name').textContent = D.name;
 $('info').textContent = `${D.scenario} · t ∈ [${D.t[0]}, ${D.t[frames - 1]}] s · ${frames} frames` +
   (D.stride > 1 ? ` (1 in ${D.stride} of ${D.source_rows} samples)` : '') + ` · status ${D.status}`;
-if (D.left_out && D.left_out.length) $('note').textContent = `not drawn: ${D.left_out.join(', ')}`;
+{  // what is not drawn, and the meshes drawn as their bounding boxes ("(mesh M: drawn as its bounding box)")
+  const boxed = (D.left_out ?? []).filter((s) => s.endsWith(': drawn as its bounding box)'));
+  const missing = (D.left_out ?? []).filter((s) => !boxed.includes(s));
+  $('note').textContent = [missing.length ? `not drawn: ${missing.join(', ')}` : '',
+    boxed.length ? `as bounding boxes: ${boxed.join(', ')}` : ''].filter((s) => s).join(' · ');
+}
 
 // ---- scene (world frame of the simulation: z up)
 const view = $('view');
@@ -118,10 +123,41 @@ const frameAxes = Object.keys(D.columns).filter((n) => /^pose_.+_x$/.test(n)).ma
     world.add(m);
     return m;
   });
+// The internal (squeeze) force of each grasp of a load held by several welds: an arrow at the grasp
+// frame's origin (pose_<c>_x, _y, _z) along the CSV's Wint_walker_<c>_fx, _fy, _fz (Walker's
+// internal part of the grasp wrench, docs/frame-constraints.md), its length the force times one
+// scale for the whole run (the largest force over the run and the grasps drawn at 15 % of the
+// model's extent; the legend gives the scale).
+const squeezeKeys = ['x', 'y', 'z', 'fx', 'fy', 'fz'];
+const squeezeCols = (c) => squeezeKeys.map((k) => D.columns[k.length === 1 ? `pose_${c}_${k}` : `Wint_walker_${c}_${k}`]);
+const squeezeNames = Object.keys(D.columns).filter((n) => /^Wint_walker_.+_fx$/.test(n)).map((n) => n.slice(12, -3))
+  .filter((c) => squeezeCols(c).every((v) => v !== undefined));
+let squeezeMax = 0;
+for (const c of squeezeNames) {
+  const [, , , fx, fy, fz] = squeezeCols(c);
+  for (let f = 0; f < frames; f++) {
+    const n = Math.hypot(fx[f], fy[f], fz[f]);
+    if (Number.isFinite(n)) squeezeMax = Math.max(squeezeMax, n);
+  }
+}
+const squeezeScale = squeezeMax > 0 ? 0.15 * extent / squeezeMax : 0;  // metres per newton
+const squeezeColour = 0x00897b;
+const squeezeArrows = squeezeNames.map((c) => {
+  const m = new THREE.ArrowHelper(new THREE.Vector3(1, 0, 0), new THREE.Vector3(), 1, squeezeColour);
+  m.userData = { name: c, cols: squeezeCols(c), length: 0 };
+  world.add(m);
+  return m;
+});
+if (squeezeArrows.length) {
+  $('squeezeToggle').hidden = false;
+  $('squeeze').onchange = () => { for (const m of squeezeArrows) m.visible = $('squeeze').checked && m.userData.length > 0; dirty = true; };
+}
 {
   const kinds = [...new Set(D.points.map((p) => p.kind))].filter((k) => k !== 'shape');
   $('legend').innerHTML = kinds.map((k) => `<i style="background:#${(colours[k] ?? colours.point).toString(16).padStart(6, '0')}"></i>${k}`).join('') +
-    (D.segments.some((s) => s[2] === 'load') || solids.length ? `<i style="background:#ef6c00"></i>load` : '');
+    (D.segments.some((s) => s[2] === 'load') || solids.some((s) => s.kind !== 'link') ? `<i style="background:#ef6c00"></i>load` : '') +
+    (squeezeArrows.length ? `<i style="background:#${squeezeColour.toString(16).padStart(6, '0')}"></i>internal force (Walker), ` +
+      `<span id="squeezeScale">${squeezeScale > 0 ? `1 m = ${(1 / squeezeScale).toPrecision(3)} N` : 'zero throughout'}</span>` : '');
 }
 
 // The test marker: one unlit sphere of pure red, shown alone (window.ukdyn.markerOnly).
@@ -178,6 +214,18 @@ function place(f) {
     const v = m.userData.cols.map((c) => c[f] ?? NaN);
     m.visible = v.every(Number.isFinite);
     if (m.visible) { m.position.set(v[0], v[1], v[2]); m.quaternion.set(v[4], v[5], v[6], v[3]).normalize(); }
+  }
+  for (const m of squeezeArrows) {
+    const v = m.userData.cols.map((c) => c[f] ?? NaN);
+    const n = Math.hypot(v[3], v[4], v[5]);
+    m.userData.length = v.every(Number.isFinite) && n > 0 ? n * squeezeScale : 0;
+    m.visible = m.userData.length > 0 && $('squeeze').checked;
+    if (m.userData.length > 0) {
+      m.position.set(v[0], v[1], v[2]);
+      m.setDirection(va.set(v[3] / n, v[4] / n, v[5] / n));
+      const len = m.userData.length;
+      m.setLength(len, Math.min(0.2 * len, extent * 0.03), Math.min(0.1 * len, extent * 0.015));
+    }
   }
   if (markerPoint >= 0) { pointAt(f, markerPoint, va); marker.position.copy(va); }
   if (markerSolid >= 0) {
@@ -350,6 +398,17 @@ window.ukdyn = {
   /// The frame constraints drawn as axes: [{name, position, quaternion [w, x, y, z]}] at this frame.
   frames3d() {
     return frameAxes.map((m) => ({ name: m.userData.name, position: m.position.toArray(), quaternion: [m.quaternion.w, m.quaternion.x, m.quaternion.y, m.quaternion.z] }));
+  },
+  /// The internal-force arrows as drawn at this frame: [{name, origin, direction (unit), length
+  /// (m), visible}], and the scale in metres per newton.
+  squeeze() {
+    return {
+      scale: squeezeScale,
+      arrows: squeezeArrows.map((m) => {
+        const d = new THREE.Vector3(0, 1, 0).applyQuaternion(m.quaternion);
+        return { name: m.userData.name, origin: m.position.toArray(), direction: d.toArray(), length: m.userData.length, visible: m.visible };
+      }),
+    };
   },
   /// The canvas pixel (x right, y down, CSS pixels from the canvas' top-left) of world point xyz
   /// through the page's camera.

@@ -182,6 +182,33 @@ async function checkFreeBody(context, refused, errors) {
   }
   check(worstAxes < 1e-4, `the ${offsets.length} grasp frames' axes within ${worstAxes.toExponential(2)} m of the load pose + the welds' offsets`);
   check(worstTurn < 1e-4 && transposed > 0.5, `their orientations within ${worstTurn.toExponential(2)} of R(q) Rz Ry Rx(rpy) (Frobenius; drawn transposed they would be ${transposed.toFixed(2)} off)`);
+  // the internal (squeeze) force of each grasp: an arrow at pose_<c>_x..z along
+  // Wint_walker_<c>_fx..fz, its length |f| times the scale the legend states
+  const legend = await page.evaluate(() => document.getElementById('squeezeScale')?.textContent ?? '');
+  const perMetre = /1 m = (\S+) N/.exec(legend);
+  if (!perMetre) fail(`no internal-force scale in the legend ('${legend}')`);
+  let worstOrigin = 0, worstDir = 0, worstLen = 0, shown = 0;
+  for (const f of [0, Math.floor(last / 2), last]) {
+    const sq = await page.evaluate((k) => (window.ukdyn.setFrame(k), window.ukdyn.squeeze()), f);
+    check(Math.abs(sq.scale * Number(perMetre[1]) - 1) < 5e-3, `frame ${f}: the arrows' scale ${sq.scale.toExponential(3)} m/N is the legend's (${legend})`);
+    for (const [name] of offsets) {
+      const a = sq.arrows.find((g) => g.name === name);
+      if (!a) fail(`frame ${f}: no internal-force arrow for ${name} (${sq.arrows.map((g) => g.name).join(', ')})`);
+      const o = ['x', 'y', 'z'].map((k) => c(`pose_${name}_${k}`)[f]);
+      const w = ['fx', 'fy', 'fz'].map((k) => c(`Wint_walker_${name}_${k}`)[f]);
+      const n = Math.hypot(...w);
+      worstOrigin = Math.max(worstOrigin, Math.hypot(...o.map((v, k) => v - a.origin[k])));
+      if (n > 1e-9) {
+        worstDir = Math.max(worstDir, Math.hypot(...w.map((v, k) => v / n - a.direction[k])));
+        worstLen = Math.max(worstLen, Math.abs(a.length - n / Number(perMetre[1])) / (n / Number(perMetre[1])));
+        if (a.visible) shown++;
+      }
+    }
+  }
+  check(shown > 0, `${shown} internal-force arrows drawn at 3 frames`);
+  check(worstOrigin < 1e-4, `the internal-force arrows start within ${worstOrigin.toExponential(2)} m of the CSV's grasp origins`);
+  check(worstDir < 1e-4, `their directions within ${worstDir.toExponential(2)} of the CSV's Wint_walker force`);
+  check(worstLen < 5e-3, `their lengths within ${(100 * worstLen).toFixed(3)} % of |force| / (the legend's N per m)`);
   const movedM = Math.hypot(seen[1][2] - seen[0][2], seen[1][3] - seen[0][3], seen[1][4] - seen[0][4]);
   const movedPx = Math.hypot(seen[1][0] - seen[0][0], seen[1][1] - seen[0][1]);
   check(movedM > 0.05, `the load moves ${movedM.toFixed(3)} m in the CSV from t = 0 to the end`);

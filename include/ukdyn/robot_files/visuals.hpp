@@ -1,7 +1,8 @@
 // The shapes a robot file gives its links, for the replay page only (docs/replay.md): URDF
 // <visual> geometries (box, cylinder, sphere; mesh) and MJCF geoms (box, sphere, capsule, cylinder,
 // ellipsoid; mesh, plane, ...). The dynamics never read them (inertia comes from <inertial> and
-// MuJoCo's compiled body inertias); meshes are listed, not loaded.
+// MuJoCo's compiled body inertias); URDF meshes are listed, not loaded; MJCF meshes become their
+// bounding boxes (MuJoCo has loaded their vertices).
 #pragma once
 
 #include <array>
@@ -24,6 +25,9 @@ struct LinkVisual {
   std::array<double, 3> size{0, 0, 0};
   std::array<double, 3> xyz{0, 0, 0};      ///< the shape's centre in the link frame
   std::array<double, 4> quat{1, 0, 0, 0};  ///< (w, x, y, z): shape axes → link frame
+  /// A mesh drawn as its bounding box (shape box; the mesh's name in `detail`): an MJCF mesh geom,
+  /// whose vertices MuJoCo's compiled model holds.
+  bool bounding_box = false;
 };
 
 /// The <visual> elements of every link of the URDF file, by link name. Throws
