@@ -305,16 +305,36 @@ TEST(Optimize, RestToRestOnACircleMatchesTheClosedFormAtTheMethodsOrder) {
 
 namespace fs = std::filesystem;
 
+// One edit of a good problem file (the text `from` replaced by `to`) and the error it must give.
+struct EditCase {
+  const char* from;
+  const char* to;
+  const char* expect;
+};
+
+// Each edit of `good` is refused with its message, located in the edited file.
+void expect_refused(const std::string& good, const std::vector<EditCase>& cases,
+                    const fs::path& dir) {
+  for (const auto& c : cases) {
+    std::string text = good;
+    const auto at = text.find(c.from);
+    ASSERT_NE(at, std::string::npos) << c.from;
+    text.replace(at, std::string(c.from).size(), c.to);
+    try {
+      load_optimization_text(text, dir / "bad.yaml");
+      ADD_FAILURE() << "accepted: " << c.to;
+    } catch (const ScenarioError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
+    }
+  }
+}
+
 // The problem-file errors name the key (and the line) where the problem is.
 TEST(OptimizeFile, ErrorsNameTheKey) {
   const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
   const std::string good = ukdyn_test::slurp(dir / "paper_lift.yaml");
-  struct Case {
-    const char* from;
-    const char* to;
-    const char* expect;
-  };
-  const Case cases[] = {
+  const std::vector<EditCase> cases = {
       {"method: hermite_simpson", "method: simpson",
        "key 'method': expected hermite_simpson or trapezoidal"},
       {"intervals: 50", "intervals: 2.5", "key 'intervals': expected a whole number"},
@@ -337,19 +357,7 @@ TEST(OptimizeFile, ErrorsNameTheKey) {
       {"costs:", "bounds:\n  internal_wrench: {load: left.cut}\ncosts:",
        "key 'bounds.internal_wrench': expected force, torque or both"},
   };
-  for (const auto& c : cases) {
-    std::string text = good;
-    const auto at = text.find(c.from);
-    ASSERT_NE(at, std::string::npos) << c.from;
-    text.replace(at, std::string(c.from).size(), c.to);
-    try {
-      load_optimization_text(text, dir / "bad.yaml");
-      ADD_FAILURE() << "accepted: " << c.to;
-    } catch (const ScenarioError& e) {
-      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
-      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
-    }
-  }
+  expect_refused(good, cases, dir);
 }
 
 // The left robot's cut point of the paper's chains by hand (scenarios/paper_chain.yaml: base at
@@ -390,12 +398,7 @@ TEST(OptimizeFile, AWaypointIsPassedAndCosts) {
 TEST(OptimizeFile, WaypointErrorsNameTheKey) {
   const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
   const std::string good = ukdyn_test::slurp(dir / "paper_lift_waypoint.yaml");
-  struct Case {
-    const char* from;
-    const char* to;
-    const char* expect;
-  };
-  const Case cases[] = {
+  const std::vector<EditCase> cases = {
       // Errors of the frame or the numbers, found when the scenario is loaded with the waypoints'
       // rows, are said at the waypoint's own key and line, not at the text ukdyn wrote.
       {"frame: left.cut", "frame: left.nope", "bad.yaml:20:28: key 'waypoints[0].frame': no frame"},
@@ -414,19 +417,7 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
       {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
       {"name: halfway", "colour: red", "key 'waypoints[0].colour': unknown key"},
   };
-  for (const auto& c : cases) {
-    std::string text = good;
-    const auto at = text.find(c.from);
-    ASSERT_NE(at, std::string::npos) << c.from;
-    text.replace(at, std::string(c.from).size(), c.to);
-    try {
-      load_optimization_text(text, dir / "bad.yaml");
-      ADD_FAILURE() << "accepted: " << c.to;
-    } catch (const ScenarioError& e) {
-      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
-      EXPECT_NE(std::string(e.what()).find("bad.yaml:"), std::string::npos) << e.what();
-    }
-  }
+  expect_refused(good, cases, dir);
 }
 
 // Each waypoint gets its own rows, also when one's name is another's with a suffix (rows a_x.. and
