@@ -5,9 +5,9 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <set>
-#include <unsupported/Eigen/AutoDiff>
 
 #include "symbolic/ex_helpers.hpp"
+#include "tree/dual.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
@@ -316,15 +316,12 @@ void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowV
 
 // ---------------------------------------------------------------- derivatives (dual numbers)
 
-// One tangent direction: value and directional derivative (Eigen's forward-mode scalar).
-using Dual = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+// One tangent direction: value and directional derivative (tree/dual.hpp).
+using ukdyn::detail::Dual;
+using ukdyn::detail::dual;
+using ukdyn::detail::tangent_of;
 using DV3 = Eigen::Matrix<Dual, 3, 1>;
 using DM3 = Eigen::Matrix<Dual, 3, 3>;
-
-Dual dual(double value, double tangent) {
-  return Dual(value, Eigen::Matrix<double, 1, 1>::Constant(tangent));
-}
-double tangent_of(const Dual& x) { return x.derivatives()(0); }
 
 // A frame's state on dual numbers along one direction (dq, dq̇) at fixed q̈: pdd, Rdd are the
 // acceleration AT q̈ (so that A q̈ − b = D ẍ + ẋᵀHẋ). The columns dp, dR of its end are kept as

@@ -14,6 +14,8 @@
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
 
+#include "tree/dual.hpp"
+
 namespace ukdyn::tree {
 
 namespace {
@@ -547,19 +549,17 @@ Workspace map_workspace(double* data, std::size_t links, Index nt) {
 
 namespace {
 
-// One tangent direction: value and directional derivative (Eigen's forward-mode scalar with a
-// fixed one-entry derivative: no heap, trivially copyable into a slot of doubles).
-using Dual = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+// One tangent direction: value and directional derivative (tree/dual.hpp: no heap, trivially
+// copyable into a slot of doubles).
+using detail::Dual;
+using detail::dual;
+using detail::tangent_of;
 // Eigen aligns fixed-size vectors of 16 bytes' multiples (LinkState<Dual>) to 16: the workspace
 // starts at the first 16-aligned double of its part of the slot (one double of room).
 static_assert(sizeof(LinkState<Dual>) % sizeof(double) == 0 && alignof(LinkState<Dual>) <= 16,
               "LinkState<Dual> must live in a slot of doubles");
 constexpr Index kDualLinkDoubles = static_cast<Index>(sizeof(LinkState<Dual>) / sizeof(double));
 constexpr Index kDualDoubles = static_cast<Index>(sizeof(Dual) / sizeof(double));
-
-Dual dual(double value, double tangent) {
-  return Dual(value, Eigen::Matrix<double, 1, 1>::Constant(tangent));
-}
 
 Index tangent_workspace_doubles(std::size_t links, Index nt) {
   return static_cast<Index>(links) * kDualLinkDoubles + 4 * nt * kDualDoubles + 1;
@@ -1109,7 +1109,6 @@ void seed_duals(const std::vector<std::vector<Term>>& T, const std::vector<doubl
 }
 
 double value_of(const Dual& x) { return x.value(); }
-double tangent_of(const Dual& x) { return x.derivatives().size() > 0 ? x.derivatives()(0) : 0.0; }
 
 template <int R, int C>
 void split(const Eigen::Matrix<Dual, R, C>& x, Eigen::Matrix<double, R, C>& v,
