@@ -12,43 +12,22 @@
 #include <fstream>
 #include <string>
 
+#include "control_systems.hpp"
 #include "ukdyn/sweep/sweep.hpp"
 
 namespace {
 
-constexpr const char* kPlant = R"(ukdyn: 1
-name: plant
-gravity: 9.8
-subsystems:
-  - name: bob
-    type: definitions
-    coordinates: [x, z]
-    parameters: {m: 1}
-    bodies:
-      - {name: bob, mass: m, com: [x, 0, z]}
-constraints:
-  - type: expression
-    name: rod
-    rows: {circle: (x^2 + z^2 - 1)/2}
-  - type: expression
-    name: swing
-    let: {th: 0.3*(1 - cos(2*t))}
-    rows: {angle: x*cos(th) + z*sin(th)}
-initial:
-  q: [0, -1]
-simulation: {t_end: 0.1, sample_dt: 0.05}
-)";
+// The short run of the base and its plant (tests/control_systems.hpp's servo pendulum).
+constexpr const char* kRun = "{t_end: 0.1, sample_dt: 0.05}";
 
 // The folder of the fuzzed files, made once per process (a fresh name under the temp folder).
 std::filesystem::path work_folder() {
   const auto dir =
       std::filesystem::temp_directory_path() / ("ukdyn_fuzz_sweep_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
-  std::ofstream(dir / "plant.yaml") << kPlant;
-  std::string base = kPlant;
-  base.replace(base.find("name: plant"), 11, "name: base");
-  std::ofstream(dir / "base.yaml") << base << "actuators:\n  - {name: fx, coordinate: x}\n"
-                                   << "control:\n  law: stabilized\n  plant: plant.yaml\n";
+  std::ofstream(dir / "plant.yaml") << uktest::pendulum_servo_yaml(1.0, "", kRun);
+  std::ofstream(dir / "base.yaml") << uktest::pendulum_servo_yaml(
+      1.0, "control:\n  law: stabilized\n  plant: plant.yaml\n", kRun);
   return dir;
 }
 

@@ -15,6 +15,7 @@
 #include <string>
 
 #include "cli_run.hpp"
+#include "control_systems.hpp"
 #include "core/input_file.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "scenario/yaml_paths.hpp"
@@ -48,32 +49,9 @@ std::string error_of(F&& f) {
   return {};
 }
 
-// A servo pendulum (tests/control_systems.hpp's model) with `control` appended.
+// The servo pendulum of tests/control_systems.hpp, a short run, with `control` appended.
 std::string servo(const std::string& control) {
-  return R"(ukdyn: 1
-name: servo
-gravity: 9.8
-subsystems:
-  - name: bob
-    type: definitions
-    coordinates: [x, z]
-    parameters: {m: 1}
-    bodies:
-      - {name: bob, mass: m, com: [x, 0, z]}
-constraints:
-  - type: expression
-    name: rod
-    rows: {circle: (x^2 + z^2 - 1)/2}
-  - type: expression
-    name: swing
-    let: {th: 0.3*(1 - cos(2*t))}
-    rows: {angle: x*cos(th) + z*sin(th)}
-actuators:
-  - {name: fx, coordinate: x}
-initial:
-  q: [0, -1]
-simulation: {t_end: 0.2, sample_dt: 0.01}
-)" + control;
+  return uktest::pendulum_servo_yaml(1.0, control, "{t_end: 0.2, sample_dt: 0.01}");
 }
 
 std::string list_sweep(const std::string& base, const std::string& extra = "") {
