@@ -35,6 +35,21 @@ void write_file(const fs::path& p, const std::string& text) {
   out << text;
 }
 
+// Writes dir/s.yaml, one serial chain `arm` (coordinates a, s) read from a robot file (`robot`:
+// "urdf: shapes.urdf", "mjcf: shapes.xml") with `dynamics` (tree or symbolic), and loads it.
+Scenario chain_scenario(const fs::path& dir, const std::string& name, const std::string& robot,
+                        const char* dynamics) {
+  write_file(dir / "s.yaml", fmt::format(R"(ukdyn: 1
+name: {}
+subsystems:
+  - {{name: arm, type: serial_chain, coordinates: [a, s], {}, dynamics: {}}}
+initial: {{q: [0, 0], qd: zeros}}
+simulation: {{t_end: 1, sample_dt: 0.1}}
+)",
+                                         name, robot, dynamics));
+  return load_scenario(dir / "s.yaml");
+}
+
 // R = Rz(yaw) Ry(pitch) Rx(roll) (URDF's rpy).
 Mat3 rpy(double r, double p, double y) {
   return (Eigen::AngleAxisd(y, Vec3::UnitZ()) * Eigen::AngleAxisd(p, Vec3::UnitY()) *
@@ -114,15 +129,7 @@ TEST(ReplayShapes, UrdfVisualsAtTheirLinkFrames) {
   ukdyn_test::ScratchDir dir("ukdyn_urdf_shapes");
   write_file(dir.path / "shapes.urdf", kUrdf);
   for (const char* dynamics : {"tree", "symbolic"}) {
-    write_file(dir.path / "s.yaml", fmt::format(R"(ukdyn: 1
-name: urdf_shapes
-subsystems:
-  - {{name: arm, type: serial_chain, coordinates: [a, s], urdf: shapes.urdf, dynamics: {}}}
-initial: {{q: [0, 0], qd: zeros}}
-simulation: {{t_end: 1, sample_dt: 0.1}}
-)",
-                                                dynamics));
-    const Scenario sc = load_scenario(dir.path / "s.yaml");
+    const Scenario sc = chain_scenario(dir.path, "urdf_shapes", "urdf: shapes.urdf", dynamics);
     std::vector<std::string> left_out;
     const Geometry g = build_geometry(sc, &left_out);
     ASSERT_EQ(left_out.size(), 1u) << dynamics;
@@ -202,15 +209,7 @@ TEST(ReplayShapes, MjcfGeomsWhereMuJoCoPutsThem) {
   ASSERT_NE(m, nullptr) << err;
   mjData* md = mj_makeData(m);
   for (const char* dynamics : {"tree", "symbolic"}) {
-    write_file(dir.path / "s.yaml", fmt::format(R"(ukdyn: 1
-name: mjcf_shapes
-subsystems:
-  - {{name: arm, type: serial_chain, coordinates: [a, s], mjcf: shapes.xml, dynamics: {}}}
-initial: {{q: [0, 0], qd: zeros}}
-simulation: {{t_end: 1, sample_dt: 0.1}}
-)",
-                                                dynamics));
-    const Scenario sc = load_scenario(dir.path / "s.yaml");
+    const Scenario sc = chain_scenario(dir.path, "mjcf_shapes", "mjcf: shapes.xml", dynamics);
     std::vector<std::string> left_out;
     const Geometry g = build_geometry(sc, &left_out);
     ASSERT_EQ(left_out.size(), 1u);
