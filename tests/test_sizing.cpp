@@ -31,23 +31,8 @@ void write(const fs::path& p, const std::string& text) { std::ofstream(p) << tex
 // rest, whatever the motor (no speed: no friction torque, the rotor's inertia sees no q̈).
 constexpr double kHold = 2.0 * 9.81 * 0.4;
 
-const char* kLink = R"(ukdyn: 1
-name: held_link
-gravity: 9.81
-subsystems:
-  - name: arm
-    type: serial_chain
-    coordinates: [a]
-    joints:
-      - {name: j1, type: revolute, axis: [0, 1, 0], coordinate: a, mass: 2,
-         com: [0.4, 0, 0], inertia: [0.01, 0.03, 0.02]}
-constraints:
-  - {type: coordinate, name: hold, coordinate: a, value: 0}
-actuators:
-  - {name: shoulder, coordinate: a}
-initial: {q: [0], qd: [0]}
-simulation: {t_end: 0.2, sample_dt: 0.01}
-)";
+// Its scenario, shared with python/tests/test_size.py.
+const std::string kLink = ukdyn_test::slurp(kSource / "tests" / "sizing" / "held_link.yaml");
 
 // Three motors × two gearboxes, masses chosen so that the order by mass interleaves them.
 std::string catalogue(const std::string& g50_extra = "") {

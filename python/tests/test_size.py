@@ -6,24 +6,10 @@ import pathlib
 import pytest
 
 import ukdyn
+from conftest import SOURCE
 
-LINK = """ukdyn: 1
-name: held_link
-gravity: 9.81
-subsystems:
-  - name: arm
-    type: serial_chain
-    coordinates: [a]
-    joints:
-      - {name: j1, type: revolute, axis: [0, 1, 0], coordinate: a, mass: 2,
-         com: [0.4, 0, 0], inertia: [0.01, 0.03, 0.02]}
-constraints:
-  - {type: coordinate, name: hold, coordinate: a, value: 0}
-actuators:
-  - {name: shoulder, coordinate: a}
-initial: {q: [0], qd: [0]}
-simulation: {t_end: 0.2, sample_dt: 0.01}
-"""
+# The held link, shared with tests/test_sizing.cpp.
+LINK = (SOURCE / "tests" / "sizing" / "held_link.yaml").read_text()
 
 CATALOGUE = """ukdyn_catalogue: 1
 name: test
