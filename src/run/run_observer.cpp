@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "model/slot_energy.hpp"
+
 namespace ukdyn::io_detail {
 
 SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balance,
@@ -13,6 +15,7 @@ SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balanc
       balance_(balance),
       needs_(needs),
       row_(row_size, 0.0),
+      scratch_(system),
       vel_(velocity_level_rows(system)),
       any_vel_(std::find(vel_.begin(), vel_.end(), true) != vel_.end()),
       phi_(Vec::Zero(system.rows())),
@@ -28,12 +31,12 @@ SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balanc
 std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
   const Index n = sys_.dof();
   const Index m = sys_.rows();
-  if (m > 0) position_residuals(sys_, t, q, phi_);
+  if (m > 0) position_residuals(sys_, scratch_, t, q, phi_);
   // (the row's vres_ columns need them too)
   const bool phid = needs_.velocity_residuals || (needs_.row && any_vel_);
-  if (m > 0 && phid) velocity_residuals(sys_, t, q, qd, phid_);
+  if (m > 0 && phid) velocity_residuals(sys_, scratch_, t, q, qd, phid_);
   const double T = kinetic_energy(d, qd);
-  const double V = potential_energy(sys_, t, q);
+  const double V = detail::potential_energy_in_slots(sys_, scratch_, t, q);
   const double E = T + V;
   if (count_++ == 0) {
     rep_.E0 = E;

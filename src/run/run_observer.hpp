@@ -65,6 +65,7 @@ class SampleRecorder {
   bool balance_;
   Needs needs_;
   std::vector<double> row_;
+  ForwardData scratch_;  // the slots Φ, Φ̇ and V are evaluated in (not the run's: no allocation)
   std::vector<bool> vel_;  // per constraint row: velocity-level (its column is B q̇ + c)
   bool any_vel_ = false;
   Vec phi_, phid_;
