@@ -15,8 +15,8 @@ class CsvWriter {
   /// Writes the header. Throws OutputRefused (a link or folder at the name) or WriteFailed.
   CsvWriter(const OutputDir& dir, std::string name, const std::vector<std::string>& header);
 
-  /// Appends one row (size must equal the header's). Numbers are written with 17 significant
-  /// digits. Throws WriteFailed.
+  /// Appends one row (size must equal the header's). Each number is written as its shortest text
+  /// that reads back to the same double (std::to_chars's). Throws WriteFailed.
   void row(const std::vector<double>& values);
   /// flush + fsync + rename onto the name. Throws WriteFailed (then abandon() may follow).
   void commit();
