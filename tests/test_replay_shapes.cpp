@@ -385,6 +385,15 @@ nlohmann::json page_data(const fs::path& dir) {
   return nlohmann::json::parse(page.substr(a, page.find("</script>", a) - a));
 }
 
+// Runs sc into dir (no figures), writes its replay page there and returns the page's data block.
+nlohmann::json run_and_replay(const Scenario& sc, const fs::path& dir) {
+  RunOptions ro;
+  ro.figures = false;
+  EXPECT_TRUE(run_scenario(sc, dir, ro).complete());
+  write_replay(sc, dir);
+  return page_data(dir);
+}
+
 // Bodies of a definitions subsystem drawn as their inertia-equivalent boxes (docs/replay.md): a
 // pendulum about the world x axis, CoM (0, l sin θ, −l cos θ) and rotation Rx(θ), with a diagonal
 // inertia of three different moments, and a bob with a scalar inertia and no rotation (a cube,
@@ -421,11 +430,7 @@ simulation: {t_end: 2, sample_dt: 0.05}
   const Geometry g = build_geometry(sc, &left_out);
   EXPECT_TRUE(left_out.empty());
   ukdyn_test::ScratchDir dir("ukdyn_definitions_boxes");
-  RunOptions ro;
-  ro.figures = false;
-  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
-  write_replay(sc, dir.path);
-  const auto data = page_data(dir.path);
+  const auto data = run_and_replay(sc, dir.path);
   const auto index = [&](const nlohmann::json& list, const std::string& name) {
     for (std::size_t i = 0; i < list.size(); ++i)
       if (list[i]["name"] == name) return i;
@@ -522,11 +527,7 @@ simulation: {t_end: 2, sample_dt: 0.05}
 )";
   const Scenario sc = load_scenario_text(text, "kiwi.yaml");
   ukdyn_test::ScratchDir dir("ukdyn_platform_wheels");
-  RunOptions ro;
-  ro.figures = false;
-  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
-  write_replay(sc, dir.path);
-  const auto data = page_data(dir.path);
+  const auto data = run_and_replay(sc, dir.path);
   const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
   const auto col = [&](const std::string& n) {
     return static_cast<std::size_t>(std::find(tab.header.begin(), tab.header.end(), n) -
@@ -648,11 +649,7 @@ simulation: {{t_end: 0.6, sample_dt: 0.02, integrator: dopri5, abs_tol: 1e-11, r
                   r1, r2, r3, pl.x(), pl.y(), pl.z(), ql.w(), ql.x(), ql.y(), ql.z());
   const Scenario sc = load_scenario_text(text, "grasp_axes.yaml");
   ukdyn_test::ScratchDir dir("ukdyn_grasp_axes");
-  RunOptions ro;
-  ro.figures = false;
-  ASSERT_TRUE(run_scenario(sc, dir.path, ro).complete());
-  write_replay(sc, dir.path);
-  const auto data = page_data(dir.path);
+  const auto data = run_and_replay(sc, dir.path);
   const auto& col = data["columns"];
   const TrajectoryTable tab = read_trajectory(dir.path / "trajectory.csv");
   const auto& names = sc.system->coordinate_names();
