@@ -300,3 +300,57 @@ TEST(ControlRunSensitivity, PaperControlMatchesWholeRuns) {
   }
   for (const auto& w : rs.warnings) std::cout << "[ control ] warning: " << w << "\n";
 }
+
+#ifdef UKDYN_TEST_HAVE_CLI
+#include <nlohmann/json.hpp>
+
+#include "cli_run.hpp"
+
+// `ukdyn linearize --closed-loop` at the held equilibrium (--state) gives the closed forms' roots
+// in closed_loop.eigenvalues; without --state it linearises at the closed loop's start; a scenario
+// without control: and --param with it are refused (exit 2); `ukdyn sensitivities` takes a gain.
+TEST(ControlCli, LinearizeClosedLoopAndGainSensitivities) {
+  namespace fs = std::filesystem;
+  const fs::path dir = ukdyn_test::process_scratch("control_cli");
+  const fs::path sc = dir / "hold.yaml";
+  std::ofstream(sc) << hold_yaml("  law: robust\n  lambda: 2\n  kappa: 5\n  rho: 0\n");
+  std::ostringstream state;
+  state.precision(17);
+  state << R"({"q": [)" << std::sin(kTheta) << ", " << -std::cos(kTheta) << R"(], "qd": [0, 0]})";
+  std::ofstream(dir / "eq.json") << state.str();
+  auto run = [&](const std::string& args) { return ukdyn_test::run_cli(UKDYN_CLI, dir, args); };
+  const auto r = run("linearize " + ukdyn_test::sh(sc.string()) + " --closed-loop --state " +
+                     ukdyn_test::sh((dir / "eq.json").string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  std::vector<double> re;
+  for (const auto& e : j["closed_loop"]["eigenvalues"]) re.push_back(e[0].get<double>());
+  std::sort(re.begin(), re.end());
+  ASSERT_EQ(re.size(), 2u);
+  EXPECT_NEAR(re[0], -5.0, 1e-8);
+  EXPECT_NEAR(re[1], -2.0, 1e-8);
+  EXPECT_EQ(j["closed_loop"]["law"], "robust");
+  EXPECT_EQ(j["F"].size(), 4u);
+  const auto start = run("linearize " + ukdyn_test::sh(sc.string()) + " --closed-loop");
+  ASSERT_EQ(start.exit_code, 0) << start.err;
+  // the start: 1e-3 off the servo row (sin(θ − 0.3) = 1e-3), at rest
+  const auto js = nlohmann::json::parse(start.out);
+  const double th = std::atan2(js["q"][0].get<double>(), -js["q"][1].get<double>());
+  EXPECT_NEAR(std::sin(th - kTheta), 1e-3, 1e-12);
+  const auto no_control =
+      run("linearize " + ukdyn_test::sh((kSource / "scenarios" / "paper.yaml").string()) +
+          " --closed-loop");
+  EXPECT_EQ(no_control.exit_code, 2);
+  EXPECT_NE(no_control.err.find("--closed-loop: the scenario has no control: section"),
+            std::string::npos)
+      << no_control.err;
+  const auto with_param = run("linearize " + ukdyn_test::sh(sc.string()) + " --closed-loop -p m");
+  EXPECT_EQ(with_param.exit_code, 2);
+  EXPECT_NE(with_param.err.find("does not take parameters"), std::string::npos) << with_param.err;
+  const auto sens = run("sensitivities " + ukdyn_test::sh(sc.string()) + " -p control.kappa -o " +
+                        ukdyn_test::sh((dir / "out").string()));
+  ASSERT_EQ(sens.exit_code, 0) << sens.err;
+  EXPECT_NE(ukdyn_test::slurp(dir / "out" / "sensitivities.csv").find("dq_x/dcontrol.kappa"),
+            std::string::npos);
+}
+#endif
