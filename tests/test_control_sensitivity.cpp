@@ -15,6 +15,7 @@
 #include <sstream>
 #include <string>
 
+#include "control_systems.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/run.hpp"
@@ -72,8 +73,8 @@ std::vector<std::complex<double>> closed_loop_eigenvalues(const Scenario& sc, do
   return ev;
 }
 
-// ∂τ/∂(q, q̇) of law_derivatives() against plain central differences of the loop's τ with a step
-// of 1e-7 max(1, |x_j|): the worst column, relative to the largest entry.
+// ∂τ/∂(q, q̇) and ∂τ/∂t of law_derivatives() against plain central differences of the loop's τ
+// with a step of 1e-7 max(1, |x_j|): the worst column, relative to the largest entry.
 double law_check(const Scenario& sc, double t, const Vec& q, const Vec& qd) {
   const auto run = make_control_run(sc);
   const LawDerivatives ld = law_derivatives(*run, t, q, qd);
@@ -94,9 +95,14 @@ double law_check(const Scenario& sc, double t, const Vec& q, const Vec& qd) {
       (which == 0 ? dq : dqd).col(j) = (tp - tm) / (2 * h);
     }
   }
-  Mat both(n, 2 * n), ref(n, 2 * n);
-  both << ld.dtau_dq, ld.dtau_dqd;
-  ref << dq, dqd;
+  const double ht = 1e-7 * std::max(1.0, std::abs(t));
+  run->loop->evaluate(t + ht, q, qd);
+  run->loop->plant_tau(tp);
+  run->loop->evaluate(t - ht, q, qd);
+  run->loop->plant_tau(tm);
+  Mat both(n, 2 * n + 1), ref(n, 2 * n + 1);
+  both << ld.dtau_dq, ld.dtau_dqd, ld.dtau_dt;
+  ref << dq, dqd, (tp - tm) / (2 * ht);
   return rel(both, ref);
 }
 
@@ -116,6 +122,15 @@ TEST(ControlDerivatives, LawDerivativesMatchCentralDifferences) {
               << ": d tau/dx against central differences " << r << "\n";
     EXPECT_LT(r, 1e-7) << law;
   }
+  // the moving reference θr(t) = 0.3 (1 − cos 2t) of tests/control_systems.hpp: ∂τ/∂t ≠ 0
+  const Scenario moving = load_scenario_text(
+      uktest::pendulum_servo_yaml(
+          1.0, "control:\n  law: robust\n  lambda: 2\n  kappa: 5\n  rho: 2\n  epsilon: 0.01\n"),
+      "pendulum_servo.yaml");
+  const double rm = law_check(moving, 0.4, q, qd);
+  std::cout << "[ control ] moving reference, robust: d tau/d(x, t) against central differences "
+            << rm << "\n";
+  EXPECT_LT(rm, 1e-7);
   const Scenario paper = load_scenario(kSource / "scenarios" / "paper_control.yaml");
   const auto run = make_control_run(paper);
   const double r = law_check(paper, 0.0, run->q0, run->qd0);
@@ -238,7 +253,7 @@ TEST(ControlRunSensitivity, ClosedFormOfThePendulumServo) {
   EXPECT_LT(rm, 1e-6);
 }
 
-// paper_control.yaml over 2 s (tolerance 1e-10 for the variational run): dq/dp for a mass of the
+// paper_control.yaml over 2 s (0.3 s under a sanitizer; tolerance 1e-10 for the variational run): dq/dp for a mass of the
 // controller's model (m3, both halves of the load) and for the gain κ, against Richardson
 // differences of four whole closed-loop runs of the hand-edited file (simulate() of the plant
 // under the loop, no drift control, tolerance 1e-13), over every sample.
@@ -254,7 +269,13 @@ TEST(ControlRunSensitivity, PaperControlMatchesWholeRuns) {
   };
   const std::string plant = (kSource / "scenarios" / "paper_generic_exact_inertia.yaml").string();
   text = replace(text, "plant: paper_generic_exact_inertia.yaml", "plant: " + plant);
+#ifdef UKDYN_TEST_SANITIZED
+  // 10-20 times slower under a sanitizer: the same code paths over 0.3 s (the layer is crossed
+  // at t = 0.065 s)
+  text = replace(text, "t_end: 4", "t_end: 0.3");
+#else
   text = replace(text, "t_end: 4", "t_end: 2");
+#endif
   text = replace(text, "abs_tol: 1e-13", "abs_tol: 1e-10");
   text = replace(text, "rel_tol: 1e-13", "rel_tol: 1e-10");
   const auto path = write_temp("paper_control_2s.yaml", text);
@@ -298,7 +319,51 @@ TEST(ControlRunSensitivity, PaperControlMatchesWholeRuns) {
               << "; steps " << rs.steps << ", rhs evaluations " << rs.rhs_evaluations << "\n";
     EXPECT_LT(r, 1e-6) << rs.parameters[j];
   }
+  // the robust law crosses its boundary layer in this run: said, with the law and the time
+  ASSERT_FALSE(rs.warnings.empty());
+  EXPECT_NE(rs.warnings[0].find("the robust control law is not differentiable at t = "),
+            std::string::npos);
   for (const auto& w : rs.warnings) std::cout << "[ control ] warning: " << w << "\n";
+}
+
+// An actuator limit: the law's u is clipped at the start (0.05 rad off) and comes off the limit
+// later; the gain κ is still a parameter (u before saturation changes with it), the run says where
+// the clipping makes the law non-differentiable, and the law's derivatives at a state on the limit
+// name it (not at a state inside it).
+TEST(ControlRunSensitivity, SaturationIsNamed) {
+  const std::string law = "  law: robust\n  lambda: 2\n  kappa: 5\n  rho: 0\n";
+  std::string text = hold_yaml(law, "", 0.05);
+  const std::string act = "  - {name: fx, coordinate: x}";
+  text.replace(text.find(act), act.size(), "  - {name: fx, coordinate: x, limit: 3.2}");
+  const auto path = write_temp("hold_saturated.yaml", text);
+  const Scenario sc = load_scenario(path);
+  const RunSensitivities rs = run_sensitivities(sc, scenario_parameters(sc, {"control.kappa"}));
+  ASSERT_FALSE(rs.warnings.empty());
+  EXPECT_NE(rs.warnings[0].find("actuator 'fx' at its limit 3.2"), std::string::npos)
+      << rs.warnings[0];
+  std::cout << "[ control ] saturated run: " << rs.warnings[0] << "\n";
+  // a state at rest whose u is at the limit (bisection on the servo error e: u(0) = the hold
+  // force inside the limit, u(0.05) over it): the probes straddle the limit
+  const auto run = make_control_run(sc);
+  auto state = [](double e) {
+    const double th = kTheta + std::asin(e);
+    return (Vec(2) << std::sin(th), -std::cos(th)).finished();
+  };
+  auto over = [&](double e) {
+    run->loop->evaluate(0.0, state(e), Vec::Zero(2));
+    return std::abs(run->loop->u_raw(0)) - 3.2;
+  };
+  double lo = 0.0, hi = 0.05;
+  ASSERT_LT(over(lo), 0.0);
+  ASSERT_GT(over(hi), 0.0);
+  for (int it = 0; it < 200 && hi - lo > 1e-15; ++it)
+    (over(0.5 * (lo + hi)) > 0.0 ? hi : lo) = 0.5 * (lo + hi);
+  const ClosedLoopLinearization cl = closed_loop_linearization(sc, 0.0, state(hi), Vec::Zero(2));
+  ASSERT_EQ(cl.law.kinks.size(), 1u);
+  EXPECT_EQ(cl.law.kinks[0], "actuator 'fx' at its limit 3.2");
+  const ClosedLoopLinearization inside =
+      closed_loop_linearization(sc, 0.0, state(0.5 * hi), Vec::Zero(2));
+  EXPECT_TRUE(inside.law.kinks.empty());
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI

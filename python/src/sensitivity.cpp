@@ -121,6 +121,7 @@ py::dict closed_loop_linearize(const PyScenario& s, const py::object& t_in, cons
   d["u"] = numpy_of(cl.law.u);
   d["dtau_dq"] = numpy_of(cl.law.dtau_dq);
   d["dtau_dqd"] = numpy_of(cl.law.dtau_dqd);
+  d["dtau_dt"] = numpy_of(cl.law.dtau_dt);
   d["F"] = numpy_of(F);
   d["N"] = numpy_of(mm.N);
   d["F_min"] = numpy_of(mm.F_min);
@@ -148,7 +149,8 @@ void bind_sensitivity(PyScenarioClass& cls) {
       .def("closed_loop_linearize", &closed_loop_linearize, py::arg("t") = py::none(),
            py::arg("q") = py::none(), py::arg("qd") = py::none(),
            "A control scenario's closed loop at (t, q, qd) (default: its start): a dict with tau, "
-           "u, dtau_dq, dtau_dqd (the law's, by Richardson differences), F (2n x 2n), N, F_min "
+           "u, dtau_dq, dtau_dqd, dtau_dt (the law's, by Richardson differences), F (2n x 2n), N, "
+           "F_min "
            "(minimal coordinates of the plant), kinks, trusted, message "
            "(docs/derivatives.md, \"Controlled runs\").");
 }

@@ -14,6 +14,8 @@ namespace ukdyn {
 
 namespace {
 
+constexpr std::array<double, 4> kProbeOffsets = {1.0, -1.0, 0.5, -0.5};  // × h
+
 // One evaluation of the loop: τ, and what tells on which side of a kink the law is.
 struct Probe {
   Vec tau, u_raw;
@@ -65,9 +67,8 @@ void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
 // (ps[0], already evaluated), Richardson's extrapolation of the two central differences.
 Vec directional(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd, double h,
                 std::array<Probe, 5>& ps, std::vector<std::string>& kinks) {
-  constexpr std::array<double, 4> kOffsets = {1.0, -1.0, 0.5, -0.5};
   for (std::size_t k = 0; k < 4; ++k) {
-    const Vec qk = q + kOffsets[k] * h * dq, qdk = qd + kOffsets[k] * h * dqd;
+    const Vec qk = q + kProbeOffsets[k] * h * dq, qdk = qd + kProbeOffsets[k] * h * dqd;
     probe(run, t, qk, qdk, ps[k + 1]);
   }
   find_kinks(run, ps, kinks);
@@ -93,6 +94,10 @@ LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd)
     out.dtau_dq.col(j) = directional(run, t, q, qd, e, zero, law_step(q(j)), ps, out.kinks);
     out.dtau_dqd.col(j) = directional(run, t, q, qd, zero, e, law_step(qd(j)), ps, out.kinks);
   }
+  const double ht = law_step(t);
+  for (std::size_t k = 0; k < 4; ++k) probe(run, t + kProbeOffsets[k] * ht, q, qd, ps[k + 1]);
+  find_kinks(run, ps, out.kinks);
+  out.dtau_dt = richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, ht);
   run.loop->evaluate(t, q, qd);  // the loop left at the state itself
   return out;
 }

@@ -262,6 +262,7 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
   j["u"] = vec_of(cl.law.u);
   j["dtau_dq"] = rows_of(cl.law.dtau_dq);
   j["dtau_dqd"] = rows_of(cl.law.dtau_dqd);
+  j["dtau_dt"] = vec_of(cl.law.dtau_dt);
   const MinimalModel mm = minimal_model(plant, t, q, qd, cl.law.tau, cl.lin);
   const Eigen::EigenSolver<Mat> es(mm.F_min, false);
   Mat ev(mm.F_min.rows(), 2);

@@ -203,8 +203,9 @@ std::vector<std::unique_ptr<ControlRun>> perturbed_control_runs(
   return runs;
 }
 
-// A control scenario: the law's tau (the closed loop at the state, τ_plant + B sat(u) + τ_d) at the
-// start and two states near it, and the start itself (the offset start), compared bit for bit.
+// A control scenario: the law's tau (the closed loop at the state, τ_plant + B sat(u) + τ_d) and
+// its u before saturation at the start and two states near it, and the start itself (the offset
+// start), compared bit for bit.
 void control_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
                   std::vector<bool>& used) {
   const auto nominal = make_control_run(sc);
@@ -225,7 +226,9 @@ void control_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
         ControlRun& r = *runs[4 * j + k];
         r.loop->evaluate(t, q, qd);
         r.loop->plant_tau(tau_k);
-        used[j] = used[j] || tau_k != tau || r.q0 != nominal->q0 || r.qd0 != nominal->qd0;
+        // u before saturation too: a gain of a law clipped at these states is still used
+        used[j] = used[j] || tau_k != tau || r.loop->u_raw != nominal->loop->u_raw ||
+                  r.q0 != nominal->q0 || r.qd0 != nominal->qd0;
       }
     }
   }

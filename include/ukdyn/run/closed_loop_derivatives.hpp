@@ -25,6 +25,9 @@ struct LawDerivatives {
   Vec tau;                ///< n: τ_plant + B sat(u) + τ_d
   Vec u;                  ///< k: the law's u after saturation
   Mat dtau_dq, dtau_dqd;  ///< n × n each
+  /// n: ∂τ/∂t at fixed (q, q̇) (a moving reference, the servo rows' own time; step law_step(t)):
+  /// the affine term of the closed loop's linear time-varying model, not part of F
+  Vec dtau_dt;
   /// Empty, or why the law is not differentiable inside the probes ("robust law: the boundary
   /// layer |mu| = epsilon", "actuator 'fx' at its limit"), one entry per cause.
   std::vector<std::string> kinks;
@@ -34,8 +37,8 @@ struct LawDerivatives {
 /// robust law's boundary layer, large against round-off: docs/derivatives.md).
 double law_step(double x);
 
-/// τ and ∂τ/∂(q, q̇) of the run's loop at (t, q, q̇). Evaluates the loop 8n + 1 times (it keeps
-/// the last evaluation's state: the caller's run is a workspace).
+/// τ, ∂τ/∂(q, q̇) and ∂τ/∂t of the run's loop at (t, q, q̇). Evaluates the loop 8n + 6 times (it
+/// is left evaluated at the state: the caller's run is a workspace).
 LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd);
 
 /// ∂τ/∂x · (dq, dq̇): the law's derivative along one direction, by the same Richardson differences
