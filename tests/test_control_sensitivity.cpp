@@ -326,10 +326,10 @@ TEST(ControlRunSensitivity, PaperControlMatchesWholeRuns) {
   for (const auto& w : rs.warnings) std::cout << "[ control ] warning: " << w << "\n";
 }
 
-// An actuator limit: the law's u is clipped at the start (0.05 rad off) and comes off the limit
-// later; the gain κ is still a parameter (u before saturation changes with it), the run says where
-// the clipping makes the law non-differentiable, and the law's derivatives at a state on the limit
-// name it (not at a state inside it).
+// An actuator limit: started 0.05 rad off, the law's u reaches its limit 3.2 during the run; the
+// gain κ is still a parameter (u before saturation changes with it), the run says where the
+// clipping makes the law non-differentiable, and the law's derivatives at a state on the limit
+// name it (not at a sample before it).
 TEST(ControlRunSensitivity, SaturationIsNamed) {
   const std::string law = "  law: robust\n  lambda: 2\n  kappa: 5\n  rho: 0\n";
   std::string text = hold_yaml(law, "", 0.05);
@@ -342,28 +342,39 @@ TEST(ControlRunSensitivity, SaturationIsNamed) {
   EXPECT_NE(rs.warnings[0].find("actuator 'fx' at its limit 3.2"), std::string::npos)
       << rs.warnings[0];
   std::cout << "[ control ] saturated run: " << rs.warnings[0] << "\n";
-  // a state at rest whose u is at the limit (bisection on the servo error e: u(0) = the hold
-  // force inside the limit, u(0.05) over it): the probes straddle the limit
+  // a state whose u is at the limit: between the first two samples of the run on either side of
+  // it, by bisection on the segment joining them (t, q, q̇ interpolated linearly)
   const auto run = make_control_run(sc);
-  auto state = [](double e) {
-    const double th = kTheta + std::asin(e);
-    return (Vec(2) << std::sin(th), -std::cos(th)).finished();
+  auto state = [&](std::size_t k, double s) {
+    const auto i = static_cast<Index>(k);
+    Vec x(5);
+    x << (1 - s) * rs.t[k] + s * rs.t[k + 1],
+        ((1 - s) * rs.q.row(i) + s * rs.q.row(i + 1)).transpose(),
+        ((1 - s) * rs.qd.row(i) + s * rs.qd.row(i + 1)).transpose();
+    return x;
   };
-  auto over = [&](double e) {
-    run->loop->evaluate(0.0, state(e), Vec::Zero(2));
+  auto over = [&](const Vec& x) {
+    run->loop->evaluate(x(0), x.segment(1, 2), x.segment(3, 2));
     return std::abs(run->loop->u_raw(0)) - 3.2;
   };
-  double lo = 0.0, hi = 0.05;
-  ASSERT_LT(over(lo), 0.0);
-  ASSERT_GT(over(hi), 0.0);
-  for (int it = 0; it < 200 && hi - lo > 1e-15; ++it)
-    (over(0.5 * (lo + hi)) > 0.0 ? hi : lo) = 0.5 * (lo + hi);
-  const ClosedLoopLinearization cl = closed_loop_linearization(sc, 0.0, state(hi), Vec::Zero(2));
+  std::size_t k = 0;
+  while (k + 1 < rs.t.size() && (over(state(k, 0.0)) > 0.0) == (over(state(k, 1.0)) > 0.0)) ++k;
+  ASSERT_LT(k + 1, rs.t.size()) << "the run never reaches the limit";
+  const bool starts_over = over(state(k, 0.0)) > 0.0;
+  double lo = 0.0, hi = 1.0;
+  for (int it = 0; it < 200 && hi - lo > 1e-15; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    ((over(state(k, mid)) > 0.0) == starts_over ? lo : hi) = mid;
+  }
+  const Vec edge = state(k, hi), before = state(k, 0.0);
+  std::cout << "[ control ] u at the limit at t = " << edge(0) << "\n";
+  const ClosedLoopLinearization cl =
+      closed_loop_linearization(sc, edge(0), edge.segment(1, 2), edge.segment(3, 2));
   ASSERT_EQ(cl.law.kinks.size(), 1u);
   EXPECT_EQ(cl.law.kinks[0], "actuator 'fx' at its limit 3.2");
-  const ClosedLoopLinearization inside =
-      closed_loop_linearization(sc, 0.0, state(0.5 * hi), Vec::Zero(2));
-  EXPECT_TRUE(inside.law.kinks.empty());
+  const ClosedLoopLinearization away =
+      closed_loop_linearization(sc, before(0), before.segment(1, 2), before.segment(3, 2));
+  EXPECT_TRUE(away.law.kinks.empty());
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI
