@@ -528,7 +528,8 @@ struct ClosedLoopVariationalRhs {
       out.warnings.push_back(fmt::format(
           "the {} control law is not differentiable at t = {:.6g} ({}; {} evaluations of the "
           "run's right-hand side in all met a kink): there its derivative is a difference across "
-          "the kink, and dq/dp is not vouched for to the run's tolerance after it",
+          "the kink; dq/dp stays continuous through a crossing, but a motion that stays on the "
+          "kink (sliding along it) is not covered",
           law, kink_t[i], kinks[i], kink_evaluations));
     }
   }
