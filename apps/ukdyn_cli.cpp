@@ -6,8 +6,9 @@
 //   ukdyn eval SCENARIO            (JSON lines on stdin → JSON lines on stdout)
 //   ukdyn check SCENARIO           (load and validate only)
 //   ukdyn linearize SCENARIO [--minimal] [--dt H] [--state FILE.json | --row RUN.csv:N]
-//                  [--out FILE.json|FILE.npz]   (exact derivatives of q̈ and Qc at the initial state or the
-//                  given one, JSON; in minimal coordinates; discrete; docs/derivatives.md)
+//                  [--out FILE.json|FILE.npz] [--closed-loop]   (exact derivatives of q̈ and Qc at
+//                  the initial state or the given one, JSON; in minimal coordinates; discrete; a
+//                  control scenario's closed loop; docs/derivatives.md)
 //   ukdyn sensitivities SCENARIO --param P [--param P2 ...] [--out DIR]   (dq/dp, dqd/dp of the
 //                  run by the variational equations, DIR/sensitivities.csv; docs/derivatives.md)
 //   ukdyn derive SCENARIO [--format latex|c|matlab|text]  (derived M, C, G, A, b;
@@ -41,6 +42,7 @@
 #include "apps/sweep_mpi.hpp"
 #include "core/input_file.hpp"
 #include "ukdyn/output/replay.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/run/run.hpp"
@@ -224,6 +226,7 @@ struct LinearizeArgs {
   double dt = 0.0;
   std::string state, row, out;
   std::vector<std::string> parameters;
+  bool closed_loop = false;
 };
 
 // `ukdyn optimize`: solve, write the run folder, print what was found. Exit 0 when IPOPT
@@ -333,7 +336,14 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
       throw ukdyn::Error("--row " + a.row + ": expected RUN.csv:N (N >= 0, the data row)");
     st = ukdyn::read_state_csv_row(sc, a.row.substr(0, colon), n);
   }
-  const ukdyn::LinearizeOptions opt{a.minimal, a.dt, a.parameters};
+  if (a.closed_loop && a.state.empty() && a.row.empty()) {  // the closed loop's start
+    const auto run = ukdyn::make_control_run(sc);
+    if (!run)
+      throw ukdyn::Error("--closed-loop: the scenario has no control: section (docs/control.md)");
+    st.q = run->q0;
+    st.qd = run->qd0;
+  }
+  const ukdyn::LinearizeOptions opt{a.minimal, a.dt, a.parameters, a.closed_loop};
   if (a.out.empty()) {
     return naming_the_scenario(sc.path.string(), [&] {
       return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
@@ -422,6 +432,9 @@ int main(int argc, char** argv) {
       ->excludes(lin_state);
   lin->add_option("--out,-o", la.out,
                   "write FILE.json (the JSON) or FILE.npz (numpy arrays) instead of stdout");
+  lin->add_flag("--closed-loop", la.closed_loop,
+                "a control scenario's plant under its law: F and the minimal model with the law's "
+                "d tau/d(q, qd), at the closed loop's start unless --state or --row");
   lin->add_option("--param,-p", la.parameters,
                   "also the derivatives with respect to this number of the scenario file (a "
                   "parameters: key or a path; repeatable; docs/derivatives.md)");

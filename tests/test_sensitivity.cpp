@@ -375,8 +375,16 @@ TEST(ParameterSensitivity, RefusesWhatIsNotAParameterItUses) {
   const auto left = scenario_parameters(two, {"subsystems[left_arm].parameters.m1"});
   EXPECT_EQ(left.front().paths.size(), 1u);
 
-  // A run of a controlled scenario is refused (control laws have no derivatives).
+  // A controlled scenario: a gain is a parameter (the law's tau changes with it), a run setting
+  // is still refused, saying what was compared (tests/test_control_sensitivity.cpp runs them).
   const Scenario ctl = load_scenario(kSource / "scenarios" / "paper_control.yaml");
-  const auto pc = scenario_parameters(ctl, {"mv"});
-  EXPECT_THROW(run_sensitivities(ctl, pc), Error);
+  EXPECT_EQ(scenario_parameters(ctl, {"control.kappa"}).front().value, 5.0);
+  try {
+    scenario_parameters(ctl, {"simulation.sample_dt"});
+    ADD_FAILURE() << "no error";
+  } catch (const ScenarioError& e) {
+    EXPECT_NE(std::string(e.what()).find("it changes none of M, Q, A, b, the control law's tau"),
+              std::string::npos)
+        << e.what();
+  }
 }

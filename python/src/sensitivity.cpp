@@ -1,5 +1,6 @@
-// Scenario.parameter_derivatives and Scenario.sensitivities (docs/python.md, docs/derivatives.md
-// "Sensitivities to parameters"): ukdyn/run/sensitivity.hpp with numpy arrays, the C++ work with
+// Scenario.parameter_derivatives, Scenario.sensitivities and Scenario.closed_loop_linearize
+// (docs/python.md, docs/derivatives.md "Sensitivities to parameters", "Controlled runs"):
+// ukdyn/run/sensitivity.hpp and closed_loop_derivatives.hpp with numpy arrays, the C++ work with
 // the GIL released.
 #include "ukdyn/run/sensitivity.hpp"
 
@@ -9,6 +10,8 @@
 #include <vector>
 
 #include "scenario_bindings.hpp"
+#include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 
 namespace ukdyn_python {
 
@@ -87,6 +90,47 @@ py::dict sensitivities(const PyScenario& s, const std::vector<std::string>& para
   return d;
 }
 
+// The closed loop of a control scenario at (t, q, qd), default its start
+// (ukdyn/run/closed_loop_derivatives.hpp).
+py::dict closed_loop_linearize(const PyScenario& s, const py::object& t_in, const py::object& q_in,
+                               const py::object& qd_in) {
+  const ukdyn::Scenario& sc = s.sc;
+  const Index n = sc.system->dof();
+  const auto run = ukdyn::make_control_run(sc);
+  if (!run)
+    throw std::invalid_argument(
+        "closed_loop_linearize: the scenario has no control: section (docs/control.md)");
+  const double t = t_in.is_none() ? sc.sim.t0 : t_in.cast<double>();
+  require_finite(t, "t");
+  const ukdyn::Vec q = q_in.is_none() ? run->q0 : vector_arg(q_in, n, "q");
+  const ukdyn::Vec qd = qd_in.is_none() ? run->qd0 : vector_arg(qd_in, n, "qd");
+  ukdyn::ClosedLoopLinearization cl;
+  ukdyn::MinimalModel mm;
+  ukdyn::Mat F, G;
+  {
+    py::gil_scoped_release release;
+    cl = ukdyn::closed_loop_linearization(sc, t, q, qd);
+    ukdyn::state_space(cl.lin, F, G);
+    mm = ukdyn::minimal_model(*run->plant, t, q, qd, cl.law.tau, cl.lin);
+  }
+  py::dict d;
+  d["t"] = t;
+  d["q"] = numpy_of(q);
+  d["qd"] = numpy_of(qd);
+  d["tau"] = numpy_of(cl.law.tau);
+  d["u"] = numpy_of(cl.law.u);
+  d["dtau_dq"] = numpy_of(cl.law.dtau_dq);
+  d["dtau_dqd"] = numpy_of(cl.law.dtau_dqd);
+  d["dtau_dt"] = numpy_of(cl.law.dtau_dt);
+  d["F"] = numpy_of(F);
+  d["N"] = numpy_of(mm.N);
+  d["F_min"] = numpy_of(mm.F_min);
+  d["kinks"] = cl.law.kinks;
+  d["trusted"] = cl.lin.trusted && cl.law.kinks.empty();
+  d["message"] = cl.lin.message;
+  return d;
+}
+
 }  // namespace
 
 void bind_sensitivity(PyScenarioClass& cls) {
@@ -99,7 +143,16 @@ void bind_sensitivity(PyScenarioClass& cls) {
       .def("sensitivities", &sensitivities, py::arg("parameters"),
            "dq/dp and dqd/dp of the scenario's run from its initial state (variational "
            "equations, no drift control): a dict with t (T), q, qd (T x n), dq_dp, dqd_dp "
-           "(P x T x n), steps, rhs_evaluations, trusted, message, warnings.");
+           "(P x T x n), steps, rhs_evaluations, trusted, message, warnings. A control "
+           "scenario: the plant's closed loop from its start; a gain is a parameter "
+           "('control.kappa').")
+      .def("closed_loop_linearize", &closed_loop_linearize, py::arg("t") = py::none(),
+           py::arg("q") = py::none(), py::arg("qd") = py::none(),
+           "A control scenario's closed loop at (t, q, qd) (default: its start): a dict with tau, "
+           "u, dtau_dq, dtau_dqd, dtau_dt (the law's, by Richardson differences), F (2n x 2n), N, "
+           "F_min "
+           "(minimal coordinates of the plant), kinks, trusted, message "
+           "(docs/derivatives.md, \"Controlled runs\").");
 }
 
 }  // namespace ukdyn_python

@@ -105,3 +105,65 @@ def test_linearize_param_json_and_npz_equal_python(tmp_path):
     assert z["parameters_trusted"] == 1.0 and z["trusted"] == 1.0
     code, out, err = run_cli("linearize", str(path), "-p", "nope")
     assert code == 2 and "parameter 'nope'" in err
+
+
+HOLD = """ukdyn: 1
+name: pendulum_hold
+gravity: 9.8
+subsystems:
+  - name: bob
+    type: definitions
+    coordinates: [x, z]
+    parameters: {m: 1}
+    bodies:
+      - {name: bob, mass: m, com: [x, 0, z]}
+constraints:
+  - {type: expression, name: rod, rows: {circle: (x^2 + z^2 - 1)/2}}
+  - {type: expression, name: swing, role: servo, rows: {angle: x*cos(0.3) + z*sin(0.3)}}
+actuators:
+  - {name: fx, coordinate: x}
+control:
+  law: robust
+  lambda: 2
+  kappa: 5
+  rho: 0
+  initial_offset: {swing_angle: 0.001}
+initial:
+  q: [0.29552020666133955, -0.955336489125606]
+simulation: {t_end: 2, sample_dt: 0.01, abs_tol: 1e-12, rel_tol: 1e-12}
+"""
+
+
+def test_controlled_run_sensitivities_closed_form(tmp_path):
+    """A bob held at 0.3 rad by the feedback-only robust law on its exact model: e = sin(theta - 0.3)
+    obeys e'' + (lambda + kappa) e' + kappa lambda e = 0 from e0 = 1e-3 at rest, so
+    e(t) = e0 (kappa exp(-lambda t) - lambda exp(-kappa t)) / (kappa - lambda): dq/dkappa and
+    dq/dlambda in closed form, dq/dm = 0; the closed loop's eigenvalues at the hold are -lambda,
+    -kappa (docs/derivatives.md, "Controlled runs")."""
+    p = tmp_path / "hold.yaml"
+    p.write_text(HOLD)
+    sc = ukdyn.load_scenario(p)
+    s = sc.sensitivities(["m", "control.kappa", "control.lambda"])
+    assert s["trusted"], s["message"]
+    assert s["warnings"] == []
+    t = s["t"]
+    lam, kap, e0 = 2.0, 5.0, 1e-3
+    a, b, D = np.exp(-lam * t), np.exp(-kap * t), kap - lam
+    e = e0 * (kap * a - lam * b) / D
+    de = {
+        1: e0 * ((a + lam * t * b) / D - (kap * a - lam * b) / D**2),
+        2: e0 * ((-kap * t * a - b) / D + (kap * a - lam * b) / D**2),
+    }
+    th = 0.3 + np.arcsin(e)
+    for j, dej in de.items():
+        dth = dej / np.sqrt(1 - e * e)
+        ref = np.stack([np.cos(th) * dth, np.sin(th) * dth], axis=1)
+        assert np.max(np.abs(s["dq_dp"][j] - ref)) < 1e-6 * np.max(np.abs(ref)), j
+    assert np.max(np.abs(s["dq_dp"][0])) < 1e-6 * np.max(np.abs(s["dq_dp"][1]))
+    hold = sc.closed_loop_linearize(0.0, [np.sin(0.3), -np.cos(0.3)], [0.0, 0.0])
+    assert hold["trusted"] and hold["kinks"] == []
+    ev = np.sort(np.linalg.eigvals(hold["F_min"]).real)
+    assert np.allclose(ev, [-5.0, -2.0], rtol=0, atol=1e-8)
+    start = sc.closed_loop_linearize()  # the closed loop's start: 1e-3 off the servo row
+    assert abs(np.sin(np.arctan2(start["q"][0], -start["q"][1]) - 0.3) - 1e-3) < 1e-12
+    assert start["F"].shape == (4, 4) and start["dtau_dq"].shape == (2, 2)

@@ -468,6 +468,15 @@ class Scenario:
         (docs/derivatives.md, "Sensitivities to parameters")"""
     def sensitivities(self, parameters: Sequence[str]) -> dict[str, Any]:
         """dq/dp, dqd/dp (P x T x n) of the scenario's run by the variational equations, with t,
-        q, qd, steps, rhs_evaluations, trusted, message, warnings"""
+        q, qd, steps, rhs_evaluations, trusted, message, warnings (a control scenario: the
+        plant's closed loop; a gain such as 'control.kappa' is a parameter)"""
+    def closed_loop_linearize(
+        self,
+        t: Optional[float] = None,
+        q: Optional[ArrayLike] = None,
+        qd: Optional[ArrayLike] = None,
+    ) -> dict[str, Any]:
+        """A control scenario's closed loop at (t, q, qd), default its start: tau, u, dtau_dq,
+        dtau_dqd, dtau_dt, F, N, F_min, kinks, trusted, message"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

@@ -3,10 +3,12 @@
 #include <fmt/format.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <cmath>
 #include <istream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <ostream>
 
 #include "core/input_file.hpp"
@@ -14,6 +16,7 @@
 #include "output/npz.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/sensitivity.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
@@ -249,11 +252,49 @@ json parameters_json(const Scenario& sc, double t, const Vec& q, const Vec& qd, 
   return j;
 }
 
+// The closed loop's own entries (docs/derivatives.md, "Closed-loop linearisation"): the law's τ,
+// u and ∂τ/∂(q, q̇), the eigenvalues of the closed-loop minimal F, and the kinks of the law.
+json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd,
+                      const ClosedLoopLinearization& cl, const std::string& law) {
+  json j;
+  j["law"] = law;
+  j["tau"] = vec_of(cl.law.tau);
+  j["u"] = vec_of(cl.law.u);
+  j["dtau_dq"] = rows_of(cl.law.dtau_dq);
+  j["dtau_dqd"] = rows_of(cl.law.dtau_dqd);
+  j["dtau_dt"] = vec_of(cl.law.dtau_dt);
+  const MinimalModel mm = minimal_model(plant, t, q, qd, cl.law.tau, cl.lin);
+  const Eigen::EigenSolver<Mat> es(mm.F_min, false);
+  Mat ev(mm.F_min.rows(), 2);
+  if (es.info() == Eigen::Success) {
+    ev.col(0) = es.eigenvalues().real();
+    ev.col(1) = es.eigenvalues().imag();
+  } else {
+    ev.setConstant(std::nan(""));
+  }
+  j["eigenvalues"] = rows_of(ev);  // of the minimal F: [re, im] per row
+  j["kinks"] = cl.law.kinks;
+  j["note"] =
+      "dtau_dq, dtau_dqd: Richardson central differences of the law (step 1e-6 max(1, |x_j|)); "
+      "F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives with them";
+  return j;
+}
+
 // The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
-json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd, const Vec& tau,
-                          const LinearizeOptions& opt, bool& trusted) {
-  const System& sys = *sc.system;
-  const Linearization lin = linearize(sys, t, q, qd, tau, sc.sim.uk);
+json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd,
+                          const Vec& tau_in, const LinearizeOptions& opt, bool& trusted) {
+  std::optional<ClosedLoopLinearization> cl;
+  std::shared_ptr<const System> plant = sc.system;
+  Vec tau = tau_in;
+  if (opt.closed_loop) {
+    if (!opt.parameters.empty())
+      throw Error("the closed loop's linearisation does not take parameters (--param)");
+    cl = closed_loop_linearization(sc, t, q, qd);
+    plant = make_control_run(sc)->plant;
+    tau = cl->law.tau;
+  }
+  const System& sys = *plant;
+  const Linearization lin = cl ? cl->lin : linearize(sys, t, q, qd, tau, sc.sim.uk);
   Mat F, G;
   state_space(lin, F, G);
   json j;
@@ -274,8 +315,17 @@ json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec&
     j["Fd"] = rows_of(Fd);
     j["Gd"] = rows_of(Gd);
   }
-  if (opt.minimal) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
+  if (opt.minimal || cl) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
   trusted = lin.trusted;
+  if (cl) {
+    j["closed_loop"] = closed_loop_json(sys, t, q, qd, *cl, to_string(sc.control->law.kind));
+    if (!cl->law.kinks.empty()) {
+      trusted = false;
+      j["derivatives"]["trusted"] = false;
+      j["derivatives"]["message"] =
+          "the control law is not differentiable at the state (" + cl->law.kinks.front() + ")";
+    }
+  }
   if (!opt.parameters.empty()) j["parameters"] = parameters_json(sc, t, q, qd, tau, opt, trusted);
   return j;
 }
@@ -291,9 +341,10 @@ void collect_arrays(const json& j, const std::string& prefix,
     a.name = prefix + key;
     if (v.is_object()) {
       collect_arrays(v,
-                     key == "minimal"      ? "minimal_"
-                     : key == "parameters" ? "parameters_"
-                                           : "",
+                     key == "minimal"       ? "minimal_"
+                     : key == "closed_loop" ? "closed_loop_"
+                     : key == "parameters"  ? "parameters_"
+                                            : "",
                      out);
       continue;
     }

@@ -12,10 +12,13 @@
 #include <ostream>
 #include <utility>
 
+#include "run/richardson.hpp"
 #include "scenario/yaml_loader.hpp"
 #include "scenario/yaml_paths.hpp"
+#include "ukdyn/output/control_output.hpp"
 #include "ukdyn/output/csv_writer.hpp"
 #include "ukdyn/output/output_dir.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
 #include "ukdyn/text/safe_text.hpp"
 
@@ -147,13 +150,6 @@ void reload(const Scenario& sc, const YAML::Node& doc, ScenarioParameter& p) {
   }
 }
 
-// Richardson's extrapolation of two central differences: (4 D(h/2) − D(h)) / 3, with
-// D(h) = (f(p + h) − f(p − h)) / 2h: error O(h⁴) for f smooth in p.
-template <typename T>
-auto richardson(const T& fph, const T& fmh, const T& fph2, const T& fmh2, double h) {
-  return ((4.0 / h) * (fph2 - fmh2) - (0.5 / h) * (fph - fmh)) / 3.0;
-}
-
 // The model derivatives with the forward data of the perturbed systems kept in `data` (4 per
 // parameter, built on first use).
 std::vector<ModelParameterDerivative> model_derivatives(
@@ -189,8 +185,58 @@ bool all_zero(const ModelParameterDerivative& m) {
   return m.dM.isZero(0.0) && m.dQ.isZero(0.0) && m.dA.isZero(0.0) && m.db.isZero(0.0);
 }
 
+// The closed loops of a control scenario re-loaded with each perturbed value (4 per parameter, in
+// the order of ScenarioParameter::perturbed). A perturbed start that violates the plant's
+// physical rows refuses the parameter by name.
+std::vector<std::unique_ptr<ControlRun>> perturbed_control_runs(
+    const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
+  std::vector<std::unique_ptr<ControlRun>> runs;
+  for (const auto& p : ps) {
+    for (const auto& s : p.perturbed) {
+      try {
+        runs.push_back(make_control_run(*s));
+      } catch (const Error& e) {
+        refuse(sc, p, std::string("the closed loop does not start with it changed: ") + e.what());
+      }
+    }
+  }
+  return runs;
+}
+
+// A control scenario: the law's tau (the closed loop at the state, τ_plant + B sat(u) + τ_d) and
+// its u before saturation at the start and two states near it, and the start itself (the offset
+// start), compared bit for bit.
+void control_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                  std::vector<bool>& used) {
+  const auto nominal = make_control_run(sc);
+  const auto runs = perturbed_control_runs(sc, ps);
+  const Index n = nominal->plant->dof();
+  Vec tau(n), tau_k(n);
+  for (int s = 0; s < 3; ++s) {
+    Vec q = nominal->q0, qd = nominal->qd0;
+    for (Index i = 0; i < n && s > 0; ++i) {
+      q(i) += 0.01 * s * std::sin(1.0 + static_cast<double>(i));
+      qd(i) += 0.1 * s * std::cos(2.0 + static_cast<double>(i));
+    }
+    const double t = sc.sim.t0 + 0.1 * s * (sc.sim.t_end - sc.sim.t0);
+    nominal->loop->evaluate(t, q, qd);
+    nominal->loop->plant_tau(tau);
+    for (std::size_t j = 0; j < ps.size(); ++j) {
+      for (std::size_t k = 0; k < 4; ++k) {
+        ControlRun& r = *runs[4 * j + k];
+        r.loop->evaluate(t, q, qd);
+        r.loop->plant_tau(tau_k);
+        // u before saturation too: a gain of a law clipped at these states is still used
+        used[j] = used[j] || tau_k != tau || r.loop->u_raw != nominal->loop->u_raw ||
+                  r.q0 != nominal->q0 || r.qd0 != nominal->qd0;
+      }
+    }
+  }
+}
+
 // A parameter that changes none of M, Q, A, b (at the initial state and two states near it) nor
-// the initial state is not used by the dynamics: refused by name.
+// the initial state (nor, in a control scenario, the law's tau and the start) is not used by the
+// dynamics: refused by name.
 void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
   const Index n = sc.system->dof();
   Mat dq0, dqd0;
@@ -210,11 +256,15 @@ void check_used(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
     const auto md = model_derivatives(sc, ps, data, t, q, qd, sc.tau);
     for (std::size_t j = 0; j < ps.size(); ++j) used[j] = used[j] || !all_zero(md[j]);
   }
+  if (sc.control) control_used(sc, ps, used);
   for (std::size_t j = 0; j < ps.size(); ++j) {
     if (!used[j]) {
       refuse(sc, ps[j],
-             "the scenario's dynamics does not use it (it changes none of M, Q, A, b and the "
-             "initial state; a controller's gains and the run's settings are not differentiated)");
+             sc.control ? "the scenario's dynamics does not use it (it changes none of M, Q, A, b, "
+                          "the control law's tau and the initial state; the run's settings are "
+                          "not differentiated)"
+                        : "the scenario's dynamics does not use it (it changes none of M, Q, A, b "
+                          "and the initial state; the run's settings are not differentiated)");
     }
   }
 }
@@ -302,11 +352,6 @@ std::vector<ScenarioParameter> requested_parameters(const Scenario& sc) {
     asked[i].name = list[i].Scalar();
     asked[i].asked_at = fmt::format("{}:{}:{}: key 'outputs.sensitivities[{}]'", sc.path.string(),
                                     m.line + 1, m.column + 1, i);
-  }
-  if (sc.control && !asked.empty()) {
-    refuse(sc, asked.front(),
-           "a scenario with a control: section has no run sensitivities (control laws have no "
-           "derivatives)");
   }
   return resolve(sc, doc, std::move(asked));
 }
@@ -409,22 +454,97 @@ void initial_constraint_warnings(const Scenario& sc, const std::vector<ScenarioP
 
 }  // namespace
 
-RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
-  if (sc.control)
-    throw Error(
-        "run_sensitivities: the scenario has a control: section and control laws have no "
-        "derivatives (docs/derivatives.md): sensitivities of a run need a constant tau");
+namespace {
+
+// The right-hand side of a control scenario's closed loop (docs/derivatives.md, "Controlled
+// runs"): x = (q, q̇) of the plant under τ(t, q, q̇) of the law, and per parameter
+// ṡ_j = [s_q̇; ∂q̈/∂q s_q + ∂q̈/∂q̇ s_q̇ + ∂q̈/∂τ (∂τ/∂x s_j) + ∂q̈/∂p_j], ∂q̈/∂(q, q̇, τ) the
+// plant's exact ones, ∂τ/∂x s_j and ∂q̈/∂p_j Richardson differences (of the law along s_j, and of
+// the closed loops re-loaded with p ± h, p ± h/2).
+struct ClosedLoopVariationalRhs {
+  const Scenario& sc;
+  const std::vector<ScenarioParameter>& ps;
+  ControlRun& run;
+  std::vector<std::unique_ptr<ControlRun>> perturbed;  // 4 per parameter
+  std::vector<std::unique_ptr<ForwardData>> data;      // their plants' forward data
+  RunSensitivities& out;
+  std::vector<std::string> kinks;  // the causes met so far, and the first time of each
+  std::vector<double> kink_t;
+  long kink_evaluations = 0;
+
+  void operator()(const OdeState& x, OdeState& dx, double t) {
+    const Index n = run.plant->dof();
+    ++out.rhs_evaluations;
+    const Eigen::Map<const Vec> q(x.data(), n), qd(x.data() + n, n);
+    dx.resize(x.size());
+    if (!(q.allFinite() && qd.allFinite())) {
+      std::fill(dx.begin(), dx.end(), std::nan(""));
+      return;
+    }
+    Vec tau(n), tau_k(n);
+    run.loop->evaluate(t, q, qd);
+    run.loop->plant_tau(tau);
+    const Linearization lin = linearize(*run.plant, t, q, qd, tau, sc.sim.uk);
+    if (!lin.trusted && out.trusted) {
+      out.trusted = false;
+      out.message = fmt::format("at t = {:.6g}: {}", t, lin.message);
+    }
+    Eigen::Map<Vec>(dx.data(), n) = qd;
+    Eigen::Map<Vec>(dx.data() + n, n) = lin.qdd;
+    for (std::size_t j = 0; j < ps.size(); ++j) {
+      const std::size_t o = 2 * static_cast<std::size_t>(n) * (j + 1);
+      const Eigen::Map<const Vec> sq(x.data() + o, n), sqd(x.data() + o + n, n);
+      std::vector<std::string> found;
+      const Vec dtau = law_direction(run, t, q, qd, sq, sqd, found);
+      note_kinks(found, t);
+      std::array<Vec, 4> qdd;
+      for (std::size_t k = 0; k < 4; ++k) {
+        ControlRun& r = *perturbed[4 * j + k];
+        r.loop->evaluate(t, q, qd);
+        r.loop->plant_tau(tau_k);
+        forward(*r.plant, *data[4 * j + k], t, q, qd, tau_k, ps[j].perturbed[k]->sim.uk);
+        qdd[k] = data[4 * j + k]->qdd;
+      }
+      Eigen::Map<Vec>(dx.data() + o, n) = sqd;
+      Eigen::Map<Vec>(dx.data() + o + n, n) =
+          lin.dqdd_dq * sq + lin.dqdd_dqd * sqd + lin.dqdd_dtau * dtau +
+          richardson(qdd[0], qdd[1], qdd[2], qdd[3], ps[j].step);
+    }
+  }
+
+  void note_kinks(const std::vector<std::string>& found, double t) {
+    if (!found.empty()) ++kink_evaluations;
+    for (const auto& f : found) {
+      if (std::find(kinks.begin(), kinks.end(), f) != kinks.end()) continue;
+      kinks.push_back(f);
+      kink_t.push_back(t);
+    }
+  }
+
+  // RunSensitivities::warnings: each cause of a kink the law's differences met, first time.
+  void report_kinks() const {
+    const std::string law = to_string(run.law->settings().kind);
+    for (std::size_t i = 0; i < kinks.size(); ++i) {
+      out.warnings.push_back(fmt::format(
+          "the {} control law is not differentiable at t = {:.6g} ({}; {} evaluations of the "
+          "run's right-hand side in all met a kink): there its derivative is a difference across "
+          "the kink; dq/dp stays continuous through a crossing, but a motion that stays on the "
+          "kink (sliding along it) is not covered",
+          law, kink_t[i], kinks[i], kink_evaluations));
+    }
+  }
+};
+
+// x0 = (q0, q̇0) and s_j(t0) = d(q0, q̇0)/dp_j, integrated by `rhs` into rs at the samples.
+template <typename Rhs>
+void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Mat& dq0,
+                           const Mat& dqd0, Rhs& rhs, RunSensitivities& rs) {
   namespace odeint = boost::numeric::odeint;
-  const Index n = sc.system->dof();
-  const std::size_t P = ps.size(), un = static_cast<std::size_t>(n);
-  RunSensitivities rs;
-  for (const auto& p : ps) rs.parameters.push_back(p.name);
-  initial_constraint_warnings(sc, ps, rs);
-  Mat dq0, dqd0;
-  initial_state_derivatives(sc, ps, dq0, dqd0);
+  const Index n = q0.size();
+  const std::size_t P = static_cast<std::size_t>(dq0.cols()), un = static_cast<std::size_t>(n);
   OdeState x(2 * un * (P + 1));
-  Eigen::Map<Vec>(x.data(), n) = sc.q0;
-  Eigen::Map<Vec>(x.data() + n, n) = sc.qd0;
+  Eigen::Map<Vec>(x.data(), n) = q0;
+  Eigen::Map<Vec>(x.data() + n, n) = qd0;
   for (std::size_t j = 0; j < P; ++j) {
     Eigen::Map<Vec>(x.data() + 2 * un * (j + 1), n) = dq0.col(static_cast<Index>(j));
     Eigen::Map<Vec>(x.data() + 2 * un * (j + 1) + un, n) = dqd0.col(static_cast<Index>(j));
@@ -441,7 +561,6 @@ RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<Scenari
     rs.t.push_back(tk);
     xs.push_back(xk);
   };
-  VariationalRhs rhs{sc, ps, {}, rs};
   auto stepper =
       odeint::make_dense_output(sim.abs_tol, sim.rel_tol, odeint::runge_kutta_dopri5<OdeState>());
   try {
@@ -476,6 +595,42 @@ RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<Scenari
     rs.trusted = false;
     if (rs.message.empty()) rs.message = "the run did not reach t_end with a finite state";
   }
+}
+
+// The closed loop of a control scenario from its start (the offset start, ControlRun::q0):
+// s(t0) the Richardson derivative of the re-loaded closed loops' starts.
+void closed_loop_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                               RunSensitivities& rs) {
+  const auto run = make_control_run(sc);
+  ClosedLoopVariationalRhs rhs{sc, ps, *run, perturbed_control_runs(sc, ps), {}, rs, {}, {}, 0};
+  const Index n = run->plant->dof(), P = static_cast<Index>(ps.size());
+  Mat dq0(n, P), dqd0(n, P);
+  for (Index j = 0; j < P; ++j) {
+    const auto& r = rhs.perturbed;
+    const std::size_t o = 4 * static_cast<std::size_t>(j);
+    const double h = ps[static_cast<std::size_t>(j)].step;
+    dq0.col(j) = richardson(r[o]->q0, r[o + 1]->q0, r[o + 2]->q0, r[o + 3]->q0, h);
+    dqd0.col(j) = richardson(r[o]->qd0, r[o + 1]->qd0, r[o + 2]->qd0, r[o + 3]->qd0, h);
+  }
+  for (const auto& r : rhs.perturbed) rhs.data.push_back(std::make_unique<ForwardData>(*r->plant));
+  integrate_variational(sc, run->q0, run->qd0, dq0, dqd0, rhs, rs);
+  rhs.report_kinks();
+}
+
+}  // namespace
+
+RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
+  RunSensitivities rs;
+  for (const auto& p : ps) rs.parameters.push_back(p.name);
+  if (sc.control) {
+    closed_loop_sensitivities(sc, ps, rs);
+    return rs;
+  }
+  initial_constraint_warnings(sc, ps, rs);
+  Mat dq0, dqd0;
+  initial_state_derivatives(sc, ps, dq0, dqd0);
+  VariationalRhs rhs{sc, ps, {}, rs};
+  integrate_variational(sc, sc.q0, sc.qd0, dq0, dqd0, rhs, rs);
   return rs;
 }
 

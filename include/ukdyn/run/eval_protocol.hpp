@@ -46,6 +46,11 @@ struct LinearizeOptions {
   /// "parameters" with ∂q̈/∂p, ∂Qc/∂p and d(q0, q̇0)/dp (docs/derivatives.md, "Sensitivities to
   /// parameters").
   std::vector<std::string> parameters = {};
+  /// A control scenario's closed loop (ukdyn/run/closed_loop_derivatives.hpp): the plant (physical
+  /// rows only) under the law's τ(t, q, q̇), F and the minimal model with the law's ∂τ/∂(q, q̇)
+  /// folded in, and the object "closed_loop" (τ, u, ∂τ/∂q, ∂τ/∂q̇, the eigenvalues of the
+  /// minimal F, the law's kinks). τ is the law's, not the state's; not with parameters.
+  bool closed_loop = false;
 };
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                          const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});

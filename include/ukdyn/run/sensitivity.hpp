@@ -41,14 +41,13 @@ struct ScenarioParameter {
 /// The parameters `names` of the scenario `sc` (re-read from sc.path). Throws ScenarioError naming
 /// the file and the parameter (and its line when it has one) when a name is not a number of the
 /// file, names several numbers, changes the number of coordinates or rows, or changes none of M,
-/// Q, A, b and the initial state (at the initial state and at two states near it): a parameter the
-/// dynamics does not use.
+/// Q, A, b and the initial state (at the initial state and at two states near it; in a control
+/// scenario also the law's τ and the closed loop's start): a parameter the dynamics does not use.
 std::vector<ScenarioParameter> scenario_parameters(const Scenario& sc,
                                                    const std::vector<std::string>& names);
 
 /// The parameters of the scenario's `outputs: {sensitivities: [...]}` (none without it), resolved
-/// as scenario_parameters() does; errors name the list entry's line, column and key. A scenario
-/// with a `control:` section is refused (its run has no sensitivities).
+/// as scenario_parameters() does; errors name the list entry's line, column and key.
 std::vector<ScenarioParameter> requested_parameters(const Scenario& sc);
 
 /// ∂M, ∂Q, ∂A, ∂b at (t, q, q̇, τ) for each parameter (Q with τ + (τ_p − τ_scenario): a parameter
@@ -87,9 +86,11 @@ struct RunSensitivities {
 
 /// Integrates x = (q, q̇) with the variational equations s' = (∂f/∂x) s + ∂f/∂p, s(t0) = dx0/dp,
 /// by Dormand–Prince 5(4) at the scenario's abs_tol / rel_tol, with no drift control (the
-/// sensitivities are those of the exact constrained motion). Throws ukdyn::Error for a scenario
-/// with a `control:` section (control laws have no derivatives) or a component without exact
-/// tangents.
+/// sensitivities are those of the exact constrained motion). A scenario with a `control:` section:
+/// the plant's closed loop from its start (the offset start), with the law's ∂τ/∂x
+/// (ukdyn/run/closed_loop_derivatives.hpp) in ∂f/∂x and ∂f/∂p of the re-loaded closed loops (a
+/// gain is a parameter); `warnings` name the law and the first time where it is not
+/// differentiable. Throws ukdyn::Error for a component without exact tangents.
 RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps);
 
 /// The CSV header of a RunSensitivities: t, the coordinates, their `_dot`, then per parameter p

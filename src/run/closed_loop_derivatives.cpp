@@ -1,0 +1,135 @@
+// Derivatives of a control scenario's closed loop (ukdyn/run/closed_loop_derivatives.hpp,
+// docs/derivatives.md, "Controlled runs").
+#include "ukdyn/run/closed_loop_derivatives.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+#include "run/richardson.hpp"
+
+namespace ukdyn {
+
+namespace {
+
+constexpr std::array<double, 4> kProbeOffsets = {1.0, -1.0, 0.5, -0.5};  // × h
+
+// One evaluation of the loop: τ, and what tells on which side of a kink the law is.
+struct Probe {
+  Vec tau, u_raw;
+  double mu_norm = 0.0;  // the robust law's ‖μ‖ = ρ ‖β‖ (0 for the other laws)
+};
+
+void probe(ControlRun& run, double t, CVecRef q, CVecRef qd, Probe& p) {
+  run.loop->evaluate(t, q, qd);
+  p.tau.resize(run.plant->dof());
+  run.loop->plant_tau(p.tau);
+  p.u_raw = run.loop->u_raw;
+  const ServoLawSettings& s = run.law->settings();
+  p.mu_norm = 0.0;
+  if (s.kind == ControlLawKind::robust && s.rho > 0.0) {
+    Vec e, ed;
+    servo_errors(run.model, t, q, qd, e, ed);
+    p.mu_norm = s.rho * (ed + s.lambda * e).norm();
+  }
+}
+
+void add_once(std::vector<std::string>& list, const std::string& s) {
+  if (std::find(list.begin(), list.end(), s) == list.end()) list.push_back(s);
+}
+
+// The causes of a kink between the probes: a side of ‖μ‖ = ε or of an actuator's limit that
+// changes among them.
+void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
+                std::vector<std::string>& kinks) {
+  const ServoLawSettings& s = run.law->settings();
+  const Actuators& act = run.model.actuators;
+  auto changes = [&](auto side) {
+    return std::any_of(ps.begin(), ps.end(),
+                       [&](const Probe& p) { return side(p) != side(ps[0]); });
+  };
+  if (s.kind == ControlLawKind::robust && s.rho > 0.0 &&
+      changes([&](const Probe& p) { return p.mu_norm > s.epsilon; })) {
+    add_once(kinks, fmt::format("robust law: the boundary layer |mu| = epsilon = {:g}", s.epsilon));
+  }
+  for (Index j = 0; j < act.count(); ++j) {
+    const double lim = act.limit(j);
+    if (!std::isfinite(lim)) continue;
+    if (changes([&](const Probe& p) { return std::abs(p.u_raw(j)) > lim; }))
+      add_once(kinks, fmt::format("actuator '{}' at its limit {:g}",
+                                  act.names[static_cast<std::size_t>(j)], lim));
+  }
+}
+
+// ∂τ/∂y along the direction (dq, dq̇) with step h: probes at h, −h, h/2, −h/2 and the centre
+// (ps[0], already evaluated), Richardson's extrapolation of the two central differences.
+Vec directional(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd, double h,
+                std::array<Probe, 5>& ps, std::vector<std::string>& kinks) {
+  for (std::size_t k = 0; k < 4; ++k) {
+    const Vec qk = q + kProbeOffsets[k] * h * dq, qdk = qd + kProbeOffsets[k] * h * dqd;
+    probe(run, t, qk, qdk, ps[k + 1]);
+  }
+  find_kinks(run, ps, kinks);
+  return richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, h);
+}
+
+}  // namespace
+
+double law_step(double x) { return 1e-6 * std::max(1.0, std::abs(x)); }
+
+LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd) {
+  const Index n = run.plant->dof();
+  LawDerivatives out;
+  std::array<Probe, 5> ps;
+  probe(run, t, q, qd, ps[0]);
+  out.tau = ps[0].tau;
+  out.u = run.loop->u;
+  out.dtau_dq.resize(n, n);
+  out.dtau_dqd.resize(n, n);
+  const Vec zero = Vec::Zero(n);
+  for (Index j = 0; j < n; ++j) {
+    const Vec e = Vec::Unit(n, j);
+    out.dtau_dq.col(j) = directional(run, t, q, qd, e, zero, law_step(q(j)), ps, out.kinks);
+    out.dtau_dqd.col(j) = directional(run, t, q, qd, zero, e, law_step(qd(j)), ps, out.kinks);
+  }
+  const double ht = law_step(t);
+  for (std::size_t k = 0; k < 4; ++k) probe(run, t + kProbeOffsets[k] * ht, q, qd, ps[k + 1]);
+  find_kinks(run, ps, out.kinks);
+  out.dtau_dt = richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, ht);
+  run.loop->evaluate(t, q, qd);  // the loop left at the state itself
+  return out;
+}
+
+Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                  std::vector<std::string>& kinks) {
+  const double size = std::max(dq.cwiseAbs().maxCoeff(), dqd.cwiseAbs().maxCoeff());
+  if (!(size > 0.0)) return Vec::Zero(run.plant->dof());
+  const double scale = std::max(q.cwiseAbs().maxCoeff(), qd.cwiseAbs().maxCoeff());
+  std::array<Probe, 5> ps;
+  probe(run, t, q, qd, ps[0]);
+  // A step of 1e-6 max(1, |x|∞) in x along the direction, whatever the direction's size.
+  const double h = law_step(scale) / size;
+  return directional(run, t, q, qd, dq, dqd, h, ps, kinks);
+}
+
+ClosedLoopLinearization closed_loop_linearization(const Scenario& sc, double t, CVecRef q,
+                                                  CVecRef qd) {
+  const std::unique_ptr<ControlRun> run = make_control_run(sc);
+  if (!run)
+    throw Error(
+        "a closed-loop linearisation needs a scenario with a control: section "
+        "(docs/control.md)");
+  ClosedLoopLinearization out;
+  out.law = law_derivatives(*run, t, q, qd);
+  out.lin = linearize(*run->plant, t, q, qd, out.law.tau, sc.sim.uk);
+  Linearization& lin = out.lin;
+  lin.dqdd_dq += lin.dqdd_dtau * out.law.dtau_dq;
+  lin.dqdd_dqd += lin.dqdd_dtau * out.law.dtau_dqd;
+  lin.dQc_dq += lin.dQc_dtau * out.law.dtau_dq;
+  lin.dQc_dqd += lin.dQc_dtau * out.law.dtau_dqd;
+  return out;
+}
+
+}  // namespace ukdyn
