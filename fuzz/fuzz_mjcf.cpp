@@ -1,6 +1,7 @@
 // libFuzzer target on the MJCF reader (robot_files/mjcf.cpp): the input is an MJCF model file,
-// loaded as the `mjcf:` of a serial chain (the include checks, MuJoCo's parser, the chain built
-// from its bodies and joints). Any input must load or throw ukdyn::Error; anything else is a
+// loaded as the `mjcf:` of a serial chain (the include and asset checks, MuJoCo's parser, the chain
+// built from its bodies and joints). A mesh file tet.obj lies beside it (seed mesh_asset.xml), so
+// the asset reader and MuJoCo's compile of a mesh from its virtual file system are reached. Any input must load or throw ukdyn::Error; anything else is a
 // finding. Without MuJoCo (mjcf_supported() false) every input is skipped. Build and run:
 // scripts/fuzz.sh.
 #include <unistd.h>
@@ -20,6 +21,8 @@ std::filesystem::path work_folder() {
   const auto dir =
       std::filesystem::temp_directory_path() / ("ukdyn_fuzz_mjcf_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
+  std::ofstream(dir / "tet.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                                    "f 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n";
   return dir;
 }
 

@@ -299,8 +299,9 @@ TEST(HostileCorpus, FifoScenarioIsNamedNotOpened) {
   EXPECT_NE(d.err.find("is a folder, not a scenario file"), std::string::npos) << d.err;
 }
 
-// An MJCF model that is a FIFO, or that includes one, is named as what it is before MuJoCo opens
-// anything (MuJoCo's reader would block on the FIFO forever); an include cycle is refused.
+// An MJCF model that is a FIFO, or that includes one or names one as a mesh, is named as what it
+// is before MuJoCo opens anything (MuJoCo's reader would block on the FIFO forever); an include
+// cycle is refused.
 TEST(HostileCorpus, MjcfFifoAndIncludeCycleAreRefusedBeforeMuJoCoReads) {
   const fs::path dir = scratch() / "mjcf_fifo";
   fs::remove_all(dir);
@@ -309,6 +310,9 @@ TEST(HostileCorpus, MjcfFifoAndIncludeCycleAreRefusedBeforeMuJoCoReads) {
   std::ofstream(dir / "top.xml") << "<mujoco><include file=\"pipe.xml\"/><worldbody/></mujoco>\n";
   std::ofstream(dir / "a.xml") << "<mujoco><include file='b.xml'/></mujoco>\n";
   std::ofstream(dir / "b.xml") << "<mujoco><include file='a.xml'/></mujoco>\n";
+  ASSERT_EQ(::mkfifo((dir / "pipe.obj").c_str(), 0600), 0);
+  std::ofstream(dir / "mesh.xml")
+      << "<mujoco><asset><mesh name='m' file='pipe.obj'/></asset><worldbody/></mujoco>\n";
   auto scenario = [&](const std::string& model) {
     const fs::path p = dir / ("s_" + model + ".yaml");
     std::ofstream(p) << "ukdyn: 1\nname: m\ngravity: 9.81\nsubsystems:\n  - name: arm\n"
@@ -324,6 +328,9 @@ TEST(HostileCorpus, MjcfFifoAndIncludeCycleAreRefusedBeforeMuJoCoReads) {
       {"pipe.xml", "pipe.xml: is a FIFO (named pipe), not a MJCF file"},
       {"top.xml", "pipe.xml (included from top.xml): is a FIFO (named pipe)"},
       {"a.xml", "more than 32 levels of <include> (a cycle?)"},
+      {"mesh.xml",
+       "pipe.obj (<mesh file=\"pipe.obj\"> in mesh.xml): is a FIFO (named pipe), not a "
+       "mesh file"},
   };
   for (const auto& c : cases) {
     const Outcome r = simulate(scenario(c.model), dir / "out");

@@ -182,6 +182,56 @@ TEST(Limits, DeadlineStopsALongChainDerivationInsideAnExpansion) {
   }
 }
 
+// The tapes are compiled within the derivation's budget: a derivation finished inside it, then
+// handed a budget already spent (the limit -1 s), is refused at the compilation, naming the tape.
+// Without the clock read during compilation every case below would construct and not throw.
+TEST(Limits, DeadlineCoversTheTapeCompilation) {
+  const sym::Deadline spent(-1.0);
+  auto stopped_at = [](const auto& make) {
+    try {
+      make();
+    } catch (const sym::DerivationTimeout& e) {
+      return std::string(e.what());
+    }
+    return std::string("not stopped");
+  };
+  // A subsystem: a two-link chain derived within 60 s, compiled within the spent budget.
+  sym::ChainDef c("two", {"a", "b"});
+  for (int k = 0; k < 2; ++k) {
+    auto& j = c.add_joint("j" + std::to_string(k), sym::JointDef::Type::revolute,
+                          "l" + std::to_string(k));
+    j.axis = {0, 0, 1};
+    if (k > 0) j.origin.xyz = {1, 0, 0};
+    j.coordinate = k == 0 ? "a" : "b";
+    j.inertial.mass = 1;
+    j.inertial.com = {GiNaC::numeric(1, 2), 0, 0};
+    j.inertial.inertia = {GiNaC::numeric(1, 12), 0, 0, 0, GiNaC::numeric(1, 12), 0, 0, 0,
+                          GiNaC::numeric(1, 12)};
+  }
+  const sym::Deadline budget(60.0);
+  const sym::ChainModel model = sym::build_chain(c, budget);
+  sym::SubsystemDerivation derived = sym::derive(model.def, budget);
+  EXPECT_NO_THROW((void)sym::DerivedSubsystem(derived, "two", budget));
+  const std::string sub = stopped_at([&] { (void)sym::DerivedSubsystem(derived, "two", spent); });
+  EXPECT_NE(sub.find("took longer than -1 s (stopped at compiling row a of M"), std::string::npos)
+      << sub;
+  // A constraint: the same.
+  sym::ConstraintDef d("circle", sym::ConstraintDef::Kind::holonomic, {"lim_x", "lim_y"});
+  d.add_row("circle", d.parse("lim_x^2 + lim_y^2 - 1"));
+  const sym::ConstraintDerivation cd = sym::derive(d, budget);
+  EXPECT_NO_THROW((void)sym::DerivedConstraint(cd, budget));
+  const std::string con = stopped_at([&] { (void)sym::DerivedConstraint(cd, spent); });
+  EXPECT_NE(con.find("(stopped at compiling row 'circle'"), std::string::npos) << con;
+  // A tape alone names the place it was given.
+  sym::SymbolTable symbols;
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x");
+  const sym::InputMap in{{x, {sym::TapeInput::Source::q, 0}}};
+  EXPECT_NO_THROW((void)sym::Tape({GiNaC::sin(x)}, in, budget, "compiling the sum"));
+  const std::string tape =
+      stopped_at([&] { (void)sym::Tape({GiNaC::sin(x)}, in, spent, "compiling the sum"); });
+  EXPECT_NE(tape.find("(stopped at compiling the sum)"), std::string::npos) << tape;
+}
+
 TEST(Limits, DerivedSubsystemCoordinatesAreCapped) {
   auto make = [](std::size_t n) {
     std::vector<std::string> names;

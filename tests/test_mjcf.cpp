@@ -267,6 +267,104 @@ TEST(Mjcf, IncludesAreCompiledFromTheBytesUkdynRead) {
   fs::remove_all(dir);
 }
 
+// Mesh and other asset files go through the checked reader into MuJoCo's virtual file system as
+// well: a mesh (found through the compiler's meshdir, with or without strippath) changed on disk
+// after ukdyn read it is compiled as read (4 faces, where MuJoCo opening the file by name finds the
+// 12 of the new one); a mesh, skin, height field or texture (a cube's face too) naming a missing file,
+// a FIFO, a folder or an empty file, or two assets that MuJoCo's file system could not tell
+// apart, is refused naming the file, the element and the model file.
+TEST(Mjcf, MeshFilesAreCompiledFromTheBytesUkdynRead) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("ukdyn_mjcf_mesh_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "meshes");
+  fs::create_directories(dir / "other");
+  const auto write = [&](const std::string& name, const std::string& text) {
+    std::ofstream(dir / name) << text;
+    return (dir / name).string();
+  };
+  const std::string tet =
+      "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n";
+  std::string cube;
+  for (int k = 0; k < 8; ++k)
+    cube += "v " + std::to_string(k & 1) + " " + std::to_string((k >> 1) & 1) + " " +
+            std::to_string((k >> 2) & 1) + "\n";
+  cube +=
+      "f 1 2 4\nf 1 4 3\nf 5 6 8\nf 5 8 7\nf 1 2 6\nf 1 6 5\nf 3 4 8\nf 3 8 7\nf 1 3 7\n"
+      "f 1 7 5\nf 2 4 8\nf 2 8 6\n";
+  write("meshes/tet.obj", tet);
+  const auto model = [](const std::string& compiler, const std::string& assets) {
+    return "<mujoco><compiler " + compiler + "/><asset>" + assets +
+           "</asset><worldbody><body name=\"b\"><joint name=\"h\" type=\"hinge\" axis=\"0 1 0\"/>"
+           "<geom type=\"box\" size=\"0.1 0.1 0.1\"/>"
+           "<inertial pos=\"0 0 -0.5\" mass=\"1\" diaginertia=\"0.1 0.1 0.1\"/></body>"
+           "</worldbody></mujoco>";
+  };
+  // OBJ faces are compiled as separate triangles: 4 faces for the tetrahedron, 12 for the cube.
+  const struct {
+    const char* compiler;
+    const char* mesh;
+  } found[] = {{"meshdir=\"meshes\"", "<mesh name=\"m\" file=\"tet.obj\"/>"},
+               {"meshdir=\"meshes/\" strippath=\"true\"", "<mesh name=\"m\" file=\"x/tet.obj\"/>"}};
+  for (const auto& c : found) {
+    const std::string top = write("top.xml", model(c.compiler, c.mesh));
+    write("meshes/tet.obj", tet);
+    const auto files = sym::mjcf_detail::read_mjcf_files(top);
+    ASSERT_EQ(files.size(), 2u) << c.compiler;
+    write("meshes/tet.obj", cube);  // swapped on disk after ukdyn read it
+    const auto m = sym::mjcf_detail::compile_mjcf(top, files);
+    EXPECT_EQ(m->nmesh, 1) << c.compiler;
+    EXPECT_EQ(m->nmeshface, 4) << c.compiler;
+    char err[1000] = "";
+    mjModel* by_name = mj_loadXML(top.c_str(), nullptr, err, sizeof err);  // the file now
+    ASSERT_NE(by_name, nullptr) << err;
+    EXPECT_EQ(by_name->nmeshface, 12) << c.compiler;
+    mj_deleteModel(by_name);
+  }
+  write("meshes/tet.obj", tet);
+  write("meshes/empty.obj", "");
+  write("other/tet.obj", cube);
+  ASSERT_EQ(::mkfifo((dir / "meshes" / "pipe.obj").c_str(), 0600), 0);
+  const struct {
+    const char* compiler;
+    const char* assets;
+    const char* expect;
+  } cases[] = {
+      {"meshdir=\"meshes\"", "<mesh name=\"m\" file=\"gone.obj\"/>",
+       "gone.obj (<mesh file=\"gone.obj\"> in top.xml): no such mesh file"},
+      {"meshdir=\"meshes\"", "<mesh name=\"m\" file=\"pipe.obj\"/>",
+       "pipe.obj (<mesh file=\"pipe.obj\"> in top.xml): is a FIFO"},
+      {"meshdir=\"meshes/\"", "<Mesh name=\"m\" file=\"&#112;ipe.obj\"/>",
+       "pipe.obj (<mesh file=\"pipe.obj\"> in top.xml): is a FIFO"},
+      {"", "<mesh name=\"m\" file=\"meshes\"/>",
+       "meshes (<mesh file=\"meshes\"> in top.xml): is a folder"},
+      {"meshdir=\"meshes\"", "<mesh name=\"m\" file=\"empty.obj\"/>",
+       "empty.obj (<mesh file=\"empty.obj\"> in top.xml): is empty, not a mesh file"},
+      {"", "<mesh name=\"m\" file=\"meshes/tet.obj\"/><mesh name=\"n\" file=\"other/tet.obj\"/>",
+       "other/tet.obj (<mesh file=\"other/tet.obj\"> in top.xml): MuJoCo's virtual file system"},
+      {"meshdir=\"meshes\" strippath=\"true\"", "<mesh name=\"m\" file=\"/nowhere/pipe.obj\"/>",
+       "pipe.obj (<mesh file=\"/nowhere/pipe.obj\"> in top.xml): is a FIFO"},
+      {"meshdir=\"meshes\"", "<skin file=\"gone.skn\"/>",
+       "gone.skn (<skin file=\"gone.skn\"> in top.xml): no such skin file"},
+      {"meshdir=\"meshes\"", "<hfield name=\"h\" file=\"pipe.obj\"/>",
+       "pipe.obj (<hfield file=\"pipe.obj\"> in top.xml): is a FIFO"},
+      {"texturedir=\"meshes\"", "<texture type=\"cube\" fileright=\"pipe.obj\"/>",
+       "pipe.obj (<texture fileright=\"pipe.obj\"> in top.xml): is a FIFO"},
+  };
+  for (const auto& c : cases) {
+    const std::string top = write("top.xml", model(c.compiler, c.assets));
+    sym::ChainDef chain("m", {"a"});
+    try {
+      sym::append_mjcf(chain, top);
+      ADD_FAILURE() << c.assets << ": no error";
+    } catch (const sym::DefinitionError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expect), std::string::npos) << e.what();
+    }
+  }
+  fs::remove_all(dir);
+}
+
 TEST(Mjcf, UnsupportedJointsAndCountsAreNamed) {
   sym::ChainDef c("m", {"a", "b"});
   try {

@@ -107,26 +107,27 @@ std::size_t skip_space(const std::string& s, std::size_t k) {
   return k;
 }
 
-// The file attributes of the <include> elements of an MJCF text as MuJoCo reads them: the element
+// The attributes of the elements named `element` of an MJCF text as MuJoCo reads them: the element
 // name compared case-insensitively (MuJoCo's strcasecmp), quoted values that may hold '>', the
-// attribute name "file" exactly (tinyxml2), entities decoded. A linear scan (no backtracking
-// regex on a 16 MiB file). A commented-out <include> is read too: one file more is checked, never
-// one less.
-std::vector<std::string> include_files(const std::string& xml) {
-  std::vector<std::string> out;
+// attribute names exactly (tinyxml2), entities decoded. A linear scan (no backtracking regex on a
+// 16 MiB file). A commented-out element is read too: one file more is checked, never one less.
+using Attributes = std::vector<std::pair<std::string, std::string> >;
+std::vector<Attributes> elements(const std::string& xml, const char* element) {
+  std::vector<Attributes> out;
   const std::size_t n = xml.size();
   std::size_t i = 0;
   while ((i = xml.find('<', i)) != std::string::npos) {
     std::size_t k = skip_space(xml, i + 1);
     i = k;
-    const char* word = "include";
     std::size_t w = 0;
-    while (word[w] && k + w < n && std::tolower(static_cast<unsigned char>(xml[k + w])) == word[w])
+    while (element[w] && k + w < n &&
+           std::tolower(static_cast<unsigned char>(xml[k + w])) == element[w])
       ++w;
-    if (word[w] || (k + w < n && !std::isspace(static_cast<unsigned char>(xml[k + w])) &&
-                    xml[k + w] != '/' && xml[k + w] != '>'))
+    if (element[w] || (k + w < n && !std::isspace(static_cast<unsigned char>(xml[k + w])) &&
+                       xml[k + w] != '/' && xml[k + w] != '>'))
       continue;
     k += w;
+    Attributes& attrs = out.emplace_back();
     for (;;) {  // attributes: name = "value" | 'value'
       k = skip_space(xml, k);
       std::size_t e = k;
@@ -140,11 +141,20 @@ std::vector<std::string> include_files(const std::string& xml) {
       if (k >= n || (xml[k] != '"' && xml[k] != '\'')) break;
       const std::size_t close = xml.find(xml[k], k + 1);
       if (close == std::string::npos) break;
-      if (name == "file") out.push_back(decode_xml_entities(xml.substr(k + 1, close - k - 1)));
+      attrs.emplace_back(name, decode_xml_entities(xml.substr(k + 1, close - k - 1)));
       k = close + 1;
     }
     i = k;
   }
+  return out;
+}
+
+// The file attributes of the <include> elements.
+std::vector<std::string> include_files(const std::string& xml) {
+  std::vector<std::string> out;
+  for (const Attributes& a : elements(xml, "include"))
+    for (const auto& [name, value] : a)
+      if (name == "file") out.push_back(value);
   return out;
 }
 
@@ -157,6 +167,25 @@ std::string vfs_key(const std::string& path) {
     if (c >= 'A' && c <= 'Z') c = static_cast<char>(c - 'A' + 'a');
   }
   return key;
+}
+
+// `bytes` read from `file` into `read`, once per name MuJoCo's virtual file system tells apart: a
+// second file of the same name is refused (naming it as `name`) unless its bytes are the same.
+void keep_read(const std::filesystem::path& file, const std::string& bytes, const std::string& name,
+               std::vector<mjcf_detail::MjcfFile>& read) {
+  const std::string key = vfs_key(file.string());
+  auto same = std::find_if(read.begin(), read.end(), [&](const mjcf_detail::MjcfFile& f) {
+    return vfs_key(f.path.string()) == key;
+  });
+  if (same != read.end() && same->bytes != bytes) {
+    throw DefinitionError(name +
+                          ": MuJoCo's virtual file system knows a file by its name without "
+                          "the folder, case-insensitively, and " +
+                          same->path.string() +
+                          " has that name with other contents (or the file changed while "
+                          "ukdyn read it): rename one of them");
+  }
+  if (same == read.end()) read.push_back({file, bytes});
 }
 
 // Every file MuJoCo would open is read here, once per occurrence, before MuJoCo opens any: the
@@ -178,24 +207,75 @@ void read_model_files(const std::filesystem::path& file, const std::filesystem::
     throw DefinitionError(e.what());
   }
   if (xml.empty()) throw DefinitionError(name + ": is empty, not a MJCF file");
-  const std::string key = vfs_key(file.string());
-  auto same = std::find_if(read.begin(), read.end(), [&](const mjcf_detail::MjcfFile& f) {
-    return vfs_key(f.path.string()) == key;
-  });
-  if (same != read.end() && same->bytes != xml) {
-    throw DefinitionError(name +
-                          ": MuJoCo's virtual file system knows a file by its name without "
-                          "the folder, case-insensitively, and " +
-                          same->path.string() +
-                          " has that name with other contents (or the file changed while "
-                          "ukdyn read it): rename one of them");
-  }
-  if (same == read.end()) read.push_back({file, xml});
+  keep_read(file, xml, name, read);
   for (const std::string& f : include_files(xml)) {
     std::filesystem::path inc = f;
     if (inc.is_relative()) inc = folder / inc;
     read_model_files(inc, folder, depth + 1, " (included from " + file.filename().string() + ")",
                      read, files);
+  }
+}
+
+// The asset files MuJoCo opens by name while it compiles (MuJoCo 2.2's mesh, skin, height field
+// and texture loaders look in the virtual file system first, then on disk): <mesh>, <skin> and
+// <hfield> file= relative to the <compiler>'s meshdir, <texture> file= (and a cube's fileright ..
+// fileback) relative to texturedir, a relative folder relative to the model file's folder,
+// strippath="true" dropping a file's folder (MuJoCo's XML reference, "compiler"; MuJoCo 2.2 has
+// no assetdir and refuses it). Each is read by the checked reader into `read`, so that MuJoCo finds
+// it in its virtual file system and opens none by name: missing, a FIFO, a folder, a device,
+// empty or larger than 256 MiB is refused naming the file, the element and the model file naming
+// it; so is a second asset of the same name with other bytes (MuJoCo would take one for both).
+void read_asset_files(const std::filesystem::path& folder,
+                      std::vector<mjcf_detail::MjcfFile>& read) {
+  const std::size_t model_files = read.size();
+  std::string meshdir, texturedir, strippath;
+  for (std::size_t f = 0; f < model_files; ++f) {  // the last <compiler> setting wins
+    for (const Attributes& a : elements(read[f].bytes, "compiler")) {
+      for (const auto& [name, value] : a) {
+        if (name == "meshdir") meshdir = value;
+        if (name == "texturedir") texturedir = value;
+        if (name == "strippath") strippath = value;
+      }
+    }
+  }
+  struct Kind {
+    const char* element;
+    const char* what;
+    const std::string& dir;
+    bool cube;  // a cube texture's six faces, each a file of its own
+  };
+  const Kind kinds[] = {{"mesh", "mesh file", meshdir, false},
+                        {"skin", "skin file", meshdir, false},
+                        {"hfield", "height field file", meshdir, false},
+                        {"texture", "texture file", texturedir, true}};
+  const std::set<std::string> cube_faces = {"fileright", "fileleft",  "fileup",
+                                            "filedown",  "filefront", "fileback"};
+  std::size_t total = 0;
+  for (std::size_t f = 0; f < model_files; ++f) {
+    const std::string from = read[f].path.filename().string();
+    for (const Kind& kind : kinds) {
+      for (const Attributes& a : elements(read[f].bytes, kind.element)) {
+        for (const auto& [name, value] : a) {
+          if (name != "file" && !(kind.cube && cube_faces.count(name) > 0)) continue;
+          std::filesystem::path file = value;
+          if (strippath == "true") file = file.filename();
+          const std::filesystem::path dir = kind.dir;
+          if (file.is_relative()) file = dir.is_absolute() ? dir / file : folder / dir / file;
+          const std::string shown = file.string() + " (<" + kind.element + " " + name + "=\"" +
+                                    value + "\"> in " + from + ")";
+          std::string bytes;
+          try {
+            bytes = detail::read_input_file(file, {kind.what, 256 * detail::kMiB, shown});
+          } catch (const detail::InputFileError& e) {
+            throw DefinitionError(e.what());
+          }
+          if (bytes.empty()) throw DefinitionError(shown + ": is empty, not a " + kind.what);
+          if ((total += bytes.size()) > 1024 * detail::kMiB)
+            throw DefinitionError(shown + ": the model's asset files exceed 1 GiB in all");
+          keep_read(file, bytes, shown, read);
+        }
+      }
+    }
   }
 }
 
@@ -500,6 +580,7 @@ std::vector<MjcfFile> read_mjcf_files(const std::filesystem::path& model) {
   std::vector<MjcfFile> read;
   int files = 0;
   read_model_files(model, model.parent_path(), 0, "", read, files);
+  read_asset_files(model.parent_path(), read);
   return read;
 }
 

@@ -536,6 +536,10 @@ SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline) {
 // ------------------------------------------------------------------------------ DerivedSubsystem
 
 DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name)
+    : DerivedSubsystem(std::move(derivation), std::move(name), Deadline()) {}
+
+DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name,
+                                   const Deadline& deadline)
     : d_(std::move(derivation)),
       name_(std::move(name)),
       n_(static_cast<Index>(d_.coordinates.size())) {
@@ -545,14 +549,20 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   const auto un = static_cast<unsigned>(n_);
   std::vector<ex> m, cqd, g, c;
   for (unsigned i = 0; i < un; ++i) {
+    deadline.check("compiling row " + d_.coordinates[i] + " of M, C and G");
     for (unsigned j = i; j < un; ++j) m.push_back(numeric_form(d_.M(i, j), pv));
     cqd.push_back(numeric_form(d_.Cqd(i, 0), pv));
     g.push_back(numeric_form(d_.G(i, 0), pv));
     for (unsigned j = 0; j < un; ++j) c.push_back(numeric_form(d_.C(i, j), pv));
   }
-  mass_ = Tape(m, in);
-  cqd_ = Tape(cqd, in);
-  grav_ = Tape(g, in);
+  // Every tape within the derivation's budget (the compilation of a large derivation is work of
+  // the same order as the derivation).
+  const auto tape = [&](const std::vector<ex>& outputs, const std::string& what) {
+    return Tape(outputs, in, deadline, "compiling " + what);
+  };
+  mass_ = tape(m, "M");
+  cqd_ = tape(cqd, "C q_dot");
+  grav_ = tape(g, "G");
   // One tape for forward(): M's upper triangle, C q̇ and G together, so that the subexpressions
   // they share (the sin/cos of the angles, above all) are computed once per evaluation.
   std::vector<ex> all = m;
@@ -560,13 +570,13 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   all.insert(all.end(), g.begin(), g.end());
   // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
   if (d_.time_varying) all.push_back(numeric_form(d_.Lt, pv));
-  dyn_ = Tape(all, in);
-  cor_ = Tape(c, in);
-  pot_ = Tape({numeric_form(d_.V, pv)}, in);
-  kin_ = Tape({numeric_form(d_.T, pv)}, in);
+  dyn_ = tape(all, "M, C q_dot and G");
+  cor_ = tape(c, "C");
+  pot_ = tape({numeric_form(d_.V, pv)}, "V");
+  kin_ = tape({numeric_form(d_.T, pv)}, "T");
   std::vector<ex> masses;
   for (const ex& mt : d_.masses_of_t) masses.push_back(numeric_form(mt, pv));
-  masses_of_t_ = Tape(masses, in);
+  masses_of_t_ = tape(masses, "the masses");
   d_.compile_seconds = seconds_since(t0);
 }
 
@@ -757,7 +767,7 @@ std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def) {
 
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def,
                                                  const Deadline& deadline) {
-  return std::make_shared<DerivedSubsystem>(derive(def, deadline), def.name());
+  return std::make_shared<DerivedSubsystem>(derive(def, deadline), def.name(), deadline);
 }
 
 std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
@@ -808,7 +818,9 @@ void ConstraintDef::add_row(std::string row_name, ex expression) {
   rows_.emplace_back(std::move(row_name), std::move(expression));
 }
 
-ConstraintDerivation derive(const ConstraintDef& def) {
+ConstraintDerivation derive(const ConstraintDef& def) { return derive(def, Deadline()); }
+
+ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline) {
   const auto t0 = Clock::now();
   const std::size_t n = def.system_coordinates().size();
   const std::size_t m = def.rows().size();
@@ -822,7 +834,6 @@ ConstraintDerivation derive(const ConstraintDef& def) {
   const symbol t = time_symbol(syms);
   const bool hol = def.kind() == ConstraintDef::Kind::holonomic;
   const auto un = static_cast<unsigned>(n), um = static_cast<unsigned>(m);
-  const Deadline deadline;  // bounded work (docs/definitions.md, Limits)
   ConstraintDerivation d;
   d.holonomic = hol;
   d.coordinates = def.system_coordinates();
@@ -908,11 +919,15 @@ ConstraintDerivation derive(const ConstraintDef& def) {
 }
 
 DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
+    : DerivedConstraint(std::move(derivation), Deadline()) {}
+
+DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline)
     : d_(std::move(derivation)), m_(static_cast<Index>(d_.row_names.size())) {
   const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   std::vector<ex> ab, phi, phid;
   for (unsigned r = 0; r < d_.A.rows(); ++r) {
+    deadline.check("compiling row '" + d_.row_names[r] + "'");
     for (unsigned j = 0; j < d_.A.cols(); ++j) {
       if (!d_.A(r, j).is_zero()) {
         nz_.emplace_back(static_cast<Index>(r), static_cast<Index>(j));
@@ -925,9 +940,9 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
     phi.push_back(numeric_form(d_.phi(r, 0), pv));
     phid.push_back(numeric_form(d_.phid(r, 0), pv));
   }
-  ab_ = Tape(ab, in);
-  phi_ = Tape(phi, in);
-  phid_ = Tape(phid, in);
+  ab_ = Tape(ab, in, deadline, "compiling A and b");
+  phi_ = Tape(phi, in, deadline, "compiling Phi");
+  phid_ = Tape(phid, in, deadline, "compiling the velocity form");
 }
 
 // The A, b tape's outputs and work, twice: tangent() puts their tangents in the second half.
@@ -1020,7 +1035,8 @@ void DerivedConstraint::velocity_residual(const ConstraintContext& ctx, CVecRef 
 }
 
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def) {
-  return std::make_shared<DerivedConstraint>(derive(def));
+  const Deadline deadline;  // bounded work (docs/definitions.md, Limits): derivation + compilation
+  return std::make_shared<DerivedConstraint>(derive(def, deadline), deadline);
 }
 
 }  // namespace ukdyn::symbolic

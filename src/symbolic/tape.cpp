@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "ukdyn/symbolic/canonical.hpp"
+#include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/spline.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
@@ -142,6 +143,8 @@ std::int32_t Tape::power(std::int32_t base, long n) {
 
 std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
   if (auto it = memo_.find(e); it != memo_.end()) return it->second;
+  // The budget every 4096 new subexpressions (one clock read per 4096 nodes: no measurable cost).
+  if (deadline_ != nullptr && (++compiled_ & 4095U) == 0) deadline_->check(*where_);
   std::int32_t id = 0;
   if (is_a<GiNaC::numeric>(e) || is_a<GiNaC::constant>(e)) {
     id = constant(to_double(e));
@@ -269,15 +272,32 @@ InputMap coordinate_inputs(SymbolTable& table, const std::vector<std::string>& c
   return in;
 }
 
-Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) {
+Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) { build(outputs, inputs); }
+
+Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs, const Deadline& deadline,
+           const std::string& where) {
+  deadline_ = &deadline;
+  where_ = &where;
+  build(outputs, inputs);
+  deadline.check(where);
+}
+
+void Tape::build(const std::vector<ex>& outputs, const InputMap& inputs) {
   out_.reserve(outputs.size());
   order_ = std::make_shared<StructuralOrder>();
-  for (const ex& e : outputs) out_.push_back(compile(e, inputs));
+  for (const ex& e : outputs) {
+    if (deadline_ != nullptr) deadline_->check(*where_);
+    out_.push_back(compile(e, inputs));
+  }
   numbering_.clear();
   memo_.clear();
   order_.reset();
+  if (deadline_ != nullptr) deadline_->check(*where_);
   fuse_sin_cos();
   fuse_products();
+  if (deadline_ != nullptr) deadline_->check(*where_);
+  deadline_ = nullptr;  // only while compiling: a copy of the tape keeps no pointer to them
+  where_ = nullptr;
   // What eval() runs: loads and constants by plain loops first (no dispatch), then the
   // instructions, without those folded away. Dispatching on every instruction, `fused` ones
   // included, cost about a third of a derived model's evaluation.

@@ -152,6 +152,9 @@ GiNaC::ex simplify_trig(const GiNaC::ex& e, const Deadline& deadline, const std:
 class DerivedSubsystem final : public Subsystem {
  public:
   explicit DerivedSubsystem(SubsystemDerivation derivation, std::string name);
+  /// The same with the tapes compiled within `deadline` (the derivation's own budget:
+  /// make_subsystem), throwing DerivationTimeout once it is spent.
+  DerivedSubsystem(SubsystemDerivation derivation, std::string name, const Deadline& deadline);
 
   [[nodiscard]] Index dof() const override { return n_; }
   [[nodiscard]] const std::string& name() const override { return name_; }
@@ -210,7 +213,7 @@ class DerivedSubsystem final : public Subsystem {
 
 /// derive + compile.
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def);
-/// derive within `deadline` + compile.
+/// derive + compile, both within `deadline`.
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def, const Deadline& deadline);
 
 /// A mass of t negative during a run: the subsystem (its index in the system) and
@@ -268,10 +271,14 @@ struct ConstraintDerivation {
 /// Derives A and b. Throws DefinitionError (row index set) for velocities in Φ, rows not linear in
 /// q̇, rows that involve no coordinate.
 ConstraintDerivation derive(const ConstraintDef& def);
+/// The same within `deadline` (DerivationTimeout is reported as a DefinitionError of the row).
+ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline);
 
 class DerivedConstraint final : public Constraint {
  public:
   explicit DerivedConstraint(ConstraintDerivation derivation);
+  /// The same with the tapes compiled within `deadline` (make_constraint: the derivation's budget).
+  DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline);
   [[nodiscard]] Index rows() const override { return m_; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return d_.row_names; }
   /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes. Without it
@@ -302,6 +309,7 @@ class DerivedConstraint final : public Constraint {
   Tape ab_, phi_, phid_;
 };
 
+/// derive + compile, both within one Deadline (limits::kDeriveSeconds).
 std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def);
 
 // ------------------------------------------------------------------------------- printing

@@ -17,6 +17,7 @@
 namespace ukdyn::symbolic {
 
 class CubicSpline;
+class Deadline;
 class StructuralOrder;
 
 /// Where a symbol's value comes from when the tape runs.
@@ -84,6 +85,11 @@ class Tape {
   /// Compiles `outputs` (numbers only: every parameter already substituted). Throws ukdyn::Error on
   /// a symbol missing from `inputs` or an unsupported function.
   Tape(const std::vector<GiNaC::ex>& outputs, const InputMap& inputs);
+  /// The same within `deadline` (expression.hpp): checked every few thousand subexpressions
+  /// compiled and between the passes, so that compiling a derivation's results counts against the
+  /// derivation's budget; throws DerivationTimeout naming `where` once it is spent.
+  Tape(const std::vector<GiNaC::ex>& outputs, const InputMap& inputs, const Deadline& deadline,
+       const std::string& where);
 
   [[nodiscard]] std::size_t outputs() const { return out_.size(); }
   [[nodiscard]] std::size_t instructions() const { return code_.size(); }
@@ -125,6 +131,7 @@ class Tape {
 
  private:
   std::int32_t emit(Op op, std::int32_t a, std::int32_t b, double imm);
+  void build(const std::vector<GiNaC::ex>& outputs, const InputMap& inputs);
   std::int32_t compile(const GiNaC::ex& e, const InputMap& inputs);
   std::int32_t constant(double v) { return emit(Op::constant, 0, 0, v); }
   std::int32_t power(std::int32_t base, long n);
@@ -167,6 +174,10 @@ class Tape {
   std::map<GiNaC::ex, std::int32_t, GiNaC::ex_is_less> memo_;
   // Operands of sums and products in a process-independent order (canonical.hpp); compiling only.
   std::shared_ptr<StructuralOrder> order_;
+  // The budget while compiling (null: none, or compiled), and the subexpressions compiled so far.
+  const Deadline* deadline_ = nullptr;
+  const std::string* where_ = nullptr;
+  std::size_t compiled_ = 0;
 };
 
 }  // namespace ukdyn::symbolic
