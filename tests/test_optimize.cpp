@@ -13,6 +13,7 @@
 #include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/scenario/optimization_file.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -560,17 +561,33 @@ TEST(OptimizeFile, ReplayWarnsWhereTheTrackedCoordinatesDoNotFixQ) {
 
 // The largest |f_int,k| of Walker's internal force over the points and grasps of a solution, from
 // its multipliers and the bound's own map.
-double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+// Over the points of s, by the bound's own Walker function at the solution's q and multipliers:
+// the largest internal force |f_int,k| and moment |m_int,k| of any grasp, and the largest
+// |Σ_k f_int,k| (0 for an internal wrench: G w_int = 0).
+struct InternalPeaks {
+  double force = 0.0, moment = 0.0, net_force = 0.0;
+};
+InternalPeaks internal_peaks(const TrajectoryProblem& p, const TrajectorySolution& s) {
   const InternalWrenchBound& b = p.internal_wrench_bounds.front();
   Vec lambda = Vec::Zero(p.system->rows()), w(6 * b.grasps);
-  double peak = 0.0;
+  InternalPeaks peaks;
   for (Index i = 0; i < s.t.size(); ++i) {
     for (std::size_t r = 0; r < s.kept_rows.size(); ++r)
       lambda(s.kept_rows[r]) = s.mu(i, static_cast<Index>(r));
     b.walker(s.q.row(i).transpose(), lambda, w);
-    for (Index k = 0; k < b.grasps; ++k) peak = std::max(peak, w.segment<3>(6 * k).norm());
+    Vec3 net = Vec3::Zero();
+    for (Index k = 0; k < b.grasps; ++k) {
+      peaks.force = std::max(peaks.force, w.segment<3>(6 * k).norm());
+      peaks.moment = std::max(peaks.moment, w.segment<3>(6 * k + 3).norm());
+      net += w.segment<3>(6 * k);
+    }
+    peaks.net_force = std::max(peaks.net_force, net.norm());
   }
-  return peak;
+  return peaks;
+}
+
+double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+  return internal_peaks(p, s).force;
 }
 
 // A bound on the squeeze: two agents of unequal mass carry a load; at minimum effort the grasps
@@ -627,6 +644,44 @@ TEST(OptimizeFile, AnInternalWrenchBoundHoldsAndCosts) {
       "squeeze: peak internal force %.4g N free, %.4g N bounded (%.3g); cost %.6g -> %.6g\n",
       free_peak, peak, bound, unbounded.cost, rep.solution.cost);
   fs::remove_all(out);
+}
+
+// The shipped four-robot plate (scenarios/optimize/four_robot_plate.yaml: a free-body plate, its
+// quaternion among the coordinates, welded to four robots): from the straight-line guess the
+// optimum converges, ends at the given pose at rest, keeps the squeeze within both bounds at every
+// point (the Walker function at the solution's q and μ, not the NLP's rows), the internal forces
+// of the four grasps cancel, and bounding the squeeze costs effort.
+TEST(OptimizeFile, FourRobotPlateKeepsTheSqueezeBound) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "four_robot_plate.yaml");
+  ASSERT_EQ(f.problem.internal_wrench_bounds.size(), 1u);
+  const InternalWrenchBound& b = f.problem.internal_wrench_bounds.front();
+  ASSERT_EQ(b.grasps, 4);
+  const auto s = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(s.converged) << s.status;
+  EXPECT_TRUE(s.trusted) << s.message;
+  const InternalPeaks bounded = internal_peaks(f.problem, s);
+  EXPECT_LE(bounded.force, b.max_force * (1 + 1e-6));
+  EXPECT_LE(bounded.moment, b.max_torque * (1 + 1e-6));
+  EXPECT_LT(bounded.net_force, 1e-9);
+  const Index last = s.t.size() - 1;
+  for (Index i = 0; i < f.problem.q_end.size(); ++i) {
+    if (std::isfinite(f.problem.q_end(i))) {
+      EXPECT_NEAR(s.q(last, i), f.problem.q_end(i), 1e-9);
+    }
+    EXPECT_NEAR(s.qd(last, i), 0.0, 1e-9);
+  }
+  TrajectoryProblem free = f.problem;
+  free.internal_wrench_bounds.clear();
+  const auto unbounded = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(unbounded.converged) << unbounded.status;
+  EXPECT_GT(s.cost, unbounded.cost * (1 + 1e-4));
+  const InternalPeaks free_peaks = internal_peaks(f.problem, unbounded);  // both bounds bite
+  EXPECT_GT(free_peaks.force, 1.2 * b.max_force);
+  EXPECT_GT(free_peaks.moment, 1.2 * b.max_torque);
+  std::printf("four robots: squeeze %.4g N, %.4g N m bounded; cost %.6g -> %.6g, %d iterations\n",
+              bounded.force, bounded.moment, unbounded.cost, s.cost, s.iterations);
 }
 
 // The paper's lift at minimum effort against the paper's own cosine path between the same rest
@@ -775,7 +830,8 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
 
 // Max |q − q_opt| of a simulate run's trajectory.csv at the optimum's points (its rows at the same
 // times: sample_dt is their spacing).
-double tracking_error(const fs::path& run, const fs::path& optimum) {
+double tracking_error(const fs::path& run, const fs::path& optimum,
+                      const std::vector<std::string>& columns = {"x", "z"}) {
   auto read = [](const fs::path& file, std::vector<std::string>& header) {
     std::ifstream in(file);
     io_detail::CsvLines lines(in);
@@ -801,7 +857,7 @@ double tracking_error(const fs::path& run, const fs::path& optimum) {
   for (const auto& o : opt)
     for (const auto& r : sim)
       if (std::abs(r[0] - o[0]) < 1e-9) {
-        for (const char* c : {"x", "z"}) {
+        for (const auto& c : columns) {
           const auto is = std::find(hs.begin(), hs.end(), c) - hs.begin();
           const auto io = std::find(ho.begin(), ho.end(), c) - ho.begin();
           worst = std::max(
@@ -863,6 +919,52 @@ costs:
   EXPECT_LT(nominal, 1e-4);
   EXPECT_LT(fb, 5e-3);
   EXPECT_GT(ff, 5.0 * fb);
+}
+// The replay scenarios name the robot file of their scenario relative to themselves: a scenario
+// whose `urdf:` is relative to its own folder, optimised from that folder into another, replays
+// with `ukdyn simulate` from a third working directory, and again after its folder is moved.
+TEST(OptimizeCli, ReplayScenariosRunFromAnotherDirectory) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  if (!symbolic::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_paths");
+  for (const char* d : {"robots", "model", "elsewhere", "runs"})
+    fs::create_directories(scratch / d);
+  std::ofstream(scratch / "robots" / "pendulum.urdf") << R"(<robot name="p"><link name="base"/>
+    <joint name="j" type="continuous"><parent link="base"/><child link="arm"/>
+      <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/></joint>
+    <link name="arm"><inertial><origin xyz="0 0 -0.5" rpy="0 0 0"/><mass value="1"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  </robot>)";
+  std::ofstream(scratch / "model" / "pendulum.yaml") << R"(ukdyn: 1
+name: pendulum
+gravity: 9.81
+subsystems:
+  - {name: arm, type: serial_chain, coordinates: [a], urdf: ../robots/pendulum.urdf}
+initial: {q: [0], qd: [0]}
+simulation: {t_end: 1, sample_dt: 0.1}
+)";
+  std::ofstream(scratch / "model" / "swing.yaml") << R"(ukdyn: 1
+name: swing
+scenario: pendulum.yaml
+intervals: 10
+duration: 1
+end: {q: [1]}
+costs: {effort: 0.01}
+)";
+  auto run = [&](const std::string& cwd, const std::string& args) {
+    const auto r = ukdyn_test::run_cli(UKDYN_CLI, scratch, args, "",
+                                       "cd " + ukdyn_test::sh((scratch / cwd).string()) + " && ");
+    EXPECT_EQ(r.exit_code, 0) << args << "\n" << r.err;
+  };
+  run("model", "optimize swing.yaml --out ../runs/opt");
+  for (const char* name : {"replay", "replay_open_loop"})
+    run("elsewhere", std::string("simulate ../runs/opt/") + name + ".yaml --out ../runs/" + name);
+  EXPECT_LT(tracking_error(scratch / "runs" / "replay", scratch / "runs" / "opt", {"a"}), 1e-3);
+  EXPECT_LT(tracking_error(scratch / "runs" / "replay_open_loop", scratch / "runs" / "opt", {"a"}),
+            1e-3);
+  fs::rename(scratch / "runs", scratch / "moved");  // the same depth: the relative path holds
+  run("robots", "simulate ../moved/opt/replay.yaml --out ../moved/again");
+  EXPECT_LT(tracking_error(scratch / "moved" / "again", scratch / "moved" / "opt", {"a"}), 1e-3);
 }
 #endif
 

@@ -620,7 +620,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
                                                "start's (a rank change along the path)")
                                  : e.lin.message);
     }
-    if (s.knot.back()) {
+    if (s.knot.back() && r_ > 0) {  // (no rows: nothing to keep)
       s.max_position_residual = std::max(s.max_position_residual, e.phi.cwiseAbs().maxCoeff());
       s.max_velocity_residual = std::max(s.max_velocity_residual, e.phid.cwiseAbs().maxCoeff());
     }
