@@ -150,7 +150,7 @@ std::pair<double, double> derivative_errors(optimize::Transcription& tr, const V
 // checked), a ball constraint against the world frame, built as a problem file builds it. Its rows
 // are functions of q alone, so the body is the bead's with y = x z (the bead's own y is 0 for
 // every q, a row the loader refuses as involving no coordinate).
-Waypoint bead_waypoint(double t) {
+Waypoint bead_waypoint(double t, double fraction = std::nan("")) {
   LoadOptions opt;
   opt.check_initial = false;
   std::string text = circle_text(9.81);
@@ -158,14 +158,16 @@ Waypoint bead_waypoint(double t) {
   text.insert(text.find("actuators:"),
               "  - {type: ball, name: wp, a: bead.mass, b: {frame: world, xyz: [0.5, 0, -0.3]}}\n");
   const auto with = load_scenario_text(text, "circle.yaml", opt);
-  return {"wp", with.system->constraints().back(), t};
+  return {"wp", with.system->constraints().back(), t, fraction};
 }
 
-void check_derivatives(CollocationMethod method, bool waypoint = false) {
+// With `waypoint`: one at a knot (t = 0.6 of 1.2 s, knot 2 of 4) with a fixed duration, and
+// (`off_knot`) one between knots at 0.3 of a free duration, on the method's interpolant.
+void check_derivatives(CollocationMethod method, bool waypoint = false, bool off_knot = false) {
   const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
   TrajectoryProblem p = problem_for(sc, method, 4, 1.2, on_circle(1.0));
-  if (waypoint) p.waypoints.push_back(bead_waypoint(0.6));
-  p.free_duration = !waypoint;  // (waypoints take a fixed duration)
+  if (waypoint) p.waypoints.push_back(off_knot ? bead_waypoint(0.0, 0.3) : bead_waypoint(0.6));
+  p.free_duration = !waypoint || off_knot;
   p.min_duration = 0.5;
   p.max_duration = 3.0;
   p.costs.power = 0.3;
@@ -180,7 +182,7 @@ void check_derivatives(CollocationMethod method, bool waypoint = false) {
   Vec x = tr.initial_guess();
   std::srand(7);
   x += 0.05 * Vec::Random(x.size());
-  if (!waypoint) x(tr.time_index()) = 1.3;
+  if (p.free_duration) x(tr.time_index()) = 1.3;
   const auto [worst_j, worst_g] = derivative_errors(tr, x);
   EXPECT_LT(worst_j, 1e-6) << to_string(method);
   EXPECT_LT(worst_g, 1e-6) << to_string(method);
@@ -197,6 +199,11 @@ TEST(Optimize, HermiteSimpsonDerivativesMatchCentralDifferences) {
 TEST(Optimize, WaypointDerivativesMatchCentralDifferences) {
   check_derivatives(CollocationMethod::hermite_simpson, true);
   check_derivatives(CollocationMethod::trapezoidal, true);
+}
+
+TEST(Optimize, WaypointBetweenKnotsDerivativesMatchCentralDifferences) {
+  check_derivatives(CollocationMethod::hermite_simpson, true, true);
+  check_derivatives(CollocationMethod::trapezoidal, true, true);
 }
 
 TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
@@ -227,10 +234,15 @@ TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
   bad.costs.effort = Vec::Ones(3);
   expect_error(bad, "costs.effort has 3 entries, 2 expected");
   bad = p;
-  bad.waypoints.push_back(bead_waypoint(0.55));
-  expect_error(bad, "waypoint 'wp': t = 0.55 is not at a knot (the knots are 0.1 s apart)");
-  bad.waypoints.back().t = 1.5;
+  bad.waypoints.push_back(bead_waypoint(1.5));
   expect_error(bad, "waypoint 'wp': t = 1.5 is not in (0, duration]");
+  bad.waypoints.back() = bead_waypoint(0.0, 1.5);
+  expect_error(bad, "waypoint 'wp': fraction = 1.5 is not in (0, 1]");
+  bad.waypoints.back() = bead_waypoint(0.5);
+  bad.free_duration = true;
+  bad.min_duration = 0.5;
+  bad.max_duration = 2.0;
+  expect_error(bad, "waypoint 'wp': with a free duration give its time as a fraction");
 }
 
 // Closed form: a mass m moved rest to rest a distance D in time T at minimum ∫|u|² needs only the
@@ -250,6 +262,112 @@ TEST(Optimize, RestToRestOnARailMatchesTheCubicClosedForm) {
   EXPECT_LT(s.max_position_residual, 1e-10);
   EXPECT_LT(s.max_velocity_residual, 1e-10);
   EXPECT_TRUE(s.trusted) << s.message;
+}
+
+// ∫ s̈² dt of the cubic from (0, v0) to (ds, v1) in a time L (a beam's bending energy).
+double cubic_cost(double L, double ds, double v0, double v1) {
+  return 4.0 / L * (v0 * v0 + v0 * v1 + v1 * v1) - 12.0 * ds * (v0 + v1) / (L * L) +
+         12.0 * ds * ds / (L * L * L);
+}
+
+// The least ∫ s̈² dt from rest at s = 0 to rest at s = D in time T through s = d at t_w: the
+// clamped cubic spline (two cubics meeting at t_w with the speed v there that minimises the sum, a
+// quadratic in v: its three values at −1, 0, 1 give the minimiser).
+double spline_cost(double T, double tw, double d, double D) {
+  auto J = [&](double v) { return cubic_cost(tw, d, 0, v) + cubic_cost(T - tw, D - d, v, 0); };
+  const double a = 0.5 * (J(1) + J(-1) - 2 * J(0)), b = 0.5 * (J(1) - J(-1));
+  return J(-b / (2 * a));
+}
+
+// The rail of kRail with a waypoint: the slider through x = d cos 30° (s = d along the rail), an
+// expression row on x.
+Waypoint rail_waypoint(double d, double t, double fraction) {
+  LoadOptions opt;
+  opt.check_initial = false;
+  std::string text = kRail;
+  char x[40];
+  std::snprintf(x, sizeof x, "%.17g", d * 0.8660254037844386);
+  text.insert(text.find("actuators:"),
+              std::string("  - {type: expression, name: wp, rows: {x: x - ") + x + "}}\n");
+  const auto with = load_scenario_text(text, "rail.yaml", opt);
+  return {"wp", with.system->constraints().back(), t, fraction};
+}
+
+// x of the Hermite–Simpson state interpolant (the cubic Hermite through the knots' q, q̇) at t.
+double hermite_x(const TrajectorySolution& s, double t) {
+  const Index P = s.t.size();
+  Index a = 0;
+  while (a + 2 < P - 1 && s.t(a + 2) <= t) a += 2;
+  const Index b = a + 2;
+  const double h = s.t(b) - s.t(a), w = (t - s.t(a)) / h;
+  return (2 * w * w * w - 3 * w * w + 1) * s.q(a, 0) +
+         (w * w * w - 2 * w * w + w) * h * s.qd(a, 0) + (-2 * w * w * w + 3 * w * w) * s.q(b, 0) +
+         (w * w * w - w * w) * h * s.qd(b, 0);
+}
+
+// Closed form: rest to rest along the rail at minimum ∫|u|² through a waypoint, m s̈ = u along
+// the rail, is m² times the clamped spline's ∫ s̈². At a knot Hermite–Simpson holds the piecewise
+// cubic exactly; between knots the optimum's u has its kink inside an interval, and the error
+// shrinks as the mesh is refined. The interpolant passes through the waypoint at t_w.
+TEST(Optimize, WaypointBetweenKnotsMatchesTheSplineClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kRail, "rail.yaml");
+  const double m = 2, D = 1.5, T = 2.0, d = 1.2;
+  Vec q_end(2);
+  q_end << 0.8660254037844386 * D, 0.5 * D;
+  auto solve = [&](Index N, double tw) {
+    TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, N, T, q_end);
+    p.waypoints.push_back(rail_waypoint(d, tw, std::nan("")));
+    const auto s = optimize_trajectory(p);
+    EXPECT_TRUE(s.converged) << s.status << " " << s.message;
+    EXPECT_LT(s.max_waypoint_residual, 1e-9);
+    EXPECT_NEAR(hermite_x(s, tw), d * 0.8660254037844386, 1e-9) << N << " " << tw;
+    const double exact = m * m * spline_cost(T, tw, d, D);
+    return std::abs(s.cost - exact) / exact;
+  };
+  EXPECT_LT(solve(10, 0.8), 1e-6);  // knot 4: exact
+  // t_w = 0.73: at 3.65, 7.3 and 14.6 steps, never on a knot
+  const double e10 = solve(10, 0.73), e20 = solve(20, 0.73), e40 = solve(40, 0.73);
+  std::printf("waypoint between knots: relative cost error %.3g (N = 10), %.3g (20), %.3g (40)\n",
+              e10, e20, e40);
+  EXPECT_LT(e10, 5e-3);  // measured 1.3e-3, 1.3e-4, 2.2e-5
+  EXPECT_GT(e10 / e20, 3.0);
+  EXPECT_GT(e20 / e40, 3.0);
+}
+
+// A free duration with a weight w on T and the waypoint at a fraction φ of it: the spline scales
+// as ∫ s̈² = S₁/T³ (S₁ the cost in unit time), so J(T) = w T + m² S₁/T³ is least at
+// T* = (3 m² S₁/w)^¼. With φ on a knot Hermite–Simpson finds T* and J* exactly.
+TEST(Optimize, WaypointAtAFractionOfAFreeDurationMatchesTheClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kRail, "rail.yaml");
+  const double m = 2, D = 1.5, d = 1.2;
+  Vec q_end(2);
+  q_end << 0.8660254037844386 * D, 0.5 * D;
+  auto solve = [&](double fraction, double& T_error) {
+    const double S1 = spline_cost(1.0, fraction, d, D), w = 3 * m * m * S1 / 16;  // T* = 2
+    TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, 10, 1.5, q_end);
+    p.free_duration = true;
+    p.min_duration = 0.5;
+    p.max_duration = 5.0;
+    p.costs.duration = w;
+    p.waypoints.push_back(rail_waypoint(d, 0.0, fraction));
+    const auto s = optimize_trajectory(p);
+    EXPECT_TRUE(s.converged) << s.status << " " << s.message;
+    EXPECT_LT(s.max_waypoint_residual, 1e-9);
+    EXPECT_NEAR(hermite_x(s, fraction * s.duration), d * 0.8660254037844386, 1e-9);
+    const double T_star = 2.0, J_star = w * T_star + m * m * S1 / (T_star * T_star * T_star);
+    T_error = std::abs(s.duration - T_star) / T_star;
+    return std::abs(s.cost - J_star) / J_star;
+  };
+  double T_knot = 0, T_off = 0;
+  EXPECT_LT(solve(0.4, T_knot), 1e-6);  // knot 4 of 10
+  EXPECT_LT(T_knot, 1e-6);
+  const double J_off = solve(0.35, T_off);  // between knots 3 and 4
+  std::printf("free duration, waypoint at 0.35 T: relative error of J %.3g, of T %.3g\n", J_off,
+              T_off);
+  EXPECT_LT(J_off, 1e-2);
+  EXPECT_LT(T_off, 1e-2);
 }
 
 // A bound on the ring's force (the row's multiplier μ, Qc = A_Rᵀ μ): the bead swung quickly needs
@@ -413,8 +531,15 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
        "position: [0.8, 0.5, 1.0]}\n  - {frame: left.cut, t: 0.5, "
        "position: [0.8, 0.5, 1.0], name: halfway}",
        "key 'waypoints[1].name': waypoint 'halfway' twice"},
-      {"t: 0.5,", "t: 0.52,",
-       "key 'waypoints': optimize: waypoint 'halfway': t = 0.52 is not at a knot"},
+      {"t: 0.5,", "t: 1.52,",
+       "key 'waypoints': optimize: waypoint 'halfway': t = 1.52 is not in (0, duration]"},
+      {"t: 0.5,", "t: 0.5, fraction: 0.5,",
+       "key 'waypoints[0]': expected one of t (from the start) or fraction"},
+      {"t: 0.5,", "fraction: 1.5,",
+       "key 'waypoints': optimize: waypoint 'halfway': fraction = 1.5 is not in (0, 1]"},
+      {"duration: 1", "duration: {initial: 1, min: 0.5, max: 2}",
+       "key 'waypoints': optimize: waypoint 'halfway': with a free duration give its time as a "
+       "fraction"},
       {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
       {"name: halfway", "colour: red", "key 'waypoints[0].colour': unknown key"},
   };

@@ -102,20 +102,23 @@ void check_costs_and_time(const TrajectoryProblem& pr, Index k) {
   }
 }
 
-// A waypoint's rows are holonomic and exact, at a knot of a fixed duration.
+// A waypoint's rows are holonomic and exact, at a time in (t0, t0 + T]: t with a fixed duration,
+// or a fraction of the duration (fixed or free).
 void check_waypoints(const TrajectoryProblem& pr) {
   for (const auto& w : pr.waypoints) {
     const std::string what = "optimize: waypoint '" + w.name + "'";
     if (!w.rows || w.rows->rows() == 0) throw Error(what + " has no rows");
+    if (!std::isnan(w.fraction)) {
+      if (!(w.fraction > 0.0 && w.fraction <= 1.0))
+        throw Error(what + ": fraction = " + sci(w.fraction) + " is not in (0, 1]");
+      continue;
+    }
     if (pr.free_duration)
-      throw Error(what + ": waypoints need a fixed duration (their time is a knot's)");
-    const double steps = w.t / pr.duration * static_cast<double>(pr.intervals);
-    const double knot = std::round(steps);
+      throw Error(what +
+                  ": with a free duration give its time as a fraction of the duration "
+                  "(`fraction`), not t");
     if (!(std::isfinite(w.t) && w.t > 0.0 && w.t <= pr.duration * (1.0 + 1e-12)))
       throw Error(what + ": t = " + sci(w.t) + " is not in (0, duration]");
-    if (std::abs(steps - knot) > 1e-9 * static_cast<double>(pr.intervals))
-      throw Error(what + ": t = " + sci(w.t) + " is not at a knot (the knots are " +
-                  sci(pr.duration / static_cast<double>(pr.intervals)) + " s apart)");
   }
 }
 

@@ -523,18 +523,25 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
   const std::size_t first = doc["constraints"].IsSequence() ? doc["constraints"].size() : 0;
-  std::vector<std::pair<std::string, double>> named;
+  std::vector<Waypoint> named;  // (their rows once the scenario is loaded with them)
   for (std::size_t i = 0; i < wn.node.size(); ++i) {
     const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
-    L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
+    L.only_keys(item, {"name", "frame", "t", "fraction", "position", "orientation"});
     const Node nn = L.child(item, "name", false);
     const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
-    for (const auto& [other, t_other] : named)
-      if (other == name) L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
+    for (const auto& other : named)
+      if (other.name == name)
+        L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
     const Node frame = L.child(item, "frame", true);
     if (!frame.node.IsScalar() && !frame.node.IsMap())
       L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
-    const double t = L.number(L.child(item, "t", true));
+    // Its time: t from the start, or a fraction of the duration (which a free duration needs).
+    const Node tn = L.child(item, "t", false), fn = L.child(item, "fraction", false);
+    if (tn.node.IsDefined() == fn.node.IsDefined())
+      L.fail(item, "expected one of t (from the start) or fraction (of the duration)");
+    const double t = tn.node.IsDefined() ? L.number(tn) : 0.0;
+    const double fraction =
+        fn.node.IsDefined() ? L.number(fn) : std::numeric_limits<double>::quiet_NaN();
     const Vec x = L.vector(L.child(item, "position", true), 3);
     const Node on = L.child(item, "orientation", false);
     YAML::Node c, b, xyz, rpy;
@@ -551,7 +558,7 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     }
     c["b"] = b;
     doc["constraints"].push_back(c);
-    named.emplace_back(name, t);
+    named.push_back({name, nullptr, t, fraction});
   }
   YAML::Emitter out;
   out << doc;
@@ -565,15 +572,14 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     // name, reported at that waypoint's key of the problem file.
     waypoint_error(L, wn, first, e.what());
   }
-  for (std::size_t i = 0; i < named.size(); ++i) {
+  for (Waypoint& w : named) {
     // A waypoint's rows are NAME_x, NAME_y, NAME_z (then NAME_rx.. for an orientation), and row
     // names are unique: the first row names it (a prefix would also match waypoint NAME_b's).
-    const std::string row = named[i].first + "_x";
-    std::shared_ptr<const Constraint> rows;
+    const std::string row = w.name + "_x";
     for (const auto& c : with->constraints())
-      if (c->rows() > 0 && c->row_names().front() == row) rows = c;
-    if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
-    p.waypoints.push_back({named[i].first, rows, named[i].second});
+      if (c->rows() > 0 && c->row_names().front() == row) w.rows = c;
+    if (!w.rows) L.fail(wn, "waypoint '" + w.name + "': its rows were not built");
+    p.waypoints.push_back(std::move(w));
   }
 }
 

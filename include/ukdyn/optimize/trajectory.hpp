@@ -59,15 +59,20 @@ struct TrajectoryCosts {
   double duration = 0.0;  ///< weight of T (free duration only)
 };
 
-/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at the knot at
-/// time t (from t0; it must fall on a knot, the duration fixed). A frame (a chain's link or point,
-/// a definitions body, a free body) through a given position is a ball constraint between the
-/// frame and a world frame at that position; with an orientation too, a weld
-/// (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A.
+/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at time t
+/// (from t0, fixed duration) or at the fraction `fraction` of the duration (fixed or free; when
+/// finite it is used, else t). On a knot the rows hold at the knot's q; between knots at the
+/// method's own state interpolant on that interval (Hermite–Simpson: the cubic Hermite through
+/// q_a, v_a, q_b, v_b; trapezoidal: the quadratic q_a + v_a s + (v_b − v_a) s²/(2h)). A frame (a
+/// chain's link or point, a definitions body, a free body) through a given position is a ball
+/// constraint between the frame and a world frame at that position; with an orientation too, a
+/// weld (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A
+/// times the interpolant's coefficients.
 struct Waypoint {
   std::string name;
   std::shared_ptr<const Constraint> rows;
   double t = 0.0;
+  double fraction = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// A bound on the internal (squeeze) wrench of a load held by two or more welds, by [Walker1991]'s
