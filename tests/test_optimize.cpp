@@ -370,6 +370,93 @@ TEST(Optimize, WaypointAtAFractionOfAFreeDurationMatchesTheClosedForm) {
   EXPECT_LT(T_off, 1e-2);
 }
 
+// A rheonomic row: a point mass m = 2 in the vertical x-z plane under gravity on a rail of slope
+// 30° that rises by f(t) = c (3τ² − 2τ³), τ = t/2 (c = 0.3 m in T = 2 s, at rest at both ends),
+// z = x tan 30° + f(t), pushed by a horizontal force only.
+const char* kMovingRail = R"(ukdyn: 1
+name: moving_rail
+gravity: 9.81
+subsystems:
+  - name: slider
+    type: definitions
+    coordinates: [x, z]
+    parameters: {m: 2}
+    bodies:
+      - {name: mass, mass: m, com: [x, 0, z]}
+constraints:
+  - {type: expression, name: rail, rows: {r: z - 0.5773502691896258*x - 0.3*(0.75*t*t - 0.25*t*t*t)}}
+actuators:
+  - {name: fx, coordinate: x}
+initial:
+  q: [0, 0]
+  qd: [0, 0]
+simulation:
+  t_end: 2
+  sample_dt: 0.01
+)";
+
+double moving_rail_f(double t) { return 0.3 * (0.75 * t * t - 0.25 * t * t * t); }
+double moving_rail_fdot(double t) { return 0.3 * (1.5 * t - 0.75 * t * t); }
+
+// The rows at the knots at their own time (position and velocity level, Φ_t included), and the
+// collocation's Jacobian with the rheonomic row against central differences.
+TEST(Optimize, RheonomicRowDerivativesMatchCentralDifferences) {
+  const auto sc = load_scenario_text(kMovingRail, "moving_rail.yaml");
+  const double X = 1.0, tan30 = 0.5773502691896258;
+  Vec q_end(2);
+  q_end << X, X * tan30 + moving_rail_f(2.0);
+  for (const auto method : {CollocationMethod::hermite_simpson, CollocationMethod::trapezoidal}) {
+    TrajectoryProblem p = problem_for(sc, method, 4, 2.0, q_end);
+    p.costs.constraint_force = 0.01;
+    optimize::Transcription tr(p);
+    Vec x = tr.initial_guess();
+    std::srand(11);
+    x += 0.05 * Vec::Random(x.size());
+    const auto [worst_j, worst_g] = derivative_errors(tr, x);
+    EXPECT_LT(worst_j, 1e-6) << to_string(method);
+    EXPECT_LT(worst_g, 1e-6) << to_string(method);
+  }
+}
+
+// Closed form: along the rail the horizontal force does the work, u = m (ẍ sec²α + (f̈ + g) tan α)
+// (Newton's law projected on the rail's direction (1, tan α): the rail's force is normal to it),
+// so ∫u² = m² sec⁴α ∫ (ẍ + w)² dt, w = (f̈ + g) sin α cos α. Rest to rest from x = 0 to X, the
+// least is at ẍ + w = a + b t, with ∫₀ᵀ w = sc g T and ∫₀ᵀ (T − t) w = sc (f(T) + g T²/2) (sc =
+// sin α cos α, ḟ = 0 at both ends): T a + T²/2 b = sc g T, T²/2 a + T³/6 b = X + sc (f(T) +
+// g T²/2), cost m² sec⁴α (a² T + a b T² + b² T³/3). The rail's motion f enters the cost; x, z and
+// u are polynomials of degree 3, so Hermite–Simpson is exact. At every knot the row holds at the
+// knot's own time, at position and at velocity level (ż − ẋ tan α − ḟ(t) = 0).
+TEST(Optimize, RheonomicRailMatchesTheClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kMovingRail, "moving_rail.yaml");
+  const double m = 2, g = 9.81, T = 2.0, X = 1.0, alpha = std::atan(0.5773502691896258);
+  const double sc_ = std::sin(alpha) * std::cos(alpha), sec = 1.0 / std::cos(alpha);
+  // The least cost for a rail that rises by fT in T (Cramer's rule on the 2 × 2 system).
+  auto closed_form = [&](double fT) {
+    const double k11 = T, k12 = T * T / 2, k22 = T * T * T / 6, det = k11 * k22 - k12 * k12;
+    const double r1 = sc_ * g * T, r2 = X + sc_ * (fT + g * T * T / 2);
+    const double a = (r1 * k22 - k12 * r2) / det, b = (k11 * r2 - k12 * r1) / det;
+    return m * m * std::pow(sec, 4) * (a * a * T + a * b * T * T + b * b * T * T * T / 3);
+  };
+  const double exact = closed_form(moving_rail_f(T));
+  Vec q_end(2);
+  q_end << X, X * std::tan(alpha) + moving_rail_f(T);
+  const auto s =
+      optimize_trajectory(problem_for(sc, CollocationMethod::hermite_simpson, 10, T, q_end));
+  ASSERT_TRUE(s.converged) << s.status << " " << s.message;
+  EXPECT_TRUE(s.trusted) << s.message;
+  EXPECT_LT(std::abs(s.cost - exact) / exact, 1e-6) << s.cost << " vs " << exact;
+  for (Index p = 0; p < s.t.size(); p += 2) {
+    const double t = s.t(p);
+    EXPECT_NEAR(s.q(p, 1) - std::tan(alpha) * s.q(p, 0), moving_rail_f(t), 1e-10) << t;
+    EXPECT_NEAR(s.qd(p, 1) - std::tan(alpha) * s.qd(p, 0), moving_rail_fdot(t), 1e-10) << t;
+  }
+  // The same rail held still costs otherwise: the rail's motion is in the optimum.
+  const double still = closed_form(0.0);
+  EXPECT_GT(std::abs(exact - still), 1e-3 * exact);
+  std::printf("moving rail: cost %.9g, closed form %.9g (still rail %.6g)\n", s.cost, exact, still);
+}
+
 // A bound on the ring's force (the row's multiplier μ, Qc = A_Rᵀ μ): the bead swung quickly needs
 // a large centripetal force; bounded, the optimum keeps |μ| within the bound at every point, pays
 // more effort than without it, and μ is the multiplier of the constraint force it reports.

@@ -223,7 +223,7 @@ void Transcription::evaluate(const Vec& x) {
   const auto& pr = problem_;
   const System& sys = *pr.system;
   const Index m = sys.rows();
-  Vec phi_full(m), tau(n_);
+  Vec phi_full(m), phid_full(m), tau(n_);
   for (Index p = 0; p < P_; ++p) {
     PointEval& e = eval_[static_cast<std::size_t>(p)];
     const double t = point_time(x, p);
@@ -238,15 +238,17 @@ void Transcription::evaluate(const Vec& x) {
     if (!is_knot) continue;
     const Index j = hs() ? p / 2 : p;
     position_residuals(sys, data_, t, q, phi_full);
+    velocity_residuals(sys, data_, t, q, v, phid_full);  // A v + Φ_t (rheonomic rows: Φ_t ≠ 0)
     evaluate_dynamics(sys, data_, t, q, v);  // the subsystems' slots the constraints read
     evaluate_constraints(sys, data_, t, q, v);
     e.phi.resize(r_);
+    e.phid.resize(r_);
     e.AR.resize(r_, n_);
     for (Index i = 0; i < r_; ++i) {
       e.phi(i) = phi_full(kept_[static_cast<std::size_t>(i)]);
+      e.phid(i) = phid_full(kept_[static_cast<std::size_t>(i)]);
       e.AR.row(i) = data_.A.row(kept_[static_cast<std::size_t>(i)]);
     }
-    e.phid = e.AR * v;
     if (j >= 1) {
       std::vector<Mat> forces;
       constraint_state_jacobians(sys, data_, t, q, v, kept_,

@@ -27,7 +27,7 @@ struct PointEval {
   Mat dQcdu;          ///< n × k: ∂Qc/∂τ B
   Mat dmudu;          ///< r × k: ∂μ/∂τ B
   Vec phi;            ///< r: Φ_R(q) (knots)
-  Vec phid;           ///< r: A_R v (knots)
+  Vec phid;           ///< r: A_R v + Φ_t (knots; Φ_t of rheonomic rows)
   Mat AR;             ///< r × n
   Mat D;              ///< r × n: ∂(A_R v)/∂q (knots)
   Mat Fq, Fv;     ///< n × n: ∂(A_Rᵀγ^q)/∂q, ∂(A_Rᵀγ^v)/∂q (knots ending an interval)

@@ -681,6 +681,8 @@ OptimizationFile load_optimization_text(const std::string& text,
     const bool at_end = m.find("the end ") != std::string::npos;
     const bool at_bounds = m.find("outside its bounds") != std::string::npos;
     if (m.find("waypoint '") != std::string::npos) L.fail(L.child(root, "waypoints", true), m);
+    if (m.find("the duration is free") != std::string::npos)
+      L.fail(L.child(root, "duration", true), m);
     L.fail(at_end ? end : at_bounds ? L.child(root, "bounds", true) : sn, m);
   }
   return f;

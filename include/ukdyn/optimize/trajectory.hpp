@@ -6,7 +6,7 @@
 // manifold corrections γ^q, γ^v (r each, r = the independent constraint rows R); optionally the
 // duration T. The dynamics at a point is the U-K acceleration a_p = q̈(q_p, v_p, τ₀ + B u_p), which
 // keeps the constraints at acceleration level, A a = b; the position and velocity levels,
-// Φ_R(q_j) = 0 and A_R(q_j) v_j = 0, are imposed at every knot j. Because a collocation step does
+// Φ_R(q_j, t_j) = 0 and A_R(q_j) v_j + Φ_t,R = 0 (Φ_t: rheonomic rows), at every knot j. Because a collocation step does
 // not stay on the manifold, these conditions and the defects together are over-determined; the
 // corrections γ make the system square again (Posa, Kuindersma & Tedrake, "Optimization and
 // stabilization of trajectories for constrained dynamical systems", ICRA 2016, Eq. (11)–(14)):
@@ -154,7 +154,7 @@ struct TrajectorySolution {
   double max_correction = 0.0;         ///< max |γ| (the manifold corrections, → 0 as h → 0)
   /// max over intervals of |A_Rᵀγ| / |step| (position and velocity): > 0.1 is not trusted
   double max_correction_ratio = 0.0;
-  /// max |Φ_w| over the waypoints (at their knots; 0 without waypoints)
+  /// max |Φ_w| over the waypoints (at their times; 0 without waypoints)
   double max_waypoint_residual = 0.0;
   std::vector<Index> kept_rows;  ///< R
   std::string status;            ///< IPOPT's return status, e.g. "Solve_Succeeded"
