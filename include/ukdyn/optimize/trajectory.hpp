@@ -80,15 +80,17 @@ struct Waypoint {
 /// per grasp k, |f_int,k|² ≤ max_force² and |m_int,k|² ≤ max_torque² at every point (+inf:
 /// none). `walker` gives w_int (6 grasps: [f; m] per grasp, world axes, moment about the grasp) at
 /// q and the multipliers λ of every constraint row (m), linear in λ (∂w_int/∂λ is taken exactly
-/// by unit λ); `walker_dq` gives w_int and its ∂w_int/∂q at fixed λ (6 grasps × n): exact, but
-/// for the columns of quaternion coordinates (central differences, docs/optimization.md).
+/// by unit λ); `walker_dq` gives w_int and its ∂w_int/∂q at fixed λ (6 grasps × n): exact, also
+/// along quaternion coordinates (docs/optimization.md), but for the `differenced` columns.
 struct InternalWrenchBound {
   std::string load;
   Index grasps = 0;
   std::vector<std::string> grasp_names;  ///< the welds' names (the CSV's Wint_walker_<name>_*)
   std::function<void(CVecRef q, CVecRef lambda, VecRef w_int)> walker;
   std::function<void(CVecRef q, CVecRef lambda, VecRef w_int, Mat& dw_int_dq)> walker_dq;
-  std::vector<Index> differenced;  ///< the columns of walker_dq by central differences
+  /// the columns of walker_dq by central differences: coordinates that scale a grasp frame's
+  /// rotation other than a quaternion's (none in the shipped problems)
+  std::vector<Index> differenced;
   double max_force = std::numeric_limits<double>::infinity();
   double max_torque = std::numeric_limits<double>::infinity();
 };
