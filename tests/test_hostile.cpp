@@ -41,11 +41,14 @@ struct Outcome {
   std::string err;
 };
 
-Outcome simulate(const fs::path& scenario, const fs::path& out_dir) {
+// `ukdyn simulate FILE`, or with `optimize` set `ukdyn optimize FILE` (a problem file).
+Outcome simulate(const fs::path& scenario, const fs::path& out_dir, bool optimize = false) {
   const fs::path err = scratch() / "stderr.txt";
   const std::string cmd = "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI) +
-                          " simulate " + sh(scenario.string()) + " --out " + sh(out_dir.string()) +
-                          " --no-figures --quiet < /dev/null > /dev/null 2> " + sh(err.string());
+                          (optimize ? " optimize " : " simulate ") + sh(scenario.string()) +
+                          " --out " + sh(out_dir.string()) +
+                          (optimize ? " --quiet" : " --no-figures --quiet") +
+                          " < /dev/null > /dev/null 2> " + sh(err.string());
   const int rc = std::system(cmd.c_str());
   Outcome o;
   o.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + (WIFSIGNALED(rc) ? WTERMSIG(rc) : 0);
@@ -59,6 +62,7 @@ struct Case {
   std::string expect;  // substring of the message
   int exit_code = 2;   // 2: rejected on loading; 1: the run starts and stops cleanly
   std::string (*generate)() = nullptr;  // writes the scenario text at test time
+  bool optimize = false;  // a problem file for `ukdyn optimize` (`# command: optimize`)
 };
 
 void PrintTo(const Case& c, std::ostream* os) { *os << c.name; }
@@ -174,7 +178,10 @@ std::vector<Case> corpus_cases() {
     std::getline(in, line);
     const std::string tag = "# expect: ";
     c.expect = line.rfind(tag, 0) == 0 ? line.substr(tag.size()) : "";
-    if (std::getline(in, line) && line == "# exit: 1") c.exit_code = 1;
+    while (std::getline(in, line) && line.rfind("# ", 0) == 0) {  // options after the first line
+      if (line == "# exit: 1") c.exit_code = 1;
+      if (line == "# command: optimize") c.optimize = true;
+    }
     cases.push_back(c);
   }
   return cases;
@@ -193,7 +200,7 @@ TEST_P(Hostile, ClearErrorNoCrashNoHang) {
   const fs::path out = scratch() / ("out_" + c.name);
   fs::remove_all(out);
 
-  const Outcome r = simulate(file, out);
+  const Outcome r = simulate(file, out, c.optimize);
   if (c.generate) fs::remove(file);
   ASSERT_NE(r.exit_code, 124) << "hang: no answer within " << kTimeoutSeconds << " s";
   ASSERT_LT(r.exit_code, 128) << "crash: killed by signal " << r.exit_code - 128 << "\n" << r.err;

@@ -13,6 +13,7 @@
 #include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/model/motor.hpp"
 #include "ukdyn/optimize/trajectory.hpp"
+#include "ukdyn/robot_files/urdf.hpp"
 #include "ukdyn/run/optimize_run.hpp"
 #include "ukdyn/scenario/optimization_file.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -149,7 +150,7 @@ std::pair<double, double> derivative_errors(optimize::Transcription& tr, const V
 // checked), a ball constraint against the world frame, built as a problem file builds it. Its rows
 // are functions of q alone, so the body is the bead's with y = x z (the bead's own y is 0 for
 // every q, a row the loader refuses as involving no coordinate).
-Waypoint bead_waypoint(double t) {
+Waypoint bead_waypoint(double t, double fraction = std::nan("")) {
   LoadOptions opt;
   opt.check_initial = false;
   std::string text = circle_text(9.81);
@@ -157,14 +158,16 @@ Waypoint bead_waypoint(double t) {
   text.insert(text.find("actuators:"),
               "  - {type: ball, name: wp, a: bead.mass, b: {frame: world, xyz: [0.5, 0, -0.3]}}\n");
   const auto with = load_scenario_text(text, "circle.yaml", opt);
-  return {"wp", with.system->constraints().back(), t};
+  return {"wp", with.system->constraints().back(), t, fraction};
 }
 
-void check_derivatives(CollocationMethod method, bool waypoint = false) {
+// With `waypoint`: one at a knot (t = 0.6 of 1.2 s, knot 2 of 4) with a fixed duration, and
+// (`off_knot`) one between knots at 0.3 of a free duration, on the method's interpolant.
+void check_derivatives(CollocationMethod method, bool waypoint = false, bool off_knot = false) {
   const auto sc = load_scenario_text(circle_text(9.81), "circle.yaml");
   TrajectoryProblem p = problem_for(sc, method, 4, 1.2, on_circle(1.0));
-  if (waypoint) p.waypoints.push_back(bead_waypoint(0.6));
-  p.free_duration = !waypoint;  // (waypoints take a fixed duration)
+  if (waypoint) p.waypoints.push_back(off_knot ? bead_waypoint(0.0, 0.3) : bead_waypoint(0.6));
+  p.free_duration = !waypoint || off_knot;
   p.min_duration = 0.5;
   p.max_duration = 3.0;
   p.costs.power = 0.3;
@@ -179,7 +182,7 @@ void check_derivatives(CollocationMethod method, bool waypoint = false) {
   Vec x = tr.initial_guess();
   std::srand(7);
   x += 0.05 * Vec::Random(x.size());
-  if (!waypoint) x(tr.time_index()) = 1.3;
+  if (p.free_duration) x(tr.time_index()) = 1.3;
   const auto [worst_j, worst_g] = derivative_errors(tr, x);
   EXPECT_LT(worst_j, 1e-6) << to_string(method);
   EXPECT_LT(worst_g, 1e-6) << to_string(method);
@@ -196,6 +199,11 @@ TEST(Optimize, HermiteSimpsonDerivativesMatchCentralDifferences) {
 TEST(Optimize, WaypointDerivativesMatchCentralDifferences) {
   check_derivatives(CollocationMethod::hermite_simpson, true);
   check_derivatives(CollocationMethod::trapezoidal, true);
+}
+
+TEST(Optimize, WaypointBetweenKnotsDerivativesMatchCentralDifferences) {
+  check_derivatives(CollocationMethod::hermite_simpson, true, true);
+  check_derivatives(CollocationMethod::trapezoidal, true, true);
 }
 
 TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
@@ -226,10 +234,15 @@ TEST(Optimize, RefusesBadProblemsNamingWhatIsWrong) {
   bad.costs.effort = Vec::Ones(3);
   expect_error(bad, "costs.effort has 3 entries, 2 expected");
   bad = p;
-  bad.waypoints.push_back(bead_waypoint(0.55));
-  expect_error(bad, "waypoint 'wp': t = 0.55 is not at a knot (the knots are 0.1 s apart)");
-  bad.waypoints.back().t = 1.5;
+  bad.waypoints.push_back(bead_waypoint(1.5));
   expect_error(bad, "waypoint 'wp': t = 1.5 is not in (0, duration]");
+  bad.waypoints.back() = bead_waypoint(0.0, 1.5);
+  expect_error(bad, "waypoint 'wp': fraction = 1.5 is not in (0, 1]");
+  bad.waypoints.back() = bead_waypoint(0.5);
+  bad.free_duration = true;
+  bad.min_duration = 0.5;
+  bad.max_duration = 2.0;
+  expect_error(bad, "waypoint 'wp': with a free duration give its time as a fraction");
 }
 
 // Closed form: a mass m moved rest to rest a distance D in time T at minimum ∫|u|² needs only the
@@ -249,6 +262,199 @@ TEST(Optimize, RestToRestOnARailMatchesTheCubicClosedForm) {
   EXPECT_LT(s.max_position_residual, 1e-10);
   EXPECT_LT(s.max_velocity_residual, 1e-10);
   EXPECT_TRUE(s.trusted) << s.message;
+}
+
+// ∫ s̈² dt of the cubic from (0, v0) to (ds, v1) in a time L (a beam's bending energy).
+double cubic_cost(double L, double ds, double v0, double v1) {
+  return 4.0 / L * (v0 * v0 + v0 * v1 + v1 * v1) - 12.0 * ds * (v0 + v1) / (L * L) +
+         12.0 * ds * ds / (L * L * L);
+}
+
+// The least ∫ s̈² dt from rest at s = 0 to rest at s = D in time T through s = d at t_w: the
+// clamped cubic spline (two cubics meeting at t_w with the speed v there that minimises the sum, a
+// quadratic in v: its three values at −1, 0, 1 give the minimiser).
+double spline_cost(double T, double tw, double d, double D) {
+  auto J = [&](double v) { return cubic_cost(tw, d, 0, v) + cubic_cost(T - tw, D - d, v, 0); };
+  const double a = 0.5 * (J(1) + J(-1) - 2 * J(0)), b = 0.5 * (J(1) - J(-1));
+  return J(-b / (2 * a));
+}
+
+// The rail of kRail with a waypoint: the slider through x = d cos 30° (s = d along the rail), an
+// expression row on x.
+Waypoint rail_waypoint(double d, double t, double fraction) {
+  LoadOptions opt;
+  opt.check_initial = false;
+  std::string text = kRail;
+  char x[40];
+  std::snprintf(x, sizeof x, "%.17g", d * 0.8660254037844386);
+  text.insert(text.find("actuators:"),
+              std::string("  - {type: expression, name: wp, rows: {x: x - ") + x + "}}\n");
+  const auto with = load_scenario_text(text, "rail.yaml", opt);
+  return {"wp", with.system->constraints().back(), t, fraction};
+}
+
+// x of the Hermite–Simpson state interpolant (the cubic Hermite through the knots' q, q̇) at t.
+double hermite_x(const TrajectorySolution& s, double t) {
+  const Index P = s.t.size();
+  Index a = 0;
+  while (a + 2 < P - 1 && s.t(a + 2) <= t) a += 2;
+  const Index b = a + 2;
+  const double h = s.t(b) - s.t(a), w = (t - s.t(a)) / h;
+  return (2 * w * w * w - 3 * w * w + 1) * s.q(a, 0) +
+         (w * w * w - 2 * w * w + w) * h * s.qd(a, 0) + (-2 * w * w * w + 3 * w * w) * s.q(b, 0) +
+         (w * w * w - w * w) * h * s.qd(b, 0);
+}
+
+// Closed form: rest to rest along the rail at minimum ∫|u|² through a waypoint, m s̈ = u along
+// the rail, is m² times the clamped spline's ∫ s̈². At a knot Hermite–Simpson holds the piecewise
+// cubic exactly; between knots the optimum's u has its kink inside an interval, and the error
+// shrinks as the mesh is refined. The interpolant passes through the waypoint at t_w.
+TEST(Optimize, WaypointBetweenKnotsMatchesTheSplineClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kRail, "rail.yaml");
+  const double m = 2, D = 1.5, T = 2.0, d = 1.2;
+  Vec q_end(2);
+  q_end << 0.8660254037844386 * D, 0.5 * D;
+  auto solve = [&](Index N, double tw) {
+    TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, N, T, q_end);
+    p.waypoints.push_back(rail_waypoint(d, tw, std::nan("")));
+    const auto s = optimize_trajectory(p);
+    EXPECT_TRUE(s.converged) << s.status << " " << s.message;
+    EXPECT_LT(s.max_waypoint_residual, 1e-9);
+    EXPECT_NEAR(hermite_x(s, tw), d * 0.8660254037844386, 1e-9) << N << " " << tw;
+    const double exact = m * m * spline_cost(T, tw, d, D);
+    return std::abs(s.cost - exact) / exact;
+  };
+  EXPECT_LT(solve(10, 0.8), 1e-6);  // knot 4: exact
+  // t_w = 0.73: at 3.65, 7.3 and 14.6 steps, never on a knot
+  const double e10 = solve(10, 0.73), e20 = solve(20, 0.73), e40 = solve(40, 0.73);
+  std::printf("waypoint between knots: relative cost error %.3g (N = 10), %.3g (20), %.3g (40)\n",
+              e10, e20, e40);
+  EXPECT_LT(e10, 5e-3);  // measured 1.3e-3, 1.3e-4, 2.2e-5
+  EXPECT_GT(e10 / e20, 3.0);
+  EXPECT_GT(e20 / e40, 3.0);
+}
+
+// A free duration with a weight w on T and the waypoint at a fraction φ of it: the spline scales
+// as ∫ s̈² = S₁/T³ (S₁ the cost in unit time), so J(T) = w T + m² S₁/T³ is least at
+// T* = (3 m² S₁/w)^¼. With φ on a knot Hermite–Simpson finds T* and J* exactly.
+TEST(Optimize, WaypointAtAFractionOfAFreeDurationMatchesTheClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kRail, "rail.yaml");
+  const double m = 2, D = 1.5, d = 1.2;
+  Vec q_end(2);
+  q_end << 0.8660254037844386 * D, 0.5 * D;
+  auto solve = [&](double fraction, double& T_error) {
+    const double S1 = spline_cost(1.0, fraction, d, D), w = 3 * m * m * S1 / 16;  // T* = 2
+    TrajectoryProblem p = problem_for(sc, CollocationMethod::hermite_simpson, 10, 1.5, q_end);
+    p.free_duration = true;
+    p.min_duration = 0.5;
+    p.max_duration = 5.0;
+    p.costs.duration = w;
+    p.waypoints.push_back(rail_waypoint(d, 0.0, fraction));
+    const auto s = optimize_trajectory(p);
+    EXPECT_TRUE(s.converged) << s.status << " " << s.message;
+    EXPECT_LT(s.max_waypoint_residual, 1e-9);
+    EXPECT_NEAR(hermite_x(s, fraction * s.duration), d * 0.8660254037844386, 1e-9);
+    const double T_star = 2.0, J_star = w * T_star + m * m * S1 / (T_star * T_star * T_star);
+    T_error = std::abs(s.duration - T_star) / T_star;
+    return std::abs(s.cost - J_star) / J_star;
+  };
+  double T_knot = 0, T_off = 0;
+  EXPECT_LT(solve(0.4, T_knot), 1e-6);  // knot 4 of 10
+  EXPECT_LT(T_knot, 1e-6);
+  const double J_off = solve(0.35, T_off);  // between knots 3 and 4
+  std::printf("free duration, waypoint at 0.35 T: relative error of J %.3g, of T %.3g\n", J_off,
+              T_off);
+  EXPECT_LT(J_off, 1e-2);
+  EXPECT_LT(T_off, 1e-2);
+}
+
+// A rheonomic row: a point mass m = 2 in the vertical x-z plane under gravity on a rail of slope
+// 30° that rises by f(t) = c (3τ² − 2τ³), τ = t/2 (c = 0.3 m in T = 2 s, at rest at both ends),
+// z = x tan 30° + f(t), pushed by a horizontal force only.
+const char* kMovingRail = R"(ukdyn: 1
+name: moving_rail
+gravity: 9.81
+subsystems:
+  - name: slider
+    type: definitions
+    coordinates: [x, z]
+    parameters: {m: 2}
+    bodies:
+      - {name: mass, mass: m, com: [x, 0, z]}
+constraints:
+  - {type: expression, name: rail, rows: {r: z - 0.5773502691896258*x - 0.3*(0.75*t*t - 0.25*t*t*t)}}
+actuators:
+  - {name: fx, coordinate: x}
+initial:
+  q: [0, 0]
+  qd: [0, 0]
+simulation:
+  t_end: 2
+  sample_dt: 0.01
+)";
+
+double moving_rail_f(double t) { return 0.3 * (0.75 * t * t - 0.25 * t * t * t); }
+double moving_rail_fdot(double t) { return 0.3 * (1.5 * t - 0.75 * t * t); }
+
+// The rows at the knots at their own time (position and velocity level, Φ_t included), and the
+// collocation's Jacobian with the rheonomic row against central differences.
+TEST(Optimize, RheonomicRowDerivativesMatchCentralDifferences) {
+  const auto sc = load_scenario_text(kMovingRail, "moving_rail.yaml");
+  const double X = 1.0, tan30 = 0.5773502691896258;
+  Vec q_end(2);
+  q_end << X, X * tan30 + moving_rail_f(2.0);
+  for (const auto method : {CollocationMethod::hermite_simpson, CollocationMethod::trapezoidal}) {
+    TrajectoryProblem p = problem_for(sc, method, 4, 2.0, q_end);
+    p.costs.constraint_force = 0.01;
+    optimize::Transcription tr(p);
+    Vec x = tr.initial_guess();
+    std::srand(11);
+    x += 0.05 * Vec::Random(x.size());
+    const auto [worst_j, worst_g] = derivative_errors(tr, x);
+    EXPECT_LT(worst_j, 1e-6) << to_string(method);
+    EXPECT_LT(worst_g, 1e-6) << to_string(method);
+  }
+}
+
+// Closed form: along the rail the horizontal force does the work, u = m (ẍ sec²α + (f̈ + g) tan α)
+// (Newton's law projected on the rail's direction (1, tan α): the rail's force is normal to it),
+// so ∫u² = m² sec⁴α ∫ (ẍ + w)² dt, w = (f̈ + g) sin α cos α. Rest to rest from x = 0 to X, the
+// least is at ẍ + w = a + b t, with ∫₀ᵀ w = sc g T and ∫₀ᵀ (T − t) w = sc (f(T) + g T²/2) (sc =
+// sin α cos α, ḟ = 0 at both ends): T a + T²/2 b = sc g T, T²/2 a + T³/6 b = X + sc (f(T) +
+// g T²/2), cost m² sec⁴α (a² T + a b T² + b² T³/3). The rail's motion f enters the cost; x, z and
+// u are polynomials of degree 3, so Hermite–Simpson is exact. At every knot the row holds at the
+// knot's own time, at position and at velocity level (ż − ẋ tan α − ḟ(t) = 0).
+TEST(Optimize, RheonomicRailMatchesTheClosedForm) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const auto sc = load_scenario_text(kMovingRail, "moving_rail.yaml");
+  const double m = 2, g = 9.81, T = 2.0, X = 1.0, alpha = std::atan(0.5773502691896258);
+  const double sc_ = std::sin(alpha) * std::cos(alpha), sec = 1.0 / std::cos(alpha);
+  // The least cost for a rail that rises by fT in T (Cramer's rule on the 2 × 2 system).
+  auto closed_form = [&](double fT) {
+    const double k11 = T, k12 = T * T / 2, k22 = T * T * T / 6, det = k11 * k22 - k12 * k12;
+    const double r1 = sc_ * g * T, r2 = X + sc_ * (fT + g * T * T / 2);
+    const double a = (r1 * k22 - k12 * r2) / det, b = (k11 * r2 - k12 * r1) / det;
+    return m * m * std::pow(sec, 4) * (a * a * T + a * b * T * T + b * b * T * T * T / 3);
+  };
+  const double exact = closed_form(moving_rail_f(T));
+  Vec q_end(2);
+  q_end << X, X * std::tan(alpha) + moving_rail_f(T);
+  const auto s =
+      optimize_trajectory(problem_for(sc, CollocationMethod::hermite_simpson, 10, T, q_end));
+  ASSERT_TRUE(s.converged) << s.status << " " << s.message;
+  EXPECT_TRUE(s.trusted) << s.message;
+  EXPECT_LT(std::abs(s.cost - exact) / exact, 1e-6) << s.cost << " vs " << exact;
+  for (Index p = 0; p < s.t.size(); p += 2) {
+    const double t = s.t(p);
+    EXPECT_NEAR(s.q(p, 1) - std::tan(alpha) * s.q(p, 0), moving_rail_f(t), 1e-10) << t;
+    EXPECT_NEAR(s.qd(p, 1) - std::tan(alpha) * s.qd(p, 0), moving_rail_fdot(t), 1e-10) << t;
+  }
+  // The same rail held still costs otherwise: the rail's motion is in the optimum.
+  const double still = closed_form(0.0);
+  EXPECT_GT(std::abs(exact - still), 1e-3 * exact);
+  std::printf("moving rail: cost %.9g, closed form %.9g (still rail %.6g)\n", s.cost, exact, still);
 }
 
 // A bound on the ring's force (the row's multiplier μ, Qc = A_Rᵀ μ): the bead swung quickly needs
@@ -412,8 +618,15 @@ TEST(OptimizeFile, WaypointErrorsNameTheKey) {
        "position: [0.8, 0.5, 1.0]}\n  - {frame: left.cut, t: 0.5, "
        "position: [0.8, 0.5, 1.0], name: halfway}",
        "key 'waypoints[1].name': waypoint 'halfway' twice"},
-      {"t: 0.5,", "t: 0.52,",
-       "key 'waypoints': optimize: waypoint 'halfway': t = 0.52 is not at a knot"},
+      {"t: 0.5,", "t: 1.52,",
+       "key 'waypoints': optimize: waypoint 'halfway': t = 1.52 is not in (0, duration]"},
+      {"t: 0.5,", "t: 0.5, fraction: 0.5,",
+       "key 'waypoints[0]': expected one of t (from the start) or fraction"},
+      {"t: 0.5,", "fraction: 1.5,",
+       "key 'waypoints': optimize: waypoint 'halfway': fraction = 1.5 is not in (0, 1]"},
+      {"duration: 1", "duration: {initial: 1, min: 0.5, max: 2}",
+       "key 'waypoints': optimize: waypoint 'halfway': with a free duration give its time as a "
+       "fraction"},
       {"position: [0.8, 0.5, 1.0]", "position: [0.8, 0.5]", "key 'waypoints[0].position'"},
       {"name: halfway", "colour: red", "key 'waypoints[0].colour': unknown key"},
   };
@@ -481,15 +694,19 @@ TEST(OptimizeFile, InternalWrenchQDerivativeIsExact) {
       "-1.97, -1.5707963267948966, 0, 1.1, 0, 0.7062073754895476, 1, 0, 0, 0]\n"
       "costs:\n  effort: 0\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
       dir / "ur.yaml");
-  const auto& names = u.problem.system->coordinate_names();  // only the bar's quaternion
-  std::vector<std::string> differenced;
-  for (const Index c : u.problem.internal_wrench_bounds.front().differenced)
-    differenced.push_back(names[static_cast<std::size_t>(c)]);
-  EXPECT_EQ(differenced.size(), 4u);
-  for (const auto& c : differenced) EXPECT_EQ(c.rfind("load", 0), 0u) << c;
-  const Vec q = u.problem.q_start + 0.1 * Vec::Random(u.problem.q_start.size());
-  const Vec lambda = 10.0 * Vec::Random(u.problem.system->rows());
-  EXPECT_LT(internal_wrench_dq_error(u.problem.internal_wrench_bounds.front(), q, lambda), 1e-6);
+  // The bar's quaternion columns exact too (none differenced), off the unit sphere as well (a
+  // random step of 0.1 takes |u| off 1).
+  EXPECT_TRUE(u.problem.internal_wrench_bounds.front().differenced.empty());
+  const OptimizationFile plate = load_optimization_file(dir / "four_robot_plate.yaml");
+  EXPECT_TRUE(plate.problem.internal_wrench_bounds.front().differenced.empty());
+  for (const OptimizationFile* o : {&u, &plate}) {
+    const Vec q = o->problem.q_start + 0.1 * Vec::Random(o->problem.q_start.size());
+    const Vec lambda = 10.0 * Vec::Random(o->problem.system->rows());
+    const double e = internal_wrench_dq_error(o->problem.internal_wrench_bounds.front(), q, lambda);
+    EXPECT_LT(e, 1e-6) << o->name;
+    std::printf("%s: dw_int/dq against central differences %.3g (relative, whole block)\n",
+                o->name.c_str(), e);
+  }
 }
 
 // Walker's projection differentiated (points and wrenches moving together) against central
@@ -560,17 +777,33 @@ TEST(OptimizeFile, ReplayWarnsWhereTheTrackedCoordinatesDoNotFixQ) {
 
 // The largest |f_int,k| of Walker's internal force over the points and grasps of a solution, from
 // its multipliers and the bound's own map.
-double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+// Over the points of s, by the bound's own Walker function at the solution's q and multipliers:
+// the largest internal force |f_int,k| and moment |m_int,k| of any grasp, and the largest
+// |Σ_k f_int,k| (0 for an internal wrench: G w_int = 0).
+struct InternalPeaks {
+  double force = 0.0, moment = 0.0, net_force = 0.0;
+};
+InternalPeaks internal_peaks(const TrajectoryProblem& p, const TrajectorySolution& s) {
   const InternalWrenchBound& b = p.internal_wrench_bounds.front();
   Vec lambda = Vec::Zero(p.system->rows()), w(6 * b.grasps);
-  double peak = 0.0;
+  InternalPeaks peaks;
   for (Index i = 0; i < s.t.size(); ++i) {
     for (std::size_t r = 0; r < s.kept_rows.size(); ++r)
       lambda(s.kept_rows[r]) = s.mu(i, static_cast<Index>(r));
     b.walker(s.q.row(i).transpose(), lambda, w);
-    for (Index k = 0; k < b.grasps; ++k) peak = std::max(peak, w.segment<3>(6 * k).norm());
+    Vec3 net = Vec3::Zero();
+    for (Index k = 0; k < b.grasps; ++k) {
+      peaks.force = std::max(peaks.force, w.segment<3>(6 * k).norm());
+      peaks.moment = std::max(peaks.moment, w.segment<3>(6 * k + 3).norm());
+      net += w.segment<3>(6 * k);
+    }
+    peaks.net_force = std::max(peaks.net_force, net.norm());
   }
-  return peak;
+  return peaks;
+}
+
+double peak_internal_force(const TrajectoryProblem& p, const TrajectorySolution& s) {
+  return internal_peaks(p, s).force;
 }
 
 // A bound on the squeeze: two agents of unequal mass carry a load; at minimum effort the grasps
@@ -627,6 +860,44 @@ TEST(OptimizeFile, AnInternalWrenchBoundHoldsAndCosts) {
       "squeeze: peak internal force %.4g N free, %.4g N bounded (%.3g); cost %.6g -> %.6g\n",
       free_peak, peak, bound, unbounded.cost, rep.solution.cost);
   fs::remove_all(out);
+}
+
+// The shipped four-robot plate (scenarios/optimize/four_robot_plate.yaml: a free-body plate, its
+// quaternion among the coordinates, welded to four robots): from the straight-line guess the
+// optimum converges, ends at the given pose at rest, keeps the squeeze within both bounds at every
+// point (the Walker function at the solution's q and μ, not the NLP's rows), the internal forces
+// of the four grasps cancel, and bounding the squeeze costs effort.
+TEST(OptimizeFile, FourRobotPlateKeepsTheSqueezeBound) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path dir = fs::path(UKDYN_SOURCE_DIR) / "scenarios" / "optimize";
+  const OptimizationFile f = load_optimization_file(dir / "four_robot_plate.yaml");
+  ASSERT_EQ(f.problem.internal_wrench_bounds.size(), 1u);
+  const InternalWrenchBound& b = f.problem.internal_wrench_bounds.front();
+  ASSERT_EQ(b.grasps, 4);
+  const auto s = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(s.converged) << s.status;
+  EXPECT_TRUE(s.trusted) << s.message;
+  const InternalPeaks bounded = internal_peaks(f.problem, s);
+  EXPECT_LE(bounded.force, b.max_force * (1 + 1e-6));
+  EXPECT_LE(bounded.moment, b.max_torque * (1 + 1e-6));
+  EXPECT_LT(bounded.net_force, 1e-9);
+  const Index last = s.t.size() - 1;
+  for (Index i = 0; i < f.problem.q_end.size(); ++i) {
+    if (std::isfinite(f.problem.q_end(i))) {
+      EXPECT_NEAR(s.q(last, i), f.problem.q_end(i), 1e-9);
+    }
+    EXPECT_NEAR(s.qd(last, i), 0.0, 1e-9);
+  }
+  TrajectoryProblem free = f.problem;
+  free.internal_wrench_bounds.clear();
+  const auto unbounded = optimize_trajectory(free, f.ipopt);
+  ASSERT_TRUE(unbounded.converged) << unbounded.status;
+  EXPECT_GT(s.cost, unbounded.cost * (1 + 1e-4));
+  const InternalPeaks free_peaks = internal_peaks(f.problem, unbounded);  // both bounds bite
+  EXPECT_GT(free_peaks.force, 1.2 * b.max_force);
+  EXPECT_GT(free_peaks.moment, 1.2 * b.max_torque);
+  std::printf("four robots: squeeze %.4g N, %.4g N m bounded; cost %.6g -> %.6g, %d iterations\n",
+              bounded.force, bounded.moment, unbounded.cost, s.cost, s.iterations);
 }
 
 // The paper's lift at minimum effort against the paper's own cosine path between the same rest
@@ -775,7 +1046,8 @@ TEST(OptimizeCli, SameBytesInTwoProcesses) {
 
 // Max |q − q_opt| of a simulate run's trajectory.csv at the optimum's points (its rows at the same
 // times: sample_dt is their spacing).
-double tracking_error(const fs::path& run, const fs::path& optimum) {
+double tracking_error(const fs::path& run, const fs::path& optimum,
+                      const std::vector<std::string>& columns = {"x", "z"}) {
   auto read = [](const fs::path& file, std::vector<std::string>& header) {
     std::ifstream in(file);
     io_detail::CsvLines lines(in);
@@ -801,7 +1073,7 @@ double tracking_error(const fs::path& run, const fs::path& optimum) {
   for (const auto& o : opt)
     for (const auto& r : sim)
       if (std::abs(r[0] - o[0]) < 1e-9) {
-        for (const char* c : {"x", "z"}) {
+        for (const auto& c : columns) {
           const auto is = std::find(hs.begin(), hs.end(), c) - hs.begin();
           const auto io = std::find(ho.begin(), ho.end(), c) - ho.begin();
           worst = std::max(
@@ -863,6 +1135,52 @@ costs:
   EXPECT_LT(nominal, 1e-4);
   EXPECT_LT(fb, 5e-3);
   EXPECT_GT(ff, 5.0 * fb);
+}
+// The replay scenarios name the robot file of their scenario relative to themselves: a scenario
+// whose `urdf:` is relative to its own folder, optimised from that folder into another, replays
+// with `ukdyn simulate` from a third working directory, and again after its folder is moved.
+TEST(OptimizeCli, ReplayScenariosRunFromAnotherDirectory) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  if (!symbolic::urdf_supported()) GTEST_SKIP() << "built without urdfdom";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_paths");
+  for (const char* d : {"robots", "model", "elsewhere", "runs"})
+    fs::create_directories(scratch / d);
+  std::ofstream(scratch / "robots" / "pendulum.urdf") << R"(<robot name="p"><link name="base"/>
+    <joint name="j" type="continuous"><parent link="base"/><child link="arm"/>
+      <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="0 1 0"/></joint>
+    <link name="arm"><inertial><origin xyz="0 0 -0.5" rpy="0 0 0"/><mass value="1"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  </robot>)";
+  std::ofstream(scratch / "model" / "pendulum.yaml") << R"(ukdyn: 1
+name: pendulum
+gravity: 9.81
+subsystems:
+  - {name: arm, type: serial_chain, coordinates: [a], urdf: ../robots/pendulum.urdf}
+initial: {q: [0], qd: [0]}
+simulation: {t_end: 1, sample_dt: 0.1}
+)";
+  std::ofstream(scratch / "model" / "swing.yaml") << R"(ukdyn: 1
+name: swing
+scenario: pendulum.yaml
+intervals: 10
+duration: 1
+end: {q: [1]}
+costs: {effort: 0.01}
+)";
+  auto run = [&](const std::string& cwd, const std::string& args) {
+    const auto r = ukdyn_test::run_cli(UKDYN_CLI, scratch, args, "",
+                                       "cd " + ukdyn_test::sh((scratch / cwd).string()) + " && ");
+    EXPECT_EQ(r.exit_code, 0) << args << "\n" << r.err;
+  };
+  run("model", "optimize swing.yaml --out ../runs/opt");
+  for (const char* name : {"replay", "replay_open_loop"})
+    run("elsewhere", std::string("simulate ../runs/opt/") + name + ".yaml --out ../runs/" + name);
+  EXPECT_LT(tracking_error(scratch / "runs" / "replay", scratch / "runs" / "opt", {"a"}), 1e-3);
+  EXPECT_LT(tracking_error(scratch / "runs" / "replay_open_loop", scratch / "runs" / "opt", {"a"}),
+            1e-3);
+  fs::rename(scratch / "runs", scratch / "moved");  // the same depth: the relative path holds
+  run("robots", "simulate ../moved/opt/replay.yaml --out ../moved/again");
+  EXPECT_LT(tracking_error(scratch / "moved" / "again", scratch / "moved" / "opt", {"a"}), 1e-3);
 }
 #endif
 

@@ -87,7 +87,7 @@ void bind_optimize(py::module_& m) {
                              [](const PyOptimized& r) { return r.s.max_correction_ratio; })
       .def_property_readonly(
           "max_waypoint_residual", [](const PyOptimized& r) { return r.s.max_waypoint_residual; },
-          "max |Phi_w| over the waypoints at their knots (0 without waypoints)")
+          "max |Phi_w| over the waypoints at their times (0 without waypoints)")
       .def_property_readonly(
           "internal_wrench", [](const PyOptimized& r) { return r.s.internal_wrench; },
           "points x 6 per grasp of each bounded load: Walker's internal wrench [f; m]")

@@ -102,20 +102,88 @@ void check_costs_and_time(const TrajectoryProblem& pr, Index k) {
   }
 }
 
-// A waypoint's rows are holonomic and exact, at a knot of a fixed duration.
+// A waypoint's rows are holonomic and exact, at a time in (t0, t0 + T]: t with a fixed duration,
+// or a fraction of the duration (fixed or free).
 void check_waypoints(const TrajectoryProblem& pr) {
   for (const auto& w : pr.waypoints) {
     const std::string what = "optimize: waypoint '" + w.name + "'";
     if (!w.rows || w.rows->rows() == 0) throw Error(what + " has no rows");
+    if (!std::isnan(w.fraction)) {
+      if (!(w.fraction > 0.0 && w.fraction <= 1.0))
+        throw Error(what + ": fraction = " + sci(w.fraction) + " is not in (0, 1]");
+      continue;
+    }
     if (pr.free_duration)
-      throw Error(what + ": waypoints need a fixed duration (their time is a knot's)");
-    const double steps = w.t / pr.duration * static_cast<double>(pr.intervals);
-    const double knot = std::round(steps);
+      throw Error(what +
+                  ": with a free duration give its time as a fraction of the duration "
+                  "(`fraction`), not t");
     if (!(std::isfinite(w.t) && w.t > 0.0 && w.t <= pr.duration * (1.0 + 1e-12)))
       throw Error(what + ": t = " + sci(w.t) + " is not in (0, duration]");
-    if (std::abs(steps - knot) > 1e-9 * static_cast<double>(pr.intervals))
-      throw Error(what + ": t = " + sci(w.t) + " is not at a knot (the knots are " +
-                  sci(pr.duration / static_cast<double>(pr.intervals)) + " s apart)");
+  }
+}
+
+// Whether the system depends on t (a rheonomic row, a force or a mass of t): q̈ (forward()), Φ or
+// Φ_t at the start state differ between times across the longest duration. (Each point's own t
+// is used in the NLP; the probe decides only whether a free duration, which moves the points'
+// times, is refused.)
+bool depends_on_time(const System& sys, const TrajectoryProblem& pr) {
+  if (time_varying(sys)) return true;
+  const Index n = sys.dof(), m = sys.rows();
+  const double span = std::isfinite(pr.max_duration) ? pr.max_duration : 10.0 * pr.duration;
+  ForwardData d(sys);
+  Vec ref, phi(m), phit(m), phi_ref(m), phit_ref(m);
+  const Vec zero = Vec::Zero(n);
+  for (const double s : {0.0, 0.3183098861837907, 0.7071067811865476, 1.0}) {
+    const double t = pr.t0 + s * span;
+    forward(sys, d, t, pr.q_start, pr.qd_start, pr.tau, pr.uk);
+    position_residuals(sys, t, pr.q_start, phi);
+    velocity_residuals(sys, t, pr.q_start, zero, phit);
+    if (s == 0.0) {
+      ref = d.qdd, phi_ref = phi, phit_ref = phit;
+      if (m > 0 && phit.cwiseAbs().maxCoeff() > 0.0) return true;
+      continue;
+    }
+    auto differ = [](const Vec& a, const Vec& b) {
+      return a.size() > 0 &&
+             (a - b).cwiseAbs().maxCoeff() > 1e-12 * (1.0 + b.cwiseAbs().maxCoeff());
+    };
+    if (differ(d.qdd, ref) || differ(phi, phi_ref) || differ(phit, phit_ref)) return true;
+  }
+  return false;
+}
+
+// Rheonomic rows Φ(q, t): the knots keep A v + Φ_t = 0, and its Jacobian in q is taken as D =
+// ∂(A v)/∂q alone, exact when Φ_t does not depend on q (a prescribed path of a point or a
+// coordinate, Φ = g(q) − r(t)); the constraints give no tangent of Φ_t. So Φ_t (the velocity
+// residual at q̇ = 0) must be the same at the boundary states and probes 1e-3 around the start
+// along every coordinate, at the start, the middle and the end time; else the row is refused.
+void check_rheonomic_rates(const System& sys, const TrajectoryProblem& pr) {
+  const Index n = sys.dof(), m = sys.rows();
+  if (m == 0) return;
+  const Vec zero = Vec::Zero(n);
+  Vec ref(m), at(m);
+  std::vector<Vec> states{pr.q_start};
+  if (pr.q_end.allFinite()) states.push_back(pr.q_end);
+  for (Index j = 0; j < n; ++j)
+    for (const double step : {1e-3, -1e-3}) {
+      states.push_back(pr.q_start);
+      states.back()(j) += step * (1.0 + std::abs(pr.q_start(j)));
+    }
+  for (const double s : {0.0, 0.5, 1.0}) {
+    const double t = pr.t0 + s * pr.duration;
+    velocity_residuals(sys, t, pr.q_start, zero, ref);
+    for (const Vec& q : states) {
+      velocity_residuals(sys, t, q, zero, at);
+      Index row = 0;
+      const double d = (at - ref).cwiseAbs().maxCoeff(&row);
+      if (d > 1e-12 * (1.0 + ref.cwiseAbs().maxCoeff()))
+        throw Error(
+            "optimize: constraint row '" +
+            sys.constraint_row_names()[static_cast<std::size_t>(row)] +
+            "' has a time rate (Phi_t) that depends on q (it changes by " + sci(d) +
+            " over a step of 1e-3 from the start): trajectory optimisation takes rheonomic rows "
+            "Phi = g(q) - r(t) only (a prescribed path of a point or a coordinate)");
+    }
   }
 }
 
@@ -176,14 +244,15 @@ void validate(const TrajectoryProblem& pr) {
     if (G->size() && (G->rows() != P || G->cols() != cols || !G->allFinite()))
       throw Error(std::string("optimize: ") + what + " must be finite with one row per point (" +
                   std::to_string(P) + ") and " + std::to_string(cols) + " columns");
-  if (time_varying(sys))
+  if (pr.free_duration && depends_on_time(sys, pr))
     throw Error(
         "optimize: the system depends on time (a rheonomic constraint or a time-dependent "
-        "force); trajectory optimisation takes time-invariant systems: drop the "
-        "prescribed motion, the optimiser chooses it");
+        "force) and the duration is free: the points' times would move with T; fix the "
+        "duration");
   if (const auto missing = components_without_derivatives(sys); !missing.empty())
     throw Error("optimize: no exact derivatives for " + missing.front() +
                 " (docs/derivatives.md lists the kinds that have them)");
+  check_rheonomic_rates(sys, pr);
   check_on_manifold(sys, pr.t0, pr.q_start, pr.qd_start, "start", true);
   if (pr.q_end.allFinite())
     check_on_manifold(sys, pr.t0 + pr.duration, pr.q_end, pr.qd_end, "end", pr.qd_end.allFinite());

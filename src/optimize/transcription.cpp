@@ -17,6 +17,19 @@ Vec or_fill(const Vec& v, Index n, double fill) {
   return v.size() == 0 ? Vec::Constant(n, fill) : v;
 }
 
+// The coefficients of (q_a, h v_a, q_b, h v_b) in the method's state interpolant at the fraction
+// tau of an interval: Hermite–Simpson's cubic Hermite (H00, H10, H01, H11), or the trapezoidal
+// method's quadratic q_a + h (tau v_a + tau²/2 (v_b − v_a)) (its q̇ linear between v_a and v_b)
+// (Kelly, "An introduction to trajectory optimization", SIAM Review 59(4), 2017, §3.4, §4.4).
+void interpolant_coefficients(bool hermite_simpson, double tau, double c[4]) {
+  const double t2 = tau * tau, t3 = t2 * tau;
+  if (hermite_simpson) {
+    c[0] = 2 * t3 - 3 * t2 + 1, c[1] = t3 - 2 * t2 + tau, c[2] = -2 * t3 + 3 * t2, c[3] = t3 - t2;
+  } else {
+    c[0] = 1.0, c[1] = tau - 0.5 * t2, c[2] = 0.0, c[3] = 0.5 * t2;
+  }
+}
+
 }  // namespace
 
 Transcription::Transcription(const TrajectoryProblem& problem)
@@ -55,10 +68,8 @@ Transcription::Transcription(const TrajectoryProblem& problem)
   select_multiplier_rows();
   ng_ = multiplier_rows_start_ + static_cast<Index>(bounded_.size()) * P_;
   waypoint_rows_start_ = ng_;
-  for (const auto& w : problem.waypoints) {  // snapped to its knot (validate(): t is on one)
-    const auto j =
-        static_cast<Index>(std::llround(w.t / problem.duration * static_cast<double>(N_)));
-    waypoint_point_.push_back(knot_point(j));
+  for (const auto& w : problem.waypoints) {
+    waypoint_place_.push_back(place_waypoint(w));
     ng_ += w.rows->rows();
   }
   wint_rows_start_ = ng_;
@@ -212,7 +223,7 @@ void Transcription::evaluate(const Vec& x) {
   const auto& pr = problem_;
   const System& sys = *pr.system;
   const Index m = sys.rows();
-  Vec phi_full(m), tau(n_);
+  Vec phi_full(m), phid_full(m), tau(n_);
   for (Index p = 0; p < P_; ++p) {
     PointEval& e = eval_[static_cast<std::size_t>(p)];
     const double t = point_time(x, p);
@@ -227,15 +238,17 @@ void Transcription::evaluate(const Vec& x) {
     if (!is_knot) continue;
     const Index j = hs() ? p / 2 : p;
     position_residuals(sys, data_, t, q, phi_full);
+    velocity_residuals(sys, data_, t, q, v, phid_full);  // A v + Φ_t (rheonomic rows: Φ_t ≠ 0)
     evaluate_dynamics(sys, data_, t, q, v);  // the subsystems' slots the constraints read
     evaluate_constraints(sys, data_, t, q, v);
     e.phi.resize(r_);
+    e.phid.resize(r_);
     e.AR.resize(r_, n_);
     for (Index i = 0; i < r_; ++i) {
       e.phi(i) = phi_full(kept_[static_cast<std::size_t>(i)]);
+      e.phid(i) = phid_full(kept_[static_cast<std::size_t>(i)]);
       e.AR.row(i) = data_.A.row(kept_[static_cast<std::size_t>(i)]);
     }
-    e.phid = e.AR * v;
     if (j >= 1) {
       std::vector<Mat> forces;
       constraint_state_jacobians(sys, data_, t, q, v, kept_,
@@ -426,7 +439,7 @@ void Transcription::constraint_values(const Vec& x, Vec& g) {
   for (Index p = 0; p < P_; ++p)
     for (const Index k : bounded_) g(row++) = eval_[static_cast<std::size_t>(p)].lin.mu(k);
   Vec phi;
-  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
+  for (std::size_t w = 0; w < waypoint_place_.size(); ++w) {
     waypoint_rows(x, w, phi, nullptr);
     g.segment(row, phi.size()) = phi;
     row += phi.size();
@@ -435,12 +448,35 @@ void Transcription::constraint_values(const Vec& x, Vec& g) {
     internal_wrench_rows(p, row, &g, nullptr);
 }
 
+// A waypoint at a knot (to 1e-9 of a step) is imposed there; between knots on its interval's
+// interpolant, at the same fraction of the interval whatever T (so T enters through h only).
+Transcription::WaypointPlace Transcription::place_waypoint(const Waypoint& w) const {
+  WaypointPlace at;
+  at.fraction = std::isnan(w.fraction) ? w.t / problem_.duration : w.fraction;
+  const double steps = at.fraction * static_cast<double>(N_), knot = std::round(steps);
+  if (std::abs(steps - knot) <= 1e-9 * static_cast<double>(N_)) {
+    at.point = knot_point(static_cast<Index>(knot));
+    return at;
+  }
+  at.interval = std::min<Index>(static_cast<Index>(std::floor(steps)), N_ - 1);
+  interpolant_coefficients(hs(), steps - static_cast<double>(at.interval), at.c);
+  return at;
+}
+
+Vec Transcription::waypoint_q(const Vec& x, std::size_t w) const {
+  const WaypointPlace& at = waypoint_place_[w];
+  if (at.point >= 0) return x.segment(q_of(at.point), n_);
+  const Index a = knot_point(at.interval), b = knot_point(at.interval + 1);
+  const double h = duration(x) / static_cast<double>(N_);
+  return at.c[0] * x.segment(q_of(a), n_) + at.c[1] * h * x.segment(v_of(a), n_) +
+         at.c[2] * x.segment(q_of(b), n_) + at.c[3] * h * x.segment(v_of(b), n_);
+}
+
 void Transcription::waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const {
   const Constraint& c = *problem_.waypoints[w].rows;
-  const Index p = waypoint_point_[w];
   ConstraintContext ctx;
-  ctx.t = point_time(x, p);
-  const auto q = x.segment(q_of(p), n_);
+  ctx.t = problem_.t0 + waypoint_place_[w].fraction * duration(x);
+  const Vec q = waypoint_q(x, w);
   phi.resize(c.rows());
   c.position_residual(ctx, q, phi);
   if (!A) return;
@@ -448,6 +484,30 @@ void Transcription::waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A)
   A->setZero(c.rows(), n_);
   Vec b(c.rows());
   c.evaluate(ctx, q, Vec::Zero(n_), *A, b);
+}
+
+// ∂Φ_w/∂x = A_w ∂q_w/∂x: at a knot its q; between knots the interpolant's coefficients of q_a,
+// v_a, q_b, v_b (times h for the velocities), and along a free T, h = T/N in the velocity terms.
+void Transcription::waypoint_jacobian(const Vec& x, std::size_t w, Index row,
+                                      JacobianSink& sink) const {
+  const WaypointPlace& at = waypoint_place_[w];
+  Vec phi;
+  Mat A;
+  waypoint_rows(x, w, phi, &A);
+  if (at.point >= 0) {
+    sink.dense(row, q_of(at.point), A);
+    return;
+  }
+  const Index a = knot_point(at.interval), b = knot_point(at.interval + 1);
+  const double h = duration(x) / static_cast<double>(N_);
+  sink.dense(row, q_of(a), at.c[0] * A);
+  sink.dense(row, v_of(a), at.c[1] * h * A);
+  if (hs()) sink.dense(row, q_of(b), at.c[2] * A);  // (the trapezoidal quadratic has no q_b)
+  sink.dense(row, v_of(b), at.c[3] * h * A);
+  if (problem_.free_duration)
+    sink.column(row, time_index(),
+                A * (at.c[1] * x.segment(v_of(a), n_) + at.c[3] * x.segment(v_of(b), n_)) /
+                    static_cast<double>(N_));
 }
 
 void Transcription::interval_jacobian(const Vec& x, Index i, double h, JacobianSink& sink) const {
@@ -550,12 +610,9 @@ void Transcription::jacobian(const Vec& x, JacobianSink& sink) {
   if (!bounded_.empty())
     for (Index p = 0; p < P_; ++p) multiplier_jacobian(p, sink);
   Index row = waypoint_rows_start_;
-  Vec phi;
-  Mat A;
-  for (std::size_t w = 0; w < waypoint_point_.size(); ++w) {
-    waypoint_rows(x, w, phi, &A);
-    sink.dense(row, q_of(waypoint_point_[w]), A);
-    row += A.rows();
+  for (std::size_t w = 0; w < waypoint_place_.size(); ++w) {
+    waypoint_jacobian(x, w, row, sink);
+    row += problem_.waypoints[w].rows->rows();
   }
   for (Index p = 0; p < P_ && wint_rows_per_point_ > 0; ++p)
     internal_wrench_rows(p, row, nullptr, &sink);
@@ -620,7 +677,7 @@ TrajectorySolution Transcription::solution(const Vec& x) {
                                                "start's (a rank change along the path)")
                                  : e.lin.message);
     }
-    if (s.knot.back()) {
+    if (s.knot.back() && r_ > 0) {  // (no rows: nothing to keep)
       s.max_position_residual = std::max(s.max_position_residual, e.phi.cwiseAbs().maxCoeff());
       s.max_velocity_residual = std::max(s.max_velocity_residual, e.phid.cwiseAbs().maxCoeff());
     }

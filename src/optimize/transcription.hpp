@@ -27,7 +27,7 @@ struct PointEval {
   Mat dQcdu;          ///< n × k: ∂Qc/∂τ B
   Mat dmudu;          ///< r × k: ∂μ/∂τ B
   Vec phi;            ///< r: Φ_R(q) (knots)
-  Vec phid;           ///< r: A_R v (knots)
+  Vec phid;           ///< r: A_R v + Φ_t (knots; Φ_t of rheonomic rows)
   Mat AR;             ///< r × n
   Mat D;              ///< r × n: ∂(A_R v)/∂q (knots)
   Mat Fq, Fv;     ///< n × n: ∂(A_Rᵀγ^q)/∂q, ∂(A_Rᵀγ^v)/∂q (knots ending an interval)
@@ -70,6 +70,14 @@ class Transcription {
   [[nodiscard]] double duration(const Vec& x) const;
 
  private:
+  /// Where a waypoint is: on a knot (point ≥ 0), or inside interval `interval` with the
+  /// interpolant's coefficients of q_a, h v_a, q_b, h v_b.
+  struct WaypointPlace {
+    Index point = -1, interval = 0;
+    double fraction = 0.0;  ///< of the duration
+    double c[4] = {0, 0, 0, 0};
+  };
+  [[nodiscard]] WaypointPlace place_waypoint(const Waypoint& w) const;
   [[nodiscard]] bool hs() const { return problem_.method == CollocationMethod::hermite_simpson; }
   [[nodiscard]] Index knot_point(Index j) const { return hs() ? 2 * j : j; }
   [[nodiscard]] double point_time(const Vec& x, Index p) const;
@@ -83,8 +91,12 @@ class Transcription {
   void internal_wrenches(const Vec& q, PointEval& e) const;
   /// The |f_int,k|², |m_int,k|² rows of point p (values into g from `row`, or the Jacobian).
   void internal_wrench_rows(Index p, Index& row, Vec* g, JacobianSink* sink) const;
-  /// Waypoint w's rows Φ_w at its knot, and (A non-null) their Jacobian ∂Φ_w/∂q = A_w.
+  /// Waypoint w's rows Φ_w at its q (a knot's, or the interpolant's between knots), and (A
+  /// non-null) their Jacobian ∂Φ_w/∂q = A_w at that q.
   void waypoint_rows(const Vec& x, std::size_t w, Vec& phi, Mat* A) const;
+  /// The waypoint's q between knots: Σ c_k z_k over z = (q_a, h v_a, q_b, h v_b) of its interval.
+  [[nodiscard]] Vec waypoint_q(const Vec& x, std::size_t w) const;
+  void waypoint_jacobian(const Vec& x, std::size_t w, Index row, JacobianSink& sink) const;
   Mat straight_line_guess(Mat& qd) const;
   void select_multiplier_rows();
 
@@ -94,7 +106,7 @@ class Transcription {
   bool constrain_end_q_ = true, constrain_end_v_ = true;
   Index interval_rows_ = 0, knot_rows_start_ = 0, envelope_rows_start_ = 0;
   Index multiplier_rows_start_ = 0, waypoint_rows_start_ = 0;
-  std::vector<Index> waypoint_point_;  ///< per waypoint: its knot's point
+  std::vector<WaypointPlace> waypoint_place_;
   Index wint_rows_start_ = 0, wint_rows_per_point_ = 0, wint_size_ = 0;
   /// Positions in kept_ of the rows with multiplier bounds, and of the rows with a weight.
   std::vector<Index> bounded_, weighted_;

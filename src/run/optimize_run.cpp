@@ -211,6 +211,29 @@ std::string tracked_coordinates(const TrajectoryProblem& p, const TrajectorySolu
   return {};
 }
 
+// The robot files a scenario names by relative path (a serial chain's `urdf:` or `mjcf:`, relative
+// to the scenario's folder: definitions_loader.cpp), made relative to the folder the replay is
+// written to (`to`), so that the replay runs from any working directory: the scenario's folder
+// `from` may have been given relative to the working directory of `ukdyn optimize`.
+void rebase_robot_files(YAML::Node doc, const std::filesystem::path& from,
+                        const std::filesystem::path& to) {
+  namespace fs = std::filesystem;
+  YAML::Node subsystems = doc["subsystems"];
+  if (!subsystems.IsSequence()) return;
+  const fs::path base = fs::weakly_canonical(fs::absolute(to));
+  for (YAML::Node s : subsystems) {
+    const YAML::Node& read = s;  // const: a missing key is not added
+    for (const char* key : {"urdf", "mjcf"}) {
+      if (!read.IsMap() || !read[key] || !read[key].IsScalar()) continue;
+      const fs::path file = read[key].Scalar();
+      if (file.is_absolute()) continue;
+      const fs::path target = fs::weakly_canonical(fs::absolute(from / file));
+      const fs::path relative = target.lexically_relative(base);
+      s[key] = (relative.empty() ? target : relative).generic_string();
+    }
+  }
+}
+
 // replay.yaml and replay_open_loop.yaml (docs/optimization.md, "Replay scenario"): the problem's
 // scenario with the optimal τ₀ + B u(t) as time functions (torque elements, splines through dense
 // samples); replay.yaml also tracks the optimal path (angle_relation rows of role servo on n − r
@@ -223,6 +246,7 @@ std::string write_replay_scenarios(const OutputDir& dir, const OptimizationFile&
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
   doc["name"] = f.name + "_replay";
+  rebase_robot_files(doc, sc.path.parent_path(), dir.path());
   // Every constraint of the problem's system is the plant's own (a `coordinate` row would default
   // to servo: docs/control.md, "Roles").
   if (YAML::Node cs = doc["constraints"]; cs.IsSequence())

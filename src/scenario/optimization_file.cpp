@@ -321,17 +321,38 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
 // (ukdyn/symbolic/frame_constraints.hpp) are p_a − p_b and ½ (X_ij − X_ji), X = R_aᵀR_b, for
 // (i, j) = (2, 1), (0, 2), (1, 0); with a_i, b_j the columns of R_a, R_b and ḃ_j = ω_b × b_j,
 // the rotation rows' rate along ω_b is ½ ω_b·(b_j × a_i − b_i × a_j), so w_b = G_bᵀλ is
-//   f_b = −λ_p (constant),  m_b = ½ Σ λ_r (b_j × a_i − b_i × a_j),
-// and along q_c (α, β the columns c of J_a's and J_b's angular rows: ȧ_i = α × a_i, ḃ_j = β × b_j)
-//   dm_b = ½ Σ λ_r ((β × b_j) × a_i + b_j × (α × a_i) − (β × b_i) × a_j − b_i × (α × a_j)).
+//   f_b = −λ_p (constant),  m_b = ½ Σ λ_r (b_j × a_i − b_i × a_j).
+// A frame's R = σ Q (Q a rotation, σ = Π |u_k|² over the quaternions u_k it hangs from, free
+// bodies' and ball joints': the homogeneous matrix |u|² Rot(u/|u|), docs/free-bodies.md) moves
+// along q_c as ∂R/∂q_c = ρ_c R + [ω_c]× R: the twist Jacobian's angular column is vee of the skew
+// part of ∂R/∂q_c Rᵀ = ρ_c σ² I + σ² [ω_c]×, so ω_c = J_ω,c / σ² (σ² = tr(R Rᵀ)/3), and the radial
+// rate is ρ_c = 2 u_c/|u|² for a coordinate of a quaternion u the frame hangs from (0 otherwise).
+// So along q_c (α = ω_a,c, β = ω_b,c: ȧ_i = α × a_i + ρ_a a_i, ḃ_j = β × b_j + ρ_b b_j)
+//   dm_b = ½ Σ λ_r ((β × b_j) × a_i + b_j × (α × a_i) − (β × b_i) × a_j − b_i × (α × a_j))
+//          + (ρ_a + ρ_b) m_b.
+// `quaternions`: the first coordinate of each quaternion (four in a row).
 void weld_wrench_derivatives(const symbolic::FrameWrench& fw, const Vec& lambda, const Mat& Ja,
-                             const Mat& Jb, Eigen::Ref<Mat> dw, Eigen::Ref<Mat> dp) {
+                             const Mat& Jb, const Vec& q, const std::vector<Index>& quaternions,
+                             Eigen::Ref<Mat> dw, Eigen::Ref<Mat> dp) {
   dp = Jb.topRows<3>();
   const Eigen::Matrix3d &Ra = fw.rotation_a, &Rb = fw.rotation_b;
+  const double sa2 = (Ra * Ra.transpose()).trace() / 3.0, sb2 = (Rb * Rb.transpose()).trace() / 3.0;
   constexpr int kPairs[3][2] = {{2, 1}, {0, 2}, {1, 0}};
+  Vec3 mb = Vec3::Zero();
+  for (int r = 0; r < 3; ++r) {
+    const int i = kPairs[r][0], j = kPairs[r][1];
+    mb += 0.5 * lambda(3 + r) * (Rb.col(j).cross(Ra.col(i)) - Rb.col(i).cross(Ra.col(j)));
+  }
+  Vec rho_a = Vec::Zero(q.size()), rho_b = Vec::Zero(q.size());
+  for (const Index g : quaternions) {  // a frame hangs from u when its columns move it
+    const double u2 = q.segment<4>(g).squaredNorm();
+    for (auto [J, rho] : {std::pair{&Ja, &rho_a}, {&Jb, &rho_b}})
+      if (J->middleCols<4>(g).cwiseAbs().maxCoeff() > 0.0)
+        rho->segment<4>(g) = 2.0 * q.segment<4>(g) / u2;
+  }
   for (Index c = 0; c < Ja.cols(); ++c) {
-    const Vec3 alpha = Ja.block<3, 1>(3, c), beta = Jb.block<3, 1>(3, c);
-    Vec3 dm = Vec3::Zero();
+    const Vec3 alpha = Ja.block<3, 1>(3, c) / sa2, beta = Jb.block<3, 1>(3, c) / sb2;
+    Vec3 dm = (rho_a(c) + rho_b(c)) * mb;
     for (int r = 0; r < 3; ++r) {
       const int i = kPairs[r][0], j = kPairs[r][1];
       const Vec3 ai = Ra.col(i), aj = Ra.col(j), bi = Rb.col(i), bj = Rb.col(j);
@@ -345,10 +366,9 @@ void weld_wrench_derivatives(const symbolic::FrameWrench& fw, const Vec& lambda,
 
 // The coordinates along which a grasp frame's rotation leaves the rotations: the homogeneous
 // quaternion matrix R(u) = |u|² Rot(u/|u|) of a free body's or a ball joint's quaternion u
-// (ukdyn/symbolic/free_body.hpp) has the radial derivative 2 u_c R, which the twist Jacobian's
-// ω = vee(∂R/∂q Rᵀ) leaves out, so weld_wrench_derivatives() does not hold along them. Found at q
-// by a step of 1e-2 in each coordinate: R Rᵀ stays I to rounding (≈ 1e-15) for a rotation, and
-// moves by ≥ 1e-4 for a quaternion's coordinate (2 h u_c + h²).
+// (ukdyn/symbolic/free_body.hpp) has the radial derivative 2 u_c R. Found at q by a step of 1e-2
+// in each coordinate: R Rᵀ stays I to rounding (≈ 1e-15) for a rotation, and moves by ≥ 1e-4 for
+// a quaternion's coordinate (2 h u_c + h²).
 std::vector<Index> scaling_coordinates(
     const Vec& q, const std::function<std::vector<Eigen::Matrix3d>(CVecRef)>& rotations) {
   std::vector<Index> out;
@@ -363,6 +383,26 @@ std::vector<Index> scaling_coordinates(
     at(c) = q(c);
   }
   return out;
+}
+
+// The quaternions among the scaling coordinates: runs of four in a row starting at a coordinate
+// named *_qw (free bodies, ball and floating joints name them NAME_qw .. NAME_qz); the first
+// coordinate of each into `quaternions`, and what is left (no such run) into `other`.
+void quaternion_groups(const std::vector<Index>& scaled, const std::vector<std::string>& names,
+                       std::vector<Index>& quaternions, std::vector<Index>& other) {
+  auto has = [&](Index c) { return std::find(scaled.begin(), scaled.end(), c) != scaled.end(); };
+  for (std::size_t k = 0; k < scaled.size(); ++k) {
+    const Index c = scaled[k];
+    const std::string& n = names[static_cast<std::size_t>(c)];
+    const bool start = n.size() >= 3 && n.compare(n.size() - 3, 3, "_qw") == 0 && has(c + 1) &&
+                       has(c + 2) && has(c + 3);
+    if (start) {
+      quaternions.push_back(c);
+      k += 3;
+    } else {
+      other.push_back(c);
+    }
+  }
 }
 
 // `bounds: internal_wrench: {load: BODY.FRAME, force: F, torque: M}`: the welds whose frame b is
@@ -397,10 +437,23 @@ void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
                    " weld(s) (frame b): an internal wrench needs two or more");
   b.grasps = static_cast<Index>(grasps.size());
   for (const auto& g : grasps) b.grasp_names.push_back(g.map->name());
+  const std::vector<Index> scaled = scaling_coordinates(sc.q0, [&](CVecRef q) {
+    std::vector<Eigen::Matrix3d> R;
+    for (const auto& g : grasps) {
+      const symbolic::FrameWrench fw = g.map->evaluate(q, Vec::Zero(g.map->rows()));
+      R.push_back(fw.rotation_a);
+      R.push_back(fw.rotation_b);
+    }
+    return R;
+  });
+  // The quaternions' columns exact (weld_wrench_derivatives()); any other scaling coordinate by
+  // central differences.
+  auto quaternions = std::make_shared<std::vector<Index>>();
+  quaternion_groups(scaled, sys.coordinate_names(), *quaternions, b.differenced);
   // The grasps' wrenches w and points at (q, λ); with dw, dp non-null also their derivatives along
   // q at fixed λ (weld_wrench_derivatives()).
-  auto grasp_wrenches = [grasps](CVecRef q, CVecRef lambda, Vec& w, std::vector<Vec3>& points,
-                                 Mat* dw, Mat* dp) {
+  auto grasp_wrenches = [grasps, quaternions](CVecRef q, CVecRef lambda, Vec& w,
+                                              std::vector<Vec3>& points, Mat* dw, Mat* dp) {
     const Vec qv = q;
     const auto N = static_cast<Index>(grasps.size());
     w.resize(6 * N);
@@ -416,7 +469,8 @@ void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
       points.push_back(fw.position_b);
       if (!dw) continue;
       g.map->jacobians(qv, Ja, Jb);
-      weld_wrench_derivatives(fw, lk, Ja, Jb, dw->middleRows<6>(6 * k), dp->middleRows<3>(3 * k));
+      weld_wrench_derivatives(fw, lk, Ja, Jb, qv, *quaternions, dw->middleRows<6>(6 * k),
+                              dp->middleRows<3>(3 * k));
     }
   };
   b.walker = [grasp_wrenches](CVecRef q, CVecRef lambda, VecRef out) {
@@ -425,18 +479,8 @@ void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
     grasp_wrenches(q, lambda, w, points, nullptr, nullptr);
     out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
   };
-  const std::vector<Index> scaled = scaling_coordinates(sc.q0, [&](CVecRef q) {
-    std::vector<Eigen::Matrix3d> R;
-    for (const auto& g : grasps) {
-      const symbolic::FrameWrench fw = g.map->evaluate(q, Vec::Zero(g.map->rows()));
-      R.push_back(fw.rotation_a);
-      R.push_back(fw.rotation_b);
-    }
-    return R;
-  });
-  b.differenced = scaled;
-  b.walker_dq = [grasp_wrenches, walker = b.walker, scaled](CVecRef q, CVecRef lambda, VecRef out,
-                                                            Mat& dout) {
+  b.walker_dq = [grasp_wrenches, walker = b.walker, differenced = b.differenced](
+                    CVecRef q, CVecRef lambda, VecRef out, Mat& dout) {
     Vec w;
     std::vector<Vec3> points;
     Mat dw, dp;
@@ -444,7 +488,7 @@ void internal_wrench_bound(const Loader& L, const Node& n, const Scenario& sc,
     out = internal_wrench_walker(grasp_matrix(points, points.front()), w);
     dout = internal_wrench_walker_derivative(points, w, dp, dw);
     Vec qp = q, qm = q, wp(out.size()), wm(out.size());
-    for (const Index c : scaled) {  // central differences (scaling_coordinates())
+    for (const Index c : differenced) {  // central differences (quaternion_groups())
       const double h = 1e-6 * (1.0 + std::abs(q(c)));
       qp(c) = q(c) + h;
       qm(c) = q(c) - h;
@@ -523,18 +567,25 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
   YAML::Node doc =
       YAML::Clone(io_detail::parse_scenario_yaml(read_scenario_text(sc.path), sc.path));
   const std::size_t first = doc["constraints"].IsSequence() ? doc["constraints"].size() : 0;
-  std::vector<std::pair<std::string, double>> named;
+  std::vector<Waypoint> named;  // (their rows once the scenario is loaded with them)
   for (std::size_t i = 0; i < wn.node.size(); ++i) {
     const Node item{wn.node[i], wn.key + "[" + std::to_string(i) + "]"};
-    L.only_keys(item, {"name", "frame", "t", "position", "orientation"});
+    L.only_keys(item, {"name", "frame", "t", "fraction", "position", "orientation"});
     const Node nn = L.child(item, "name", false);
     const std::string name = nn.node.IsDefined() ? L.name(nn) : "waypoint" + std::to_string(i + 1);
-    for (const auto& [other, t_other] : named)
-      if (other == name) L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
+    for (const auto& other : named)
+      if (other.name == name)
+        L.fail(nn.node.IsDefined() ? nn : item, "waypoint '" + name + "' twice");
     const Node frame = L.child(item, "frame", true);
     if (!frame.node.IsScalar() && !frame.node.IsMap())
       L.fail(frame, "expected SUBSYSTEM.FRAME or {frame: SUBSYSTEM.FRAME, xyz: [..], rpy: [..]}");
-    const double t = L.number(L.child(item, "t", true));
+    // Its time: t from the start, or a fraction of the duration (which a free duration needs).
+    const Node tn = L.child(item, "t", false), fn = L.child(item, "fraction", false);
+    if (tn.node.IsDefined() == fn.node.IsDefined())
+      L.fail(item, "expected one of t (from the start) or fraction (of the duration)");
+    const double t = tn.node.IsDefined() ? L.number(tn) : 0.0;
+    const double fraction =
+        fn.node.IsDefined() ? L.number(fn) : std::numeric_limits<double>::quiet_NaN();
     const Vec x = L.vector(L.child(item, "position", true), 3);
     const Node on = L.child(item, "orientation", false);
     YAML::Node c, b, xyz, rpy;
@@ -551,7 +602,7 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     }
     c["b"] = b;
     doc["constraints"].push_back(c);
-    named.emplace_back(name, t);
+    named.push_back({name, nullptr, t, fraction});
   }
   YAML::Emitter out;
   out << doc;
@@ -565,15 +616,14 @@ void waypoints(const Loader& L, const Node& root, const Scenario& sc, Trajectory
     // name, reported at that waypoint's key of the problem file.
     waypoint_error(L, wn, first, e.what());
   }
-  for (std::size_t i = 0; i < named.size(); ++i) {
+  for (Waypoint& w : named) {
     // A waypoint's rows are NAME_x, NAME_y, NAME_z (then NAME_rx.. for an orientation), and row
     // names are unique: the first row names it (a prefix would also match waypoint NAME_b's).
-    const std::string row = named[i].first + "_x";
-    std::shared_ptr<const Constraint> rows;
+    const std::string row = w.name + "_x";
     for (const auto& c : with->constraints())
-      if (c->rows() > 0 && c->row_names().front() == row) rows = c;
-    if (!rows) L.fail(wn, "waypoint '" + named[i].first + "': its rows were not built");
-    p.waypoints.push_back({named[i].first, rows, named[i].second});
+      if (c->rows() > 0 && c->row_names().front() == row) w.rows = c;
+    if (!w.rows) L.fail(wn, "waypoint '" + w.name + "': its rows were not built");
+    p.waypoints.push_back(std::move(w));
   }
 }
 
@@ -675,6 +725,8 @@ OptimizationFile load_optimization_text(const std::string& text,
     const bool at_end = m.find("the end ") != std::string::npos;
     const bool at_bounds = m.find("outside its bounds") != std::string::npos;
     if (m.find("waypoint '") != std::string::npos) L.fail(L.child(root, "waypoints", true), m);
+    if (m.find("the duration is free") != std::string::npos)
+      L.fail(L.child(root, "duration", true), m);
     L.fail(at_end ? end : at_bounds ? L.child(root, "bounds", true) : sn, m);
   }
   return f;

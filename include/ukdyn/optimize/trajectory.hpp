@@ -6,7 +6,7 @@
 // manifold corrections γ^q, γ^v (r each, r = the independent constraint rows R); optionally the
 // duration T. The dynamics at a point is the U-K acceleration a_p = q̈(q_p, v_p, τ₀ + B u_p), which
 // keeps the constraints at acceleration level, A a = b; the position and velocity levels,
-// Φ_R(q_j) = 0 and A_R(q_j) v_j = 0, are imposed at every knot j. Because a collocation step does
+// Φ_R(q_j, t_j) = 0 and A_R(q_j) v_j + Φ_t,R = 0 (Φ_t: rheonomic rows), at every knot j. Because a collocation step does
 // not stay on the manifold, these conditions and the defects together are over-determined; the
 // corrections γ make the system square again (Posa, Kuindersma & Tedrake, "Optimization and
 // stabilization of trajectories for constrained dynamical systems", ICRA 2016, Eq. (11)–(14)):
@@ -59,15 +59,20 @@ struct TrajectoryCosts {
   double duration = 0.0;  ///< weight of T (free duration only)
 };
 
-/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at the knot at
-/// time t (from t0; it must fall on a knot, the duration fixed). A frame (a chain's link or point,
-/// a definitions body, a free body) through a given position is a ball constraint between the
-/// frame and a world frame at that position; with an orientation too, a weld
-/// (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A.
+/// A waypoint: the position-level rows Φ_w(q) = 0 of a holonomic constraint, imposed at time t
+/// (from t0, fixed duration) or at the fraction `fraction` of the duration (fixed or free; when
+/// finite it is used, else t). On a knot the rows hold at the knot's q; between knots at the
+/// method's own state interpolant on that interval (Hermite–Simpson: the cubic Hermite through
+/// q_a, v_a, q_b, v_b; trapezoidal: the quadratic q_a + v_a s + (v_b − v_a) s²/(2h)). A frame (a
+/// chain's link or point, a definitions body, a free body) through a given position is a ball
+/// constraint between the frame and a world frame at that position; with an orientation too, a
+/// weld (ukdyn/scenario/optimization_file.hpp builds them). Its Jacobian is the constraint's own A
+/// times the interpolant's coefficients.
 struct Waypoint {
   std::string name;
   std::shared_ptr<const Constraint> rows;
   double t = 0.0;
+  double fraction = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// A bound on the internal (squeeze) wrench of a load held by two or more welds, by [Walker1991]'s
@@ -75,15 +80,17 @@ struct Waypoint {
 /// per grasp k, |f_int,k|² ≤ max_force² and |m_int,k|² ≤ max_torque² at every point (+inf:
 /// none). `walker` gives w_int (6 grasps: [f; m] per grasp, world axes, moment about the grasp) at
 /// q and the multipliers λ of every constraint row (m), linear in λ (∂w_int/∂λ is taken exactly
-/// by unit λ); `walker_dq` gives w_int and its ∂w_int/∂q at fixed λ (6 grasps × n): exact, but
-/// for the columns of quaternion coordinates (central differences, docs/optimization.md).
+/// by unit λ); `walker_dq` gives w_int and its ∂w_int/∂q at fixed λ (6 grasps × n): exact, also
+/// along quaternion coordinates (docs/optimization.md), but for the `differenced` columns.
 struct InternalWrenchBound {
   std::string load;
   Index grasps = 0;
   std::vector<std::string> grasp_names;  ///< the welds' names (the CSV's Wint_walker_<name>_*)
   std::function<void(CVecRef q, CVecRef lambda, VecRef w_int)> walker;
   std::function<void(CVecRef q, CVecRef lambda, VecRef w_int, Mat& dw_int_dq)> walker_dq;
-  std::vector<Index> differenced;  ///< the columns of walker_dq by central differences
+  /// the columns of walker_dq by central differences: coordinates that scale a grasp frame's
+  /// rotation other than a quaternion's (none in the shipped problems)
+  std::vector<Index> differenced;
   double max_force = std::numeric_limits<double>::infinity();
   double max_torque = std::numeric_limits<double>::infinity();
 };
@@ -149,7 +156,7 @@ struct TrajectorySolution {
   double max_correction = 0.0;         ///< max |γ| (the manifold corrections, → 0 as h → 0)
   /// max over intervals of |A_Rᵀγ| / |step| (position and velocity): > 0.1 is not trusted
   double max_correction_ratio = 0.0;
-  /// max |Φ_w| over the waypoints (at their knots; 0 without waypoints)
+  /// max |Φ_w| over the waypoints (at their times; 0 without waypoints)
   double max_waypoint_residual = 0.0;
   std::vector<Index> kept_rows;  ///< R
   std::string status;            ///< IPOPT's return status, e.g. "Solve_Succeeded"
