@@ -763,9 +763,26 @@ void theta_of(const std::vector<std::vector<Term>>& T, const std::vector<double>
   }
 }
 
+// True if T is the identity: one variable per coordinate, variable i being coordinate i with
+// coefficient 1 (an arm whose joints each have a coordinate of their own, in order). Then
+// Tᵀ X T = X and Tᵀ x = x: copies.
+bool identity_map(const std::vector<std::vector<Term>>& T, Index coordinates) {
+  if (static_cast<Index>(T.size()) != coordinates) return false;
+  for (std::size_t i = 0; i < T.size(); ++i) {
+    if (T[i].size() != 1 || T[i][0].coordinate != static_cast<Index>(i) ||
+        T[i][0].coefficient != 1.0)
+      return false;
+  }
+  return true;
+}
+
 // M_q = Tᵀ M_θ T.
 void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, MatRef M) {
   const auto nt = static_cast<Index>(T.size());
+  if (identity_map(T, M.rows())) {
+    M = Eigen::Map<const Mat>(Mt, nt, nt);
+    return;
+  }
   M.setZero();
   for (Index i = 0; i < nt; ++i) {
     for (Index j = 0; j < nt; ++j) {
@@ -781,6 +798,10 @@ void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, M
 
 // x_q = Tᵀ x_θ.
 void to_coordinates(const std::vector<std::vector<Term>>& T, const double* x, VecRef out) {
+  if (identity_map(T, out.size())) {
+    out = Eigen::Map<const Vec>(x, out.size());
+    return;
+  }
   out.setZero();
   for (std::size_t i = 0; i < T.size(); ++i) {
     for (const Term& a : T[i]) out(a.coordinate) += a.coefficient * x[i];
