@@ -314,6 +314,52 @@ void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowV
   }
 }
 
+// An end's state for evaluate(): a tree end by frame_twists (its columns as twists (v, ω, s),
+// 7 per coordinate, in `twists`; the link placements its subsystem's dynamics() left in its slot
+// reused when they are of this state), any other end by end_state (dp, dR).
+void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, double* scratch,
+                FrameState& s, double* twists) {
+  const NumericFrameEnd& spec = e.spec;
+  if (spec.kind != NumericFrameEnd::Kind::tree) {
+    end_state(e, q, qd, scratch, s);
+    return;
+  }
+  const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
+  spec.tree->frame_twists(q.segment(c0, n), qd.segment(c0, n), spec.link, spec.offset_R,
+                          spec.offset_p, slots.subsystem(c0),
+                          Slot(scratch, static_cast<std::size_t>(e.scratch)), s, twists);
+}
+
+// A(:, cols) += G t_c over a tree end's twist columns t_c = (v, ω, s): with ∂p = v and
+// ∂R = ([ω]× + s) R, D ∂x = D_p v + Σ_c D_R(:, c) · (ω × R_c + s R_c), so G = [D_p, Σ_c R_c × d_c,
+// Σ_c R_c · d_c] per row (d_c: the row's ∂Φ/∂R(:, c), R_c: R's column c).
+void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, const double* twists,
+                       const RowValues<double>& r, int p0, int r0, MatRef A) {
+  Eigen::Matrix<double, kMaxRows, 7> G;
+  for (int i = 0; i < r.m; ++i) {
+    Eigen::Vector3d w = Eigen::Vector3d::Zero();
+    double sc = 0.0;
+    for (int c = 0; c < 3; ++c) {
+      const Eigen::Vector3d d(r.D(i, r0 + c), r.D(i, r0 + 3 + c), r.D(i, r0 + 6 + c));
+      w += s.R.col(c).cross(d);
+      sc += s.R.col(c).dot(d);
+    }
+    for (int k = 0; k < 3; ++k) {
+      G(i, k) = r.D(i, p0 + k);
+      G(i, 3 + k) = w(k);
+    }
+    G(i, 6) = sc;
+  }
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const double* t = twists + 7 * c;
+    for (int i = 0; i < r.m; ++i) {
+      double v = 0.0;
+      for (int k = 0; k < 7; ++k) v += G(i, k) * t[k];
+      A(i, cols[c]) += v;
+    }
+  }
+}
+
 // ---------------------------------------------------------------- derivatives (dual numbers)
 
 // One tangent direction: value and directional derivative (tree/dual.hpp).
@@ -476,6 +522,20 @@ void add_force_tangent(const FrameState& v, const FrameState& t, const std::vect
   }
 }
 
+// A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree end,
+// dp and dR of any other.
+void add_end_columns(const End& e, const FrameState& s, const double* twists,
+                     const RowValues<double>& r, int p0, int r0, MatRef A) {
+  if (e.spec.kind == NumericFrameEnd::Kind::tree) {
+    add_twist_columns(s, e.cols, twists, r, p0, r0, A);
+  } else {
+    add_columns(s, e.cols, r, p0, r0, A);
+  }
+}
+
+// ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
+Eigen::Matrix<double, 24, 1> rates(const FrameState& a, const FrameState& b, bool second);
+
 // What the constraint and its wrench map share: the spec, the two ends and the slot layout.
 class Core {
  public:
@@ -518,12 +578,30 @@ class Core {
     f(A, B, r);
   }
 
-  // A = D ∂x/∂q over the ends' columns (rows of A zeroed first).
-  void jacobian(const FrameState& a, const FrameState& b, const RowValues<double>& r,
-                MatRef A) const {
+  // A and b at (q, q̇) as forward() asks for them: a tree end through its twist columns
+  // (end_twists, add_twist_columns), in the same slot layout as with() (a tree end's 7 twist
+  // doubles per column where with() keeps its 12 of dp, dR).
+  void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+    std::vector<double> own;
+    double* base = slots.own().data();
+    if (static_cast<Index>(slots.own().size()) < slot_size()) {
+      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+      base = own.data();
+    }
+    const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
+    double* sa = base;
+    double* sb = sa + a_.scratch;
+    double* da = sb + b_.scratch;
+    double* db = da + 12 * na;
+    FrameState Sa(da, da + 3 * na, na), Sb(db, db + 3 * nb, nb);
+    end_twists(a_, slots, q, qd, sa, Sa, da);
+    end_twists(b_, slots, q, qd, sb, Sb, db);
+    RowValues<double> r;
+    row_values(f_, Sa, Sb, r);
     zero_rows(A);
-    add_columns(a, a_.cols, r, kPa, kRa, A);
-    add_columns(b, b_.cols, r, kPb, kRb, A);
+    add_end_columns(a_, Sa, da, r, kPa, kRa, A);
+    add_end_columns(b_, Sb, db, r, kPb, kRb, A);
+    b = -(r.D.topRows(r.m) * rates(Sa, Sb, true) + r.Q.head(r.m));
   }
 
   // d(A q̈ − b) and d(Aᵀλ) along (dq, dq̇) at fixed q̈, λ: the rows on dual numbers, with
@@ -614,11 +692,7 @@ class NumericFrameRows final : public Constraint {
   }
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override {
-    core_->with(q, qd, ctx.slots.own(),
-                [&](const FrameState& sa, const FrameState& sb, const RowValues<double>& r) {
-                  core_->jacobian(sa, sb, r, A);
-                  b = -(r.D.topRows(r.m) * rates(sa, sb, true) + r.Q.head(r.m));
-                });
+    core_->evaluate(ctx.slots, q, qd, A, b);
   }
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
     // The rates are not used: q stands in for q̇.

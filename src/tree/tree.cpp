@@ -8,8 +8,10 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <new>
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
@@ -518,29 +520,65 @@ void validate(const Model& model) {
 
 namespace {
 
-// The workspace in a slot of doubles: the link states, then θ, θ̇, M_θ (nt × nt) and τ_θ.
+// The workspace in a slot of doubles: the link states, then θ, θ̇, τ_θ, M_θ (nt × nt) and the
+// key of the link states (key[0]: the subsystem's tag, key[1]: 1 when the links were placed and
+// moved at θ, θ̇ — place, then link_motion at θ̈ = 0 and a_0 = 0 — by that subsystem). Every
+// mapping clears key[1]; only a completed pass sets it (mark_moved), so a later call on the slot
+// (mass() at another q, say) never leaves stale motions marked as current.
 struct Workspace {
   LinkState<double>* links;
   double* theta;
   double* thetad;
   double* Mt;
   double* tau;
+  double* key;
 };
 
-Index workspace_doubles(std::size_t links, Index nt) {
-  return static_cast<Index>(links) * kLinkDoubles + 3 * nt + nt * nt;
-}
+Index theta_offset(std::size_t links) { return static_cast<Index>(links) * kLinkDoubles; }
+Index key_offset(std::size_t links, Index nt) { return theta_offset(links) + 3 * nt + nt * nt; }
+Index workspace_doubles(std::size_t links, Index nt) { return key_offset(links, nt) + 2; }
 
 Workspace map_workspace(double* data, std::size_t links, Index nt) {
   Workspace w{};
   w.links = reinterpret_cast<LinkState<double>*>(data);
   for (std::size_t i = 0; i < links; ++i) new (&w.links[i]) LinkState<double>;
-  double* rest = data + static_cast<Index>(links) * kLinkDoubles;
+  double* rest = data + theta_offset(links);
   w.theta = rest;
   w.thetad = rest + nt;
   w.tau = rest + 2 * nt;
   w.Mt = rest + 3 * nt;
+  w.key = data + key_offset(links, nt);
+  w.key[1] = 0.0;
   return w;
+}
+
+// A subsystem's tag in a key: the bits of its address (models are constant and outlive the
+// ForwardData whose slots hold the key).
+static_assert(sizeof(std::uintptr_t) == sizeof(double));
+double owner_tag(const void* owner) {
+  return std::bit_cast<double>(reinterpret_cast<std::uintptr_t>(owner));
+}
+
+void mark_moved(const Workspace& w, const void* owner) {
+  w.key[0] = owner_tag(owner);
+  w.key[1] = 1.0;
+}
+
+// The link states of `placed` (a slot of `size` doubles holding a workspace) if `owner` placed
+// and moved them at exactly these joint variables (bitwise: the same θ gives the same states),
+// else null.
+const LinkState<double>* placed_links(ConstSlot placed, Index size, std::size_t links, Index nt,
+                                      const void* owner, const double* theta,
+                                      const double* thetad) {
+  if (static_cast<Index>(placed.size()) != size) return nullptr;
+  const double* key = placed.data() + key_offset(links, nt);
+  const double tag = owner_tag(owner);
+  if (key[1] != 1.0 || std::memcmp(key, &tag, sizeof(double)) != 0) return nullptr;
+  const double* th = placed.data() + theta_offset(links);
+  const auto bytes = static_cast<std::size_t>(nt) * sizeof(double);
+  if (std::memcmp(th, theta, bytes) != 0 || std::memcmp(th + nt, thetad, bytes) != 0)
+    return nullptr;
+  return reinterpret_cast<const LinkState<double>*>(placed.data());
 }
 
 }  // namespace
@@ -725,9 +763,26 @@ void theta_of(const std::vector<std::vector<Term>>& T, const std::vector<double>
   }
 }
 
+// True if T is the identity: one variable per coordinate, variable i being coordinate i with
+// coefficient 1 (an arm whose joints each have a coordinate of their own, in order). Then
+// Tᵀ X T = X and Tᵀ x = x: copies.
+bool identity_map(const std::vector<std::vector<Term>>& T, Index coordinates) {
+  if (static_cast<Index>(T.size()) != coordinates) return false;
+  for (std::size_t i = 0; i < T.size(); ++i) {
+    if (T[i].size() != 1 || T[i][0].coordinate != static_cast<Index>(i) ||
+        T[i][0].coefficient != 1.0)
+      return false;
+  }
+  return true;
+}
+
 // M_q = Tᵀ M_θ T.
 void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, MatRef M) {
   const auto nt = static_cast<Index>(T.size());
+  if (identity_map(T, M.rows())) {
+    M = Eigen::Map<const Mat>(Mt, nt, nt);
+    return;
+  }
   M.setZero();
   for (Index i = 0; i < nt; ++i) {
     for (Index j = 0; j < nt; ++j) {
@@ -743,6 +798,10 @@ void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, M
 
 // x_q = Tᵀ x_θ.
 void to_coordinates(const std::vector<std::vector<Term>>& T, const double* x, VecRef out) {
+  if (identity_map(T, out.size())) {
+    out = Eigen::Map<const Vec>(x, out.size());
+    return;
+  }
   out.setZero();
   for (std::size_t i = 0; i < T.size(); ++i) {
     for (const Term& a : T[i]) out(a.coordinate) += a.coefficient * x[i];
@@ -806,6 +865,7 @@ double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatR
     to_coordinates(theta_terms_, w.tau, G);
     inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false, w.links,
                              w.tau);
+    mark_moved(w, this);  // the velocity products' pass: the motions frame_twists reuses
     to_coordinates(theta_terms_, w.tau, Cqd);
   });
   return 0.0;
@@ -1017,34 +1077,95 @@ void frame_columns(const Model& m, const std::vector<int>& ti, const LinkState<S
   }
 }
 
+// A frame (R_offset, x_offset) of link `frame_link` of the model as given, on the merged tree: its
+// link there, the offset composed with the link's placement.
+struct MergedFrame {
+  int link = -1;
+  Eigen::Matrix3d R;
+  Eigen::Vector3d x;
+};
+
+MergedFrame merged_frame(const std::vector<TreeSubsystem::Placement>& placement, int frame_link,
+                         const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset) {
+  if (frame_link < 0) return {-1, R_offset, x_offset};
+  const TreeSubsystem::Placement& at = placement[static_cast<std::size_t>(frame_link)];
+  return {at.link, at.R * R_offset, at.p + at.R * x_offset};
+}
+
+void copy_motion(const FrameMotion<double>& f, FrameState& out) {
+  out.p = f.p;
+  out.R = f.R;
+  out.pd = f.pd;
+  out.pdd = f.pdd;
+  out.Rd = f.Rd;
+  out.Rdd = f.Rdd;
+}
+
+// The frame's columns as twists (v, ω, s) per coordinate (7 × cols, column-major, zeroed first):
+// joint variable k above the link moves the frame at p by v = s_v + s_w × p + s_l p, ω = s_w,
+// s = s_l (frame_columns' ∂p/∂θ_k and ∂R/∂θ_k = ([s_w]× + s_l) R), through θ = T q + c.
+void twist_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
+                   int link, const Eigen::Vector3d& p, Index cols, double* twists) {
+  std::fill_n(twists, 7 * cols, 0.0);
+  for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+    const auto ju = static_cast<std::size_t>(j);
+    if (ti[ju] < 0) continue;
+    const Link& L = m.links[ju];
+    const LinkState<double>& w = ws[ju];
+    for (int k = 0; k < variables(L.type); ++k) {
+      const Eigen::Vector3d v = w.sv[k] + w.sw[k].cross(p) + p * w.sl[k];
+      const auto [first, last] = variable_terms(L, k);
+      for (const Term* t = first; t != last; ++t) {
+        double* c = twists + 7 * t->coordinate;
+        for (int r = 0; r < 3; ++r) {
+          c[r] += t->coefficient * v(r);
+          c[3 + r] += t->coefficient * w.sw[k](r);
+        }
+        c[6] += t->coefficient * w.sl[k];
+      }
+    }
+  }
+}
+
 }  // namespace
+
+void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
+                                 const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
+                                 ConstSlot placed, Slot scratch, FrameState& out,
+                                 double* twists) const {
+  const MergedFrame at = merged_frame(placement_, frame_link, R_offset, x_offset);
+  const std::size_t nl = merged_.links.size();
+  with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
+    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    const LinkState<double>* links =
+        placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
+    if (!links) {  // not placed at this state: the pass of frame_state
+      place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
+                          Eigen::Vector3d::Zero(), w.links);
+      mark_moved(w, this);
+      links = w.links;
+    }
+    const FrameMotion<double> f = frame_motion(merged_, links, at.link, at.R, at.x);
+    copy_motion(f, out);
+    twist_columns(merged_, theta_index_, links, at.link, f.p, dof(), twists);
+  });
+}
 
 void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
                                 const Eigen::Matrix3d& frame_R_offset,
                                 const Eigen::Vector3d& frame_x_offset, Slot scratch,
                                 FrameState& out) const {
-  // The frame on the merged tree: its link there, the offset composed with the link's placement.
-  int link = -1;
-  Eigen::Matrix3d R_offset = frame_R_offset;
-  Eigen::Vector3d x_offset = frame_x_offset;
-  if (frame_link >= 0) {
-    const Placement& at = placement_[static_cast<std::size_t>(frame_link)];
-    link = at.link;
-    R_offset = at.R * frame_R_offset;
-    x_offset = at.p + at.R * frame_x_offset;
-  }
+  const MergedFrame at = merged_frame(placement_, frame_link, frame_R_offset, frame_x_offset);
+  const int link = at.link;
   with_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
     theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
     place(merged_, theta_index_, quaternions_, w.theta, w.links);
     link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
                         Eigen::Vector3d::Zero(), w.links);
-    const FrameMotion<double> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
-    out.p = f.p;
-    out.R = f.R;
-    out.pd = f.pd;
-    out.pdd = f.pdd;
-    out.Rd = f.Rd;
-    out.Rdd = f.Rdd;
+    mark_moved(w, this);
+    const FrameMotion<double> f = frame_motion(merged_, w.links, link, at.R, at.x);
+    copy_motion(f, out);
     out.dp.setZero();
     out.dR.setZero();
     frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,

@@ -154,6 +154,16 @@ class TreeSubsystem : public Subsystem {
   void frame_state_tangent(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef dq, CVecRef dqd, int link,
                            const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
                            Slot scratch, FrameState& value, FrameState& tangent) const;
+  /// frame_state's p, R, their rates and accelerations at q̈ = 0 in `out` (out.dp, out.dR are
+  /// not written), and its columns as twists, 7 × dof column-major in `twists`: column j is
+  /// (v_j, ω_j, s_j) with ∂p/∂q_j = v_j and ∂R/∂q_j = ([ω_j]× + s_j) R (s_j ≠ 0 only below a ball
+  /// joint, off |u| = 1). `placed`: this subsystem's data slot as dynamics() left it; its link
+  /// placements and motions are reused when they were computed at the same (q, q̇) (the slot keeps
+  /// the joint variables they belong to), otherwise the pass is run again in `scratch`
+  /// (slot_size() doubles; none: a buffer of its own). Same values either way.
+  void frame_twists(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
+                    const Eigen::Vector3d& x_offset, ConstSlot placed, Slot scratch,
+                    FrameState& out, double* twists) const;
   /// Number of joint variables θ (one per revolute or prismatic joint, four per ball joint, seven
   /// per floating joint).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
