@@ -151,6 +151,8 @@ TEST(DriftArrow, BaumgarteRightHandSideAgreesWithTheDenseOne) {
       worst = std::max(worst, rel_diff(va, vd));
     }
     EXPECT_LE(worst, 1e-12);
+    ::testing::Test::RecordProperty("worst_rel_" + std::to_string(robots),
+                                    ::testing::PrintToString(worst));
   }
 }
 
