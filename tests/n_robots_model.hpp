@@ -44,6 +44,7 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
   namespace sym = ukdyn::symbolic;
   const double l[3] = {0.5, 0.4, 0.3}, m[3] = {2.0, 1.5, 1.0};
   auto system = std::make_shared<ukdyn::System>();
+  sym::TapePool tapes;  // the arms share their tapes, as the instances of a scenario do
   std::vector<std::string> all;
   const int arms = o.robots + (o.free_robot ? 1 : 0);
   std::vector<int> links(static_cast<std::size_t>(arms), 3);
@@ -75,7 +76,7 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
       az += "+" + n_robots_num(l[i]) + "*" + s;
     }
     d.gravity = {0, 0, -9.81};
-    system->add_subsystem(sym::make_subsystem(d));
+    system->add_subsystem(sym::make_subsystem(d, sym::Deadline(), &tapes));
     tip_x.push_back(ax);
     tip_z.push_back(az);
     all.insert(all.end(), q.begin(), q.end());

@@ -20,6 +20,7 @@
 #include "ukdyn/core/force_split.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/simulate/drift.hpp"
 #include "ukdyn/simulate/simulate.hpp"
 #include "ukdyn/symbolic/chain_tree.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
@@ -344,6 +345,50 @@ TEST(NoAlloc, ArrowForwardAllocatesNothing) {
                         << ")";
     EXPECT_TRUE(data.used_arrow);
     EXPECT_EQ(data.result.rank, 2 * robots + 1);
+    // The drift projection's solves take the same path (src/simulate/drift.cpp).
+    const ukdyn::DriftSettings ds;
+    const ukdyn::UkSettings uk;
+    ukdyn::detail::Projector projector(*sys, ds, uk);
+    std::vector<double> x(q.data(), q.data() + n);
+    x.insert(x.end(), qd.data(), qd.data() + n);
+    long iterations = 0;
+    const long in_projection =
+        allocations_in([&] { projector.project(0.0, x.data(), iterations); });
+    EXPECT_EQ(in_projection, 0) << "the arrow projection allocated (N = " << robots << ")";
+    EXPECT_GT(iterations, 0);
+    EXPECT_TRUE(projector.data.used_arrow);
+  }
+}
+
+// C(q, q̇) of every subsystem into its block of the system's C, with the subsystem's slot of a
+// ForwardData as scratch: the derived arms (tapes; their C a block of a larger matrix) and the
+// paper's closed-form arms.
+TEST(NoAlloc, CoriolisInTheDataSlotAllocatesNothing) {
+  uktest::NRobotsOptions o;
+  o.robots = 4;
+  const auto arms = uktest::n_robots_system(o);
+  PaperSystem paper(false);
+  for (const ukdyn::System* sys :
+       std::initializer_list<const ukdyn::System*>{arms.get(), paper.two.system.get()}) {
+    ukdyn::ForwardData data(*sys);
+    const Eigen::Index n = sys->dof();
+    const Vec q = Vec::LinSpaced(n, -0.8, 0.9), qd = Vec::LinSpaced(n, 0.4, -0.3);
+    ukdyn::Mat C = ukdyn::Mat::Zero(n, n), C0(n, n);
+    // Without the data (no slot): on the stack at these sizes.
+    const long without = allocations_in([&] { ukdyn::coriolis_matrix(*sys, q, qd, C0); });
+    EXPECT_EQ(without, 0) << "coriolis_matrix allocated " << without << " times (n = " << n << ")";
+    const auto& L = sys->layout();
+    const auto& subs = sys->subsystems();
+    const long count = allocations_in([&] {
+      for (std::size_t k = 0; k < subs.size(); ++k) {
+        const Eigen::Index s = L.start[k], m = L.size[k];
+        subs[k]->coriolis({0.0, data.subsystem_slot(k)}, q.segment(s, m), qd.segment(s, m),
+                          C.block(s, s, m, m));
+      }
+    });
+    EXPECT_EQ(count, 0) << "coriolis() allocated " << count << " times (n = " << n << ")";
+    EXPECT_EQ((C - C0).lpNorm<Eigen::Infinity>(), 0.0);
+    EXPECT_GT(C.lpNorm<Eigen::Infinity>(), 0.0);
   }
 }
 

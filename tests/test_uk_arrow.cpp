@@ -9,6 +9,7 @@
 #include "n_robots_model.hpp"
 #include "ukdyn/core/uk_arrow.hpp"
 #include "ukdyn/model/system.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -155,6 +156,19 @@ TEST(Instances, GeneratedScenarioMatchesTheDirectModel) {
   ASSERT_NE(sc.system->arrow(), nullptr);
   EXPECT_EQ(sc.system->arrow()->groups.size(), 3u);
   EXPECT_EQ(sc.subsystems[1].name, "robot1");
+  // The three instances evaluate one compiled dynamics tape (symbolic::TapePool; their M, C q̇ and
+  // G do not depend on the mount, the one parameter they differ in); the load has its own.
+  auto tape_of = [](const ukdyn::System& s, std::size_t k) {
+    const auto* d = dynamic_cast<const ukdyn::symbolic::DerivedSubsystem*>(s.subsystems()[k].get());
+    return d ? &d->dynamics_tape() : nullptr;
+  };
+  for (const ukdyn::System* s :
+       std::initializer_list<const ukdyn::System*>{sc.system.get(), direct.get()}) {
+    ASSERT_NE(tape_of(*s, 0), nullptr);
+    EXPECT_EQ(tape_of(*s, 1), tape_of(*s, 0));
+    EXPECT_EQ(tape_of(*s, 2), tape_of(*s, 0));
+    EXPECT_NE(tape_of(*s, 3), tape_of(*s, 0));
+  }
   const Index n = direct->dof();
   ukdyn::ForwardData a(*sc.system), b(*direct);
   std::mt19937 rng(7u);

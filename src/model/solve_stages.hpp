@@ -17,6 +17,16 @@ UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& q
 /// The block-arrow path is used when the system has the structure, data was built with its
 /// buffers, and the method is exact or adaptive.
 void solve_stage(const System& system, ForwardData& data, const UkSettings& settings);
+/// The solve of solve_stage() for another b and Q (the drift projection's b = −Φ or −Φ̇ with
+/// Q = 0): the block-arrow solve when it applies (then data.used_arrow), else uk_solve_dispatch().
+/// Q is changed and put back when a structurally singular block is augmented. Allocation-free.
+UkResult solve_for(const System& system, ForwardData& data, const Vec& b, Vec& Q, Vec& qdd, Vec& Qc,
+                   const UkSettings& settings);
+/// The constraint stage of forward(): A and b at (t, q, q̇); when the block-arrow solve applies,
+/// only A's structural non-zeros are written (O(N) for N robots; the rest of data.A stays 0),
+/// else evaluate_constraints().
+void constraint_stage(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                      const UkSettings& settings);
 /// Whether solve_stage tries the block-arrow solve (ukdyn/core/uk_arrow.hpp) first.
 bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings);
 

@@ -261,20 +261,25 @@ void forward(const System& system, ForwardData& data, double t, CVecRef q, CVecR
   check_size("forward", "tau", system.dof(), tau.size());
   evaluate_dynamics(system, data, t, q, qd);
   generalized_forces(system, data, t, q, qd, tau);
-  if (arrow_applies(system, data, settings)) {
-    // Only A's structural non-zeros are written (the rest of data.A stays 0): O(N) for N robots.
-    const auto& cons = system.constraints();
-    const auto& offs = system.constraint_row_offsets();
-    const Index n = system.dof();
-    for (std::size_t c = 0; c < cons.size(); ++c) {
-      const Index r = cons[c]->rows();
-      cons[c]->evaluate({t, data.constraint_slots(c), /*structural_only=*/true}, q, qd,
-                        data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
-    }
-  } else {
-    evaluate_constraints(system, data, t, q, qd);
-  }
+  constraint_stage(system, data, t, q, qd, settings);
   solve_stage(system, data, settings);
+}
+
+void constraint_stage(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                      const UkSettings& settings) {
+  if (!arrow_applies(system, data, settings)) {
+    evaluate_constraints(system, data, t, q, qd);
+    return;
+  }
+  // Only A's structural non-zeros are written (the rest of data.A stays 0): O(N) for N robots.
+  const auto& cons = system.constraints();
+  const auto& offs = system.constraint_row_offsets();
+  const Index n = system.dof();
+  for (std::size_t c = 0; c < cons.size(); ++c) {
+    const Index r = cons[c]->rows();
+    cons[c]->evaluate({t, data.constraint_slots(c), /*structural_only=*/true}, q, qd,
+                      data.A.block(offs[c], 0, r, n), data.b.segment(offs[c], r));
+  }
 }
 
 bool arrow_applies(const System& system, const ForwardData& data, const UkSettings& settings) {
@@ -283,6 +288,11 @@ bool arrow_applies(const System& system, const ForwardData& data, const UkSettin
 }
 
 void solve_stage(const System& system, ForwardData& data, const UkSettings& settings) {
+  data.result = solve_for(system, data, data.b, data.Q, data.qdd, data.Qc, settings);
+}
+
+UkResult solve_for(const System& system, ForwardData& data, const Vec& b, Vec& Q, Vec& qdd, Vec& Qc,
+                   const UkSettings& settings) {
   // The block-arrow path (ukdyn/core/uk_arrow.hpp): O(N) for N robots on one load; the dense
   // solve stays the fallback (other methods, H or M not positive definite). The adaptive method's
   // damping lives in the dense solve: an arrow result whose smallest kept pivot falls inside the
@@ -293,30 +303,30 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
   UkSingularWorkspace& sw = data.singular;
   const bool augment = sw.any_structural;
   if (arrow_applies(system, data, settings) &&
-      (!augment || augment_singular_blocks(system.layout(), data.A, data.b, data.M, data.Q, sw))) {
+      (!augment || augment_singular_blocks(system.layout(), data.A, b, data.M, Q, sw))) {
     bool done = false;
+    UkResult res;
     if (factor_mass(data.M, data.uk) && mass_factor_regular(data.M, data.uk) &&
-        uk_solve_arrow(*system.arrow(), data.M, data.A, data.b, data.Q, data.uk, data.arrow,
-                       data.qdd, data.Qc, settings, data.result)) {
+        uk_solve_arrow(*system.arrow(), data.M, data.A, b, Q, data.uk, data.arrow, qdd, Qc,
+                       settings, res)) {
       const bool in_band =
           settings.method == UkMethod::adaptive &&
-          data.result.sigma_min_kept <
-              settings.adaptive_band * settings.regularization * data.result.sigma_max;
+          res.sigma_min_kept < settings.adaptive_band * settings.regularization * res.sigma_max;
       done = !in_band;
     }
     if (augment) {
       if (done) sw.cond_estimate = mass_condition_estimate(data.M, data.uk, &sw.cond_block);
-      restore_singular_blocks(system.layout(), data.M, data.Q, sw);
+      restore_singular_blocks(system.layout(), data.M, Q, sw);
     }
     if (done) {
       data.used_arrow = true;
       sw.active = augment;  // mass_condition() then reports the augmented blocks' estimate
       sw.dense_used = false;
       sw.rank_deficient = false;
-      return;
+      return res;
     }
   }
-  data.result = uk_solve_dispatch(data, data.b, data.Q, data.qdd, data.Qc, settings);
+  return uk_solve_dispatch(data, b, Q, qdd, Qc, settings);
 }
 
 UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd, Vec& Qc,

@@ -238,7 +238,18 @@ struct ukdyn::LoadedDefinitions {
   std::map<std::string, std::vector<std::pair<std::string, std::vector<std::string>>>> quaternions;
   /// What the robot file readers noted (ChainDef::notes), each line once.
   std::vector<std::string> notes;
+  /// The derived subsystems' tapes, each distinct one once: the instances of one robot share
+  /// theirs (symbolic::TapePool).
+  symbolic::TapePool tapes;
 };
+
+namespace ukdyn::io_detail {
+
+symbolic::TapePool* tape_pool(DefinitionContext* context) {
+  return context ? &context->tapes : nullptr;
+}
+
+}  // namespace ukdyn::io_detail
 
 namespace ukdyn::io_detail {
 
@@ -309,7 +320,7 @@ std::shared_ptr<const Subsystem> load_definitions_subsystem(
       body.rotation = parse_matrix(L, *def, r, false);
   }
   try {
-    auto sub = sym::make_subsystem(*def);
+    auto sub = sym::make_subsystem(*def, sym::Deadline(), tape_pool(context));
     record_definition_bodies(context, name, *def);
     return sub;
   } catch (const sym::DefinitionError& e) {
@@ -415,7 +426,7 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
       context->frames.add_bodies(*def);  // frame constraints
       record_free_body(*context, name, *def, body);
     }
-    return sym::make_subsystem(*def);
+    return sym::make_subsystem(*def, sym::Deadline(), tape_pool(context));
   } catch (const sym::DefinitionError& e) {
     L.fail(e.body >= 0 ? in : s, e.what());
   } catch (const Error& e) {
@@ -979,7 +990,7 @@ std::shared_ptr<const Subsystem> load_chain_subsystem(const Loader& L, const Nod
     }
     const sym::Deadline deadline;  // one budget for the chain and its dynamics
     sym::ChainModel model = sym::build_chain(*def, deadline);
-    auto sub = sym::make_subsystem(model.def, deadline);
+    auto sub = sym::make_subsystem(model.def, deadline, &context.tapes);
     record_chain(context, name, std::move(def), std::move(model));
     return sub;
   } catch (const sym::DerivationTimeout& e) {

@@ -39,6 +39,10 @@ struct InstanceSpec {
 /// the opaque ukdyn::LoadedDefinitions of Scenario::definitions.
 using DefinitionContext = ::ukdyn::LoadedDefinitions;
 
+/// The context's pool of compiled tapes (null without a context): the instances of one robot share
+/// their tapes through it.
+symbolic::TapePool* tape_pool(DefinitionContext* context);
+
 /// A subsystem node with type: definitions. `gravity` is the scenario's g (default gravity vector
 /// [0, 0, −g]).
 /// ... its bodies' CoMs are recorded in `context` if given (for the replay page).

@@ -156,7 +156,7 @@ std::shared_ptr<const Subsystem> load_wheeled_platform(
   try {
     const sym::SubsystemDef d =
         sym::wheeled_platform_definition(name, def, coordinates, L.symbol_table());
-    auto sub = sym::make_subsystem(d);
+    auto sub = sym::make_subsystem(d, sym::Deadline(), tape_pool(context));
     record_definition_bodies(context, name, d, {coordinates[0], coordinates[1]});
     PlatformWheels drawn{def.wheel_radius, {}};
     for (const auto& w : def.wheels) drawn.headings.push_back(w.heading);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+
 #include "model/solve_stages.hpp"
 
 namespace ukdyn::detail {
@@ -32,9 +33,9 @@ double Projector::project(double t, double* x, long& iterations) {
   last_dq = 0.0;
   for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
     evaluate_dynamics(system, data, t, q, qd);
-    evaluate_constraints(system, data, t, q, qd);
+    constraint_stage(system, data, t, q, qd, uk);
     phi = -phi;
-    uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
+    solve_for(system, data, phi, zero_Q, delta, Qc_scratch, uk);
     q += delta;
     last_dq += delta.cwiseAbs().maxCoeff();
     ++iterations;
@@ -48,10 +49,10 @@ double Projector::project(double t, double* x, long& iterations) {
   }
   // Velocities onto A q̇ + Φ_t = 0 at the projected q.
   evaluate_dynamics(system, data, t, q, qd);
-  evaluate_constraints(system, data, t, q, qd);
+  constraint_stage(system, data, t, q, qd, uk);
   velocity_residuals(system, data, t, q, qd, phi);
   phi = -phi;
-  uk_solve_dispatch(data, phi, zero_Q, delta, Qc_scratch, uk);
+  solve_for(system, data, phi, zero_Q, delta, Qc_scratch, uk);
   qd += delta;
   last_dqd = delta.cwiseAbs().maxCoeff();
   return r;

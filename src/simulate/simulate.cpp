@@ -124,7 +124,7 @@ struct Rhs {
     }
     evaluate_dynamics(system, d, t, q, qd);
     generalized_forces(system, d, t, q, qd, tau);  // paper Eq. (11), with the applied forces
-    evaluate_constraints(system, d, t, q, qd);
+    constraint_stage(system, d, t, q, qd, s.uk);   // O(N) when the arrow solve applies
     detail::baumgarte_adjust_b(system, d, s.drift, t, q, qd, phi, phid);
     solve_stage(system, d, s.uk);
   }

@@ -535,31 +535,60 @@ SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline) {
 
 // ------------------------------------------------------------------------------ DerivedSubsystem
 
-DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name)
-    : DerivedSubsystem(std::move(derivation), std::move(name), Deadline()) {}
+namespace {
+
+// The subsystem's coordinates and velocities renamed to names of their position alone (q#i, qd#i):
+// the tapes of two instances of one robot (coordinates r0_t1, r1_t1, ...) are then compiled from
+// the same expressions in the same operand order (canonical.hpp orders by name), so that a
+// TapePool finds them identical.
+struct PositionalInputs {
+  GiNaC::exmap rename;
+  InputMap in;
+};
+
+PositionalInputs positional_inputs(SymbolTable& table, const std::vector<std::string>& coords) {
+  PositionalInputs p;
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    const GiNaC::symbol q("q#" + std::to_string(i)), qd("qd#" + std::to_string(i));
+    const auto index = static_cast<std::int32_t>(i);
+    p.rename[coordinate_symbol(table, coords[i])] = q;
+    p.rename[velocity_symbol(table, coords[i])] = qd;
+    p.in[q] = {TapeInput::Source::q, index};
+    p.in[qd] = {TapeInput::Source::qd, index};
+  }
+  p.in[time_symbol(table)] = {TapeInput::Source::time, 0};
+  return p;
+}
+
+}  // namespace
+
+DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name, TapePool* pool)
+    : DerivedSubsystem(std::move(derivation), std::move(name), Deadline(), pool) {}
 
 DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name,
-                                   const Deadline& deadline)
+                                   const Deadline& deadline, TapePool* pool)
     : d_(std::move(derivation)),
       name_(std::move(name)),
       n_(static_cast<Index>(d_.coordinates.size())) {
   const auto t0 = Clock::now();
-  const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
-  const auto& pv = d_.parameter_values;
+  TapePool own;  // no pool given: tapes shared within this subsystem only
+  TapePool& tapes = pool ? *pool : own;
+  const PositionalInputs p = positional_inputs(*d_.symbols, d_.coordinates);
+  auto num = [&](const ex& e) { return numeric_form(e, d_.parameter_values).subs(p.rename); };
+  // Every tape within the derivation's budget (the compilation of a large derivation is work of
+  // the same order as the derivation).
+  auto tape = [&](const std::vector<ex>& outputs, const std::string& what) {
+    return tapes.share(Tape(outputs, p.in, deadline, "compiling " + what));
+  };
   const auto un = static_cast<unsigned>(n_);
   std::vector<ex> m, cqd, g, c;
   for (unsigned i = 0; i < un; ++i) {
     deadline.check("compiling row " + d_.coordinates[i] + " of M, C and G");
-    for (unsigned j = i; j < un; ++j) m.push_back(numeric_form(d_.M(i, j), pv));
-    cqd.push_back(numeric_form(d_.Cqd(i, 0), pv));
-    g.push_back(numeric_form(d_.G(i, 0), pv));
-    for (unsigned j = 0; j < un; ++j) c.push_back(numeric_form(d_.C(i, j), pv));
+    for (unsigned j = i; j < un; ++j) m.push_back(num(d_.M(i, j)));
+    cqd.push_back(num(d_.Cqd(i, 0)));
+    g.push_back(num(d_.G(i, 0)));
+    for (unsigned j = 0; j < un; ++j) c.push_back(num(d_.C(i, j)));
   }
-  // Every tape within the derivation's budget (the compilation of a large derivation is work of
-  // the same order as the derivation).
-  const auto tape = [&](const std::vector<ex>& outputs, const std::string& what) {
-    return Tape(outputs, in, deadline, "compiling " + what);
-  };
   mass_ = tape(m, "M");
   cqd_ = tape(cqd, "C q_dot");
   grav_ = tape(g, "G");
@@ -569,13 +598,13 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   all.insert(all.end(), cqd.begin(), cqd.end());
   all.insert(all.end(), g.begin(), g.end());
   // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
-  if (d_.time_varying) all.push_back(numeric_form(d_.Lt, pv));
+  if (d_.time_varying) all.push_back(num(d_.Lt));
   dyn_ = tape(all, "M, C q_dot and G");
   cor_ = tape(c, "C");
-  pot_ = tape({numeric_form(d_.V, pv)}, "V");
-  kin_ = tape({numeric_form(d_.T, pv)}, "T");
+  pot_ = tape({num(d_.V)}, "V");
+  kin_ = tape({num(d_.T)}, "T");
   std::vector<ex> masses;
-  for (const ex& mt : d_.masses_of_t) masses.push_back(numeric_form(mt, pv));
+  for (const ex& mt : d_.masses_of_t) masses.push_back(num(mt));
   masses_of_t_ = tape(masses, "the masses");
   d_.compile_seconds = seconds_since(t0);
 }
@@ -596,16 +625,16 @@ MassOfTProblem negative_mass_over_run(const System& system, double t0, double t_
 }
 
 std::string DerivedSubsystem::negative_mass(double t0, double t1, long samples) const {
-  const std::size_t nb = masses_of_t_.outputs();
+  const std::size_t nb = masses_of_t_->outputs();
   if (nb == 0) return {};
   if (samples < 2) samples = 2;
-  std::vector<double> m(nb), work(masses_of_t_.work_size());
+  std::vector<double> m(nb), work(masses_of_t_->work_size());
   for (long i = 0; i < samples; ++i) {
     // t1 itself at the last sample (no rounding past the end of the run).
     const double t = i + 1 == samples ? t1
                                       : t0 + (t1 - t0) * static_cast<double>(i) /
                                                  static_cast<double>(samples - 1);
-    masses_of_t_.eval(t, nullptr, nullptr, m.data(), work.data());
+    masses_of_t_->eval(t, nullptr, nullptr, m.data(), work.data());
     for (std::size_t b = 0; b < nb; ++b) {
       if (m[b] >= 0.0) continue;  // also false for NaN
       std::ostringstream os;
@@ -638,17 +667,18 @@ void DerivedSubsystem::mass(const EvalContext& ctx, CVecRef q, MatRef M) const {
   double buf[64 * 65 / 2];
   std::vector<double> big;
   double* out = buf;
-  if (mass_.outputs() > sizeof(buf) / sizeof(double)) {
-    big.resize(mass_.outputs());  // only for subsystems of more than 64 coordinates
+  if (mass_->outputs() > sizeof(buf) / sizeof(double)) {
+    big.resize(mass_->outputs());  // only for subsystems of more than 64 coordinates
     out = big.data();
   }
-  mass_.eval(ctx.t, q.data(), nullptr, out);
+  mass_->eval(ctx.t, q.data(), nullptr, out);
   symmetric_from_upper(out, n_, M);
 }
 
 // The dynamics tape's outputs and work, twice: the tangents' (dynamics_tangent()) follow.
 Index DerivedSubsystem::slot_size() const {
-  return static_cast<Index>(2 * (dyn_.outputs() + dyn_.work_size()));
+  return static_cast<Index>(
+      std::max(2 * (dyn_->outputs() + dyn_->work_size()), cor_->outputs() + cor_->work_size()));
 }
 
 namespace {
@@ -678,15 +708,15 @@ double DerivedSubsystem::dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd,
     double buf[kStack];
     std::vector<double> big;
     double* out = buf;
-    if (dyn_.outputs() > kStack) {
-      big.resize(dyn_.outputs());  // only for subsystems of more than 32 coordinates
+    if (dyn_->outputs() > kStack) {
+      big.resize(dyn_->outputs());  // only for subsystems of more than 32 coordinates
       out = big.data();
     }
-    dyn_.eval(ctx.t, q.data(), qd.data(), out);
+    dyn_->eval(ctx.t, q.data(), qd.data(), out);
     return unpack_dynamics(out, M, Cqd, G);
   }
   double* out = ctx.slot.data();
-  dyn_.eval(ctx.t, q.data(), qd.data(), out, out + dyn_.outputs());
+  dyn_->eval(ctx.t, q.data(), qd.data(), out, out + dyn_->outputs());
   return unpack_dynamics(out, M, Cqd, G);
 }
 
@@ -701,9 +731,9 @@ void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecR
                                         CVecRef dqd, MatRef M, VecRef Cqd, VecRef G, MatRef dM,
                                         VecRef dCqd, VecRef dG) const {
   std::vector<double> own;
-  const double* out = tape_tangent(dyn_, ctx, slot_size(), q, qd, dq, dqd, own);
+  const double* out = tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own);
   unpack_dynamics(out, M, Cqd, G);
-  unpack_dynamics(out + dyn_.outputs(), dM, dCqd, dG);
+  unpack_dynamics(out + dyn_->outputs(), dM, dCqd, dG);
 }
 
 // dID = dM q̈ + d(C q̇) + dG straight from the tangents of the packed outputs (M's upper triangle
@@ -712,7 +742,7 @@ bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef 
                                                 CVecRef qdd, CVecRef dq, CVecRef dqd,
                                                 VecRef dID) const {
   std::vector<double> own;
-  const double* dout = tape_tangent(dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_.outputs();
+  const double* dout = tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_->outputs();
   dID.setZero();
   std::size_t k = 0;
   for (Index i = 0; i < n_; ++i) {
@@ -729,35 +759,44 @@ bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef 
 }
 
 void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const {
-  // Row-major tape output into a column-major block: go through a transposed map.
-  if (C.innerStride() == 1 && C.outerStride() == C.rows() && C.rows() == n_ && C.cols() == n_) {
-    cor_.eval(ctx.t, q.data(), qd.data(), C.data());
-    C.transposeInPlace();
-    return;
+  // The tape gives C row by row: into the context's slot (allocation-free at any size), or without
+  // one into a buffer on the stack up to 32 coordinates (the tape's work up to Tape::kStackWork).
+  constexpr std::size_t kStack = 32 * 32;
+  double buf[kStack];
+  std::vector<double> big;
+  double* out = buf;
+  if (ctx.slot.size() == static_cast<std::size_t>(slot_size())) {
+    out = ctx.slot.data();
+    cor_->eval(ctx.t, q.data(), qd.data(), out, out + cor_->outputs());
+  } else {
+    if (cor_->outputs() > kStack) {
+      big.resize(cor_->outputs());  // only for subsystems of more than 32 coordinates
+      out = big.data();
+    }
+    cor_->eval(ctx.t, q.data(), qd.data(), out);
   }
-  Mat tmp(n_, n_);
-  cor_.eval(ctx.t, q.data(), qd.data(), tmp.data());
-  C = tmp.transpose();
+  for (Index i = 0; i < n_; ++i)
+    for (Index j = 0; j < n_; ++j) C(i, j) = out[i * n_ + j];
 }
 
 void DerivedSubsystem::coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd,
                                          VecRef Cqd) const {
-  cqd_.eval(ctx.t, q.data(), qd.data(), Cqd.data());
+  cqd_->eval(ctx.t, q.data(), qd.data(), Cqd.data());
 }
 
 void DerivedSubsystem::gravity(const EvalContext& ctx, CVecRef q, VecRef G) const {
-  grav_.eval(ctx.t, q.data(), nullptr, G.data());
+  grav_->eval(ctx.t, q.data(), nullptr, G.data());
 }
 
 double DerivedSubsystem::potential(const EvalContext& ctx, CVecRef q) const {
   double v = 0.0;
-  pot_.eval(ctx.t, q.data(), nullptr, &v);
+  pot_->eval(ctx.t, q.data(), nullptr, &v);
   return v;
 }
 
 double DerivedSubsystem::kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const {
   double v = 0.0;
-  kin_.eval(ctx.t, q.data(), qd.data(), &v);
+  kin_->eval(ctx.t, q.data(), qd.data(), &v);
   return v;
 }
 
@@ -765,9 +804,9 @@ std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def) {
   return make_subsystem(def, Deadline());
 }
 
-std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def,
-                                                 const Deadline& deadline) {
-  return std::make_shared<DerivedSubsystem>(derive(def, deadline), def.name(), deadline);
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def, const Deadline& deadline,
+                                                 TapePool* pool) {
+  return std::make_shared<DerivedSubsystem>(derive(def, deadline), def.name(), deadline, pool);
 }
 
 std::string mass_matrix_problem(const Subsystem& sub, const Vec& q) {
@@ -874,7 +913,10 @@ ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline) 
             -1, -1, ri);
       }
       d.phi(r, 0) = e;
+      // A row names a few of the system's n coordinates (a grasp: one robot's and the load's):
+      // the others are skipped rather than differentiated, which keeps loading N robots O(N).
       for (unsigned j = 0; j < un; ++j) {
+        if (!e.has(q[j])) continue;  // d.A(r, j) stays 0
         d.A(r, j) = simp(e.diff(q[j]));
         vel += d.A(r, j) * qd[j];
       }
@@ -882,6 +924,7 @@ ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline) 
     } else {
       d.phi(r, 0) = 0;
       for (unsigned j = 0; j < un; ++j) {
+        if (!e.has(qd[j])) continue;  // d.A(r, j) stays 0
         const ex a = simp(e.diff(qd[j]));
         if (has_any(a, qd)) {
           throw DefinitionError("row '" + rname +
@@ -911,7 +954,8 @@ ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline) 
     vel = simp(vel);
     d.phid(r, 0) = vel;
     ex bb = vel.diff(t);
-    for (unsigned k = 0; k < un; ++k) bb += vel.diff(q[k]) * qd[k];
+    for (unsigned k = 0; k < un; ++k)
+      if (vel.has(q[k])) bb += vel.diff(q[k]) * qd[k];
     d.b(r, 0) = simp(-bb);
   }
   d.derive_seconds = seconds_since(t0);

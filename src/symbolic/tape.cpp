@@ -6,6 +6,7 @@
 #include <map>
 #include <sstream>
 
+#include "core/fnv1a.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/spline.hpp"
@@ -256,6 +257,64 @@ std::int32_t Tape::compile(const ex& e, const InputMap& inputs) {
   }
   memo_.emplace(e, id);
   return id;
+}
+
+namespace {
+
+// Bitwise field-by-field equality of the tape's records (no padding bytes compared).
+bool same_bits(double a, double b) {
+  return std::bit_cast<std::uint64_t>(a) == std::bit_cast<std::uint64_t>(b);
+}
+
+}  // namespace
+
+bool Tape::same_program(const Tape& o) const {
+  auto same = [](const auto& x, const auto& y, auto eq) {
+    return x.size() == y.size() && std::equal(x.begin(), x.end(), y.begin(), eq);
+  };
+  auto instr = [](const Instr& x, const Instr& y) {
+    return x.op == y.op && x.a == y.a && x.b == y.b && x.c == y.c && same_bits(x.imm, y.imm);
+  };
+  auto load = [](const Load& x, const Load& y) {
+    return x.dst == y.dst && x.index == y.index && same_bits(x.value, y.value);
+  };
+  auto exec = [](const Exec& x, const Exec& y) {
+    return x.op == y.op && x.a == y.a && x.b == y.b && x.c == y.c && x.dst == y.dst &&
+           same_bits(x.imm, y.imm);
+  };
+  return same(code_, o.code_, instr) && same(exec_, o.exec_, exec) &&
+         same(constants_, o.constants_, load) && same(q_loads_, o.q_loads_, load) &&
+         same(qd_loads_, o.qd_loads_, load) && same(time_loads_, o.time_loads_, load) &&
+         out_ == o.out_ && splines_ == o.splines_;
+}
+
+std::uint64_t Tape::fingerprint() const {
+  detail::Fnv1a64 h;
+  auto add = [&h](std::uint64_t v) {
+    for (int i = 0; i < 8; ++i) h.add(static_cast<unsigned char>(v >> (8 * i)));
+  };
+  add(code_.size());
+  add(out_.size());
+  for (const Instr& I : code_) {
+    add(static_cast<std::uint64_t>(I.op) ^ (static_cast<std::uint64_t>(I.a) << 8) ^
+        (static_cast<std::uint64_t>(static_cast<std::uint32_t>(I.b)) << 32));
+    add(std::bit_cast<std::uint64_t>(I.imm));
+  }
+  for (const std::int32_t o : out_) add(static_cast<std::uint64_t>(o));
+  return h.value();
+}
+
+std::shared_ptr<const Tape> TapePool::share(Tape&& tape) {
+  const std::uint64_t key = tape.fingerprint();
+  for (auto [it, end] = tapes_.equal_range(key); it != end; ++it) {
+    if (it->second->same_program(tape)) {
+      ++reused_;
+      return it->second;
+    }
+  }
+  auto shared = std::make_shared<const Tape>(std::move(tape));
+  tapes_.emplace(key, shared);
+  return shared;
 }
 
 InputMap coordinate_inputs(SymbolTable& table, const std::vector<std::string>& coordinates,

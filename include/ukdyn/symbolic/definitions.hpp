@@ -151,10 +151,14 @@ GiNaC::ex simplify_trig(const GiNaC::ex& e, const Deadline& deadline, const std:
 /// A ukdyn::Subsystem evaluated from compiled tapes of a derivation.
 class DerivedSubsystem final : public Subsystem {
  public:
-  explicit DerivedSubsystem(SubsystemDerivation derivation, std::string name);
+  /// Compiles the tapes; with a pool, a tape identical to one already in it (another instance of
+  /// the same robot, say) is shared instead of kept twice (TapePool).
+  explicit DerivedSubsystem(SubsystemDerivation derivation, std::string name,
+                            TapePool* pool = nullptr);
   /// The same with the tapes compiled within `deadline` (the derivation's own budget:
   /// make_subsystem), throwing DerivationTimeout once it is spent.
-  DerivedSubsystem(SubsystemDerivation derivation, std::string name, const Deadline& deadline);
+  DerivedSubsystem(SubsystemDerivation derivation, std::string name, const Deadline& deadline,
+                   TapePool* pool = nullptr);
 
   [[nodiscard]] Index dof() const override { return n_; }
   [[nodiscard]] const std::string& name() const override { return name_; }
@@ -164,11 +168,14 @@ class DerivedSubsystem final : public Subsystem {
   /// A mass of t (docs/definitions.md, "Time-varying masses"): every quantity at the context's t.
   [[nodiscard]] bool time_varying() const override { return d_.time_varying; }
   void mass(const EvalContext& ctx, CVecRef q, MatRef M) const override;
+  /// Allocation-free with the context's slot (slot_size() doubles), and without it up to 32
+  /// coordinates.
   void coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(const EvalContext& ctx, CVecRef q, VecRef G) const override;
   [[nodiscard]] double potential(const EvalContext& ctx, CVecRef q) const override;
-  /// Data slot: the dynamics tape's outputs and its work buffer (allocation-free at any size).
+  /// Data slot: the dynamics tape's outputs and its work buffer, twice (values and tangents), and
+  /// at least the C tape's outputs and work (coriolis()): allocation-free at any size.
   [[nodiscard]] Index slot_size() const override;
   /// M, C q̇, G (and ∂L/∂t, returned) from one tape (shared subexpressions computed once), in the
   /// context's slot if it has one.
@@ -197,8 +204,10 @@ class DerivedSubsystem final : public Subsystem {
   [[nodiscard]] const SubsystemDerivation& derivation() const { return d_; }
   /// Instruction counts of the mass, C q̇ and gravity tapes.
   [[nodiscard]] std::array<std::size_t, 3> tape_operations() const {
-    return {mass_.operations(), cqd_.operations(), grav_.operations()};
+    return {mass_->operations(), cqd_->operations(), grav_->operations()};
   }
+  /// The tape forward() runs (M, C q̇, G): the same object for instances that share it.
+  [[nodiscard]] const Tape& dynamics_tape() const { return *dyn_; }
 
  private:
   /// M, C q̇, G from the dynamics tape's outputs; returns ∂L/∂t (0 unless time-varying).
@@ -207,14 +216,16 @@ class DerivedSubsystem final : public Subsystem {
   SubsystemDerivation d_;
   std::string name_;
   Index n_;
-  Tape mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
-  Tape masses_of_t_;  // d_.masses_of_t, one output per body
+  // Constant and possibly shared with other instances (TapePool).
+  std::shared_ptr<const Tape> mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
+  std::shared_ptr<const Tape> masses_of_t_;  // d_.masses_of_t, one output per body
 };
 
 /// derive + compile.
 std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def);
-/// derive + compile, both within `deadline`.
-std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def, const Deadline& deadline);
+/// derive + compile, both within `deadline`; identical tapes shared through `pool` if given.
+std::shared_ptr<DerivedSubsystem> make_subsystem(const SubsystemDef& def, const Deadline& deadline,
+                                                 TapePool* pool = nullptr);
 
 /// A mass of t negative during a run: the subsystem (its index in the system) and
 /// "subsystem 'S', body 'B': the mass '…' is m at t = T"; message empty if none.

@@ -100,6 +100,13 @@ class Tape {
   /// Instructions eval() executes (instructions() less those folded into a pair or a user).
   [[nodiscard]] std::size_t executed_instructions() const;
 
+  /// Whether `other` runs the same program: the same instructions, loads, constants (bitwise),
+  /// outputs and splines (the same objects). Two such tapes give bitwise the same outputs for every
+  /// input, so one of them can stand for both (TapePool).
+  [[nodiscard]] bool same_program(const Tape& other) const;
+  /// A hash of the program: equal for tapes with same_program().
+  [[nodiscard]] std::uint64_t fingerprint() const;
+
   /// Doubles of work buffer eval() needs (one per instruction slot).
   [[nodiscard]] std::size_t work_size() const { return code_.size(); }
   /// Evaluates every output into out[0..outputs()), with the caller's work buffer `work` of
@@ -178,6 +185,24 @@ class Tape {
   const Deadline* deadline_ = nullptr;
   const std::string* where_ = nullptr;
   std::size_t compiled_ = 0;
+};
+
+/// Identical tapes kept once: share() returns a tape with the same program already in the pool,
+/// or adds this one. The instances of one robot (the same definitions and parameter values that
+/// their M, C q̇ and G depend on) then evaluate one compiled tape over their own states and data
+/// slots, which keeps the working set of N robots that of one (docs/performance.md, "N robots on
+/// one load"). Caller-owned (a scenario loader's, say) and not thread-safe; the tapes it hands out
+/// are constant and outlive it.
+class TapePool {
+ public:
+  std::shared_ptr<const Tape> share(Tape&& tape);
+  /// Distinct tapes in the pool, and share() calls answered with one already there.
+  [[nodiscard]] std::size_t size() const { return tapes_.size(); }
+  [[nodiscard]] std::size_t reused() const { return reused_; }
+
+ private:
+  std::multimap<std::uint64_t, std::shared_ptr<const Tape>> tapes_;
+  std::size_t reused_ = 0;
 };
 
 }  // namespace ukdyn::symbolic
