@@ -7,6 +7,7 @@
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
 
+#include "core/lane_dual.hpp"
 #include "symbolic/ex_helpers.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
@@ -368,7 +369,7 @@ Index tangent_room(const End& e) {
 // Several directions per pass (vector-mode forward differentiation, Griewank & Walther 2008,
 // §3.1): one lane per direction, as the tree's frame_state_jacobian() runs them.
 constexpr int kLanes = 8;
-using Lanes = Eigen::AutoDiffScalar<Eigen::Matrix<double, kLanes, 1>>;
+using Lanes = LaneDual<kLanes>;
 
 // A tree end's frame_state_jacobian() in the slot: (36 + 12 nc) × 2 nc doubles.
 // An expressions end's: the same J, then the two directions (n_system each) of its tape tangents.
@@ -394,7 +395,7 @@ void lift(const Eigen::Matrix<double, R, C>& v, Index row, const LaneEnd& e,
   for (Index r = 0; r < R * C; ++r) {
     Lanes x(v(r / C, r % C));
     for (int l = 0; l < kLanes; ++l) {
-      if (e.col[l] >= 0) x.derivatives()(l) = e.J[row + r + e.col[l] * e.ld];
+      if (e.col[l] >= 0) x.d[l] = e.J[row + r + e.col[l] * e.ld];
     }
     out(r / C, r % C) = x;
   }
@@ -425,7 +426,7 @@ void add_force_lanes(const LaneEnd& e, const std::vector<Index>& cols, const Row
       double f = 0.0;
       for (int k = 0; k < 12; ++k) {
         const double x = k < 3 ? e.v->dp(k, ci) : e.v->dR(k - 3, ci);
-        f += g(k).derivatives()(l) * x;
+        f += g(k).d[l] * x;
         if (e.col[l] >= 0) f += g(k).value() * e.J[36 + 12 * ci + k + e.col[l] * e.ld];
       }
       d_force(cols[c], out_col[l]) += f;
@@ -639,9 +640,10 @@ Index lane_column(const End& e, Index g, bool rate) {
 
 // One pass: both ends on lanes, the rows on lanes, lane l's d(A q̈ − b) into column out_col[l]
 // of d_residual and its d(Aᵀλ) added to that of d_force.
-void lane_pass(const NumericFrameSpec& f, const End& a, const End& b, const LaneEnd& A,
-               const LaneEnd& B, CVecRef lambda, const Index* out_col, int lanes, MatRef d_residual,
-               MatRef d_force) {
+[[gnu::flatten]] void lane_pass(const NumericFrameSpec& f, const End& a, const End& b,
+                                const LaneEnd& A, const LaneEnd& B, CVecRef lambda,
+                                const Index* out_col, int lanes, MatRef d_residual,
+                                MatRef d_force) {
   LaneFrame<Lanes> sa, sb;
   lift(A, sa);
   lift(B, sb);
@@ -649,7 +651,7 @@ void lane_pass(const NumericFrameSpec& f, const End& a, const End& b, const Lane
   row_values(f, sa, sb, r);
   for (int i = 0; i < r.m; ++i) {
     const Lanes res = residual_row(r, sa, sb, i);
-    for (int l = 0; l < lanes; ++l) d_residual(i, out_col[l]) = res.derivatives()(l);
+    for (int l = 0; l < lanes; ++l) d_residual(i, out_col[l]) = res.d[l];
   }
   add_force_lanes(A, a.cols, r, kPa, kRa, lambda, out_col, lanes, d_force);
   add_force_lanes(B, b.cols, r, kPb, kRb, lambda, out_col, lanes, d_force);

@@ -14,6 +14,8 @@
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
 
+#include "core/lane_dual.hpp"
+
 namespace ukdyn::tree {
 
 namespace {
@@ -569,7 +571,7 @@ Index tangent_workspace_doubles(std::size_t links, Index nt) {
 // §3.1): one lane of the derivative per direction, the values computed once for all of them; a
 // fixed number of lanes (no heap), the directions taken kLanes at a time.
 constexpr int kLanes = 8;
-using Lanes = Eigen::AutoDiffScalar<Eigen::Matrix<double, kLanes, 1>>;
+using Lanes = LaneDual<kLanes>;
 constexpr std::size_t kLaneAlign = alignof(LinkState<Lanes>);
 static_assert(kLaneAlign % sizeof(double) == 0 && alignof(Lanes) <= kLaneAlign,
               "LinkState<Lanes> must live in a slot of doubles");
@@ -1255,7 +1257,7 @@ void seed_lanes(const std::vector<std::vector<Term>>& T, const std::vector<doubl
     Lanes& seeded = rate ? w.thetad[k] : w.theta[k];
     for (const Term& t : T[k]) {
       const Index l = t.coordinate - j0;
-      if (l >= 0 && l < kLanes) seeded.derivatives()(l) += t.coefficient;
+      if (l >= 0 && l < kLanes) seeded.d[l] += t.coefficient;
     }
   }
 }
@@ -1265,7 +1267,7 @@ template <int R, int C>
 void put_lanes(const Eigen::Matrix<Lanes, R, C>& x, Index row, Index col0, Index lanes, MatRef J) {
   for (Index r = 0; r < R * C; ++r) {
     const Lanes& e = x(static_cast<Index>(r / C), static_cast<Index>(r % C));
-    for (Index l = 0; l < lanes; ++l) J(row + r, col0 + l) = e.derivatives()(l);
+    for (Index l = 0; l < lanes; ++l) J(row + r, col0 + l) = e.d[l];
   }
 }
 
@@ -1291,8 +1293,10 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
 // Columns j0 .. j0 + kLanes − 1 of ∂ID/∂q (rate false) or ∂ID/∂q̇ (rate true) per pass:
 // dID = Tᵀ dτ_θ lane by lane. The directions of q̇ do not move the links: the placement (on
 // constant lanes) is made once for all of them.
-bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd,
-                                              CVecRef qdd, MatRef dID_dq, MatRef dID_dqd) const {
+[[gnu::flatten]] bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q,
+                                                               CVecRef qd, CVecRef qdd,
+                                                               MatRef dID_dq,
+                                                               MatRef dID_dqd) const {
   const std::size_t nl = merged_.links.size();
   const Index n = dof();
   std::vector<double> own;
@@ -1310,7 +1314,7 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
       for (std::size_t k = 0; k < theta_terms_.size(); ++k) {
         for (const Term& t : theta_terms_[k]) {
           for (Index l = 0; l < lanes; ++l)
-            out(t.coordinate, j0 + l) += t.coefficient * w.tau[k].derivatives()(l);
+            out(t.coordinate, j0 + l) += t.coefficient * w.tau[k].d[l];
         }
       }
     }
@@ -1320,10 +1324,9 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
 
 // frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on one
 // placement), the fields' lanes stacked into the columns of J.
-void TreeSubsystem::frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd, int frame_link,
-                                         const Eigen::Matrix3d& frame_R_offset,
-                                         const Eigen::Vector3d& frame_x_offset, Slot scratch,
-                                         FrameState& value, MatRef J) const {
+[[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(
+    CVecRef q, CVecRef qd, CVecRef qdd, int frame_link, const Eigen::Matrix3d& frame_R_offset,
+    const Eigen::Vector3d& frame_x_offset, Slot scratch, FrameState& value, MatRef J) const {
   int link = -1;
   Eigen::Matrix3d R_offset = frame_R_offset;
   Eigen::Vector3d x_offset = frame_x_offset;
@@ -1363,7 +1366,7 @@ void TreeSubsystem::frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd, int
                         const Lanes& e = r < 3 ? dp(r) : dR((r - 3) / 3, (r - 3) % 3);
                         if (first) (r < 3 ? value.dp(r, c) : value.dR(r - 3, c)) += k * e.value();
                         for (Index l = 0; l < lanes; ++l)
-                          J(36 + 12 * c + r, col0 + l) += k * e.derivatives()(l);
+                          J(36 + 12 * c + r, col0 + l) += k * e.d[l];
                       }
                     });
     }
