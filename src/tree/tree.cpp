@@ -576,10 +576,13 @@ constexpr std::size_t kLaneAlign = alignof(LinkState<Lanes>);
 static_assert(kLaneAlign % sizeof(double) == 0 && alignof(Lanes) <= kLaneAlign,
               "LinkState<Lanes> must live in a slot of doubles");
 
-// The links, then θ, θ̇, θ̈, τ (nt each), from the first kLaneAlign-aligned double.
+// The links, then θ, θ̇, θ̈, τ (nt each), from the first kLaneAlign-aligned double; then the
+// links on doubles (the placement the directions of q̇ share).
 Index lane_workspace_doubles(std::size_t links, Index nt) {
   const std::size_t bytes = links * sizeof(LinkState<Lanes>) +
-                            4 * static_cast<std::size_t>(nt) * sizeof(Lanes) + kLaneAlign;
+                            4 * static_cast<std::size_t>(nt) * sizeof(Lanes) + kLaneAlign +
+                            links * sizeof(LinkState<double>) +
+                            static_cast<std::size_t>(nt) * sizeof(double);
   return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
 }
 
@@ -1216,6 +1219,8 @@ struct LaneWorkspace {
   Lanes* thetad;
   Lanes* thetadd;
   Lanes* tau;
+  LinkState<double>* plain;
+  double* theta_plain;  // θ on doubles (nt)
 };
 
 LaneWorkspace lane_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
@@ -1237,7 +1242,37 @@ LaneWorkspace lane_workspace(Slot slot, Index slot_size, std::size_t nl, Index n
   w.thetad = w.theta + nt;
   w.thetadd = w.thetad + nt;
   w.tau = w.thetadd + nt;
+  w.plain = reinterpret_cast<LinkState<double>*>(w.tau + nt);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.plain[i]) LinkState<double>;
+  w.theta_plain = reinterpret_cast<double*>(w.plain + nl);
   return w;
+}
+
+// The links placed on doubles at θ, lifted to lanes with zero tangents: what place<Lanes> gives
+// without seeds, at the cost of a pass on doubles (the directions of q̇ do not move the links).
+void place_constant(const Model& m, const std::vector<int>& ti, bool quat, const LaneWorkspace& w,
+                    Index nt) {
+  for (Index k = 0; k < nt; ++k) w.theta_plain[k] = w.theta[k].v;
+  place(m, ti, quat, w.theta_plain, w.plain);
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const LinkState<double>& a = w.plain[i];
+    LinkState<Lanes>& b = w.links[i];
+    b.R = a.R.cast<Lanes>();
+    b.p = a.p.cast<Lanes>();
+    for (int k = 0; k < 4; ++k) {
+      b.sw[k] = a.sw[k].cast<Lanes>();
+      b.sv[k] = a.sv[k].cast<Lanes>();
+      b.sl[k] = Lanes(a.sl[k]);
+    }
+    b.sc = Lanes(a.sc);
+    b.qs = Lanes(a.qs);
+    b.m_own = Lanes(a.m_own);
+    b.k_own = Lanes(a.k_own);
+    b.h_own = a.h_own.cast<Lanes>();
+    b.c = a.c.cast<Lanes>();
+    b.I_own = a.I_own.cast<Lanes>();
+    b.Ic = a.Ic.cast<Lanes>();
+  }
 }
 
 // θ, θ̇ and θ̈ = T q̈ on lanes: lane l of θ (of θ̇ when `rate`) seeded with the coefficient of
@@ -1307,7 +1342,8 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
     MatRef out = rate ? dID_dqd : dID_dq;
     for (Index j0 = 0; j0 < n; j0 += kLanes) {
       seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
-      if (!rate || j0 == 0) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
       inverse_dynamics<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd, true,
                               w.links, w.tau);
       const Index lanes = std::min<Index>(kLanes, n - j0);
@@ -1340,7 +1376,8 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
   for (const bool rate : {true, false}) {
     for (Index j0 = 0; j0 < n; j0 += kLanes) {
       seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
-      if (!rate || j0 == 0) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
       link_motion<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd,
                          V3<Lanes>::Zero(), w.links);
       const FrameMotion<Lanes> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
