@@ -11,6 +11,9 @@
 #include <cmath>
 #include <cstdio>
 #include <random>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/system.hpp"
@@ -301,6 +304,105 @@ TEST(TreeQuaternion, InverseDynamicsTangentMatchesDifferences) {
     EXPECT_LE(worst, 1e-8);
     std::printf("%s: inverse_dynamics_tangent vs central differences (10 states): %.3g\n",
                 c.name().c_str(), worst);
+  }
+}
+
+namespace {
+
+// A frame's state stacked as frame_state_jacobian() stacks its tangents: p, R, pd, Rd, pdd, Rdd
+// (R(i, k) at 3 i + k), then dp and dR column by column.
+Vec stacked(const tree::FrameState& s, Index n) {
+  Vec x(36 + 12 * n);
+  for (int i = 0; i < 3; ++i) {
+    x(i) = s.p(i);
+    x(12 + i) = s.pd(i);
+    x(24 + i) = s.pdd(i);
+  }
+  for (int r = 0; r < 9; ++r) {
+    x(3 + r) = s.R(r / 3, r % 3);
+    x(15 + r) = s.Rd(r / 3, r % 3);
+    x(27 + r) = s.Rdd(r / 3, r % 3);
+  }
+  for (Index c = 0; c < n; ++c) {
+    for (int i = 0; i < 3; ++i) x(36 + 12 * c + i) = s.dp(i, c);
+    for (int r = 0; r < 9; ++r) x(36 + 12 * c + 3 + r) = s.dR(r, c);
+  }
+  return x;
+}
+
+double max_rel(const Vec& a, const Vec& b) {
+  return (a - b).cwiseAbs().maxCoeff() / std::max(1.0, b.cwiseAbs().maxCoeff());
+}
+
+struct TreeCase {
+  std::string name;
+  std::shared_ptr<const tree::TreeSubsystem> tree;
+};
+
+// The floating root with three revolute links, the ball joint in the middle of a chain and, with
+// MuJoCo, the UR5e and the Panda of robots/ (their MJCF files).
+std::vector<TreeCase> jacobian_cases() {
+  std::vector<TreeCase> out;
+  for (const auto& c : {floating_arm(9.81), ball_arm(9.81)})
+    out.push_back({c.name(), make_pair(c, false).tree});
+  if (!sym::mjcf_supported()) return out;
+  for (const auto& [robot, dof] : {std::pair{"ur5e", 6}, std::pair{"panda", 7}}) {
+    std::vector<std::string> coords;
+    for (int i = 1; i <= dof; ++i) coords.push_back("q" + std::to_string(i));
+    sym::ChainDef c(robot, coords);
+    sym::append_mjcf(c, std::string(UKDYN_SOURCE_DIR) + "/robots/" + robot + ".xml", true);
+    out.push_back({robot, make_pair(c, false).tree});
+  }
+  return out;
+}
+
+}  // namespace
+
+// Every column at once (inverse_dynamics_jacobian, frame_state_jacobian: dual numbers of several
+// lanes, the placement shared by the directions of q̇) against the one-direction passes they
+// replace in linearize() (inverse_dynamics_tangent, frame_state_tangent along each e_j of q and
+// of q̇), at random states off |u| = 1 (the quaternion joints' correction terms included), with
+// and without a slot.
+TEST(TreeQuaternion, AllColumnsAtOnceMatchOneDirectionAtATime) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> nd;
+  for (const TreeCase& tc : jacobian_cases()) {
+    ASSERT_TRUE(tc.tree) << tc.name;
+    const tree::TreeSubsystem& tr = *tc.tree;
+    const Index n = tr.dof(), rows = tr.frame_jacobian_rows();
+    std::vector<double> slot(static_cast<std::size_t>(tr.slot_size()));
+    std::vector<double> b0(12 * static_cast<std::size_t>(n)), b1(b0), b2(b0);
+    tree::FrameState value(b0.data(), b0.data() + 3 * n, n), v1(b1.data(), b1.data() + 3 * n, n),
+        t1(b2.data(), b2.data() + 3 * n, n);
+    const int link = static_cast<int>(tr.model().links.size()) - 1;
+    const M3 Ro = Eigen::AngleAxisd(0.4, V3(1, 2, 3).normalized()).toRotationMatrix();
+    const V3 xo(0.1, -0.2, 0.3);
+    double worst_id = 0.0, worst_frame = 0.0;
+    for (int k = 0; k < 6; ++k) {
+      Vec q(n), qd(n), qdd(n);
+      for (Index i = 0; i < n; ++i) {
+        q(i) = nd(rng);
+        qd(i) = nd(rng);
+        qdd(i) = nd(rng);
+      }
+      const ukdyn::Slot s = k % 2 ? ukdyn::Slot(slot) : ukdyn::Slot{};
+      Mat Jq(n, n), Jqd(n, n), J(rows, 2 * n);
+      ASSERT_TRUE(tr.inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd));
+      tr.frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, value, J);
+      for (Index j = 0; j < 2 * n; ++j) {
+        Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), one(n);
+        (j < n ? dq : dqd)(j % n) = 1.0;
+        ASSERT_TRUE(tr.inverse_dynamics_tangent({}, q, qd, qdd, dq, dqd, one));
+        worst_id = std::max(worst_id, max_rel(j < n ? Vec(Jq.col(j)) : Vec(Jqd.col(j - n)), one));
+        tr.frame_state_tangent(q, qd, qdd, dq, dqd, link, Ro, xo, {}, v1, t1);
+        worst_frame = std::max(worst_frame, max_rel(Vec(J.col(j)), stacked(t1, n)));
+        worst_frame = std::max(worst_frame, max_rel(stacked(value, n), stacked(v1, n)));
+      }
+    }
+    EXPECT_LE(worst_id, 1e-12) << tc.name;
+    EXPECT_LE(worst_frame, 1e-12) << tc.name;
+    std::printf("%s: all columns at once vs one direction at a time: ID %.3g, frame %.3g\n",
+                tc.name.c_str(), worst_id, worst_frame);
   }
 }
 

@@ -13,6 +13,8 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <sstream>
+#include <stdexcept>
 #include <string>
 
 #include "control_systems.hpp"
@@ -443,3 +445,31 @@ TEST(VaryingMass, ClosedLoopOnATimeVaryingLoadMass) {
 }
 
 }  // namespace
+
+// (e) The C matrix of a mass of t at time t is that of the same body with the constant mass
+// m(t) (C is the Christoffel matrix of M(q, t) at fixed t), given the time; the overload without
+// a time refuses a time-varying system rather than answer at t = 0.
+TEST(VaryingMass, CoriolisMatrixIsTakenAtTheGivenTime) {
+  const auto body = [](const std::string& mass) {
+    return "ukdyn: 1\nname: c_of_t\ngravity: 9.8\nsubsystems:\n"
+           "  - name: body\n    type: definitions\n    coordinates: [x, z]\n"
+           "    bodies:\n      - {name: p, mass: " +
+           mass +
+           ", com: [x, 0, x*z]}\n"
+           "initial: {q: [0.3, -0.7], qd: [1.1, 0.4]}\n";
+  };
+  const auto varying = ukdyn::load_scenario_text(body("2*(1 + 0.2*sin(10*t))"), "v.yaml");
+  const double t = 0.37;
+  std::ostringstream m;
+  m.precision(17);
+  m << 2 * (1 + 0.2 * std::sin(10 * t));
+  const auto fixed = ukdyn::load_scenario_text(body(m.str()), "f.yaml");
+  const Vec q = varying.q0, qd = varying.qd0;
+  ukdyn::ForwardData dv(*varying.system), df(*fixed.system);
+  Mat Cv(2, 2), Cf(2, 2);
+  ukdyn::coriolis_matrix(*varying.system, dv, t, q, qd, Cv);
+  ukdyn::coriolis_matrix(*fixed.system, df, t, q, qd, Cf);
+  EXPECT_GT(Cf.cwiseAbs().maxCoeff(), 0.1);
+  EXPECT_LT((Cv - Cf).cwiseAbs().maxCoeff(), 1e-13 * Cf.cwiseAbs().maxCoeff());
+  EXPECT_THROW(ukdyn::coriolis_matrix(*varying.system, q, qd, Cv), std::invalid_argument);
+}

@@ -355,7 +355,7 @@ ForwardResult forward(const PyScenario& s, double t, const py::object& q_in,
   {
     py::gil_scoped_release release;
     ukdyn::forward(*sys, data, t, q, qd, tau, sc.sim.uk);
-    ukdyn::coriolis_matrix(*sys, q, qd, C);
+    ukdyn::coriolis_matrix(*sys, data, t, q, qd, C);
   }
   rethrow_recorded(errors);
   check_forward_result(*sys, data, C);

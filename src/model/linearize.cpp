@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "ukdyn/core/uk_singular.hpp"
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/model/parameter_sensitivity.hpp"
 
 namespace ukdyn {
@@ -207,45 +208,80 @@ void solve_kkt(LinearizeData& d, Index n) {
   for (Index k = 0; k < r; ++k) d.lambda(lin.kept_rows[static_cast<std::size_t>(k)]) = lin.mu(k);
 }
 
-// The right-hand side of the differentiated KKT system along one direction (d.dq, d.dqd) into
-// column `col` of d.rhs_all, and d(Aᵀλ) into column `col` of d.dforce_all. A subsystem's inverse
-// dynamics depends on its own coordinates only (M, C, G are block-diagonal, paper Eq. (10)-(11)):
-// along e_j only the subsystem holding j has a tangent, the others' is zero and is not computed.
-void direction(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, Index j,
-               Index col) {
-  const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
-  const auto& L = system.layout();
-  const auto& subs = system.subsystems();
-  const auto& cons = system.constraints();
-  const auto& offs = system.constraint_row_offsets();
+// The right-hand sides of the differentiated KKT system, column j < n along e_j of q, column n + j
+// along e_j of q̇ (d.rhs_all), and d(Aᵀλ) (d.dforce_all), from the components' tangents. A
+// subsystem's inverse dynamics depends on its own coordinates only (M, C, G are block-diagonal,
+// paper Eq. (10)-(11)): its derivatives fill its diagonal blocks, in one call of
+// inverse_dynamics_jacobian() where it has one (a tree: every direction on the lanes of one pass),
+// else one inverse_dynamics_tangent() per direction of its coordinates.
+void subsystem_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                       std::size_t k) {
+  const Index n = system.dof(), s = system.layout().start[k], nk = system.layout().size[k];
+  const Subsystem& sub = *system.subsystems()[k];
+  const EvalContext ctx{t, d.fwd.subsystem_slot(k)};
   const Vec& qdd = d.lin.qdd;
-  d.dID.setZero();
-  const std::size_t k = d.owner[static_cast<std::size_t>(j)];
-  const Index s = L.start[k], nk = L.size[k];
-  if (!subs[k]->inverse_dynamics_tangent({t, d.fwd.subsystem_slot(k)}, q.segment(s, nk),
-                                         qd.segment(s, nk), qdd.segment(s, nk), d.dq.segment(s, nk),
-                                         d.dqd.segment(s, nk), d.dID.segment(s, nk)))
-    throw Error("linearize: subsystem '" + subs[k]->name() + "' has no exact derivatives");
-  d.dQa.setZero();
-  for (const auto& f : system.applied_forces()) {
-    if (!f->add_tangent(t, q, qd, d.dq, d.dqd, d.dQa))
-      throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
+  auto dq = d.rhs_all.block(s, s, nk, nk), dqd = d.rhs_all.block(s, n + s, nk, nk);
+  const auto* all = dynamic_cast<const SubsystemColumns*>(&sub);
+  if (all != nullptr && all->inverse_dynamics_jacobian(ctx, q.segment(s, nk), qd.segment(s, nk),
+                                                       qdd.segment(s, nk), dq, dqd)) {
+    dq = -dq;
+    dqd = -dqd;
+    return;
   }
-  auto dforce = d.dforce_all.col(col);
-  dforce.setZero();
-  d.dres.setZero();
-  for (std::size_t c = 0; c < cons.size(); ++c) {
-    const Index rows = cons[c]->rows();
+  for (Index j = s; j < s + nk; ++j) {
+    for (const bool rate : {false, true}) {
+      (rate ? d.dqd : d.dq)(j) = 1.0;
+      auto dID = d.dID.segment(s, nk);
+      if (!sub.inverse_dynamics_tangent(ctx, q.segment(s, nk), qd.segment(s, nk),
+                                        qdd.segment(s, nk), d.dq.segment(s, nk),
+                                        d.dqd.segment(s, nk), dID))
+        throw Error("linearize: subsystem '" + sub.name() + "' has no exact derivatives");
+      d.rhs_all.col(rate ? n + j : j).segment(s, nk) = -dID;
+      (rate ? d.dqd : d.dq)(j) = 0.0;
+    }
+  }
+}
+
+// The applied forces' dQa along each direction, added to the columns.
+void applied_force_columns(const System& system, LinearizeData& d, double t, CVecRef q,
+                           CVecRef qd) {
+  const Index n = system.dof();
+  if (system.applied_forces().empty()) return;
+  for (Index col = 0; col < 2 * n; ++col) {
+    VecRef dir = col < n ? d.dq : d.dqd;
+    dir(col % n) = 1.0;
+    d.dQa.setZero();
+    for (const auto& f : system.applied_forces()) {
+      if (!f->add_tangent(t, q, qd, d.dq, d.dqd, d.dQa))
+        throw Error("linearize: applied force '" + f->name() + "' has no exact derivatives");
+    }
+    d.rhs_all.col(col).head(n) += d.dQa;
+    dir(col % n) = 0.0;
+  }
+}
+
+// Constraint c's d(A q̈ − b) (its rows of d.dres_all) and d(Aᵀλ) (added to d.dforce_all) along
+// every direction: in one tangent_columns() call where it has one, else one tangent() each.
+void constraint_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                        std::size_t c) {
+  const Index n = system.dof();
+  const Constraint& con = *system.constraints()[c];
+  const Index rows = con.rows(), off = system.constraint_row_offsets()[c];
+  const ConstraintContext ctx{t, d.fwd.constraint_slots(c)};
+  const Vec& qdd = d.lin.qdd;
+  const auto lambda = d.lambda.segment(off, rows);
+  auto dres = d.rhs_all.middleRows(n + off, rows);
+  const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+  if (all != nullptr && all->tangent_columns(ctx, q, qd, qdd, lambda, dres, d.dforce_all)) return;
+  for (Index col = 0; col < 2 * n; ++col) {
+    VecRef dir = col < n ? d.dq : d.dqd;
+    dir(col % n) = 1.0;
     d.dforce_c.setZero();
-    if (!cons[c]->tangent({t, d.fwd.constraint_slots(c)}, q, qd, qdd,
-                          d.lambda.segment(offs[c], rows), d.dq, d.dqd,
-                          d.dres.segment(offs[c], rows), d.dforce_c))
+    if (!con.tangent(ctx, q, qd, qdd, lambda, d.dq, d.dqd, dres.col(col), d.dforce_c))
       throw Error("linearize: a constraint has no exact derivatives");
-    dforce += d.dforce_c;
+    d.dforce_all.col(col) += d.dforce_c;
+    dir(col % n) = 0.0;
   }
-  d.rhs_all.col(col).head(n) = -d.dID + d.dQa + dforce;
-  for (Index i = 0; i < r; ++i)
-    d.rhs_all(n + i, col) = -d.dres(d.lin.kept_rows[static_cast<std::size_t>(i)]);
 }
 
 // The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
@@ -349,18 +385,21 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
   const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
   // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
   // column each, solved together with the one factorisation.
-  d.rhs_all.resize(n + r, 2 * n);
-  d.dforce_all.resize(n, 2 * n);
-  for (Index j = 0; j < n; ++j) {
-    d.dq(j) = 1.0;
-    direction(system, d, t, q, qd, j, j);
-    d.dq(j) = 0.0;
-    d.dqd(j) = 1.0;
-    direction(system, d, t, q, qd, j, n + j);
-    d.dqd(j) = 0.0;
-  }
+  // Rows n .. n + m − 1 of d.rhs_all take d(A q̈ − b) of every row, then −d(A_R q̈ − b_R) of the
+  // kept rows moves up to rows n .. n + r − 1 (kept_rows ascend: a row is read before it is
+  // overwritten), what the solve reads; its size stays (n + m) × 2n (no allocation).
+  d.rhs_all.setZero(n + system.rows(), 2 * n);
+  d.dforce_all.setZero(n, 2 * n);
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)
+    subsystem_columns(system, d, t, q, qd, k);
+  applied_force_columns(system, d, t, q, qd);
+  for (std::size_t c = 0; c < system.constraints().size(); ++c)
+    constraint_columns(system, d, t, q, qd, c);
+  d.rhs_all.topRows(n) += d.dforce_all;
+  for (Index i = 0; i < r; ++i)
+    d.rhs_all.row(n + i) = -d.rhs_all.row(n + d.lin.kept_rows[static_cast<std::size_t>(i)]);
   d.X.resize(n + r, 2 * n);
-  d.X = d.lu.solve(d.rhs_all);
+  d.X = d.lu.solve(d.rhs_all.topRows(n + r));
   store_solutions(d, n, parts);
 }
 

@@ -399,11 +399,28 @@ void velocity_residuals(const System& system, ForwardData& data, double t, CVecR
   }
 }
 
+void coriolis_matrix(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                     MatRef C) {
+  const auto& L = system.layout();
+  const auto& subs = system.subsystems();
+  C.setZero();
+  for (std::size_t k = 0; k < subs.size(); ++k) {
+    const Index s = L.start[k];
+    const Index n = L.size[k];
+    subs[k]->coriolis({t, data.subsystem_slot(k)}, q.segment(s, n), qd.segment(s, n),
+                      C.block(s, s, n, n));
+  }
+}
+
 void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C) {
   const auto& L = system.layout();
   const auto& subs = system.subsystems();
   C.setZero();
   for (std::size_t k = 0; k < subs.size(); ++k) {
+    if (subs[k]->time_varying()) {
+      throw std::invalid_argument("coriolis_matrix: subsystem '" + subs[k]->name() +
+                                  "' depends on t; give the time (and a ForwardData)");
+    }
     const Index s = L.start[k];
     const Index n = L.size[k];
     subs[k]->coriolis({}, q.segment(s, n), qd.segment(s, n), C.block(s, s, n, n));

@@ -185,7 +185,7 @@ json answer(const Scenario& sc, ForwardData& data, Mat& C, const std::string& li
         "the mass matrix M is singular to round-off at this state (reciprocal condition {:.3e})",
         rc));
   }
-  coriolis_matrix(sys, q, qd, C);
+  coriolis_matrix(sys, data, t, q, qd, C);
   if (!data.result.finite || !all_finite(data.qdd) || !all_finite(data.Qc) || !all_finite(data.A) ||
       !all_finite(data.b) || !all_finite(data.G) || !all_finite(data.Q) || !all_finite(data.Cqd) ||
       !all_finite(C)) {

@@ -6,8 +6,10 @@
 #include <algorithm>
 #include <set>
 
+#include "core/lane_dual.hpp"
 #include "symbolic/ex_helpers.hpp"
 #include "tree/dual.hpp"
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
@@ -174,13 +176,15 @@ struct End {
   NumericFrameEnd spec;
   std::vector<Index> cols;
   Tape tape;
-  Index scratch = 0;  // doubles of slot it needs besides dp, dR: tree workspace or tape work+out
+  Index scratch = 0;   // doubles of slot it needs besides dp, dR: tree workspace or tape work+out
+  Index n_system = 0;  // the system's coordinates (the tape's inputs)
 };
 
 End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTable& table,
              const std::string& frame) {
   End end;
   end.spec = std::move(e);
+  end.n_system = static_cast<Index>(coords.size());
   const NumericFrameEnd& s = end.spec;
   if (s.kind == NumericFrameEnd::Kind::tree) {
     for (Index j = 0; j < s.tree->dof(); ++j) end.cols.push_back(s.first_coordinate + j);
@@ -372,10 +376,12 @@ using DM3 = Eigen::Matrix<Dual, 3, 3>;
 // A frame's state on dual numbers along one direction (dq, dq̇) at fixed q̈: pdd, Rdd are the
 // acceleration AT q̈ (so that A q̈ − b = D ẍ + ẋᵀHẋ). The columns dp, dR of its end are kept as
 // values and tangents in two FrameStates (in the constraint's slot: no allocation per direction).
-struct DualFrame {
-  DV3 p, pd, pdd;
-  DM3 R, Rd, Rdd;
+template <class D>
+struct LaneFrame {
+  Eigen::Matrix<D, 3, 1> p, pd, pdd;
+  Eigen::Matrix<D, 3, 3> R, Rd, Rdd;
 };
+using DualFrame = LaneFrame<Dual>;
 
 template <class M, class DM>
 void combine(const M& value, const M& tangent, DM& out) {
@@ -401,6 +407,76 @@ struct EndScratch {
 
 Index tangent_room(const End& e) {
   return e.spec.kind == NumericFrameEnd::Kind::expressions ? e.scratch : 0;
+}
+
+// ------------------------------------------------ every direction at once (lanes)
+
+// Several directions per pass (vector-mode forward differentiation, Griewank & Walther 2008,
+// §3.1): one lane per direction, as the tree's frame_state_jacobian() runs them.
+constexpr int kLanes = 8;
+using Lanes = LaneDual<kLanes>;
+
+// A tree end's frame_state_jacobian() in the slot: (36 + 12 nc) × 2 nc doubles.
+// An expressions end's: the same J, then the two directions (n_system each) of its tape tangents.
+Index lane_room(const End& e) {
+  const auto nc = static_cast<Index>(e.cols.size());
+  if (e.spec.kind == NumericFrameEnd::Kind::fixed) return 0;
+  const Index J = (36 + 12 * nc) * 2 * nc;
+  return e.spec.kind == NumericFrameEnd::Kind::tree ? J : J + 2 * e.n_system;
+}
+
+// One end in a pass: its state (values v), its frame_state_jacobian() J (ld rows; null: a fixed
+// end) and, per lane, the column of J of the lane's direction (−1: it does not move the end).
+struct LaneEnd {
+  const FrameState* v;
+  const double* J;
+  Index ld;
+  Index col[kLanes];
+};
+
+template <int R, int C>
+void lift(const Eigen::Matrix<double, R, C>& v, Index row, const LaneEnd& e,
+          Eigen::Matrix<Lanes, R, C>& out) {
+  for (Index r = 0; r < R * C; ++r) {
+    Lanes x(v(r / C, r % C));
+    for (int l = 0; l < kLanes; ++l) {
+      if (e.col[l] >= 0) x.d[l] = e.J[row + r + e.col[l] * e.ld];
+    }
+    out(r / C, r % C) = x;
+  }
+}
+
+void lift(const LaneEnd& e, LaneFrame<Lanes>& s) {
+  lift(e.v->p, 0, e, s.p);
+  lift(e.v->R, 3, e, s.R);
+  lift(e.v->pd, 12, e, s.pd);
+  lift(e.v->Rd, 15, e, s.Rd);
+  lift(e.v->pdd, 24, e, s.pdd);
+  lift(e.v->Rdd, 27, e, s.Rdd);
+}
+
+// d_force(cols, out_col[l]) += lane l of d(J_endᵀ D_endᵀ λ) (add_force_tangent on lanes).
+void add_force_lanes(const LaneEnd& e, const std::vector<Index>& cols, const RowValues<Lanes>& r,
+                     int p0, int r0, CVecRef lambda, const Index* out_col, int lanes,
+                     MatRef d_force) {
+  Eigen::Matrix<Lanes, 12, 1> g;
+  for (int k = 0; k < 12; ++k) {
+    g(k) = Lanes(0.0);
+    const int col = k < 3 ? p0 + k : r0 + (k - 3);
+    for (int i = 0; i < r.m; ++i) g(k) += r.D(i, col) * lambda(i);
+  }
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    for (int l = 0; l < lanes; ++l) {
+      double f = 0.0;
+      for (int k = 0; k < 12; ++k) {
+        const double x = k < 3 ? e.v->dp(k, ci) : e.v->dR(k - 3, ci);
+        f += g(k).d[l] * x;
+        if (e.col[l] >= 0) f += g(k).value() * e.J[36 + 12 * ci + k + e.col[l] * e.ld];
+      }
+      d_force(cols[c], out_col[l]) += f;
+    }
+  }
 }
 
 // A tree end: frame_state_tangent (the recursive pass on dual numbers).
@@ -535,6 +611,109 @@ void add_end_columns(const End& e, const FrameState& s, const double* twists,
 
 // ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
 Eigen::Matrix<double, 24, 1> rates(const FrameState& a, const FrameState& b, bool second);
+// Row i of A q̈ − b = D ẍ + ẋᵀHẋ (ẍ: the frames' acceleration at q̈) on the scalar S.
+template <class S>
+S residual_row(const RowValues<S>& r, const LaneFrame<S>& a, const LaneFrame<S>& b, int i) {
+  S res = r.Q(i);
+  for (int k = 0; k < 3; ++k) res += r.D(i, kPa + k) * a.pdd(k) + r.D(i, kPb + k) * b.pdd(k);
+  for (int k = 0; k < 9; ++k) {
+    res += r.D(i, kRa + k) * a.Rdd(k / 3, k % 3) + r.D(i, kRb + k) * b.Rdd(k / 3, k % 3);
+  }
+  return res;
+}
+
+template <class M>
+void put_tangents(const M& x, double* out) {
+  for (Index r = 0; r < x.size(); ++r) out[r] = tangent_of(x(r / x.cols(), r % x.cols()));
+}
+
+// An expressions end's J as a tree's frame_state_jacobian() stacks it, column by column from its
+// tape's tangents (expression_end_tangent: one tape pass per direction of its coordinates), and
+// its state in v. t: room for one direction's columns (12 nc).
+void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x,
+                         double* t_cols, double* J, FrameState& v) {
+  const auto nc = static_cast<Index>(e.cols.size());
+  const Index ld = 36 + 12 * nc;
+  Eigen::Map<Vec> dq(J + ld * 2 * nc, e.n_system), dqd(J + ld * 2 * nc + e.n_system, e.n_system);
+  dq.setZero();
+  dqd.setZero();
+  FrameState t(t_cols, t_cols + 3 * nc, nc);
+  DualFrame s;
+  for (Index col = 0; col < 2 * nc; ++col) {
+    double& seed = (col < nc ? dq : dqd)(e.cols[static_cast<std::size_t>(col % nc)]);
+    seed = 1.0;
+    expression_end_tangent(e, q, qd, qdd, dq, dqd, x, v, t, s);
+    seed = 0.0;
+    double* out = J + col * ld;
+    put_tangents(s.p, out);
+    put_tangents(s.R, out + 3);
+    put_tangents(s.pd, out + 12);
+    put_tangents(s.Rd, out + 15);
+    put_tangents(s.pdd, out + 24);
+    put_tangents(s.Rdd, out + 27);
+    for (Index c = 0; c < nc; ++c) {
+      for (int i = 0; i < 3; ++i) out[36 + 12 * c + i] = t.dp(i, c);
+      for (int r = 0; r < 9; ++r) out[36 + 12 * c + 3 + r] = t.dR(r, c);
+    }
+  }
+  v.p = s.p.unaryExpr([](const Dual& a) { return a.value(); });
+  v.R = s.R.unaryExpr([](const Dual& a) { return a.value(); });
+  v.pd = s.pd.unaryExpr([](const Dual& a) { return a.value(); });
+  v.Rd = s.Rd.unaryExpr([](const Dual& a) { return a.value(); });
+  v.pdd = s.pdd.unaryExpr([](const Dual& a) { return a.value(); });
+  v.Rdd = s.Rdd.unaryExpr([](const Dual& a) { return a.value(); });
+}
+
+// An end's state and its J (a tree's frame_state_jacobian(), an expressions end's tape tangents;
+// none for a fixed end). x: its scratch and tape-tangent room, t_cols: 12 nc doubles.
+LaneEnd lane_end(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x, double* t_cols,
+                 double* J, FrameState& v) {
+  LaneEnd out{&v, nullptr, 36 + 12 * static_cast<Index>(e.cols.size()), {}};
+  const NumericFrameEnd& spec = e.spec;
+  if (spec.kind == NumericFrameEnd::Kind::fixed) {
+    end_state(e, q, qd, x.scratch, v);
+    return out;
+  }
+  if (spec.kind == NumericFrameEnd::Kind::expressions) {
+    expression_jacobian(e, q, qd, qdd, x, t_cols, J, v);
+    out.J = J;
+    return out;
+  }
+  const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
+  Eigen::Map<Mat> Jm(J, out.ld, 2 * n);
+  spec.tree->frame_state_jacobian(q.segment(c0, n), qd.segment(c0, n), qdd.segment(c0, n),
+                                  spec.link, spec.offset_R, spec.offset_p,
+                                  Slot(x.scratch, static_cast<std::size_t>(e.scratch)), v, Jm);
+  out.J = J;
+  return out;
+}
+
+// The column of a tree end's J along coordinate g of q (of q̇ when `rate`); −1 when g does not
+// move the end (not one of its coordinates, a fixed end, g < 0).
+Index lane_column(const End& e, Index g, bool rate) {
+  const auto it = std::lower_bound(e.cols.begin(), e.cols.end(), g);
+  if (g < 0 || it == e.cols.end() || *it != g) return -1;
+  return (rate ? static_cast<Index>(e.cols.size()) : 0) + static_cast<Index>(it - e.cols.begin());
+}
+
+// One pass: both ends on lanes, the rows on lanes, lane l's d(A q̈ − b) into column out_col[l]
+// of d_residual and its d(Aᵀλ) added to that of d_force.
+[[gnu::flatten]] void lane_pass(const NumericFrameSpec& f, const End& a, const End& b,
+                                const LaneEnd& A, const LaneEnd& B, CVecRef lambda,
+                                const Index* out_col, int lanes, MatRef d_residual,
+                                MatRef d_force) {
+  LaneFrame<Lanes> sa, sb;
+  lift(A, sa);
+  lift(B, sb);
+  RowValues<Lanes> r;
+  row_values(f, sa, sb, r);
+  for (int i = 0; i < r.m; ++i) {
+    const Lanes res = residual_row(r, sa, sb, i);
+    for (int l = 0; l < lanes; ++l) d_residual(i, out_col[l]) = res.d[l];
+  }
+  add_force_lanes(A, a.cols, r, kPa, kRa, lambda, out_col, lanes, d_force);
+  add_force_lanes(B, b.cols, r, kPb, kRb, lambda, out_col, lanes, d_force);
+}
 
 // What the constraint and its wrench map share: the spec, the two ends and the slot layout.
 class Core {
@@ -552,7 +731,8 @@ class Core {
   // tape tangents' room of an expressions end (as much as its scratch).
   [[nodiscard]] Index slot_size() const {
     const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
-    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
+    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_) +
+           lane_room(a_) + lane_room(b_);
   }
 
   // The two ends' states and the rows at (q, q̇) with `slot` (slot_size() doubles); f gets
@@ -637,18 +817,51 @@ class Core {
     end_tangent(b_, q, qd, qdd, dq, dqd, {sb, xb}, Vb, Tb, B);
     RowValues<Dual> r;
     row_values(f_, A, B, r);
-    for (int i = 0; i < r.m; ++i) {
-      Dual res = r.Q(i);
-      for (int k = 0; k < 3; ++k) {
-        res += r.D(i, kPa + k) * A.pdd(k) + r.D(i, kPb + k) * B.pdd(k);
-      }
-      for (int k = 0; k < 9; ++k) {
-        res += r.D(i, kRa + k) * A.Rdd(k / 3, k % 3) + r.D(i, kRb + k) * B.Rdd(k / 3, k % 3);
-      }
-      d_residual(i) = tangent_of(res);
-    }
+    for (int i = 0; i < r.m; ++i) d_residual(i) = tangent_of(residual_row(r, A, B, i));
     add_force_tangent(Va, Ta, a_.cols, r, kPa, kRa, lambda, d_force);
     add_force_tangent(Vb, Tb, b_.cols, r, kPb, kRb, lambda, d_force);
+  }
+
+  // tangent() along every direction of q and q̇ that moves an end, kLanes per pass, from the
+  // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to.
+  bool tangent_columns(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda, Slot slot,
+                       MatRef d_residual, MatRef d_force) const {
+    std::vector<double> own;
+    double* base = slot.data();
+    if (static_cast<Index>(slot.size()) < slot_size()) {
+      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+      base = own.data();
+    }
+    const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
+    double* sa = base;
+    double* sb = sa + a_.scratch;
+    double* va = sb + b_.scratch;  // the layout of tangent(), then the ends' J (lane_room)
+    double* vb = va + 12 * na;
+    double* ta = vb + 12 * nb;
+    double* tb = ta + 12 * na;
+    double* xa = tb + 12 * nb;
+    double* xb = xa + tangent_room(a_);
+    double* ja = xb + tangent_room(b_);
+    double* jb = ja + lane_room(a_);
+    FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
+    LaneEnd A = lane_end(a_, q, qd, qdd, {sa, xa}, ta, ja, Va);
+    LaneEnd B = lane_end(b_, q, qd, qdd, {sb, xb}, tb, jb, Vb);
+    d_residual.setZero();
+    const Index n = q.size(), nc = static_cast<Index>(cols_.size());
+    for (const bool rate : {false, true}) {
+      for (Index i0 = 0; i0 < nc; i0 += kLanes) {
+        const int lanes = static_cast<int>(std::min<Index>(kLanes, nc - i0));
+        Index out_col[kLanes];
+        for (int l = 0; l < kLanes; ++l) {
+          const Index g = l < lanes ? cols_[static_cast<std::size_t>(i0 + l)] : -1;
+          out_col[l] = (rate ? n : 0) + g;
+          A.col[l] = lane_column(a_, g, rate);
+          B.col[l] = lane_column(b_, g, rate);
+        }
+        lane_pass(f_, a_, b_, A, B, lambda, out_col, lanes, d_residual, d_force);
+      }
+    }
+    return true;
   }
 
   [[nodiscard]] const End& a() const { return a_; }
@@ -679,7 +892,7 @@ Eigen::Matrix<double, 24, 1> rates(const FrameState& a, const FrameState& b, boo
   return x;
 }
 
-class NumericFrameRows final : public Constraint {
+class NumericFrameRows final : public Constraint, public ConstraintColumns {
  public:
   explicit NumericFrameRows(std::shared_ptr<const Core> core) : core_(std::move(core)) {}
   [[nodiscard]] Index rows() const override { return static_cast<Index>(core_->names().size()); }
@@ -713,6 +926,10 @@ class NumericFrameRows final : public Constraint {
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
     core_->tangent(q, qd, qdd, lambda, dq, dqd, ctx.slots.own(), d_residual, d_force);
     return true;
+  }
+  bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                       CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
+    return core_->tangent_columns(q, qd, qdd, lambda, ctx.slots.own(), d_residual, d_force);
   }
 
  private:

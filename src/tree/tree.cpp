@@ -16,6 +16,7 @@
 #include <set>
 #include <unsupported/Eigen/AutoDiff>
 
+#include "core/lane_dual.hpp"
 #include "tree/dual.hpp"
 
 namespace ukdyn::tree {
@@ -603,6 +604,25 @@ Index tangent_workspace_doubles(std::size_t links, Index nt) {
   return static_cast<Index>(links) * kDualLinkDoubles + 4 * nt * kDualDoubles + 1;
 }
 
+// Several directions at once (vector-mode forward differentiation, Griewank & Walther 2008,
+// §3.1): one lane of the derivative per direction, the values computed once for all of them; a
+// fixed number of lanes (no heap), the directions taken kLanes at a time.
+constexpr int kLanes = 8;
+using Lanes = LaneDual<kLanes>;
+constexpr std::size_t kLaneAlign = alignof(LinkState<Lanes>);
+static_assert(kLaneAlign % sizeof(double) == 0 && alignof(Lanes) <= kLaneAlign,
+              "LinkState<Lanes> must live in a slot of doubles");
+
+// The links, then θ, θ̇, θ̈, τ (nt each), from the first kLaneAlign-aligned double; then the
+// links on doubles (the placement the directions of q̇ share).
+Index lane_workspace_doubles(std::size_t links, Index nt) {
+  const std::size_t bytes = links * sizeof(LinkState<Lanes>) +
+                            4 * static_cast<std::size_t>(nt) * sizeof(Lanes) + kLaneAlign +
+                            links * sizeof(LinkState<double>) +
+                            static_cast<std::size_t>(nt) * sizeof(double);
+  return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
+}
+
 }  // namespace
 
 namespace {
@@ -723,8 +743,10 @@ TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(m
       ++n_theta_;
     }
   }
-  // The forward workspace, then the derivatives' (dual numbers, inverse_dynamics_tangent()).
+  // The forward workspace, then the derivatives': lanes (inverse_dynamics_jacobian(),
+  // frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()).
   slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
+               lane_workspace_doubles(merged_.links.size(), n_theta_) +
                tangent_workspace_doubles(merged_.links.size(), n_theta_);
 }
 
@@ -1305,6 +1327,207 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
     for (const Term& t : theta_terms_[k]) dID(t.coordinate) += t.coefficient * d;
   }
   return true;
+}
+
+namespace {
+
+// The lane workspace after the forward workspace of a slot (or in `own`).
+struct LaneWorkspace {
+  LinkState<Lanes>* links;
+  Lanes* theta;
+  Lanes* thetad;
+  Lanes* thetadd;
+  Lanes* tau;
+  LinkState<double>* plain;
+  double* theta_plain;  // θ on doubles (nt)
+};
+
+LaneWorkspace lane_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
+                             std::vector<double>& own) {
+  const Index need = lane_workspace_doubles(nl, nt);
+  double* base = nullptr;
+  if (static_cast<Index>(slot.size()) >= slot_size) {
+    base = slot.data() + workspace_doubles(nl, nt);
+  } else {
+    own.resize(static_cast<std::size_t>(need));
+    base = own.data();
+  }
+  while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
+  LaneWorkspace w{};
+  w.links = reinterpret_cast<LinkState<Lanes>*>(base);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<Lanes>;
+  w.theta = reinterpret_cast<Lanes*>(w.links + nl);
+  for (Index k = 0; k < 4 * nt; ++k) new (&w.theta[k]) Lanes;
+  w.thetad = w.theta + nt;
+  w.thetadd = w.thetad + nt;
+  w.tau = w.thetadd + nt;
+  w.plain = reinterpret_cast<LinkState<double>*>(w.tau + nt);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.plain[i]) LinkState<double>;
+  w.theta_plain = reinterpret_cast<double*>(w.plain + nl);
+  return w;
+}
+
+// The links placed on doubles at θ, lifted to lanes with zero tangents: what place<Lanes> gives
+// without seeds, at the cost of a pass on doubles (the directions of q̇ do not move the links).
+void place_constant(const Model& m, const std::vector<int>& ti, bool quat, const LaneWorkspace& w,
+                    Index nt) {
+  for (Index k = 0; k < nt; ++k) w.theta_plain[k] = w.theta[k].v;
+  place(m, ti, quat, w.theta_plain, w.plain);
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const LinkState<double>& a = w.plain[i];
+    LinkState<Lanes>& b = w.links[i];
+    b.R = a.R.cast<Lanes>();
+    b.p = a.p.cast<Lanes>();
+    for (int k = 0; k < 4; ++k) {
+      b.sw[k] = a.sw[k].cast<Lanes>();
+      b.sv[k] = a.sv[k].cast<Lanes>();
+      b.sl[k] = Lanes(a.sl[k]);
+    }
+    b.sc = Lanes(a.sc);
+    b.qs = Lanes(a.qs);
+    b.m_own = Lanes(a.m_own);
+    b.k_own = Lanes(a.k_own);
+    b.h_own = a.h_own.cast<Lanes>();
+    b.c = a.c.cast<Lanes>();
+    b.I_own = a.I_own.cast<Lanes>();
+    b.Ic = a.Ic.cast<Lanes>();
+  }
+}
+
+// θ, θ̇ and θ̈ = T q̈ on lanes: lane l of θ (of θ̇ when `rate`) seeded with the coefficient of
+// coordinate j0 + l, the direction e_{j0+l} of q (of q̇).
+void seed_lanes(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
+                CVecRef q, CVecRef qd, CVecRef qdd, Index j0, bool rate, const LaneWorkspace& w) {
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    double v = offset[k], s = 0.0, a = 0.0;
+    for (const Term& t : T[k]) {
+      v += t.coefficient * q(t.coordinate);
+      s += t.coefficient * qd(t.coordinate);
+      a += t.coefficient * qdd(t.coordinate);
+    }
+    w.theta[k] = Lanes(v);
+    w.thetad[k] = Lanes(s);
+    w.thetadd[k] = Lanes(a);
+    Lanes& seeded = rate ? w.thetad[k] : w.theta[k];
+    for (const Term& t : T[k]) {
+      const Index l = t.coordinate - j0;
+      if (l >= 0 && l < kLanes) seeded.d[l] += t.coefficient;
+    }
+  }
+}
+
+// The lanes of x as columns col0 + l (l < lanes) of J from row `row` (a matrix: R(i, k) at 3i + k).
+template <int R, int C>
+void put_lanes(const Eigen::Matrix<Lanes, R, C>& x, Index row, Index col0, Index lanes, MatRef J) {
+  for (Index r = 0; r < R * C; ++r) {
+    const Lanes& e = x(static_cast<Index>(r / C), static_cast<Index>(r % C));
+    for (Index l = 0; l < lanes; ++l) J(row + r, col0 + l) = e.d[l];
+  }
+}
+
+template <int R, int C>
+Eigen::Matrix<double, R, C> values(const Eigen::Matrix<Lanes, R, C>& x) {
+  return x.unaryExpr([](const Lanes& e) { return e.value(); });
+}
+
+// A frame of model() on the merged tree: its link there, the offset composed with the link's
+// placement.
+void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame_link, int& link,
+               Eigen::Matrix3d& R_offset, Eigen::Vector3d& x_offset) {
+  link = -1;
+  if (frame_link < 0) return;
+  const TreeSubsystem::Placement& at = placement[static_cast<std::size_t>(frame_link)];
+  link = at.link;
+  x_offset = at.p + at.R * x_offset;
+  R_offset = at.R * R_offset;
+}
+
+}  // namespace
+
+// Columns j0 .. j0 + kLanes − 1 of ∂ID/∂q (rate false) or ∂ID/∂q̇ (rate true) per pass:
+// dID = Tᵀ dτ_θ lane by lane. The directions of q̇ do not move the links: the placement (on
+// doubles, lifted) is made once for all of them. [[gnu::flatten]]: every lane operation inlined
+// (GCC otherwise left Eigen's scalar functors of LaneDual as calls, a third of the time).
+[[gnu::flatten]] bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q,
+                                                               CVecRef qd, CVecRef qdd,
+                                                               MatRef dID_dq,
+                                                               MatRef dID_dqd) const {
+  const std::size_t nl = merged_.links.size();
+  const Index n = dof();
+  std::vector<double> own;
+  const LaneWorkspace w = lane_workspace(c.slot, slot_size_, nl, n_theta_, own);
+  dID_dq.setZero();
+  dID_dqd.setZero();
+  for (const bool rate : {true, false}) {
+    MatRef out = rate ? dID_dqd : dID_dq;
+    for (Index j0 = 0; j0 < n; j0 += kLanes) {
+      seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
+      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
+      inverse_dynamics<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd, true,
+                              w.links, w.tau);
+      const Index lanes = std::min<Index>(kLanes, n - j0);
+      for (std::size_t k = 0; k < theta_terms_.size(); ++k) {
+        for (const Term& t : theta_terms_[k]) {
+          for (Index l = 0; l < lanes; ++l)
+            out(t.coordinate, j0 + l) += t.coefficient * w.tau[k].d[l];
+        }
+      }
+    }
+  }
+  return true;
+}
+
+// frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on one
+// placement), the fields' lanes stacked into the columns of J.
+[[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(
+    CVecRef q, CVecRef qd, CVecRef qdd, int frame_link, const Eigen::Matrix3d& frame_R_offset,
+    const Eigen::Vector3d& frame_x_offset, Slot scratch, FrameState& value, MatRef J) const {
+  int link = -1;
+  Eigen::Matrix3d R_offset = frame_R_offset;
+  Eigen::Vector3d x_offset = frame_x_offset;
+  on_merged(placement_, frame_link, link, R_offset, x_offset);
+  const Index n = dof();
+  std::vector<double> own;
+  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
+  J.setZero();
+  value.dp.setZero();
+  value.dR.setZero();
+  for (const bool rate : {true, false}) {
+    for (Index j0 = 0; j0 < n; j0 += kLanes) {
+      seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
+      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
+      link_motion<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd,
+                         V3<Lanes>::Zero(), w.links);
+      const FrameMotion<Lanes> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
+      const Index col0 = (rate ? n : 0) + j0, lanes = std::min<Index>(kLanes, n - j0);
+      const bool first = rate && j0 == 0;
+      if (first) {
+        value.p = values(f.p);
+        value.R = values(f.R);
+        value.pd = values(f.pd);
+        value.Rd = values(f.Rd);
+        value.pdd = values(f.pdd);
+        value.Rdd = values(f.Rdd);
+      }
+      put_lanes(f.p, 0, col0, lanes, J);
+      put_lanes(f.R, 3, col0, lanes, J);
+      put_lanes(f.pd, 12, col0, lanes, J);
+      put_lanes(f.Rd, 15, col0, lanes, J);
+      put_lanes(f.pdd, 24, col0, lanes, J);
+      put_lanes(f.Rdd, 27, col0, lanes, J);
+      frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
+                    [&](Index c, double k, const V3<Lanes>& dp, const M3<Lanes>& dR) {
+                      for (int r = 0; r < 12; ++r) {
+                        const Lanes& e = r < 3 ? dp(r) : dR((r - 3) / 3, (r - 3) % 3);
+                        if (first) (r < 3 ? value.dp(r, c) : value.dR(r - 3, c)) += k * e.value();
+                        for (Index l = 0; l < lanes; ++l)
+                          J(36 + 12 * c + r, col0 + l) += k * e.d[l];
+                      }
+                    });
+    }
+  }
 }
 
 std::shared_ptr<const TreeSubsystem> make_subsystem(Model model) {

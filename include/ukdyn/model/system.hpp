@@ -172,7 +172,13 @@ void position_residuals(const System& system, ForwardData& data, double t, CVecR
 void velocity_residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         VecRef phid);
 
-/// The full C matrix (n × n, block-diagonal). Allocates nothing if C has the right size.
+/// The full C matrix (n × n, block-diagonal) at time t, with data's slots as scratch. Allocates
+/// nothing if C has the right size.
+void coriolis_matrix(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
+                     MatRef C);
+/// The same without a time or a ForwardData, for systems whose subsystems do not depend on t;
+/// throws std::invalid_argument naming the subsystem when one is time_varying() (its C depends on
+/// t: use the overload above).
 void coriolis_matrix(const System& system, CVecRef q, CVecRef qd, MatRef C);
 /// Position residuals Φ(q, t) of every row (m), without a ForwardData (a block that needs scratch
 /// makes its own: may allocate).

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "ukdyn/core/types.hpp"
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
 #include "ukdyn/symbolic/tape.hpp"
@@ -172,7 +173,7 @@ class FrameWrenchMap final : public FrameWrenches {
 /// A constraint block between two frames that also knows the wrenches on its frames (what the
 /// io layer's constraint_force_output writes). Its rows are a DerivedConstraint's (derived from
 /// the frames' expressions) or the numeric ones of frames on trees; every evaluation is theirs.
-class FrameConstraint final : public Constraint {
+class FrameConstraint final : public Constraint, public ConstraintColumns {
  public:
   /// `derived`: the derivation of the rows, if they were derived (for `ukdyn derive`), else null.
   FrameConstraint(std::shared_ptr<const Constraint> rows,
@@ -202,6 +203,12 @@ class FrameConstraint final : public Constraint {
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
     return c_->tangent(ctx, q, qd, qdd, lambda, dq, dqd, d_residual, d_force);
+  }
+  /// The rows' tangent_columns() where they have one (the numeric rows of frames on trees).
+  bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                       CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
+    const auto* all = dynamic_cast<const ConstraintColumns*>(c_.get());
+    return all != nullptr && all->tangent_columns(ctx, q, qd, qdd, lambda, d_residual, d_force);
   }
   /// The derivation of the rows (null for the numeric rows of frames on trees).
   [[nodiscard]] const DerivedConstraint* derived() const { return d_.get(); }

@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/model/subsystem.hpp"
 
 namespace ukdyn::tree {
@@ -107,7 +108,7 @@ struct FrameState {
 /// movable links only. Its frame stays usable by name: link_index, link_pose(s) and frame_state
 /// place it as its ancestor's pose times the constant transform between them. model() is the
 /// tree as given.
-class TreeSubsystem : public Subsystem {
+class TreeSubsystem : public Subsystem, public SubsystemColumns {
  public:
   explicit TreeSubsystem(Model model, bool merge_fixed = true);
   [[nodiscard]] Index dof() const override { return static_cast<Index>(model_.coordinates.size()); }
@@ -132,6 +133,10 @@ class TreeSubsystem : public Subsystem {
   /// The RNEA with q̈ run once on dual numbers (forward-mode automatic differentiation).
   bool inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef dq, CVecRef dqd, VecRef dID) const override;
+  /// Every column at once: the same pass on dual numbers of several lanes, one lane per direction
+  /// (vector-mode forward differentiation), the placement shared by the directions of q̇.
+  bool inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                                 MatRef dID_dq, MatRef dID_dqd) const override;
 
   [[nodiscard]] const Model& model() const { return model_; }
   /// Index of a link by name (−1: the root frame), or −2 if there is none.
@@ -164,6 +169,15 @@ class TreeSubsystem : public Subsystem {
   void frame_twists(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
                     const Eigen::Vector3d& x_offset, ConstSlot placed, Slot scratch,
                     FrameState& out, double* twists) const;
+  /// frame_state_tangent along every direction at once (dual numbers of several lanes): `value` as
+  /// there, and J (frame_jacobian_rows() × 2 dof()) whose column j is the tangent along e_j of q,
+  /// column dof() + j along e_j of q̇, of the fields stacked as p, R, pd, Rd, pdd, Rdd (3 or 9
+  /// entries each, R(i, k) at 3 i + k), then dp and dR column by column (12 per coordinate).
+  void frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd, int link,
+                            const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
+                            Slot scratch, FrameState& value, MatRef J) const;
+  /// The rows of frame_state_jacobian's J: 36 + 12 dof().
+  [[nodiscard]] Index frame_jacobian_rows() const { return 36 + 12 * dof(); }
   /// Number of joint variables θ (one per revolute or prismatic joint, four per ball joint, seven
   /// per floating joint).
   [[nodiscard]] Index joint_variables() const { return n_theta_; }
