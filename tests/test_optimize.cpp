@@ -945,6 +945,51 @@ TEST(OptimizeFile, PaperLiftBeatsThePapersCosinePath) {
   (void)n;
 }
 
+// The shipped traverse (scenarios/optimize/paper_traverse.yaml): both platforms 1 m along x in
+// 1 s, rest to rest. Against the rigid cosine traverse written here in closed form (every joint
+// held, dx1 = dx2 = 0.5 - 0.5 cos(pi t): on the closure at every t, since the whole system
+// translates), with the least tau that drives it (tau = P (M q'' + C q' + G), as above), by
+// Simpson's rule on 100 steps: the optimum must not cost more, and its load (the left cut point,
+// by hand) ends 1 m further along x at the start's height.
+TEST(OptimizeFile, PaperTraverseBeatsTheRigidCosineTraverse) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path root = fs::path(UKDYN_SOURCE_DIR) / "scenarios";
+  const OptimizationFile f = load_optimization_file(root / "optimize" / "paper_traverse.yaml");
+  const TrajectorySolution s = optimize_trajectory(f.problem, f.ipopt);
+  ASSERT_TRUE(s.converged) << s.status;
+  EXPECT_TRUE(s.trusted) << s.message;
+  EXPECT_LE(s.max_position_residual, 1e-10);
+  const Index last = s.q.rows() - 1;
+  const Vec3 moved = left_cut(s.q, last) - left_cut(s.q, 0);
+  EXPECT_LT((moved - Vec3(1, 0, 0)).norm(), 1e-9) << moved.transpose();
+  const double optimum = s.cost / 1e-4;  // the file's effort weight
+
+  const System& free = *f.problem.system;
+  ForwardData d(free);
+  const Index n = free.dof();
+  const Vec q0 = s.q.row(0).transpose();
+  Vec dir = Vec::Zero(n);
+  dir(0) = dir(6) = 1.0;  // dx1, dx2
+  double path = 0;
+  const int steps = 100;
+  for (int i = 0; i <= steps; ++i) {
+    const double t = static_cast<double>(i) / steps, pi = std::acos(-1.0);
+    const Vec q = q0 + 0.5 * (1 - std::cos(pi * t)) * dir;
+    const Vec qd = 0.5 * pi * std::sin(pi * t) * dir;
+    const Vec qdd = 0.5 * pi * pi * std::cos(pi * t) * dir;
+    evaluate_dynamics(free, d, t, q, qd);
+    evaluate_constraints(free, d, t, q, qd);
+    ASSERT_LT((d.A * qdd - d.b).norm(), 1e-9) << "the rigid traverse leaves the closure at " << t;
+    const Vec h = d.M * qdd + d.Cqd + d.G;
+    const Vec tau = h - d.A.transpose() * (d.A * d.A.transpose()).ldlt().solve(d.A * h);
+    path += (i == 0 || i == steps ? 1 : (i % 2 ? 4 : 2)) * tau.squaredNorm() / (3.0 * steps);
+  }
+  std::printf(
+      "paper traverse, integral of |tau|^2: rigid cosine %.6g, optimum %.6g (%.1f %% less)\n", path,
+      optimum, 100 * (1 - optimum / path));
+  EXPECT_LT(optimum, path);
+}
+
 // A warm start from a previous run's trajectory.csv (`guess:`): from the same problem's optimum
 // IPOPT stops at once (the run's CSV holds every point to 17 digits); from the trapezoidal
 // solution on 20 intervals (another method and mesh: interpolated in time) it reaches the same

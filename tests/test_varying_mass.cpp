@@ -456,7 +456,8 @@ TEST(VaryingMass, CoriolisMatrixIsTakenAtTheGivenTime) {
            "    bodies:\n      - {name: p, mass: " +
            mass +
            ", com: [x, 0, x*z]}\n"
-           "initial: {q: [0.3, -0.7], qd: [1.1, 0.4]}\n";
+           "initial: {q: [0.3, -0.7], qd: [1.1, 0.4]}\n"
+           "simulation: {t_end: 1, sample_dt: 0.1}\n";
   };
   const auto varying = ukdyn::load_scenario_text(body("2*(1 + 0.2*sin(10*t))"), "v.yaml");
   const double t = 0.37;
