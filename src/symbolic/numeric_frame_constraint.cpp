@@ -737,14 +737,17 @@ class Core {
 
   // The two ends' states and the rows at (q, q̇) with `slot` (slot_size() doubles); f gets
   // (a, b, rows).
+  // The slot's room, or `own` sized to slot_size() when the slot is smaller (none given).
+  double* room(Slot slot, std::vector<double>& own) const {
+    if (static_cast<Index>(slot.size()) >= slot_size()) return slot.data();
+    own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+    return own.data();
+  }
+
   template <class F>
   void with(CVecRef q, CVecRef qd, Slot slot, F&& f) const {
     std::vector<double> own;
-    double* base = slot.data();
-    if (static_cast<Index>(slot.size()) < slot_size()) {
-      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
-      base = own.data();
-    }
+    double* base = room(slot, own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
@@ -763,11 +766,7 @@ class Core {
   // doubles per column where with() keeps its 12 of dp, dR).
   void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
     std::vector<double> own;
-    double* base = slots.own().data();
-    if (static_cast<Index>(slots.own().size()) < slot_size()) {
-      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
-      base = own.data();
-    }
+    double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
@@ -796,11 +795,7 @@ class Core {
       return;
     }
     std::vector<double> own;
-    double* base = slot.data();
-    if (static_cast<Index>(slot.size()) < slot_size()) {
-      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
-      base = own.data();
-    }
+    double* base = room(slot, own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
@@ -827,11 +822,7 @@ class Core {
   bool tangent_columns(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda, Slot slot,
                        MatRef d_residual, MatRef d_force) const {
     std::vector<double> own;
-    double* base = slot.data();
-    if (static_cast<Index>(slot.size()) < slot_size()) {
-      own.assign(static_cast<std::size_t>(slot_size()), 0.0);
-      base = own.data();
-    }
+    double* base = room(slot, own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
