@@ -388,6 +388,17 @@ namespace {
 
 using OdeState = std::vector<double>;
 
+// The start of both variational right-hand sides: counts the evaluation and sizes dx; false, with
+// dx all NaN, when the state (q, q̇) at the head of x is not finite.
+bool start_rhs(const OdeState& x, OdeState& dx, Index n, RunSensitivities& out) {
+  ++out.rhs_evaluations;
+  dx.resize(x.size());
+  const auto end = x.begin() + 2 * n;
+  if (std::all_of(x.begin(), end, [](double v) { return std::isfinite(v); })) return true;
+  std::fill(dx.begin(), dx.end(), std::nan(""));
+  return false;
+}
+
 // The right-hand side of x = (q, q̇) and, per parameter j, s_j = (dq/dp_j, dq̇/dp_j):
 // q̈ = f(q, q̇, p) and ṡ_j = [s_q̇; ∂q̈/∂q s_q + ∂q̈/∂q̇ s_q̇ + ∂q̈/∂p_j].
 struct VariationalRhs {
@@ -398,13 +409,8 @@ struct VariationalRhs {
 
   void operator()(const OdeState& x, OdeState& dx, double t) {
     const Index n = sc.system->dof();
-    ++out.rhs_evaluations;
+    if (!start_rhs(x, dx, n, out)) return;
     const Eigen::Map<const Vec> q(x.data(), n), qd(x.data() + n, n);
-    dx.resize(x.size());
-    if (!(q.allFinite() && qd.allFinite())) {
-      std::fill(dx.begin(), dx.end(), std::nan(""));
-      return;
-    }
     const auto md = model_derivatives(sc, ps, data, t, q, qd, sc.tau);
     const auto pl = linearize_parameters(*sc.system, t, q, qd, sc.tau, md, sc.sim.uk, true);
     if (!pl.lin.trusted && out.trusted) {
@@ -474,13 +480,8 @@ struct ClosedLoopVariationalRhs {
 
   void operator()(const OdeState& x, OdeState& dx, double t) {
     const Index n = run.plant->dof();
-    ++out.rhs_evaluations;
+    if (!start_rhs(x, dx, n, out)) return;
     const Eigen::Map<const Vec> q(x.data(), n), qd(x.data() + n, n);
-    dx.resize(x.size());
-    if (!(q.allFinite() && qd.allFinite())) {
-      std::fill(dx.begin(), dx.end(), std::nan(""));
-      return;
-    }
     Vec tau(n), tau_k(n);
     run.loop->evaluate(t, q, qd);
     run.loop->plant_tau(tau);
