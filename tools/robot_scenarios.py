@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Writes the scenarios of real arms carrying a load (scenarios/two_ur5e_load.yaml,
-scenarios/four_panda_plate.yaml): the arms of robots/ on omnidirectional platforms (x, y, yaw),
+scenarios/four_panda_plate.yaml, scenarios/two_iiwa_load.yaml): the arms of robots/ on omnidirectional platforms (x, y, yaw),
 each welded at its flange to one free-body load. The weld offsets are the flange poses at the
 initial joint angles, from the published DH tables (tools/check_robot_fk.py, which checks the
-robot files against the same tables), so that the initial state satisfies the welds exactly.
+robot files against the same tables; the iiwa from its URDF, whose frames are no DH frames), so that the initial state satisfies the welds exactly.
 
 Usage: tools/robot_scenarios.py [OUT_DIR]    (default: the scenarios/ folder of this repository)
 """
@@ -25,9 +25,17 @@ def rpy_of(R):
     return roll, pitch, yaw
 
 
+def urdf_flange(table, q):
+    """The flange pose at q of an arm given by its URDF file alone (a robot without a DH table whose
+    frames are its link frames: the iiwa), composed by check_robot_fk's own URDF reader."""
+    model = fk.read_urdf(table["urdf"])
+    T, _ = fk.world_frames(model, dict(zip(table["joints"], q)))
+    return T[table["flange"]]
+
+
 def flange(table, q, mount_xyz, mount_yaw):
     """World pose of the flange at q for an arm mounted at mount_xyz turned by mount_yaw."""
-    _, _, F = fk.dh_frames(table, q)
+    F = urdf_flange(table, q) if "urdf" in table else fk.dh_frames(table, q)[2]
     M = fk.hom(fk.rot_z(mount_yaw), mount_xyz)
     T = M @ F
     return T[:3, :3], T[:3, 3]
@@ -114,6 +122,20 @@ def main():
         fk.PANDA, pq, mounts, load_mass=5.0, load_inertia=(0.27, 0.27, 0.53),
         platform={"mass": 40.0, "inertia": (2.0, 2.5, 3.0)})
     (out / "four_panda_plate.yaml").write_text(four)
+    # Two KUKA LBR iiwa 14 facing each other 1.8 m apart (a flange 0.70 m ahead of its base at
+    # these angles), welded to the two ends of the paper's load between them (a 1 kg link of
+    # 0.4 m, link 3 of the paper's Table 1: its scalar inertia 0.08 as the rod's two transverse
+    # moments, a thin rod's axial moment 0.0001), on the paper's platforms (50 kg; the paper gives
+    # no platform inertia: that of a uniform 0.6 x 0.6 x 0.3 m box of 50 kg).
+    iiwa = {"urdf": Path(__file__).resolve().parent.parent / "robots" / "iiwa14.urdf",
+            "joints": ["iiwa_joint_%d" % i for i in range(1, 8)], "flange": "iiwa_link_ee"}
+    iq = [0.0, 0.6, 0.0, -1.4, 0.0, -1.1, 0.0]
+    iiwas = scenario(
+        "two_iiwa_load", "two KUKA LBR iiwa 14 on mobile platforms carry the paper's load", "iiwa14",
+        iiwa, iq, [("iiwa_a", (0.0, 0.0, 0.3), 0.0), ("iiwa_b", (1.8, 0.0, 0.3), math.pi)],
+        load_mass=1.0, load_inertia=(0.0001, 0.08, 0.08),
+        platform={"mass": 50.0, "inertia": (1.875, 1.875, 3.0)})
+    (out / "two_iiwa_load.yaml").write_text(iiwas)
 
 
 if __name__ == "__main__":
