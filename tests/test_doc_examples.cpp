@@ -14,6 +14,7 @@
 #include <fstream>
 #include <map>
 #include <regex>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -187,20 +188,29 @@ TEST(DocExamples, EveryWholeFileLoads) {
   EXPECT_GE(loaded + refused, 4);
 }
 
-// The scenario and robot files the docs name in backticks exist (a renamed file leaves its name
-// in a page). A name with a word N is a pattern (`scenarios/n_robots_N_weld.yaml`).
+// The scenario, robot and test model files the docs name in backticks exist (a renamed file leaves
+// its name in a page). A name with a word N is a pattern (`scenarios/n_robots_N_weld.yaml`); a
+// page that tells the reader to write a file says so: `<!-- to write: NAME -->`.
 TEST(DocExamples, NamedScenarioAndRobotFilesExist) {
   static const std::regex name_re(
-      R"(`((scenarios|robots|tests/mjcf)/[A-Za-z0-9_./-]+\.(yaml|urdf|xml))`)");
+      R"(`((scenarios|robots|tests)/[A-Za-z0-9_./-]+\.(yaml|urdf|xml))`)");
   static const std::regex pattern_re(R"([/_]N[_.])");
+  static const std::regex to_write_re(R"(<!--\s*to write:\s*(\S+)\s*-->)");
   int named = 0;
   for (const fs::path& doc : doc_files()) {
     std::ifstream in(doc);
-    int line = 0;
+    std::vector<std::string> lines;
+    std::set<std::string> to_write;
     for (std::string l; std::getline(in, l);) {
+      lines.push_back(l);
+      std::smatch m;
+      if (std::regex_search(l, m, to_write_re)) to_write.insert(m[1]);
+    }
+    int line = 0;
+    for (const std::string& l : lines) {
       ++line;
       for (std::sregex_iterator it(l.begin(), l.end(), name_re), end; it != end; ++it) {
-        if (std::regex_search((*it)[1].str(), pattern_re)) continue;
+        if (std::regex_search((*it)[1].str(), pattern_re) || to_write.count((*it)[1])) continue;
         ++named;
         EXPECT_TRUE(fs::exists(kSource / (*it)[1].str()))
             << fs::relative(doc, kSource).string() << ":" << line << ": names " << (*it)[1]

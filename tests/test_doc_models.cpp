@@ -222,6 +222,7 @@ TEST(DocModels, MjcfEqualitiesTheDocsRefuseAreRefused) {
       EXPECT_NE(what.find(c.message), std::string::npos) << what;
       EXPECT_NE(what.find(xml.string()), std::string::npos) << what;
       EXPECT_NE(what.find("s.yaml:"), std::string::npos) << what;
+      EXPECT_NE(what.find("key 'subsystems[0].mjcf'"), std::string::npos) << what;
     }
   }
 }
