@@ -221,4 +221,48 @@ TEST(DocExamples, NamedScenarioAndRobotFilesExist) {
   EXPECT_GE(named, 20);
 }
 
+#ifdef UKDYN_TEST_HAVE_CLI
+// Every `ukdyn SUBCOMMAND ... --option` the pages write (in code blocks and in backticks) names a
+// subcommand that exists and options its `--help` lists.
+TEST(DocExamplesCli, CommandLinesUseOptionsTheHelpLists) {
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_doc_examples_cli");
+  const std::string subs[] = {"simulate",  "replay",        "assemble", "eval",
+                              "linearize", "sensitivities", "check",    "derive",
+                              "sweep",     "optimize",      "size"};
+  std::map<std::string, std::string> help;
+  for (const std::string& s : subs) {
+    const auto r = ukdyn_test::run_cli(UKDYN_CLI, scratch, s + " --help");
+    ASSERT_EQ(r.exit_code, 0) << s << ": " << r.err;
+    help[s] = r.out;
+  }
+  help["sweep"] += ukdyn_test::run_cli(UKDYN_CLI, scratch, "sweep merge --help").out;
+  static const std::regex command_re(
+      R"(ukdyn (simulate|replay|assemble|eval|linearize|sensitivities|check|derive|sweep|optimize|size)\b([^`|;#]*))");
+  static const std::regex option_re(R"((?:^|\s)(--[a-z][a-z-]*|-[a-zA-Z])(?=[\s=]|$))");
+  std::vector<fs::path> pages = doc_files();
+  pages.push_back(kSource / "robots" / "README.md");
+  int options = 0;
+  for (const fs::path& doc : pages) {
+    std::ifstream in(doc);
+    int line = 0;
+    for (std::string l; std::getline(in, l);) {
+      ++line;
+      for (std::sregex_iterator it(l.begin(), l.end(), command_re), end; it != end; ++it) {
+        const std::string sub = (*it)[1], rest = (*it)[2];
+        for (std::sregex_iterator o(rest.begin(), rest.end(), option_re); o != end; ++o) {
+          const std::string opt = (*o)[1];
+          ++options;
+          // "-o," / "--out " as --help prints them
+          const bool listed =
+              std::regex_search(help[sub], std::regex("(^|[\\s,])" + opt + "([\\s,=]|$)"));
+          EXPECT_TRUE(listed) << fs::relative(doc, kSource).string() << ":" << line << ": ukdyn "
+                              << sub << " " << opt << " is not in `ukdyn " << sub << " --help`";
+        }
+      }
+    }
+  }
+  EXPECT_GE(options, 30);
+}
+#endif
+
 }  // namespace
