@@ -122,18 +122,19 @@ def main():
         fk.PANDA, pq, mounts, load_mass=5.0, load_inertia=(0.27, 0.27, 0.53),
         platform={"mass": 40.0, "inertia": (2.0, 2.5, 3.0)})
     (out / "four_panda_plate.yaml").write_text(four)
-    # Two KUKA LBR iiwa 14 facing each other 1.8 m apart (a flange 0.70 m ahead of its base at
-    # these angles), welded to the two ends of the paper's load between them (a 1 kg link of
-    # 0.4 m, link 3 of the paper's Table 1: its scalar inertia 0.08 as the rod's two transverse
-    # moments, a thin rod's axial moment 0.0001), on the paper's platforms (50 kg; the paper gives
-    # no platform inertia: that of a uniform 0.6 x 0.6 x 0.3 m box of 50 kg).
+    # Two KUKA LBR iiwa 14 facing each other 2.2 m apart (a flange 0.70 m ahead of its base at
+    # these angles), welded to the two ends of the paper's load between them: its two halves are
+    # links 3 and 6 of the paper's Table 1 (1 kg, 0.4 m, scalar inertia 0.08 about each half's
+    # centre), so one rigid 2 kg, 0.8 m bar with, about its centre, 2 x 0.08 = 0.16 about its axis
+    # and 2 (0.08 + 1 x 0.2^2) = 0.24 across it. The paper's platforms: 50 kg (the paper gives no
+    # platform inertia: that of a uniform 0.6 x 0.6 x 0.3 m box of 50 kg).
     iiwa = {"urdf": Path(__file__).resolve().parent.parent / "robots" / "iiwa14.urdf",
             "joints": ["iiwa_joint_%d" % i for i in range(1, 8)], "flange": "iiwa_link_ee"}
     iq = [0.0, 0.6, 0.0, -1.4, 0.0, -1.1, 0.0]
     iiwas = scenario(
         "two_iiwa_load", "two KUKA LBR iiwa 14 on mobile platforms carry the paper's load", "iiwa14",
-        iiwa, iq, [("iiwa_a", (0.0, 0.0, 0.3), 0.0), ("iiwa_b", (1.8, 0.0, 0.3), math.pi)],
-        load_mass=1.0, load_inertia=(0.0001, 0.08, 0.08),
+        iiwa, iq, [("iiwa_a", (0.0, 0.0, 0.3), 0.0), ("iiwa_b", (2.2, 0.0, 0.3), math.pi)],
+        load_mass=2.0, load_inertia=(0.16, 0.24, 0.24),
         platform={"mass": 50.0, "inertia": (1.875, 1.875, 3.0)})
     (out / "two_iiwa_load.yaml").write_text(iiwas)
 
