@@ -247,7 +247,7 @@ TEST(DocModels, TwoIiwaCarryTheLoad) {
   }
   EXPECT_LE(s.max_residual, 1e-12);
   EXPECT_LE(s.energy_drift, 1e-8);
-  EXPECT_LE(sym, 1e-8);   // measured 4e-10: the arms fold over, which amplifies round-off
+  EXPECT_LE(sym, 1e-9);   // measured 2.8e-12 (4e-10 with a lighter load): the arms fold over
   EXPECT_GT(moved, 0.1);  // the arms do move: the load falls
   std::printf(
       "two iiwa: weld residual %.2e, |E - E0| %.2e J, symmetry %.2e, joint 2 moved %.3f rad\n",
