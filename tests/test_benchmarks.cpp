@@ -294,6 +294,43 @@ TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
   EXPECT_NEAR(tb.E0, -3 * 9.81, 1e-12);
 }
 
+// The loop closed at O2 by a hinge frame constraint (bricard_hinge.yaml: rows evaluated in numbers
+// from the tree's link poses, docs/frame-constraints.md) against the two points_coincide of
+// bricard.yaml (tapes of the chain's symbolic kinematics): the same mechanism by another path, so
+// over 2 s at the files' tolerance 1e-12 the joint angles agree to the integration error (bound
+// 1e-10; P3 and all five q), with rank 4 of 5 at every sample and no warning in either.
+TEST(Benchmarks, BricardHingeAgreesWithThePointRows) {
+  const auto a = ukdyn::load_scenario(kBench / "bricard.yaml");
+  const auto h = ukdyn::load_scenario(kBench / "bricard_hinge.yaml");
+  ASSERT_EQ(h.system->dof(), 5);
+  ASSERT_EQ(h.system->rows(), 5);
+  ASSERT_EQ(h.sim.abs_tol, a.sim.abs_tol);
+  const Trace ta = run(a, 2.0, 0.01), th = run(h, 2.0, 0.01);
+  ASSERT_EQ(ta.stats.status, ukdyn::RunStatus::completed) << ta.stats.message;
+  ASSERT_EQ(th.stats.status, ukdyn::RunStatus::completed) << th.stats.message;
+  ASSERT_EQ(ta.t.size(), th.t.size());
+  double err_p3 = 0, err_q = 0, travel = 0;
+  for (std::size_t i = 0; i < ta.t.size(); ++i) {
+    const auto pa = bricard_p3(ta.q[i](0), ta.q[i](1));
+    const auto ph = bricard_p3(th.q[i](0), th.q[i](1));
+    err_p3 = std::max(err_p3, std::hypot(pa[0] - ph[0], pa[1] - ph[1], pa[2] - ph[2]));
+    err_q = std::max(err_q, (ta.q[i] - th.q[i]).cwiseAbs().maxCoeff());
+    travel = std::max(travel, th.q[i].cwiseAbs().maxCoeff());
+  }
+  std::cout << "[ bricard ] hinge against point rows over 2 s: P3 " << err_p3 << " m, q " << err_q
+            << " rad; steps " << th.stats.steps << " / " << ta.stats.steps << "\n";
+  EXPECT_LT(err_p3, 1e-10);
+  EXPECT_LT(err_q, 1e-10);
+  EXPECT_GT(travel, 0.5);  // it moves
+  EXPECT_EQ(th.rank_min, 4);
+  EXPECT_EQ(th.rank_max, 4);
+  EXPECT_LT(th.max_residual, 1e-12);
+  EXPECT_LT(th.max_dE, 1e-8);
+  EXPECT_NEAR(th.E0, -3 * 9.81, 1e-12);
+  for (const auto& w : th.stats.warnings) ADD_FAILURE() << w.kind << ": " << w.message;
+  EXPECT_EQ(th.stats.structural_redundancy, 1);
+}
+
 // The mobility is Bricard's geometry, not an artefact of the formulation: tilt one joint axis (J5
 // about z → (0, 0.6, 0.8), the start position still closes the loop) and the same 5 rows have rank
 // 5, no free DOF, and the loop stays where it is.
