@@ -8,13 +8,16 @@
 
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <numbers>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include "model/slot_energy.hpp"
 #include "tools/benchmark_reference.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -329,6 +332,19 @@ TEST(Benchmarks, BricardHingeAgreesWithThePointRows) {
   EXPECT_NEAR(th.E0, -3 * 9.81, 1e-12);
   for (const auto& w : th.stats.warnings) ADD_FAILURE() << w.kind << ": " << w.message;
   EXPECT_EQ(th.stats.structural_redundancy, 1);
+  // Without a ForwardData (as the benchmark tool's samples call them) the rows and the energy
+  // evaluate in buffers of their own, the forward workspace only: the same bytes as in the slots.
+  ukdyn::ForwardData d(*h.system);
+  Vec phi_own(5), phi_slot(5);
+  for (std::size_t i = 0; i < th.q.size(); i += 37) {
+    const Vec& q = th.q[i];
+    ukdyn::position_residuals(*h.system, 0.0, q, phi_own);
+    ukdyn::position_residuals(*h.system, d, 0.0, q, phi_slot);
+    EXPECT_EQ(std::memcmp(phi_own.data(), phi_slot.data(), 5 * sizeof(double)), 0);
+    const double V_own = ukdyn::potential_energy(*h.system, q);
+    const double V_slot = ukdyn::detail::potential_energy_in_slots(*h.system, d, 0.0, q);
+    EXPECT_EQ(std::memcmp(&V_own, &V_slot, sizeof V_own), 0);
+  }
 }
 
 // The mobility is Bricard's geometry, not an artefact of the formulation: tilt one joint axis (J5
