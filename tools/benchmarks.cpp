@@ -327,11 +327,11 @@ std::vector<Problem> problems() {
                   "2nd formulation (cut at J4)",
                   {}});
 
-  // A04 again, the loop closed at O2 by a hinge whose rows are evaluated in numbers from the tree
-  // (bricard_hinge.yaml): the same mechanism at about half the CPU.
+  // A04 again, the loop closed at O2 by a ball and a level whose rows are evaluated in numbers from
+  // the tree (bricard_numeric.yaml): the same mechanism at about half the CPU.
   list.push_back({"A04",
-                  "Bricard's mechanism, hinge at O2 (numeric rows)",
-                  "scenarios/benchmarks/bricard_hinge.yaml",
+                  "Bricard's mechanism, numeric rows (ball + level at O2)",
+                  "scenarios/benchmarks/bricard_numeric.yaml",
                   10,
                   0.01,
                   "P3 (x, y, z)",
