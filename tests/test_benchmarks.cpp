@@ -8,14 +8,18 @@
 
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <numbers>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include "model/slot_energy.hpp"
 #include "tools/benchmark_reference.hpp"
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/diagnostics.hpp"
@@ -292,6 +296,79 @@ TEST(Benchmarks, BricardTwoFormulationsAgreeAndTheRedundancyIsDetected) {
   // Released at rest: E0 = V0 = −g Σ m y_CoM = −9.81 (0 + 0.5 + 1 + 1 + 0.5) J.
   EXPECT_NEAR(ta.E0, -3 * 9.81, 1e-12);
   EXPECT_NEAR(tb.E0, -3 * 9.81, 1e-12);
+}
+
+// The loop closed at O2 by a ball and a vertical level (bricard_numeric.yaml: rows evaluated in
+// numbers from the tree's link poses, docs/frame-constraints.md) against the two points_coincide of
+// bricard.yaml (tapes of the chain's symbolic kinematics): the same mechanism by another path, so
+// over 2 s at the files' tolerance 1e-12 the joint angles agree to the integration error (bound
+// 1e-10; P3 and all five q), with rank 4 of 5 at every sample and no warning in either.
+TEST(Benchmarks, BricardNumericRowsAgreeWithThePointRows) {
+  const auto a = ukdyn::load_scenario(kBench / "bricard.yaml");
+  const auto h = ukdyn::load_scenario(kBench / "bricard_numeric.yaml");
+  ASSERT_EQ(h.system->dof(), 5);
+  ASSERT_EQ(h.system->rows(), 5);
+  ASSERT_EQ(h.sim.abs_tol, a.sim.abs_tol);
+  const Trace ta = run(a, 2.0, 0.01), th = run(h, 2.0, 0.01);
+  ASSERT_EQ(ta.stats.status, ukdyn::RunStatus::completed) << ta.stats.message;
+  ASSERT_EQ(th.stats.status, ukdyn::RunStatus::completed) << th.stats.message;
+  ASSERT_EQ(ta.t.size(), th.t.size());
+  double err_p3 = 0, err_q = 0, travel = 0;
+  for (std::size_t i = 0; i < ta.t.size(); ++i) {
+    const auto pa = bricard_p3(ta.q[i](0), ta.q[i](1));
+    const auto ph = bricard_p3(th.q[i](0), th.q[i](1));
+    err_p3 = std::max(err_p3, std::hypot(pa[0] - ph[0], pa[1] - ph[1], pa[2] - ph[2]));
+    err_q = std::max(err_q, (ta.q[i] - th.q[i]).cwiseAbs().maxCoeff());
+    travel = std::max(travel, th.q[i].cwiseAbs().maxCoeff());
+  }
+  std::cout << "[ bricard ] numeric against point rows over 2 s: P3 " << err_p3 << " m, q " << err_q
+            << " rad; steps " << th.stats.steps << " / " << ta.stats.steps << "\n";
+  EXPECT_LT(err_p3, 1e-10);
+  EXPECT_LT(err_q, 1e-10);
+  EXPECT_GT(travel, 0.5);  // it moves
+  EXPECT_EQ(th.rank_min, 4);
+  EXPECT_EQ(th.rank_max, 4);
+  EXPECT_LT(th.max_residual, 1e-12);
+  EXPECT_LT(th.max_dE, 1e-8);
+  EXPECT_NEAR(th.E0, -3 * 9.81, 1e-12);
+  for (const auto& w : th.stats.warnings) ADD_FAILURE() << w.kind << ": " << w.message;
+  EXPECT_EQ(th.stats.structural_redundancy, 1);
+  // The exact derivatives (linearize(), which the run sensitivities integrate) at the state of
+  // t = 1 s: along the motion, dq̈ = ∂q̈/∂q q̇ + ∂q̈/∂q̇ q̈ is the jerk, the same for every
+  // formulation of the same loop (a hinge for the ball and level gives the same rows and motion
+  // but a jerk off by 0.5 here: its all-directions derivative pass is wrong with a fixed end).
+  Vec q1s, qd1s;
+  ukdyn::SimulationSettings s1 = a.sim;
+  s1.t_end = 1.0;
+  s1.sample_dt = 0.5;
+  ukdyn::simulate(*a.system, a.q0, a.qd0, {}, s1,
+                  [&](double t, CVecRef q, CVecRef qd, const ForwardData&) {
+                    if (t == 1.0) q1s = q, qd1s = qd;
+                    return true;
+                  });
+  ASSERT_EQ(q1s.size(), 5);
+  const Vec zero = Vec::Zero(5);
+  const auto la = ukdyn::linearize(*a.system, 1.0, q1s, qd1s, zero, a.sim.uk);
+  const auto lh = ukdyn::linearize(*h.system, 1.0, q1s, qd1s, zero, h.sim.uk);
+  const Vec jerk_a = la.dqdd_dq * qd1s + la.dqdd_dqd * la.qdd;
+  const Vec jerk_h = lh.dqdd_dq * qd1s + lh.dqdd_dqd * lh.qdd;
+  std::cout << "[ bricard ] jerk at t = 1 s: " << jerk_a.transpose() << " / " << jerk_h.transpose()
+            << "\n";
+  EXPECT_GT(jerk_a.cwiseAbs().maxCoeff(), 1.0);
+  EXPECT_LT((jerk_a - jerk_h).cwiseAbs().maxCoeff(), 1e-8 * jerk_a.cwiseAbs().maxCoeff());
+  // Without a ForwardData (as the benchmark tool's samples call them) the rows and the energy
+  // evaluate in buffers of their own, the forward workspace only: the same bytes as in the slots.
+  ukdyn::ForwardData d(*h.system);
+  Vec phi_own(5), phi_slot(5);
+  for (std::size_t i = 0; i < th.q.size(); i += 37) {
+    const Vec& q = th.q[i];
+    ukdyn::position_residuals(*h.system, 0.0, q, phi_own);
+    ukdyn::position_residuals(*h.system, d, 0.0, q, phi_slot);
+    EXPECT_EQ(std::memcmp(phi_own.data(), phi_slot.data(), 5 * sizeof(double)), 0);
+    const double V_own = ukdyn::potential_energy(*h.system, q);
+    const double V_slot = ukdyn::detail::potential_energy_in_slots(*h.system, d, 0.0, q);
+    EXPECT_EQ(std::memcmp(&V_own, &V_slot, sizeof V_own), 0);
+  }
 }
 
 // The mobility is Bricard's geometry, not an artefact of the formulation: tilt one joint axis (J5

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <numbers>
 #include <random>
 
@@ -121,6 +122,52 @@ TEST(DriftArrow, ProjectionAgreesWithTheDenseProjection) {
     EXPECT_LE(worst, 1e-12);
     ::testing::Test::RecordProperty("worst_rel_" + std::to_string(robots),
                                     ::testing::PrintToString(worst));
+  }
+}
+
+// Projector::project(..., at_x): M and A of a forward() at exactly the state to be projected (what
+// dopri5's last stage leaves in simulate()'s right-hand side) serve the first Gauss–Newton
+// iteration. Functions of (t, q) alone, they are the bytes the projector would evaluate itself, so
+// the projected state is bitwise the same, on the arrow and on the dense solve. The control: a
+// forward() at another q (1e-6 away) changes the result, so the data given is really used.
+TEST(DriftArrow, ProjectionWithTheCallersEvaluationIsTheSameBytes) {
+  uktest::NRobotsOptions o;
+  o.robots = 3;
+  const auto sys = uktest::n_robots_system(o);
+  const auto twin = dense_twin(*sys);
+  for (const auto* s : {sys.get(), twin.get()}) {
+    SCOPED_TRACE(s == sys.get() ? "arrow" : "dense");
+    const Index n = s->dof();
+    const ukdyn::DriftSettings ds;
+    const ukdyn::UkSettings uk;
+    ukdyn::detail::Projector own(*s, ds, uk), shared(*s, ds, uk);
+    ukdyn::ForwardData at(*s);
+    std::mt19937 rng(20261205u);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int k = 0; k < 10; ++k) {
+      std::vector<double> x0 = ik_state(3, 0.05 * u(rng), 0.05 * u(rng), 0.2 * u(rng));
+      for (Index i = n; i < 2 * n; ++i) x0[static_cast<std::size_t>(i)] = u(rng);
+      for (Index i = 0; i < 2 * n; ++i) x0[static_cast<std::size_t>(i)] += 1e-8 * u(rng);
+      const Eigen::Map<const Vec> q(x0.data(), n), qd(x0.data() + n, n);
+      const Vec tau = Vec::Zero(n);
+      ukdyn::forward(*s, at, 0.1, q, qd, tau, uk);
+      std::vector<double> xa = x0, xb = x0;
+      long ia = 0, ib = 0;
+      const double ra = own.project(0.1, xa.data(), ia);
+      const double rb = shared.project(0.1, xb.data(), ib, &at);
+      EXPECT_GT(ia, 0);
+      EXPECT_EQ(ia, ib);
+      EXPECT_EQ(std::memcmp(&ra, &rb, sizeof ra), 0);
+      EXPECT_EQ(std::memcmp(xa.data(), xb.data(), xa.size() * sizeof(double)), 0);
+      // The control: M and A of another q give another correction.
+      Vec q_other = q;
+      q_other(0) += 1e-6;
+      ukdyn::forward(*s, at, 0.1, q_other, qd, tau, uk);
+      std::vector<double> xc = x0;
+      long ic = 0;
+      shared.project(0.1, xc.data(), ic, &at);
+      EXPECT_NE(std::memcmp(xa.data(), xc.data(), xa.size() * sizeof(double)), 0);
+    }
   }
 }
 

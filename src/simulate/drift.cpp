@@ -25,17 +25,21 @@ Projector::Projector(const System& sys, const DriftSettings& d, const UkSettings
       Qc_scratch(sys.dof()),
       n(sys.dof()) {}
 
-double Projector::project(double t, double* x, long& iterations) {
+double Projector::project(double t, double* x, long& iterations, ForwardData* at_x) {
   Eigen::Map<Vec> q(x, n);
   Eigen::Map<Vec> qd(x + n, n);
   position_residuals(system, data, t, q, phi);
   double r = phi.cwiseAbs().maxCoeff();
   last_dq = 0.0;
   for (int it = 0; it < ds.max_iterations && r > ds.position_tol; ++it) {
-    evaluate_dynamics(system, data, t, q, qd);
-    constraint_stage(system, data, t, q, qd, uk);
+    // At the unmoved q, M and A of the caller's evaluation there (the same bytes) if it has one.
+    ForwardData& d = it == 0 && at_x ? *at_x : data;
+    if (&d == &data) {
+      evaluate_dynamics(system, data, t, q, qd);
+      constraint_stage(system, data, t, q, qd, uk);
+    }
     phi = -phi;
-    solve_for(system, data, phi, zero_Q, delta, Qc_scratch, uk);
+    solve_for(system, d, phi, zero_Q, delta, Qc_scratch, uk);
     q += delta;
     last_dq += delta.cwiseAbs().maxCoeff();
     ++iterations;

@@ -4,6 +4,7 @@
 #include <boost/numeric/odeint.hpp>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <optional>
 #include <stdexcept>
@@ -100,6 +101,9 @@ struct Rhs {
   Vec tau, phi, phid;
   Index n;
   long evaluations = 0;
+  /// Where data was last evaluated by eval_raw(): t and the bytes of q (evaluated_at()).
+  double last_t = std::numeric_limits<double>::quiet_NaN();
+  Vec last_q;
   /// Largest UkResult::damped_acceleration since reset (the branch check's allowance for it).
   double max_damped = 0.0;
   /// Time of the first evaluation that used the adaptive solve's damping (−1: none yet).
@@ -113,7 +117,15 @@ struct Rhs {
         tau(Vec::Zero(sys.dof())),
         phi(sys.rows()),
         phid(sys.rows()),
-        n(sys.dof()) {}
+        n(sys.dof()),
+        last_q(Vec::Zero(sys.dof())) {}
+
+  // Whether data's M and A are those at (t, q of x): its last evaluation was at exactly these
+  // bytes (so that the drift projection may use them, Projector::project).
+  [[nodiscard]] bool evaluated_at(double t, const double* x) const {
+    return std::memcmp(&t, &last_t, sizeof t) == 0 &&
+           std::memcmp(x, last_q.data(), static_cast<std::size_t>(n) * sizeof(double)) == 0;
+  }
 
   // forward(); with Baumgarte, its stages with b adjusted between the constraints and the solve.
   void eval(CVecRef q, CVecRef qd, double t, ForwardData& d) {
@@ -134,7 +146,10 @@ struct Rhs {
   void eval_raw(const double* x, double* dxdt, double t) {
     const Eigen::Map<const Vec> q(x, n);
     const Eigen::Map<const Vec> qd(x + n, n);
+    last_t = std::numeric_limits<double>::quiet_NaN();  // data is in between until eval returns
     eval(q, qd, t, data);
+    last_q = q;
+    last_t = t;
     ++evaluations;
     max_damped = std::max(max_damped, data.result.damped_acceleration);
     if (damped_t < 0.0 && data.result.damping > 0.0) damped_t = t;
@@ -470,7 +485,9 @@ class Run {
       return false;
     }
     if (project_) {
-      const double r = projector_.project(t, xs.data(), stats_.projections);
+      // dopri5's last stage was at this state (FSAL): its M and A serve the first iteration.
+      ForwardData* at_x = rhs_.evaluated_at(t, xs.data()) ? &rhs_.data : nullptr;
+      const double r = projector_.project(t, xs.data(), stats_.projections, at_x);
       if (!(r <= s_.drift.failure_threshold)) {
         stats_.status = RunStatus::step_failure;
         stats_.message = "projection onto the constraints failed at t = " + std::to_string(t) +

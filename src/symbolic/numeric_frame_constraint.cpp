@@ -230,7 +230,10 @@ End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTa
 }
 
 // The ends' state at (q, q̇), with `scratch` (End::scratch doubles) for the tree or the tape.
-void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState& s) {
+// scratch: e.scratch doubles, or (scratch_size) fewer for a tree end, which then evaluates in a
+// workspace of its own (TreeSubsystem::frame_state without a slot).
+void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState& s,
+               Index scratch_size = -1) {
   const NumericFrameEnd& spec = e.spec;
   switch (spec.kind) {
     case NumericFrameEnd::Kind::fixed:
@@ -243,9 +246,10 @@ void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState&
       return;
     case NumericFrameEnd::Kind::tree: {
       const Index n = spec.tree->dof();
-      spec.tree->frame_state(q.segment(spec.first_coordinate, n),
-                             qd.segment(spec.first_coordinate, n), spec.link, spec.offset_R,
-                             spec.offset_p, Slot(scratch, static_cast<std::size_t>(e.scratch)), s);
+      spec.tree->frame_state(
+          q.segment(spec.first_coordinate, n), qd.segment(spec.first_coordinate, n), spec.link,
+          spec.offset_R, spec.offset_p,
+          Slot(scratch, static_cast<std::size_t>(scratch_size < 0 ? e.scratch : scratch_size)), s);
       return;
     }
     case NumericFrameEnd::Kind::expressions: {
@@ -744,18 +748,27 @@ class Core {
     return own.data();
   }
 
+  // Without a slot (a caller without a ForwardData: the residuals at an output sample) only what
+  // with() uses is allocated, a tree end's scratch left to the tree's own forward workspace:
+  // zeroing the whole slot_size() (the tree's derivative workspaces and the lanes' room) at every
+  // call cost more than the rows themselves.
   template <class F>
   void with(CVecRef q, CVecRef qd, Slot slot, F&& f) const {
-    std::vector<double> own;
-    double* base = room(slot, own);
+    const bool full = static_cast<Index>(slot.size()) >= slot_size();
+    const auto own_scratch = [full](const End& e) {
+      return full || e.spec.kind != NumericFrameEnd::Kind::tree ? e.scratch : Index{0};
+    };
+    const Index ka = own_scratch(a_), kb = own_scratch(b_);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
-    double* sa = base;
-    double* sb = sa + a_.scratch;
-    double* da = sb + b_.scratch;
+    std::vector<double> own;
+    if (!full) own.assign(static_cast<std::size_t>(ka + kb + 12 * (na + nb)), 0.0);
+    double* sa = full ? slot.data() : own.data();
+    double* sb = sa + ka;
+    double* da = sb + kb;
     double* db = da + 12 * na;
     FrameState A(da, da + 3 * na, na), B(db, db + 3 * nb, nb);
-    end_state(a_, q, qd, sa, A);
-    end_state(b_, q, qd, sb, B);
+    end_state(a_, q, qd, sa, A, ka);
+    end_state(b_, q, qd, sb, B, kb);
     RowValues<double> r;
     row_values(f_, A, B, r);
     f(A, B, r);

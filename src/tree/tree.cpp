@@ -760,13 +760,16 @@ int TreeSubsystem::link_index(const std::string& name) const {
 
 namespace {
 
-// Evaluates with the caller's slot or, without one, a buffer of its own.
+// Evaluates with the caller's slot (of `size` doubles: the whole slot) or, without one, a buffer
+// of its own as large as the forward workspace that map_workspace() lays out (not the whole slot,
+// whose derivative workspaces are several times larger and were zeroed here at every call of a
+// caller without slots: potential_energy(system, q) and the residuals per output sample).
 template <class F>
 void with_workspace(Slot slot, Index size, std::size_t links, Index nt, F&& f) {
   if (static_cast<Index>(slot.size()) >= size) {
     f(map_workspace(slot.data(), links, nt));
   } else {
-    std::vector<double> buffer(static_cast<std::size_t>(size));
+    std::vector<double> buffer(static_cast<std::size_t>(workspace_doubles(links, nt)));
     f(map_workspace(buffer.data(), links, nt));
   }
 }

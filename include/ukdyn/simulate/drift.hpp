@@ -32,7 +32,12 @@ struct Projector {
   Projector(const System& sys, const DriftSettings& d, const UkSettings& u);
 
   /// Projects x = [q; q̇] in place; returns max|Φ| after projecting; counts Gauss–Newton iterations.
-  double project(double t, double* x, long& iterations);
+  /// at_x: null, or a ForwardData of the same system whose last evaluation (forward(), or the
+  /// stages with the same UkSettings) was at exactly this t and these bytes of q — the integrator's
+  /// last stage at an accepted state. Its M and A, functions of (t, q) alone, then serve the first
+  /// Gauss–Newton iteration instead of a second evaluation of the same bytes; its solve workspace
+  /// (and result flags) are overwritten.
+  double project(double t, double* x, long& iterations, ForwardData* at_x = nullptr);
 };
 
 /// The branch check (issue 9 item 2): the projection only removes integration error (and, for a
