@@ -359,15 +359,14 @@ TEST(TreeScenario, DynamicsKey) {
 #endif
 
 #ifdef UKDYN_HAVE_IO
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 
 namespace {
 
-// Every kind of frame constraint on the frames of a chain, evaluated in numbers on the tree
-// (symbolic/numeric_frame_constraint.cpp) against the same constraint derived from the chain's
-// symbolic link poses (dynamics: symbolic): Φ, Φ̇, A, b, the wrench maps G and the frames' twist
-// Jacobians, at random states off the constraint manifold (the free body's quaternion not unit).
-TEST(TreeScenario, NumericFrameConstraintsMatchTheDerivedOnes) {
+// A chain on a platform, a free body and every kind of frame constraint between their frames
+// (`extra`: more constraint lines); `dyn` is the chain's dynamics line ("" for the tree).
+std::string frames_scenario(const std::string& dyn, const std::string& extra) {
   const std::string chain =
       "  - name: arm\n    type: serial_chain\n    coordinates: [x, y, yaw, q1, q2, q3, d4]\n"
       "    DYNAMICS"
@@ -395,14 +394,30 @@ TEST(TreeScenario, NumericFrameConstraintsMatchTheDerivedOnes) {
       "  - {type: level, name: lh, a: arm.l2, axis: [1, 0, 0]}\n"
       "  - {type: level, name: lv, a: arm.l4, axis: [0, 0, 1], orientation: vertical}\n"
       "  - {type: distance, name: dd, a: arm.tip, b: body.body, length: 0.7}\n"
-      "  - {type: weld, name: ww, a: arm.l1, b: {frame: arm.l4, rpy: [0.5, 0, 0]}}\n"
+      "  - {type: weld, name: ww, a: arm.l1, b: {frame: arm.l4, rpy: [0.5, 0, 0]}}\n" +
+      extra +
       "initial: {q: [0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0]}\n"
       "simulation: {t_end: 1, sample_dt: 0.1}\n";
-  auto text = [&](const std::string& dyn) {
-    std::string c = chain;
-    c.replace(c.find("    DYNAMICS"), 12, dyn);
-    return "ukdyn: 1\nname: frames\nsubsystems:\n" + c + rest;
-  };
+  std::string c = chain;
+  c.replace(c.find("    DYNAMICS"), 12, dyn);
+  return "ukdyn: 1\nname: frames\nsubsystems:\n" + c + rest;
+}
+
+// Constraints whose other end is a fixed frame of the world (turned and offset).
+const std::string kFixedEnds =
+    "  - {type: hinge, name: hw, a: arm.tip, b: {frame: world, xyz: [0, 0, 1]}, axis: [1, 0, 0]}\n"
+    "  - {type: hinge, name: hr, a: arm.l3, b: {frame: world, xyz: [0.3, 0, 1], rpy: [0.4, -0.2, "
+    "1.1]}, axis: [0, 1, 2]}\n"
+    "  - {type: weld, name: wr, a: arm.l4, b: {frame: world, xyz: [1, 0, 0], rpy: [0.2, 0.5, "
+    "3.1]}}\n"
+    "  - {type: distance, name: dw, a: arm.l4, b: {frame: world, xyz: [0, 1, 0]}, length: 1.2}\n";
+
+// Every kind of frame constraint on the frames of a chain, evaluated in numbers on the tree
+// (symbolic/numeric_frame_constraint.cpp) against the same constraint derived from the chain's
+// symbolic link poses (dynamics: symbolic): Φ, Φ̇, A, b, the wrench maps G and the frames' twist
+// Jacobians, at random states off the constraint manifold (the free body's quaternion not unit).
+TEST(TreeScenario, NumericFrameConstraintsMatchTheDerivedOnes) {
+  const auto text = [](const std::string& dyn) { return frames_scenario(dyn, kFixedEnds); };
   ukdyn::LoadOptions opt;
   opt.check_initial = false;
   const ukdyn::Scenario num = ukdyn::load_scenario_text(text(""), "n.yaml", opt);
@@ -442,6 +457,51 @@ TEST(TreeScenario, NumericFrameConstraintsMatchTheDerivedOnes) {
                                  rel(Gan, Gas), rel(Gbn, Gbs), rel(Jan, Jas), rel(Jbn, Jbs)});
       EXPECT_LE(e, 1e-11) << cn[c]->row_names()[0];
       worst = std::max(worst, e);
+    }
+  }
+  RecordProperty("worst_rel", ::testing::PrintToString(worst));
+}
+
+// The all-directions pass of the numeric frame rows (ConstraintColumns::tangent_columns, lanes
+// over the ends' frame_state_jacobian) against the one-direction tangent() it stands for, column by
+// column, for every kind and for ends fixed in the world (turned and offset), at random states.
+TEST(TreeScenario, NumericFrameColumnsMatchTheOneDirectionTangents) {
+  ukdyn::LoadOptions opt;
+  opt.check_initial = false;
+  const ukdyn::Scenario sc =
+      ukdyn::load_scenario_text(frames_scenario("", kFixedEnds), "n.yaml", opt);
+  const Index n = sc.system->dof();
+  std::mt19937_64 rng(23);
+  double worst = 0.0;
+  for (int k = 0; k < 10; ++k) {
+    const Vec q = random_vec(rng, n, -1.5, 1.5), qd = random_vec(rng, n, -2, 2),
+              qdd = random_vec(rng, n, -3, 3);
+    for (const auto& c : sc.system->constraints()) {
+      const auto* cols = dynamic_cast<const ukdyn::ConstraintColumns*>(c.get());
+      if (cols == nullptr) continue;
+      const Index m = c->rows();
+      const Vec lambda = random_vec(rng, m, -2, 2);
+      Mat dres(m, 2 * n), dforce = Mat::Zero(n, 2 * n);
+      if (!cols->tangent_columns({}, q, qd, qdd, lambda, dres, dforce)) continue;  // none here
+      for (Index j = 0; j < 2 * n; ++j) {
+        Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), r1(m), f1 = Vec::Zero(n);
+        (j < n ? dq(j) : dqd(j - n)) = 1.0;
+        ASSERT_TRUE(c->tangent({}, q, qd, qdd, lambda, dq, dqd, r1, f1));
+        Vec fd(m);  // and central differences of A q̈ − b
+        {
+          const double h = 1e-6;
+          Mat Ap(m, n), Am(m, n);
+          Vec bp(m), bm(m);
+          c->evaluate({}, q + h * dq, qd + h * dqd, Ap, bp);
+          c->evaluate({}, q - h * dq, qd - h * dqd, Am, bm);
+          fd = ((Ap * qdd - bp) - (Am * qdd - bm)) / (2 * h);
+        }
+        const double e = std::max(rel(Vec(dres.col(j)), r1), rel(Vec(dforce.col(j)), f1));
+        ASSERT_TRUE(std::isfinite(e)) << c->row_names()[0] << " column " << j;
+        EXPECT_LE(e, 1e-12) << c->row_names()[0] << " column " << j;
+        EXPECT_LE(rel(fd, r1), 1e-7) << c->row_names()[0] << " column " << j;
+        worst = std::max(worst, e);
+      }
     }
   }
   RecordProperty("worst_rel", ::testing::PrintToString(worst));

@@ -643,6 +643,10 @@ void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndSc
   dqd.setZero();
   FrameState t(t_cols, t_cols + 3 * nc, nc);
   DualFrame s;
+  // An end that no coordinate moves (a frame of the world, turned or offset) has no column: its
+  // values come from one pass along the zero direction, not from the loop below (which would
+  // leave s unset).
+  if (nc == 0) expression_end_tangent(e, q, qd, qdd, dq, dqd, x, v, t, s);
   for (Index col = 0; col < 2 * nc; ++col) {
     double& seed = (col < nc ? dq : dqd)(e.cols[static_cast<std::size_t>(col % nc)]);
     seed = 1.0;
