@@ -501,10 +501,32 @@ void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) 
   }
 }
 
-// q̈ = M⁻¹(Q + Qc), block by block (every block, free ones too), paper Eq. (18).
+// q̈ = M⁻¹(Q + Qc), block by block, paper Eq. (18). A robot's block reuses y = L_k⁻¹ Q_k and
+// Xᵀ = B L_k^{-ᵀ} of reduce_group: q̈_k = L_k^{-ᵀ}(y + X λ_k) (L_k⁻¹ Qc_k = L_k⁻¹ Bᵀ λ_k = X λ_k, as
+// the dense solve forms q̈, uk_solve.hpp), independent sums instead of a forward substitution; the
+// load's is solve_load's q̈_L; any other block (no rows) q̈ = L⁻ᵀ L⁻¹ (Q + Qc).
+template <int NK, int MK, int NL>
 void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
   const auto& layout = P.dws.layout;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    const auto& gb = P.ws.g[gi];
+    const ArrowSizes<NK, MK, NL> sz(P, gi);
+    const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk;
+    const double* Xt = gb.Xt.data();
+    const double* y = gb.w.data();
+    double* x = qdd.data() + s;
+    for (Index l = 0; l < nk; ++l) {
+      double v = y[l];
+      for (Index i = 0; i < mk; ++i) v += Xt[i + l * mk] * gb.lam[i];
+      x[l] = v;
+    }
+    detail::lt_solve<NK>(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, x, nk);
+  }
+  for (Index j = 0; j < P.nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
   for (std::size_t k = 0; k < layout.blocks(); ++k) {
+    bool done = static_cast<Index>(k) == P.st.load_block;
+    for (const auto& g : P.st.groups) done = done || g.block == static_cast<Index>(k);
+    if (done) continue;
     const Index s = layout.start[k], nk = layout.size[k];
     for (Index j = 0; j < nk; ++j) qdd[s + j] = P.Q[s + j] + Qc[s + j];
     const double* Lk = P.Ld + s + s * P.ldl;
@@ -587,7 +609,7 @@ bool arrow_steps(const ArrowProblem& P, Vec& qdd, Vec& Qc, const UkSettings& set
   if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
   solve_load<NL>(P, mD, w_ref, pivots);
   multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
-  accelerations(P, Qc, qdd);
+  accelerations<NK, MK, NL>(P, Qc, qdd);
   arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
   return true;
 }

@@ -423,16 +423,32 @@ void twist_jacobian(const FrameState& s, const std::vector<Index>& cols, Index n
 }
 
 // A(:, cols) += D_end ∂x_end/∂q over one end's columns.
-void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
-                 int p0, int r0, MatRef A) {
+// Each column summed in a local array down D's columns (contiguous; MR > 0: the rows known at
+// compile time, the loops unroll), the same terms in the same order as one row at a time.
+template <int MR>
+void add_columns_m(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
+                   int p0, int r0, MatRef A) {
+  const int m = MR > 0 ? MR : r.m;
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const auto ci = static_cast<Index>(c);
-    for (int i = 0; i < r.m; ++i) {
-      double v = 0.0;
-      for (int k = 0; k < 3; ++k) v += r.D(i, p0 + k) * s.dp(k, ci);
-      for (int k = 0; k < 9; ++k) v += r.D(i, r0 + k) * s.dR(k, ci);
-      A(i, cols[c]) += v;
+    double v[kMaxRows] = {};
+    for (int k = 0; k < 3; ++k) {
+      const double x = s.dp(k, ci);
+      for (int i = 0; i < m; ++i) v[i] += r.D(i, p0 + k) * x;
     }
+    for (int k = 0; k < 9; ++k) {
+      const double x = s.dR(k, ci);
+      for (int i = 0; i < m; ++i) v[i] += r.D(i, r0 + k) * x;
+    }
+    for (int i = 0; i < m; ++i) A(i, cols[c]) += v[i];
+  }
+}
+void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
+                 int p0, int r0, MatRef A) {
+  if (r.m == kMaxRows) {
+    add_columns_m<kMaxRows>(s, cols, r, p0, r0, A);
+  } else {
+    add_columns_m<0>(s, cols, r, p0, r0, A);
   }
 }
 
@@ -450,6 +466,21 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
   spec.tree->frame_twists(q.segment(c0, n), qd.segment(c0, n), spec.link, spec.offset_R,
                           spec.offset_p, slots.subsystem(c0),
                           Slot(scratch, static_cast<std::size_t>(e.scratch)), s, twists);
+}
+
+// A(:, cols[c]) += G t_c (m rows, MR > 0: known at compile time), each column summed in a local
+// array down G's columns, the same terms in the same order as one row at a time.
+template <int MR>
+void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
+                     const double* twists, int m_rt, MatRef A) {
+  const int m = MR > 0 ? MR : m_rt;
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const double* t = twists + 7 * c;
+    double v[kMaxRows] = {};
+    for (int k = 0; k < 7; ++k)
+      for (int i = 0; i < m; ++i) v[i] += G(i, k) * t[k];
+    for (int i = 0; i < m; ++i) A(i, cols[c]) += v[i];
+  }
 }
 
 // A(:, cols) += G t_c over a tree end's twist columns t_c = (v, ω, s): with ∂p = v and
@@ -472,13 +503,10 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
     }
     G(i, 6) = sc;
   }
-  for (std::size_t c = 0; c < cols.size(); ++c) {
-    const double* t = twists + 7 * c;
-    for (int i = 0; i < r.m; ++i) {
-      double v = 0.0;
-      for (int k = 0; k < 7; ++k) v += G(i, k) * t[k];
-      A(i, cols[c]) += v;
-    }
+  if (r.m == kMaxRows) {
+    add_map_columns<kMaxRows>(G, cols, twists, r.m, A);
+  } else {
+    add_map_columns<0>(G, cols, twists, r.m, A);
   }
 }
 
