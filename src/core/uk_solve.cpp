@@ -194,27 +194,13 @@ bool factor_mass(const Mat& M, UkWorkspace& ws) {
     const double* Mk = M.data() + s + s * ldm;
     double* Lk = ws.L.data() + s + s * ldl;
     double* id = ws.inv_diag.data() + s;
-    // Two blocks of one compile-time size in a row (two arms alike): in lockstep, as above.
-    const bool pair = k + 1 < lay.blocks() && lay.size[k + 1] == n;
-    bool ok = false, both = false;
+    bool ok = false;
     double block_ratio = 0.0;
     with_block_size(n, [&](auto N) {
-      constexpr int kN = decltype(N)::value;
-      if constexpr (kN > 0) {
-        if (pair) {
-          both = true;
-          const Index s1 = lay.start[k + 1];
-          ok = chol_lockstep<kN, 2>({Mk, M.data() + s1 + s1 * ldm}, ldm,
-                                    {Lk, ws.L.data() + s1 + s1 * ldl}, ldl,
-                                    {id, ws.inv_diag.data() + s1}, block_ratio);
-          return;
-        }
-      }
-      ok = chol_block<kN>(Mk, ldm, Lk, ldl, id, n, &block_ratio);
+      ok = chol_block<decltype(N)::value>(Mk, ldm, Lk, ldl, id, n, &block_ratio);
     });
     if (!ok) return false;
     ratio = std::min(ratio, block_ratio);
-    if (both) ++k;
   }
   ws.pivot_ratio = ratio;
   return true;
