@@ -260,24 +260,32 @@ Eigen::Matrix3d quaternion_bilinear(const double* a, const double* b) {
   return B;
 }
 
-// A free-body end's state (free_body_frame) in closed form: what its tape computes, without it.
-void free_body_state(const End& e, CVecRef q, CVecRef qd, FrameState& s) {
-  double x[7], v[7];
+// A free-body end's pose and rates (free_body_frame) in closed form; the body's coordinates x,
+// u = (w, x, y, z) into xq (7).
+void free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* xq) {
+  double v[7];
   for (std::size_t c = 0; c < 7; ++c) {
-    x[c] = q(e.cols[c]);
+    xq[c] = q(e.cols[c]);
     v[c] = qd(e.cols[c]);
   }
-  const double* u = x + 3;
+  const double* u = xq + 3;
   const double* ud = v + 3;
   const Eigen::Matrix3d R = quaternion_bilinear(u, u);
   const Eigen::Matrix3d Rd = 2.0 * quaternion_bilinear(u, ud);
   const Eigen::Matrix3d Rdd = 2.0 * quaternion_bilinear(ud, ud);
-  s.p = Eigen::Vector3d(x[0], x[1], x[2]) + R * e.fb_o;
+  s.p = Eigen::Vector3d(xq[0], xq[1], xq[2]) + R * e.fb_o;
   s.R = R * e.fb_Ro;
   s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + Rd * e.fb_o;
   s.Rd = Rd * e.fb_Ro;
   s.pdd = Rdd * e.fb_o;
   s.Rdd = Rdd * e.fb_Ro;
+}
+
+// A free-body end's state (free_body_frame) in closed form: what its tape computes, without it.
+void free_body_state(const End& e, CVecRef q, CVecRef qd, FrameState& s) {
+  double x[7];
+  free_body_pose(e, q, qd, s, x);
+  const double* u = x + 3;
   for (Index c = 0; c < 3; ++c) {
     s.dp.col(c).setZero();
     s.dp(c, c) = 1.0;
@@ -290,6 +298,34 @@ void free_body_state(const End& e, CVecRef q, CVecRef qd, FrameState& s) {
     s.dp.col(3 + k) = dRk * e.fb_o;
     const Eigen::Matrix3d dRf = dRk * e.fb_Ro;
     for (int i = 0; i < 9; ++i) s.dR(i, 3 + k) = dRf(i / 3, i % 3);
+  }
+}
+
+// The same end for evaluate(): its columns as twists (v, ω, s), 7 doubles each, as a tree end's
+// (add_twist_columns). ∂R(u)/∂u_k = ([ω_k]× + s_k) R(u) with ω_k = 2 G(u) e_k / |u|² and
+// s_k = 2 u_k / |u|² (a ball joint's axes, src/tree/tree.cpp place_ball), so the frame moves by
+// ∂R = ([ω_k]× + s_k) R and ∂p = ω_k × (p − x) + s_k (p − x); x_c moves it by v = e_c.
+void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* twists) {
+  double x[7];
+  free_body_pose(e, q, qd, s, x);
+  const double w = x[3], a = x[4], b = x[5], c = x[6];
+  const double qs = 2.0 / (w * w + a * a + b * b + c * c);
+  const Eigen::Vector3d g[4] = {{-a, -b, -c}, {w, c, -b}, {-c, w, a}, {b, -a, w}};
+  const Eigen::Vector3d r = s.p - Eigen::Vector3d(x[0], x[1], x[2]);
+  for (int k = 0; k < 3; ++k) {
+    double* t = twists + 7 * k;
+    for (int i = 0; i < 7; ++i) t[i] = i == k ? 1.0 : 0.0;
+  }
+  for (int k = 0; k < 4; ++k) {
+    double* t = twists + 7 * (3 + k);
+    const Eigen::Vector3d om = qs * g[k];
+    const double sk = qs * x[3 + k];
+    const Eigen::Vector3d v = om.cross(r) + sk * r;
+    for (int i = 0; i < 3; ++i) {
+      t[i] = v(i);
+      t[3 + i] = om(i);
+    }
+    t[6] = sk;
   }
 }
 
@@ -454,10 +490,15 @@ void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowV
 
 // An end's state for evaluate(): a tree end by frame_twists (its columns as twists (v, ω, s),
 // 7 per coordinate, in `twists`; the link placements its subsystem's dynamics() left in its slot
-// reused when they are of this state), any other end by end_state (dp, dR).
+// reused when they are of this state), a free-body end by free_body_twists (twists too), any other
+// end by end_state (dp, dR).
 void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, double* scratch,
                 FrameState& s, double* twists) {
   const NumericFrameEnd& spec = e.spec;
+  if (e.free_body) {
+    free_body_twists(e, q, qd, s, twists);
+    return;
+  }
   if (spec.kind != NumericFrameEnd::Kind::tree) {
     end_state(e, q, qd, scratch, s);
     return;
@@ -744,11 +785,11 @@ void add_force_tangent(const FrameState& v, const FrameState& t, const std::vect
   }
 }
 
-// A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree end,
-// dp and dR of any other.
+// A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree or
+// free-body end, dp and dR of any other.
 void add_end_columns(const End& e, const FrameState& s, const double* twists,
                      const RowValues<double>& r, int p0, int r0, MatRef A) {
-  if (e.spec.kind == NumericFrameEnd::Kind::tree) {
+  if (e.spec.kind == NumericFrameEnd::Kind::tree || e.free_body) {
     add_twist_columns(s, e.cols, twists, r, p0, r0, A);
   } else {
     add_columns(s, e.cols, r, p0, r0, A);
