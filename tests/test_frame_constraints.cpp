@@ -19,6 +19,8 @@
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
+#include "ukdyn/symbolic/numeric_frame_constraint.hpp"
 #ifdef UKDYN_HAVE_IO
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/simulate/simulate.hpp"
@@ -129,6 +131,56 @@ TEST(FrameConstraints, JacobianMatchesFiniteDifferencesOfPhi) {
       wm.jacobians(q, Ja, Jb);
       const Vec viaG = Ga * (Ja * qd) + Gb * (Jb * qd);
       EXPECT_LT((viaG - A * qd).norm(), 1e-12 * (1 + (A * qd).norm())) << sym::to_string(kind);
+    }
+  }
+}
+
+// A frame on a free body as the numeric rows evaluate it (p = x + R(u) o, R = R(u) R_o in closed
+// form from the quaternion u, not its tape) against the rows derived symbolically from the same
+// frame expressions: Φ, A and b of a weld and a hinge to a fixed frame, at states with quaternions
+// of any norm (the closed form is the polynomial of quaternion_rotation, unit or not).
+TEST(FrameConstraints, FreeBodyFrameInClosedFormMatchesTheDerivedRows) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();
+  const auto body = sym::free_body_definition("load", 5.0, {0.3, 0, 0, 0, 0.2, 0, 0, 0, 0.5},
+                                              {0, 0, -kG}, {}, symbols);
+  sym::FrameTable t;
+  t.add_bodies(body);
+  const auto& coords = body.coordinates();
+  const sym::OriginDef ob{{sym::exact_number(0.37), sym::exact_number(-0.1), 0},
+                          {sym::exact_number(3.1), sym::exact_number(0.2), sym::exact_number(2.4)}};
+  std::mt19937_64 rng(12);
+  for (K kind : {K::weld, K::hinge}) {
+    auto f = frame_def(kind, "c", t, "world", "load.load", {}, ob);
+    f.axis = {0, 0, 1};
+    sym::ConstraintDef def("c", sym::ConstraintDef::Kind::holonomic, coords, symbols);
+    sym::add_frame_constraint(def, f);
+    const auto derived = sym::make_constraint(def);
+    sym::NumericFrameSpec spec;
+    spec.kind = kind;
+    spec.name = "c";
+    spec.frame_a = "world";
+    spec.frame_b = "load.load";
+    sym::NumericFrameEnd b;
+    b.kind = sym::NumericFrameEnd::Kind::expressions;
+    b.pose = f.b;
+    const auto numeric = sym::make_numeric_frame_constraint(spec, {}, b, coords, symbols);
+    const Index m = derived->rows();
+    ASSERT_EQ(numeric->rows(), m);
+    for (int trial = 0; trial < 20; ++trial) {
+      const Vec q = random_vec(rng, 7, -1.0, 1.0), qd = random_vec(rng, 7, -2.0, 2.0);
+      Mat A1(m, 7), A2(m, 7);
+      Vec b1(m), b2(m), p1(m), p2(m), v1(m), v2(m);
+      derived->evaluate({}, q, qd, A1, b1);
+      numeric->evaluate({}, q, qd, A2, b2);
+      derived->position_residual({}, q, p1);
+      numeric->position_residual({}, q, p2);
+      derived->velocity_residual({}, q, qd, v1);
+      numeric->velocity_residual({}, q, qd, v2);
+      const double sa = 1.0 + A1.cwiseAbs().maxCoeff(), sb = 1.0 + b1.cwiseAbs().maxCoeff();
+      EXPECT_LE((A1 - A2).cwiseAbs().maxCoeff(), 1e-13 * sa) << sym::to_string(kind);
+      EXPECT_LE((b1 - b2).cwiseAbs().maxCoeff(), 1e-13 * sb) << sym::to_string(kind);
+      EXPECT_LE((p1 - p2).cwiseAbs().maxCoeff(), 1e-13 * (1.0 + p1.cwiseAbs().maxCoeff()));
+      EXPECT_LE((v1 - v2).cwiseAbs().maxCoeff(), 1e-13 * (1.0 + v1.cwiseAbs().maxCoeff()));
     }
   }
 }

@@ -126,6 +126,64 @@ TEST(UkArrow, AgreesWithDenseSolveRankDecisions) {
   expect_arrow_agrees_with_dense({"robot row + duplicate", r, 7, 1e-10}, 100);
 }
 
+// The shape with compile-time sizes (two arms of 10 coordinates with 6 rows each on a load of 7
+// with one row of its own: two Pandas welded to a plate) against the dense solve, on random
+// problems: full rank, and with one arm's row repeated (a rank decision in its block).
+void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
+  const ukdyn::BlockLayout lay{{0, 10, 20}, {10, 10, 7}};
+  std::vector<std::vector<Index>> row_blocks(6, {0, 2});
+  row_blocks.insert(row_blocks.end(), 6, {1, 2});
+  row_blocks.push_back({2});
+  const auto st = ukdyn::detect_arrow(lay, row_blocks);
+  ASSERT_TRUE(st.has_value());
+  const Index n = 27, m = 13;
+  ukdyn::UkWorkspace arrow_dws(lay, m), dense_ws(lay, m);
+  ukdyn::ArrowWorkspace aws(*st, m);
+  std::mt19937 rng(redundant ? 20261205u : 20261204u);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  double worst_q = 0.0, worst_c = 0.0;
+  for (int k = 0; k < 200; ++k) {
+    Mat M = Mat::Zero(n, n), A = Mat::Zero(m, n);
+    for (std::size_t blk = 0; blk < 3; ++blk) {
+      const Index s = lay.start[blk], nk = lay.size[blk];
+      const Mat F = Mat::NullaryExpr(nk, nk, [&] { return u(rng); });
+      M.block(s, s, nk, nk) = F * F.transpose() + 0.1 * Mat::Identity(nk, nk);
+    }
+    for (Index i = 0; i < m; ++i)
+      for (const Index blk : row_blocks[static_cast<std::size_t>(i)])
+        for (Index j = 0; j < lay.size[static_cast<std::size_t>(blk)]; ++j)
+          A(i, lay.start[static_cast<std::size_t>(blk)] + j) = u(rng);
+    Vec Q = Vec::NullaryExpr(n, [&] { return u(rng); });
+    Vec b = Vec::NullaryExpr(m, [&] { return u(rng); });
+    if (redundant) {  // row 5 = row 2 (its right-hand side too): rank 12
+      A.row(5) = A.row(2);
+      b[5] = b[2];
+    }
+    Vec qdd(n), Qc(n), qdd_d(n), Qc_d(n);
+    ukdyn::UkResult ra;
+    ASSERT_TRUE(ukdyn::factor_mass(M, arrow_dws));
+    ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b, Q, arrow_dws, aws, qdd, Qc, {}, ra));
+    const ukdyn::UkResult rd = ukdyn::uk_solve(M, A, b, Q, dense_ws, qdd_d, Qc_d);
+    EXPECT_EQ(ra.rank, rd.rank) << "problem " << k;
+    EXPECT_EQ(ra.rank, redundant ? 12 : 13) << "problem " << k;
+    EXPECT_TRUE(ra.consistent);
+    worst_q = std::max(worst_q, (qdd - qdd_d).lpNorm<Eigen::Infinity>() /
+                                    std::max(1.0, qdd_d.lpNorm<Eigen::Infinity>()));
+    worst_c = std::max(worst_c, (Qc - Qc_d).lpNorm<Eigen::Infinity>() /
+                                    std::max(1.0, Qc_d.lpNorm<Eigen::Infinity>()));
+    // The multipliers reproduce Qc.
+    EXPECT_LE((A.transpose() * aws.lambda - Qc).lpNorm<Eigen::Infinity>(),
+              1e-12 * std::max(1.0, Qc.lpNorm<Eigen::Infinity>()));
+  }
+  EXPECT_LE(worst_q, tol);
+  EXPECT_LE(worst_c, tol);
+}
+
+TEST(UkArrow, FixedSizeShapeAgreesWithDenseSolve) {
+  expect_fixed_shape_agrees_with_dense(false, 1e-12);
+  expect_fixed_shape_agrees_with_dense(true, 1e-10);
+}
+
 TEST(UkArrow, OtherMethodsUseTheDenseSolve) {
   uktest::NRobotsOptions o;
   const auto sys = uktest::n_robots_system(o);

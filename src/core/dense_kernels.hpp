@@ -8,11 +8,33 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #include "ukdyn/core/types.hpp"
 
 namespace ukdyn::detail {
+
+// Calls f(std::integral_constant<int, N>) with N = n for the block sizes of the shipped models
+// (6: the paper's arms; 7: a free body in quaternions; 10: a 7-joint arm on an x, y, yaw
+// platform), so that the kernels below unroll for them, and N = 0 (runtime size) for any other.
+template <typename F>
+[[gnu::always_inline]] inline void with_block_size(Index n, F&& f) {
+  switch (n) {
+    case 6:
+      f(std::integral_constant<int, 6>{});
+      break;
+    case 7:
+      f(std::integral_constant<int, 7>{});
+      break;
+    case 10:
+      f(std::integral_constant<int, 10>{});
+      break;
+    default:
+      f(std::integral_constant<int, 0>{});
+      break;
+  }
+}
 
 // Cholesky M = L Lᵀ of one n × n block (lower triangle of M read). Writes L's lower triangle and
 // 1/L_ii. Returns false when a pivot is not > 0 (not positive definite, or NaN). pivot_ratio (if

@@ -112,18 +112,9 @@ using detail::LdltPivots;
 using detail::pivoted_ldlt;
 using detail::RankRule;
 
-// x ← L^{-1} x and x ← L^{-ᵀ} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
+// x ← L^{-1} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
 void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
   detail::l_solve<0>(L, ldl, inv_diag, x, n);
-}
-void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
-  detail::lt_solve<0>(L, ldl, inv_diag, x, n);
-}
-
-// Rows k and p of a column-major matrix (m rows, c columns) swapped.
-void swap_rows(Mat& X, Index k, Index p) {
-  if (k == p) return;
-  for (Index j = 0; j < X.cols(); ++j) std::swap(X(k, j), X(p, j));
 }
 
 // The lower triangle of G = X Xᵀ for the leading rows × cols of X (a Gram matrix: S, W_D).
@@ -197,54 +188,102 @@ struct ArrowPivots {
   }
 };
 
+// Compile-time sizes. Every step below is a template on the robots' block size NK, their rows MK
+// and the load's block size NL; 0 stands for the runtime size (any shape). The shape of two or
+// more 7-joint arms on x, y, yaw platforms welded to a free body (n_k = 10, m_k = 6, n_L = 7,
+// docs/performance.md, "Two Pandas welded to a plate") runs with all three fixed, so the loops
+// unroll into fixed-length vector operations, as solve_impl<MM, NB> does for the paper's shapes
+// (uk_solve.cpp). Both instantiations do the same operations in the same order.
+template <int NK, int MK, int NL>
+struct ArrowSizes {
+  Index mk, nk, nL;
+  ArrowSizes(const ArrowProblem& P, std::size_t gi)
+      : mk(MK > 0 ? Index{MK} : static_cast<Index>(P.st.groups[gi].rows.size())),
+        nk(NK > 0 ? Index{NK} : P.st.groups[gi].size),
+        nL(NL > 0 ? Index{NL} : P.nL) {}
+};
+
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
-// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ.
-void reduce_group(const ArrowProblem& P, std::size_t gi) {
+// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Returns
+// max_i W_ii over the group's rows, W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (its part of the rank rule's
+// scale); T holds the rows C_i L_L^{-ᵀ} as scratch. Every loop runs down a column of m_k rows.
+template <int NK, int MK, int NL>
+double reduce_group(const ArrowProblem& P, std::size_t gi) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
-  const Index mk = static_cast<Index>(grp.rows.size()), s = grp.start, nk = grp.size;
+  const ArrowSizes<NK, MK, NL> z(P, gi);
+  const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
+  double* B = gb.B.data();
+  double* C = gb.C.data();
+  double* Xt = gb.Xt.data();
+  double* Y = gb.T.data();
+  const double* Ad = P.A.data();
   for (Index i = 0; i < mk; ++i) {
     const Index row = grp.rows[static_cast<std::size_t>(i)];
-    for (Index j = 0; j < nk; ++j) gb.B(i, j) = P.A(row, s + j);
-    for (Index j = 0; j < P.nL; ++j) gb.C(i, j) = P.A(row, P.sL + j);
+    for (Index j = 0; j < nk; ++j) B[i + j * mk] = Ad[row + (s + j) * lda];
+    for (Index j = 0; j < nL; ++j) C[i + j * mk] = Ad[row + (P.sL + j) * lda];
     gb.bb[i] = P.b[row];
   }
   double* y = gb.w.data();
   for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
-  l_solve(Lk, P.ldl, id, y, nk);
-  for (Index l = 0; l < nk; ++l) {
-    for (Index i = 0; i < mk; ++i) {
-      double v = gb.B(i, l);
-      for (Index p = 0; p < l; ++p) v -= Lk[l + p * P.ldl] * gb.Xt(i, p);
-      gb.Xt(i, l) = v * id[l];
+  detail::l_solve<NK>(Lk, P.ldl, id, y, nk);
+  // Xᵀ(:, l) = (B(:, l) − Σ_{p<l} L_lp Xᵀ(:, p)) / L_ll; the same for C and the load's factor.
+  auto forward_columns = [mk](const double* L, Index ldl, const double* inv, const double* in,
+                              double* out, Index n) {
+    for (Index l = 0; l < n; ++l) {
+      double col[MK > 0 ? MK : 1];
+      double* c = MK > 0 ? col : out + l * mk;
+      for (Index i = 0; i < mk; ++i) c[i] = in[i + l * mk];
+      for (Index p = 0; p < l; ++p) {
+        const double lp = L[l + p * ldl];
+        for (Index i = 0; i < mk; ++i) c[i] -= lp * out[i + p * mk];
+      }
+      for (Index i = 0; i < mk; ++i) out[i + l * mk] = c[i] * inv[l];
     }
+  };
+  forward_columns(Lk, P.ldl, id, B, Xt, nk);
+  forward_columns(P.Ld + P.sL + P.sL * P.ldl, P.ldl, P.idg + P.sL, C, Y, nL);
+  double* r = gb.r.data();
+  for (Index i = 0; i < mk; ++i) r[i] = gb.bb[i];
+  for (Index l = 0; l < nk; ++l)
+    for (Index i = 0; i < mk; ++i) r[i] -= Xt[i + l * mk] * y[l];
+  double* S = gb.S.data();
+  const Index lds = gb.S.rows();
+  double w_ref = 0.0;
+  for (Index j = 0; j < mk; ++j) {
+    double acc[MK > 0 ? MK : 1] = {};
+    double* a = MK > 0 ? acc : S + j * lds;
+    if constexpr (MK == 0)
+      for (Index i = j; i < mk; ++i) a[i] = 0.0;
+    for (Index l = 0; l < nk; ++l) {
+      const double xj = Xt[j + l * mk];
+      for (Index i = (MK > 0 ? 0 : j); i < mk; ++i) a[i] += Xt[i + l * mk] * xj;
+    }
+    if constexpr (MK > 0)
+      for (Index i = j; i < mk; ++i) S[i + j * lds] = a[i];
+    double c2 = 0.0;
+    for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
+    w_ref = std::max(w_ref, S[j + j * lds] + c2);
   }
-  for (Index i = 0; i < mk; ++i) {
-    double v = gb.bb[i];
-    for (Index l = 0; l < nk; ++l) v -= gb.Xt(i, l) * y[l];
-    gb.r[i] = v;
-  }
-  lower_gram(gb.Xt, mk, nk, gb.S);
+  return w_ref;
 }
 
 // H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
 // returns max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii + C_i M_L⁻¹ C_iᵀ): the scale of every rank
 // decision below, as the dense solve's.
+template <int NK, int MK, int NL>
 double reduce_groups(const ArrowProblem& P) {
   auto& ws = P.ws;
-  for (Index j = 0; j < P.nL; ++j) {
-    for (Index i = j; i < P.nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
+  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  for (Index j = 0; j < nL; ++j) {
+    for (Index i = j; i < nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
     ws.gL[j] = P.Q[P.sL + j];
   }
   double w_ref = 0.0;
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
-    reduce_group(P, gi);
-    auto& gb = ws.g[gi];
-    for (Index i = 0; i < static_cast<Index>(P.st.groups[gi].rows.size()); ++i)
-      w_ref = std::max(w_ref, gb.S(i, i) + P.load_part_of_w(gb.C, i));
-  }
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
+    w_ref = std::max(w_ref, reduce_group<NK, MK, NL>(P, gi));
   for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w(P.A, row, P.sL));
   return w_ref;
 }
@@ -252,24 +291,28 @@ double reduce_groups(const ArrowProblem& P) {
 // Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
 // dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
 // (appended at mD, which is returned advanced).
+template <int NK, int MK, int NL>
 Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
                       Index mD) {
   auto& ws = P.ws;
   auto& gb = ws.g[gi];
-  const Index nL = P.nL;
-  const Index mk = static_cast<Index>(P.st.groups[gi].rows.size());
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const Index nL = sz.nL, mk = sz.mk;
   const LdltPivots pv =
       pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, gb.piv.data(), ws.tmp.data(), P.rule(w_ref));
   gb.kept = pv.kept;
   const Index kp = gb.kept;
   pivots.add(pv);
   // The same row order for C (into T), r and b (into z, lam as scratch).
-  gb.T = gb.C;  // same size: no allocation
+  double* T = gb.T.data();
+  const double* C = gb.C.data();
+  for (Index j = 0; j < nL * mk; ++j) T[j] = C[j];
   for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
   for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
   for (Index k = 0; k < kp; ++k) {
     const Index p = gb.piv[static_cast<std::size_t>(k)];
-    swap_rows(gb.T, k, p);
+    if (p != k)
+      for (Index j = 0; j < nL; ++j) std::swap(T[k + j * mk], T[p + j * mk]);
     std::swap(gb.z[k], gb.z[p]);
     std::swap(gb.lam[k], gb.lam[p]);
   }
@@ -280,23 +323,25 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
     for (Index p = 0; p < pe; ++p) {
       const double l = gb.S(i, p);
       if (l == 0.0) continue;
-      for (Index j = 0; j < nL; ++j) gb.T(i, j) -= l * gb.T(p, j);
+      for (Index j = 0; j < nL; ++j) T[i + j * mk] -= l * T[p + j * mk];
       if (i < kp) gb.z[i] -= l * gb.z[p];
       gb.lam[i] -= l * gb.lam[p];
     }
   }
   // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
+  double* H = ws.H.data();
+  const Index ldh = NL > 0 ? Index{NL} : ws.H.rows();
   for (Index i = 0; i < kp; ++i) {
     const double inv = 1.0 / gb.S(i, i);
     for (Index jj = 0; jj < nL; ++jj) {
-      const double tj = gb.T(i, jj) * inv;
+      const double tj = T[i + jj * mk] * inv;
       if (tj == 0.0) continue;
-      for (Index ii = jj; ii < nL; ++ii) ws.H(ii, jj) += gb.T(i, ii) * tj;
+      for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[i + ii * mk] * tj;
       ws.gL[jj] += tj * gb.z[i];
     }
   }
   for (Index i = kp; i < mk; ++i) {
-    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = gb.T(i, j);
+    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = T[i + j * mk];
     ws.d[mD] = gb.lam[i];
     ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
     ++mD;
@@ -305,11 +350,12 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
 }
 
 // Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
+template <int NK, int MK, int NL>
 Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots) {
   auto& ws = P.ws;
   Index mD = 0;
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
-    mD = eliminate_group(P, gi, w_ref, pivots, mD);
+    mD = eliminate_group<NK, MK, NL>(P, gi, w_ref, pivots, mD);
   for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
     const Index row = P.st.load_rows[j];
     for (Index c = 0; c < P.nL; ++c) ws.Dt(mD, c) = P.A(row, P.sL + c);
@@ -320,50 +366,59 @@ Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots)
   return mD;
 }
 
-// Cholesky of H in place (lower), dividing directly; false if H is not positive definite.
-bool cholesky_in_place(Mat& H, Index nL) {
-  for (Index j = 0; j < nL; ++j) {
-    double dj = H(j, j);
-    for (Index k = 0; k < j; ++k) dj -= H(j, k) * H(j, k);
+// Cholesky of H in place (lower, leading dimension n), dividing directly; false if H is not
+// positive definite.
+template <int NL>
+bool cholesky_in_place(double* H, Index n_rt) {
+  const Index n = NL > 0 ? Index{NL} : n_rt;
+  for (Index j = 0; j < n; ++j) {
+    double dj = H[j + j * n];
+    for (Index k = 0; k < j; ++k) dj -= H[j + k * n] * H[j + k * n];
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
-    H(j, j) = ljj;
-    for (Index i = j + 1; i < nL; ++i) {
-      double v = H(i, j);
-      for (Index k = 0; k < j; ++k) v -= H(i, k) * H(j, k);
-      H(i, j) = v / ljj;
+    H[j + j * n] = ljj;
+    for (Index i = j + 1; i < n; ++i) {
+      double v = H[i + j * n];
+      for (Index k = 0; k < j; ++k) v -= H[i + k * n] * H[j + k * n];
+      H[i + j * n] = v / ljj;
     }
   }
   return true;
 }
 
 // x ← L_H⁻¹ x and x ← L_H^{-ᵀ} x with the Cholesky factor of H (cholesky_in_place).
-void h_solve(const Mat& H, Index nL, double* x) {
-  for (Index i = 0; i < nL; ++i) {
+template <int NL>
+void h_solve(const double* H, Index n_rt, double* x) {
+  const Index n = NL > 0 ? Index{NL} : n_rt;
+  for (Index i = 0; i < n; ++i) {
     double v = x[i];
-    for (Index k = 0; k < i; ++k) v -= H(i, k) * x[k];
-    x[i] = v / H(i, i);
+    for (Index k = 0; k < i; ++k) v -= H[i + k * n] * x[k];
+    x[i] = v / H[i + i * n];
   }
 }
-void ht_solve(const Mat& H, Index nL, double* x) {
-  for (Index i = nL - 1; i >= 0; --i) {
+template <int NL>
+void ht_solve(const double* H, Index n_rt, double* x) {
+  const Index n = NL > 0 ? Index{NL} : n_rt;
+  for (Index i = n - 1; i >= 0; --i) {
     double v = x[i];
-    for (Index k = i + 1; k < nL; ++k) v -= H(k, i) * x[k];
-    x[i] = v / H(i, i);
+    for (Index k = i + 1; k < n; ++k) v -= H[k + i * n] * x[k];
+    x[i] = v / H[i + i * n];
   }
 }
 
 // The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
 // r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
+template <int NL>
 void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
   auto& ws = P.ws;
-  const Index nL = P.nL;
+  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  const double* H = ws.H.data();
   double* yH = ws.qddL.data();
   for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
-  h_solve(ws.H, nL, yH);
+  h_solve<NL>(H, nL, yH);
   for (Index i = 0; i < mD; ++i) {
     for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
-    h_solve(ws.H, nL, ws.tmp.data());
+    h_solve<NL>(H, nL, ws.tmp.data());
     double v = ws.d[i];
     for (Index j = 0; j < nL; ++j) {
       ws.Dt(i, j) = ws.tmp[j];
@@ -383,20 +438,23 @@ void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivo
     for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];
     yH[j] = v;
   }
-  ht_solve(ws.H, nL, yH);
+  ht_solve<NL>(H, nL, yH);
 }
 
 // Robot k's multipliers: u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v for the kept rows
 // (λ = S⁻¹(r − C q̈_L) with the dropped rows' λ_E moved over, see the header), then its share of
 // Qc = Aᵀ λ on the robot and the load.
+template <int NK, int MK, int NL>
 void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const Index mk = sz.mk, nk = sz.nk, nL = sz.nL, kp = gb.kept;
   const double* qL = P.ws.qddL.data();
-  const Index mk = static_cast<Index>(grp.rows.size()), kp = gb.kept;
+  const double* T = gb.T.data();
   for (Index i = 0; i < kp; ++i) {
     double v = gb.z[i];
-    for (Index j = 0; j < P.nL; ++j) v -= gb.T(i, j) * qL[j];
+    for (Index j = 0; j < nL; ++j) v -= T[i + j * mk] * qL[j];
     gb.lam[i] = v / gb.S(i, i);
   }
   for (Index e = kp; e < mk; ++e) {
@@ -410,17 +468,20 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   }
   for (Index k = kp - 1; k >= 0; --k)
     std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
-  const Index s = grp.start, nk = grp.size;
+  const Index s = grp.start;
+  const double* B = gb.B.data();
+  const double* C = gb.C.data();
   for (Index i = 0; i < mk; ++i) {
     const double li = gb.lam[i];
     P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = li;
     if (li == 0.0) continue;
-    for (Index j = 0; j < nk; ++j) Qc[s + j] += gb.B(i, j) * li;
-    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += gb.C(i, j) * li;
+    for (Index j = 0; j < nk; ++j) Qc[s + j] += B[i + j * mk] * li;
+    for (Index j = 0; j < nL; ++j) Qc[P.sL + j] += C[i + j * mk] * li;
   }
 }
 
 // Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
+template <int NK, int MK, int NL>
 void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) {
   auto& ws = P.ws;
   const double* lam = ws.lamD.data();
@@ -433,25 +494,51 @@ void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) 
     }
   }
   Qc.setZero();
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers(P, gi, Qc);
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers<NK, MK, NL>(P, gi, Qc);
   for (const Index row : P.st.load_rows) {
     const double li = ws.lambda[row];
     for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += P.A(row, P.sL + j) * li;
   }
 }
 
-// q̈ = M⁻¹(Q + Qc), block by block (every block, free ones too), paper Eq. (18).
+// q̈ = M⁻¹(Q + Qc), block by block, paper Eq. (18). A robot's block reuses y = L_k⁻¹ Q_k and
+// Xᵀ = B L_k^{-ᵀ} of reduce_group: q̈_k = L_k^{-ᵀ}(y + X λ_k) (L_k⁻¹ Qc_k = L_k⁻¹ Bᵀ λ_k = X λ_k, as
+// the dense solve forms q̈, uk_solve.hpp), independent sums instead of a forward substitution; the
+// load's is solve_load's q̈_L; any other block (no rows) q̈ = L⁻ᵀ L⁻¹ (Q + Qc).
+template <int NK, int MK, int NL>
 void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
   const auto& layout = P.dws.layout;
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+    const auto& gb = P.ws.g[gi];
+    const ArrowSizes<NK, MK, NL> sz(P, gi);
+    const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk;
+    const double* Xt = gb.Xt.data();
+    const double* y = gb.w.data();
+    double* x = qdd.data() + s;
+    for (Index l = 0; l < nk; ++l) {
+      double v = y[l];
+      for (Index i = 0; i < mk; ++i) v += Xt[i + l * mk] * gb.lam[i];
+      x[l] = v;
+    }
+    detail::lt_solve<NK>(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, x, nk);
+  }
+  for (Index j = 0; j < P.nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
   for (std::size_t k = 0; k < layout.blocks(); ++k) {
+    bool done = static_cast<Index>(k) == P.st.load_block;
+    for (const auto& g : P.st.groups) done = done || g.block == static_cast<Index>(k);
+    if (done) continue;
     const Index s = layout.start[k], nk = layout.size[k];
     for (Index j = 0; j < nk; ++j) qdd[s + j] = P.Q[s + j] + Qc[s + j];
-    l_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
-    lt_solve(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, qdd.data() + s, nk);
+    const double* Lk = P.Ld + s + s * P.ldl;
+    detail::with_block_size(nk, [&](auto N) {
+      detail::l_solve<decltype(N)::value>(Lk, P.ldl, P.idg + s, qdd.data() + s, nk);
+      detail::lt_solve<decltype(N)::value>(Lk, P.ldl, P.idg + s, qdd.data() + s, nk);
+    });
   }
 }
 
 // ‖A q̈ − b‖, ‖A‖_∞, consistency and finiteness (as uk_solve.cpp's) with the pivots into res.
+template <int NK, int MK, int NL>
 void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const ArrowPivots& pivots,
                   const UkSettings& settings, UkResult& res) {
   double r2 = 0.0, b2 = 0.0, a_inf = 0.0;
@@ -461,18 +548,20 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     a_inf = std::max(a_inf, ab);
   };
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
-    const auto& grp = P.st.groups[gi];
     const auto& gb = P.ws.g[gi];
-    const Index s = grp.start, nk = grp.size;
-    for (Index i = 0; i < static_cast<Index>(grp.rows.size()); ++i) {
+    const ArrowSizes<NK, MK, NL> sz(P, gi);
+    const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
+    const double* B = gb.B.data();
+    const double* C = gb.C.data();
+    for (Index i = 0; i < mk; ++i) {
       double v = -gb.bb[i], ab = 0.0;
       for (Index j = 0; j < nk; ++j) {
-        v += gb.B(i, j) * qdd[s + j];
-        ab += std::abs(gb.B(i, j));
+        v += B[i + j * mk] * qdd[s + j];
+        ab += std::abs(B[i + j * mk]);
       }
-      for (Index j = 0; j < P.nL; ++j) {
-        v += gb.C(i, j) * qdd[P.sL + j];
-        ab += std::abs(gb.C(i, j));
+      for (Index j = 0; j < nL; ++j) {
+        v += C[i + j * mk] * qdd[P.sL + j];
+        ab += std::abs(C[i + j * mk]);
       }
       add_row(v, ab, gb.bb[i]);
     }
@@ -501,21 +590,38 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
   res.finite = finite && std::isfinite(res.residual);
 }
 
+// Every group n_k = NK coordinates and m_k = MK rows, the load n_L = NL.
+template <int NK, int MK, int NL>
+bool arrow_shape_is(const ArrowStructure& st) {
+  if (st.load_size != NL) return false;
+  for (const auto& g : st.groups)
+    if (g.size != NK || static_cast<Index>(g.rows.size()) != MK) return false;
+  return true;
+}
+
+// The steps of the solve in order, with the sizes of arrow_shape_is<NK, MK, NL> (0: runtime).
+template <int NK, int MK, int NL>
+bool arrow_steps(const ArrowProblem& P, Vec& qdd, Vec& Qc, const UkSettings& settings,
+                 UkResult& res) {
+  ArrowPivots pivots;
+  const double w_ref = reduce_groups<NK, MK, NL>(P);
+  const Index mD = eliminate_groups<NK, MK, NL>(P, w_ref, pivots);
+  if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
+  solve_load<NL>(P, mD, w_ref, pivots);
+  multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
+  accelerations<NK, MK, NL>(P, Qc, qdd);
+  arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
+  return true;
+}
+
 }  // namespace
 
 bool uk_solve_arrow(const ArrowStructure& st, const Mat& M, const Mat& A, const Vec& b,
                     const Vec& Q, const UkWorkspace& dws, ArrowWorkspace& ws, Vec& qdd, Vec& Qc,
                     const UkSettings& settings, UkResult& res) {
   const ArrowProblem P(st, M, A, b, Q, dws, ws, settings);
-  ArrowPivots pivots;
-  const double w_ref = reduce_groups(P);
-  const Index mD = eliminate_groups(P, w_ref, pivots);
-  if (!cholesky_in_place(ws.H, P.nL)) return false;
-  solve_load(P, mD, w_ref, pivots);
-  multipliers_and_constraint_force(P, mD, Qc);
-  accelerations(P, Qc, qdd);
-  arrow_result(P, qdd, Qc, pivots, settings, res);
-  return true;
+  if (arrow_shape_is<10, 6, 7>(st)) return arrow_steps<10, 6, 7>(P, qdd, Qc, settings, res);
+  return arrow_steps<0, 0, 0>(P, qdd, Qc, settings, res);
 }
 
 }  // namespace ukdyn

@@ -35,6 +35,7 @@ namespace {
 using detail::chol_block;
 using detail::l_solve;
 using detail::lt_solve;
+using detail::with_block_size;
 
 // The same three kernels for P blocks of one compile-time size N at once, in lockstep. One block's
 // Cholesky or substitution is a chain of dependent steps (sqrt, division, multiply-adds); the
@@ -114,17 +115,6 @@ bool is_fixed6(const BlockLayout& lay) {
   for (std::size_t k = 0; k < lay.blocks(); ++k)
     if (lay.start[k] != Index{6} * static_cast<Index>(k) || lay.size[k] != 6) return false;
   return true;
-}
-
-// Calls f(std::integral_constant<int, 6>) for blocks of size 6 (the paper's arms) and
-// f(std::integral_constant<int, 0>) (runtime size) for any other size.
-template <typename F>
-void with_block_size(Index n, F&& f) {
-  if (n == 6) {
-    f(std::integral_constant<int, 6>{});
-  } else {
-    f(std::integral_constant<int, 0>{});
-  }
 }
 
 // x ← L^{-1} x (Forward) or x ← L^{-ᵀ} x, block by block. NB == 2: the layout is two blocks of 6

@@ -4,12 +4,14 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <limits>
 #include <set>
 
 #include "core/lane_dual.hpp"
 #include "symbolic/ex_helpers.hpp"
 #include "tree/dual.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
+#include "ukdyn/symbolic/free_body.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
 namespace ukdyn::symbolic {
@@ -178,7 +180,154 @@ struct End {
   Tape tape;
   Index scratch = 0;   // doubles of slot it needs besides dp, dR: tree workspace or tape work+out
   Index n_system = 0;  // the system's coordinates (the tape's inputs)
+  // An expressions end that is a frame fixed on a free body (free_body_frame below): its offset
+  // (p = x + R(u) o, R = R(u) R_o) for end_state's closed form; the tape is kept for the
+  // derivative passes.
+  bool free_body = false;
+  Eigen::Vector3d fb_o = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d fb_Ro = Eigen::Matrix3d::Identity();
 };
+
+// Σ |c| over the terms c·(monomial) of a polynomial in `vars` (∞ if it is not one, or has other
+// symbols): each term of the expanded sum evaluated with every variable at 1.
+double coefficient_sum(const ex& d, const GiNaC::lst& vars, const GiNaC::exmap& ones) {
+  const ex e = d.evalf().expand();
+  if (!e.is_polynomial(vars)) return std::numeric_limits<double>::infinity();
+  double sum = 0.0;
+  auto add = [&](const ex& term) {
+    const ex c = term.subs(ones).evalf();
+    if (!GiNaC::is_a<GiNaC::numeric>(c) || !GiNaC::ex_to<GiNaC::numeric>(c).is_real()) {
+      sum = std::numeric_limits<double>::infinity();
+      return;
+    }
+    sum += std::abs(GiNaC::ex_to<GiNaC::numeric>(c).to_double());
+  };
+  if (GiNaC::is_a<GiNaC::add>(e)) {
+    for (const ex& t : e) add(t);
+  } else {
+    add(e);
+  }
+  return sum;
+}
+
+// Whether the pose x (p, then R row-major) over the end's 7 coordinates q is a frame fixed on a
+// free body, p = (q0, q1, q2) + R(u) o and R = R(u) R_o with u = (q3 .. q6) and R(u)
+// free_body.hpp's quaternion_rotation: o and R_o are read at q = (0, 0, 0, 1, 0, 0, 0), then each
+// of the 12 entries is checked as a polynomial identity (its coefficients zero to round-off).
+void free_body_frame(End& end, const std::vector<GiNaC::symbol>& q, const std::vector<ex>& x) {
+  if (q.size() != 7 || x.size() != 12) return;
+  GiNaC::exmap at_identity, ones;
+  GiNaC::lst vars;
+  for (std::size_t j = 0; j < 7; ++j) {
+    at_identity[q[j]] = j == 3 ? 1 : 0;
+    ones[q[j]] = 1;
+    vars.append(q[j]);
+  }
+  double off[12];
+  for (std::size_t i = 0; i < 12; ++i) {
+    const ex v = x[i].subs(at_identity).evalf();
+    if (!GiNaC::is_a<GiNaC::numeric>(v) || !GiNaC::ex_to<GiNaC::numeric>(v).is_real()) return;
+    off[i] = GiNaC::ex_to<GiNaC::numeric>(v).to_double();
+  }
+  const std::array<ex, 9> Ru = quaternion_rotation(q[3], q[4], q[5], q[6]);
+  double scale = 1.0;
+  for (const double v : off) scale += std::abs(v);
+  for (std::size_t i = 0; i < 3; ++i) {
+    ex pred = q[i];
+    for (std::size_t j = 0; j < 3; ++j) pred += Ru[3 * i + j] * off[j];
+    if (!(coefficient_sum(x[i] - pred, vars, ones) <= 1e-12 * scale)) return;
+    for (std::size_t j = 0; j < 3; ++j) {
+      ex r = 0;
+      for (std::size_t l = 0; l < 3; ++l) r += Ru[3 * i + l] * off[3 + 3 * l + j];
+      if (!(coefficient_sum(x[3 + 3 * i + j] - r, vars, ones) <= 1e-12 * scale)) return;
+    }
+  }
+  end.free_body = true;
+  for (int i = 0; i < 3; ++i) end.fb_o(i) = off[i];
+  for (int i = 0; i < 9; ++i) end.fb_Ro(i / 3, i % 3) = off[3 + i];
+}
+
+// B(a, b) = B(b, a) with B(u, u) = R(u) (quaternion_rotation, quadratic in u = (w, x, y, z)): the
+// polarisation of R, so that ∂R/∂u_k = 2 B(e_k, u), Ṙ = 2 B(u, u̇) and R̈|ü=0 = 2 B(u̇, u̇).
+Eigen::Matrix3d quaternion_bilinear(const double* a, const double* b) {
+  const double ww = a[0] * b[0], xx = a[1] * b[1], yy = a[2] * b[2], zz = a[3] * b[3];
+  const double xy = a[1] * b[2] + a[2] * b[1], xz = a[1] * b[3] + a[3] * b[1];
+  const double yz = a[2] * b[3] + a[3] * b[2], wx = a[0] * b[1] + a[1] * b[0];
+  const double wy = a[0] * b[2] + a[2] * b[0], wz = a[0] * b[3] + a[3] * b[0];
+  Eigen::Matrix3d B;
+  B << ww + xx - yy - zz, xy - wz, xz + wy, xy + wz, ww - xx + yy - zz, yz - wx, xz - wy, yz + wx,
+      ww - xx - yy + zz;
+  return B;
+}
+
+// A free-body end's pose and rates (free_body_frame) in closed form; the body's coordinates x,
+// u = (w, x, y, z) into xq (7).
+void free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* xq) {
+  double v[7];
+  for (std::size_t c = 0; c < 7; ++c) {
+    xq[c] = q(e.cols[c]);
+    v[c] = qd(e.cols[c]);
+  }
+  const double* u = xq + 3;
+  const double* ud = v + 3;
+  const Eigen::Matrix3d R = quaternion_bilinear(u, u);
+  const Eigen::Matrix3d Rd = 2.0 * quaternion_bilinear(u, ud);
+  const Eigen::Matrix3d Rdd = 2.0 * quaternion_bilinear(ud, ud);
+  s.p = Eigen::Vector3d(xq[0], xq[1], xq[2]) + R * e.fb_o;
+  s.R = R * e.fb_Ro;
+  s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + Rd * e.fb_o;
+  s.Rd = Rd * e.fb_Ro;
+  s.pdd = Rdd * e.fb_o;
+  s.Rdd = Rdd * e.fb_Ro;
+}
+
+// A free-body end's state (free_body_frame) in closed form: what its tape computes, without it.
+void free_body_state(const End& e, CVecRef q, CVecRef qd, FrameState& s) {
+  double x[7];
+  free_body_pose(e, q, qd, s, x);
+  const double* u = x + 3;
+  for (Index c = 0; c < 3; ++c) {
+    s.dp.col(c).setZero();
+    s.dp(c, c) = 1.0;
+    s.dR.col(c).setZero();
+  }
+  for (Index k = 0; k < 4; ++k) {
+    double ek[4] = {0.0, 0.0, 0.0, 0.0};
+    ek[k] = 1.0;
+    const Eigen::Matrix3d dRk = 2.0 * quaternion_bilinear(ek, u);
+    s.dp.col(3 + k) = dRk * e.fb_o;
+    const Eigen::Matrix3d dRf = dRk * e.fb_Ro;
+    for (int i = 0; i < 9; ++i) s.dR(i, 3 + k) = dRf(i / 3, i % 3);
+  }
+}
+
+// The same end for evaluate(): its columns as twists (v, ω, s), 7 doubles each, as a tree end's
+// (add_twist_columns). ∂R(u)/∂u_k = ([ω_k]× + s_k) R(u) with ω_k = 2 G(u) e_k / |u|² and
+// s_k = 2 u_k / |u|² (a ball joint's axes, src/tree/tree.cpp place_ball), so the frame moves by
+// ∂R = ([ω_k]× + s_k) R and ∂p = ω_k × (p − x) + s_k (p − x); x_c moves it by v = e_c.
+void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* twists) {
+  double x[7];
+  free_body_pose(e, q, qd, s, x);
+  const double w = x[3], a = x[4], b = x[5], c = x[6];
+  const double qs = 2.0 / (w * w + a * a + b * b + c * c);
+  const Eigen::Vector3d g[4] = {{-a, -b, -c}, {w, c, -b}, {-c, w, a}, {b, -a, w}};
+  const Eigen::Vector3d r = s.p - Eigen::Vector3d(x[0], x[1], x[2]);
+  for (int k = 0; k < 3; ++k) {
+    double* t = twists + 7 * k;
+    for (int i = 0; i < 7; ++i) t[i] = i == k ? 1.0 : 0.0;
+  }
+  for (int k = 0; k < 4; ++k) {
+    double* t = twists + 7 * (3 + k);
+    const Eigen::Vector3d om = qs * g[k];
+    const double sk = qs * x[3 + k];
+    const Eigen::Vector3d v = om.cross(r) + sk * r;
+    for (int i = 0; i < 3; ++i) {
+      t[i] = v(i);
+      t[3 + i] = om(i);
+    }
+    t[6] = sk;
+  }
+}
 
 End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTable& table,
              const std::string& frame) {
@@ -225,6 +374,7 @@ End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTa
     }
     end.tape = Tape(out, in);
     end.scratch = static_cast<Index>(end.tape.work_size() + end.tape.outputs());
+    free_body_frame(end, q, x);
   }
   return end;
 }
@@ -253,6 +403,10 @@ void end_state(const End& e, CVecRef q, CVecRef qd, double* scratch, FrameState&
       return;
     }
     case NumericFrameEnd::Kind::expressions: {
+      if (e.free_body) {
+        free_body_state(e, q, qd, s);
+        return;
+      }
       double* out = scratch + e.tape.work_size();
       e.tape.eval(0.0, q.data(), qd.data(), out, scratch);
       const auto nc = static_cast<Index>(e.cols.size());
@@ -309,25 +463,46 @@ void twist_jacobian(const FrameState& s, const std::vector<Index>& cols, Index n
 }
 
 // A(:, cols) += D_end ∂x_end/∂q over one end's columns.
-void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
-                 int p0, int r0, MatRef A) {
+// Each column summed in a local array down D's columns (contiguous; MR > 0: the rows known at
+// compile time, the loops unroll), the same terms in the same order as one row at a time.
+template <int MR>
+void add_columns_m(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
+                   int p0, int r0, MatRef A) {
+  const int m = MR > 0 ? MR : r.m;
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const auto ci = static_cast<Index>(c);
-    for (int i = 0; i < r.m; ++i) {
-      double v = 0.0;
-      for (int k = 0; k < 3; ++k) v += r.D(i, p0 + k) * s.dp(k, ci);
-      for (int k = 0; k < 9; ++k) v += r.D(i, r0 + k) * s.dR(k, ci);
-      A(i, cols[c]) += v;
+    double v[kMaxRows] = {};
+    for (int k = 0; k < 3; ++k) {
+      const double x = s.dp(k, ci);
+      for (int i = 0; i < m; ++i) v[i] += r.D(i, p0 + k) * x;
     }
+    for (int k = 0; k < 9; ++k) {
+      const double x = s.dR(k, ci);
+      for (int i = 0; i < m; ++i) v[i] += r.D(i, r0 + k) * x;
+    }
+    for (int i = 0; i < m; ++i) A(i, cols[c]) += v[i];
+  }
+}
+void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowValues<double>& r,
+                 int p0, int r0, MatRef A) {
+  if (r.m == kMaxRows) {
+    add_columns_m<kMaxRows>(s, cols, r, p0, r0, A);
+  } else {
+    add_columns_m<0>(s, cols, r, p0, r0, A);
   }
 }
 
 // An end's state for evaluate(): a tree end by frame_twists (its columns as twists (v, ω, s),
 // 7 per coordinate, in `twists`; the link placements its subsystem's dynamics() left in its slot
-// reused when they are of this state), any other end by end_state (dp, dR).
+// reused when they are of this state), a free-body end by free_body_twists (twists too), any other
+// end by end_state (dp, dR).
 void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, double* scratch,
                 FrameState& s, double* twists) {
   const NumericFrameEnd& spec = e.spec;
+  if (e.free_body) {
+    free_body_twists(e, q, qd, s, twists);
+    return;
+  }
   if (spec.kind != NumericFrameEnd::Kind::tree) {
     end_state(e, q, qd, scratch, s);
     return;
@@ -336,6 +511,21 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
   spec.tree->frame_twists(q.segment(c0, n), qd.segment(c0, n), spec.link, spec.offset_R,
                           spec.offset_p, slots.subsystem(c0),
                           Slot(scratch, static_cast<std::size_t>(e.scratch)), s, twists);
+}
+
+// A(:, cols[c]) += G t_c (m rows, MR > 0: known at compile time), each column summed in a local
+// array down G's columns, the same terms in the same order as one row at a time.
+template <int MR>
+void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
+                     const double* twists, int m_rt, MatRef A) {
+  const int m = MR > 0 ? MR : m_rt;
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const double* t = twists + 7 * c;
+    double v[kMaxRows] = {};
+    for (int k = 0; k < 7; ++k)
+      for (int i = 0; i < m; ++i) v[i] += G(i, k) * t[k];
+    for (int i = 0; i < m; ++i) A(i, cols[c]) += v[i];
+  }
 }
 
 // A(:, cols) += G t_c over a tree end's twist columns t_c = (v, ω, s): with ∂p = v and
@@ -358,13 +548,10 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
     }
     G(i, 6) = sc;
   }
-  for (std::size_t c = 0; c < cols.size(); ++c) {
-    const double* t = twists + 7 * c;
-    for (int i = 0; i < r.m; ++i) {
-      double v = 0.0;
-      for (int k = 0; k < 7; ++k) v += G(i, k) * t[k];
-      A(i, cols[c]) += v;
-    }
+  if (r.m == kMaxRows) {
+    add_map_columns<kMaxRows>(G, cols, twists, r.m, A);
+  } else {
+    add_map_columns<0>(G, cols, twists, r.m, A);
   }
 }
 
@@ -602,11 +789,11 @@ void add_force_tangent(const FrameState& v, const FrameState& t, const std::vect
   }
 }
 
-// A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree end,
-// dp and dR of any other.
+// A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree or
+// free-body end, dp and dR of any other.
 void add_end_columns(const End& e, const FrameState& s, const double* twists,
                      const RowValues<double>& r, int p0, int r0, MatRef A) {
-  if (e.spec.kind == NumericFrameEnd::Kind::tree) {
+  if (e.spec.kind == NumericFrameEnd::Kind::tree || e.free_body) {
     add_twist_columns(s, e.cols, twists, r, p0, r0, A);
   } else {
     add_columns(s, e.cols, r, p0, r0, A);
