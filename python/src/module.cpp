@@ -594,37 +594,17 @@ py::object prepare_start(ukdyn::Scenario& sc, const py::object& q0, const py::ob
   return py::none();
 }
 
-// run_scenario_in_memory() on a worker thread while this (Python's) thread waits with the GIL
-// released and, every 20 ms, takes it back to check for signals (PyErr_CheckSignals: Ctrl-C). A
-// signal whose handler raises (KeyboardInterrupt) cancels the run (options.cancel: it stops after
-// the current step, status `stopped`, as the CLI's run on SIGINT); `interrupted` is then true, the
-// Python error stays set and the run so far is returned once the worker has returned. Python
-// callables of the run take the GIL on the worker thread.
+// run_scenario_in_memory() interruptible by Ctrl-C (interruptible(), bindings.hpp): a signal
+// cancels the run (options.cancel: it stops after the current step, status `stopped`, as the CLI's
+// run on SIGINT); `interrupted` is then true and the run so far is returned.
 ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOptions opt,
                                    bool& interrupted) {
-  std::atomic<bool> cancel{false};
-  opt.cancel = &cancel;
-  auto done = std::async(std::launch::async,
-                         [&sc, &opt] { return ukdyn::run_scenario_in_memory(sc, opt); });
-  interrupted = false;
-  for (;;) {
-    {
-      py::gil_scoped_release release;
-      if (done.wait_for(std::chrono::milliseconds(20)) == std::future_status::ready) break;
-    }
-    if (!interrupted && PyErr_CheckSignals() != 0) {
-      interrupted = true;
-      cancel.store(true);
-    }
-  }
-  if (interrupted) {
-    try {
-      return done.get();
-    } catch (...) {  // the signal's exception is the one raised
-      return {};
-    }
-  }
-  return done.get();
+  return interruptible<ukdyn::MemoryRun>(
+      [&sc, &opt](const std::atomic<bool>& cancel) {
+        opt.cancel = &cancel;
+        return ukdyn::run_scenario_in_memory(sc, opt);
+      },
+      interrupted);
 }
 
 // The Run of a MemoryRun: its columns moved into one column-major buffer owned by a capsule.

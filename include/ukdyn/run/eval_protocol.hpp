@@ -51,6 +51,10 @@ struct LinearizeOptions {
   /// folded in, and the object "closed_loop" (τ, u, ∂τ/∂q, ∂τ/∂q̇, the eigenvalues of the
   /// minimal F, the law's kinks). τ is the law's, not the state's; not with parameters.
   bool closed_loop = false;
+  /// Where to say that the state is off the constraints (|Φ| or |A q̇ + Φ_t| above the scenario's
+  /// initial_tolerance: a hand-written --state, a quaternion not of unit norm); null: the JSON's
+  /// "constraint_residuals" only.
+  std::ostream* warnings = nullptr;
 };
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                          const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});
