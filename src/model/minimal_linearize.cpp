@@ -196,7 +196,7 @@ Mat expm(const Mat& X) {
   int s = 0;
   if (norm1 > theta13) s = static_cast<int>(std::ceil(std::log2(norm1 / theta13)));
   // The squaring phase multiplies the approximant's rounding by up to 2^s (Higham 2005, §2;
-  // Al-Mohy & Higham, SIAM J. Matrix Anal. Appl. 31(3), 2009): past 32 squarings (‖X‖₁ > 2.3e10)
+  // [AlMohyHigham2009]): past 32 squarings (‖X‖₁ > 2.3e10)
   // that is 1e-6 and more of the result (a nilpotent X h with h = 1e308 gave zeros for I + X h).
   if (s > 32) {
     char norm[32];
