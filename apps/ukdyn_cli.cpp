@@ -24,6 +24,7 @@
 // failed, linearize could not vouch for its derivatives, or size found no catalogue entry that
 // holds for some actuator; 2 bad input: a usage error, a bad
 // scenario, an output folder ukdyn refuses or one in use.
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <unistd.h>
 
@@ -372,16 +373,34 @@ void write_whole_file(const std::string& path, const std::string& bytes) {
   const fs::path file(path);
   const std::string shown = ukdyn::printable(path);
   std::error_code ec;
+  // FILE.part: a stale one of ours (a regular file) is replaced; anything else there (a FIFO,
+  // whose open would block, a link) is refused; created anew, never through a link.
   const std::string part = path + ".part";
-  {
-    std::ofstream f(part, std::ios::binary | std::ios::trunc);
-    if (!f) throw ukdyn::WriteFailed("cannot write " + ukdyn::printable(part));
-    f << bytes;
-    f.close();
-    if (!f) {
+  const auto part_status = fs::symlink_status(part, ec);
+  if (fs::exists(part_status) && !fs::is_regular_file(part_status))
+    throw ukdyn::OutputRefused(ukdyn::printable(part) +
+                               ": exists and is not a regular file: refusing to replace it");
+  fs::remove(part, ec);
+  const int fd = ::open(part.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
+  if (fd < 0)
+    throw ukdyn::WriteFailed("cannot create " + ukdyn::printable(part) + ": " +
+                             std::strerror(errno));
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (w < 0 && errno == EINTR) continue;
+    if (w < 0) {
+      const int e = errno;
+      ::close(fd);
       fs::remove(part, ec);
-      throw ukdyn::WriteFailed("writing " + ukdyn::printable(part) + " failed");
+      throw ukdyn::WriteFailed("writing " + ukdyn::printable(part) +
+                               " failed: " + std::strerror(e));
     }
+    done += static_cast<std::size_t>(w);
+  }
+  if (::close(fd) != 0) {
+    fs::remove(part, ec);
+    throw ukdyn::WriteFailed("writing " + ukdyn::printable(part) + " failed");
   }
   fs::rename(part, file, ec);
   if (ec) {

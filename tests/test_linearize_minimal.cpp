@@ -560,6 +560,14 @@ TEST(LinearizeCli, OutIsWrittenWholeOrRefused) {
     EXPECT_NE(r.err.find(why), std::string::npos) << r.err;
   }
   EXPECT_EQ(ukdyn_test::slurp(target), "mine\n");
+  // A FIFO where FILE.part goes: refused, not opened (that would block until a reader came).
+  ASSERT_EQ(ukdyn_test::shell("mkfifo " + ukdyn_test::sh((scratch / "trap.json.part").string())),
+            0);
+  const auto trap = out_to(scratch / "trap.json");
+  EXPECT_EQ(trap.exit_code, 2) << trap.err;
+  EXPECT_NE(trap.err.find("trap.json.part: exists and is not a regular file"), std::string::npos)
+      << trap.err;
+  EXPECT_FALSE(fs::exists(scratch / "trap.json"));
   const auto ok = out_to(scratch / "whole.npz");
   ASSERT_EQ(ok.exit_code, 0) << ok.err;
   EXPECT_TRUE(fs::is_regular_file(scratch / "whole.npz"));

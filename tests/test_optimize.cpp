@@ -692,7 +692,7 @@ TEST(OptimizeFile, InternalWrenchQDerivativeIsExact) {
       "ukdyn: 1\nname: ur\nscenario: ../two_ur5e_load.yaml\nintervals: 1\nduration: 1\n"
       "end:\n  q: [0, 0, 0, 0, -1.2, 1.6, -1.97, -1.5707963267948966, 0, 0, 0, 0, 0, -1.2, 1.6, "
       "-1.97, -1.5707963267948966, 0, 1.1, 0, 0.7062073754895476, 1, 0, 0, 0]\n"
-      "costs:\n  effort: 0\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
+      "costs:\n  effort: 1\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
       dir / "ur.yaml");
   // The bar's quaternion columns exact too (none differenced), off the unit sphere as well (a
   // random step of 0.1 takes |u| off 1).
