@@ -22,6 +22,7 @@
 #include "scenario_bindings.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
@@ -466,6 +467,11 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   r.kkt_agreement = lin.kkt_agreement;
   r.trusted = lin.trusted;
   r.message = lin.message;
+  // A state off the constraints is linearised all the same, with a UserWarning naming the row (as
+  // `ukdyn linearize` warns on stderr).
+  const auto off = ukdyn::constraint_offset(sys, t, q, qd, sc.initial_tolerance);
+  if (!off.warning.empty() && PyErr_WarnEx(PyExc_UserWarning, off.warning.c_str(), 1) != 0)
+    throw py::error_already_set();  // warnings turned into errors
   return r;
 }
 

@@ -252,3 +252,15 @@ def test_optimize_refuses_ipopt_options_naming_files_and_unknown_ones(tmp_path):
         with pytest.raises(ukdyn.ScenarioError, match=message):
             ukdyn.optimize(str(problem))
     assert victim.read_text() == "mine\n"
+
+
+def test_linearize_off_the_constraints_warns_naming_the_row():
+    sc = five_bar()
+    q = np.array([1.0, 2.0, 3.0, 4.0])  # the closure open (as `ukdyn linearize --state` warns)
+    with pytest.warns(UserWarning, match=r"off the constraints \(row 'end_[xz]'"):
+        lin = sc.linearize(0.0, q, np.zeros(4), np.zeros(4))
+    assert lin.F.shape == (8, 8)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # on the constraints: no warning
+        sc.linearize(0.0, sc.q0, sc.qd0, np.zeros(4))

@@ -281,37 +281,13 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
   return j;
 }
 
-// How far the state is off the constraints: the largest |Φ| and |A q̇ + Φ_t| over every row and the
-// row of the larger. Linearised all the same (the derivatives of the equations at that state), but
-// said (options.warnings) above `tolerance`.
+// constraint_offset() in the JSON, and said (options.warnings) above `tolerance`.
 json constraint_residuals(const System& sys, double t, const Vec& q, const Vec& qd,
                           double tolerance, const LinearizeOptions& opt) {
-  Vec phi(sys.rows()), phid(sys.rows());
-  position_residuals(sys, t, q, phi);
-  velocity_residuals(sys, t, q, qd, phid);
-  double position = 0.0, velocity = 0.0, worst = 0.0;
-  std::string row;
-  for (Index i = 0; i < sys.rows(); ++i) {
-    position = std::max(position, std::abs(phi(i)));
-    velocity = std::max(velocity, std::abs(phid(i)));
-    if (std::max(std::abs(phi(i)), std::abs(phid(i))) > worst) {
-      worst = std::max(std::abs(phi(i)), std::abs(phid(i)));
-      row = sys.constraint_row_names()[static_cast<std::size_t>(i)];
-    }
-  }
-  if (opt.warnings && !(worst <= tolerance)) {
-    *opt.warnings << printable(
-        fmt::format(
-            "ukdyn: warning: the state is off the constraints (row '{}': |Phi| {:.3g}, |Phi'| "
-            "{:.3g} "
-            "> initial_tolerance {:.3g}): linearised all the same, the derivatives of the "
-            "equations at "
-            "this state, not of a motion on the constraints (`ukdyn assemble` moves a state onto "
-            "them)\n",
-            row, position, velocity, tolerance),
-        true);
-  }
-  return json{{"position", position}, {"velocity", velocity}, {"row", row}};
+  const ConstraintOffset c = constraint_offset(sys, t, q, qd, tolerance);
+  if (opt.warnings && !c.warning.empty())
+    *opt.warnings << printable("ukdyn: warning: " + c.warning, true) << "\n";
+  return json{{"position", c.position}, {"velocity", c.velocity}, {"row", c.row}};
 }
 
 // The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
@@ -461,6 +437,32 @@ std::vector<std::pair<std::string, std::size_t>> top_level_keys(const std::strin
 }
 
 }  // namespace
+
+ConstraintOffset constraint_offset(const System& sys, double t, const Vec& q, const Vec& qd,
+                                   double tolerance) {
+  Vec phi(sys.rows()), phid(sys.rows());
+  position_residuals(sys, t, q, phi);
+  velocity_residuals(sys, t, q, qd, phid);
+  ConstraintOffset c;
+  double worst = 0.0;
+  for (Index i = 0; i < sys.rows(); ++i) {
+    c.position = std::max(c.position, std::abs(phi(i)));
+    c.velocity = std::max(c.velocity, std::abs(phid(i)));
+    if (std::max(std::abs(phi(i)), std::abs(phid(i))) > worst) {
+      worst = std::max(std::abs(phi(i)), std::abs(phid(i)));
+      c.row = sys.constraint_row_names()[static_cast<std::size_t>(i)];
+    }
+  }
+  // Linearised all the same (the derivatives of the equations at that state), but said.
+  if (!(worst <= tolerance))
+    c.warning = fmt::format(
+        "the state is off the constraints (row '{}': |Phi| {:.3g}, |Phi'| {:.3g} > "
+        "initial_tolerance {:.3g}): linearised all the same, the derivatives of the equations at "
+        "this state, not of a motion on the constraints (`ukdyn assemble` moves a state onto "
+        "them)",
+        c.row, c.position, c.velocity, tolerance);
+  return c;
+}
 
 LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
   const std::string text =

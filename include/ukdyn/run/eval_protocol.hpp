@@ -75,6 +75,15 @@ bool write_linearization_npz(const Scenario& scenario, double t, const Vec& q, c
                              const Vec& tau, std::ostream& out,
                              const LinearizeOptions& options = {});
 
+/// How far (t, q, q̇) is off the constraints: the largest |Φ| and |A q̇ + Φ_t| over every row and
+/// the row of the larger; `warning` says so when that exceeds `tolerance` (empty otherwise).
+struct ConstraintOffset {
+  double position = 0.0, velocity = 0.0;
+  std::string row, warning;
+};
+ConstraintOffset constraint_offset(const System& system, double t, const Vec& q, const Vec& qd,
+                                   double tolerance);
+
 LinearizeState read_state_json(const Scenario& scenario, const std::string& path);
 LinearizeState read_state_csv_row(const Scenario& scenario, const std::string& path, long row);
 
