@@ -24,13 +24,18 @@
 // failed, linearize could not vouch for its derivatives, or size found no catalogue entry that
 // holds for some actuator; 2 bad input: a usage error, a bad
 // scenario, an output folder ukdyn refuses or one in use.
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -223,7 +228,7 @@ int naming_the_scenario(const std::string& scenario, F f) {
 
 struct LinearizeArgs {
   bool minimal = false;
-  double dt = 0.0;
+  std::string dt;  ///< --dt as given (parse_step())
   std::string state, row, out;
   std::vector<std::string> parameters;
   bool closed_loop = false;
@@ -232,8 +237,13 @@ struct LinearizeArgs {
 // `ukdyn optimize`: solve, write the run folder, print what was found. Exit 0 when IPOPT
 // converged and ukdyn vouches for the result, 1 otherwise (the folder is written either way).
 int cmd_optimize(const std::string& problem, const std::string& out, bool quiet) {
-  const ukdyn::OptimizationFile f = ukdyn::load_optimization_file(problem);
+  ukdyn::OptimizationFile f = ukdyn::load_optimization_file(problem);
   if (!ukdyn::ipopt_available()) ukdyn::optimize_trajectory(f.problem);  // throws the message
+  // Ctrl-C (or SIGTERM) stops IPOPT after its current iteration; the folder is written with the
+  // last iterate, untrusted (summary.json says interrupted), and the exit code is 1.
+  std::signal(SIGINT, on_interrupt);
+  std::signal(SIGTERM, on_interrupt);
+  f.ipopt.cancel = &g_interrupted;
   const ukdyn::OptimizeReport rep = ukdyn::run_optimization(f, out);
   const auto& s = rep.solution;
   if (!quiet) {
@@ -318,22 +328,101 @@ int cmd_size(const std::string& file, const std::string& out_arg, int threads, b
   return rc;
 }
 
+// --dt: a finite step > 0 in plain decimal (not NaN, which would silently leave the discrete model
+// out, nor inf, hex or a number that overflows).
+double parse_step(const std::string& text) {
+  double v = 0.0;
+  const char* end = text.data() + text.size();
+  const auto r = std::from_chars(text.data(), end, v, std::chars_format::general);
+  if (text.empty() || r.ec != std::errc() || r.ptr != end || !std::isfinite(v) || !(v > 0.0))
+    throw ukdyn::Error("--dt '" + ukdyn::printable(text) +
+                       "': expected a finite step > 0 in seconds, e.g. --dt 0.01");
+  return v;
+}
+
+// --out FILE of `ukdyn linearize`: written whole to FILE.part beside it, then renamed, so FILE is
+// either the complete object or absent/unchanged (a full disk, Ctrl-C). Refused (exit 2) before
+// anything is written: a folder that does not exist or cannot be written, and a FILE that is not a
+// regular file (a folder, a FIFO, whose open would block, a device, a symbolic link).
+void write_whole_file_check(const std::string& path) {
+  namespace fs = std::filesystem;
+  const fs::path file(path);
+  const fs::path dir = file.parent_path().empty() ? fs::path(".") : file.parent_path();
+  const std::string shown = ukdyn::printable(path);
+  std::error_code ec;
+  const auto dir_status = fs::status(dir, ec);
+  if (!fs::is_directory(dir_status))
+    throw ukdyn::OutputRefused("--out " + shown + ": the folder " + ukdyn::printable(dir.string()) +
+                               (fs::exists(dir_status) ? " is not a folder" : " does not exist"));
+  const auto st = fs::symlink_status(file, ec);
+  if (fs::exists(st) && !fs::is_regular_file(st))
+    throw ukdyn::OutputRefused("--out " + shown + ": exists and is not a regular file (" +
+                               (fs::is_directory(st) ? "a folder"
+                                : fs::is_symlink(st) ? "a symbolic link"
+                                : fs::is_fifo(st)    ? "a FIFO"
+                                                     : "a device or socket") +
+                               "): refusing to replace it");
+  if (::access(dir.c_str(), W_OK) != 0)
+    throw ukdyn::OutputRefused("--out " + shown + ": cannot write into " +
+                               ukdyn::printable(dir.string()) + ": " + std::strerror(errno));
+}
+
+void write_whole_file(const std::string& path, const std::string& bytes) {
+  namespace fs = std::filesystem;
+  write_whole_file_check(path);  // again: the folder may have changed during the work
+  const fs::path file(path);
+  const std::string shown = ukdyn::printable(path);
+  std::error_code ec;
+  // FILE.part: a stale one of ours (a regular file) is replaced; anything else there (a FIFO,
+  // whose open would block, a link) is refused; created anew, never through a link.
+  const std::string part = path + ".part";
+  const auto part_status = fs::symlink_status(part, ec);
+  if (fs::exists(part_status) && !fs::is_regular_file(part_status))
+    throw ukdyn::OutputRefused(ukdyn::printable(part) +
+                               ": exists and is not a regular file: refusing to replace it");
+  fs::remove(part, ec);
+  const int fd = ::open(part.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
+  if (fd < 0)
+    throw ukdyn::WriteFailed("cannot create " + ukdyn::printable(part) + ": " +
+                             std::strerror(errno));
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (w < 0 && errno == EINTR) continue;
+    if (w < 0) {
+      const int e = errno;
+      ::close(fd);
+      fs::remove(part, ec);
+      throw ukdyn::WriteFailed("writing " + ukdyn::printable(part) +
+                               " failed: " + std::strerror(e));
+    }
+    done += static_cast<std::size_t>(w);
+  }
+  if (::close(fd) != 0) {
+    fs::remove(part, ec);
+    throw ukdyn::WriteFailed("writing " + ukdyn::printable(part) + " failed");
+  }
+  fs::rename(part, file, ec);
+  if (ec) {
+    fs::remove(part, ec);
+    throw ukdyn::WriteFailed("cannot rename " + ukdyn::printable(part) + " to " + shown);
+  }
+}
+
 // `ukdyn linearize`: the state (the scenario's initial one, --state or --row), then the JSON on
 // stdout or in --out. Exit 0, or 1 when ukdyn cannot vouch for the derivatives.
 int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
   ukdyn::LinearizeState st{sc.sim.t0, sc.q0, sc.qd0, sc.tau};
+  const double dt = a.dt.empty() ? 0.0 : parse_step(a.dt);
   if (!a.state.empty()) st = ukdyn::read_state_json(sc, a.state);
-  if (!a.row.empty()) {  // RUN.csv:N, split at the last ':'
+  if (!a.row.empty()) {  // RUN.csv:N, split at the last ':'; N decimal digits only
     const auto colon = a.row.rfind(':');
+    const std::string digits = colon == std::string::npos ? "" : a.row.substr(colon + 1);
     long n = -1;
-    std::size_t used = 0;
-    try {
-      if (colon != std::string::npos) n = std::stol(a.row.substr(colon + 1), &used);
-    } catch (const std::exception&) {
-      n = -1;
-    }
-    if (colon == std::string::npos || n < 0 || used != a.row.size() - colon - 1)
-      throw ukdyn::Error("--row " + a.row + ": expected RUN.csv:N (N >= 0, the data row)");
+    const auto r = std::from_chars(digits.data(), digits.data() + digits.size(), n);
+    if (digits.empty() || r.ec != std::errc() || r.ptr != digits.data() + digits.size() || n < 0)
+      throw ukdyn::Error("--row " + ukdyn::printable(a.row) +
+                         ": expected RUN.csv:N (N >= 0 in decimal digits, the data row)");
     st = ukdyn::read_state_csv_row(sc, a.row.substr(0, colon), n);
   }
   if (a.closed_loop && a.state.empty() && a.row.empty()) {  // the closed loop's start
@@ -343,7 +432,7 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
     st.q = run->q0;
     st.qd = run->qd0;
   }
-  const ukdyn::LinearizeOptions opt{a.minimal, a.dt, a.parameters, a.closed_loop};
+  const ukdyn::LinearizeOptions opt{a.minimal, dt, a.parameters, a.closed_loop, &std::cerr};
   if (a.out.empty()) {
     return naming_the_scenario(sc.path.string(), [&] {
       return ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, std::cout, opt) ? 0 : 1;
@@ -351,18 +440,16 @@ int cmd_linearize(const ukdyn::Scenario& sc, const LinearizeArgs& a) {
   }
   const bool npz = a.out.ends_with(".npz");
   if (!npz && !a.out.ends_with(".json"))
-    throw ukdyn::Error("--out " + a.out + ": name it FILE.json (JSON) or FILE.npz (numpy)");
+    throw ukdyn::Error("--out " + ukdyn::printable(a.out) +
+                       ": name it FILE.json (JSON) or FILE.npz (numpy)");
+  write_whole_file_check(a.out);  // refused before the work, not after it
   // Computed whole before the file is opened: an error leaves no empty or partial FILE behind.
   std::ostringstream bytes(std::ios::binary);
   const bool trusted = naming_the_scenario(sc.path.string(), [&] {
     return npz ? ukdyn::write_linearization_npz(sc, st.t, st.q, st.qd, st.tau, bytes, opt)
                : ukdyn::write_linearization(sc, st.t, st.q, st.qd, st.tau, bytes, opt);
   });
-  std::ofstream f(a.out, std::ios::binary);
-  if (!f) throw ukdyn::WriteFailed("cannot write " + a.out);
-  f << bytes.str();
-  f.close();
-  if (!f) throw ukdyn::WriteFailed("writing " + a.out + " failed");
+  write_whole_file(a.out, bytes.str());
   return trusted ? 0 : 1;
 }
 
@@ -423,8 +510,7 @@ int main(int argc, char** argv) {
   LinearizeArgs la;
   lin->add_flag("--minimal", la.minimal,
                 "also the model in minimal coordinates on the constraint manifold");
-  lin->add_option("--dt", la.dt, "also the zero-order-hold discrete model with this step (s)")
-      ->check(CLI::PositiveNumber);
+  lin->add_option("--dt", la.dt, "also the zero-order-hold discrete model with this step (s)");
   auto* lin_state =
       lin->add_option("--state", la.state, "linearise at {t, q, qd, tau} of this JSON file");
   lin->add_option("--row", la.row,

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp), the eval protocol (fuzz/fuzz_eval.cpp) and the
-# expression parser + derivation (fuzz/fuzz_expression.cpp), the sweep file loader (fuzz/fuzz_sweep.cpp)
-# and the MJCF reader (fuzz/fuzz_mjcf.cpp) with libFuzzer, AddressSanitizer and
+# Fuzzes the scenario loader (fuzz/fuzz_scenario.cpp), the eval protocol (fuzz/fuzz_eval.cpp), the
+# expression parser + derivation (fuzz/fuzz_expression.cpp), the sweep file loader
+# (fuzz/fuzz_sweep.cpp), the MJCF reader (fuzz/fuzz_mjcf.cpp) and the optimisation problem loader
+# (fuzz/fuzz_optimize.cpp) with libFuzzer, AddressSanitizer and
 # UndefinedBehaviorSanitizer for a bounded time each. Builds with clang 14 in build/asan, the build `make sanitize` uses (asserts on).
 # Seeds: scenarios/*.yaml and tests/hostile/*.yaml (scenario), fuzz/eval_seeds, fuzz/expression_seeds;
 # new inputs go to build/asan/corpus_<target>.
@@ -12,6 +13,8 @@
 #   EXPRESSION_FUZZ_SECONDS=N          (expression parser + derivation; default 30)
 #   SWEEP_FUZZ_SECONDS=N               (sweep files; default 30; seeds fuzz/sweep_seeds, scenarios/sweeps)
 #   MJCF_FUZZ_SECONDS=N                (MJCF models; default 30; seeds fuzz/mjcf_seeds)
+#   OPTIMIZE_FUZZ_SECONDS=N            (optimisation problem files; default 30; seeds
+#                                       fuzz/optimize_seeds, tests/hostile/optimize_*.yaml)
 #   build/asan/fuzz/fuzz_scenario build/asan/artifacts_fuzz_scenario/crash-...   replays one finding
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,7 +26,7 @@ jobs=${JOBS:-2}
 # shellcheck source=asan-configure.sh
 source scripts/asan-configure.sh
 build=$asan_build
-cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression fuzz_sweep fuzz_mjcf -j "$jobs"
+cmake --build "$build" --target fuzz_scenario fuzz_eval fuzz_expression fuzz_sweep fuzz_mjcf fuzz_optimize -j "$jobs"
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:detect_stack_use_after_return=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
@@ -76,3 +79,6 @@ fuzz fuzz_sweep "sweep file loader" "${SWEEP_FUZZ_SECONDS:-30}" 8192 fuzz/scenar
   fuzz/sweep_seeds scenarios/sweeps
 # MJCF models as a serial chain's mjcf: (fuzz/fuzz_mjcf.cpp).
 fuzz fuzz_mjcf "MJCF reader" "${MJCF_FUZZ_SECONDS:-30}" 16384 fuzz/scenario.dict fuzz/mjcf_seeds
+# Optimisation problem files, with a scenario and a guess table beside them (fuzz/fuzz_optimize.cpp).
+fuzz fuzz_optimize "optimisation problem loader" "${OPTIMIZE_FUZZ_SECONDS:-30}" 8192 \
+  fuzz/optimize.dict fuzz/optimize_seeds

@@ -41,14 +41,20 @@ struct Outcome {
   std::string err;
 };
 
-// `ukdyn simulate FILE`, or with `optimize` set `ukdyn optimize FILE` (a problem file).
-Outcome simulate(const fs::path& scenario, const fs::path& out_dir, bool optimize = false) {
+// `ukdyn simulate FILE`, with `optimize` set `ukdyn optimize FILE` (a problem file), or with
+// `linearize` set `ukdyn linearize FILE ARGS...` (its JSON to /dev/null).
+Outcome simulate(const fs::path& scenario, const fs::path& out_dir, bool optimize = false,
+                 bool linearize = false, const std::vector<std::string>& args = {}) {
   const fs::path err = scratch() / "stderr.txt";
-  const std::string cmd = "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI) +
-                          (optimize ? " optimize " : " simulate ") + sh(scenario.string()) +
-                          " --out " + sh(out_dir.string()) +
-                          (optimize ? " --quiet" : " --no-figures --quiet") +
-                          " < /dev/null > /dev/null 2> " + sh(err.string());
+  std::string cmd = "timeout -k 5 " + std::to_string(kTimeoutSeconds) + " " + sh(UKDYN_CLI);
+  if (linearize) {
+    cmd += " linearize " + sh(scenario.string());
+    for (const auto& a : args) cmd += " " + sh(a);
+  } else {
+    cmd += (optimize ? " optimize " : " simulate ") + sh(scenario.string()) + " --out " +
+           sh(out_dir.string()) + (optimize ? " --quiet" : " --no-figures --quiet");
+  }
+  cmd += " < /dev/null > /dev/null 2> " + sh(err.string());
   const int rc = std::system(cmd.c_str());
   Outcome o;
   o.exit_code = WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + (WIFSIGNALED(rc) ? WTERMSIG(rc) : 0);
@@ -63,6 +69,10 @@ struct Case {
   int exit_code = 2;   // 2: rejected on loading; 1: the run starts and stops cleanly
   std::string (*generate)() = nullptr;  // writes the scenario text at test time
   bool optimize = false;  // a problem file for `ukdyn optimize` (`# command: optimize`)
+  // `# command: linearize` and `# args: A B ...`: `ukdyn linearize FILE A B ...`, an argument
+  // starting with @ a path relative to tests/hostile/ (a state file, a run's CSV).
+  bool linearize = false;
+  std::vector<std::string> args = {};
 };
 
 void PrintTo(const Case& c, std::ostream* os) { *os << c.name; }
@@ -158,9 +168,11 @@ std::vector<Case> generated_cases() {
 
 // ---- the committed corpus
 
+fs::path dir_of_corpus() { return kSource / "tests" / "hostile"; }
+
 std::vector<Case> corpus_cases() {
   std::vector<Case> cases;
-  const fs::path dir = kSource / "tests" / "hostile";
+  const fs::path dir = dir_of_corpus();
   std::vector<fs::path> files;
   for (const auto& e : fs::directory_iterator(dir)) {
     if (e.path().extension() == ".yaml") files.push_back(e.path());
@@ -181,6 +193,12 @@ std::vector<Case> corpus_cases() {
     while (std::getline(in, line) && line.rfind("# ", 0) == 0) {  // options after the first line
       if (line == "# exit: 1") c.exit_code = 1;
       if (line == "# command: optimize") c.optimize = true;
+      if (line == "# command: linearize") c.linearize = true;
+      if (line.rfind("# args: ", 0) == 0) {
+        std::istringstream words(line.substr(8));
+        for (std::string w; words >> w;)
+          c.args.push_back(w[0] == '@' ? (dir / w.substr(1)).string() : w);
+      }
     }
     cases.push_back(c);
   }
@@ -200,7 +218,7 @@ TEST_P(Hostile, ClearErrorNoCrashNoHang) {
   const fs::path out = scratch() / ("out_" + c.name);
   fs::remove_all(out);
 
-  const Outcome r = simulate(file, out, c.optimize);
+  const Outcome r = simulate(file, out, c.optimize, c.linearize, c.args);
   if (c.generate) fs::remove(file);
   ASSERT_NE(r.exit_code, 124) << "hang: no answer within " << kTimeoutSeconds << " s";
   ASSERT_LT(r.exit_code, 128) << "crash: killed by signal " << r.exit_code - 128 << "\n" << r.err;
@@ -210,7 +228,16 @@ TEST_P(Hostile, ClearErrorNoCrashNoHang) {
   EXPECT_FALSE(fs::exists(out / "trajectory.csv")) << "output that looks complete";
 
   if (c.exit_code == 2) {
-    EXPECT_NE(r.err.find(file.string()), std::string::npos) << "the file is not named:\n" << r.err;
+    // The scenario is named, or the file of an argument whose content is at fault (a state).
+    bool named = r.err.find(file.string()) != std::string::npos;
+    for (const auto& a : c.args) {
+      // an option whose own value is at fault (--dt nan) is named by the option
+      if (a.rfind("--", 0) == 0) named = named || r.err.find(a) != std::string::npos;
+      if (a.rfind(dir_of_corpus().string(), 0) != 0) continue;
+      const auto colon = a.find(':', dir_of_corpus().string().size());  // RUN.csv:N
+      named = named || r.err.find(a.substr(0, colon)) != std::string::npos;
+    }
+    EXPECT_TRUE(named) << "the file is not named:\n" << r.err;
     EXPECT_FALSE(fs::exists(out / "summary.json"));
   } else {
     EXPECT_NE(r.err.find("run incomplete"), std::string::npos) << r.err;

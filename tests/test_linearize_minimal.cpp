@@ -348,6 +348,26 @@ TEST(DiscreteTime, ZeroOrderHoldOfTheOscillatorMatchesTheClosedForm) {
   EXPECT_THROW(discretize_zoh(J, Mat::Zero(3, 1), 0.1, Fd, Gd), std::invalid_argument);
 }
 
+// What expm cannot vouch for is refused, not returned: a norm that overflows, and one so large
+// that the squarings' rounding (2^s ε) would exceed 1e-6 (a nilpotent X h = [[0, h], [0, 0]] has
+// e^{X h} = I + X h exactly; with h = 1e308 the squarings returned zeros). Below the limit the
+// nilpotent case is I + X h to 2^s ε relative.
+TEST(DiscreteTime, ExpmRefusesWhatItCannotVouchFor) {
+  Mat X = Mat::Zero(2, 2);
+  X(0, 1) = 1e308;
+  EXPECT_THROW(expm(X), std::invalid_argument);
+  X(0, 1) = 1e12;
+  EXPECT_THROW(expm(X), std::invalid_argument);
+  X(0, 0) = X(1, 1) = 1.7e308;  // a norm of 3.4e308: inf
+  EXPECT_THROW(expm(X), std::invalid_argument);
+  X = Mat::Zero(2, 2);
+  X(0, 1) = 1e6;  // 18 squarings
+  const Mat E = expm(X);
+  EXPECT_LE((E - (Mat::Identity(2, 2) + X)).cwiseAbs().maxCoeff(),
+            1e6 * std::ldexp(1.0, 18) * 1e-15);
+  EXPECT_LE(std::abs(E(0, 0) - 1.0), std::ldexp(1.0, 18) * 1e-15);
+}
+
 // expm against its defining property e^{X} e^{−X} = I and the Taylor series for a small norm.
 TEST(DiscreteTime, ExpmOfARandomMatrix) {
   std::mt19937 rng(3);
@@ -431,7 +451,7 @@ TEST(MinimalCoordinates, CliOptions) {
   std::ofstream(scratch / "bad.json") << R"({"q": [1, 2], "qd": []})";
   const auto r3 = run("--state " + ukdyn_test::sh((scratch / "bad.json").string()));
   EXPECT_EQ(r3.exit_code, 2);
-  EXPECT_NE(r3.err.find("bad.json: key 'q'"), std::string::npos) << r3.err;
+  EXPECT_NE(r3.err.find("bad.json:1: key 'q'"), std::string::npos) << r3.err;
   const auto r4 = run("--row " + ukdyn_test::sh((scratch / "none.csv").string() + ":x"));
   EXPECT_EQ(r4.exit_code, 2);
   EXPECT_NE(r4.err.find("RUN.csv:N"), std::string::npos) << r4.err;
@@ -479,6 +499,79 @@ TEST(MinimalCoordinates, CliOptions) {
   const auto r7 = run("--row " + ukdyn_test::sh((scratch / "run.csv").string() + ":2"));
   EXPECT_EQ(r7.exit_code, 2);
   EXPECT_NE(r7.err.find("no data row 2"), std::string::npos) << r7.err;
+}
+
+// A state off the constraints (the five-bar's closure open by a hand-written q) is linearised, but
+// said: a warning naming the row, and "constraint_residuals" equal to the closure's gap computed
+// here by hand from the link lengths (d = 0.25, l1 = 0.3, l2 = 0.4 in five_bar_redundant.yaml).
+TEST(LinearizeCli, AStateOffTheConstraintsIsLinearisedWithAWarning) {
+  const fs::path src = UKDYN_SOURCE_DIR, scratch = ukdyn_test::process_scratch("ukdyn_minimal");
+  const std::string scen = ukdyn_test::sh((src / "scenarios" / "five_bar_redundant.yaml").string());
+  const double a1 = 1.0, a2 = 2.0, b1 = 3.0, b2 = 4.0, d = 0.25, l1 = 0.3, l2 = 0.4;
+  std::ofstream(scratch / "open.json") << json{{"q", {a1, a2, b1, b2}}, {"qd", {0, 0, 0, 0}}};
+  const auto r = ukdyn_test::run_cli(
+      UKDYN_CLI, scratch,
+      "linearize " + scen + " --state " + ukdyn_test::sh((scratch / "open.json").string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double gap_x =
+      (-d + l1 * std::cos(a1) + l2 * std::cos(a2)) - (d + l1 * std::cos(b1) + l2 * std::cos(b2));
+  const double gap_z =
+      (l1 * std::sin(a1) + l2 * std::sin(a2)) - (l1 * std::sin(b1) + l2 * std::sin(b2));
+  const json j = json::parse(r.out);
+  EXPECT_NEAR(j["constraint_residuals"]["position"].get<double>(),
+              std::max(std::abs(gap_x), std::abs(gap_z)), 1e-12);
+  const std::string row = std::abs(gap_x) > std::abs(gap_z) ? "end_x" : "end_z";
+  EXPECT_EQ(j["constraint_residuals"]["row"], row);
+  EXPECT_NE(r.err.find("warning: the state is off the constraints (row '" + row + "'"),
+            std::string::npos)
+      << r.err;
+  // On the constraints (the scenario's own start): no warning, a residual at rounding level.
+  const auto on = ukdyn_test::run_cli(UKDYN_CLI, scratch, "linearize " + scen);
+  ASSERT_EQ(on.exit_code, 0) << on.err;
+  EXPECT_EQ(on.err.find("warning"), std::string::npos) << on.err;
+  EXPECT_LT(json::parse(on.out)["constraint_residuals"]["position"].get<double>(), 1e-12);
+}
+
+// --out FILE is the whole object or nothing: refused before the work when its folder is missing
+// or FILE is a FIFO (whose open would block: no hang), a folder or a symbolic link (its target
+// untouched); written through FILE.part renamed into place otherwise (no .part left behind).
+TEST(LinearizeCli, OutIsWrittenWholeOrRefused) {
+  const fs::path src = UKDYN_SOURCE_DIR, scratch = ukdyn_test::process_scratch("ukdyn_minimal");
+  const std::string scen = ukdyn_test::sh((src / "scenarios" / "five_bar_redundant.yaml").string());
+  auto out_to = [&](const fs::path& file) {
+    return ukdyn_test::run_cli(UKDYN_CLI, scratch,
+                               "linearize " + scen + " --out " + ukdyn_test::sh(file.string()), "",
+                               "timeout -k 5 60 ");
+  };
+  const fs::path fifo = scratch / "pipe.json", link = scratch / "link.json",
+                 target = scratch / "target.json";
+  ASSERT_EQ(ukdyn_test::shell("mkfifo " + ukdyn_test::sh(fifo.string())), 0);
+  std::ofstream(target) << "mine\n";
+  fs::create_symlink(target, link);
+  fs::create_directories(scratch / "folder.json");
+  const std::pair<fs::path, const char*> refused[] = {
+      {scratch / "missing" / "lin.json", "does not exist"},
+      {fifo, "(a FIFO): refusing to replace it"},
+      {scratch / "folder.json", "(a folder): refusing to replace it"},
+      {link, "(a symbolic link): refusing to replace it"}};
+  for (const auto& [file, why] : refused) {
+    const auto r = out_to(file);
+    EXPECT_EQ(r.exit_code, 2) << file << ": " << r.err;
+    EXPECT_NE(r.err.find(why), std::string::npos) << r.err;
+  }
+  EXPECT_EQ(ukdyn_test::slurp(target), "mine\n");
+  // A FIFO where FILE.part goes: refused, not opened (that would block until a reader came).
+  ASSERT_EQ(ukdyn_test::shell("mkfifo " + ukdyn_test::sh((scratch / "trap.json.part").string())),
+            0);
+  const auto trap = out_to(scratch / "trap.json");
+  EXPECT_EQ(trap.exit_code, 2) << trap.err;
+  EXPECT_NE(trap.err.find("trap.json.part: exists and is not a regular file"), std::string::npos)
+      << trap.err;
+  EXPECT_FALSE(fs::exists(scratch / "trap.json"));
+  const auto ok = out_to(scratch / "whole.npz");
+  ASSERT_EQ(ok.exit_code, 0) << ok.err;
+  EXPECT_TRUE(fs::is_regular_file(scratch / "whole.npz"));
+  EXPECT_FALSE(fs::exists(scratch / "whole.npz.part"));
 }
 #endif
 

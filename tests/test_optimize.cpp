@@ -692,7 +692,7 @@ TEST(OptimizeFile, InternalWrenchQDerivativeIsExact) {
       "ukdyn: 1\nname: ur\nscenario: ../two_ur5e_load.yaml\nintervals: 1\nduration: 1\n"
       "end:\n  q: [0, 0, 0, 0, -1.2, 1.6, -1.97, -1.5707963267948966, 0, 0, 0, 0, 0, -1.2, 1.6, "
       "-1.97, -1.5707963267948966, 0, 1.1, 0, 0.7062073754895476, 1, 0, 0, 0]\n"
-      "costs:\n  effort: 0\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
+      "costs:\n  effort: 1\nbounds:\n  internal_wrench: {load: load.load, force: 1}\n",
       dir / "ur.yaml");
   // The bar's quaternion columns exact too (none differenced), off the unit sphere as well (a
   // random step of 0.1 takes |u| off 1).
@@ -1229,6 +1229,64 @@ costs: {effort: 0.01}
   fs::rename(scratch / "runs", scratch / "moved");  // the same depth: the relative path holds
   run("robots", "simulate ../moved/opt/replay.yaml --out ../moved/again");
   EXPECT_LT(tracking_error(scratch / "moved" / "again", scratch / "moved" / "opt", {"a"}), 1e-3);
+}
+
+// Ctrl-C in the middle of a solve: IPOPT stops after its current iteration, the folder holds that
+// iterate marked untrusted (status User_Requested_Stop, "interrupted"), the exit code is 1 and no
+// replay is claimed. The signal is sent once the run's output folder is locked (the solve has
+// started: the handler is in place by then), so no timing decides the outcome: 300 intervals of
+// the paper's lift take tens of iterations of about a second each.
+TEST(OptimizeCli, CtrlCStopsTheSolveAndMarksTheFolderUntrusted) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_cli");
+  const fs::path src = fs::path(UKDYN_SOURCE_DIR) / "scenarios";
+  const fs::path problem = scratch / "long_lift.yaml", out = scratch / "long_lift";
+  std::string text = ukdyn_test::slurp(src / "optimize" / "paper_lift.yaml");
+  text.replace(text.find("intervals: 50"), 13, "intervals: 300");
+  text.replace(text.find("../paper_free.yaml"), 18, (src / "paper_free.yaml").string());
+  std::ofstream(problem) << text;
+  fs::remove_all(out);
+  const std::string cmd =
+      ukdyn_test::sh(UKDYN_CLI) + " optimize " + ukdyn_test::sh(problem.string()) + " --out " +
+      ukdyn_test::sh(out.string()) + " > " + ukdyn_test::sh((scratch / "ctrl_c.out").string()) +
+      " 2> " + ukdyn_test::sh((scratch / "ctrl_c.err").string()) + " & pid=$!; n=0; while [ ! -e " +
+      ukdyn_test::sh((out / ".ukdyn.lock").string()) +
+      " ] && [ $n -lt 3000 ]; do sleep 0.1; n=$((n+1)); done; kill -INT $pid; wait $pid";
+  const int rc = ukdyn_test::shell(cmd);
+  const std::string err = ukdyn_test::slurp(scratch / "ctrl_c.err");
+  EXPECT_EQ(rc, 1) << err;
+  EXPECT_NE(err.find("interrupted"), std::string::npos) << err;
+  const auto j = nlohmann::json::parse(ukdyn_test::slurp(out / "summary.json"));
+  EXPECT_FALSE(j["trusted"].get<bool>());
+  EXPECT_EQ(j["ipopt"]["status"], "User_Requested_Stop");
+  EXPECT_NE(j["message"].get<std::string>().find("interrupted"), std::string::npos);
+  EXPECT_FALSE(j.contains("replay"));  // no open-loop replay of an iterate that is no optimum
+  EXPECT_FALSE(fs::exists(out / ".ukdyn.lock"));
+}
+
+// IPOPT reads ./ipopt.opt when it is initialised without a file: an input no problem file names.
+// ukdyn initialises it with none, so a stray options file in the working directory (here one that
+// would stop IPOPT after 1 iteration) changes nothing: the same bytes as from elsewhere.
+TEST(OptimizeCli, AnIpoptOptFileInTheWorkingDirectoryIsNotRead) {
+  if (!ipopt_available()) GTEST_SKIP() << "built without IPOPT";
+  const fs::path scratch = ukdyn_test::process_scratch("ukdyn_optimize_cli");
+  const fs::path cwd = scratch / "with_ipopt_opt", problem = scratch / "rail_problem.yaml";
+  fs::create_directories(cwd);
+  std::ofstream(cwd / "ipopt.opt") << "max_iter 1\n";
+  std::ofstream(scratch / "rail_scenario.yaml") << kRail;
+  std::ofstream(problem) << "ukdyn: 1\nname: rail\nscenario: rail_scenario.yaml\nintervals: 8\n"
+                            "duration: 1\nend:\n  q: [0.8660254037844386, 0.5]\ncosts:\n"
+                            "  effort: 1\n";
+  const std::string args = "optimize " + ukdyn_test::sh(problem.string()) + " --out ";
+  const auto a =
+      ukdyn_test::run_cli(UKDYN_CLI, scratch, args + ukdyn_test::sh((cwd / "a").string()), "",
+                          "cd " + ukdyn_test::sh(cwd.string()) + " && ");
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  const auto b =
+      ukdyn_test::run_cli(UKDYN_CLI, scratch, args + ukdyn_test::sh((scratch / "b").string()));
+  ASSERT_EQ(b.exit_code, 0) << b.err;
+  EXPECT_EQ(ukdyn_test::slurp(cwd / "a" / "summary.json"),
+            ukdyn_test::slurp(scratch / "b" / "summary.json"));
 }
 #endif
 

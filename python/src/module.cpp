@@ -22,6 +22,7 @@
 #include "scenario_bindings.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
 #include "ukdyn/run/run.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/scenario/scenario_file.hpp"
@@ -466,6 +467,11 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   r.kkt_agreement = lin.kkt_agreement;
   r.trusted = lin.trusted;
   r.message = lin.message;
+  // A state off the constraints is linearised all the same, with a UserWarning naming the row (as
+  // `ukdyn linearize` warns on stderr).
+  const auto off = ukdyn::constraint_offset(sys, t, q, qd, sc.initial_tolerance);
+  if (!off.warning.empty() && PyErr_WarnEx(PyExc_UserWarning, off.warning.c_str(), 1) != 0)
+    throw py::error_already_set();  // warnings turned into errors
   return r;
 }
 
@@ -594,37 +600,17 @@ py::object prepare_start(ukdyn::Scenario& sc, const py::object& q0, const py::ob
   return py::none();
 }
 
-// run_scenario_in_memory() on a worker thread while this (Python's) thread waits with the GIL
-// released and, every 20 ms, takes it back to check for signals (PyErr_CheckSignals: Ctrl-C). A
-// signal whose handler raises (KeyboardInterrupt) cancels the run (options.cancel: it stops after
-// the current step, status `stopped`, as the CLI's run on SIGINT); `interrupted` is then true, the
-// Python error stays set and the run so far is returned once the worker has returned. Python
-// callables of the run take the GIL on the worker thread.
+// run_scenario_in_memory() interruptible by Ctrl-C (interruptible(), bindings.hpp): a signal
+// cancels the run (options.cancel: it stops after the current step, status `stopped`, as the CLI's
+// run on SIGINT); `interrupted` is then true and the run so far is returned.
 ukdyn::MemoryRun run_interruptible(const ukdyn::Scenario& sc, ukdyn::MemoryRunOptions opt,
                                    bool& interrupted) {
-  std::atomic<bool> cancel{false};
-  opt.cancel = &cancel;
-  auto done = std::async(std::launch::async,
-                         [&sc, &opt] { return ukdyn::run_scenario_in_memory(sc, opt); });
-  interrupted = false;
-  for (;;) {
-    {
-      py::gil_scoped_release release;
-      if (done.wait_for(std::chrono::milliseconds(20)) == std::future_status::ready) break;
-    }
-    if (!interrupted && PyErr_CheckSignals() != 0) {
-      interrupted = true;
-      cancel.store(true);
-    }
-  }
-  if (interrupted) {
-    try {
-      return done.get();
-    } catch (...) {  // the signal's exception is the one raised
-      return {};
-    }
-  }
-  return done.get();
+  return interruptible<ukdyn::MemoryRun>(
+      [&sc, &opt](const std::atomic<bool>& cancel) {
+        opt.cancel = &cancel;
+        return ukdyn::run_scenario_in_memory(sc, opt);
+      },
+      interrupted);
 }
 
 // The Run of a MemoryRun: its columns moved into one column-major buffer owned by a capsule.

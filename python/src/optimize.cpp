@@ -20,20 +20,27 @@ struct PyOptimized {
   ukdyn::ReplayCheck replay;
 };
 
-// Solves with the GIL released (IPOPT runs in C++ only); with `out`, also the run folder.
+// Solves on a worker thread with the GIL released (IPOPT runs in C++ only); with `out`, also the
+// run folder. Ctrl-C stops IPOPT after its current iteration (IpoptSettings::cancel) and raises
+// KeyboardInterrupt; the folder, if asked for, holds that last iterate, untrusted.
 PyOptimized optimize(const std::string& path, const std::optional<std::string>& out) {
-  const ukdyn::OptimizationFile f = ukdyn::load_optimization_file(path);
-  PyOptimized r;
-  {
-    py::gil_scoped_release release;
-    if (out) {
-      ukdyn::OptimizeReport rep = ukdyn::run_optimization(f, *out);
-      r.s = std::move(rep.solution);
-      r.replay = rep.replay;
-    } else {
-      r.s = ukdyn::optimize_trajectory(f.problem, f.ipopt);
-    }
-  }
+  ukdyn::OptimizationFile f = ukdyn::load_optimization_file(path);
+  bool interrupted = false;
+  PyOptimized r = interruptible<PyOptimized>(
+      [&f, &out](const std::atomic<bool>& cancel) {
+        PyOptimized o;
+        f.ipopt.cancel = &cancel;
+        if (out) {
+          ukdyn::OptimizeReport rep = ukdyn::run_optimization(f, *out);
+          o.s = std::move(rep.solution);
+          o.replay = rep.replay;
+        } else {
+          o.s = ukdyn::optimize_trajectory(f.problem, f.ipopt);
+        }
+        return o;
+      },
+      interrupted);
+  if (interrupted) throw py::error_already_set();  // KeyboardInterrupt
   r.coordinates = f.problem.system->coordinate_names();
   r.actuators = f.problem.actuator_names;
   for (const auto k : r.s.kept_rows)

@@ -209,3 +209,58 @@ def test_ctrl_c_with_a_python_controller():
         sc.simulate(controller=controller)
     timer.join()
     assert len(calls) > 0
+
+
+def long_lift_problem(tmp_path):
+    """The paper's lift on 300 intervals: tens of IPOPT iterations of about a second each."""
+    text = open(scenario_path("optimize/paper_lift.yaml")).read()
+    text = text.replace("intervals: 50", "intervals: 300")
+    text = text.replace("../paper_free.yaml", str(scenario_path("paper_free.yaml")))
+    problem = tmp_path / "long_lift.yaml"
+    problem.write_text(text)
+    return str(problem)
+
+
+@pytest.mark.skipif(not ukdyn.ipopt_available(), reason="built without IPOPT")
+def test_ctrl_c_stops_optimize_with_keyboard_interrupt(tmp_path):
+    out = tmp_path / "out"
+    timer = interrupt_after(0.5)
+    with pytest.raises(KeyboardInterrupt):
+        ukdyn.optimize(long_lift_problem(tmp_path), str(out))
+    timer.join()
+    # the folder holds IPOPT's last iterate, marked as such, as the CLI's on Ctrl-C
+    import json
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["trusted"] is False and "interrupted" in summary["message"]
+    assert summary["ipopt"]["status"] == "User_Requested_Stop"
+    assert "replay" not in summary
+
+
+@pytest.mark.skipif(not ukdyn.ipopt_available(), reason="built without IPOPT")
+def test_optimize_refuses_ipopt_options_naming_files_and_unknown_ones(tmp_path):
+    base = open(scenario_path("optimize/paper_lift.yaml")).read().replace(
+        "../paper_free.yaml", str(scenario_path("paper_free.yaml")))
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine\n")
+    for options, message in [
+            ("{output_file: %s}" % victim, "key 'ipopt.options.output_file'"),
+            ("{hsllib: %s}" % (tmp_path / "x.so"), "key 'ipopt.options.hsllib'"),
+            ("{no_such_option: 1}", "no IPOPT option named 'no_such_option'"),
+            ("{max_iter: 2.5}", "takes a whole number")]:
+        problem = tmp_path / "p.yaml"
+        problem.write_text(base + "ipopt:\n  options: %s\n" % options)
+        with pytest.raises(ukdyn.ScenarioError, match=message):
+            ukdyn.optimize(str(problem))
+    assert victim.read_text() == "mine\n"
+
+
+def test_linearize_off_the_constraints_warns_naming_the_row():
+    sc = five_bar()
+    q = np.array([1.0, 2.0, 3.0, 4.0])  # the closure open (as `ukdyn linearize --state` warns)
+    with pytest.warns(UserWarning, match=r"off the constraints \(row 'end_[xz]'"):
+        lin = sc.linearize(0.0, q, np.zeros(4), np.zeros(4))
+    assert lin.F.shape == (8, 8)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # on the constraints: no warning
+        sc.linearize(0.0, sc.q0, sc.qd0, np.zeros(4))

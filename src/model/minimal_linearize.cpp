@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
@@ -190,8 +191,20 @@ Mat expm(const Mat& X) {
                                         1.0};
   constexpr double theta13 = 5.371920351148152;
   const double norm1 = X.cwiseAbs().colwise().sum().maxCoeff();
+  // A norm that overflows would make s (log2 of it) undefined and the result garbage (zeros).
+  if (!std::isfinite(norm1)) throw std::invalid_argument("expm: the matrix's norm overflows");
   int s = 0;
   if (norm1 > theta13) s = static_cast<int>(std::ceil(std::log2(norm1 / theta13)));
+  // The squaring phase multiplies the approximant's rounding by up to 2^s (Higham 2005, §2;
+  // [AlMohyHigham2009]): past 32 squarings (‖X‖₁ > 2.3e10)
+  // that is 1e-6 and more of the result (a nilpotent X h with h = 1e308 gave zeros for I + X h).
+  if (s > 32) {
+    char norm[32];
+    std::snprintf(norm, sizeof norm, "%.3g", norm1);
+    throw std::invalid_argument(std::string("expm: the matrix's norm ") + norm +
+                                " needs more than 32 squarings, whose rounding cannot be vouched "
+                                "for (a smaller step)");
+  }
   const Mat A = X / std::ldexp(1.0, s);
   const Mat I = Mat::Identity(n, n);
   const Mat A2 = A * A, A4 = A2 * A2, A6 = A4 * A2;
@@ -201,6 +214,7 @@ Mat expm(const Mat& X) {
       A6 * (b[12] * A6 + b[10] * A4 + b[8] * A2) + b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * I;
   Mat R = (V - U).partialPivLu().solve(V + U);
   for (int i = 0; i < s; ++i) R = R * R;
+  if (!R.allFinite()) throw std::invalid_argument("expm: the exponential overflows");
   return R;
 }
 

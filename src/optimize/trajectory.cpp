@@ -13,6 +13,7 @@
 
 #if UKDYN_HAVE_IPOPT
 #include <IpIpoptApplication.hpp>
+#include <IpRegOptions.hpp>
 #include <IpSolveStatistics.hpp>
 #include <IpTNLP.hpp>
 #endif
@@ -341,7 +342,8 @@ void copy(const Vec& v, Number* out, IIndex n) {
 // the dynamics is not finite, say) returns false, and IPOPT shortens its step.
 class CollocationTnlp final : public Ipopt::TNLP {
  public:
-  explicit CollocationTnlp(optimize::Transcription& tr) : tr_(tr) {}
+  CollocationTnlp(optimize::Transcription& tr, const std::atomic<bool>* cancel)
+      : tr_(tr), cancel_(cancel) {}
   Vec x_final;
   Ipopt::SolverReturn status = Ipopt::UNASSIGNED;
   std::string error;
@@ -405,6 +407,12 @@ class CollocationTnlp final : public Ipopt::TNLP {
     status = s;
     x_final = view(x, n);
   }
+  // Called by IPOPT after every iteration: false stops the solve (User_Requested_Stop).
+  bool intermediate_callback(Ipopt::AlgorithmMode, IIndex, Number, Number, Number, Number, Number,
+                             Number, Number, Number, IIndex, const Ipopt::IpoptData*,
+                             Ipopt::IpoptCalculatedQuantities*) override {
+    return !(cancel_ && cancel_->load());
+  }
 
  private:
   template <class F>
@@ -418,6 +426,7 @@ class CollocationTnlp final : public Ipopt::TNLP {
     }
   }
   optimize::Transcription& tr_;
+  const std::atomic<bool>* cancel_;
 };
 
 std::string status_name(Ipopt::ApplicationReturnStatus s) {
@@ -462,7 +471,7 @@ std::string status_name(Ipopt::ApplicationReturnStatus s) {
 TrajectorySolution optimize_trajectory(const TrajectoryProblem& problem,
                                        const IpoptSettings& settings) {
   optimize::Transcription tr(problem);  // validates
-  Ipopt::SmartPtr<CollocationTnlp> nlp = new CollocationTnlp(tr);
+  Ipopt::SmartPtr<CollocationTnlp> nlp = new CollocationTnlp(tr, settings.cancel);
   Ipopt::SmartPtr<Ipopt::IpoptApplication> app = IpoptApplicationFactory();
   auto& o = *app->Options();
   o.SetStringValue("sb", "yes");  // no banner
@@ -492,7 +501,9 @@ TrajectorySolution optimize_trajectory(const TrajectoryProblem& problem,
   for (const auto& [k, v] : settings.numeric_options)
     if (!o.SetNumericValue(k, v))
       throw Error("optimize: IPOPT refuses option " + k + " = " + sci(v));
-  if (app->Initialize() != Ipopt::Solve_Succeeded)
+  // No options file: IPOPT's Initialize() would read ./ipopt.opt, an input that no problem file
+  // names (a stray one in the working directory would change the solve unseen).
+  if (app->Initialize(std::string()) != Ipopt::Solve_Succeeded)
     throw Error("optimize: IPOPT could not be initialised");
   const Ipopt::ApplicationReturnStatus rs = app->OptimizeTNLP(nlp);
   if (nlp->x_final.size() != tr.variables()) {
@@ -512,7 +523,11 @@ TrajectorySolution optimize_trajectory(const TrajectoryProblem& problem,
     s.complementarity = compl_;
     s.kkt_error = kkt;
   }
-  if (!s.converged) {
+  if (rs == Ipopt::User_Requested_Stop && settings.cancel && settings.cancel->load()) {
+    s.trusted = false;
+    s.message = "interrupted: IPOPT stopped after " + std::to_string(s.iterations) +
+                " iterations; the trajectory is its last iterate, not an optimum";
+  } else if (!s.converged) {
     s.trusted = false;
     s.message = "IPOPT did not converge: " + s.status +
                 (nlp->error.empty() ? "" : " (last evaluation error: " + nlp->error + ")");
@@ -520,9 +535,61 @@ TrajectorySolution optimize_trajectory(const TrajectoryProblem& problem,
   return s;
 }
 
+namespace {
+
+// Options that make IPOPT read or write a file, or load a library, by a name in the problem file.
+bool names_a_file(const std::string& name) {
+  for (const char* f : {"output_file", "option_file_name", "hsllib", "pardisolib", "file_append",
+                        "file_print_level"})
+    if (name == f) return true;
+  return false;
+}
+
+}  // namespace
+
+std::string add_ipopt_option(IpoptSettings& settings, const std::string& name,
+                             const std::string& text, const double* number) {
+  if (names_a_file(name))
+    return "IPOPT option '" + name +
+           "' makes IPOPT read or write a file or load a library: not taken from a problem file";
+  Ipopt::SmartPtr<Ipopt::IpoptApplication> app = new Ipopt::IpoptApplication(false);
+  const Ipopt::SmartPtr<const Ipopt::RegisteredOption> opt = app->RegOptions()->GetOption(name);
+  if (Ipopt::IsNull(opt)) return "no IPOPT option named '" + name + "'";
+  switch (opt->Type()) {
+    case Ipopt::OT_Integer:
+      if (!number || *number != std::floor(*number) || std::abs(*number) > 2e9 ||
+          !opt->IsValidIntegerSetting(static_cast<IIndex>(*number)))
+        return "IPOPT option '" + name + "' takes a whole number in its range, got '" + text + "'";
+      settings.integer_options.emplace_back(name, static_cast<int>(*number));
+      return {};
+    case Ipopt::OT_Number:
+      if (!number || !opt->IsValidNumberSetting(*number))
+        return "IPOPT option '" + name + "' takes a number in its range, got '" + text + "'";
+      settings.numeric_options.emplace_back(name, *number);
+      return {};
+    default:
+      if (!opt->IsValidStringSetting(text))
+        return "IPOPT option '" + name + "' does not take '" + text + "'";
+      settings.string_options.emplace_back(name, text);
+      return {};
+  }
+}
+
 #else
 
 bool ipopt_available() { return false; }
+
+std::string add_ipopt_option(IpoptSettings& settings, const std::string& name,
+                             const std::string& text, const double* number) {
+  if (number && *number == std::floor(*number) && std::abs(*number) < 1e9 &&
+      text.find_first_of(".eE") == std::string::npos)
+    settings.integer_options.emplace_back(name, static_cast<int>(*number));
+  else if (number)
+    settings.numeric_options.emplace_back(name, *number);
+  else
+    settings.string_options.emplace_back(name, text);
+  return {};
+}
 
 TrajectorySolution optimize_trajectory(const TrajectoryProblem& problem, const IpoptSettings&) {
   validate(problem);

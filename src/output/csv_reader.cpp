@@ -40,6 +40,17 @@ std::vector<std::string> split_csv_line(std::string_view line) {
   return out;
 }
 
+std::size_t csv_column(const std::vector<std::string>& header, std::string_view name, bool& twice) {
+  std::size_t found = header.size();
+  twice = false;
+  for (std::size_t c = 0; c < header.size(); ++c) {
+    if (header[c] != name) continue;
+    if (found != header.size()) twice = true;
+    if (found == header.size()) found = c;
+  }
+  return found;
+}
+
 bool parse_csv_number(std::string_view cell, double& v) {
   double x = 0.0;
   const char* end = cell.data() + cell.size();

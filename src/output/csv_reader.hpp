@@ -33,6 +33,10 @@ class CsvLines {
 /// it stands for one quote.
 std::vector<std::string> split_csv_line(std::string_view line);
 
+/// The index of the column `name` in `header` (header.size() when there is none); `twice` tells
+/// whether it is there more than once (a state or a guess read by name must not pick one silently).
+std::size_t csv_column(const std::vector<std::string>& header, std::string_view name, bool& twice);
+
 /// A cell as a number ("nan", "inf" and "-inf" included). False (v unchanged) if it is not one.
 bool parse_csv_number(std::string_view cell, double& v);
 

@@ -4,6 +4,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <cctype>
 #include <cmath>
 #include <istream>
 #include <limits>
@@ -280,6 +281,15 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
   return j;
 }
 
+// constraint_offset() in the JSON, and said (options.warnings) above `tolerance`.
+json constraint_residuals(const System& sys, double t, const Vec& q, const Vec& qd,
+                          double tolerance, const LinearizeOptions& opt) {
+  const ConstraintOffset c = constraint_offset(sys, t, q, qd, tolerance);
+  if (opt.warnings && !c.warning.empty())
+    *opt.warnings << printable("ukdyn: warning: " + c.warning, true) << "\n";
+  return json{{"position", c.position}, {"velocity", c.velocity}, {"row", c.row}};
+}
+
 // The object `ukdyn linearize` writes (docs/derivatives.md) and whether ukdyn vouches for it.
 json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec& qd,
                           const Vec& tau_in, const LinearizeOptions& opt, bool& trusted) {
@@ -308,9 +318,14 @@ json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec&
   j["derivatives"] = linearization_json(sys, lin);
   j["F"] = rows_of(F);
   j["G"] = rows_of(G);
+  j["constraint_residuals"] = constraint_residuals(sys, t, q, qd, sc.initial_tolerance, opt);
   if (opt.dt > 0.0) {
     Mat Fd, Gd;
-    discretize_zoh(F, G, opt.dt, Fd, Gd);
+    try {
+      discretize_zoh(F, G, opt.dt, Fd, Gd);
+    } catch (const std::invalid_argument& e) {  // expm of a matrix F dt that is not finite
+      throw Error(fmt::format("--dt {:g}: the discrete model: {}", opt.dt, e.what()));
+    }
     j["dt"] = opt.dt;
     j["Fd"] = rows_of(Fd);
     j["Gd"] = rows_of(Gd);
@@ -341,10 +356,11 @@ void collect_arrays(const json& j, const std::string& prefix,
     a.name = prefix + key;
     if (v.is_object()) {
       collect_arrays(v,
-                     key == "minimal"       ? "minimal_"
-                     : key == "closed_loop" ? "closed_loop_"
-                     : key == "parameters"  ? "parameters_"
-                                            : "",
+                     key == "minimal"                ? "minimal_"
+                     : key == "closed_loop"          ? "closed_loop_"
+                     : key == "parameters"           ? "parameters_"
+                     : key == "constraint_residuals" ? "constraint_residuals_"
+                                                     : "",
                      out);
       continue;
     }
@@ -384,6 +400,70 @@ bool write_linearization_npz(const Scenario& sc, double t, const Vec& q, const V
   return trusted;
 }
 
+namespace {
+
+// The top-level keys of a JSON object's text with their lines (1-based), in order: a key is a
+// string at depth 1 followed by ':'. (nlohmann's parser keeps the last of two equal keys and gives
+// no positions.)
+std::vector<std::pair<std::string, std::size_t>> top_level_keys(const std::string& text) {
+  std::vector<std::pair<std::string, std::size_t>> keys;
+  std::size_t line = 1, depth = 0, start = 0;
+  bool in_string = false;
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    if (c == '\n') ++line;
+    if (in_string) {
+      if (c == '\\') {
+        ++i;
+      } else if (c == '"') {
+        in_string = false;
+        std::size_t k = i + 1;
+        while (k < text.size() && std::isspace(static_cast<unsigned char>(text[k]))) ++k;
+        if (depth == 1 && k < text.size() && text[k] == ':') {
+          const json key = json::parse(text.substr(start, i + 1 - start), nullptr, false);
+          if (key.is_string()) keys.emplace_back(key.get<std::string>(), line);
+        }
+      }
+    } else if (c == '"') {
+      in_string = true;
+      start = i;
+    } else if (c == '{' || c == '[') {
+      ++depth;
+    } else if (c == '}' || c == ']') {
+      --depth;
+    }
+  }
+  return keys;
+}
+
+}  // namespace
+
+ConstraintOffset constraint_offset(const System& sys, double t, const Vec& q, const Vec& qd,
+                                   double tolerance) {
+  Vec phi(sys.rows()), phid(sys.rows());
+  position_residuals(sys, t, q, phi);
+  velocity_residuals(sys, t, q, qd, phid);
+  ConstraintOffset c;
+  double worst = 0.0;
+  for (Index i = 0; i < sys.rows(); ++i) {
+    c.position = std::max(c.position, std::abs(phi(i)));
+    c.velocity = std::max(c.velocity, std::abs(phid(i)));
+    if (std::max(std::abs(phi(i)), std::abs(phid(i))) > worst) {
+      worst = std::max(std::abs(phi(i)), std::abs(phid(i)));
+      c.row = sys.constraint_row_names()[static_cast<std::size_t>(i)];
+    }
+  }
+  // Linearised all the same (the derivatives of the equations at that state), but said.
+  if (!(worst <= tolerance))
+    c.warning = fmt::format(
+        "the state is off the constraints (row '{}': |Phi| {:.3g}, |Phi'| {:.3g} > "
+        "initial_tolerance {:.3g}): linearised all the same, the derivatives of the equations at "
+        "this state, not of a motion on the constraints (`ukdyn assemble` moves a state onto "
+        "them)",
+        c.row, c.position, c.velocity, tolerance);
+  return c;
+}
+
 LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
   const std::string text =
       detail::read_input_file(path, {"state file", detail::kMiB, printable(path)});
@@ -396,25 +476,43 @@ LinearizeState read_state_json(const Scenario& sc, const std::string& path) {
   if (!j.is_object())
     throw Error(
         fmt::format(R"({}: expected a JSON object {{"t", "q", "qd", "tau"}})", printable(path)));
+  const auto keys = top_level_keys(text);
+  auto at = [&](const std::string& key) {  // FILE:LINE of a key
+    for (const auto& [k, line] : keys)
+      if (k == key) return fmt::format("{}:{}", printable(path), line);
+    return printable(path);
+  };
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    const std::string& key = keys[i].first;
+    if (key != "t" && key != "q" && key != "qd" && key != "tau")
+      throw Error(fmt::format("{}:{}: unknown key '{}' (the keys are t, q, qd, tau)",
+                              printable(path), keys[i].second, printable(key)));
+    for (std::size_t k = 0; k < i; ++k)
+      if (keys[k].first == key)
+        throw Error(fmt::format("{}:{}: key '{}' twice (first at line {})", printable(path),
+                                keys[i].second, key, keys[k].second));
+  }
   const Index n = sc.system->dof();
   LinearizeState st;
-  try {
-    for (const auto& [key, value] : j.items()) {
-      if (key != "t" && key != "q" && key != "qd" && key != "tau")
-        throw Error(fmt::format("unknown key '{}' (the keys are t, q, qd, tau)", printable(key)));
+  st.t = sc.sim.t0;
+  auto field = [&](const char* key, auto read) {
+    try {
+      read();
+    } catch (const Error& e) {
+      throw Error(fmt::format("{}: {}", at(key), e.what()));
     }
-    st.t = sc.sim.t0;
-    if (const auto it = j.find("t"); it != j.end()) {
+  };
+  if (const auto it = j.find("t"); it != j.end()) {
+    field("t", [&] {
       if (!it->is_number() || !std::isfinite(it->get<double>()))
         throw Error("key 't': expected a finite number");
       st.t = it->get<double>();
-    }
-    st.q = read_vec(j, "q", n, true);
-    st.qd = read_vec(j, "qd", n, true);
-    st.tau = j.contains("tau") ? read_vec(j, "tau", n, true) : sc.tau;
-  } catch (const Error& e) {
-    throw Error(fmt::format("{}: {}", printable(path), e.what()));
+    });
   }
+  field("q", [&] { st.q = read_vec(j, "q", n, true); });
+  field("qd", [&] { st.qd = read_vec(j, "qd", n, true); });
+  st.tau = sc.tau;
+  if (j.contains("tau")) field("tau", [&] { st.tau = read_vec(j, "tau", n, true); });
   return st;
 }
 
@@ -427,10 +525,15 @@ LinearizeState read_state_csv_row(const Scenario& sc, const std::string& path, l
   if (!lines.next(line)) throw Error(fmt::format("{}: empty file", printable(path)));
   const auto header = io_detail::split_csv_line(line);
   auto column = [&](const std::string& name) {
-    for (std::size_t c = 0; c < header.size(); ++c)
-      if (header[c] == name) return c;
-    throw Error(fmt::format("{}:1: no column '{}' (a trajectory.csv of this scenario has it)",
-                            printable(path), printable(name)));
+    bool twice = false;
+    const std::size_t c = io_detail::csv_column(header, name, twice);
+    if (c == header.size())
+      throw Error(fmt::format("{}:1: no column '{}' (a trajectory.csv of this scenario has it)",
+                              printable(path), printable(name)));
+    if (twice)
+      throw Error(fmt::format("{}:1: column '{}' twice (which one is the state?)", printable(path),
+                              printable(name)));
+    return c;
   };
   const auto& names = sc.system->coordinate_names();
   const Index n = sc.system->dof();
@@ -442,6 +545,9 @@ LinearizeState read_state_csv_row(const Scenario& sc, const std::string& path, l
       throw Error(fmt::format("{}: no data row {} (the file has {})", printable(path), row, k));
   }
   const auto cells = io_detail::split_csv_line(line);
+  if (cells.size() != header.size())
+    throw Error(fmt::format("{}:{}: {} cells, the header has {} (a torn or edited row)",
+                            printable(path), lines.line_no(), cells.size(), header.size()));
   std::vector<double> v(cols.size());
   for (std::size_t c = 0; c < cols.size(); ++c) {
     if (cols[c] >= cells.size() || !io_detail::parse_csv_number(cells[cols[c]], v[c]) ||

@@ -370,7 +370,9 @@ OptimizeReport run_optimization(const OptimizationFile& file, const std::filesys
   const auto t0 = std::chrono::steady_clock::now();
   rep.solution = optimize_trajectory(file.problem, file.ipopt);
   rep.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (file.verify) rep.replay = replay(file, rep.solution);
+  // An interrupted solve (IpoptSettings::cancel) is written as it stands, untrusted, unreplayed.
+  const bool interrupted = file.ipopt.cancel && file.ipopt.cancel->load();
+  if (file.verify && !interrupted) rep.replay = replay(file, rep.solution);
   write_csv(dir, file, rep.solution);
   rep.replay_scenario_note = write_replay_scenarios(dir, file, rep.solution);
   AtomicFile f(dir, dir.fd(), "", "summary.json");

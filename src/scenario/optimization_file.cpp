@@ -87,6 +87,15 @@ void bounds(const Loader& L, const Node& n, Vec& lo, Vec& hi, Index size, IndexO
   }
 }
 
+// A whole number from lo to hi (checked before it is converted: 1e308 or 2.5 is refused, not cast).
+int whole_number(const Loader& L, const Node& n, int lo, int hi) {
+  const double v = L.number(n);
+  if (!(v >= lo && v <= hi && v == std::floor(v)))
+    L.fail(n, "expected a whole number from " + std::to_string(lo) + " to " + std::to_string(hi) +
+                  ", got '" + n.node.Scalar() + "'");
+  return static_cast<int>(v);
+}
+
 CollocationMethod method(const Loader& L, const Node& n) {
   if (!n.node.IsDefined()) return CollocationMethod::hermite_simpson;
   const std::string s = L.string(n);
@@ -135,7 +144,8 @@ void costs(const Loader& L, const Node& root, TrajectoryProblem& p) {
   p.costs.constraint_force = weight("constraint_force");
   p.costs.smoothness = weight("smoothness");
   p.costs.duration = weight("duration");
-  const bool any = p.costs.effort.size() || p.costs.power > 0 || p.costs.constraint_force > 0 ||
+  const bool any = (p.costs.effort.size() && p.costs.effort.maxCoeff() > 0) || p.costs.power > 0 ||
+                   p.costs.constraint_force > 0 ||
                    (p.costs.multiplier.size() && p.costs.multiplier.maxCoeff() > 0) ||
                    p.costs.smoothness > 0 || p.costs.duration > 0;
   if (!any) L.fail(c, "no cost term has a positive weight");
@@ -155,12 +165,7 @@ void timing(const Loader& L, const Node& root, TrajectoryProblem& p) {
     p.duration = L.positive(d);
   }
   const Node n = L.child(root, "intervals", false);
-  if (n.node.IsDefined()) {
-    const double v = L.number(n);
-    if (!(v >= 1 && v <= 10000 && v == std::floor(v)))
-      L.fail(n, "expected a whole number from 1 to 10000");
-    p.intervals = static_cast<Index>(v);
-  }
+  if (n.node.IsDefined()) p.intervals = whole_number(L, n, 1, 10000);
 }
 
 // `envelopes: motors`: each actuator's motor (docs/motors.md) seen at the joint. The motor's
@@ -216,35 +221,34 @@ void ipopt(const Loader& L, const Node& root, IpoptSettings& s) {
   if (!n.node.IsDefined()) return;
   L.only_keys(n, {"tol", "constr_viol_tol", "max_iter", "print_level", "lbfgs_memory", "options"});
   if (const Node o = L.child(n, "options", false); o.node.IsDefined()) {
-    // Any IPOPT option: a whole number → integer, another number → numeric, else a string.
+    // Any IPOPT option, as the type IPOPT registers for it, checked here (name, type, range) so
+    // that a bad one is named at its key before anything runs.
     if (!o.node.IsMap()) L.fail(o, "expected {IPOPT option: value}");
     for (const auto& kv : o.node) {
       const std::string name = L.key(o, kv.first);
       const Node entry{kv.second, o.key + "." + name};
       const std::string text = L.string(entry);
       double v = 0.0;
-      if (Loader::parse_number(text, v) && std::isfinite(v)) {
-        if (v == std::floor(v) && std::abs(v) < 1e9 &&
-            text.find_first_of(".eE") == std::string::npos)
-          s.integer_options.emplace_back(name, static_cast<int>(v));
-        else
-          s.numeric_options.emplace_back(name, v);
-      } else {
-        s.string_options.emplace_back(name, text);
-      }
+      const bool number = Loader::parse_number(text, v) && std::isfinite(v);
+      if (const std::string why = add_ipopt_option(s, name, text, number ? &v : nullptr);
+          !why.empty())
+        L.fail(entry, why);
     }
   }
-  s.tol = L.number_or(n, "tol", s.tol);
+  auto positive = [&](const char* key, double fallback) {
+    const Node k = L.child(n, key, false);
+    return k.node.IsDefined() ? L.positive(k) : fallback;
+  };
+  auto whole = [&](const char* key, int lo, int hi, int fallback) {
+    const Node k = L.child(n, key, false);
+    return k.node.IsDefined() ? whole_number(L, k, lo, hi) : fallback;
+  };
+  s.tol = positive("tol", s.tol);
   s.dual_inf_tol = s.tol;
-  s.constr_viol_tol = L.number_or(n, "constr_viol_tol", s.constr_viol_tol);
-  s.max_iter = static_cast<int>(L.number_or(n, "max_iter", s.max_iter));
-  s.print_level = static_cast<int>(L.number_or(n, "print_level", s.print_level));
-  s.lbfgs_memory = static_cast<int>(L.number_or(n, "lbfgs_memory", s.lbfgs_memory));
-  if (!(s.tol > 0 && s.constr_viol_tol > 0 && s.max_iter >= 0 && s.max_iter <= 100000 &&
-        s.print_level >= 0 && s.print_level <= 12 && s.lbfgs_memory >= 1 && s.lbfgs_memory <= 100))
-    L.fail(
-        n,
-        "tol and constr_viol_tol > 0, max_iter 0..100000, print_level 0..12, lbfgs_memory 1..100");
+  s.constr_viol_tol = positive("constr_viol_tol", s.constr_viol_tol);
+  s.max_iter = whole("max_iter", 0, 100000, s.max_iter);
+  s.print_level = whole("print_level", 0, 12, s.print_level);
+  s.lbfgs_memory = whole("lbfgs_memory", 1, 100, s.lbfgs_memory);
 }
 
 // The actuators: the scenario's (`actuators:`), or one per coordinate (B = I) if it has none.
@@ -274,9 +278,11 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   const auto& names = p.system->coordinate_names();
   std::vector<std::size_t> cols;
   auto column = [&](const std::string& name) {
-    const auto it = std::find(header.begin(), header.end(), name);
-    if (it == header.end()) L.fail(at, "the guess file has no column '" + name + "'");
-    cols.push_back(static_cast<std::size_t>(it - header.begin()));
+    bool twice = false;
+    const std::size_t c = io_detail::csv_column(header, name, twice);
+    if (c == header.size()) L.fail(at, "the guess file has no column '" + name + "'");
+    if (twice) L.fail(at, "the guess file has column '" + name + "' twice");
+    cols.push_back(c);
   };
   column("t");
   for (const auto& c : names) column(c);
@@ -285,6 +291,10 @@ void guess_from_csv(const Loader& L, const Node& at, const std::filesystem::path
   std::vector<Vec> rows;
   while (lines.next(line)) {
     const auto cells = io_detail::split_csv_line(line);
+    if (cells.size() != header.size())
+      L.fail(at, "the guess file's line " + std::to_string(lines.line_no()) + " has " +
+                     std::to_string(cells.size()) + " cells, its header " +
+                     std::to_string(header.size()));
     Vec r(static_cast<Index>(cols.size()));
     for (std::size_t i = 0; i < cols.size(); ++i)
       if (cols[i] >= cells.size() ||

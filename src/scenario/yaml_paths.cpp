@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -80,7 +81,16 @@ std::string yaml_expansion_problem(const YAML::Node& root, YAML::Mark& at) {
     if (it.node.IsSequence()) {
       for (const auto& e : it.node) stack.push_back({e, it.depth + 1});
     } else if (it.node.IsMap()) {
+      // A key twice in one mapping: YAML forbids it, and yaml-cpp would keep both (a lookup
+      // finding the first), so a repeated bound, weight or coordinate would be silently lost.
+      std::set<std::string> keys;
       for (const auto& kv : it.node) {
+        if (kv.first.IsScalar() && !keys.insert(kv.first.Scalar()).second) {
+          at = kv.first.Mark();
+          const std::string& k = kv.first.Scalar();
+          return "duplicate key '" + escape_controls(k.size() > 64 ? k.substr(0, 64) + "..." : k) +
+                 "' in one mapping (YAML allows each key once)";
+        }
         stack.push_back({kv.first, it.depth + 1});
         stack.push_back({kv.second, it.depth + 1});
       }

@@ -24,6 +24,7 @@
 // Hessian of the Lagrangian by L-BFGS.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -139,7 +140,19 @@ struct IpoptSettings {
   std::vector<std::pair<std::string, std::string>> string_options;
   std::vector<std::pair<std::string, int>> integer_options;
   std::vector<std::pair<std::string, double>> numeric_options;
+  /// Set (from a signal handler or another thread) to stop the solve at IPOPT's next iteration:
+  /// the iterate so far is returned, status User_Requested_Stop, not trusted. Null: never.
+  const std::atomic<bool>* cancel = nullptr;
 };
+
+/// Adds `name` = `text` to the extra options of `settings` as the type IPOPT registers for it (a
+/// whole number, a number or a string; `number`: the text's value when it is a finite number, else
+/// null). Returns why not (empty when added): no such option, a value of the wrong type or out of
+/// its range, or an option that makes IPOPT read or write a file or load a library (output_file,
+/// option_file_name, hsllib, pardisolib: a problem file chooses no file ukdyn does not check).
+/// Without IPOPT: added as a whole number, a number or a string by the text alone.
+std::string add_ipopt_option(IpoptSettings& settings, const std::string& name,
+                             const std::string& text, const double* number);
 
 struct TrajectorySolution {
   Vec t;                   ///< times of the collocation points

@@ -51,6 +51,10 @@ struct LinearizeOptions {
   /// folded in, and the object "closed_loop" (τ, u, ∂τ/∂q, ∂τ/∂q̇, the eigenvalues of the
   /// minimal F, the law's kinks). τ is the law's, not the state's; not with parameters.
   bool closed_loop = false;
+  /// Where to say that the state is off the constraints (|Φ| or |A q̇ + Φ_t| above the scenario's
+  /// initial_tolerance: a hand-written --state, a quaternion not of unit norm); null: the JSON's
+  /// "constraint_residuals" only.
+  std::ostream* warnings = nullptr;
 };
 bool write_linearization(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                          const Vec& tau, std::ostream& out, const LinearizeOptions& options = {});
@@ -70,6 +74,15 @@ struct LinearizeState {
 bool write_linearization_npz(const Scenario& scenario, double t, const Vec& q, const Vec& qd,
                              const Vec& tau, std::ostream& out,
                              const LinearizeOptions& options = {});
+
+/// How far (t, q, q̇) is off the constraints: the largest |Φ| and |A q̇ + Φ_t| over every row and
+/// the row of the larger; `warning` says so when that exceeds `tolerance` (empty otherwise).
+struct ConstraintOffset {
+  double position = 0.0, velocity = 0.0;
+  std::string row, warning;
+};
+ConstraintOffset constraint_offset(const System& system, double t, const Vec& q, const Vec& qd,
+                                   double tolerance);
 
 LinearizeState read_state_json(const Scenario& scenario, const std::string& path);
 LinearizeState read_state_csv_row(const Scenario& scenario, const std::string& path, long row);
