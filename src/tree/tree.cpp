@@ -1652,6 +1652,105 @@ void analytic_columns(const Model& m, const std::vector<int>& ti, Index nt,
   }
 }
 
+// θ = T q + c, θ̇ = T q̇, θ̈ = T q̈ into the analytic workspace.
+void analytic_theta(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
+                    CVecRef q, CVecRef qd, CVecRef qdd, const AnalyticWorkspace& w) {
+  theta_of(T, offset, q.data(), qd.data(), w.theta, w.thetad);
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    double a = 0.0;
+    for (const Term& t : T[k]) a += t.coefficient * qdd(t.coordinate);
+    w.thetadd[k] = a;
+  }
+}
+
+// x (a 3-vector, or a 3 × 3 matrix row by row) times k added to column `col` of J from `row`.
+void add_column(MatRef J, Index row, Index col, double k, const Eigen::Vector3d& x) {
+  for (int r = 0; r < 3; ++r) J(row + r, col) += k * x(r);
+}
+
+void add_column(MatRef J, Index row, Index col, double k, const Eigen::Matrix3d& X) {
+  for (int r = 0; r < 9; ++r) J(row + r, col) += k * X(r / 3, r % 3);
+}
+
+// A frame's derivatives from the same rigid transport (no scales, a_0 = 0 as frame_state's pass):
+// along θ_j (joint j at or above the frame's link, axis S_j = (s_w, s_v)), the frame's p, R move
+// by the column (s_v + s_w × p, [s_w]× R), the vectors and matrices it carries turn with s_w and
+// the link's motion V = (ω, v_O) and acceleration A gain Ψ̇_j and Ψ̈_j + Ψ̇_j × V:
+//   ∂ṗ = s_w × ṗ + ψ_v + ψ_w × p,        ∂Ṙ = [s_w]× Ṙ + [ψ_w]× R,
+//   ∂p̈ = s_w × p̈ + α_v + α_w × p + ψ_w × ṗ + ω × (ψ_v + ψ_w × p),
+//   ∂R̈ = [s_w]× R̈ + ([α_w]× + [ψ_w]×[ω]× + [ω]×[ψ_w]×) R     (ψ = Ψ̇_j, α = Ψ̈_j + Ψ̇_j × V);
+// along θ̇_j, V gains S_j and A gains β = 2 Ψ̇_j + S_j × V: ṗ, Ṙ gain the column, and
+//   ∂p̈ = β_v + β_w × p + s_w × ṗ + ω × ∂p/∂θ_j,   ∂R̈ = ([β_w]× + [s_w]×[ω]× + [ω]×[s_w]×) R.
+void frame_motion_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
+                          int link, const FrameMotion<double>& f, Index n, MatRef J) {
+  const LinkState<double>& at = ws[link];
+  const V6 V = six(at.vw, at.vv);
+  const Eigen::Matrix3d W = skew<double>(at.vw);
+  for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+    const auto ju = static_cast<std::size_t>(j);
+    if (ti[ju] < 0) continue;
+    const LinkState<double>& w = ws[ju];
+    const int p = m.links[ju].parent;
+    const V6 vp = p < 0 ? V6::Zero() : six(ws[p].vw, ws[p].vv);
+    const V6 ap = p < 0 ? V6::Zero() : six(ws[p].aw, ws[p].av);
+    const V6 S = axis_of(w), psid = cross_motion(vp, S);
+    const V6 al = cross_motion(ap, S) + cross_motion(vp, psid) + cross_motion(psid, V);
+    const V6 be = 2.0 * psid + cross_motion(S, V);
+    const Eigen::Vector3d sw = w.sw[0], pw = psid.head<3>(), aw = al.head<3>(), bw = be.head<3>();
+    const Eigen::Vector3d dp = w.sv[0] + sw.cross(f.p), xv = psid.tail<3>() + pw.cross(f.p);
+    const Eigen::Matrix3d Sw = skew<double>(sw), Pw = skew<double>(pw), dR = Sw * f.R;
+    const Eigen::Vector3d q_pd = sw.cross(f.pd) + xv;
+    const Eigen::Matrix3d q_Rd = Sw * f.Rd + Pw * f.R;
+    const Eigen::Vector3d q_pdd =
+        sw.cross(f.pdd) + al.tail<3>() + aw.cross(f.p) + pw.cross(f.pd) + at.vw.cross(xv);
+    const Eigen::Matrix3d q_Rdd = Sw * f.Rdd + (skew<double>(aw) + Pw * W + W * Pw) * f.R;
+    const Eigen::Vector3d r_pdd = be.tail<3>() + bw.cross(f.p) + sw.cross(f.pd) + at.vw.cross(dp);
+    const Eigen::Matrix3d r_Rdd = (skew<double>(bw) + Sw * W + W * Sw) * f.R;
+    for (const Term& t : m.links[ju].terms) {
+      const Index c = t.coordinate;
+      const double k = t.coefficient;
+      add_column(J, 0, c, k, dp);
+      add_column(J, 3, c, k, dR);
+      add_column(J, 12, c, k, q_pd);
+      add_column(J, 15, c, k, q_Rd);
+      add_column(J, 24, c, k, q_pdd);
+      add_column(J, 27, c, k, q_Rdd);
+      add_column(J, 12, n + c, k, dp);
+      add_column(J, 15, n + c, k, dR);
+      add_column(J, 24, n + c, k, r_pdd);
+      add_column(J, 27, n + c, k, r_Rdd);
+    }
+  }
+}
+
+// The derivatives of the frame's columns: ∂²p/∂θ_k∂θ_l = s_w,k × (s_v,l + s_w,l × p) and
+// ∂²R/∂θ_k∂θ_l = [s_w,k]× [s_w,l]× R for k at or above l (symmetric), through θ = T q + c.
+void frame_column_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
+                          int link, const FrameMotion<double>& f, MatRef J) {
+  for (int l = link; l >= 0; l = m.links[static_cast<std::size_t>(l)].parent) {
+    const auto lu = static_cast<std::size_t>(l);
+    if (ti[lu] < 0) continue;
+    const Eigen::Vector3d dp = ws[lu].sv[0] + ws[lu].sw[0].cross(f.p);
+    const Eigen::Matrix3d dR = skew<double>(ws[lu].sw[0]) * f.R;
+    for (int k = l; k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+      const auto ku = static_cast<std::size_t>(k);
+      if (ti[ku] < 0) continue;
+      const Eigen::Vector3d hp = ws[ku].sw[0].cross(dp);
+      const Eigen::Matrix3d hR = skew<double>(ws[ku].sw[0]) * dR;
+      for (const Term& a : m.links[ku].terms) {
+        for (const Term& b : m.links[lu].terms) {
+          const double c = a.coefficient * b.coefficient;
+          add_column(J, 36 + 12 * a.coordinate, b.coordinate, c, hp);
+          add_column(J, 39 + 12 * a.coordinate, b.coordinate, c, hR);
+          if (k == l) continue;
+          add_column(J, 36 + 12 * b.coordinate, a.coordinate, c, hp);
+          add_column(J, 39 + 12 * b.coordinate, a.coordinate, c, hR);
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
 // ∂ID/∂q = Tᵀ (∂τ_θ/∂θ) T and ∂ID/∂q̇ = Tᵀ (∂τ_θ/∂θ̇) T at θ̈ = T q̈: without ball joints by
@@ -1669,12 +1768,7 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
     return true;
   }
   const AnalyticWorkspace w = analytic_workspace(c.slot, slot_size_, nl, n_theta_, own);
-  theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
-  for (std::size_t k = 0; k < theta_terms_.size(); ++k) {
-    double a = 0.0;
-    for (const Term& t : theta_terms_[k]) a += t.coefficient * qdd(t.coordinate);
-    w.thetadd[k] = a;
-  }
+  analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, w);
   analytic_passes(merged_, theta_index_, w);
   analytic_columns(merged_, theta_index_, n_theta_, w);
   to_coordinates(theta_terms_, w.Dq, dID_dq);
@@ -1682,8 +1776,9 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
   return true;
 }
 
-// frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on one
-// placement), the fields' lanes stacked into the columns of J.
+// Without ball joints: one placement and motion pass on doubles and the analytic columns; with
+// them, frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on
+// one placement), the fields' lanes stacked into the columns of J.
 [[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(
     CVecRef q, CVecRef qd, CVecRef qdd, int frame_link, const Eigen::Matrix3d& frame_R_offset,
     const Eigen::Vector3d& frame_x_offset, Slot scratch, FrameState& value, MatRef J) const {
@@ -1693,10 +1788,29 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
   on_merged(placement_, frame_link, link, R_offset, x_offset);
   const Index n = dof();
   std::vector<double> own;
-  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
   J.setZero();
   value.dp.setZero();
   value.dR.setZero();
+  if (!quaternions_) {  // the analytic columns (frame_motion_columns, frame_column_columns)
+    const AnalyticWorkspace a =
+        analytic_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
+    analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, a);
+    place<double>(merged_, theta_index_, false, a.theta, a.links);
+    link_motion<double>(merged_, theta_index_, false, a.thetad, a.thetadd, Eigen::Vector3d::Zero(),
+                        a.links);
+    const FrameMotion<double> f = frame_motion(merged_, a.links, link, R_offset, x_offset);
+    copy_motion(f, value);
+    frame_columns(merged_, theta_index_, a.links, link, f.p, f.R,
+                  [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
+                    value.dp.col(c) += k * dp;
+                    for (int r = 0; r < 9; ++r) value.dR(r, c) += k * dR(r / 3, r % 3);
+                  });
+    if (link < 0) return;
+    frame_motion_columns(merged_, theta_index_, a.links, link, f, n, J);
+    frame_column_columns(merged_, theta_index_, a.links, link, f, J);
+    return;
+  }
+  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
   for (const bool rate : {true, false}) {
     for (Index j0 = 0; j0 < n; j0 += kLanes) {
       seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
