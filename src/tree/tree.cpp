@@ -1130,6 +1130,19 @@ void copy_motion(const FrameMotion<double>& f, FrameState& out) {
   out.Rdd = f.Rdd;
 }
 
+// The frame's motion f and its columns ∂p/∂q, ∂R/∂q (R row-major) into `out`.
+void copy_state(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws, int link,
+                const FrameMotion<double>& f, FrameState& out) {
+  copy_motion(f, out);
+  out.dp.setZero();
+  out.dR.setZero();
+  frame_columns(m, ti, ws, link, f.p, f.R,
+                [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
+                  out.dp.col(c) += k * dp;
+                  for (int r = 0; r < 9; ++r) out.dR(r, c) += k * dR(r / 3, r % 3);
+                });
+}
+
 // The frame's columns as twists (v, ω, s) per coordinate (7 × cols, column-major, zeroed first):
 // joint variable k above the link moves the frame at p by v = s_v + s_w × p + s_l p, ω = s_w,
 // s = s_l (frame_columns' ∂p/∂θ_k and ∂R/∂θ_k = ([s_w]× + s_l) R), through θ = T q + c.
@@ -1194,14 +1207,7 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
                         Eigen::Vector3d::Zero(), w.links);
     mark_moved(w, this);
     const FrameMotion<double> f = frame_motion(merged_, w.links, link, at.R, at.x);
-    copy_motion(f, out);
-    out.dp.setZero();
-    out.dR.setZero();
-    frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
-                  [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
-                    out.dp.col(c) += k * dp;
-                    for (int r = 0; r < 9; ++r) out.dR(r, c) += k * dR(r / 3, r % 3);
-                  });
+    copy_state(merged_, theta_index_, w.links, link, f, out);
   });
 }
 
@@ -1799,12 +1805,7 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
     link_motion<double>(merged_, theta_index_, false, a.thetad, a.thetadd, Eigen::Vector3d::Zero(),
                         a.links);
     const FrameMotion<double> f = frame_motion(merged_, a.links, link, R_offset, x_offset);
-    copy_motion(f, value);
-    frame_columns(merged_, theta_index_, a.links, link, f.p, f.R,
-                  [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
-                    value.dp.col(c) += k * dp;
-                    for (int r = 0; r < 9; ++r) value.dR(r, c) += k * dR(r / 3, r % 3);
-                  });
+    copy_state(merged_, theta_index_, a.links, link, f, value);
     if (link < 0) return;
     frame_motion_columns(merged_, theta_index_, a.links, link, f, n, J);
     frame_column_columns(merged_, theta_index_, a.links, link, f, J);
