@@ -4,6 +4,9 @@
 //   tree/<robot>_forward       q̈ of the unconstrained arm (forward(): dynamics + solve)
 //   mujoco/<robot>_mj_forward  mj_forward on the same file (MuJoCo's CRB + RNE + factorisation)
 //   tree/chain_<N>_mass, _bias M and C q̇ + G of an N-link spatial chain (cost against N)
+//   tree/chain_<N>_id_jacobian, _frame_jacobian
+//                              its ∂ID/∂(q, q̇) and its tip frame's columns (the derivatives'
+//                              passes, docs/derivatives.md "Cost")
 //   scenario/<name>_forward    forward() of a shipped scenario at its initial state (the arms on
 //                              trees, their welds to the load numeric), when built with io
 //   mujoco/two_pandas_weld_mj_forward
@@ -148,6 +151,35 @@ std::shared_ptr<const ukdyn::tree::TreeSubsystem> chain(int n) {
 
 void register_chains() {
   for (int n : {7, 15, 30, 60}) {
+    benchmark::RegisterBenchmark(
+        ("tree/chain_" + std::to_string(n) + "_id_jacobian").c_str(), [n](benchmark::State& st) {
+          const auto t = chain(n);
+          Vec q, qd;
+          state(n, q, qd);
+          const Vec qdd = qd.reverse();
+          Mat Jq(n, n), Jqd(n, n);
+          std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+          for (auto _ : st) {
+            t->inverse_dynamics_jacobian({0.0, ukdyn::Slot(slot)}, q, qd, qdd, Jq, Jqd);
+            benchmark::DoNotOptimize(Jq.data());
+          }
+        });
+    benchmark::RegisterBenchmark(
+        ("tree/chain_" + std::to_string(n) + "_frame_jacobian").c_str(), [n](benchmark::State& st) {
+          const auto t = chain(n);
+          Vec q, qd;
+          state(n, q, qd);
+          const Vec qdd = qd.reverse();
+          Mat J(t->frame_jacobian_rows(), 2 * n);
+          std::vector<double> b(12 * static_cast<std::size_t>(n));
+          ukdyn::tree::FrameState value(b.data(), b.data() + 3 * n, n);
+          std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+          for (auto _ : st) {
+            t->frame_state_jacobian(q, qd, qdd, n - 1, Eigen::Matrix3d::Identity(),
+                                    Eigen::Vector3d(0.3, 0, 0), ukdyn::Slot(slot), value, J);
+            benchmark::DoNotOptimize(J.data());
+          }
+        });
     benchmark::RegisterBenchmark(
         ("tree/chain_" + std::to_string(n) + "_mass").c_str(), [n](benchmark::State& st) {
           const auto t = chain(n);

@@ -4,6 +4,7 @@
 // differences of M; a closed form; and the errors a bad tree gets.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <random>
 
@@ -197,6 +198,142 @@ TEST(Tree, DoublePendulumClosedForm) {
   tr->link_pose(Vec::Constant(2, 0.3), tr->link_index("link2"), R, p);
   EXPECT_NEAR(p.x(), -l1 * std::sin(0.3), 1e-15);
   EXPECT_NEAR(p.z(), -l1 * std::cos(0.3), 1e-15);
+}
+
+// A branched tree: a revolute base with two branches (revolute, prismatic, revolute; revolute,
+// massless frame, revolute), turned origins and axes, a joint coupled to two coordinates.
+tree::Model branched_tree() {
+  tree::Model m;
+  m.name = "branched";
+  m.coordinates = {"q0", "q1", "q2", "q3", "q4", "q5", "q6"};
+  m.gravity = {0.3, -0.2, -9.81};
+  m.root_rotation = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 0, 1).normalized()).matrix();
+  m.root_translation = {0.1, 0.2, -0.3};
+  const auto link = [&](const char* name, int parent, tree::JointType type, Eigen::Vector3d axis,
+                        std::vector<tree::Term> terms, double mass, int k) {
+    tree::Link L;
+    L.name = name;
+    L.joint = std::string("j_") + name;
+    L.parent = parent;
+    L.type = type;
+    L.axis = axis.normalized();
+    L.terms = std::move(terms);
+    L.offset = 0.1 * k;
+    L.origin_rotation = Eigen::AngleAxisd(0.2 * k, Eigen::Vector3d(k, 1, 2).normalized()).matrix();
+    L.origin_translation = {0.3, -0.1 * k, 0.2};
+    L.mass = mass;
+    L.com = {0.05 * k, 0.1, -0.02};
+    const Eigen::Matrix3d A =
+        Eigen::AngleAxisd(0.5 * k, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+    L.inertia = mass * A * Eigen::Vector3d(0.02, 0.03, 0.04).asDiagonal() * A.transpose();
+    m.links.push_back(L);
+  };
+  using TJ = tree::JointType;
+  link("base", -1, TJ::revolute, {0, 0, 1}, {{0, 1.0}}, 4.0, 1);
+  link("a1", 0, TJ::revolute, {0, 1, 0}, {{1, 1.0}}, 2.0, 2);
+  link("a2", 1, TJ::prismatic, {1, 0, 1}, {{2, 1.0}}, 1.5, 3);
+  link("a3", 2, TJ::revolute, {1, 2, 2}, {{3, 1.0}, {1, -0.5}}, 1.0, 4);
+  link("b1", 0, TJ::revolute, {1, 0, 0}, {{4, 1.0}}, 2.5, 5);
+  link("b2", 4, TJ::fixed, {0, 0, 1}, {}, 0.0, 6);
+  link("b3", 5, TJ::revolute, {0, 1, 1}, {{5, 2.0}}, 0.8, 7);
+  link("b4", 6, TJ::prismatic, {0, 0, 1}, {{6, 1.0}}, 0.5, 8);
+  return m;
+}
+
+using TreeCases = std::vector<std::pair<std::string, std::shared_ptr<const tree::TreeSubsystem>>>;
+
+// The spatial arm (a mobile base, a prismatic joint, a joint affine in two coordinates, a fixed
+// link merged or kept) and a branched tree (merged or not).
+TreeCases analytic_cases() {
+  sym::ChainTree t = sym::chain_tree(spatial_arm());
+  EXPECT_TRUE(t.model) << t.reason;
+  if (!t.model) return {};
+  return {
+      {"spatial arm", std::make_shared<tree::TreeSubsystem>(*t.model)},
+      {"spatial arm, fixed link kept", std::make_shared<tree::TreeSubsystem>(*t.model, false)},
+      {"branched", std::make_shared<tree::TreeSubsystem>(branched_tree())},
+      {"branched, fixed link kept", std::make_shared<tree::TreeSubsystem>(branched_tree(), false)}};
+}
+
+// inverse_dynamics_jacobian() (on these trees the analytic pass of Carpentier & Mansard) against
+// the one-direction tangents (the RNEA on dual numbers, forward-mode AD), column by column, at
+// random states with and without a slot.
+TEST(Tree, AnalyticDerivativesMatchTheOneDirectionTangents) {
+  const auto cases = analytic_cases();
+  std::mt19937_64 rng(23);
+  for (const auto& [name, tr] : cases) {
+    const Index n = tr->dof();
+    std::vector<double> slot(static_cast<std::size_t>(tr->slot_size()));
+    double worst = 0.0;
+    for (int k = 0; k < 10; ++k) {
+      const Vec q = random_vec(rng, n, -3, 3), qd = random_vec(rng, n, -2, 2),
+                qdd = random_vec(rng, n, -2, 2);
+      const ukdyn::Slot s = k % 2 ? ukdyn::Slot(slot) : ukdyn::Slot{};
+      Mat Jq(n, n), Jqd(n, n);
+      ASSERT_TRUE(tr->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd));
+      for (Index j = 0; j < 2 * n; ++j) {
+        Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), one(n);
+        (j < n ? dq : dqd)(j % n) = 1.0;
+        ASSERT_TRUE(tr->inverse_dynamics_tangent({}, q, qd, qdd, dq, dqd, one));
+        const Vec col = j < n ? Vec(Jq.col(j)) : Vec(Jqd.col(j - n));
+        worst = std::max(
+            worst, (col - one).cwiseAbs().maxCoeff() / std::max(1.0, one.cwiseAbs().maxCoeff()));
+      }
+    }
+    EXPECT_LE(worst, 1e-12) << name;
+    std::printf("%s: analytic dID/d(q, qd) vs one-direction tangents: %.3g\n", name.c_str(), worst);
+  }
+}
+
+// A frame's state as frame_state_jacobian() stacks its tangents: p, R, pd, Rd, pdd, Rdd (R(i, k)
+// at 3 i + k), then dp and dR column by column.
+Vec stacked_frame(const tree::FrameState& s, Index n) {
+  Vec x(36 + 12 * n);
+  x << s.p, s.R.transpose().reshaped(), s.pd, s.Rd.transpose().reshaped(), s.pdd,
+      s.Rdd.transpose().reshaped(), Vec::Zero(12 * n);
+  for (Index c = 0; c < n; ++c) {
+    x.segment(36 + 12 * c, 3) = s.dp.col(c);
+    x.segment(39 + 12 * c, 9) = s.dR.col(c);
+  }
+  return x;
+}
+
+// frame_state_jacobian() (on these trees the analytic columns) against frame_state_tangent (the
+// pass on dual numbers) along each e_j of q and of q̇, for a frame on every link and on the root.
+TEST(Tree, AnalyticFrameDerivativesMatchTheOneDirectionTangents) {
+  std::mt19937_64 rng(29);
+  const Eigen::Matrix3d Ro = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+  const Eigen::Vector3d xo(0.1, -0.2, 0.3);
+  for (const auto& [name, tr] : analytic_cases()) {
+    const Index n = tr->dof(), rows = tr->frame_jacobian_rows();
+    std::vector<double> slot(static_cast<std::size_t>(tr->slot_size()));
+    std::vector<double> b0(12 * static_cast<std::size_t>(n)), b1(b0), b2(b0);
+    tree::FrameState value(b0.data(), b0.data() + 3 * n, n), v1(b1.data(), b1.data() + 3 * n, n),
+        t1(b2.data(), b2.data() + 3 * n, n);
+    double worst = 0.0;
+    for (int k = 0; k < 4; ++k) {
+      const Vec q = random_vec(rng, n, -3, 3), qd = random_vec(rng, n, -2, 2),
+                qdd = random_vec(rng, n, -2, 2);
+      const ukdyn::Slot s = k % 2 ? ukdyn::Slot(slot) : ukdyn::Slot{};
+      for (int link = -1; link < static_cast<int>(tr->model().links.size()); ++link) {
+        Mat J(rows, 2 * n);
+        tr->frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, value, J);
+        for (Index j = 0; j < 2 * n; ++j) {
+          Vec dq = Vec::Zero(n), dqd = Vec::Zero(n);
+          (j < n ? dq : dqd)(j % n) = 1.0;
+          tr->frame_state_tangent(q, qd, qdd, dq, dqd, link, Ro, xo, {}, v1, t1);
+          const Vec ref = stacked_frame(t1, n), val = stacked_frame(v1, n);
+          const double scale = std::max(1.0, ref.cwiseAbs().maxCoeff());
+          worst = std::max(worst, (J.col(j) - ref).cwiseAbs().maxCoeff() / scale);
+          worst = std::max(worst, (stacked_frame(value, n) - val).cwiseAbs().maxCoeff() /
+                                      std::max(1.0, val.cwiseAbs().maxCoeff()));
+        }
+      }
+    }
+    EXPECT_LE(worst, 1e-12) << name;
+    std::printf("%s: analytic frame columns vs one-direction tangents: %.3g\n", name.c_str(),
+                worst);
+  }
 }
 
 TEST(Tree, BadTreesAreRefusedNamingTheLink) {

@@ -623,6 +623,12 @@ Index lane_workspace_doubles(std::size_t links, Index nt) {
   return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
 }
 
+// The analytic derivatives' workspace (analytic_workspace below): the links on doubles, θ, θ̇,
+// θ̈, τ, Ψ̇ and Ψ̈ per joint variable, B^C per link and the two nt × nt results.
+Index analytic_workspace_doubles(std::size_t links, Index nt) {
+  return static_cast<Index>(links) * (kLinkDoubles + 36) + 16 * nt + 2 * nt * nt;
+}
+
 }  // namespace
 
 namespace {
@@ -743,10 +749,11 @@ TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(m
       ++n_theta_;
     }
   }
-  // The forward workspace, then the derivatives': lanes (inverse_dynamics_jacobian(),
-  // frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()).
+  // The forward workspace, then the derivatives': lanes or the analytic pass
+  // (inverse_dynamics_jacobian(), frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()).
   slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
-               lane_workspace_doubles(merged_.links.size(), n_theta_) +
+               std::max(lane_workspace_doubles(merged_.links.size(), n_theta_),
+                        analytic_workspace_doubles(merged_.links.size(), n_theta_)) +
                tangent_workspace_doubles(merged_.links.size(), n_theta_);
 }
 
@@ -1126,6 +1133,19 @@ void copy_motion(const FrameMotion<double>& f, FrameState& out) {
   out.Rdd = f.Rdd;
 }
 
+// The frame's motion f and its columns ∂p/∂q, ∂R/∂q (R row-major) into `out`.
+void copy_state(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws, int link,
+                const FrameMotion<double>& f, FrameState& out) {
+  copy_motion(f, out);
+  out.dp.setZero();
+  out.dR.setZero();
+  frame_columns(m, ti, ws, link, f.p, f.R,
+                [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
+                  out.dp.col(c) += k * dp;
+                  for (int r = 0; r < 9; ++r) out.dR(r, c) += k * dR(r / 3, r % 3);
+                });
+}
+
 // The frame's columns as twists (v, ω, s) per coordinate (7 × cols, column-major, zeroed first):
 // joint variable k above the link moves the frame at p by v = s_v + s_w × p + s_l p, ω = s_w,
 // s = s_l (frame_columns' ∂p/∂θ_k and ∂R/∂θ_k = ([s_w]× + s_l) R), through θ = T q + c.
@@ -1190,14 +1210,7 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
                         Eigen::Vector3d::Zero(), w.links);
     mark_moved(w, this);
     const FrameMotion<double> f = frame_motion(merged_, w.links, link, at.R, at.x);
-    copy_motion(f, out);
-    out.dp.setZero();
-    out.dR.setZero();
-    frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
-                  [&](Index c, double k, const Eigen::Vector3d& dp, const Eigen::Matrix3d& dR) {
-                    out.dp.col(c) += k * dp;
-                    for (int r = 0; r < 9; ++r) out.dR(r, c) += k * dR(r / 3, r % 3);
-                  });
+    copy_state(merged_, theta_index_, w.links, link, f, out);
   });
 }
 
@@ -1445,44 +1458,336 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
   R_offset = at.R * R_offset;
 }
 
-}  // namespace
-
 // Columns j0 .. j0 + kLanes − 1 of ∂ID/∂q (rate false) or ∂ID/∂q̇ (rate true) per pass:
 // dID = Tᵀ dτ_θ lane by lane. The directions of q̇ do not move the links: the placement (on
 // doubles, lifted) is made once for all of them. [[gnu::flatten]]: every lane operation inlined
 // (GCC otherwise left Eigen's scalar functors of LaneDual as calls, a third of the time).
-[[gnu::flatten]] bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q,
-                                                               CVecRef qd, CVecRef qdd,
-                                                               MatRef dID_dq,
-                                                               MatRef dID_dqd) const {
-  const std::size_t nl = merged_.links.size();
-  const Index n = dof();
-  std::vector<double> own;
-  const LaneWorkspace w = lane_workspace(c.slot, slot_size_, nl, n_theta_, own);
+[[gnu::flatten]] void lane_id_jacobian(const Model& m, const std::vector<int>& ti,
+                                       const std::vector<std::vector<Term>>& T,
+                                       const std::vector<double>& offset, bool quat,
+                                       const LaneWorkspace& w, CVecRef q, CVecRef qd, CVecRef qdd,
+                                       MatRef dID_dq, MatRef dID_dqd) {
+  const Index n = dID_dq.cols(), nt = static_cast<Index>(T.size());
   dID_dq.setZero();
   dID_dqd.setZero();
   for (const bool rate : {true, false}) {
     MatRef out = rate ? dID_dqd : dID_dq;
     for (Index j0 = 0; j0 < n; j0 += kLanes) {
-      seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
-      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
-      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
-      inverse_dynamics<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd, true,
-                              w.links, w.tau);
+      seed_lanes(T, offset, q, qd, qdd, j0, rate, w);
+      if (!rate) place(m, ti, quat, w.theta, w.links);
+      if (rate && j0 == 0) place_constant(m, ti, quat, w, nt);
+      inverse_dynamics<Lanes>(m, ti, quat, w.thetad, w.thetadd, true, w.links, w.tau);
       const Index lanes = std::min<Index>(kLanes, n - j0);
-      for (std::size_t k = 0; k < theta_terms_.size(); ++k) {
-        for (const Term& t : theta_terms_[k]) {
+      for (std::size_t k = 0; k < T.size(); ++k) {
+        for (const Term& t : T[k]) {
           for (Index l = 0; l < lanes; ++l)
             out(t.coordinate, j0 + l) += t.coefficient * w.tau[k].d[l];
         }
       }
     }
   }
+}
+
+}  // namespace
+
+namespace {
+
+// ------------------------------------------------------- analytic derivatives of the RNEA
+//
+// J. Carpentier, N. Mansard, "Analytical Derivatives of Rigid Body Dynamics Algorithms", RSS 2018
+// (and the closed forms of S. Singh, R. P. Russell, P. M. Wensing, "Efficient Analytical
+// Derivatives of Rigid-Body Dynamics using Spatial Vector Algebra", IEEE RA-L 7(2), 2022), in the
+// world coordinates the passes use, for trees of revolute and prismatic joints (one variable per
+// joint, no scales). A change δθ_j moves the subtree of joint j rigidly by the screw S_j: every
+// world motion x below it changes by S_j × x, every force by S_j ×* x, every inertia by
+// S_j ×* I − I S_j ×, and the RNEA's quantities also change by what is not carried along,
+//   δv_i = S_j × v_i + Ψ̇_j,   δa_i = S_j × a_i + Ψ̈_j + Ψ̇_j × v_i   (i in the subtree of j),
+//   Ψ̇_j = v_λ(j) × S_j,   Ψ̈_j = a_λ(j) × S_j + v_λ(j) × Ψ̇_j   (λ(j): j's parent, a_0 = −g),
+// and a change δθ̇_j by δv_i = S_j, δa_i = 2 Ψ̇_j + S_j × v_i. The link's force f = I a + v ×* I v
+// then changes by S_j ×* f (carried, which leaves τ_k = S_kᵀ F_k unchanged when S_k moves with
+// it) plus I δa + B δv, B u = v ×* I u − I (v × u) + u ×* I v (the paper's B_i); summed over the
+// subtrees (composite I^C and B^C, F the subtree's force):
+//   ∂τ_k/∂θ_j = S_kᵀ (S_j ×* F_j + I^C_j Ψ̈_j + B^C_j Ψ̇_j)   for k an ancestor of j or j itself,
+//             = (I^C_k S_k)ᵀ Ψ̈_j + (B^C_kᵀ S_k)ᵀ Ψ̇_j          for k below j,
+//   ∂τ_k/∂θ̇_j = S_kᵀ (I^C_j 2Ψ̇_j + B^C_j S_j)               for k an ancestor of j or j itself,
+//             = (I^C_k S_k)ᵀ 2Ψ̇_j + (B^C_kᵀ S_k)ᵀ S_j        for k below j.
+// One forward pass (placement, v, a, Ψ̇, Ψ̈) and one backward pass (I^C, B^C, F), then O(n d)
+// products of 6-vectors for the n × n entries (d: the depth of the tree).
+
+using V6 = Eigen::Matrix<double, 6, 1>;
+using M6 = Eigen::Matrix<double, 6, 6>;
+
+// A motion (ω, v_O) or a force (n_O, f) about the world origin as one 6-vector.
+V6 six(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  V6 x;
+  x << a, b;
+  return x;
+}
+
+// (ω1, v1) × (ω2, v2) = (ω1 × ω2, ω1 × v2 + v1 × ω2).
+V6 cross_motion(const V6& a, const V6& b) {
+  const Eigen::Vector3d aw = a.head<3>(), av = a.tail<3>(), bw = b.head<3>(), bv = b.tail<3>();
+  return six(aw.cross(bw), aw.cross(bv) + av.cross(bw));
+}
+
+// (ω, v) ×* (n, f) = (ω × n + v × f, ω × f).
+V6 cross_force(const V6& a, const V6& f) {
+  const Eigen::Vector3d aw = a.head<3>(), av = a.tail<3>(), n = f.head<3>(), ff = f.tail<3>();
+  return six(aw.cross(n) + av.cross(ff), aw.cross(ff));
+}
+
+// I u for the spatial inertia (m, h, Ī) about the world origin (apply_inertia).
+V6 inertia_times(double m, const Eigen::Vector3d& h, const Eigen::Matrix3d& I, const V6& u) {
+  Eigen::Vector3d n, f;
+  apply_inertia<double>(m, h, I, u.head<3>(), u.tail<3>(), n, f);
+  return six(n, f);
+}
+
+V6 composite_times(const LinkState<double>& w, const V6& u) {
+  return inertia_times(w.m, w.h, w.I, u);
+}
+
+// The analytic pass's workspace after the forward workspace of a slot (or in `own`): the links,
+// θ, θ̇, θ̈, τ (nt each), Ψ̇ and Ψ̈ (6 + 6 per joint variable), B^C (36 per link, column-major),
+// then ∂τ/∂θ and ∂τ/∂θ̇ (nt × nt each, column-major).
+struct AnalyticWorkspace {
+  LinkState<double>* links;
+  double* theta;
+  double* thetad;
+  double* thetadd;
+  double* tau;
+  double* psi;
+  double* B;
+  double* Dq;
+  double* Dqd;
+};
+
+AnalyticWorkspace analytic_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
+                                     std::vector<double>& own) {
+  const Index need = analytic_workspace_doubles(nl, nt);
+  double* base = nullptr;
+  if (static_cast<Index>(slot.size()) >= slot_size) {
+    base = slot.data() + workspace_doubles(nl, nt);
+  } else {
+    own.resize(static_cast<std::size_t>(need));
+    base = own.data();
+  }
+  AnalyticWorkspace w{};
+  w.links = reinterpret_cast<LinkState<double>*>(base);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<double>;
+  w.theta = base + static_cast<Index>(nl) * kLinkDoubles;
+  w.thetad = w.theta + nt;
+  w.thetadd = w.thetad + nt;
+  w.tau = w.thetadd + nt;
+  w.psi = w.tau + nt;
+  w.B = w.psi + 12 * nt;
+  w.Dq = w.B + 36 * static_cast<Index>(nl);
+  w.Dqd = w.Dq + nt * nt;
+  return w;
+}
+
+V6 axis_of(const LinkState<double>& w) { return six(w.sw[0], w.sv[0]); }
+
+// The forward pass: placement, v, a (gravity as a_0 = −g) and the subtree forces F (the RNEA on
+// doubles), the composite inertias, Ψ̇_j, Ψ̈_j per joint and B^C per link (own B, then the
+// backward sum).
+void analytic_passes(const Model& m, const std::vector<int>& ti, const AnalyticWorkspace& w) {
+  LinkState<double>* ws = w.links;
+  place<double>(m, ti, false, w.theta, ws);
+  composite<double>(m, ws);
+  inverse_dynamics<double>(m, ti, false, w.thetad, w.thetadd, true, ws, w.tau);
+  const V6 a0 = six(Eigen::Vector3d::Zero(), -m.gravity);
+  const std::size_t nl = m.links.size();
+  for (std::size_t i = 0; i < nl; ++i) {
+    const LinkState<double>& L = ws[i];
+    const int p = m.links[i].parent;
+    const V6 vi = six(L.vw, L.vv);
+    if (ti[i] >= 0) {
+      const V6 vp = p < 0 ? V6::Zero() : six(ws[p].vw, ws[p].vv);
+      const V6 ap = p < 0 ? a0 : six(ws[p].aw, ws[p].av);
+      const V6 S = axis_of(L);
+      Eigen::Map<V6> psid(w.psi + 12 * ti[i]), psidd(w.psi + 12 * ti[i] + 6);
+      psid = cross_motion(vp, S);
+      psidd = cross_motion(ap, S) + cross_motion(vp, psid);
+    }
+    // B u = v ×* I u − I (v × u) + u ×* I v, column by column, with the link's own inertia.
+    Eigen::Map<M6> B(w.B + 36 * static_cast<Index>(i));
+    const V6 Iv = inertia_times(L.m_own, L.h_own, L.I_own, vi);
+    for (int c = 0; c < 6; ++c) {
+      const V6 u = V6::Unit(c);
+      B.col(c) = cross_force(vi, inertia_times(L.m_own, L.h_own, L.I_own, u)) -
+                 inertia_times(L.m_own, L.h_own, L.I_own, cross_motion(vi, u)) + cross_force(u, Iv);
+    }
+  }
+  for (std::size_t i = nl; i-- > 0;) {
+    const int p = m.links[i].parent;
+    if (p >= 0)
+      Eigen::Map<M6>(w.B + 36 * static_cast<Index>(p)) +=
+          Eigen::Map<const M6>(w.B + 36 * static_cast<Index>(i));
+  }
+}
+
+// The entries of ∂τ/∂θ and ∂τ/∂θ̇ (the formulas above), joint j by joint: its column over its
+// ancestors and itself, and its row over its strict ancestors.
+void analytic_columns(const Model& m, const std::vector<int>& ti, Index nt,
+                      const AnalyticWorkspace& w) {
+  const LinkState<double>* ws = w.links;
+  std::fill_n(w.Dq, 2 * nt * nt, 0.0);
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const int j = ti[i];
+    if (j < 0) continue;
+    const LinkState<double>& L = ws[i];
+    // Local copies (aligned): the sums in the products then do not depend on the slot's address.
+    const M6 B = Eigen::Map<const M6>(w.B + 36 * static_cast<Index>(i));
+    const V6 S = axis_of(L), F = six(L.fn, L.ff);
+    const V6 psid = Eigen::Map<const V6>(w.psi + 12 * j),
+             psidd = Eigen::Map<const V6>(w.psi + 12 * j + 6);
+    const V6 fq = cross_force(S, F) + composite_times(L, psidd) + B * psid;
+    const V6 fv = composite_times(L, 2.0 * psid) + B * S;
+    const V6 U = composite_times(L, S), W = B.transpose() * S;
+    for (int k = static_cast<int>(i); k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+      const auto ku = static_cast<std::size_t>(k);
+      const int r = ti[ku];
+      if (r < 0) continue;
+      const V6 Sk = axis_of(ws[ku]);
+      w.Dq[r + j * nt] = Sk.dot(fq);
+      w.Dqd[r + j * nt] = Sk.dot(fv);
+      if (r == j) continue;
+      const V6 kd = Eigen::Map<const V6>(w.psi + 12 * r),
+               kdd = Eigen::Map<const V6>(w.psi + 12 * r + 6);
+      w.Dq[j + r * nt] = U.dot(kdd) + W.dot(kd);
+      w.Dqd[j + r * nt] = U.dot(2.0 * kd) + W.dot(Sk);
+    }
+  }
+}
+
+// θ = T q + c, θ̇ = T q̇, θ̈ = T q̈ into the analytic workspace.
+void analytic_theta(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
+                    CVecRef q, CVecRef qd, CVecRef qdd, const AnalyticWorkspace& w) {
+  theta_of(T, offset, q.data(), qd.data(), w.theta, w.thetad);
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    double a = 0.0;
+    for (const Term& t : T[k]) a += t.coefficient * qdd(t.coordinate);
+    w.thetadd[k] = a;
+  }
+}
+
+// x (a 3-vector, or a 3 × 3 matrix row by row) times k added to column `col` of J from `row`.
+void add_column(MatRef J, Index row, Index col, double k, const Eigen::Vector3d& x) {
+  for (int r = 0; r < 3; ++r) J(row + r, col) += k * x(r);
+}
+
+void add_column(MatRef J, Index row, Index col, double k, const Eigen::Matrix3d& X) {
+  for (int r = 0; r < 9; ++r) J(row + r, col) += k * X(r / 3, r % 3);
+}
+
+// A frame's derivatives from the same rigid transport (no scales, a_0 = 0 as frame_state's pass):
+// along θ_j (joint j at or above the frame's link, axis S_j = (s_w, s_v)), the frame's p, R move
+// by the column (s_v + s_w × p, [s_w]× R), the vectors and matrices it carries turn with s_w and
+// the link's motion V = (ω, v_O) and acceleration A gain Ψ̇_j and Ψ̈_j + Ψ̇_j × V:
+//   ∂ṗ = s_w × ṗ + ψ_v + ψ_w × p,        ∂Ṙ = [s_w]× Ṙ + [ψ_w]× R,
+//   ∂p̈ = s_w × p̈ + α_v + α_w × p + ψ_w × ṗ + ω × (ψ_v + ψ_w × p),
+//   ∂R̈ = [s_w]× R̈ + ([α_w]× + [ψ_w]×[ω]× + [ω]×[ψ_w]×) R     (ψ = Ψ̇_j, α = Ψ̈_j + Ψ̇_j × V);
+// along θ̇_j, V gains S_j and A gains β = 2 Ψ̇_j + S_j × V: ṗ, Ṙ gain the column, and
+//   ∂p̈ = β_v + β_w × p + s_w × ṗ + ω × ∂p/∂θ_j,   ∂R̈ = ([β_w]× + [s_w]×[ω]× + [ω]×[s_w]×) R.
+void frame_motion_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
+                          int link, const FrameMotion<double>& f, Index n, MatRef J) {
+  const LinkState<double>& at = ws[link];
+  const V6 V = six(at.vw, at.vv);
+  const Eigen::Matrix3d W = skew<double>(at.vw);
+  for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+    const auto ju = static_cast<std::size_t>(j);
+    if (ti[ju] < 0) continue;
+    const LinkState<double>& w = ws[ju];
+    const int p = m.links[ju].parent;
+    const V6 vp = p < 0 ? V6::Zero() : six(ws[p].vw, ws[p].vv);
+    const V6 ap = p < 0 ? V6::Zero() : six(ws[p].aw, ws[p].av);
+    const V6 S = axis_of(w), psid = cross_motion(vp, S);
+    const V6 al = cross_motion(ap, S) + cross_motion(vp, psid) + cross_motion(psid, V);
+    const V6 be = 2.0 * psid + cross_motion(S, V);
+    const Eigen::Vector3d sw = w.sw[0], pw = psid.head<3>(), aw = al.head<3>(), bw = be.head<3>();
+    const Eigen::Vector3d dp = w.sv[0] + sw.cross(f.p), xv = psid.tail<3>() + pw.cross(f.p);
+    const Eigen::Matrix3d Sw = skew<double>(sw), Pw = skew<double>(pw), dR = Sw * f.R;
+    const Eigen::Vector3d q_pd = sw.cross(f.pd) + xv;
+    const Eigen::Matrix3d q_Rd = Sw * f.Rd + Pw * f.R;
+    const Eigen::Vector3d q_pdd =
+        sw.cross(f.pdd) + al.tail<3>() + aw.cross(f.p) + pw.cross(f.pd) + at.vw.cross(xv);
+    const Eigen::Matrix3d q_Rdd = Sw * f.Rdd + (skew<double>(aw) + Pw * W + W * Pw) * f.R;
+    const Eigen::Vector3d r_pdd = be.tail<3>() + bw.cross(f.p) + sw.cross(f.pd) + at.vw.cross(dp);
+    const Eigen::Matrix3d r_Rdd = (skew<double>(bw) + Sw * W + W * Sw) * f.R;
+    for (const Term& t : m.links[ju].terms) {
+      const Index c = t.coordinate;
+      const double k = t.coefficient;
+      add_column(J, 0, c, k, dp);
+      add_column(J, 3, c, k, dR);
+      add_column(J, 12, c, k, q_pd);
+      add_column(J, 15, c, k, q_Rd);
+      add_column(J, 24, c, k, q_pdd);
+      add_column(J, 27, c, k, q_Rdd);
+      add_column(J, 12, n + c, k, dp);
+      add_column(J, 15, n + c, k, dR);
+      add_column(J, 24, n + c, k, r_pdd);
+      add_column(J, 27, n + c, k, r_Rdd);
+    }
+  }
+}
+
+// The derivatives of the frame's columns: ∂²p/∂θ_k∂θ_l = s_w,k × (s_v,l + s_w,l × p) and
+// ∂²R/∂θ_k∂θ_l = [s_w,k]× [s_w,l]× R for k at or above l (symmetric), through θ = T q + c.
+void frame_column_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
+                          int link, const FrameMotion<double>& f, MatRef J) {
+  for (int l = link; l >= 0; l = m.links[static_cast<std::size_t>(l)].parent) {
+    const auto lu = static_cast<std::size_t>(l);
+    if (ti[lu] < 0) continue;
+    const Eigen::Vector3d dp = ws[lu].sv[0] + ws[lu].sw[0].cross(f.p);
+    const Eigen::Matrix3d dR = skew<double>(ws[lu].sw[0]) * f.R;
+    for (int k = l; k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+      const auto ku = static_cast<std::size_t>(k);
+      if (ti[ku] < 0) continue;
+      const Eigen::Vector3d hp = ws[ku].sw[0].cross(dp);
+      const Eigen::Matrix3d hR = skew<double>(ws[ku].sw[0]) * dR;
+      for (const Term& a : m.links[ku].terms) {
+        for (const Term& b : m.links[lu].terms) {
+          const double c = a.coefficient * b.coefficient;
+          add_column(J, 36 + 12 * a.coordinate, b.coordinate, c, hp);
+          add_column(J, 39 + 12 * a.coordinate, b.coordinate, c, hR);
+          if (k == l) continue;
+          add_column(J, 36 + 12 * b.coordinate, a.coordinate, c, hp);
+          add_column(J, 39 + 12 * b.coordinate, a.coordinate, c, hR);
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+// ∂ID/∂q = Tᵀ (∂τ_θ/∂θ) T and ∂ID/∂q̇ = Tᵀ (∂τ_θ/∂θ̇) T at θ̈ = T q̈: without ball joints by
+// the analytic pass (one forward and one backward recursion for every column; docs/derivatives.md,
+// "Cost", measured faster than the lanes for every tree there), with them by the lanes (the
+// quaternion joints' scales and rate_scale_terms are not in the analytic pass).
+bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd,
+                                              CVecRef qdd, MatRef dID_dq, MatRef dID_dqd) const {
+  const std::size_t nl = merged_.links.size();
+  std::vector<double> own;
+  if (quaternions_) {
+    const LaneWorkspace w = lane_workspace(c.slot, slot_size_, nl, n_theta_, own);
+    lane_id_jacobian(merged_, theta_index_, theta_terms_, theta_offset_, true, w, q, qd, qdd,
+                     dID_dq, dID_dqd);
+    return true;
+  }
+  const AnalyticWorkspace w = analytic_workspace(c.slot, slot_size_, nl, n_theta_, own);
+  analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, w);
+  analytic_passes(merged_, theta_index_, w);
+  analytic_columns(merged_, theta_index_, n_theta_, w);
+  to_coordinates(theta_terms_, w.Dq, dID_dq);
+  to_coordinates(theta_terms_, w.Dqd, dID_dqd);
   return true;
 }
 
-// frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on one
-// placement), the fields' lanes stacked into the columns of J.
+// Without ball joints: one placement and motion pass on doubles and the analytic columns; with
+// them, frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on
+// one placement), the fields' lanes stacked into the columns of J.
 [[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(
     CVecRef q, CVecRef qd, CVecRef qdd, int frame_link, const Eigen::Matrix3d& frame_R_offset,
     const Eigen::Vector3d& frame_x_offset, Slot scratch, FrameState& value, MatRef J) const {
@@ -1492,10 +1797,24 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
   on_merged(placement_, frame_link, link, R_offset, x_offset);
   const Index n = dof();
   std::vector<double> own;
-  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
   J.setZero();
   value.dp.setZero();
   value.dR.setZero();
+  if (!quaternions_) {  // the analytic columns (frame_motion_columns, frame_column_columns)
+    const AnalyticWorkspace a =
+        analytic_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
+    analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, a);
+    place<double>(merged_, theta_index_, false, a.theta, a.links);
+    link_motion<double>(merged_, theta_index_, false, a.thetad, a.thetadd, Eigen::Vector3d::Zero(),
+                        a.links);
+    const FrameMotion<double> f = frame_motion(merged_, a.links, link, R_offset, x_offset);
+    copy_state(merged_, theta_index_, a.links, link, f, value);
+    if (link < 0) return;
+    frame_motion_columns(merged_, theta_index_, a.links, link, f, n, J);
+    frame_column_columns(merged_, theta_index_, a.links, link, f, J);
+    return;
+  }
+  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
   for (const bool rate : {true, false}) {
     for (Index j0 = 0; j0 < n; j0 += kLanes) {
       seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
