@@ -183,6 +183,37 @@ TEST(NRobotsWeld, ArrowSolveOfTheSingularLoadMatchesTheDenseSolve) {
   }
 }
 
+// Φ and Φ̇ in one call (what a run records at each sample: one pass over the trees for the
+// numeric frame rows) are bitwise those of the two calls, and Φ̇ = A q̇ (the rows do not depend on
+// t), A from forward()'s constraint stage.
+TEST(NRobotsWeld, ResidualsInOneCallAreThoseOfTheTwoCalls) {
+  for (const char* file : {"n_robots_3_weld.yaml", "n_robots_4_weld.yaml", "two_pandas_weld.yaml",
+                           "four_panda_plate.yaml"}) {
+    const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + file);
+    const auto& sys = *sc.system;
+    const Index n = sys.dof(), m = sys.rows();
+    ForwardData one(sys), two(sys);
+    std::mt19937_64 rng(17);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    for (int k = 0; k < 5; ++k) {
+      Vec q = sc.q0, qd(n);
+      for (Index i = 0; i < n; ++i) {
+        q(i) += 0.1 * u(rng);
+        qd(i) = u(rng);
+      }
+      Vec phi(m), phid(m), phi2(m), phid2(m);
+      ukdyn::residuals(sys, one, 0.3, q, qd, phi, phid);
+      ukdyn::position_residuals(sys, two, 0.3, q, phi2);
+      ukdyn::velocity_residuals(sys, two, 0.3, q, qd, phid2);
+      EXPECT_EQ(phi, phi2) << file;
+      EXPECT_EQ(phid, phid2) << file;
+      EXPECT_GT(phi.norm(), 0.0) << file;  // off the manifold: a non-trivial comparison
+      ukdyn::evaluate_constraints(sys, two, 0.3, q, qd);
+      EXPECT_LE((two.A * qd - phid).norm(), 1e-12 * std::max(1.0, phid.norm())) << file;
+    }
+  }
+}
+
 TEST(NRobotsWeld, AsymmetricGraspsShowAWalkerSqueeze) {
   // The unweighted split sees a squeeze where none is (robots of unequal inertia at the grasps).
   const Check c = check_scenario("n_robots_4_weld.yaml", 0);

@@ -265,8 +265,8 @@ TEST(NoAlloc, DefinitionsSystemRightHandSideAllocatesNothing) {
 }
 
 // A floating body carrying a revolute and a ball joint on the tree algorithms (quaternion joints,
-// docs/tree-algorithms.md) with the unit-norm rows: forward(), the exact derivatives and a frame's
-// state in the subsystem's slot allocate nothing.
+// docs/tree-algorithms.md) with the unit-norm rows: forward(), the exact derivatives, a frame's
+// state and the Christoffel matrix C in the subsystem's slot allocate nothing.
 TEST(NoAlloc, QuaternionTreeForwardAllocatesNothing) {
   namespace sym = ukdyn::symbolic;
   sym::ChainDef c("qt", {"x", "y", "z", "qw", "qx", "qy", "qz", "t1", "bw", "bx", "by", "bz"});
@@ -310,6 +310,8 @@ TEST(NoAlloc, QuaternionTreeForwardAllocatesNothing) {
   std::vector<double> buf(static_cast<std::size_t>(12 * n));
   ukdyn::tree::FrameState fs(buf.data(), buf.data() + 3 * n, n);
   Vec dID(n);
+  ukdyn::Mat C(n, n), C_own(n, n), C_data(n, n);
+  tree->coriolis({}, q, qd, C_own);  // without a slot: a buffer of its own
   const int hand = tree->link_index("hand");
   const long count = allocations_in([&] {
     for (int k = 0; k < 20; ++k) {
@@ -317,9 +319,16 @@ TEST(NoAlloc, QuaternionTreeForwardAllocatesNothing) {
       tree->inverse_dynamics_tangent({0.0, ukdyn::Slot(slot)}, q, qd, data.qdd, dq, dq, dID);
       tree->frame_state(q, qd, hand, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
                         ukdyn::Slot(slot), fs);
+      // The Christoffel matrix (12 joint variables: two passes of the lanes, and the ball
+      // joints' radial term), in the slot and in the ForwardData's.
+      tree->coriolis({0.0, ukdyn::Slot(slot)}, q, qd, C);
+      ukdyn::coriolis_matrix(*sys, data, 0.0, q, qd, C_data);
     }
   });
   EXPECT_EQ(count, 0) << "the quaternion tree allocated " << count << " times";
+  EXPECT_EQ((C - C_own).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((C_data - C_own).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_GT(C.lpNorm<Eigen::Infinity>(), 0.0);
 }
 
 // The block-arrow solve (ukdyn/core/uk_arrow.hpp) at several N, with every rank decision taken

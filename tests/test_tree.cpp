@@ -6,7 +6,10 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdio>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "helpers.hpp"
 #include "ukdyn/symbolic/chain.hpp"
@@ -146,6 +149,65 @@ TEST(Tree, ChristoffelMatrixIsConsistent) {
     tr->coriolis_times_qd({}, q, qd, cqd);
     EXPECT_LE((C * qd - cqd).norm(), 1e-12 * std::max(1.0, cqd.norm()));
   }
+}
+
+// A chain of 11 joint variables (more than one pass of the lanes that differentiate M in
+// coriolis()): C is the Christoffel matrix of its definition, C_ij = Σ_k ½ (∂M_ij/∂q_k +
+// ∂M_ik/∂q_j − ∂M_jk/∂q_i) q̇_k, ∂M/∂q_k by central differences of mass() (doubles only: no
+// code of the lanes), and Ṁ − 2C is skew-symmetric.
+TEST(Tree, ChristoffelMatrixOfALongChainMatchesItsDefinition) {
+  const int joints = 11;
+  std::vector<std::string> names;
+  for (int k = 0; k < joints; ++k) names.push_back("q" + std::to_string(k));
+  sym::ChainDef c("long", names);
+  c.gravity = {0, 0, -sym::exact_number(9.81)};
+  for (int k = 0; k < joints; ++k) {
+    auto& j = c.add_joint("j" + std::to_string(k), k == 4 ? JT::prismatic : JT::revolute,
+                          "l" + std::to_string(k));
+    j.origin.xyz = {0.2 + 0.01 * k, 0.03, k % 2 ? 0.05 : -0.02};
+    j.origin.rpy = {0.1 * (k % 3), 0, 0.2};
+    j.axis = {k % 3 == 0 ? 1.0 : 0.0, k % 3 == 1 ? 1.0 : 0.0, k % 3 == 2 ? 1.0 : 0.0};
+    j.coordinate = names[static_cast<std::size_t>(k)];
+    j.inertial.mass = 1.0 + 0.1 * k;
+    j.inertial.com = {0.1, 0.01 * k, -0.02};
+    j.inertial.inertia = {0.02, 0.001, 0, 0.001, 0.03, 0.002, 0, 0.002, 0.01};
+  }
+  sym::ChainTree t = sym::chain_tree(c);
+  ASSERT_TRUE(t.model) << t.reason;
+  const auto tr = tree::make_subsystem(std::move(*t.model));
+  const Index n = tr->dof();
+  ASSERT_EQ(n, joints);
+  std::vector<double> slot(static_cast<std::size_t>(tr->slot_size()));
+  std::mt19937_64 rng(23);
+  double worst = 0, worst_skew = 0;
+  for (int s = 0; s < 5; ++s) {
+    const Vec q = random_vec(rng, n, -2, 2), qd = random_vec(rng, n, -2, 2);
+    const double h = 1e-5;
+    std::vector<Mat> dM(static_cast<std::size_t>(n), Mat(n, n));
+    Mat Mp(n, n), Mm(n, n), C(n, n), C_slot(n, n), Cd = Mat::Zero(n, n);
+    for (Index k = 0; k < n; ++k) {
+      tr->mass({}, q + h * Vec::Unit(n, k), Mp);
+      tr->mass({}, q - h * Vec::Unit(n, k), Mm);
+      dM[static_cast<std::size_t>(k)] = (Mp - Mm) / (2 * h);
+    }
+    auto d = [&](Index i, Index j, Index k) { return dM[static_cast<std::size_t>(k)](i, j); };
+    for (Index i = 0; i < n; ++i)
+      for (Index j = 0; j < n; ++j)
+        for (Index k = 0; k < n; ++k)
+          Cd(i, j) += 0.5 * (d(i, j, k) + d(i, k, j) - d(j, k, i)) * qd(k);
+    tr->coriolis({}, q, qd, C);
+    tr->coriolis({0.0, ukdyn::Slot(slot)}, q, qd, C_slot);
+    EXPECT_EQ(C_slot, C);
+    worst = std::max(worst, rel(C, Cd));
+    Mat Md = Mat::Zero(n, n);
+    for (Index k = 0; k < n; ++k) Md += dM[static_cast<std::size_t>(k)] * qd(k);
+    const Mat N = Md - 2 * C;
+    worst_skew = std::max(worst_skew, (N + N.transpose()).norm() / std::max(1.0, Md.norm()));
+  }
+  EXPECT_LE(worst, 1e-7);
+  EXPECT_LE(worst_skew, 1e-7);
+  std::printf("11 joints: C vs its definition (central differences) %.3g, Mdot - 2C skew %.3g\n",
+              worst, worst_skew);
 }
 
 // A planar double pendulum in closed form (the textbook M, C q̇, G).

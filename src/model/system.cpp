@@ -399,6 +399,17 @@ void velocity_residuals(const System& system, ForwardData& data, double t, CVecR
   }
 }
 
+void residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, VecRef phi,
+               VecRef phid) {
+  const auto& cons = system.constraints();
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < cons.size(); ++c) {
+    const Index r = cons[c]->rows();
+    cons[c]->residuals({t, data.constraint_slots(c)}, q, qd, phi.segment(offs[c], r),
+                       phid.segment(offs[c], r));
+  }
+}
+
 void coriolis_matrix(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                      MatRef C) {
   const auto& L = system.layout();

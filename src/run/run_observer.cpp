@@ -31,10 +31,13 @@ SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balanc
 std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
   const Index n = sys_.dof();
   const Index m = sys_.rows();
-  if (m > 0) position_residuals(sys_, scratch_, t, q, phi_);
-  // (the row's vres_ columns need them too)
+  // Φ̇ when the report or the row's vres_ columns need it, with Φ in one call.
   const bool phid = needs_.velocity_residuals || (needs_.row && any_vel_);
-  if (m > 0 && phid) velocity_residuals(sys_, scratch_, t, q, qd, phid_);
+  if (m > 0 && phid) {
+    residuals(sys_, scratch_, t, q, qd, phi_, phid_);
+  } else if (m > 0) {
+    position_residuals(sys_, scratch_, t, q, phi_);
+  }
   const double T = kinetic_energy(d, qd);
   const double V = detail::potential_energy_in_slots(sys_, scratch_, t, q);
   const double E = T + V;

@@ -965,10 +965,12 @@ class Core {
     f(A, B, r);
   }
 
-  // A and b at (q, q̇) as forward() asks for them: a tree end through its twist columns
-  // (end_twists, add_twist_columns), in the same slot layout as with() (a tree end's 7 twist
-  // doubles per column where with() keeps its 12 of dp, dR).
-  void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+  // The ends' states and the rows' values at (q, q̇) as forward() asks for them, then f(Sa, Sb, da,
+  // db, r): a tree end through its twist columns (end_twists: the links reused from the
+  // subsystem's slot when placed there at this state; the twists in da, db), in the same slot
+  // layout as with() (a tree end's 7 twist doubles per column where with() keeps its 12 of dp, dR).
+  template <class F>
+  void with_twists(const ConstraintSlots& slots, CVecRef q, CVecRef qd, F&& f) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -981,10 +983,31 @@ class Core {
     end_twists(b_, slots, q, qd, sb, Sb, db);
     RowValues<double> r;
     row_values(f_, Sa, Sb, r);
-    zero_rows(A);
-    add_end_columns(a_, Sa, da, r, kPa, kRa, A);
-    add_end_columns(b_, Sb, db, r, kPb, kRb, A);
-    b = -(r.D.topRows(r.m) * rates(Sa, Sb, true) + r.Q.head(r.m));
+    f(Sa, Sb, da, db, r);
+  }
+
+  // A and b at (q, q̇) (with_twists, add_twist_columns).
+  void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+    with_twists(slots, q, qd,
+                [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db,
+                    const RowValues<double>& r) {
+                  zero_rows(A);
+                  add_end_columns(a_, Sa, da, r, kPa, kRa, A);
+                  add_end_columns(b_, Sb, db, r, kPb, kRb, A);
+                  b = -(r.D.topRows(r.m) * rates(Sa, Sb, true) + r.Q.head(r.m));
+                });
+  }
+
+  // Φ and Φ̇ = D ẋ from the same pass: p, R and their rates are with()'s (the same passes over the
+  // links), without its 12 doubles of dp, dR per column.
+  void residuals(const ConstraintSlots& slots, CVecRef q, CVecRef qd, VecRef phi,
+                 VecRef phid) const {
+    with_twists(slots, q, qd,
+                [&](const FrameState& Sa, const FrameState& Sb, const double*, const double*,
+                    const RowValues<double>& r) {
+                  phi = r.phi.head(r.m);
+                  phid = r.D.topRows(r.m) * rates(Sa, Sb, false);
+                });
   }
 
   // d(A q̈ − b) and d(Aᵀλ) along (dq, dq̇) at fixed q̈, λ: the rows on dual numbers, with
@@ -1115,6 +1138,11 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
                 [&](const FrameState& sa, const FrameState& sb, const RowValues<double>& r) {
                   phid = r.D.topRows(r.m) * rates(sa, sb, false);
                 });
+  }
+  // Both from one pass over the ends (Φ does not depend on the rates).
+  void residuals(const ConstraintContext& ctx, CVecRef q, CVecRef qd, VecRef phi,
+                 VecRef phid) const override {
+    core_->residuals(ctx.slots, q, qd, phi, phid);
   }
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,

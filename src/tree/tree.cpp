@@ -2,7 +2,7 @@
 // the composite-rigid-body algorithm (CRBA, Featherstone 2008 §6.2, Table 6.2) and the recursive
 // Newton–Euler algorithm (RNEA, §5.3, Table 5.1), in world coordinates about the world origin
 // (§2.9). The algorithms are templates on the scalar so that the same code runs on doubles (the
-// hot path, workspace in the caller's slot) and on Eigen's AutoDiffScalar (∂M/∂θ for the
+// hot path, workspace in the caller's slot) and on dual numbers (∂M/∂θ for the
 // Christoffel matrix).
 #include "ukdyn/tree/tree.hpp"
 
@@ -629,6 +629,15 @@ Index analytic_workspace_doubles(std::size_t links, Index nt) {
   return static_cast<Index>(links) * (kLinkDoubles + 36) + 16 * nt + 2 * nt * nt;
 }
 
+// The Christoffel matrix's (coriolis()): the links, M_θ and θ on lanes from the first
+// kLaneAlign-aligned double, then C_θ, θ, θ̇ and the ball joints' D, W, W_k, D θ̇ on doubles.
+Index coriolis_workspace_doubles(std::size_t links, Index nt) {
+  const auto n = static_cast<std::size_t>(nt);
+  const std::size_t bytes = links * sizeof(LinkState<Lanes>) + (n * n + n) * sizeof(Lanes) +
+                            kLaneAlign + (2 * n * n + 9 * n) * sizeof(double);
+  return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
+}
+
 }  // namespace
 
 namespace {
@@ -752,9 +761,10 @@ TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(m
   // The forward workspace, then the derivatives': lanes or the analytic pass
   // (inverse_dynamics_jacobian(), frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()).
   slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
-               std::max(lane_workspace_doubles(merged_.links.size(), n_theta_),
-                        analytic_workspace_doubles(merged_.links.size(), n_theta_)) +
-               tangent_workspace_doubles(merged_.links.size(), n_theta_);
+               std::max(std::max(lane_workspace_doubles(merged_.links.size(), n_theta_),
+                                 analytic_workspace_doubles(merged_.links.size(), n_theta_)) +
+                            tangent_workspace_doubles(merged_.links.size(), n_theta_),
+                        coriolis_workspace_doubles(merged_.links.size(), n_theta_));
 }
 
 int TreeSubsystem::link_index(const std::string& name) const {
@@ -905,55 +915,111 @@ double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatR
 
 namespace {
 
+// The Christoffel matrix's workspace, from the start of the derivatives' part of the slot (after
+// the forward workspace; coriolis() and the derivatives are never in use at the same time, so
+// they share it) or in a buffer of its own: from the first kLaneAlign-aligned double, the links,
+// M_θ (nt × nt) and θ on lanes; then, on doubles, C_θ (nt × nt), θ, θ̇ and, for the ball joints'
+// term (radial_christoffel), D (nt × nt), its W and W_k (3 × nt each) and D θ̇.
+struct CoriolisWorkspace {
+  LinkState<Lanes>* links;
+  Lanes* Mt;
+  Lanes* theta;
+  double* Ct;
+  double* th;
+  double* thd;
+  double* D;
+  double* W;
+  double* Wk;
+  double* Dq;
+};
+
+CoriolisWorkspace coriolis_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
+                                     std::vector<double>& own) {
+  double* base = nullptr;
+  if (static_cast<Index>(slot.size()) >= slot_size) {
+    base = slot.data() + workspace_doubles(nl, nt);
+  } else {
+    own.resize(static_cast<std::size_t>(coriolis_workspace_doubles(nl, nt)));
+    base = own.data();
+  }
+  while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
+  CoriolisWorkspace w{};
+  w.links = reinterpret_cast<LinkState<Lanes>*>(base);
+  for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<Lanes>;
+  w.Mt = reinterpret_cast<Lanes*>(w.links + nl);
+  for (Index k = 0; k < nt * nt + nt; ++k) new (&w.Mt[k]) Lanes;
+  w.theta = w.Mt + nt * nt;
+  w.Ct = reinterpret_cast<double*>(w.theta + nt);
+  w.th = w.Ct + nt * nt;
+  w.thd = w.th + nt;
+  w.D = w.thd + nt;
+  w.W = w.D + nt * nt;
+  w.Wk = w.W + 3 * nt;
+  w.Dq = w.Wk + 3 * nt;
+  return w;
+}
+
+// The values of a vector or matrix on lanes.
+template <int R, int C>
+Eigen::Matrix<double, R, C> lane_values(const Eigen::Matrix<Lanes, R, C>& x) {
+  return x.unaryExpr([](const Lanes& e) { return e.value(); });
+}
+
 // The symbolic chain's M(q) and the tree's agree on |u| = 1 but not in their derivatives along a
 // ball joint k's radial direction (ρ_k = ln |u_k|): the symbolic body rates grow there as
 // ∂Ω_b/∂ρ_k = 2 Ω_b^(≤k) (the columns of the joints at or above k; rate_scale_terms), the tree's
 // as the rotation's while its I_b = R J Rᵀ grows as |u_k|⁴. So ∂M_sym/∂ρ_k = ∂M_tree/∂ρ_k + D_k,
 // D_k = Σ_{b below k} 2 (Ω^(≤k)ᵀ I_b Ω + Ωᵀ I_b Ω^(≤k)) − 4 Ωᵀ I_b Ω (Ω: the bodies' angular
 // columns S_w, 3 × nt), and the Christoffel matrix of M_sym adds, with ∂ρ_k/∂θ_c = u_c / |u|²,
-// ½ (ρ̇_k D_k + (D_k θ̇) ∂ρ_kᵀ − ∂ρ_k (D_k θ̇)ᵀ) to the tree's (column-major Ct, nt × nt).
-void radial_christoffel(const Model& m, const std::vector<int>& ti,
-                        const std::vector<double>& theta, const std::vector<double>& thetad,
-                        std::vector<double>& Ct) {
+// ½ (ρ̇_k D_k + (D_k θ̇) ∂ρ_kᵀ − ∂ρ_k (D_k θ̇)ᵀ) to the tree's (column-major Ct, nt × nt). The
+// links' values (Ic, S_w) from the lanes' placement at θ; D, W, W_k, D θ̇ in the workspace.
+void radial_christoffel(const Model& m, const std::vector<int>& ti, const CoriolisWorkspace& w,
+                        Index nt) {
   const std::size_t nl = m.links.size();
-  const auto nt = static_cast<Index>(theta.size());
-  std::vector<LinkState<double>> ws(nl);
-  place(m, ti, true, theta.data(), ws.data());
-  const Eigen::Map<const Vec> thd(thetad.data(), nt);
+  const Eigen::Map<const Vec> thd(w.thd, nt);
+  Eigen::Map<Mat> D(w.D, nt, nt), W(w.W, 3, nt), Wk(w.Wk, 3, nt);
+  Eigen::Map<Vec> Dq(w.Dq, nt);
   for (std::size_t k = 0; k < nl; ++k) {
     if (m.links[k].type != JointType::ball) continue;
     const auto a = static_cast<Index>(ti[k]);
-    const Eigen::Map<const Eigen::Vector4d> u(theta.data() + a);
+    const Eigen::Map<const Eigen::Vector4d> u(w.th + a);
     const Eigen::Vector4d drho = u / u.squaredNorm();
-    Mat D = Mat::Zero(nt, nt);
+    D.setZero();
     for (std::size_t b = k; b < nl; ++b) {
       bool below = false;  // b in the subtree of k
       for (int j = static_cast<int>(b); j >= 0 && !below;
            j = m.links[static_cast<std::size_t>(j)].parent)
         below = static_cast<std::size_t>(j) == k;
-      if (!below || ws[b].Ic.isZero(0.0)) continue;
-      Mat W = Mat::Zero(3, nt), Wk = Mat::Zero(3, nt);
+      const Eigen::Matrix3d Ic = lane_values(w.links[b].Ic);
+      if (!below || Ic.isZero(0.0)) continue;
+      W.setZero();
+      Wk.setZero();
       bool at_or_above_k = false;
       for (int j = static_cast<int>(b); j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
         const auto ju = static_cast<std::size_t>(j);
         at_or_above_k = at_or_above_k || ju == k;
         if (ti[ju] < 0) continue;
         for (int c = 0; c < variables(m.links[ju].type); ++c) {
-          W.col(ti[ju] + c) = ws[ju].sw[c];
-          if (at_or_above_k) Wk.col(ti[ju] + c) = ws[ju].sw[c];
+          W.col(ti[ju] + c) = lane_values(w.links[ju].sw[c]);
+          if (at_or_above_k) Wk.col(ti[ju] + c) = W.col(ti[ju] + c);
         }
       }
-      const Mat IW = ws[b].Ic * W, IWk = ws[b].Ic * Wk;
-      D += 2.0 * (Wk.transpose() * IW + W.transpose() * IWk) - 4.0 * W.transpose() * IW;
+      for (Index j = 0; j < nt; ++j) {  // fixed-size products: no temporaries on the heap
+        const Eigen::Vector3d IW = Ic * W.col(j), IWk = Ic * Wk.col(j);
+        for (Index i = 0; i < nt; ++i) {
+          const Eigen::Vector3d wi = W.col(i), wki = Wk.col(i);
+          D(i, j) += 2.0 * (wki.dot(IW) + wi.dot(IWk)) - 4.0 * wi.dot(IW);
+        }
+      }
     }
     const double rhod = drho.dot(thd.segment(a, 4));
-    const Vec Dq = D * thd;
+    for (Index i = 0; i < nt; ++i) Dq(i) = D.row(i).dot(thd);
     for (Index i = 0; i < nt; ++i) {
       for (Index j = 0; j < nt; ++j) {
         double c = rhod * D(i, j);
         if (j >= a && j < a + 4) c += drho(j - a) * Dq(i);
         if (i >= a && i < a + 4) c -= drho(i - a) * Dq(j);
-        Ct[static_cast<std::size_t>(i + j * nt)] += 0.5 * c;
+        w.Ct[i + j * nt] += 0.5 * c;
       }
     }
   }
@@ -961,36 +1027,44 @@ void radial_christoffel(const Model& m, const std::vector<int>& ti,
 
 }  // namespace
 
-void TreeSubsystem::coriolis(const EvalContext& /*c*/, CVecRef q, CVecRef qd, MatRef C) const {
-  using AD = Eigen::AutoDiffScalar<Eigen::VectorXd>;
+// The Christoffel matrix of the first kind, C_ij = Σ_k ½ (∂M_ij/∂θ_k + ∂M_ik/∂θ_j − ∂M_jk/∂θ_i) θ̇_k
+// (Spong, Hutchinson & Vidyasagar, Robot Modeling and Control, 2006, §7.3: Ṁ − 2C skew-symmetric),
+// in the joint variables, then C_q = Tᵀ C_θ T. ∂M/∂θ_k by the CRBA on lanes, kLanes directions
+// e_k of θ per pass (vector-mode forward differentiation, Griewank & Walther 2008, §3.1); each
+// direction k adds its three terms: ½ θ̇_k ∂M/∂θ_k to all of C, ½ (∂M/∂θ_k) θ̇ to column k and
+// −½ ((∂M/∂θ_k) θ̇)ᵀ to row k. In the slot's derivatives part: allocation-free with a slot.
+[[gnu::flatten]] void TreeSubsystem::coriolis(const EvalContext& c, CVecRef q, CVecRef qd,
+                                              MatRef C) const {
   const Index nt = n_theta_;
-  std::vector<double> theta(static_cast<std::size_t>(nt)), thetad(static_cast<std::size_t>(nt));
-  theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), theta.data(), thetad.data());
-  std::vector<AD> th(static_cast<std::size_t>(nt));
-  for (Index k = 0; k < nt; ++k)
-    th[static_cast<std::size_t>(k)] =
-        AD(theta[static_cast<std::size_t>(k)], static_cast<int>(nt), static_cast<int>(k));
-  std::vector<LinkState<AD>> ws(merged_.links.size());
-  std::vector<AD> Mt(static_cast<std::size_t>(nt * nt));
-  place(merged_, theta_index_, quaternions_, th.data(), ws.data());
-  composite(merged_, ws.data());
-  crba(merged_, theta_index_, quaternions_, ws.data(), Mt.data(), nt);
-  // ∂M_ij/∂θ_k, zero where crba left a constant (no derivatives).
-  auto dM = [&](Index i, Index j, Index k) {
-    const auto& d = Mt[static_cast<std::size_t>(i + j * nt)].derivatives();
-    return d.size() == nt ? d(k) : 0.0;
-  };
-  std::vector<double> Ct(static_cast<std::size_t>(nt * nt), 0.0);
-  for (Index i = 0; i < nt; ++i) {
-    for (Index j = 0; j < nt; ++j) {
-      double s = 0.0;
-      for (Index k = 0; k < nt; ++k)
-        s += 0.5 * (dM(i, j, k) + dM(i, k, j) - dM(j, k, i)) * thetad[static_cast<std::size_t>(k)];
-      Ct[static_cast<std::size_t>(i + j * nt)] = s;
+  std::vector<double> own;
+  const CoriolisWorkspace w = coriolis_workspace(c.slot, slot_size_, merged_.links.size(), nt, own);
+  theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.th, w.thd);
+  for (Index k = 0; k < nt * nt; ++k) w.Ct[k] = 0.0;
+  for (Index k0 = 0; k0 < nt; k0 += kLanes) {
+    for (Index k = 0; k < nt; ++k) {
+      w.theta[k] = Lanes(w.th[k]);
+      if (k >= k0 && k < k0 + kLanes) w.theta[k].d[k - k0] = 1.0;
+    }
+    place(merged_, theta_index_, quaternions_, w.theta, w.links);
+    composite(merged_, w.links);
+    crba(merged_, theta_index_, quaternions_, w.links, w.Mt, nt);
+    for (Index k = k0; k < std::min<Index>(nt, k0 + kLanes); ++k) {
+      const Index l = k - k0;
+      const double half_rate = 0.5 * w.thd[k];
+      for (Index j = 0; j < nt; ++j) {
+        double dm_qd = 0.0;  // ((∂M/∂θ_k) θ̇)_j
+        for (Index i = 0; i < nt; ++i) {
+          const double dm = w.Mt[i + j * nt].d[l];
+          w.Ct[i + j * nt] += half_rate * dm;
+          dm_qd += dm * w.thd[i];
+        }
+        w.Ct[j + k * nt] += 0.5 * dm_qd;  // column k
+        w.Ct[k + j * nt] -= 0.5 * dm_qd;  // row k
+      }
     }
   }
-  if (quaternions_) radial_christoffel(merged_, theta_index_, theta, thetad, Ct);
-  to_coordinates(theta_terms_, Ct.data(), C);  // C_q = Tᵀ C_θ T
+  if (quaternions_) radial_christoffel(merged_, theta_index_, w, nt);
+  to_coordinates(theta_terms_, w.Ct, C);  // C_q = Tᵀ C_θ T
 }
 
 void TreeSubsystem::link_pose(CVecRef q, int link, Eigen::Matrix3d& R, Eigen::Vector3d& p) const {

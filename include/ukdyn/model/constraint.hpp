@@ -89,6 +89,14 @@ class Constraint {
   /// Velocity-level residual Φ̇(q, q̇, t) = A q̇ + ∂Φ/∂t (rows()).
   virtual void velocity_residual(const ConstraintContext& c, CVecRef q, CVecRef qd,
                                  VecRef phid) const = 0;
+  /// Φ and Φ̇ in one call (what a run records at each sample). The default calls
+  /// position_residual() and velocity_residual(); a constraint whose two share work (the numeric
+  /// frame rows: one pass over the trees for both) overrides it. Same values as the two calls.
+  virtual void residuals(const ConstraintContext& c, CVecRef q, CVecRef qd, VecRef phi,
+                         VecRef phid) const {
+    position_residual(c, q, phi);
+    velocity_residual(c, q, qd, phid);
+  }
 
   /// Exact derivatives (docs/derivatives.md): whether tangent() is implemented.
   [[nodiscard]] virtual bool has_derivatives() const { return false; }

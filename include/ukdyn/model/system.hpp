@@ -172,6 +172,12 @@ void position_residuals(const System& system, ForwardData& data, double t, CVecR
 void velocity_residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,
                         VecRef phid);
 
+/// Φ and Φ̇ of every row together (m each), with data's slots as scratch: the values of
+/// position_residuals() and velocity_residuals(), the work the two share done once
+/// (Constraint::residuals).
+void residuals(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd, VecRef phi,
+               VecRef phid);
+
 /// The full C matrix (n × n, block-diagonal) at time t, with data's slots as scratch. Allocates
 /// nothing if C has the right size.
 void coriolis_matrix(const System& system, ForwardData& data, double t, CVecRef q, CVecRef qd,

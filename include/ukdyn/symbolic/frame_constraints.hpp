@@ -199,6 +199,10 @@ class FrameConstraint final : public Constraint, public ConstraintColumns {
                          VecRef phid) const override {
     c_->velocity_residual(ctx, q, qd, phid);
   }
+  void residuals(const ConstraintContext& ctx, CVecRef q, CVecRef qd, VecRef phi,
+                 VecRef phid) const override {
+    c_->residuals(ctx, q, qd, phi, phid);
+  }
   [[nodiscard]] bool has_derivatives() const override { return c_->has_derivatives(); }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
