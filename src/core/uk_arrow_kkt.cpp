@@ -34,8 +34,12 @@ ArrowKktWorkspace::ArrowKktWorkspace(const ArrowStructure& st, const BlockLayout
     gb.Sm = Mat::Zero(mk, mk);
     gb.S = Eigen::LLT<Mat>(mk);
     gb.T = Mat::Zero(mk, nL);
+    gb.P = Mat::Zero(mk, nL);
+    gb.Q = Mat::Zero(nk, nL);
     gb.Z = Mat::Zero(nk, columns);
+    gb.Rc = Mat::Zero(mk, columns);
     gb.R = Mat::Zero(mk, columns);
+    gb.cols.reserve(static_cast<std::size_t>(columns));
     gb.U = Mat::Zero(nL, mk);
     g.push_back(std::move(gb));
     other[static_cast<std::size_t>(grp.block)] = 0;
@@ -75,6 +79,33 @@ void scatter_rows(const std::vector<Index>& rows, const From& from, To&& to) {
     return;
   }
   for (Index i = 0; i < k; ++i) to.row(rows[static_cast<std::size_t>(i)]) = from.row(i);
+}
+
+// The columns where group k's rows of F (its coordinates) or of G are not zero, into gb.cols;
+// returns their number.
+Index nonzero_columns(const ArrowStructure::Group& grp, const Eigen::Ref<const Mat>& F,
+                      const Eigen::Ref<const Mat>& G, ArrowKktWorkspace::GroupBuffers& gb) {
+  gb.cols.clear();
+  for (Index c = 0; c < F.cols(); ++c) {
+    bool nz = false;
+    for (Index i = grp.start; i < grp.start + grp.size && !nz; ++i) nz = F(i, c) != 0.0;
+    for (std::size_t i = 0; i < grp.rows.size() && !nz; ++i) nz = G(grp.rows[i], c) != 0.0;
+    if (nz) gb.cols.push_back(c);
+  }
+  return static_cast<Index>(gb.cols.size());
+}
+
+// Those columns of F_k into Z and of G_k into Rc.
+template <class Zt, class Rt>
+void gather_columns(const ArrowStructure::Group& grp, const Eigen::Ref<const Mat>& F,
+                    const Eigen::Ref<const Mat>& G, const ArrowKktWorkspace::GroupBuffers& gb,
+                    Zt& Z, Rt& Rc) {
+  for (std::size_t j = 0; j < gb.cols.size(); ++j) {
+    const Index c = gb.cols[j], jj = static_cast<Index>(j);
+    Z.col(jj) = F.col(c).segment(grp.start, grp.size);
+    for (std::size_t i = 0; i < grp.rows.size(); ++i)
+      Rc(static_cast<Index>(i), jj) = G(grp.rows[i], c);
+  }
 }
 
 // Smallest squared pivot of an LLT factor (its diagonal squared).
@@ -172,6 +203,14 @@ bool arrow_kkt_factor(const ArrowStructure& st, const Mat& A, const UkWorkspace&
     }
   }
   ws.trace_w_inv = tri;
+  for (std::size_t k = 0; k < ws.g.size(); ++k) {
+    auto& gb = ws.g[k];
+    const Index s = st.groups[k].start, nk = st.groups[k].size;
+    gb.P = gb.T;
+    gb.S.matrixU().solveInPlace(gb.P);
+    gb.Q.noalias() = gb.Xt.transpose() * gb.P;
+    block_factor_t(mass, s, nk).solveInPlace(gb.Q);
+  }
   return true;
 }
 
@@ -185,25 +224,25 @@ void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKkt
     ws.Y0.resize(m0, p);
     for (auto& gb : ws.g) {
       gb.Z.resize(gb.Z.rows(), p);
+      gb.Rc.resize(gb.Rc.rows(), p);
       gb.R.resize(gb.R.rows(), p);
     }
   }
   auto gL = ws.gL.leftCols(p);
   auto Y0 = ws.Y0.leftCols(p);
   gL = F.middleRows(sL, nL);
-  // Each robot: Z = L_k⁻¹ F_k, R̃ = L_S⁻¹ (G_k − Xt Z); g += T_kᵀ R̃.
+  // Each robot on its non-zero columns: Z = L_k⁻¹ F_k, R̃ = L_S⁻¹ (G_k − Xt Z); g += T_kᵀ R̃.
   for (std::size_t k = 0; k < st.groups.size(); ++k) {
-    const auto& grp = st.groups[k];
     auto& gb = ws.g[k];
-    const Index s = grp.start, nk = grp.size;
-    auto Z = gb.Z.leftCols(p);
-    auto R = gb.R.leftCols(p);
-    Z = F.middleRows(s, nk);
-    block_factor(mass, s, nk).solveInPlace(Z);
-    gather_rows(grp.rows, G, R);
-    R.noalias() -= gb.Xt * Z;
-    gb.S.matrixL().solveInPlace(R);
-    gL.noalias() += gb.T.transpose() * R;
+    const Index q = nonzero_columns(st.groups[k], F, G, gb);
+    auto Z = gb.Z.leftCols(q);
+    auto Rc = gb.Rc.leftCols(q);
+    gather_columns(st.groups[k], F, G, gb, Z, Rc);
+    block_factor(mass, st.groups[k].start, st.groups[k].size).solveInPlace(Z);
+    Rc.noalias() -= gb.Xt * Z;
+    gb.S.matrixL().solveInPlace(Rc);
+    for (Index j = 0; j < q; ++j)
+      gL.col(gb.cols[static_cast<std::size_t>(j)]).noalias() += gb.T.transpose() * Rc.col(j);
   }
   // The load: h = L_H⁻¹ g, Y_0 = V⁻¹ (G_0 − Eᵀ h), X_L = L_H^{-ᵀ} (h + E Y_0).
   ws.LH.matrixL().solveInPlace(gL);
@@ -216,18 +255,24 @@ void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKkt
   ws.LH.matrixU().solveInPlace(gL);
   X.middleRows(sL, nL) = gL;
   scatter_rows(st.load_rows, Y0, Y);
-  // Each robot: Y_k = L_S^{-ᵀ} (R̃ − T_k X_L), X_k = L_k^{-ᵀ} (Z + Xtᵀ Y_k).
+  // Each robot: Y_k = L_S^{-ᵀ} R̃ − P_k X_L, X_k = L_k^{-ᵀ} (Z + Xtᵀ L_S^{-ᵀ} R̃) − Q_k X_L.
   for (std::size_t k = 0; k < st.groups.size(); ++k) {
     const auto& grp = st.groups[k];
     auto& gb = ws.g[k];
-    const Index s = grp.start, nk = grp.size;
-    auto Z = gb.Z.leftCols(p);
+    const Index s = grp.start, nk = grp.size, q = static_cast<Index>(gb.cols.size());
+    auto Z = gb.Z.leftCols(q);
+    auto Rc = gb.Rc.leftCols(q);
     auto R = gb.R.leftCols(p);
-    R.noalias() -= gb.T * gL;
-    gb.S.matrixU().solveInPlace(R);
-    Z.noalias() += gb.Xt.transpose() * R;
+    gb.S.matrixU().solveInPlace(Rc);
+    Z.noalias() += gb.Xt.transpose() * Rc;
     block_factor_t(mass, s, nk).solveInPlace(Z);
-    X.middleRows(s, nk) = Z;
+    R.noalias() = -gb.P * gL;
+    X.middleRows(s, nk).noalias() = -gb.Q * gL;
+    for (Index j = 0; j < q; ++j) {
+      const Index c = gb.cols[static_cast<std::size_t>(j)];
+      R.col(c) += Rc.col(j);
+      X.col(c).segment(s, nk) += Z.col(j);
+    }
     scatter_rows(grp.rows, R, Y);
   }
   // Blocks without rows: X_b = M_b⁻¹ F_b.

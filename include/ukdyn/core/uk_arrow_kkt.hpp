@@ -38,13 +38,16 @@ class ArrowKktWorkspace {
   ArrowKktWorkspace(const ArrowStructure& structure, const BlockLayout& layout, Index columns);
 
   struct GroupBuffers {
-    Mat B, C;           ///< m_k × n_k, m_k × n_L: the group's rows of A
-    Mat Xt;             ///< m_k × n_k: B_k L_k^{-ᵀ}
-    Mat Sm;             ///< m_k × m_k: S_k = Xt Xtᵀ
-    Eigen::LLT<Mat> S;  ///< S_k = L_S L_Sᵀ
-    Mat T;              ///< m_k × n_L: L_S⁻¹ C_k
-    Mat Z, R;           ///< n_k × columns, m_k × columns: the group's columns in the solve
-    Mat U;              ///< n_L × m_k: L_H⁻¹ C_kᵀ S_k⁻¹ (for tr W⁻¹)
+    Mat B, C;                 ///< m_k × n_k, m_k × n_L: the group's rows of A
+    Mat Xt;                   ///< m_k × n_k: B_k L_k^{-ᵀ}
+    Mat Sm;                   ///< m_k × m_k: S_k = Xt Xtᵀ
+    Eigen::LLT<Mat> S;        ///< S_k = L_S L_Sᵀ
+    Mat T;                    ///< m_k × n_L: L_S⁻¹ C_k
+    Mat P;                    ///< m_k × n_L: L_S^{-ᵀ} T_k (Y_k's response to X_L)
+    Mat Q;                    ///< n_k × n_L: L_k^{-ᵀ} Xtᵀ P (X_k's response to X_L)
+    Mat Z, Rc, R;             ///< n_k, m_k, m_k × columns: the group's columns in the solve
+    Mat U;                    ///< n_L × m_k: L_H⁻¹ C_kᵀ S_k⁻¹ (for tr W⁻¹)
+    std::vector<Index> cols;  ///< the columns where F_k or G_k is not zero (capacity: columns)
   };
   std::vector<GroupBuffers> g;
   Mat D0;                   ///< m0 × n_L: the load's own rows
@@ -73,8 +76,10 @@ bool arrow_kkt_factor(const ArrowStructure& structure, const Mat& A, const UkWor
                       double rank_rel_tol, ArrowKktWorkspace& ws);
 
 /// X (n × p) and Y (m × p, rows in A's order) of the KKT system above for the p columns of F
-/// (n × p) and G (m × p), with the factors of arrow_kkt_factor(). Allocation-free while p is
-/// within the workspace's columns.
+/// (n × p) and G (m × p), with the factors of arrow_kkt_factor(). Robot k's own eliminations run
+/// on the columns where its rows of F or G are not zero (its own directions and the load's, for
+/// the derivatives' columns); every column gets X_k = (own part) − Q_k X_L and Y_k = (own part) −
+/// P_k X_L, one product each. Allocation-free while p is within the workspace's columns.
 void arrow_kkt_solve(const ArrowStructure& structure, const UkWorkspace& mass,
                      ArrowKktWorkspace& ws, const Eigen::Ref<const Mat>& F,
                      const Eigen::Ref<const Mat>& G, Eigen::Ref<Mat> X, Eigen::Ref<Mat> Y);
