@@ -65,7 +65,11 @@ bool all_rows_kept(LinearizeData& d, double rel_tol, RowChoice& rc) {
 // the blocks (ukdyn/core/uk_arrow_kkt.hpp). True with every row kept; false (the dense row choice
 // and KKT decide) when a piece cannot be eliminated or the bound does not keep every row.
 bool arrow_rows(const System& system, LinearizeData& d, double rel_tol, RowChoice& rc) {
+  // From three robots on: with two the dense KKT (50 rows on the shipped systems) costs the same
+  // to within the noise (docs/derivatives.md, "Cost") and stays the reference it has been.
+  constexpr std::size_t kMinRobots = 3;
   if (!d.allow_arrow || !d.fwd.used_arrow || !d.arrow.built() ||
+      system.arrow()->groups.size() < kMinRobots ||
       !arrow_kkt_factor(*system.arrow(), d.fwd.A, d.fwd.uk, rel_tol, d.arrow))
     return false;
   if (!bound_keeps_all(1.0 / std::sqrt(d.arrow.trace_w * d.arrow.trace_w_inv), rel_tol, rc))
