@@ -570,7 +570,9 @@ TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
 // linearize() into its LinearizeData (ukdyn/model/linearize.hpp), arms on trees welded to a load
 // by numeric frame constraints, at states moving along the constraints (the rank of A stays): all
 // parts and ∂q̈/∂(q, q̇) alone allocate nothing after the first call, and give the same numbers as
-// the allocating linearize().
+// the allocating linearize(). Both systems have the block-arrow structure; the three arms on a
+// free-body load run with the arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp; two robots keep the
+// dense one) and with the dense one (allow_arrow = false).
 TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
   for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml"}) {
     SCOPED_TRACE(name);
@@ -579,26 +581,33 @@ TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
     const Eigen::Index n = sys.dof();
     ASSERT_TRUE(ukdyn::components_without_derivatives(sys).empty());
     const Vec tau = Vec::LinSpaced(n, -0.5, 0.5);
-    ukdyn::LinearizeData data(sys);
-    for (const bool all : {true, false}) {
-      const ukdyn::LinearizeParts parts{all, all};
-      ukdyn::linearize(sys, data, sc.sim.t0, sc.q0, sc.qd0, tau, sc.sim.uk, parts);  // sizes
-      ASSERT_TRUE(data.lin.trusted) << data.lin.message;
-      const long count = allocations_in([&] {
-        for (int k = 0; k < 5; ++k)
-          ukdyn::linearize(sys, data, sc.sim.t0 + 0.01 * k, sc.q0, sc.qd0, tau, sc.sim.uk, parts);
-      });
-      EXPECT_EQ(count, 0) << count << " allocations in 5 calls (all parts: " << all << ")";
-      const ukdyn::Linearization ref =
-          ukdyn::linearize(sys, sc.sim.t0 + 0.04, sc.q0, sc.qd0, tau, sc.sim.uk);
-      EXPECT_EQ(data.lin.dqdd_dq, ref.dqdd_dq);
-      EXPECT_EQ(data.lin.dqdd_dqd, ref.dqdd_dqd);
-      if (all) {
-        EXPECT_EQ(data.lin.dqdd_dtau, ref.dqdd_dtau);
-        EXPECT_EQ(data.lin.dQc_dq, ref.dQc_dq);
-      } else {
-        EXPECT_EQ(data.lin.dqdd_dtau.size(), 0);
-        EXPECT_EQ(data.lin.dQc_dq.size(), 0);
+    for (const bool arrow : {true, false}) {
+      ukdyn::LinearizeData data(sys);
+      data.allow_arrow = arrow;
+      for (const bool all : {true, false}) {
+        const ukdyn::LinearizeParts parts{all, all};
+        ukdyn::linearize(sys, data, sc.sim.t0, sc.q0, sc.qd0, tau, sc.sim.uk, parts);  // sizes
+        ASSERT_TRUE(data.lin.trusted) << data.lin.message;
+        EXPECT_EQ(data.used_arrow, arrow && std::string(name) == "n_robots_3_weld.yaml");
+        const long count = allocations_in([&] {
+          for (int k = 0; k < 5; ++k)
+            ukdyn::linearize(sys, data, sc.sim.t0 + 0.01 * k, sc.q0, sc.qd0, tau, sc.sim.uk, parts);
+        });
+        EXPECT_EQ(count, 0) << count << " allocations in 5 calls (all parts: " << all
+                            << ", arrow: " << arrow << ")";
+        ukdyn::LinearizeData fresh(sys);
+        fresh.allow_arrow = arrow;
+        ukdyn::linearize(sys, fresh, sc.sim.t0 + 0.04, sc.q0, sc.qd0, tau, sc.sim.uk);
+        const ukdyn::Linearization& ref = fresh.lin;
+        EXPECT_EQ(data.lin.dqdd_dq, ref.dqdd_dq);
+        EXPECT_EQ(data.lin.dqdd_dqd, ref.dqdd_dqd);
+        if (all) {
+          EXPECT_EQ(data.lin.dqdd_dtau, ref.dqdd_dtau);
+          EXPECT_EQ(data.lin.dQc_dq, ref.dQc_dq);
+        } else {
+          EXPECT_EQ(data.lin.dqdd_dtau.size(), 0);
+          EXPECT_EQ(data.lin.dQc_dq.size(), 0);
+        }
       }
     }
   }

@@ -46,13 +46,36 @@ struct RowChoice {
 // bound of σ_m/σ_1; above 200 rank_rel_tol (twice vouch()'s 100, for the round-off of R⁻¹) the SVD
 // would keep all m rows and raise no flag: the same rows, the same result. rc.sigma_ratio_kept gets
 // the bound. False (the SVD decides) otherwise.
+bool bound_keeps_all(double bound, double rel_tol, RowChoice& rc) {
+  if (!(std::isfinite(bound) && bound > 200.0 * rel_tol)) return false;
+  rc.sigma_ratio_kept = bound;
+  return true;
+}
+
 bool all_rows_kept(LinearizeData& d, double rel_tol, RowChoice& rc) {
   const Index m = d.R.rows();
   d.Rinv.setIdentity(m, m);
   d.R.triangularView<Eigen::Upper>().solveInPlace(d.Rinv);
-  const double bound = 1.0 / (d.Rinv.norm() * d.R.norm());
-  if (!(std::isfinite(bound) && bound > 200.0 * rel_tol)) return false;
-  rc.sigma_ratio_kept = bound;
+  return bound_keeps_all(1.0 / (d.Rinv.norm() * d.R.norm()), rel_tol, rc);
+}
+
+// The row choice of the arrow path (forward() took it): the arrow KKT factors, reusing forward()'s
+// block Cholesky factors of M (of M_a with a free-body load), and the same bound as
+// all_rows_kept(): ‖R‖_F² = tr W and ‖R⁻¹‖_F² = tr W⁻¹ for W = A M⁻¹ Aᵀ = Rᵀ R (permuted), from
+// the blocks (ukdyn/core/uk_arrow_kkt.hpp). True with every row kept; false (the dense row choice
+// and KKT decide) when a piece cannot be eliminated or the bound does not keep every row.
+bool arrow_rows(const System& system, LinearizeData& d, double rel_tol, RowChoice& rc) {
+  // From three robots on: with two the dense KKT (50 rows on the shipped systems) costs the same
+  // to within the noise (docs/derivatives.md, "Cost") and stays the reference it has been.
+  constexpr std::size_t kMinRobots = 3;
+  if (!d.allow_arrow || !d.fwd.used_arrow || !d.arrow.built() ||
+      system.arrow()->groups.size() < kMinRobots ||
+      !arrow_kkt_factor(*system.arrow(), d.fwd.A, d.fwd.uk, rel_tol, d.arrow))
+    return false;
+  if (!bound_keeps_all(1.0 / std::sqrt(d.arrow.trace_w * d.arrow.trace_w_inv), rel_tol, rc))
+    return false;
+  d.lin.kept_rows.clear();
+  for (Index j = 0; j < system.rows(); ++j) d.lin.kept_rows.push_back(j);
   return true;
 }
 
@@ -163,7 +186,9 @@ LinearizeData::LinearizeData(const System& system)
       dforce_c(system.dof()),
       dq(Vec::Zero(system.dof())),
       dqd(Vec::Zero(system.dof())),
-      owner(static_cast<std::size_t>(system.dof()), 0) {
+      owner(static_cast<std::size_t>(system.dof()), 0),
+      arrow(system.arrow() ? ArrowKktWorkspace(*system.arrow(), system.layout(), 2 * system.dof())
+                           : ArrowKktWorkspace()) {
   const auto& L = system.layout();
   for (std::size_t k = 0; k < system.subsystems().size(); ++k)
     for (Index i = 0; i < L.size[k]; ++i) owner[static_cast<std::size_t>(L.start[k] + i)] = k;
@@ -171,9 +196,59 @@ LinearizeData::LinearizeData(const System& system)
 
 namespace {
 
-// The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised, and [q̈; μ] at the state
-// (d.sol); Qc, μ, q̈ and the agreement with forward()'s q̈ into d.lin.
-void solve_kkt(LinearizeData& d, Index n) {
+// With a structurally singular block augmented (core/uk_singular.hpp; forward() factored M_a),
+// M X − Aᵀ Y = F with A_own X = G_own is M_a X − Aᵀ Y = F + A_ownᵀ α G_own: α_i of
+// augmented_blocks() (max diag M_k / |a_i|²) on the block's own rows. Every row is kept on the
+// arrow path, so row i of G is row i of A.
+void augment_columns(const System& system, const ForwardData& f, Eigen::Ref<Mat> F,
+                     const Eigen::Ref<const Mat>& G) {
+  const UkSingularWorkspace& sw = f.singular;
+  if (!sw.active) return;
+  const auto& lay = system.layout();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    if (!sw.structural[k]) continue;
+    const Index s = lay.start[k], nk = lay.size[k];
+    double scale = f.M.diagonal().segment(s, nk).maxCoeff();
+    if (!(scale > 0.0)) scale = 1.0;
+    for (const Index i : sw.own_rows[k]) {
+      const double nn = f.A.row(i).segment(s, nk).squaredNorm();
+      if (!(nn > 0.0)) continue;
+      for (Index c = 0; c < nk; ++c) {
+        const double coef = scale / nn * f.A(i, s + c);
+        if (coef != 0.0) F.row(s + c) += coef * G.row(i);
+      }
+    }
+  }
+}
+
+// X = K⁻¹ rhs for the KKT matrix K = [M −A_Rᵀ; A_R 0]: the arrow blocks (rhs's top rows are
+// changed by the augmentation) or the dense LU.
+template <class Out>
+void kkt_solve(const System& system, LinearizeData& d, Eigen::Ref<Mat> rhs, Out& X) {
+  X.resize(rhs.rows(), rhs.cols());
+  if (!d.used_arrow) {
+    X = d.lu.solve(rhs);
+    return;
+  }
+  const Index n = system.dof(), r = rhs.rows() - n;
+  augment_columns(system, d.fwd, rhs.topRows(n), rhs.bottomRows(r));
+  arrow_kkt_solve(*system.arrow(), d.fwd.uk, d.arrow, rhs.topRows(n), rhs.bottomRows(r),
+                  X.topRows(n), X.bottomRows(r));
+}
+
+// out += A_Rᵀ Y: by the arrow blocks (every row kept) or the dense product.
+void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref<const Mat>& Y,
+                  Mat& out) {
+  if (d.used_arrow) {
+    arrow_add_at_times(*system.arrow(), d.arrow, Y, out);
+  } else {
+    out.noalias() += d.AR.transpose() * Y;
+  }
+}
+
+// The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks solve
+// it), and [q̈; μ] at the state (d.sol); Qc, μ, q̈ and the agreement with forward()'s q̈ into d.lin.
+void solve_kkt(const System& system, LinearizeData& d, Index n) {
   const ForwardData& f = d.fwd;
   Linearization& lin = d.lin;
   const auto r = static_cast<Index>(lin.kept_rows.size());
@@ -183,17 +258,18 @@ void solve_kkt(LinearizeData& d, Index n) {
     d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
-  d.K.resize(n + r, n + r);
-  d.K.setZero();
-  d.K.topLeftCorner(n, n) = f.M;
-  d.K.topRightCorner(n, r) = -d.AR.transpose();
-  d.K.bottomLeftCorner(r, n) = d.AR;
-  d.lu.compute(d.K);
+  if (!d.used_arrow) {
+    d.K.resize(n + r, n + r);
+    d.K.setZero();
+    d.K.topLeftCorner(n, n) = f.M;
+    d.K.topRightCorner(n, r) = -d.AR.transpose();
+    d.K.bottomLeftCorner(r, n) = d.AR;
+    d.lu.compute(d.K);
+  }
   d.rhs.resize(n + r);
   d.rhs.head(n) = f.Q;
   d.rhs.tail(r) = d.bR;
-  d.sol.resize(n + r);
-  d.sol = d.lu.solve(d.rhs);
+  kkt_solve(system, d, d.rhs, d.sol);
   if (!d.sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
   lin.qdd = d.sol.head(n);
   lin.mu = d.sol.tail(r);
@@ -286,7 +362,7 @@ void constraint_columns(const System& system, LinearizeData& d, double t, CVecRe
 
 // The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
 // over dμ) and the τ columns, solved here with the same factorisation.
-void store_solutions(LinearizeData& d, Index n, LinearizeParts parts) {
+void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
   Linearization& lin = d.lin;
   const Index r = d.AR.rows();
   const Mat& X = d.X;
@@ -295,9 +371,9 @@ void store_solutions(LinearizeData& d, Index n, LinearizeParts parts) {
   if (parts.constraint_force) {
     // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
     lin.dQc_dq = d.dforce_all.leftCols(n);
-    lin.dQc_dq.noalias() += d.AR.transpose() * X.bottomLeftCorner(r, n);
+    add_at_times(system, d, X.bottomLeftCorner(r, n), lin.dQc_dq);
     lin.dQc_dqd = d.dforce_all.rightCols(n);
-    lin.dQc_dqd.noalias() += d.AR.transpose() * X.bottomRightCorner(r, n);
+    add_at_times(system, d, X.bottomRightCorner(r, n), lin.dQc_dqd);
     lin.dmu_dq = X.bottomLeftCorner(r, n);
     lin.dmu_dqd = X.bottomRightCorner(r, n);
   } else {
@@ -318,12 +394,11 @@ void store_solutions(LinearizeData& d, Index n, LinearizeParts parts) {
   d.rhs_tau.resize(n + r, n);
   d.rhs_tau.setZero();
   d.rhs_tau.topRows(n).setIdentity();
-  d.X_tau.resize(n + r, n);
-  d.X_tau = d.lu.solve(d.rhs_tau);
+  kkt_solve(system, d, d.rhs_tau, d.X_tau);
   lin.dqdd_dtau = d.X_tau.topRows(n);
   if (!parts.constraint_force) return;
-  lin.dQc_dtau.resize(n, n);
-  lin.dQc_dtau.noalias() = d.AR.transpose() * d.X_tau.bottomRows(r);
+  lin.dQc_dtau.setZero(n, n);
+  add_at_times(system, d, d.X_tau.bottomRows(r), lin.dQc_dtau);
   lin.dmu_dtau = d.X_tau.bottomRows(r);
 }
 
@@ -350,6 +425,21 @@ void check_inputs(const System& system, double t, CVecRef q, CVecRef qd, CVecRef
   require_derivatives(system);
 }
 
+// The dense row choice with M, or the augmented M_a the solve used (solved_mass(), formed here in
+// d.Ms after the arrow solve).
+RowChoice dense_rows(const System& system, LinearizeData& d, const UkSettings& settings) {
+  const ForwardData& f = d.fwd;
+  const Mat* Ms = &f.M;
+  if (f.singular.active && !f.used_arrow) Ms = &f.singular.Ma;
+  if (f.singular.active && f.used_arrow) {
+    d.Ms = f.M;
+    d.Qa = f.Q;
+    augmented_blocks(system.layout(), f.A, f.b, f.singular, d.Ms, d.Qa);
+    Ms = &d.Ms;
+  }
+  return independent_rows(d, *Ms, f.A, settings.rank_rel_tol);
+}
+
 // forward() at the state, the kept rows, the trust of the result and the KKT solve: what every
 // column of the derivatives (state directions, parameters) is solved with.
 void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
@@ -362,21 +452,12 @@ void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CV
   forward(system, d.fwd, t, q, qd, tau, settings);
   if (!d.fwd.result.finite)
     throw Error("linearize: the forward dynamics is not finite at this state");
-  // M, or the augmented M_a the solve used (solved_mass(), formed here in d.Ms after the arrow
-  // solve).
-  const ForwardData& f = d.fwd;
-  const Mat* Ms = &f.M;
-  if (f.singular.active && !f.used_arrow) Ms = &f.singular.Ma;
-  if (f.singular.active && f.used_arrow) {
-    d.Ms = f.M;
-    d.Qa = f.Q;
-    augmented_blocks(system.layout(), f.A, f.b, f.singular, d.Ms, d.Qa);
-    Ms = &d.Ms;
-  }
-  const RowChoice rc = independent_rows(d, *Ms, f.A, settings.rank_rel_tol);
+  RowChoice rc;
+  d.used_arrow = arrow_rows(system, d, settings.rank_rel_tol, rc);
+  if (!d.used_arrow) rc = dense_rows(system, d, settings);
   lin.rank = static_cast<int>(lin.kept_rows.size());
   vouch(lin, rc, d.fwd.result, settings, m);
-  solve_kkt(d, n);
+  solve_kkt(system, d, n);
 }
 
 // The state columns (∂/∂q, ∂/∂q̇ and, as `parts` asks, ∂/∂τ) from the components' exact tangents.
@@ -396,11 +477,14 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
   for (std::size_t c = 0; c < system.constraints().size(); ++c)
     constraint_columns(system, d, t, q, qd, c);
   d.rhs_all.topRows(n) += d.dforce_all;
-  for (Index i = 0; i < r; ++i)
-    d.rhs_all.row(n + i) = -d.rhs_all.row(n + d.lin.kept_rows[static_cast<std::size_t>(i)]);
-  d.X.resize(n + r, 2 * n);
-  d.X = d.lu.solve(d.rhs_all.topRows(n + r));
-  store_solutions(d, n, parts);
+  if (r == system.rows()) {  // every row kept: in place, a block at a time
+    d.rhs_all.middleRows(n, r) *= -1.0;
+  } else {
+    for (Index i = 0; i < r; ++i)
+      d.rhs_all.row(n + i) = -d.rhs_all.row(n + d.lin.kept_rows[static_cast<std::size_t>(i)]);
+  }
+  kkt_solve(system, d, d.rhs_all.topRows(n + r), d.X);
+  store_solutions(system, d, n, parts);
 }
 
 }  // namespace
@@ -450,11 +534,13 @@ ParameterLinearization linearize_parameters(const System& system, double t, CVec
     for (Index i = 0; i < r; ++i)
       rhs(n + i, j) = -dres(d.lin.kept_rows[static_cast<std::size_t>(i)]);
   }
-  const Mat X = d.lu.solve(rhs);
+  Mat X;
+  kkt_solve(system, d, rhs, X);
   ParameterLinearization out;
   out.dqdd_dp = X.topRows(n);
   out.dmu_dp = X.bottomRows(r);
-  out.dQc_dp = dforce + d.AR.transpose() * out.dmu_dp;
+  out.dQc_dp = dforce;
+  add_at_times(system, d, out.dmu_dp, out.dQc_dp);
   out.lin = std::move(d.lin);
   return out;
 }

@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/core/uk_arrow_kkt.hpp"
 #include "ukdyn/model/system.hpp"
 
 namespace ukdyn {
@@ -79,6 +80,12 @@ struct LinearizeData {
   Eigen::PartialPivLU<Mat> lu;
   Vec Qa, bR, rhs, sol, lambda, dID, dQa, dres, dforce_c, dq, dqd;
   std::vector<std::size_t> owner;  ///< the subsystem of each coordinate
+  /// The block-arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp), built when the system has the
+  /// arrow structure: used when forward() took the arrow path with three robots or more and
+  /// every row of A is kept.
+  ArrowKktWorkspace arrow;
+  bool allow_arrow = true;  ///< false: always the dense KKT factorisation (the reference)
+  bool used_arrow = false;  ///< whether the last call solved with the arrow blocks
 };
 
 /// The linearisation at (t, q, q̇, τ) into `data.lin` (see linearize() below for the errors).

@@ -1,0 +1,174 @@
+// The derivatives' block-arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp, docs/derivatives.md) against
+// the dense KKT factorisation it replaces (LinearizeData::allow_arrow = false: the reference), on
+// robots welded to a free-body load; its trace identities against the dense W; and the fallback to
+// the dense row choice when a row is redundant, checked against central differences of forward().
+#include <gtest/gtest.h>
+
+#include <Eigen/SVD>
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <sstream>
+#include <string>
+
+#include "ukdyn/model/linearize.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+
+namespace {
+
+using namespace ukdyn;
+const std::filesystem::path kSource = UKDYN_SOURCE_DIR;
+
+double rel(const Mat& a, const Mat& b) {
+  return (a - b).cwiseAbs().maxCoeff() / (1.0 + b.cwiseAbs().maxCoeff());
+}
+
+// N 6-DoF arms (the arm of tools/n_robots.py --weld) around a free-body load, each welded to it at
+// a grasp frame 0.3 m from its centre (symmetric grasps: the arms' coordinates 0.6 0 0 0 0 0 hold
+// the load at rest at the origin); `duplicate`: robot 0's weld written twice (6 redundant rows).
+std::string n_robots_weld(int n, bool duplicate) {
+  std::ostringstream y;
+  y.precision(17);
+  y << "ukdyn: 1\nname: n_robots_weld_test\ngravity: 9.81\nsubsystems:\n"
+       "  - name: arm\n    type: serial_chain\n    coordinates: [px, py, pz, r1, r2, r3]\n"
+       "    gravity: [0, 0, 0]\n    joints:\n"
+       "      - {name: jx, type: prismatic, link: cx, axis: [1, 0, 0], coordinate: px, mass: 4}\n"
+       "      - {name: jy, type: prismatic, link: cy, axis: [0, 1, 0], coordinate: py, mass: 3}\n"
+       "      - {name: jz, type: prismatic, link: cz, axis: [0, 0, 1], coordinate: pz, mass: 2}\n"
+       "      - {name: w1, type: revolute, link: wl1, axis: [0, 0, 1], coordinate: r1, mass: 0.3,"
+       " inertia: [0.002, 0.002, 0.003]}\n"
+       "      - {name: w2, type: revolute, link: wl2, axis: [0, 1, 0], coordinate: r2, mass: 0.3,"
+       " inertia: [0.002, 0.003, 0.002]}\n"
+       "      - {name: w3, type: revolute, link: hand, axis: [1, 0, 0], coordinate: r3, mass: 0.5,"
+       " com: [0.05, 0, 0], inertia: [0.003, 0.002, 0.002]}\n"
+       "    points:\n      tool: {link: hand, xyz: [0.1, 0, 0]}\n    instances:\n";
+  for (int k = 0; k < n; ++k) {
+    const double a = 2.0 * std::numbers::pi * k / n;
+    y << "      - {name: robot" << k << ", prefix: r" << k << "_, mount: {xyz: [" << std::cos(a)
+      << ", " << std::sin(a) << ", 0], rpy: [0, 0, " << a + std::numbers::pi << "]}}\n";
+  }
+  y << "  - name: load\n    type: free_body\n    mass: 3\n    inertia: [0.05, 0.06, 0.08]\n"
+       "constraints:\n";
+  for (int k = 0; k < n + (duplicate ? 1 : 0); ++k) {
+    const int r = k % n;
+    const double a = 2.0 * std::numbers::pi * r / n;
+    y << "  - {type: weld, name: grasp" << k << ", a: robot" << r
+      << ".tool, b: {frame: load.load, xyz: [" << 0.3 * std::cos(a) << ", " << 0.3 * std::sin(a)
+      << ", 0], rpy: [0, 0, " << a + std::numbers::pi << "]}}\n";
+  }
+  y << "initial:\n  q: [";
+  for (int k = 0; k < n; ++k) y << "0.6, 0, 0, 0, 0, 0, ";
+  y << "0, 0, 0, 1, 0, 0, 0]\n  qd: zeros\nsimulation:\n  t_end: 1\n  sample_dt: 0.01\n";
+  return y.str();
+}
+
+struct State {
+  Vec q, qd, tau;
+};
+
+// The scenario's q0 with a velocity along the constraints (null space of A) and a nonzero τ.
+State moving_state(const Scenario& sc) {
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  State s{sc.q0, sc.qd0, Vec(n)};
+  for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
+  ForwardData fd(sys);
+  forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
+  Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
+  Index rank = 0;
+  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+  for (Index k = rank; k < n; ++k)
+    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+  return s;
+}
+
+// linearize() with the arrow KKT and with the dense one, every part: the same rows and trust, and
+// every matrix within 1e-10 relative.
+void expect_arrow_matches_dense(const Scenario& sc) {
+  const System& sys = *sc.system;
+  ASSERT_NE(sys.arrow(), nullptr);
+  const State s = moving_state(sc);
+  LinearizeData arrow(sys), dense(sys);
+  dense.allow_arrow = false;
+  linearize(sys, arrow, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  linearize(sys, dense, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  ASSERT_TRUE(arrow.fwd.used_arrow);
+  EXPECT_TRUE(arrow.used_arrow);
+  EXPECT_FALSE(dense.used_arrow);
+  const Linearization &a = arrow.lin, &d = dense.lin;
+  EXPECT_TRUE(a.trusted) << a.message;
+  EXPECT_EQ(a.message, d.message);
+  EXPECT_EQ(a.kept_rows, d.kept_rows);
+  EXPECT_EQ(a.rank, sys.rows());
+  EXPECT_LE(a.kkt_agreement, 1e-10);
+  const std::pair<const Mat*, const Mat*> pairs[] = {
+      {&a.dqdd_dq, &d.dqdd_dq}, {&a.dqdd_dqd, &d.dqdd_dqd}, {&a.dqdd_dtau, &d.dqdd_dtau},
+      {&a.dQc_dq, &d.dQc_dq},   {&a.dQc_dqd, &d.dQc_dqd},   {&a.dQc_dtau, &d.dQc_dtau},
+      {&a.dmu_dq, &d.dmu_dq},   {&a.dmu_dqd, &d.dmu_dqd},   {&a.dmu_dtau, &d.dmu_dtau}};
+  for (const auto& [x, y] : pairs) {
+    ASSERT_EQ(x->rows(), y->rows());
+    ASSERT_EQ(x->cols(), y->cols());
+    EXPECT_LE(rel(*x, *y), 1e-10);
+  }
+  EXPECT_LE(rel(a.qdd, d.qdd), 1e-12);
+  EXPECT_LE(rel(a.mu, d.mu), 1e-10);
+  // tr W and tr W⁻¹ of the blocks against the dense W = A M_s⁻¹ Aᵀ (M_s: the mass the solve used).
+  const Mat Ms = solved_mass(sys, arrow.fwd);
+  const Mat W = arrow.fwd.A * Ms.llt().solve(arrow.fwd.A.transpose());
+  EXPECT_NEAR(arrow.arrow.trace_w, W.trace(), 1e-10 * W.trace());
+  const double tr_inv = W.inverse().trace();
+  EXPECT_NEAR(arrow.arrow.trace_w_inv, tr_inv, 1e-9 * tr_inv);
+}
+
+}  // namespace
+
+TEST(LinearizeArrow, ShippedWeldSystemsMatchTheDenseKkt) {
+  for (const char* name :
+       {"n_robots_4_weld.yaml", "four_panda_plate.yaml", "n_robots_3_weld.yaml"}) {
+    SCOPED_TRACE(name);
+    expect_arrow_matches_dense(load_scenario(kSource / "scenarios" / name));
+  }
+}
+
+TEST(LinearizeArrow, EightRobotsMatchTheDenseKkt) {
+  expect_arrow_matches_dense(load_scenario_text(n_robots_weld(8, false), "n8.yaml"));
+}
+
+// A redundant weld: robot 0's rows twice. The arrow KKT cannot eliminate S_0 (singular), so the
+// dense row choice keeps 6 fewer rows, exactly as without the arrow path; the derivatives match
+// central differences of forward() (the rank stays constant along the differences).
+TEST(LinearizeArrow, RedundantRowsTakeTheDenseRowChoice) {
+  const Scenario sc = load_scenario_text(n_robots_weld(8, true), "n8_redundant.yaml");
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  const State s = moving_state(sc);
+  LinearizeData arrow(sys), dense(sys);
+  dense.allow_arrow = false;
+  linearize(sys, arrow, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  linearize(sys, dense, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  ASSERT_TRUE(arrow.fwd.used_arrow);
+  EXPECT_FALSE(arrow.used_arrow);
+  EXPECT_EQ(arrow.lin.rank, sys.rows() - 6);
+  EXPECT_EQ(arrow.lin.kept_rows, dense.lin.kept_rows);
+  EXPECT_EQ(arrow.lin.dqdd_dq, dense.lin.dqdd_dq);
+  EXPECT_EQ(arrow.lin.dmu_dq, dense.lin.dmu_dq);
+  ForwardData fd(sys);
+  auto qdd_at = [&](const Vec& q, const Vec& qd) {
+    forward(sys, fd, sc.sim.t0, q, qd, s.tau, sc.sim.uk);
+    return Vec(fd.qdd);
+  };
+  for (int which = 0; which < 2; ++which) {
+    const Mat& exact = which == 0 ? arrow.lin.dqdd_dq : arrow.lin.dqdd_dqd;
+    for (Index j = 0; j < n; j += 5) {
+      auto central = [&](double h) {
+        Vec qp = s.q, qm = s.q, vp = s.qd, vm = s.qd;
+        (which == 0 ? qp : vp)(j) += h;
+        (which == 0 ? qm : vm)(j) -= h;
+        return Vec((qdd_at(qp, vp) - qdd_at(qm, vm)) / (2 * h));
+      };
+      const Vec d = (4 * central(5e-4) - central(1e-3)) / 3;
+      EXPECT_LE((exact.col(j) - d).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + d.cwiseAbs().maxCoeff()))
+          << "which " << which << " column " << j;
+    }
+  }
+}
