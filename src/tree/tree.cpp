@@ -638,6 +638,15 @@ Index coriolis_workspace_doubles(std::size_t links, Index nt) {
   return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
 }
 
+// A derivative pass's room: `need` doubles at `offset` of the tree's slot when the slot is the
+// tree's (slot_size() doubles), else `own` sized to `need` (a caller without a slot).
+double* derivative_room(Slot slot, Index slot_size, Index offset, Index need,
+                        std::vector<double>& own) {
+  if (static_cast<Index>(slot.size()) >= slot_size) return slot.data() + offset;
+  own.resize(static_cast<std::size_t>(need));
+  return own.data();
+}
+
 }  // namespace
 
 namespace {
@@ -935,13 +944,8 @@ struct CoriolisWorkspace {
 
 CoriolisWorkspace coriolis_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                                      std::vector<double>& own) {
-  double* base = nullptr;
-  if (static_cast<Index>(slot.size()) >= slot_size) {
-    base = slot.data() + workspace_doubles(nl, nt);
-  } else {
-    own.resize(static_cast<std::size_t>(coriolis_workspace_doubles(nl, nt)));
-    base = own.data();
-  }
+  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
+                                 coriolis_workspace_doubles(nl, nt), own);
   while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
   CoriolisWorkspace w{};
   w.links = reinterpret_cast<LinkState<Lanes>*>(base);
@@ -1303,13 +1307,7 @@ struct DualWorkspace {
 DualWorkspace dual_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                              std::vector<double>& own) {
   const Index need = tangent_workspace_doubles(nl, nt);
-  double* base = nullptr;
-  if (static_cast<Index>(slot.size()) >= slot_size) {
-    base = slot.data() + (slot_size - need);
-  } else {
-    own.resize(static_cast<std::size_t>(need));
-    base = own.data();
-  }
+  double* base = derivative_room(slot, slot_size, slot_size - need, need, own);
   if (reinterpret_cast<std::uintptr_t>(base) % 16 != 0) ++base;  // (doubles are 8-aligned)
   DualWorkspace w{};
   w.links = reinterpret_cast<LinkState<Dual>*>(base);
@@ -1434,14 +1432,8 @@ struct LaneWorkspace {
 
 LaneWorkspace lane_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                              std::vector<double>& own) {
-  const Index need = lane_workspace_doubles(nl, nt);
-  double* base = nullptr;
-  if (static_cast<Index>(slot.size()) >= slot_size) {
-    base = slot.data() + workspace_doubles(nl, nt);
-  } else {
-    own.resize(static_cast<std::size_t>(need));
-    base = own.data();
-  }
+  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
+                                 lane_workspace_doubles(nl, nt), own);
   while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
   LaneWorkspace w{};
   w.links = reinterpret_cast<LinkState<Lanes>*>(base);
@@ -1638,14 +1630,8 @@ struct AnalyticWorkspace {
 
 AnalyticWorkspace analytic_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                                      std::vector<double>& own) {
-  const Index need = analytic_workspace_doubles(nl, nt);
-  double* base = nullptr;
-  if (static_cast<Index>(slot.size()) >= slot_size) {
-    base = slot.data() + workspace_doubles(nl, nt);
-  } else {
-    own.resize(static_cast<std::size_t>(need));
-    base = own.data();
-  }
+  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
+                                 analytic_workspace_doubles(nl, nt), own);
   AnalyticWorkspace w{};
   w.links = reinterpret_cast<LinkState<double>*>(base);
   for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<double>;
