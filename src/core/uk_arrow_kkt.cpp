@@ -130,7 +130,7 @@ double reduce_group(const ArrowStructure& st, const Mat& A, const UkWorkspace& m
   block_factor_t(mass, s, nk).solveInPlace<Eigen::OnTheRight>(gb.Xt);
   // T as scratch: C_k L_L^{-ᵀ}, whose row norms are the load's part of diag W.
   gb.T = gb.C;
-  if (nL > 0) block_factor_t(mass, sL, nL).solveInPlace<Eigen::OnTheRight>(gb.T);
+  if (nL > 0 && gb.T.size() > 0) block_factor_t(mass, sL, nL).solveInPlace<Eigen::OnTheRight>(gb.T);
   double tr = 0.0;
   for (Index i = 0; i < mk; ++i) {
     const double wii = gb.Xt.row(i).squaredNorm() + gb.T.row(i).squaredNorm();
@@ -153,7 +153,8 @@ bool arrow_kkt_factor(const ArrowStructure& st, const Mat& A, const UkWorkspace&
     ws.D0.row(i) = A.row(st.load_rows[static_cast<std::size_t>(i)]).segment(sL, nL);
   // E as scratch: L_L⁻¹ D0ᵀ, the load rows' diag W.
   ws.E = ws.D0.transpose();
-  if (nL > 0) block_factor(mass, sL, nL).solveInPlace(ws.E);
+  // (Eigen's triangular solve takes coeffRef(0, 0) of its right-hand side: none when it is empty.)
+  if (nL > 0 && m0 > 0) block_factor(mass, sL, nL).solveInPlace(ws.E);
   for (Index i = 0; i < m0; ++i) {
     const double wii = ws.E.col(i).squaredNorm();
     tr += wii;
@@ -176,14 +177,14 @@ bool arrow_kkt_factor(const ArrowStructure& st, const Mat& A, const UkWorkspace&
   ws.LH.compute(ws.H);
   if (ws.LH.info() != Eigen::Success) return false;
   ws.E = ws.D0.transpose();
-  ws.LH.matrixL().solveInPlace(ws.E);
+  if (ws.E.size() > 0) ws.LH.matrixL().solveInPlace(ws.E);
   ws.Vm.noalias() = ws.E.transpose() * ws.E;
   ws.V.compute(ws.Vm);
   if (ws.V.info() != Eigen::Success || !(min_pivot(ws.V) > floor)) return false;
   // tr W⁻¹: the load rows' tr V⁻¹, each robot row's (S_k⁻¹)_jj − v_jᵀ P v_j (header):
   // with U = L_H⁻¹ C_kᵀ S_k⁻¹ (columns L_H⁻¹ v_j), v_jᵀ P v_j = |u_j|² − |L_V⁻¹ Eᵀ u_j|².
   ws.Vinv.setIdentity();
-  ws.V.matrixL().solveInPlace(ws.Vinv);
+  if (m0 > 0) ws.V.matrixL().solveInPlace(ws.Vinv);
   double tri = ws.Vinv.squaredNorm();
   for (auto& gb : ws.g) {
     const Index mk = gb.T.rows();
