@@ -412,29 +412,35 @@ TEST(Benchmarks, StructuralRedundancyIsToldFromASingularStart) {
   EXPECT_EQ(ukdyn::detail::structural_redundancy(*flat.system, 0.0, flat.q0, flat.qd0, exact), 0);
 }
 
+// A 3 s Bricard run with the given solve and tolerance (abs and rel), samples every 0.01 s.
+Trace bricard_run(const ukdyn::Scenario& base, ukdyn::UkMethod method, double tol) {
+  ukdyn::Scenario sc = base;
+  sc.sim.uk.method = method;
+  sc.sim.abs_tol = sc.sim.rel_tol = tol;
+  return run(sc, 3.0, 0.01);
+}
+
+// The largest distance between P3 of two Bricard runs over their common samples.
+double bricard_p3_distance(const Trace& tr, const Trace& ref) {
+  double e = 0;
+  for (std::size_t i = 0; i < tr.t.size() && i < ref.t.size(); ++i) {
+    const auto a = bricard_p3(tr.q[i](0), tr.q[i](1));
+    const auto b = bricard_p3(ref.q[i](0), ref.q[i](1));
+    e = std::max(e, std::hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]));
+  }
+  return e;
+}
+
 // The adaptive solve (the scenarios' default) on Bricard at loose tolerances: with the redundancy
 // known it keeps the accuracy and the cost of the exact one instead of damping at every stage
 // that drift lifts the redundant direction (before: 1.2e-4 m at tolerance 1e-9, 3 338 rejected
 // steps of 3 838 at 1e-6). P3 over 3 s against the exact solve at 1e-12.
 TEST(Benchmarks, BricardAdaptiveSolveAtLooseTolerances) {
   const auto base = ukdyn::load_scenario(kBench / "bricard.yaml");
-  auto with = [&](ukdyn::UkMethod method, double tol) {
-    ukdyn::Scenario sc = base;
-    sc.sim.uk.method = method;
-    sc.sim.abs_tol = sc.sim.rel_tol = tol;
-    return run(sc, 3.0, 0.01);
-  };
+  auto with = [&](ukdyn::UkMethod method, double tol) { return bricard_run(base, method, tol); };
   const Trace ref = with(ukdyn::UkMethod::exact, 1e-12);
   ASSERT_EQ(ref.stats.status, ukdyn::RunStatus::completed) << ref.stats.message;
-  auto p3_error = [&](const Trace& tr) {
-    double e = 0;
-    for (std::size_t i = 0; i < tr.t.size() && i < ref.t.size(); ++i) {
-      const auto a = bricard_p3(tr.q[i](0), tr.q[i](1));
-      const auto b = bricard_p3(ref.q[i](0), ref.q[i](1));
-      e = std::max(e, std::hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]));
-    }
-    return e;
-  };
+  auto p3_error = [&](const Trace& tr) { return bricard_p3_distance(tr, ref); };
   for (const double tol : {1e-6, 1e-9}) {
     const Trace ad = with(ukdyn::UkMethod::adaptive, tol);
     const Trace ex = with(ukdyn::UkMethod::exact, tol);
@@ -466,24 +472,11 @@ TEST(Benchmarks, BricardRedundancyCostsNeitherAccuracyNorWork) {
   text.replace(at, two_rows.size(), "axes: [y]");
   const auto four = ukdyn::load_scenario_text(text, "bricard_4_rows.yaml");
   ASSERT_EQ(four.system->rows(), 4);
-  auto with = [](const ukdyn::Scenario& sc0, ukdyn::UkMethod method, double tol) {
-    ukdyn::Scenario sc = sc0;
-    sc.sim.uk.method = method;
-    sc.sim.abs_tol = sc.sim.rel_tol = tol;
-    return run(sc, 3.0, 0.01);
-  };
+  const auto with = bricard_run;
   const Trace ref = with(four, ukdyn::UkMethod::exact, 1e-12);
   ASSERT_EQ(ref.stats.status, ukdyn::RunStatus::completed) << ref.stats.message;
   EXPECT_EQ(ref.rank_min, 4);
-  auto p3_error = [&](const Trace& tr) {
-    double e = 0;
-    for (std::size_t i = 0; i < tr.t.size() && i < ref.t.size(); ++i) {
-      const auto a = bricard_p3(tr.q[i](0), tr.q[i](1));
-      const auto b = bricard_p3(ref.q[i](0), ref.q[i](1));
-      e = std::max(e, std::hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]));
-    }
-    return e;
-  };
+  auto p3_error = [&](const Trace& tr) { return bricard_p3_distance(tr, ref); };
   for (const double tol : {1e-6, 1e-8}) {
     const Trace red = with(base, ukdyn::UkMethod::adaptive, tol);
     const Trace ind = with(four, ukdyn::UkMethod::exact, tol);
