@@ -56,6 +56,16 @@ class Loader {
     const std::string full = parent.key.empty() ? key : parent.key + "." + key;
     if (!c.IsDefined() || c.IsNull()) {
       if (required) fail(parent, "missing required key '" + full + "'");
+      // `key:` with nothing after it (or `~`, `null`) is a value left out, most often by mistake:
+      // refused rather than read as the default the key would have had without it.
+      // The key's own position: a null value's mark is where the next token starts.
+      if (c.IsDefined()) {
+        for (const auto& kv : parent.node)
+          if (kv.first.IsScalar() && kv.first.Scalar() == key)
+            fail(Node{kv.first, full},
+                 "no value (give one, or remove the key to take its default)");
+        fail(Node{c, full}, "no value (give one, or remove the key to take its default)");
+      }
       return Node{YAML::Node(YAML::NodeType::Undefined), full};
     }
     return Node{c, full};
