@@ -69,11 +69,13 @@ py::array_t<double> stacked(const std::vector<ukdyn::Mat>& ms, Index rows, Index
 
 py::dict sensitivities(const PyScenario& s, const std::vector<std::string>& params) {
   const ukdyn::Scenario& sc = s.sc;
-  ukdyn::RunSensitivities rs;
-  {
-    py::gil_scoped_release release;
-    rs = ukdyn::run_sensitivities(sc, ukdyn::scenario_parameters(sc, params));
-  }
+  const auto ps = ukdyn::scenario_parameters(sc, params);
+  // Ctrl-C stops the run (interruptible(), bindings.hpp) and raises KeyboardInterrupt.
+  bool interrupted = false;
+  ukdyn::RunSensitivities rs = interruptible<ukdyn::RunSensitivities>(
+      [&](const std::atomic<bool>& cancel) { return ukdyn::run_sensitivities(sc, ps, &cancel); },
+      interrupted);
+  if (interrupted) throw py::error_already_set();
   const auto T = static_cast<Index>(rs.t.size());
   py::dict d;
   d["parameters"] = rs.parameters;

@@ -1,8 +1,10 @@
 """Scenario.parameter_derivatives and Scenario.sensitivities (docs/derivatives.md, "Sensitivities to
 parameters") against independent evidence: central differences of forward() on scenario files
 edited here as text, and the CLI's sensitivities.csv (the same numbers through the other door)."""
+import _thread
 import csv
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -40,6 +42,20 @@ def test_parameter_derivatives_match_differences_of_forward(tmp_path):
         fd = (4 * d2 - d1) / 3
         ours = np.concatenate([d["dqdd_dp"][:, j], d["dQc_dp"][:, j]])
         assert np.max(np.abs(ours - fd)) < 1e-6 * np.max(np.abs(fd)), key
+
+
+def test_ctrl_c_stops_run_sensitivities_with_keyboard_interrupt(tmp_path):
+    # a day of motion: only the interrupt ends it within the ctest timeout
+    p = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3\n  sample_dt: 0.01",
+               "t_end: 86400\n  sample_dt: 10", "long")
+    sc = ukdyn.load_scenario(p)
+    timer = threading.Timer(0.5, _thread.interrupt_main)
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        sc.sensitivities(["m1"])
+    timer.join()
+    q = edited(tmp_path, "five_bar_redundant.yaml", "t_end: 3", "t_end: 0.1", "short")
+    assert ukdyn.load_scenario(q).sensitivities(["m1"])["trusted"]  # runs again afterwards
 
 
 def test_sensitivities_equal_the_cli_csv(tmp_path):

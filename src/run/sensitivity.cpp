@@ -537,9 +537,15 @@ struct ClosedLoopVariationalRhs {
 };
 
 // x0 = (q0, q̇0) and s_j(t0) = d(q0, q̇0)/dp_j, integrated by `rhs` into rs at the samples.
+// Thrown from the right-hand side when the caller's cancel flag is set (run_sensitivities).
+struct Interrupted {
+  double t;
+};
+
 template <typename Rhs>
 void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Mat& dq0,
-                           const Mat& dqd0, Rhs& rhs, RunSensitivities& rs) {
+                           const Mat& dqd0, Rhs& rhs, RunSensitivities& rs,
+                           const std::atomic<bool>* cancel) {
   namespace odeint = boost::numeric::odeint;
   const Index n = q0.size();
   const std::size_t P = static_cast<std::size_t>(dq0.cols()), un = static_cast<std::size_t>(n);
@@ -566,8 +572,12 @@ void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Ma
       odeint::make_dense_output(sim.abs_tol, sim.rel_tol, odeint::runge_kutta_dopri5<OdeState>());
   try {
     rs.steps = static_cast<long>(odeint::integrate_times(
-        stepper, [&rhs](const OdeState& xs_, OdeState& dx, double t) { rhs(xs_, dx, t); }, x,
-        times.begin(), times.end(), std::min(sim.step, sim.sample_dt), observe,
+        stepper,
+        [&rhs, cancel](const OdeState& xs_, OdeState& dx, double t) {
+          if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) throw Interrupted{t};
+          rhs(xs_, dx, t);
+        },
+        x, times.begin(), times.end(), std::min(sim.step, sim.sample_dt), observe,
         odeint::max_step_checker(100000)));
   } catch (const odeint::step_adjustment_error& e) {
     rs.trusted = false;
@@ -575,6 +585,9 @@ void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Ma
   } catch (const odeint::no_progress_error& e) {
     rs.trusted = false;
     rs.message = std::string("the run stopped: ") + e.what();
+  } catch (const Interrupted& i) {
+    rs.trusted = false;
+    rs.message = fmt::format("interrupted at t = {:g}: the samples before it are returned", i.t);
   }
   const Index T = static_cast<Index>(xs.size());
   rs.q.resize(T, n);
@@ -601,7 +614,7 @@ void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Ma
 // The closed loop of a control scenario from its start (the offset start, ControlRun::q0):
 // s(t0) the Richardson derivative of the re-loaded closed loops' starts.
 void closed_loop_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
-                               RunSensitivities& rs) {
+                               RunSensitivities& rs, const std::atomic<bool>* cancel) {
   const auto run = make_control_run(sc);
   ClosedLoopVariationalRhs rhs{sc, ps, *run, perturbed_control_runs(sc, ps), {}, rs, {}, {}, 0};
   const Index n = run->plant->dof(), P = static_cast<Index>(ps.size());
@@ -614,24 +627,25 @@ void closed_loop_sensitivities(const Scenario& sc, const std::vector<ScenarioPar
     dqd0.col(j) = richardson(r[o]->qd0, r[o + 1]->qd0, r[o + 2]->qd0, r[o + 3]->qd0, h);
   }
   for (const auto& r : rhs.perturbed) rhs.data.push_back(std::make_unique<ForwardData>(*r->plant));
-  integrate_variational(sc, run->q0, run->qd0, dq0, dqd0, rhs, rs);
+  integrate_variational(sc, run->q0, run->qd0, dq0, dqd0, rhs, rs, cancel);
   rhs.report_kinks();
 }
 
 }  // namespace
 
-RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps) {
+RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                                   const std::atomic<bool>* cancel) {
   RunSensitivities rs;
   for (const auto& p : ps) rs.parameters.push_back(p.name);
   if (sc.control) {
-    closed_loop_sensitivities(sc, ps, rs);
+    closed_loop_sensitivities(sc, ps, rs, cancel);
     return rs;
   }
   initial_constraint_warnings(sc, ps, rs);
   Mat dq0, dqd0;
   initial_state_derivatives(sc, ps, dq0, dqd0);
   VariationalRhs rhs{sc, ps, {}, rs};
-  integrate_variational(sc, sc.q0, sc.qd0, dq0, dqd0, rhs, rs);
+  integrate_variational(sc, sc.q0, sc.qd0, dq0, dqd0, rhs, rs, cancel);
   return rs;
 }
 

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <filesystem>
 #include <iosfwd>
 #include <memory>
@@ -90,8 +91,11 @@ struct RunSensitivities {
 /// the plant's closed loop from its start (the offset start), with the law's ∂τ/∂x
 /// (ukdyn/run/closed_loop_derivatives.hpp) in ∂f/∂x and ∂f/∂p of the re-loaded closed loops (a
 /// gain is a parameter); `warnings` name the law and the first time where it is not
-/// differentiable. Throws ukdyn::Error for a component without exact tangents.
-RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps);
+/// differentiable. Throws ukdyn::Error for a component without exact tangents. `cancel` (may be
+/// null) is read at every right-hand side: once true the run stops where it is, the samples so far
+/// are returned, `trusted` is false and `message` says it was interrupted (Python's Ctrl-C).
+RunSensitivities run_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
+                                   const std::atomic<bool>* cancel = nullptr);
 
 /// The CSV header of a RunSensitivities: t, the coordinates, their `_dot`, then per parameter p
 /// `dq_<coord>/d<p>` for every coordinate and `dqd_<coord>/d<p>` for every coordinate.
