@@ -360,6 +360,10 @@ void constraint_columns(const System& system, LinearizeData& d, double t, CVecRe
   }
 }
 
+// With lin.dmu_dq, lin.dmu_dqd stored (constraint_force): ∂Qc/∂(q, q̇), and the τ columns, solved
+// here with the same factorisation.
+void store_force_and_tau(const System& system, LinearizeData& d, Index n, LinearizeParts parts);
+
 // The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
 // over dμ) and the τ columns, solved here with the same factorisation.
 void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
@@ -369,13 +373,21 @@ void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeP
   lin.dqdd_dq = X.topLeftCorner(n, n);
   lin.dqdd_dqd = X.topRightCorner(n, n);
   if (parts.constraint_force) {
-    // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
-    lin.dQc_dq = d.dforce_all.leftCols(n);
-    add_at_times(system, d, X.bottomLeftCorner(r, n), lin.dQc_dq);
-    lin.dQc_dqd = d.dforce_all.rightCols(n);
-    add_at_times(system, d, X.bottomRightCorner(r, n), lin.dQc_dqd);
     lin.dmu_dq = X.bottomLeftCorner(r, n);
     lin.dmu_dqd = X.bottomRightCorner(r, n);
+  }
+  store_force_and_tau(system, d, n, parts);
+}
+
+void store_force_and_tau(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
+  Linearization& lin = d.lin;
+  const Index r = d.AR.rows();
+  if (parts.constraint_force) {
+    // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
+    lin.dQc_dq = d.dforce_all.leftCols(n);
+    add_at_times(system, d, lin.dmu_dq, lin.dQc_dq);
+    lin.dQc_dqd = d.dforce_all.rightCols(n);
+    add_at_times(system, d, lin.dmu_dqd, lin.dQc_dqd);
   } else {
     lin.dQc_dq.resize(0, 0);
     lin.dQc_dqd.resize(0, 0);
@@ -460,9 +472,89 @@ void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CV
   solve_kkt(system, d, n);
 }
 
+// The structural pattern of the arrow path's right-hand sides (no applied forces; every row of A
+// kept, so row i of G is row i of A): a robot's rows of A touch its own and the load's
+// coordinates, so along a direction of another robot its F_k (= −dID_k + d(Aᵀλ)_k) and G_k
+// (= −d(A q̈ − b)_k) are zero; the load's F_L takes every direction. Calls f(row start, rows,
+// column start, columns) for robot k's rows of F (n × 2n) by its own and the load's directions
+// of q and of q̇, and for the load's rows by every direction.
+template <class Fn>
+void for_arrow_pattern(const ArrowStructure& st, Index n, Fn&& f) {
+  for (const auto& grp : st.groups) {
+    for (const Index o : {Index{0}, n}) {
+      f(grp.start, grp.size, o + grp.start, grp.size);
+      f(grp.start, grp.size, o + st.load_start, st.load_size);
+    }
+  }
+  f(st.load_start, st.load_size, Index{0}, 2 * n);
+}
+
+// The arrow path's state columns without touching the (n + m) × 2n right-hand sides outside their
+// structural pattern (for_arrow_pattern; the entries outside it were zeroed once and nothing
+// writes them): O(N) blocks zeroed, summed and signed, in place of O(N²) entries. The subsystems
+// assign their diagonal blocks of F, the constraints write all of their rows of G (a
+// tangent_columns() pass zeroes them first) and add d(Aᵀλ) into d.dforce_all. Then either the
+// dense ∂q̈/∂(q, q̇) straight into lin.dqdd_dq, lin.dqdd_dqd (one solve per half: X_k = own − Q_k X_L
+// written there; the robots' dμ only with constraint_force) or the structured d.dqdd_dx.
+void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                         LinearizeParts parts) {
+  const Index n = system.dof(), m = system.rows();
+  const ArrowStructure& st = *system.arrow();
+  if (d.rhs_all.rows() != n + m || d.rhs_all.cols() != 2 * n) d.rhs_all.setZero(n + m, 2 * n);
+  if (d.dforce_all.rows() != n || d.dforce_all.cols() != 2 * n) d.dforce_all.setZero(n, 2 * n);
+  for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
+    d.dforce_all.block(r0, c0, nr, nc).setZero();
+    if (r0 == st.load_start || c0 % n == st.load_start) d.rhs_all.block(r0, c0, nr, nc).setZero();
+  });
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)
+    subsystem_columns(system, d, t, q, qd, k);
+  for (std::size_t c = 0; c < system.constraints().size(); ++c)
+    constraint_columns(system, d, t, q, qd, c);
+  for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
+    d.rhs_all.block(r0, c0, nr, nc) += d.dforce_all.block(r0, c0, nr, nc);
+  });
+  // G = −d(A q̈ − b): a robot's rows by its own and the load's directions, the load's rows by the
+  // load's (zero elsewhere: written so by the constraints).
+  auto G = d.rhs_all.bottomRows(m);
+  for (const Index o : {Index{0}, n}) {
+    for (const auto& grp : st.groups) {
+      for (const Index i : grp.rows) {
+        G.row(i).segment(o + grp.start, grp.size) *= -1.0;
+        G.row(i).segment(o + st.load_start, st.load_size) *= -1.0;
+      }
+    }
+    for (const Index i : st.load_rows) G.row(i).segment(o + st.load_start, st.load_size) *= -1.0;
+  }
+  auto F = d.rhs_all.topRows(n);
+  augment_columns(system, d.fwd, F, G);
+  Linearization& lin = d.lin;
+  d.structured = parts.structured && !parts.constraint_force;
+  if (d.structured) {
+    arrow_kkt_solve_response(st, d.fwd.uk, d.arrow, F, G, d.dqdd_dx);
+    lin.dqdd_dq.resize(0, 0);
+    lin.dqdd_dqd.resize(0, 0);
+  } else {
+    lin.dqdd_dq.resize(n, n);
+    lin.dqdd_dqd.resize(n, n);
+    const Index ry = parts.constraint_force ? m : 0;
+    lin.dmu_dq.resize(ry, ry > 0 ? n : 0);
+    lin.dmu_dqd.resize(ry, ry > 0 ? n : 0);
+    arrow_kkt_solve(st, d.fwd.uk, d.arrow, F.leftCols(n), G.leftCols(n), lin.dqdd_dq, lin.dmu_dq,
+                    ArrowColumns::structural);
+    arrow_kkt_solve(st, d.fwd.uk, d.arrow, F.rightCols(n), G.rightCols(n), lin.dqdd_dqd,
+                    lin.dmu_dqd, ArrowColumns::structural);
+  }
+  store_force_and_tau(system, d, n, parts);
+}
+
 // The state columns (∂/∂q, ∂/∂q̇ and, as `parts` asks, ∂/∂τ) from the components' exact tangents.
 void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
                    LinearizeParts parts) {
+  d.structured = false;
+  if (d.used_arrow && system.applied_forces().empty()) {
+    arrow_state_columns(system, d, t, q, qd, parts);
+    return;
+  }
   const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
   // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
   // column each, solved together with the one factorisation.
@@ -494,6 +586,30 @@ void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVec
   check_inputs(system, t, q, qd, tau);
   prepare_kkt(system, d, t, q, qd, tau, settings);
   state_columns(system, d, t, q, qd, parts);
+}
+
+void dqdd_dx_dense(const LinearizeData& data, Mat& dqdd_dq, Mat& dqdd_dqd) {
+  if (!data.structured) {
+    dqdd_dq = data.lin.dqdd_dq;
+    dqdd_dqd = data.lin.dqdd_dqd;
+    return;
+  }
+  const Index n = data.dqdd_dx.rows;
+  Mat both(n, 2 * n);
+  arrow_response_expand(data.dqdd_dx, both);
+  dqdd_dq = both.leftCols(n);
+  dqdd_dqd = both.rightCols(n);
+}
+
+void dqdd_dx_times(const LinearizeData& data, const Eigen::Ref<const Mat>& V, Eigen::Ref<Mat> out,
+                   Mat& scratch) {
+  if (data.structured) {
+    arrow_response_multiply(data.dqdd_dx, V, out, scratch);
+    return;
+  }
+  const Index n = data.lin.dqdd_dq.rows();
+  out.noalias() = data.lin.dqdd_dq * V.topRows(n);
+  out.noalias() += data.lin.dqdd_dqd * V.bottomRows(n);
 }
 
 Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,
