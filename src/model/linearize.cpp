@@ -254,7 +254,11 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   const auto r = static_cast<Index>(lin.kept_rows.size());
   d.AR.resize(r, n);
   d.bR.resize(r);
-  for (Index k = 0; k < r; ++k) {
+  if (r == f.A.rows()) {  // every row kept (kept_rows ascend): one contiguous copy
+    d.AR = f.A;
+    d.bR = f.b;
+  }
+  for (Index k = 0; k < r && r < f.A.rows(); ++k) {
     d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
@@ -489,19 +493,93 @@ void for_arrow_pattern(const ArrowStructure& st, Index n, Fn&& f) {
   f(st.load_start, st.load_size, Index{0}, 2 * n);
 }
 
+// The blocks constraint c's rows touch on the arrow path: f(start, size) for each robot of their
+// groups (once each) and for the load.
+template <class Fn>
+void for_constraint_blocks(const ArrowStructure& st, const LinearizeData& d, Index off, Index rows,
+                           Fn&& f) {
+  for (Index i = 0; i < rows; ++i) {
+    const Index g = d.row_group[static_cast<std::size_t>(off + i)];
+    bool seen = g < 0;
+    for (Index j = 0; j < i && !seen; ++j)
+      seen = d.row_group[static_cast<std::size_t>(off + j)] == g;
+    if (!seen)
+      f(st.groups[static_cast<std::size_t>(g)].start, st.groups[static_cast<std::size_t>(g)].size);
+  }
+  f(st.load_start, st.load_size);
+}
+
+// Constraint c's tangents on the arrow path: d(A q̈ − b) into the contiguous d.dres_cols (a
+// tangent_columns() pass zeroes all of its rows × 2n; there one memset, in G's rows a short one
+// per column), then −d(A q̈ − b) of each row by its group's directions into G; d(Aᵀλ) added to
+// d.dforce_all. Without tangent_columns(), tangent() along the directions of the blocks its rows
+// touch only (the others move none of its coordinates: zero).
+void arrow_constraint_columns(const System& system, LinearizeData& d, double t, CVecRef q,
+                              CVecRef qd, std::size_t c) {
+  const Index n = system.dof();
+  const ArrowStructure& st = *system.arrow();
+  const Constraint& con = *system.constraints()[c];
+  const Index rows = con.rows(), off = system.constraint_row_offsets()[c];
+  const ConstraintContext ctx{t, d.fwd.constraint_slots(c)};
+  const auto lambda = d.lambda.segment(off, rows);
+  if (d.dres_cols.size() < rows * 2 * n) d.dres_cols.resize(rows * 2 * n);
+  Eigen::Map<Mat> dres(d.dres_cols.data(), rows, 2 * n);
+  const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+  if (all == nullptr || !all->tangent_columns(ctx, q, qd, d.lin.qdd, lambda, dres, d.dforce_all)) {
+    for_constraint_blocks(st, d, off, rows, [&](Index s0, Index nb) {
+      for (const Index col : {Index{0}, n}) {
+        for (Index j = s0; j < s0 + nb; ++j) {
+          VecRef dir = col == 0 ? d.dq : d.dqd;
+          dir(j) = 1.0;
+          d.dforce_c.setZero();
+          if (!con.tangent(ctx, q, qd, d.lin.qdd, lambda, d.dq, d.dqd, dres.col(col + j),
+                           d.dforce_c))
+            throw Error("linearize: a constraint has no exact derivatives");
+          for_constraint_blocks(st, d, off, rows, [&](Index r0, Index nr) {
+            d.dforce_all.col(col + j).segment(r0, nr) += d.dforce_c.segment(r0, nr);
+          });
+          dir(j) = 0.0;
+        }
+      }
+    });
+  }
+  auto G = d.rhs_all.bottomRows(system.rows());
+  for (Index i = 0; i < rows; ++i) {
+    const Index g = d.row_group[static_cast<std::size_t>(off + i)];
+    for (const Index o : {Index{0}, n}) {
+      if (g >= 0) {
+        const auto& grp = st.groups[static_cast<std::size_t>(g)];
+        G.row(off + i).segment(o + grp.start, grp.size) =
+            -dres.row(i).segment(o + grp.start, grp.size);
+      }
+      G.row(off + i).segment(o + st.load_start, st.load_size) =
+          -dres.row(i).segment(o + st.load_start, st.load_size);
+    }
+  }
+}
+
 // The arrow path's state columns without touching the (n + m) × 2n right-hand sides outside their
 // structural pattern (for_arrow_pattern; the entries outside it were zeroed once and nothing
-// writes them): O(N) blocks zeroed, summed and signed, in place of O(N²) entries. The subsystems
-// assign their diagonal blocks of F, the constraints write all of their rows of G (a
-// tangent_columns() pass zeroes them first) and add d(Aᵀλ) into d.dforce_all. Then either the
+// writes them while d.rhs_pattern holds): O(N) blocks zeroed, summed and signed, in place of
+// O(N²) entries. The subsystems assign their diagonal blocks of F, the constraints write their
+// rows of G by their groups' directions (arrow_constraint_columns) and add d(Aᵀλ) into
+// d.dforce_all. Then either the
 // dense ∂q̈/∂(q, q̇) straight into lin.dqdd_dq, lin.dqdd_dqd (one solve per half: X_k = own − Q_k X_L
 // written there; the robots' dμ only with constraint_force) or the structured d.dqdd_dx.
 void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
                          LinearizeParts parts) {
   const Index n = system.dof(), m = system.rows();
   const ArrowStructure& st = *system.arrow();
-  if (d.rhs_all.rows() != n + m || d.rhs_all.cols() != 2 * n) d.rhs_all.setZero(n + m, 2 * n);
-  if (d.dforce_all.rows() != n || d.dforce_all.cols() != 2 * n) d.dforce_all.setZero(n, 2 * n);
+  if (!d.rhs_pattern || d.rhs_all.rows() != n + m || d.rhs_all.cols() != 2 * n ||
+      d.dforce_all.rows() != n || d.dforce_all.cols() != 2 * n) {
+    d.rhs_all.setZero(n + m, 2 * n);
+    d.dforce_all.setZero(n, 2 * n);
+    d.row_group.assign(static_cast<std::size_t>(m), -1);
+    for (std::size_t k = 0; k < st.groups.size(); ++k)
+      for (const Index i : st.groups[k].rows)
+        d.row_group[static_cast<std::size_t>(i)] = static_cast<Index>(k);
+    d.rhs_pattern = true;
+  }
   for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
     d.dforce_all.block(r0, c0, nr, nc).setZero();
     if (r0 == st.load_start || c0 % n == st.load_start) d.rhs_all.block(r0, c0, nr, nc).setZero();
@@ -509,22 +587,11 @@ void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecR
   for (std::size_t k = 0; k < system.subsystems().size(); ++k)
     subsystem_columns(system, d, t, q, qd, k);
   for (std::size_t c = 0; c < system.constraints().size(); ++c)
-    constraint_columns(system, d, t, q, qd, c);
+    arrow_constraint_columns(system, d, t, q, qd, c);
   for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
     d.rhs_all.block(r0, c0, nr, nc) += d.dforce_all.block(r0, c0, nr, nc);
   });
-  // G = −d(A q̈ − b): a robot's rows by its own and the load's directions, the load's rows by the
-  // load's (zero elsewhere: written so by the constraints).
   auto G = d.rhs_all.bottomRows(m);
-  for (const Index o : {Index{0}, n}) {
-    for (const auto& grp : st.groups) {
-      for (const Index i : grp.rows) {
-        G.row(i).segment(o + grp.start, grp.size) *= -1.0;
-        G.row(i).segment(o + st.load_start, st.load_size) *= -1.0;
-      }
-    }
-    for (const Index i : st.load_rows) G.row(i).segment(o + st.load_start, st.load_size) *= -1.0;
-  }
   auto F = d.rhs_all.topRows(n);
   augment_columns(system, d.fwd, F, G);
   Linearization& lin = d.lin;
@@ -555,6 +622,7 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
     arrow_state_columns(system, d, t, q, qd, parts);
     return;
   }
+  d.rhs_pattern = false;
   const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
   // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
   // column each, solved together with the one factorisation.

@@ -91,6 +91,13 @@ struct LinearizeData {
   ArrowKktWorkspace arrow;
   bool allow_arrow = true;  ///< false: always the dense KKT factorisation (the reference)
   bool used_arrow = false;  ///< whether the last call solved with the arrow blocks
+  // The arrow path's right-hand sides by their structural blocks (src/model/linearize.cpp,
+  // arrow_state_columns): one constraint's d(A q̈ − b) along every direction, the arrow group of
+  // each row of A (−1: a row on the load alone), and whether rhs_all and dforce_all are zero
+  // outside the blocks the arrow path writes (false after a dense call).
+  Vec dres_cols;
+  std::vector<Index> row_group;
+  bool rhs_pattern = false;
   /// ∂q̈/∂(q, q̇) = [∂q̈/∂q  ∂q̈/∂q̇] (n × 2n) as own blocks plus the coupling through the load,
   /// when the last call gave it (`structured`; LinearizeParts::structured).
   ArrowResponse dqdd_dx;
