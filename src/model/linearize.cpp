@@ -238,7 +238,7 @@ void kkt_solve(const System& system, LinearizeData& d, Eigen::Ref<Mat> rhs, Out&
 
 // out += A_Rᵀ Y: by the arrow blocks (every row kept) or the dense product.
 void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref<const Mat>& Y,
-                  Mat& out) {
+                  Eigen::Ref<Mat> out) {
   if (d.used_arrow) {
     arrow_add_at_times(*system.arrow(), d.arrow, Y, out);
   } else {
@@ -252,10 +252,12 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   const ForwardData& f = d.fwd;
   Linearization& lin = d.lin;
   const auto r = static_cast<Index>(lin.kept_rows.size());
-  d.AR.resize(r, n);
+  // Every row kept (kept_rows ascend): b_R = b, and A_R = A is read by its blocks on the arrow
+  // path (arrow_add_at_times, not copied), else copied whole.
+  d.AR.resize(d.used_arrow ? 0 : r, n);
   d.bR.resize(r);
-  if (r == f.A.rows()) {  // every row kept (kept_rows ascend): one contiguous copy
-    d.AR = f.A;
+  if (r == f.A.rows()) {
+    if (!d.used_arrow) d.AR = f.A;
     d.bR = f.b;
   }
   for (Index k = 0; k < r && r < f.A.rows(); ++k) {
@@ -277,8 +279,9 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   if (!d.sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
   lin.qdd = d.sol.head(n);
   lin.mu = d.sol.tail(r);
-  lin.Qc.resize(n);
-  lin.Qc.noalias() = d.AR.transpose() * lin.mu;
+  lin.Qc.setZero(n);
+  add_at_times(system, d, Eigen::Map<const Mat>(lin.mu.data(), r, 1),
+               Eigen::Map<Mat>(lin.Qc.data(), n, 1));
   lin.kkt_agreement = (lin.qdd - f.qdd).cwiseAbs().maxCoeff() / (1.0 + f.qdd.cwiseAbs().maxCoeff());
   if (!(lin.kkt_agreement <= 1e-8)) {
     mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
@@ -372,7 +375,7 @@ void store_force_and_tau(const System& system, LinearizeData& d, Index n, Linear
 // over dμ) and the τ columns, solved here with the same factorisation.
 void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
   Linearization& lin = d.lin;
-  const Index r = d.AR.rows();
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
   const Mat& X = d.X;
   lin.dqdd_dq = X.topLeftCorner(n, n);
   lin.dqdd_dqd = X.topRightCorner(n, n);
@@ -385,7 +388,7 @@ void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeP
 
 void store_force_and_tau(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
   Linearization& lin = d.lin;
-  const Index r = d.AR.rows();
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
   if (parts.constraint_force) {
     // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
     lin.dQc_dq = d.dforce_all.leftCols(n);
