@@ -268,6 +268,25 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
             }
           }));
     }
+    // ∂q̈/∂(q, q̇) alone as own blocks plus the coupling through the load
+    // (LinearizeParts::structured; the dense matrices where the arrow solve does not run).
+    with_min_max(benchmark::RegisterBenchmark(
+        ("derivatives/" + name + "_linearize_dqdd_dx_structured").c_str(),
+        [path](benchmark::State& st) {
+          const ukdyn::Scenario sc = ukdyn::load_scenario(path);
+          if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
+            st.SkipWithError("a component has no exact derivatives");
+            return;
+          }
+          const DerivativeState s = derivative_state(sc);
+          ukdyn::LinearizeData data(*sc.system);
+          const ukdyn::LinearizeParts parts{false, false, true};
+          for (auto _ : st) {
+            ukdyn::linearize(*sc.system, data, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, parts);
+            benchmark::DoNotOptimize(data.dqdd_dx.XL.data());
+          }
+          st.counters["structured"] = data.structured ? 1.0 : 0.0;
+        }));
     with_min_max(benchmark::RegisterBenchmark(
         ("derivatives/" + name + "_central_differences").c_str(), [path](benchmark::State& st) {
           const ukdyn::Scenario sc = ukdyn::load_scenario(path);

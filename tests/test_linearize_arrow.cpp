@@ -172,3 +172,93 @@ TEST(LinearizeArrow, RedundantRowsTakeTheDenseRowChoice) {
     }
   }
 }
+
+namespace {
+
+// ∂q̈/∂(q, q̇) alone (LinearizeParts{false, false}: the structural right-hand sides, the products
+// written straight into the result) and the structured result (LinearizeParts::structured), both
+// against the dense KKT path; the structured one expanded and multiplied by a matrix.
+void expect_dqdd_dx_matches_dense(const Scenario& sc) {
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  const State s = moving_state(sc);
+  LinearizeData alone(sys), structured(sys), dense(sys);
+  dense.allow_arrow = false;
+  linearize(sys, dense, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+  linearize(sys, alone, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, LinearizeParts{false, false});
+  linearize(sys, structured, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk,
+            LinearizeParts{false, false, true});
+  ASSERT_TRUE(alone.used_arrow);
+  ASSERT_TRUE(structured.used_arrow);
+  EXPECT_FALSE(alone.structured);
+  ASSERT_TRUE(structured.structured);
+  EXPECT_EQ(structured.lin.dqdd_dq.size(), 0);
+  EXPECT_EQ(alone.lin.dmu_dq.size(), 0);
+  EXPECT_LE(rel(alone.lin.dqdd_dq, dense.lin.dqdd_dq), 1e-12);
+  EXPECT_LE(rel(alone.lin.dqdd_dqd, dense.lin.dqdd_dqd), 1e-12);
+  Mat sq, sqd;
+  dqdd_dx_dense(structured, sq, sqd);
+  EXPECT_LE(rel(sq, dense.lin.dqdd_dq), 1e-12);
+  EXPECT_LE(rel(sqd, dense.lin.dqdd_dqd), 1e-12);
+  // O(N) storage: X_L and N small blocks, fewer entries than the dense n × 2n.
+  const ArrowResponse& r = structured.dqdd_dx;
+  Index stored = r.XL.size();
+  for (const auto& b : r.blocks) stored += b.own.size() + b.Q.size();
+  EXPECT_LT(stored, 2 * n * n);
+  // [∂q̈/∂q ∂q̈/∂q̇] V without the dense matrix, against the dense product.
+  Mat V(2 * n, 3);
+  for (Index i = 0; i < V.size(); ++i) V(i) = std::sin(0.37 * static_cast<double>(i) + 0.1);
+  Mat out(n, 3), scratch;
+  dqdd_dx_times(structured, V, out, scratch);
+  const Mat ref = dense.lin.dqdd_dq * V.topRows(n) + dense.lin.dqdd_dqd * V.bottomRows(n);
+  EXPECT_LE(rel(out, ref), 1e-12);
+  dqdd_dx_times(alone, V, out, scratch);
+  EXPECT_LE(rel(out, ref), 1e-12);
+}
+
+}  // namespace
+
+TEST(LinearizeArrow, DqddAloneAndStructuredMatchTheDenseKkt) {
+  for (const char* name : {"n_robots_4_weld.yaml", "four_panda_plate.yaml"}) {
+    SCOPED_TRACE(name);
+    expect_dqdd_dx_matches_dense(load_scenario(kSource / "scenarios" / name));
+  }
+  SCOPED_TRACE("8 robots");
+  expect_dqdd_dx_matches_dense(load_scenario_text(n_robots_weld(8, false), "n8.yaml"));
+}
+
+// The structured ∂q̈/∂(q, q̇) against central differences of forward() (Richardson-extrapolated),
+// every fifth column, on the shipped four-robot system and eight generated ones.
+TEST(LinearizeArrow, StructuredMatchesCentralDifferences) {
+  const Scenario scs[] = {load_scenario(kSource / "scenarios" / "n_robots_4_weld.yaml"),
+                          load_scenario_text(n_robots_weld(8, false), "n8.yaml")};
+  for (const Scenario& sc : scs) {
+    const System& sys = *sc.system;
+    const Index n = sys.dof();
+    const State s = moving_state(sc);
+    LinearizeData d(sys);
+    linearize(sys, d, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, LinearizeParts{false, false, true});
+    ASSERT_TRUE(d.structured);
+    Mat dq, dqd;
+    dqdd_dx_dense(d, dq, dqd);
+    ForwardData fd(sys);
+    auto qdd_at = [&](const Vec& q, const Vec& qd) {
+      forward(sys, fd, sc.sim.t0, q, qd, s.tau, sc.sim.uk);
+      return Vec(fd.qdd);
+    };
+    for (int which = 0; which < 2; ++which) {
+      const Mat& exact = which == 0 ? dq : dqd;
+      for (Index j = 0; j < n; j += 5) {
+        auto central = [&](double h) {
+          Vec qp = s.q, qm = s.q, vp = s.qd, vm = s.qd;
+          (which == 0 ? qp : vp)(j) += h;
+          (which == 0 ? qm : vm)(j) -= h;
+          return Vec((qdd_at(qp, vp) - qdd_at(qm, vm)) / (2 * h));
+        };
+        const Vec c = (4 * central(5e-4) - central(1e-3)) / 3;
+        EXPECT_LE((exact.col(j) - c).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + c.cwiseAbs().maxCoeff()))
+            << sys.dof() << " coordinates, which " << which << " column " << j;
+      }
+    }
+  }
+}

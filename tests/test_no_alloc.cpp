@@ -102,6 +102,7 @@ void operator delete[](void* p, const std::nothrow_t&) noexcept { std::free(p); 
 
 namespace {
 
+using ukdyn::Mat;
 using ukdyn::Vec;
 
 /// Counts the allocations made by f() (operator new and, on glibc, malloc & co.).
@@ -609,6 +610,26 @@ TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
           EXPECT_EQ(data.lin.dQc_dq.size(), 0);
         }
       }
+      // ∂q̈/∂(q, q̇) structured (own blocks and the coupling through the load) where the arrow
+      // solve runs, dense otherwise: no allocation either, and the same matrix expanded.
+      const ukdyn::LinearizeParts structured{false, false, true};
+      ukdyn::linearize(sys, data, sc.sim.t0, sc.q0, sc.qd0, tau, sc.sim.uk, structured);
+      EXPECT_EQ(data.structured, data.used_arrow);
+      const long count = allocations_in([&] {
+        for (int k = 0; k < 5; ++k)
+          ukdyn::linearize(sys, data, sc.sim.t0 + 0.01 * k, sc.q0, sc.qd0, tau, sc.sim.uk,
+                           structured);
+      });
+      EXPECT_EQ(count, 0) << count << " allocations in 5 structured calls (arrow: " << arrow << ")";
+      ukdyn::LinearizeData fresh(sys);
+      fresh.allow_arrow = arrow;
+      ukdyn::linearize(sys, fresh, sc.sim.t0 + 0.04, sc.q0, sc.qd0, tau, sc.sim.uk);
+      Mat dq, dqd;
+      ukdyn::dqdd_dx_dense(data, dq, dqd);
+      EXPECT_LE((dq - fresh.lin.dqdd_dq).cwiseAbs().maxCoeff(),
+                1e-12 * (1.0 + fresh.lin.dqdd_dq.cwiseAbs().maxCoeff()));
+      EXPECT_LE((dqd - fresh.lin.dqdd_dqd).cwiseAbs().maxCoeff(),
+                1e-12 * (1.0 + fresh.lin.dqdd_dqd.cwiseAbs().maxCoeff()));
     }
   }
 }

@@ -81,10 +81,9 @@ void scatter_rows(const std::vector<Index>& rows, const From& from, To&& to) {
   for (Index i = 0; i < k; ++i) to.row(rows[static_cast<std::size_t>(i)]) = from.row(i);
 }
 
-// The columns where group k's rows of F (its coordinates) or of G are not zero, into gb.cols;
-// returns their number.
-Index nonzero_columns(const ArrowStructure::Group& grp, const Eigen::Ref<const Mat>& F,
-                      const Eigen::Ref<const Mat>& G, ArrowKktWorkspace::GroupBuffers& gb) {
+// The columns where group k's rows of F (its coordinates) or of G are not zero, into gb.cols.
+void nonzero_columns(const ArrowStructure::Group& grp, const Eigen::Ref<const Mat>& F,
+                     const Eigen::Ref<const Mat>& G, ArrowKktWorkspace::GroupBuffers& gb) {
   gb.cols.clear();
   for (Index c = 0; c < F.cols(); ++c) {
     bool nz = false;
@@ -92,7 +91,6 @@ Index nonzero_columns(const ArrowStructure::Group& grp, const Eigen::Ref<const M
     for (std::size_t i = 0; i < grp.rows.size() && !nz; ++i) nz = G(grp.rows[i], c) != 0.0;
     if (nz) gb.cols.push_back(c);
   }
-  return static_cast<Index>(gb.cols.size());
 }
 
 // Those columns of F_k into Z and of G_k into Rc.
@@ -215,27 +213,56 @@ bool arrow_kkt_factor(const ArrowStructure& st, const Mat& A, const UkWorkspace&
   return true;
 }
 
-void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKktWorkspace& ws,
-                     const Eigen::Ref<const Mat>& F, const Eigen::Ref<const Mat>& G,
-                     Eigen::Ref<Mat> X, Eigen::Ref<Mat> Y) {
-  const Index p = F.cols(), sL = st.load_start, nL = st.load_size;
-  const Index m0 = static_cast<Index>(st.load_rows.size());
-  if (p > ws.gL.cols()) {  // more columns than the workspace was built for: resized once
-    ws.gL.resize(nL, p);
-    ws.Y0.resize(m0, p);
-    for (auto& gb : ws.g) {
-      gb.Z.resize(gb.Z.rows(), p);
-      gb.Rc.resize(gb.Rc.rows(), p);
-      gb.R.resize(gb.R.rows(), p);
+namespace {
+
+// Group k's columns for ArrowColumns::structural: in each set of n columns of F (n = F.rows()),
+// the robot's own coordinates and the load's, ascending.
+void structural_columns(const ArrowStructure& st, const ArrowStructure::Group& grp, Index n,
+                        Index p, std::vector<Index>& cols) {
+  cols.clear();
+  const bool robot_first = grp.start < st.load_start;
+  for (Index o = 0; o + n <= p; o += n) {
+    for (const bool robot : {robot_first, !robot_first}) {
+      const Index s = robot ? grp.start : st.load_start, sz = robot ? grp.size : st.load_size;
+      for (Index i = 0; i < sz; ++i) cols.push_back(o + s + i);
     }
   }
+}
+
+// The solve's buffers for p columns (resized once when p exceeds the workspace's columns).
+void reserve_columns(const ArrowStructure& st, ArrowKktWorkspace& ws, Index p) {
+  if (p <= ws.gL.cols()) return;
+  ws.gL.resize(st.load_size, p);
+  ws.Y0.resize(static_cast<Index>(st.load_rows.size()), p);
+  for (auto& gb : ws.g) {
+    gb.Z.resize(gb.Z.rows(), p);
+    gb.Rc.resize(gb.Rc.rows(), p);
+    gb.R.resize(gb.R.rows(), p);
+  }
+}
+
+// Everything of the solve but the coupling products: each robot's own elimination on its columns
+// (gb.cols), the load's X_L (ws.gL) and Y_0 (ws.Y0), and each robot's own parts on its columns,
+// Z = L_k^{-ᵀ} (L_k⁻¹ F_k + Xtᵀ L_S^{-ᵀ} R̃) and Rc = L_S^{-ᵀ} R̃: X_k = Z − Q_k X_L and
+// Y_k = Rc − P_k X_L there.
+void eliminate(const ArrowStructure& st, const UkWorkspace& mass, ArrowKktWorkspace& ws,
+               const Eigen::Ref<const Mat>& F, const Eigen::Ref<const Mat>& G,
+               ArrowColumns columns) {
+  const Index p = F.cols(), sL = st.load_start, nL = st.load_size;
+  const Index m0 = static_cast<Index>(st.load_rows.size());
+  reserve_columns(st, ws, p);
   auto gL = ws.gL.leftCols(p);
   auto Y0 = ws.Y0.leftCols(p);
   gL = F.middleRows(sL, nL);
-  // Each robot on its non-zero columns: Z = L_k⁻¹ F_k, R̃ = L_S⁻¹ (G_k − Xt Z); g += T_kᵀ R̃.
+  // Each robot on its columns: Z = L_k⁻¹ F_k, R̃ = L_S⁻¹ (G_k − Xt Z); g += T_kᵀ R̃.
   for (std::size_t k = 0; k < st.groups.size(); ++k) {
     auto& gb = ws.g[k];
-    const Index q = nonzero_columns(st.groups[k], F, G, gb);
+    if (columns == ArrowColumns::structural) {
+      structural_columns(st, st.groups[k], F.rows(), p, gb.cols);
+    } else {
+      nonzero_columns(st.groups[k], F, G, gb);
+    }
+    const auto q = static_cast<Index>(gb.cols.size());
     auto Z = gb.Z.leftCols(q);
     auto Rc = gb.Rc.leftCols(q);
     gather_columns(st.groups[k], F, G, gb, Z, Rc);
@@ -254,26 +281,47 @@ void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKkt
     gL.noalias() += ws.E * Y0;
   }
   ws.LH.matrixU().solveInPlace(gL);
+  for (std::size_t k = 0; k < st.groups.size(); ++k) {
+    auto& gb = ws.g[k];
+    const auto q = static_cast<Index>(gb.cols.size());
+    auto Z = gb.Z.leftCols(q);
+    auto Rc = gb.Rc.leftCols(q);
+    gb.S.matrixU().solveInPlace(Rc);
+    Z.noalias() += gb.Xt.transpose() * Rc;
+    block_factor_t(mass, st.groups[k].start, st.groups[k].size).solveInPlace(Z);
+  }
+}
+
+// X_b = M_b⁻¹ F_b (in place in X_b) for a block without rows.
+template <class Block>
+void solve_block(const UkWorkspace& mass, Index s, Index nb, Block&& X) {
+  block_factor(mass, s, nb).solveInPlace(X);
+  block_factor_t(mass, s, nb).solveInPlace(X);
+}
+
+}  // namespace
+
+void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKktWorkspace& ws,
+                     const Eigen::Ref<const Mat>& F, const Eigen::Ref<const Mat>& G,
+                     Eigen::Ref<Mat> X, Eigen::Ref<Mat> Y, ArrowColumns columns) {
+  const Index p = F.cols(), sL = st.load_start, nL = st.load_size;
+  const bool with_y = Y.rows() > 0;
+  eliminate(st, mass, ws, F, G, columns);
+  const auto gL = ws.gL.leftCols(p);
   X.middleRows(sL, nL) = gL;
-  scatter_rows(st.load_rows, Y0, Y);
-  // Each robot: Y_k = L_S^{-ᵀ} R̃ − P_k X_L, X_k = L_k^{-ᵀ} (Z + Xtᵀ L_S^{-ᵀ} R̃) − Q_k X_L.
+  if (with_y) scatter_rows(st.load_rows, ws.Y0.leftCols(p), Y);
+  // Each robot: X_k = Z − Q_k X_L, Y_k = Rc − P_k X_L (the products written into X, Y).
   for (std::size_t k = 0; k < st.groups.size(); ++k) {
     const auto& grp = st.groups[k];
     auto& gb = ws.g[k];
     const Index s = grp.start, nk = grp.size, q = static_cast<Index>(gb.cols.size());
-    auto Z = gb.Z.leftCols(q);
-    auto Rc = gb.Rc.leftCols(q);
-    auto R = gb.R.leftCols(p);
-    gb.S.matrixU().solveInPlace(Rc);
-    Z.noalias() += gb.Xt.transpose() * Rc;
-    block_factor_t(mass, s, nk).solveInPlace(Z);
-    R.noalias() = -gb.P * gL;
     X.middleRows(s, nk).noalias() = -gb.Q * gL;
-    for (Index j = 0; j < q; ++j) {
-      const Index c = gb.cols[static_cast<std::size_t>(j)];
-      R.col(c) += Rc.col(j);
-      X.col(c).segment(s, nk) += Z.col(j);
-    }
+    for (Index j = 0; j < q; ++j)
+      X.col(gb.cols[static_cast<std::size_t>(j)]).segment(s, nk) += gb.Z.col(j);
+    if (!with_y) continue;
+    auto R = gb.R.leftCols(p);
+    R.noalias() = -gb.P * gL;
+    for (Index j = 0; j < q; ++j) R.col(gb.cols[static_cast<std::size_t>(j)]) += gb.Rc.col(j);
     scatter_rows(grp.rows, R, Y);
   }
   // Blocks without rows: X_b = M_b⁻¹ F_b.
@@ -282,8 +330,79 @@ void arrow_kkt_solve(const ArrowStructure& st, const UkWorkspace& mass, ArrowKkt
     if (!ws.other[b]) continue;
     const Index s = lay.start[b], nb = lay.size[b];
     X.middleRows(s, nb) = F.middleRows(s, nb);
-    block_factor(mass, s, nb).solveInPlace(X.middleRows(s, nb));
-    block_factor_t(mass, s, nb).solveInPlace(X.middleRows(s, nb));
+    solve_block(mass, s, nb, X.middleRows(s, nb));
+  }
+}
+
+void arrow_kkt_solve_response(const ArrowStructure& st, const UkWorkspace& mass,
+                              ArrowKktWorkspace& ws, const Eigen::Ref<const Mat>& F,
+                              const Eigen::Ref<const Mat>& G, ArrowResponse& out) {
+  const Index n = F.rows(), p = F.cols();
+  eliminate(st, mass, ws, F, G, ArrowColumns::structural);
+  const auto& lay = mass.layout;
+  std::size_t others = 0;
+  for (std::size_t b = 0; b < lay.blocks(); ++b) others += ws.other[b] ? 1 : 0;
+  out.blocks.resize(st.groups.size() + others);
+  out.rows = n;
+  out.cols = p;
+  out.load_start = st.load_start;
+  out.load_size = st.load_size;
+  out.XL = ws.gL.leftCols(p);
+  for (std::size_t k = 0; k < st.groups.size(); ++k) {
+    const auto& gb = ws.g[k];
+    auto& blk = out.blocks[k];
+    blk.start = st.groups[k].start;
+    blk.size = st.groups[k].size;
+    blk.cols = gb.cols;
+    blk.own = gb.Z.leftCols(static_cast<Index>(gb.cols.size()));
+    blk.Q = gb.Q;
+  }
+  // Blocks without rows: Own_b = M_b⁻¹ F_b on their own directions.
+  std::size_t i = st.groups.size();
+  for (std::size_t b = 0; b < lay.blocks(); ++b) {
+    if (!ws.other[b]) continue;
+    auto& blk = out.blocks[i++];
+    blk.start = lay.start[b];
+    blk.size = lay.size[b];
+    blk.cols.clear();
+    for (Index o = 0; o + n <= p; o += n)
+      for (Index j = 0; j < blk.size; ++j) blk.cols.push_back(o + blk.start + j);
+    blk.own.resize(blk.size, static_cast<Index>(blk.cols.size()));
+    for (std::size_t j = 0; j < blk.cols.size(); ++j)
+      blk.own.col(static_cast<Index>(j)) = F.col(blk.cols[j]).segment(blk.start, blk.size);
+    solve_block(mass, blk.start, blk.size, blk.own);
+    blk.Q.resize(0, 0);
+  }
+}
+
+void arrow_response_expand(const ArrowResponse& r, Eigen::Ref<Mat> X) {
+  X.middleRows(r.load_start, r.load_size) = r.XL;
+  for (const auto& blk : r.blocks) {
+    auto Xb = X.middleRows(blk.start, blk.size);
+    if (blk.Q.size() > 0) {
+      Xb.noalias() = -blk.Q * r.XL;
+    } else {
+      Xb.setZero();
+    }
+    for (std::size_t j = 0; j < blk.cols.size(); ++j)
+      Xb.col(blk.cols[j]) += blk.own.col(static_cast<Index>(j));
+  }
+}
+
+void arrow_response_multiply(const ArrowResponse& r, const Eigen::Ref<const Mat>& V,
+                             Eigen::Ref<Mat> out, Mat& scratch) {
+  scratch.resize(r.load_size, V.cols());
+  scratch.noalias() = r.XL * V;
+  out.middleRows(r.load_start, r.load_size) = scratch;
+  for (const auto& blk : r.blocks) {
+    auto ob = out.middleRows(blk.start, blk.size);
+    if (blk.Q.size() > 0) {
+      ob.noalias() = -blk.Q * scratch;
+    } else {
+      ob.setZero();
+    }
+    for (std::size_t j = 0; j < blk.cols.size(); ++j)
+      ob.noalias() += blk.own.col(static_cast<Index>(j)) * V.row(blk.cols[j]);
   }
 }
 

@@ -238,7 +238,7 @@ void kkt_solve(const System& system, LinearizeData& d, Eigen::Ref<Mat> rhs, Out&
 
 // out += A_Rᵀ Y: by the arrow blocks (every row kept) or the dense product.
 void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref<const Mat>& Y,
-                  Mat& out) {
+                  Eigen::Ref<Mat> out) {
   if (d.used_arrow) {
     arrow_add_at_times(*system.arrow(), d.arrow, Y, out);
   } else {
@@ -252,9 +252,15 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   const ForwardData& f = d.fwd;
   Linearization& lin = d.lin;
   const auto r = static_cast<Index>(lin.kept_rows.size());
-  d.AR.resize(r, n);
+  // Every row kept (kept_rows ascend): b_R = b, and A_R = A is read by its blocks on the arrow
+  // path (arrow_add_at_times, not copied), else copied whole.
+  d.AR.resize(d.used_arrow ? 0 : r, n);
   d.bR.resize(r);
-  for (Index k = 0; k < r; ++k) {
+  if (r == f.A.rows()) {
+    if (!d.used_arrow) d.AR = f.A;
+    d.bR = f.b;
+  }
+  for (Index k = 0; k < r && r < f.A.rows(); ++k) {
     d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
@@ -273,8 +279,9 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   if (!d.sol.allFinite()) throw Error("linearize: the KKT matrix of the constraints is singular");
   lin.qdd = d.sol.head(n);
   lin.mu = d.sol.tail(r);
-  lin.Qc.resize(n);
-  lin.Qc.noalias() = d.AR.transpose() * lin.mu;
+  lin.Qc.setZero(n);
+  add_at_times(system, d, Eigen::Map<const Mat>(lin.mu.data(), r, 1),
+               Eigen::Map<Mat>(lin.Qc.data(), n, 1));
   lin.kkt_agreement = (lin.qdd - f.qdd).cwiseAbs().maxCoeff() / (1.0 + f.qdd.cwiseAbs().maxCoeff());
   if (!(lin.kkt_agreement <= 1e-8)) {
     mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
@@ -360,22 +367,34 @@ void constraint_columns(const System& system, LinearizeData& d, double t, CVecRe
   }
 }
 
+// With lin.dmu_dq, lin.dmu_dqd stored (constraint_force): ∂Qc/∂(q, q̇), and the τ columns, solved
+// here with the same factorisation.
+void store_force_and_tau(const System& system, LinearizeData& d, Index n, LinearizeParts parts);
+
 // The derivatives from the solved columns X = K⁻¹ [rhs along e_j of q | of q̇] (n + r rows: dq̈
 // over dμ) and the τ columns, solved here with the same factorisation.
 void store_solutions(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
   Linearization& lin = d.lin;
-  const Index r = d.AR.rows();
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
   const Mat& X = d.X;
   lin.dqdd_dq = X.topLeftCorner(n, n);
   lin.dqdd_dqd = X.topRightCorner(n, n);
   if (parts.constraint_force) {
-    // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
-    lin.dQc_dq = d.dforce_all.leftCols(n);
-    add_at_times(system, d, X.bottomLeftCorner(r, n), lin.dQc_dq);
-    lin.dQc_dqd = d.dforce_all.rightCols(n);
-    add_at_times(system, d, X.bottomRightCorner(r, n), lin.dQc_dqd);
     lin.dmu_dq = X.bottomLeftCorner(r, n);
     lin.dmu_dqd = X.bottomRightCorner(r, n);
+  }
+  store_force_and_tau(system, d, n, parts);
+}
+
+void store_force_and_tau(const System& system, LinearizeData& d, Index n, LinearizeParts parts) {
+  Linearization& lin = d.lin;
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
+  if (parts.constraint_force) {
+    // dQc = (dA_R)ᵀ μ + A_Rᵀ dμ
+    lin.dQc_dq = d.dforce_all.leftCols(n);
+    add_at_times(system, d, lin.dmu_dq, lin.dQc_dq);
+    lin.dQc_dqd = d.dforce_all.rightCols(n);
+    add_at_times(system, d, lin.dmu_dqd, lin.dQc_dqd);
   } else {
     lin.dQc_dq.resize(0, 0);
     lin.dQc_dqd.resize(0, 0);
@@ -460,9 +479,153 @@ void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CV
   solve_kkt(system, d, n);
 }
 
+// The structural pattern of the arrow path's right-hand sides (no applied forces; every row of A
+// kept, so row i of G is row i of A): a robot's rows of A touch its own and the load's
+// coordinates, so along a direction of another robot its F_k (= −dID_k + d(Aᵀλ)_k) and G_k
+// (= −d(A q̈ − b)_k) are zero; the load's F_L takes every direction. Calls f(row start, rows,
+// column start, columns) for robot k's rows of F (n × 2n) by its own and the load's directions
+// of q and of q̇, and for the load's rows by every direction.
+template <class Fn>
+void for_arrow_pattern(const ArrowStructure& st, Index n, Fn&& f) {
+  for (const auto& grp : st.groups) {
+    for (const Index o : {Index{0}, n}) {
+      f(grp.start, grp.size, o + grp.start, grp.size);
+      f(grp.start, grp.size, o + st.load_start, st.load_size);
+    }
+  }
+  f(st.load_start, st.load_size, Index{0}, 2 * n);
+}
+
+// The blocks constraint c's rows touch on the arrow path: f(start, size) for each robot of their
+// groups (once each) and for the load.
+template <class Fn>
+void for_constraint_blocks(const ArrowStructure& st, const LinearizeData& d, Index off, Index rows,
+                           Fn&& f) {
+  for (Index i = 0; i < rows; ++i) {
+    const Index g = d.row_group[static_cast<std::size_t>(off + i)];
+    bool seen = g < 0;
+    for (Index j = 0; j < i && !seen; ++j)
+      seen = d.row_group[static_cast<std::size_t>(off + j)] == g;
+    if (!seen)
+      f(st.groups[static_cast<std::size_t>(g)].start, st.groups[static_cast<std::size_t>(g)].size);
+  }
+  f(st.load_start, st.load_size);
+}
+
+// Constraint c's tangents on the arrow path: d(A q̈ − b) into the contiguous d.dres_cols (a
+// tangent_columns() pass zeroes all of its rows × 2n; there one memset, in G's rows a short one
+// per column), then −d(A q̈ − b) of each row by its group's directions into G; d(Aᵀλ) added to
+// d.dforce_all. Without tangent_columns(), tangent() along the directions of the blocks its rows
+// touch only (the others move none of its coordinates: zero).
+void arrow_constraint_columns(const System& system, LinearizeData& d, double t, CVecRef q,
+                              CVecRef qd, std::size_t c) {
+  const Index n = system.dof();
+  const ArrowStructure& st = *system.arrow();
+  const Constraint& con = *system.constraints()[c];
+  const Index rows = con.rows(), off = system.constraint_row_offsets()[c];
+  const ConstraintContext ctx{t, d.fwd.constraint_slots(c)};
+  const auto lambda = d.lambda.segment(off, rows);
+  if (d.dres_cols.size() < rows * 2 * n) d.dres_cols.resize(rows * 2 * n);
+  Eigen::Map<Mat> dres(d.dres_cols.data(), rows, 2 * n);
+  const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+  if (all == nullptr || !all->tangent_columns(ctx, q, qd, d.lin.qdd, lambda, dres, d.dforce_all)) {
+    for_constraint_blocks(st, d, off, rows, [&](Index s0, Index nb) {
+      for (const Index col : {Index{0}, n}) {
+        for (Index j = s0; j < s0 + nb; ++j) {
+          VecRef dir = col == 0 ? d.dq : d.dqd;
+          dir(j) = 1.0;
+          d.dforce_c.setZero();
+          if (!con.tangent(ctx, q, qd, d.lin.qdd, lambda, d.dq, d.dqd, dres.col(col + j),
+                           d.dforce_c))
+            throw Error("linearize: a constraint has no exact derivatives");
+          for_constraint_blocks(st, d, off, rows, [&](Index r0, Index nr) {
+            d.dforce_all.col(col + j).segment(r0, nr) += d.dforce_c.segment(r0, nr);
+          });
+          dir(j) = 0.0;
+        }
+      }
+    });
+  }
+  auto G = d.rhs_all.bottomRows(system.rows());
+  for (Index i = 0; i < rows; ++i) {
+    const Index g = d.row_group[static_cast<std::size_t>(off + i)];
+    for (const Index o : {Index{0}, n}) {
+      if (g >= 0) {
+        const auto& grp = st.groups[static_cast<std::size_t>(g)];
+        G.row(off + i).segment(o + grp.start, grp.size) =
+            -dres.row(i).segment(o + grp.start, grp.size);
+      }
+      G.row(off + i).segment(o + st.load_start, st.load_size) =
+          -dres.row(i).segment(o + st.load_start, st.load_size);
+    }
+  }
+}
+
+// The arrow path's state columns without touching the (n + m) × 2n right-hand sides outside their
+// structural pattern (for_arrow_pattern; the entries outside it were zeroed once and nothing
+// writes them while d.rhs_pattern holds): O(N) blocks zeroed, summed and signed, in place of
+// O(N²) entries. The subsystems assign their diagonal blocks of F, the constraints write their
+// rows of G by their groups' directions (arrow_constraint_columns) and add d(Aᵀλ) into
+// d.dforce_all. Then either the
+// dense ∂q̈/∂(q, q̇) straight into lin.dqdd_dq, lin.dqdd_dqd (one solve per half: X_k = own − Q_k X_L
+// written there; the robots' dμ only with constraint_force) or the structured d.dqdd_dx.
+void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                         LinearizeParts parts) {
+  const Index n = system.dof(), m = system.rows();
+  const ArrowStructure& st = *system.arrow();
+  if (!d.rhs_pattern || d.rhs_all.rows() != n + m || d.rhs_all.cols() != 2 * n ||
+      d.dforce_all.rows() != n || d.dforce_all.cols() != 2 * n) {
+    d.rhs_all.setZero(n + m, 2 * n);
+    d.dforce_all.setZero(n, 2 * n);
+    d.row_group.assign(static_cast<std::size_t>(m), -1);
+    for (std::size_t k = 0; k < st.groups.size(); ++k)
+      for (const Index i : st.groups[k].rows)
+        d.row_group[static_cast<std::size_t>(i)] = static_cast<Index>(k);
+    d.rhs_pattern = true;
+  }
+  for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
+    d.dforce_all.block(r0, c0, nr, nc).setZero();
+    if (r0 == st.load_start || c0 % n == st.load_start) d.rhs_all.block(r0, c0, nr, nc).setZero();
+  });
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)
+    subsystem_columns(system, d, t, q, qd, k);
+  for (std::size_t c = 0; c < system.constraints().size(); ++c)
+    arrow_constraint_columns(system, d, t, q, qd, c);
+  for_arrow_pattern(st, n, [&](Index r0, Index nr, Index c0, Index nc) {
+    d.rhs_all.block(r0, c0, nr, nc) += d.dforce_all.block(r0, c0, nr, nc);
+  });
+  auto G = d.rhs_all.bottomRows(m);
+  auto F = d.rhs_all.topRows(n);
+  augment_columns(system, d.fwd, F, G);
+  Linearization& lin = d.lin;
+  d.structured = parts.structured && !parts.constraint_force;
+  if (d.structured) {
+    arrow_kkt_solve_response(st, d.fwd.uk, d.arrow, F, G, d.dqdd_dx);
+    lin.dqdd_dq.resize(0, 0);
+    lin.dqdd_dqd.resize(0, 0);
+  } else {
+    lin.dqdd_dq.resize(n, n);
+    lin.dqdd_dqd.resize(n, n);
+    const Index ry = parts.constraint_force ? m : 0;
+    lin.dmu_dq.resize(ry, ry > 0 ? n : 0);
+    lin.dmu_dqd.resize(ry, ry > 0 ? n : 0);
+    arrow_kkt_solve(st, d.fwd.uk, d.arrow, F.leftCols(n), G.leftCols(n), lin.dqdd_dq, lin.dmu_dq,
+                    ArrowColumns::structural);
+    arrow_kkt_solve(st, d.fwd.uk, d.arrow, F.rightCols(n), G.rightCols(n), lin.dqdd_dqd,
+                    lin.dmu_dqd, ArrowColumns::structural);
+  }
+  store_force_and_tau(system, d, n, parts);
+}
+
 // The state columns (∂/∂q, ∂/∂q̇ and, as `parts` asks, ∂/∂τ) from the components' exact tangents.
 void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
                    LinearizeParts parts) {
+  d.structured = false;
+  if (d.used_arrow && system.applied_forces().empty()) {
+    arrow_state_columns(system, d, t, q, qd, parts);
+    return;
+  }
+  d.rhs_pattern = false;
   const Index n = system.dof(), r = static_cast<Index>(d.lin.kept_rows.size());
   // The directions e_j of q and of q̇: the right-hand sides of the differentiated KKT system, one
   // column each, solved together with the one factorisation.
@@ -494,6 +657,30 @@ void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVec
   check_inputs(system, t, q, qd, tau);
   prepare_kkt(system, d, t, q, qd, tau, settings);
   state_columns(system, d, t, q, qd, parts);
+}
+
+void dqdd_dx_dense(const LinearizeData& data, Mat& dqdd_dq, Mat& dqdd_dqd) {
+  if (!data.structured) {
+    dqdd_dq = data.lin.dqdd_dq;
+    dqdd_dqd = data.lin.dqdd_dqd;
+    return;
+  }
+  const Index n = data.dqdd_dx.rows;
+  Mat both(n, 2 * n);
+  arrow_response_expand(data.dqdd_dx, both);
+  dqdd_dq = both.leftCols(n);
+  dqdd_dqd = both.rightCols(n);
+}
+
+void dqdd_dx_times(const LinearizeData& data, const Eigen::Ref<const Mat>& V, Eigen::Ref<Mat> out,
+                   Mat& scratch) {
+  if (data.structured) {
+    arrow_response_multiply(data.dqdd_dx, V, out, scratch);
+    return;
+  }
+  const Index n = data.lin.dqdd_dq.rows();
+  out.noalias() = data.lin.dqdd_dq * V.topRows(n);
+  out.noalias() += data.lin.dqdd_dqd * V.bottomRows(n);
 }
 
 Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,

@@ -75,14 +75,61 @@ class ArrowKktWorkspace {
 bool arrow_kkt_factor(const ArrowStructure& structure, const Mat& A, const UkWorkspace& mass,
                       double rank_rel_tol, ArrowKktWorkspace& ws);
 
+/// Which columns robot k's own eliminations run on.
+enum class ArrowColumns {
+  scan,        ///< those where its rows of F or G are not zero (read from F and G)
+  structural,  ///< F's columns are directions of the n coordinates, in sets of n (q, then q̇):
+               ///< in each set the robot's own and the load's — the only ones where the
+               ///< derivatives' F_k, G_k can be non-zero (its rows touch no other coordinates),
+               ///< known without reading F and G. The caller vouches that F_k, G_k are zero
+               ///< elsewhere, and that a block without rows has F_b zero outside its own columns.
+};
+
 /// X (n × p) and Y (m × p, rows in A's order) of the KKT system above for the p columns of F
 /// (n × p) and G (m × p), with the factors of arrow_kkt_factor(). Robot k's own eliminations run
-/// on the columns where its rows of F or G are not zero (its own directions and the load's, for
-/// the derivatives' columns); every column gets X_k = (own part) − Q_k X_L and Y_k = (own part) −
-/// P_k X_L, one product each. Allocation-free while p is within the workspace's columns.
+/// on its columns (`columns`); every column gets X_k = (own part) − Q_k X_L and Y_k = (own part) −
+/// P_k X_L, one product each. Y with no rows: the robots' multipliers are not formed (X alone).
+/// Allocation-free while p is within the workspace's columns.
 void arrow_kkt_solve(const ArrowStructure& structure, const UkWorkspace& mass,
                      ArrowKktWorkspace& ws, const Eigen::Ref<const Mat>& F,
-                     const Eigen::Ref<const Mat>& G, Eigen::Ref<Mat> X, Eigen::Ref<Mat> Y);
+                     const Eigen::Ref<const Mat>& G, Eigen::Ref<Mat> X, Eigen::Ref<Mat> Y,
+                     ArrowColumns columns = ArrowColumns::scan);
+
+/// The X of arrow_kkt_solve() in O(N) storage, for columns that are directions of the coordinates
+/// (ArrowColumns::structural): X = (own parts) + (coupling through the load), row block by row
+/// block —
+///   the load's rows:      X_L (n_L × p, every column);
+///   robot k's rows:       X_k = Own_k E_kᵀ − Q_k X_L, Own_k on its columns cols_k (its own and
+///                         the load's directions), E_k the selection of those columns;
+///   a block without rows: Own_b E_bᵀ (its own directions; Q_b empty).
+/// Dense, X is n × p with N² blocks; here it is the n_L × p X_L plus N small blocks.
+struct ArrowResponse {
+  struct Block {
+    Index start = 0, size = 0;
+    std::vector<Index> cols;  ///< the columns of Own, ascending
+    Mat own;                  ///< size × cols.size()
+    Mat Q;                    ///< size × n_L: the response to the load's X_L (no rows: none)
+  };
+  Index rows = 0, cols = 0;  ///< n, p
+  Index load_start = 0, load_size = 0;
+  Mat XL;  ///< n_L × p
+  std::vector<Block> blocks;
+};
+
+/// arrow_kkt_solve(..., ArrowColumns::structural) into `out` without forming the dense X: the
+/// robots' own eliminations and the load's solve, O(N) for the derivatives' 2n columns.
+/// Allocation-free after the first call for a structure.
+void arrow_kkt_solve_response(const ArrowStructure& structure, const UkWorkspace& mass,
+                              ArrowKktWorkspace& ws, const Eigen::Ref<const Mat>& F,
+                              const Eigen::Ref<const Mat>& G, ArrowResponse& out);
+
+/// The dense X (rows × cols) of a response.
+void arrow_response_expand(const ArrowResponse& r, Eigen::Ref<Mat> X);
+
+/// out = X V for V (cols × k) without the dense X: X_L V once, then per block Own (rows of V at its
+/// columns) − Q (X_L V). `scratch` takes X_L V (resized to n_L × k).
+void arrow_response_multiply(const ArrowResponse& r, const Eigen::Ref<const Mat>& V,
+                             Eigen::Ref<Mat> out, Mat& scratch);
 
 /// out += Aᵀ Y for the arrow-structured A (its group and load blocks in ws; Y m × p, out n × p):
 /// the constraint force's columns without a dense product.

@@ -59,6 +59,11 @@ void state_space(const Linearization& lin, Mat& F, Mat& G);
 struct LinearizeParts {
   bool tau = true;  ///< ∂q̈/∂τ (and, with constraint_force, ∂Qc/∂τ and ∂μ/∂τ)
   bool constraint_force = true;  ///< ∂Qc/∂(q, q̇) and ∂μ/∂(q, q̇) (Qc and μ are always given)
+  /// ∂q̈/∂(q, q̇) in O(N) storage (LinearizeData::dqdd_dx, an ArrowResponse) in place of the
+  /// dense lin.dqdd_dq, lin.dqdd_dqd, where the block-arrow KKT solve runs without applied forces
+  /// and without constraint_force; elsewhere the dense matrices as usual. LinearizeData::structured
+  /// says which one a call gave; dqdd_dx_dense() and dqdd_dx_times() read either.
+  bool structured = false;
 };
 
 /// Everything one linearize() call writes, for one system, owned by the caller (Model / Data: the
@@ -86,7 +91,27 @@ struct LinearizeData {
   ArrowKktWorkspace arrow;
   bool allow_arrow = true;  ///< false: always the dense KKT factorisation (the reference)
   bool used_arrow = false;  ///< whether the last call solved with the arrow blocks
+  // The arrow path's right-hand sides by their structural blocks (src/model/linearize.cpp,
+  // arrow_state_columns): one constraint's d(A q̈ − b) along every direction, the arrow group of
+  // each row of A (−1: a row on the load alone), and whether rhs_all and dforce_all are zero
+  // outside the blocks the arrow path writes (false after a dense call).
+  Vec dres_cols;
+  std::vector<Index> row_group;
+  bool rhs_pattern = false;
+  /// ∂q̈/∂(q, q̇) = [∂q̈/∂q  ∂q̈/∂q̇] (n × 2n) as own blocks plus the coupling through the load,
+  /// when the last call gave it (`structured`; LinearizeParts::structured).
+  ArrowResponse dqdd_dx;
+  bool structured = false;
 };
+
+/// ∂q̈/∂q and ∂q̈/∂q̇ of the last call into `data`, dense: expanded from data.dqdd_dx when the call
+/// gave the structured result, else copied from data.lin.
+void dqdd_dx_dense(const LinearizeData& data, Mat& dqdd_dq, Mat& dqdd_dqd);
+
+/// out = [∂q̈/∂q  ∂q̈/∂q̇] V for V (2n × k) of the last call into `data`, in O(N k) from the
+/// structured result (or a dense product); `scratch` as arrow_response_multiply's.
+void dqdd_dx_times(const LinearizeData& data, const Eigen::Ref<const Mat>& V, Eigen::Ref<Mat> out,
+                   Mat& scratch);
 
 /// The linearisation at (t, q, q̇, τ) into `data.lin` (see linearize() below for the errors).
 void linearize(const System& system, LinearizeData& data, double t, CVecRef q, CVecRef qd,
