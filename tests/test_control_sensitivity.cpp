@@ -7,13 +7,18 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <complex>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <sstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "control_systems.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
@@ -106,6 +111,55 @@ double law_check(const Scenario& sc, double t, const Vec& q, const Vec& qd) {
   return rel(both, ref);
 }
 
+// ∂τ/∂(q, q̇) of the loop by Richardson's extrapolation of central differences with the step
+// 1e-3 max(1, |x_j|) ([Richardson1911]; error O(h⁴) ≈ 1e-12 here, round-off ≈ 1e-16 |τ| / h):
+// larger than law_derivatives_by_differences()'s 1e-6, whose round-off on paper_control
+// (|τ| ≈ 200 against |∂τ/∂q| ≈ 30) reaches 1e-7 of the largest entry.
+Mat richardson_jacobian(ControlRun& run, double t, const Vec& q, const Vec& qd) {
+  const Index n = q.size();
+  Mat D(n, 2 * n);
+  std::array<Vec, 4> tau;
+  for (Index j = 0; j < 2 * n; ++j) {
+    const double h = 1e-3 * std::max(1.0, std::abs(j < n ? q(j) : qd(j - n)));
+    const std::array<double, 4> at = {h, -h, h / 2, -h / 2};
+    for (std::size_t k = 0; k < 4; ++k) {
+      Vec a = q, b = qd;
+      (j < n ? a(j) : b(j - n)) += at[k];
+      tau[k].resize(n);
+      run.loop->evaluate(t, a, b);
+      run.loop->plant_tau(tau[k]);
+    }
+    D.col(j) = ((4.0 / h) * (tau[2] - tau[3]) - (0.5 / h) * (tau[0] - tau[1])) / 3.0;
+  }
+  return D;
+}
+
+// The exact ∂τ/∂(q, q̇) of law_derivatives() (method "exact") against richardson_jacobian() and
+// against the fallback law_derivatives_by_differences() at a random state near the scenario's
+// start, with `law` in place of the scenario's: the worst entry relative to the largest, each.
+std::pair<double, double> exact_against_differences(Scenario sc, const ServoLawSettings& law,
+                                                    unsigned seed) {
+  auto spec = std::make_shared<ControlSpec>(*sc.control);
+  spec->law = law;
+  sc.control = spec;
+  const auto run = make_control_run(sc);
+  std::srand(seed);
+  const Index n = run->q0.size();
+  const Vec q = run->q0 + 1e-2 * Vec::Random(n), qd = run->qd0 + 0.1 * Vec::Random(n);
+  const double t = 0.1 + 0.5 * (1.0 + Vec::Random(1)(0));
+  const LawDerivatives exact = law_derivatives(*run, t, q, qd);
+  EXPECT_EQ(exact.method, "exact") << sc.name;
+  EXPECT_TRUE(exact.kinks.empty()) << sc.name;
+  const LawDerivatives diff = law_derivatives_by_differences(*run, t, q, qd);
+  EXPECT_EQ(diff.method, "differences: asked for");
+  Mat a(n, 2 * n), b(n, 2 * n);
+  a << exact.dtau_dq, exact.dtau_dqd;
+  b << diff.dtau_dq, diff.dtau_dqd;
+  const Mat ref = richardson_jacobian(*run, t, q, qd);
+  EXPECT_GT(ref.cwiseAbs().maxCoeff(), 0.0);
+  return {rel(a, ref), rel(a, b)};
+}
+
 }  // namespace
 
 // The law's derivatives against central differences: the three built-in laws on the pendulum at
@@ -137,6 +191,52 @@ TEST(ControlDerivatives, LawDerivativesMatchCentralDifferences) {
   std::cout << "[ control ] paper_control at its start: d tau/dx against central differences " << r
             << "\n";
   EXPECT_LT(r, 1e-7);
+}
+
+// Each law kind (the robust law outside and inside its boundary layer, and without its robust
+// term) on paper_control.yaml, paper_mecanum_wheels.yaml, the held pendulum (one actuator, one
+// physical row: the actuation solve's projector and pseudo-inverse move with q) and the pendulum
+// with a moving reference (A of the servo row depends on t): exact against differences.
+TEST(ControlDerivatives, ExactLawJacobianMatchesDifferences) {
+  ServoLawSettings ff, st, ro, inside, fb;
+  ff.kind = ControlLawKind::feedforward;
+  st.kind = ControlLawKind::stabilized;
+  st.omega = 4.0;
+  ro.kind = inside.kind = fb.kind = ControlLawKind::robust;
+  ro.lambda = inside.lambda = fb.lambda = 2.0;
+  ro.kappa = inside.kappa = fb.kappa = 5.0;
+  ro.rho = inside.rho = 2.0;
+  ro.epsilon = 1e-3;
+  inside.epsilon = 1e3;
+  fb.rho = 0.0;
+  const std::vector<std::pair<std::string, Scenario>> scenarios = {
+      {"paper_control", load_scenario(kSource / "scenarios" / "paper_control.yaml")},
+      {"paper_mecanum_wheels", load_scenario(kSource / "scenarios" / "paper_mecanum_wheels.yaml")},
+      {"held pendulum", load_scenario_text(hold_yaml("  law: feedforward\n"), "hold.yaml")},
+      {"moving reference",
+       load_scenario_text(uktest::pendulum_servo_yaml(1.0, "control:\n  law: feedforward\n"),
+                          "pendulum_servo.yaml")}};
+  const std::vector<std::pair<std::string, ServoLawSettings>> laws = {
+      {"feedforward", ff},
+      {"stabilized", st},
+      {"robust outside the layer", ro},
+      {"robust inside the layer", inside},
+      {"robust, rho 0", fb}};
+  for (const auto& [sname, sc] : scenarios) {
+    double worst = 0.0, worst_fallback = 0.0;
+    for (const auto& [lname, law] : laws) {
+      for (unsigned seed = 1; seed <= 3; ++seed) {
+        const auto [r, r_fallback] = exact_against_differences(sc, law, seed);
+        EXPECT_LT(r, 1e-8) << sname << ", " << lname << ", seed " << seed;
+        EXPECT_LT(r_fallback, 1e-6) << sname << ", " << lname << ", seed " << seed;
+        worst = std::max(worst, r);
+        worst_fallback = std::max(worst_fallback, r_fallback);
+      }
+    }
+    std::cout << "[ control ] " << sname << ", five laws at three random states: exact d tau/dx "
+              << "against Richardson (step 1e-3) " << worst << ", against the fallback (step 1e-6) "
+              << worst_fallback << "\n";
+  }
 }
 
 // At the held equilibrium on the exact model, the servo error obeys a linear ODE whose roots are
