@@ -496,6 +496,24 @@ TEST(ControlRunSensitivity, SaturationIsNamed) {
   const ClosedLoopLinearization away =
       closed_loop_linearization(sc, before(0), before.segment(1, 2), before.segment(3, 2));
   EXPECT_TRUE(away.law.kinks.empty());
+  // beyond the limit the exact ∂τ/∂(q, q̇) is 0 (u = ±limit), inside it is not
+  const Vec beyond = state(k, starts_over ? 0.0 : 1.0), inside = state(k, starts_over ? 1.0 : 0.0);
+  for (const bool over_limit : {true, false}) {
+    const Vec& x = over_limit ? beyond : inside;
+    const ClosedLoopLinearization c =
+        closed_loop_linearization(sc, x(0), x.segment(1, 2), x.segment(3, 2));
+    EXPECT_EQ(c.law.method, "exact");
+    EXPECT_TRUE(c.law.kinks.empty());
+    const double size =
+        std::max(c.law.dtau_dq.cwiseAbs().maxCoeff(), c.law.dtau_dqd.cwiseAbs().maxCoeff());
+    std::cout << "[ control ] " << (over_limit ? "beyond" : "inside")
+              << " the limit: max |d tau/dx| " << size << "\n";
+    if (over_limit) {
+      EXPECT_EQ(size, 0.0);
+    } else {
+      EXPECT_GT(size, 1.0);
+    }
+  }
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI
@@ -527,6 +545,7 @@ TEST(ControlCli, LinearizeClosedLoopAndGainSensitivities) {
   EXPECT_NEAR(re[0], -5.0, 1e-8);
   EXPECT_NEAR(re[1], -2.0, 1e-8);
   EXPECT_EQ(j["closed_loop"]["law"], "robust");
+  EXPECT_EQ(j["closed_loop"]["dtau_method"], "exact");
   EXPECT_EQ(j["F"].size(), 4u);
   const auto start = run("linearize " + ukdyn_test::sh(sc.string()) + " --closed-loop");
   ASSERT_EQ(start.exit_code, 0) << start.err;
