@@ -2,8 +2,6 @@
 // docs/derivatives.md, "Controlled runs").
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 
-#include <fmt/format.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -37,10 +35,6 @@ void probe(ControlRun& run, double t, CVecRef q, CVecRef qd, Probe& p) {
   }
 }
 
-void add_once(std::vector<std::string>& list, const std::string& s) {
-  if (std::find(list.begin(), list.end(), s) == list.end()) list.push_back(s);
-}
-
 // The causes of a kink between the probes: a side of ‖μ‖ = ε or of an actuator's limit that
 // changes among them.
 void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
@@ -53,13 +47,13 @@ void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
   };
   if (s.kind == ControlLawKind::robust && s.rho > 0.0 &&
       changes([&](const Probe& p) { return p.mu_norm > s.epsilon; })) {
-    add_once(kinks, boundary_layer_kink(s.epsilon));
+    add_kink(kinks, boundary_layer_kink(s.epsilon));
   }
   for (Index j = 0; j < act.count(); ++j) {
     const double lim = act.limit(j);
     if (!std::isfinite(lim)) continue;
     if (changes([&](const Probe& p) { return std::abs(p.u_raw(j)) > lim; }))
-      add_once(kinks, actuator_kink(act.names[static_cast<std::size_t>(j)], lim));
+      add_kink(kinks, actuator_kink(act.names[static_cast<std::size_t>(j)], lim));
   }
 }
 

@@ -17,6 +17,7 @@
 #include <fmt/format.h>
 
 #include <Eigen/QR>
+#include <algorithm>
 #include <cmath>
 
 #include "model/linearize_corrected.hpp"
@@ -28,10 +29,6 @@ namespace {
 constexpr double kRankTol = 1e-10;   // solve_actuation()'s rank threshold
 constexpr double kAgreement = 1e-8;  // KKT against the law's U-K solve (as linearize())
 constexpr double kKinkTol = 1e-6;    // a state this close (relative) to a kink is "at" it
-
-void add_once(std::vector<std::string>& list, const std::string& s) {
-  if (std::find(list.begin(), list.end(), s) == list.end()) list.push_back(s);
-}
 
 // v(Φ, Φ̇) of ServoLaw::control() over every row (0 on the physical rows) and its Jacobians.
 //   stabilized: v = −2ω Φ̇ − ω² Φ;
@@ -69,7 +66,7 @@ RhsCorrection law_correction(const ControlModel& md, const ServoLawSettings& s, 
       dv_dbeta -= (s.rho * s.rho / s.epsilon) * Mat::Identity(k, k);
     }
     if (s.rho != 0.0 && std::abs(mu_norm - s.epsilon) <= kKinkTol * s.epsilon)
-      add_once(kinks, boundary_layer_kink(s.epsilon));
+      add_kink(kinks, boundary_layer_kink(s.epsilon));
     v = -s.lambda * ed - s.kappa * beta - s.rho * s.rho * gamma * beta;
     dv_ded = -s.lambda * Mat::Identity(k, k) + dv_dbeta;
     dv_de = s.lambda * dv_dbeta;
@@ -158,6 +155,10 @@ bool actuation_jacobian(const ControlModel& md, LinearizeData& ld, double t, CVe
 
 }  // namespace
 
+void add_kink(std::vector<std::string>& kinks, const std::string& kink) {
+  if (std::find(kinks.begin(), kinks.end(), kink) == kinks.end()) kinks.push_back(kink);
+}
+
 std::string boundary_layer_kink(double epsilon) {
   return fmt::format("robust law: the boundary layer |mu| = epsilon = {:g}", epsilon);
 }
@@ -201,12 +202,12 @@ bool exact_law_jacobian(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRe
     if (!std::isfinite(lim)) continue;
     if (std::abs(u_raw(j)) > lim) du.row(j).setZero();
     if (std::abs(std::abs(u_raw(j)) - lim) <= kKinkTol * std::max(1.0, lim))
-      add_once(found, actuator_kink(act.names[static_cast<std::size_t>(j)], lim));
+      add_kink(found, actuator_kink(act.names[static_cast<std::size_t>(j)], lim));
   }
   const Mat dtau = act.B * du;
   dtau_dq = dtau.leftCols(n);
   dtau_dqd = dtau.rightCols(n);
-  for (const auto& f : found) add_once(kinks, f);
+  for (const auto& f : found) add_kink(kinks, f);
   return true;
 }
 

@@ -15,6 +15,8 @@ namespace ukdyn {
 /// The kink messages of the law (one wording for the exact and the difference paths).
 std::string boundary_layer_kink(double epsilon);
 std::string actuator_kink(const std::string& name, double limit);
+/// Appends `kink` to `kinks` unless it is there already.
+void add_kink(std::vector<std::string>& kinks, const std::string& kink);
 
 /// ∂τ/∂q and ∂τ/∂q̇ (n × n each) of run's law at (t, q, q̇), u_raw the law's u there (before
 /// saturation). Adds the kinks within 1e-6 (relative) of the state: the boundary layer
