@@ -7,13 +7,18 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <complex>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <sstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "control_systems.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
@@ -106,6 +111,75 @@ double law_check(const Scenario& sc, double t, const Vec& q, const Vec& qd) {
   return rel(both, ref);
 }
 
+// A bob on a rod in space (x, y, z) with two servo rows, x = 0.3 and y = 0.2 sin x, and one
+// actuator on x: the actuators cannot realise the servo force (the actuation solve's residual
+// P (Qc − B u) is not 0: the term of the pseudo-inverse's derivative that vanishes otherwise).
+std::string underactuated_yaml() {
+  const double x = 0.3, y = 0.2 * std::sin(x), z = -std::sqrt(1.0 - x * x - y * y);
+  std::ostringstream s;
+  s.precision(17);
+  s << "ukdyn: 1\nname: underactuated\ngravity: 9.8\nsubsystems:\n  - name: bob\n"
+       "    type: definitions\n    coordinates: [x, y, z]\n    parameters: {m: 1}\n"
+       "    bodies:\n      - {name: bob, mass: m, com: [x, y, z]}\nconstraints:\n"
+       "  - {type: expression, name: rod, rows: {circle: (x^2 + y^2 + z^2 - 1)/2}}\n"
+       "  - {type: expression, name: sx, role: servo, rows: {x: x - 0.3}}\n"
+       "  - {type: expression, name: sy, role: servo, rows: {y: y - 0.2*sin(x)}}\n"
+       "actuators:\n  - {name: fx, coordinate: x}\ncontrol:\n  law: feedforward\n"
+       "initial:\n  q: ["
+    << x << ", " << y << ", " << z << "]\nsimulation: {t_end: 1, sample_dt: 0.01}\n";
+  return s.str();
+}
+
+// ∂τ/∂(q, q̇) of the loop by Richardson's extrapolation of central differences with the step
+// 1e-4 max(1, |x_j|) ([Richardson1911]; error O(h⁴), round-off ≈ 1e-16 |τ| / h): larger than
+// law_derivatives_by_differences()'s 1e-6, whose round-off on paper_control (|τ| ≈ 200 against
+// |∂τ/∂q| ≈ 30) reaches 1e-7 of the largest entry; smaller than 1e-3, whose truncation error near
+// the servo rows reaches 5e-6 for the robust term −ρ β/‖β‖ (curvature ρ/‖β‖²).
+Mat richardson_jacobian(ControlRun& run, double t, const Vec& q, const Vec& qd) {
+  const Index n = q.size();
+  Mat D(n, 2 * n);
+  std::array<Vec, 4> tau;
+  for (Index j = 0; j < 2 * n; ++j) {
+    const double h = 1e-4 * std::max(1.0, std::abs(j < n ? q(j) : qd(j - n)));
+    const std::array<double, 4> at = {h, -h, h / 2, -h / 2};
+    for (std::size_t k = 0; k < 4; ++k) {
+      Vec a = q, b = qd;
+      (j < n ? a(j) : b(j - n)) += at[k];
+      tau[k].resize(n);
+      run.loop->evaluate(t, a, b);
+      run.loop->plant_tau(tau[k]);
+    }
+    D.col(j) = ((4.0 / h) * (tau[2] - tau[3]) - (0.5 / h) * (tau[0] - tau[1])) / 3.0;
+  }
+  return D;
+}
+
+// The exact ∂τ/∂(q, q̇) of law_derivatives() (method "exact") against richardson_jacobian() and
+// against the fallback law_derivatives_by_differences() at a random state near the scenario's
+// start, with `law` in place of the scenario's: the worst entry relative to the largest, each.
+std::pair<double, double> exact_against_differences(Scenario sc, const ServoLawSettings& law,
+                                                    unsigned seed) {
+  auto spec = std::make_shared<ControlSpec>(*sc.control);
+  spec->law = law;
+  sc.control = spec;
+  const auto run = make_control_run(sc);
+  std::srand(seed);
+  const Index n = run->q0.size();
+  const Vec q = run->q0 + 1e-2 * Vec::Random(n), qd = run->qd0 + 0.1 * Vec::Random(n);
+  const double t = 0.1 + 0.5 * (1.0 + Vec::Random(1)(0));
+  const LawDerivatives exact = law_derivatives(*run, t, q, qd);
+  EXPECT_EQ(exact.method, "exact") << sc.name;
+  EXPECT_TRUE(exact.kinks.empty()) << sc.name;
+  const LawDerivatives diff = law_derivatives_by_differences(*run, t, q, qd);
+  EXPECT_EQ(diff.method, "differences: asked for");
+  Mat a(n, 2 * n), b(n, 2 * n);
+  a << exact.dtau_dq, exact.dtau_dqd;
+  b << diff.dtau_dq, diff.dtau_dqd;
+  const Mat ref = richardson_jacobian(*run, t, q, qd);
+  EXPECT_GT(ref.cwiseAbs().maxCoeff(), 0.0);
+  return {rel(a, ref), rel(a, b)};
+}
+
 }  // namespace
 
 // The law's derivatives against central differences: the three built-in laws on the pendulum at
@@ -137,6 +211,53 @@ TEST(ControlDerivatives, LawDerivativesMatchCentralDifferences) {
   std::cout << "[ control ] paper_control at its start: d tau/dx against central differences " << r
             << "\n";
   EXPECT_LT(r, 1e-7);
+}
+
+// Each law kind (the robust law outside and inside its boundary layer, and without its robust
+// term) on paper_control.yaml, paper_mecanum_wheels.yaml, the held pendulum (one actuator, one
+// physical row: the actuation solve's projector and pseudo-inverse move with q) and the pendulum
+// with a moving reference (A of the servo row depends on t): exact against differences.
+TEST(ControlDerivatives, ExactLawJacobianMatchesDifferences) {
+  ServoLawSettings ff, st, ro, inside, fb;
+  ff.kind = ControlLawKind::feedforward;
+  st.kind = ControlLawKind::stabilized;
+  st.omega = 4.0;
+  ro.kind = inside.kind = fb.kind = ControlLawKind::robust;
+  ro.lambda = inside.lambda = fb.lambda = 2.0;
+  ro.kappa = inside.kappa = fb.kappa = 5.0;
+  ro.rho = inside.rho = 2.0;
+  ro.epsilon = 1e-3;
+  inside.epsilon = 1e3;
+  fb.rho = 0.0;
+  const std::vector<std::pair<std::string, Scenario>> scenarios = {
+      {"paper_control", load_scenario(kSource / "scenarios" / "paper_control.yaml")},
+      {"paper_mecanum_wheels", load_scenario(kSource / "scenarios" / "paper_mecanum_wheels.yaml")},
+      {"held pendulum", load_scenario_text(hold_yaml("  law: feedforward\n"), "hold.yaml")},
+      {"moving reference",
+       load_scenario_text(uktest::pendulum_servo_yaml(1.0, "control:\n  law: feedforward\n"),
+                          "pendulum_servo.yaml")},
+      {"underactuated bob", load_scenario_text(underactuated_yaml(), "underactuated.yaml")}};
+  const std::vector<std::pair<std::string, ServoLawSettings>> laws = {
+      {"feedforward", ff},
+      {"stabilized", st},
+      {"robust outside the layer", ro},
+      {"robust inside the layer", inside},
+      {"robust, rho 0", fb}};
+  for (const auto& [sname, sc] : scenarios) {
+    double worst = 0.0, worst_fallback = 0.0;
+    for (const auto& [lname, law] : laws) {
+      for (unsigned seed = 1; seed <= 3; ++seed) {
+        const auto [r, r_fallback] = exact_against_differences(sc, law, seed);
+        EXPECT_LT(r, 1e-7) << sname << ", " << lname << ", seed " << seed;
+        EXPECT_LT(r_fallback, 1e-6) << sname << ", " << lname << ", seed " << seed;
+        worst = std::max(worst, r);
+        worst_fallback = std::max(worst_fallback, r_fallback);
+      }
+    }
+    std::cout << "[ control ] " << sname << ", five laws at three random states: exact d tau/dx "
+              << "against Richardson (step 1e-4) " << worst << ", against the fallback (step 1e-6) "
+              << worst_fallback << "\n";
+  }
 }
 
 // At the held equilibrium on the exact model, the servo error obeys a linear ODE whose roots are
@@ -375,6 +496,24 @@ TEST(ControlRunSensitivity, SaturationIsNamed) {
   const ClosedLoopLinearization away =
       closed_loop_linearization(sc, before(0), before.segment(1, 2), before.segment(3, 2));
   EXPECT_TRUE(away.law.kinks.empty());
+  // beyond the limit the exact ∂τ/∂(q, q̇) is 0 (u = ±limit), inside it is not
+  const Vec beyond = state(k, starts_over ? 0.0 : 1.0), inside = state(k, starts_over ? 1.0 : 0.0);
+  for (const bool over_limit : {true, false}) {
+    const Vec& x = over_limit ? beyond : inside;
+    const ClosedLoopLinearization c =
+        closed_loop_linearization(sc, x(0), x.segment(1, 2), x.segment(3, 2));
+    EXPECT_EQ(c.law.method, "exact");
+    EXPECT_TRUE(c.law.kinks.empty());
+    const double size =
+        std::max(c.law.dtau_dq.cwiseAbs().maxCoeff(), c.law.dtau_dqd.cwiseAbs().maxCoeff());
+    std::cout << "[ control ] " << (over_limit ? "beyond" : "inside")
+              << " the limit: max |d tau/dx| " << size << "\n";
+    if (over_limit) {
+      EXPECT_EQ(size, 0.0);
+    } else {
+      EXPECT_GT(size, 1.0);
+    }
+  }
 }
 
 #ifdef UKDYN_TEST_HAVE_CLI
@@ -406,6 +545,7 @@ TEST(ControlCli, LinearizeClosedLoopAndGainSensitivities) {
   EXPECT_NEAR(re[0], -5.0, 1e-8);
   EXPECT_NEAR(re[1], -2.0, 1e-8);
   EXPECT_EQ(j["closed_loop"]["law"], "robust");
+  EXPECT_EQ(j["closed_loop"]["dtau_method"], "exact");
   EXPECT_EQ(j["F"].size(), 4u);
   const auto start = run("linearize " + ukdyn_test::sh(sc.string()) + " --closed-loop");
   ASSERT_EQ(start.exit_code, 0) << start.err;

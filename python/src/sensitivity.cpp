@@ -124,6 +124,7 @@ py::dict closed_loop_linearize(const PyScenario& s, const py::object& t_in, cons
   d["dtau_dq"] = numpy_of(cl.law.dtau_dq);
   d["dtau_dqd"] = numpy_of(cl.law.dtau_dqd);
   d["dtau_dt"] = numpy_of(cl.law.dtau_dt);
+  d["dtau_method"] = cl.law.method;
   d["F"] = numpy_of(F);
   d["N"] = numpy_of(mm.N);
   d["F_min"] = numpy_of(mm.F_min);

@@ -177,7 +177,7 @@ def test_controlled_run_sensitivities_closed_form(tmp_path):
         assert np.max(np.abs(s["dq_dp"][j] - ref)) < 1e-6 * np.max(np.abs(ref)), j
     assert np.max(np.abs(s["dq_dp"][0])) < 1e-6 * np.max(np.abs(s["dq_dp"][1]))
     hold = sc.closed_loop_linearize(0.0, [np.sin(0.3), -np.cos(0.3)], [0.0, 0.0])
-    assert hold["trusted"] and hold["kinks"] == []
+    assert hold["trusted"] and hold["kinks"] == [] and hold["dtau_method"] == "exact"
     ev = np.sort(np.linalg.eigvals(hold["F_min"]).real)
     assert np.allclose(ev, [-5.0, -2.0], rtol=0, atol=1e-8)
     start = sc.closed_loop_linearize()  # the closed loop's start: 1e-3 off the servo row

@@ -7,6 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "model/linearize_corrected.hpp"
 #include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/model/parameter_sensitivity.hpp"
@@ -248,7 +249,8 @@ void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref
 
 // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks solve
 // it), and [q̈; μ] at the state (d.sol); Qc, μ, q̈ and the agreement with forward()'s q̈ into d.lin.
-void solve_kkt(const System& system, LinearizeData& d, Index n) {
+// `v`: a correction of b (m; linearize_corrected()), or null.
+void solve_kkt(const System& system, LinearizeData& d, Index n, const Vec* v = nullptr) {
   const ForwardData& f = d.fwd;
   Linearization& lin = d.lin;
   const auto r = static_cast<Index>(lin.kept_rows.size());
@@ -263,6 +265,7 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   for (Index k = 0; k < r && r < f.A.rows(); ++k) {
     d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
+    if (v != nullptr) d.bR(k) += (*v)(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
   if (!d.used_arrow) {
     d.K.resize(n + r, n + r);
@@ -282,7 +285,9 @@ void solve_kkt(const System& system, LinearizeData& d, Index n) {
   lin.Qc.setZero(n);
   add_at_times(system, d, Eigen::Map<const Mat>(lin.mu.data(), r, 1),
                Eigen::Map<Mat>(lin.Qc.data(), n, 1));
-  lin.kkt_agreement = (lin.qdd - f.qdd).cwiseAbs().maxCoeff() / (1.0 + f.qdd.cwiseAbs().maxCoeff());
+  lin.kkt_agreement =
+      v != nullptr ? 0.0
+                   : (lin.qdd - f.qdd).cwiseAbs().maxCoeff() / (1.0 + f.qdd.cwiseAbs().maxCoeff());
   if (!(lin.kkt_agreement <= 1e-8)) {
     mark(lin, "the U-K and KKT accelerations differ by " + sci(lin.kkt_agreement));
   }
@@ -343,26 +348,27 @@ void applied_force_columns(const System& system, LinearizeData& d, double t, CVe
   }
 }
 
-// Constraint c's d(A q̈ − b) (its rows of d.dres_all) and d(Aᵀλ) (added to d.dforce_all) along
-// every direction: in one tangent_columns() call where it has one, else one tangent() each.
+// Constraint c's d(A q̈ − b) (its rows of dres_all: m × 2n) and d(Aᵀλ) (added to dforce_all) at
+// (q̈, λ) along every direction: in one tangent_columns() call where it has one, else one
+// tangent() each.
 void constraint_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
-                        std::size_t c) {
+                        std::size_t c, CVecRef qdd, CVecRef lambda_all, Eigen::Ref<Mat> dres_all,
+                        Mat& dforce_all) {
   const Index n = system.dof();
   const Constraint& con = *system.constraints()[c];
   const Index rows = con.rows(), off = system.constraint_row_offsets()[c];
   const ConstraintContext ctx{t, d.fwd.constraint_slots(c)};
-  const Vec& qdd = d.lin.qdd;
-  const auto lambda = d.lambda.segment(off, rows);
-  auto dres = d.rhs_all.middleRows(n + off, rows);
+  const auto lambda = lambda_all.segment(off, rows);
+  auto dres = dres_all.middleRows(off, rows);
   const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
-  if (all != nullptr && all->tangent_columns(ctx, q, qd, qdd, lambda, dres, d.dforce_all)) return;
+  if (all != nullptr && all->tangent_columns(ctx, q, qd, qdd, lambda, dres, dforce_all)) return;
   for (Index col = 0; col < 2 * n; ++col) {
     VecRef dir = col < n ? d.dq : d.dqd;
     dir(col % n) = 1.0;
     d.dforce_c.setZero();
     if (!con.tangent(ctx, q, qd, qdd, lambda, d.dq, d.dqd, dres.col(col), d.dforce_c))
       throw Error("linearize: a constraint has no exact derivatives");
-    d.dforce_all.col(col) += d.dforce_c;
+    dforce_all.col(col) += d.dforce_c;
     dir(col % n) = 0.0;
   }
 }
@@ -462,7 +468,7 @@ RowChoice dense_rows(const System& system, LinearizeData& d, const UkSettings& s
 // forward() at the state, the kept rows, the trust of the result and the KKT solve: what every
 // column of the derivatives (state directions, parameters) is solved with.
 void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
-                 CVecRef tau, const UkSettings& settings) {
+                 CVecRef tau, const UkSettings& settings, const Vec* v = nullptr) {
   const Index n = system.dof(), m = system.rows();
   check_data_for(system, d.fwd, "linearize");
   Linearization& lin = d.lin;
@@ -476,7 +482,7 @@ void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CV
   if (!d.used_arrow) rc = dense_rows(system, d, settings);
   lin.rank = static_cast<int>(lin.kept_rows.size());
   vouch(lin, rc, d.fwd.result, settings, m);
-  solve_kkt(system, d, n);
+  solve_kkt(system, d, n, v);
 }
 
 // The structural pattern of the arrow path's right-hand sides (no applied forces; every row of A
@@ -619,9 +625,9 @@ void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecR
 
 // The state columns (∂/∂q, ∂/∂q̇ and, as `parts` asks, ∂/∂τ) from the components' exact tangents.
 void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
-                   LinearizeParts parts) {
+                   LinearizeParts parts, const RhsCorrection* corr = nullptr) {
   d.structured = false;
-  if (d.used_arrow && system.applied_forces().empty()) {
+  if (corr == nullptr && d.used_arrow && system.applied_forces().empty()) {
     arrow_state_columns(system, d, t, q, qd, parts);
     return;
   }
@@ -637,9 +643,16 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
   for (std::size_t k = 0; k < system.subsystems().size(); ++k)
     subsystem_columns(system, d, t, q, qd, k);
   applied_force_columns(system, d, t, q, qd);
+  const Index m = system.rows();
   for (std::size_t c = 0; c < system.constraints().size(); ++c)
-    constraint_columns(system, d, t, q, qd, c);
+    constraint_columns(system, d, t, q, qd, c, d.lin.qdd, d.lambda, d.rhs_all.middleRows(n, m),
+                       d.dforce_all);
   d.rhs_all.topRows(n) += d.dforce_all;
+  if (corr != nullptr) {  // b + v: d(A q̈ − b − v) with dv = ∂v/∂Φ dΦ + ∂v/∂Φ̇ dΦ̇ (holonomic rows)
+    const Mat dphid_dq = 0.5 * d.rhs_all.block(n, n, m, n);  // ∂Φ̇/∂q = −½ ∂b/∂q̇
+    d.rhs_all.block(n, 0, m, n) -= corr->dv_dphi * d.fwd.A + corr->dv_dphid * dphid_dq;
+    d.rhs_all.block(n, n, m, n) -= corr->dv_dphid * d.fwd.A;
+  }
   if (r == system.rows()) {  // every row kept: in place, a block at a time
     d.rhs_all.middleRows(n, r) *= -1.0;
   } else {
@@ -681,6 +694,28 @@ void dqdd_dx_times(const LinearizeData& data, const Eigen::Ref<const Mat>& V, Ei
   const Index n = data.lin.dqdd_dq.rows();
   out.noalias() = data.lin.dqdd_dq * V.topRows(n);
   out.noalias() += data.lin.dqdd_dqd * V.bottomRows(n);
+}
+
+void linearize_corrected(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                         CVecRef tau, const RhsCorrection& correction, const UkSettings& settings) {
+  check_inputs(system, t, q, qd, tau);
+  const Index m = system.rows();
+  if (correction.v.size() != m || correction.dv_dphi.rows() != m ||
+      correction.dv_dphi.cols() != m || correction.dv_dphid.rows() != m ||
+      correction.dv_dphid.cols() != m)
+    throw std::invalid_argument("linearize_corrected: v and its Jacobians need m rows");
+  d.allow_arrow = false;
+  prepare_kkt(system, d, t, q, qd, tau, settings, &correction.v);
+  state_columns(system, d, t, q, qd, LinearizeParts{}, &correction);
+}
+
+void constraint_tangent_columns(const System& system, LinearizeData& d, double t, CVecRef q,
+                                CVecRef qd, CVecRef qdd, CVecRef lambda, Mat& dres, Mat& dforce) {
+  const Index n = system.dof();
+  dres.setZero(system.rows(), 2 * n);
+  dforce.setZero(n, 2 * n);
+  for (std::size_t c = 0; c < system.constraints().size(); ++c)
+    constraint_columns(system, d, t, q, qd, c, qdd, lambda, dres, dforce);
 }
 
 Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, CVecRef tau,

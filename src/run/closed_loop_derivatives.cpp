@@ -2,12 +2,11 @@
 // docs/derivatives.md, "Controlled runs").
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 
-#include <fmt/format.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 
+#include "run/law_jacobian.hpp"
 #include "run/richardson.hpp"
 
 namespace ukdyn {
@@ -36,10 +35,6 @@ void probe(ControlRun& run, double t, CVecRef q, CVecRef qd, Probe& p) {
   }
 }
 
-void add_once(std::vector<std::string>& list, const std::string& s) {
-  if (std::find(list.begin(), list.end(), s) == list.end()) list.push_back(s);
-}
-
 // The causes of a kink between the probes: a side of ‖μ‖ = ε or of an actuator's limit that
 // changes among them.
 void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
@@ -52,14 +47,13 @@ void find_kinks(const ControlRun& run, const std::array<Probe, 5>& ps,
   };
   if (s.kind == ControlLawKind::robust && s.rho > 0.0 &&
       changes([&](const Probe& p) { return p.mu_norm > s.epsilon; })) {
-    add_once(kinks, fmt::format("robust law: the boundary layer |mu| = epsilon = {:g}", s.epsilon));
+    add_kink(kinks, boundary_layer_kink(s.epsilon));
   }
   for (Index j = 0; j < act.count(); ++j) {
     const double lim = act.limit(j);
     if (!std::isfinite(lim)) continue;
     if (changes([&](const Probe& p) { return std::abs(p.u_raw(j)) > lim; }))
-      add_once(kinks, fmt::format("actuator '{}' at its limit {:g}",
-                                  act.names[static_cast<std::size_t>(j)], lim));
+      add_kink(kinks, actuator_kink(act.names[static_cast<std::size_t>(j)], lim));
   }
 }
 
@@ -75,17 +69,10 @@ Vec directional(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CV
   return richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, h);
 }
 
-}  // namespace
-
-double law_step(double x) { return 1e-6 * std::max(1.0, std::abs(x)); }
-
-LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd) {
+// ∂τ/∂(q, q̇) by differences (ps[0]: the centre, evaluated).
+void jacobian_by_differences(ControlRun& run, double t, CVecRef q, CVecRef qd,
+                             std::array<Probe, 5>& ps, LawDerivatives& out) {
   const Index n = run.plant->dof();
-  LawDerivatives out;
-  std::array<Probe, 5> ps;
-  probe(run, t, q, qd, ps[0]);
-  out.tau = ps[0].tau;
-  out.u = run.loop->u;
   out.dtau_dq.resize(n, n);
   out.dtau_dqd.resize(n, n);
   const Vec zero = Vec::Zero(n);
@@ -94,12 +81,41 @@ LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd)
     out.dtau_dq.col(j) = directional(run, t, q, qd, e, zero, law_step(q(j)), ps, out.kinks);
     out.dtau_dqd.col(j) = directional(run, t, q, qd, zero, e, law_step(qd(j)), ps, out.kinks);
   }
+}
+
+// τ, u, ∂τ/∂(q, q̇) (exact unless `differences` or the exact path declines) and ∂τ/∂t.
+LawDerivatives derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd, bool differences) {
+  LawDerivatives out;
+  std::array<Probe, 5> ps;
+  probe(run, t, q, qd, ps[0]);
+  out.tau = ps[0].tau;
+  out.u = run.loop->u;
+  std::string why_not = "asked for";
+  if (!differences && exact_law_jacobian(run, t, q, qd, ps[0].u_raw, out.dtau_dq, out.dtau_dqd,
+                                         out.kinks, why_not)) {
+    out.method = "exact";
+  } else {
+    jacobian_by_differences(run, t, q, qd, ps, out);
+    out.method = "differences: " + why_not;
+  }
   const double ht = law_step(t);
   for (std::size_t k = 0; k < 4; ++k) probe(run, t + kProbeOffsets[k] * ht, q, qd, ps[k + 1]);
   find_kinks(run, ps, out.kinks);
   out.dtau_dt = richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, ht);
   run.loop->evaluate(t, q, qd);  // the loop left at the state itself
   return out;
+}
+
+}  // namespace
+
+double law_step(double x) { return 1e-6 * std::max(1.0, std::abs(x)); }
+
+LawDerivatives law_derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd) {
+  return derivatives(run, t, q, qd, false);
+}
+
+LawDerivatives law_derivatives_by_differences(ControlRun& run, double t, CVecRef q, CVecRef qd) {
+  return derivatives(run, t, q, qd, true);
 }
 
 Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,

@@ -254,7 +254,8 @@ json parameters_json(const Scenario& sc, double t, const Vec& q, const Vec& qd, 
 }
 
 // The closed loop's own entries (docs/derivatives.md, "Closed-loop linearisation"): the law's τ,
-// u and ∂τ/∂(q, q̇), the eigenvalues of the closed-loop minimal F, and the kinks of the law.
+// u and ∂τ/∂(q, q̇) (and how they were taken), the eigenvalues of the closed-loop minimal F, and
+// the kinks of the law.
 json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd,
                       const ClosedLoopLinearization& cl, const std::string& law) {
   json j;
@@ -275,9 +276,12 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
   }
   j["eigenvalues"] = rows_of(ev);  // of the minimal F: [re, im] per row
   j["kinks"] = cl.law.kinks;
+  j["dtau_method"] = cl.law.method;
   j["note"] =
-      "dtau_dq, dtau_dqd: Richardson central differences of the law (step 1e-6 max(1, |x_j|)); "
-      "F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives with them";
+      "dtau_dq, dtau_dqd: exact when dtau_method is \"exact\", else (dtau_method says why) "
+      "Richardson central differences of the law (step 1e-6 max(1, |x_j|)); dtau_dt: Richardson "
+      "differences; F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives "
+      "with them";
   return j;
 }
 
