@@ -11,7 +11,9 @@
 #ifdef UKDYN_HAVE_IO
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <fstream>
 #include <random>
+#include <sstream>
 
 #include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/core/uk_singular.hpp"
@@ -180,6 +182,51 @@ TEST(NRobotsWeld, ArrowSolveOfTheSingularLoadMatchesTheDenseSolve) {
       Mat Mk = d.M.bottomRightCorner(7, 7);
       EXPECT_LT(Eigen::SelfAdjointEigenSolver<Mat>(Mk).eigenvalues()(0), 1e-10);
     }
+  }
+}
+
+// A point-mass load (no rotational inertia): its block augmented by its own unit-norm row is still
+// singular (three rotational directions are held by the welds only), so the arrow path's check of
+// the factor (factor_mass, mass_factor_regular) must send forward() to the dense singular solve,
+// with the load's M and Q put back first: M as evaluate_dynamics() gives it, q̈ and Qc the dense
+// singular solve's.
+TEST(NRobotsWeld, ALoadBlockThatStaysSingularTakesTheDenseSolve) {
+  const std::string file = std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3_weld.yaml";
+  std::ifstream in(file);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string inertia = "inertia: [0.05, 0.06, 0.08]";
+  const auto pos = text.find(inertia);
+  ASSERT_NE(pos, std::string::npos);
+  text.replace(pos, inertia.size(), "inertia: [0, 0, 0]");
+  const auto sc = ukdyn::load_scenario_text(text, file);
+  const auto& sys = *sc.system;
+  ASSERT_NE(sys.arrow(), nullptr);
+  ForwardData d(sys), e(sys);
+  ASSERT_TRUE(d.singular.any_structural);
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int k = 0; k < 3; ++k) {
+    Vec qd(sys.dof()), tau(sys.dof());
+    for (Index i = 0; i < sys.dof(); ++i) {
+      qd(i) = u(rng);
+      tau(i) = 5.0 * u(rng);
+    }
+    ukdyn::forward(sys, d, 0.0, sc.q0, qd, tau, sc.sim.uk);
+    EXPECT_FALSE(d.used_arrow);
+    ASSERT_TRUE(d.qdd.allFinite());
+    ukdyn::evaluate_dynamics(sys, e, 0.0, sc.q0, qd);
+    EXPECT_EQ(d.M, e.M);  // put back: not the augmented block
+    ukdyn::UkWorkspace ws(sys.layout(), sys.rows());
+    ukdyn::UkSingularWorkspace sw(sys.layout(), sys.rows());
+    sw.structural = d.singular.structural;
+    sw.any_structural = true;
+    Vec qdd(sys.dof()), Qc(sys.dof());
+    const auto r = ukdyn::uk_solve_singular(e.M, d.A, d.b, d.Q, ws, sw, qdd, Qc, sc.sim.uk);
+    ASSERT_TRUE(r.finite);
+    EXPECT_LE((qdd - d.qdd).norm(), 1e-10 * std::max(1.0, qdd.norm()));
+    EXPECT_LE((Qc - d.Qc).norm(), 1e-10 * std::max(1.0, Qc.norm()));
   }
 }
 

@@ -180,14 +180,12 @@ bool augment_singular_blocks(const BlockLayout& lay, const Mat& A, const Vec& b,
     sw.Qa.segment(s, nk) = Q.segment(s, nk);
   }
   augmented_blocks(lay, A, b, sw, M, Q);
+  // A block with no row of its own stays singular. Whether the others came out positive definite
+  // is read off the factor the arrow path makes next (factor_mass, mass_factor_regular: every
+  // pivot against kSingularPivot of its block's largest diagonal), not from a trial factor here.
   bool ok = true;
-  for (std::size_t k = 0; k < lay.blocks() && ok; ++k) {
-    if (!sw.structural[k]) continue;
-    const Index s = lay.start[k], nk = lay.size[k];
-    // A block with no row of its own stays singular. (sw.Ma as the trial factor's scratch: the
-    // dense path sets it again before using it.)
-    ok = !sw.own_rows[k].empty() && trial_factor(M, sw.Ma, s, nk) >= kSingularPivot;
-  }
+  for (std::size_t k = 0; k < lay.blocks() && ok; ++k)
+    ok = !sw.structural[k] || !sw.own_rows[k].empty();
   if (!ok) restore_singular_blocks(lay, M, Q, sw);
   return ok;
 }

@@ -298,7 +298,8 @@ UkResult solve_for(const System& system, ForwardData& data, const Vec& b, Vec& Q
   // damping lives in the dense solve: an arrow result whose smallest kept pivot falls inside the
   // adaptive band is redone densely (the pivots of the pieces stand for the singular values).
   // Structurally singular blocks (a free-body load's quaternion block) take the arrow solve in
-  // the augmented form (core/uk_singular.hpp, augment_singular_blocks), M and Q put back after.
+  // the augmented form (core/uk_singular.hpp, augment_singular_blocks), M and Q put back after;
+  // an augmented block that stays singular fails mass_factor_regular and goes to the dense path.
   data.used_arrow = false;
   UkSingularWorkspace& sw = data.singular;
   const bool augment = sw.any_structural;

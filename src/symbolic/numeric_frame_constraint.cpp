@@ -518,6 +518,15 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
 template <int MR>
 void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
                      const double* twists, int m_rt, MatRef A) {
+  if constexpr (MR > 0) {  // fixed-size vectors of MR rows: the same sums, vectorised
+    for (std::size_t c = 0; c < cols.size(); ++c) {
+      const double* t = twists + 7 * c;
+      Eigen::Matrix<double, MR, 1> v = G.col(0).template head<MR>() * t[0];
+      for (int k = 1; k < 7; ++k) v += G.col(k).template head<MR>() * t[k];
+      A.col(cols[c]).template head<MR>() += v;
+    }
+    return;
+  }
   const int m = MR > 0 ? MR : m_rt;
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const double* t = twists + 7 * c;

@@ -99,6 +99,31 @@ M3<S> axis_rotation(const Eigen::Vector3d& a, const S& th) {
   return R;
 }
 
+// A revolute joint's link frame R = Rj R_a(θ) and its axis Rj a in the world. About a coordinate
+// axis e_k (URDF's usual <axis xyz="0 0 1"/>: every joint of the Panda and the UR5e, a platform's
+// yaw) R_a(θ) turns e_i to c e_i + s e_j and e_j to −s e_i + c e_j ((k, i, j) cyclic) and keeps
+// e_k, so R's columns are those of Rj mixed in pairs and the axis is Rj's column k: neither
+// Rodrigues' matrix nor the 3 × 3 product is formed.
+template <class S>
+void place_revolute(const Eigen::Vector3d& a, const M3<S>& Rj, const S& th, LinkState<S>& w) {
+  const int k = a(2) == 1.0 ? 2 : a(0) == 1.0 ? 0 : a(1) == 1.0 ? 1 : -1;
+  if (k < 0 || a((k + 1) % 3) != 0.0 || a((k + 2) % 3) != 0.0) {
+    w.R = Rj * axis_rotation<S>(a, th);
+    w.sw[0] = Rj * a.cast<S>();
+    return;
+  }
+  using std::cos;
+  using std::sin;
+  const S c = cos(th), s = sin(th);
+  const int i = (k + 1) % 3, j = (k + 2) % 3;
+  for (int r = 0; r < 3; ++r) {
+    w.R(r, i) = c * Rj(r, i) + s * Rj(r, j);
+    w.R(r, j) = c * Rj(r, j) - s * Rj(r, i);
+    w.R(r, k) = Rj(r, k);
+    w.sw[0](r) = Rj(r, k);
+  }
+}
+
 // A ball joint at pj with joint frame Rj (scale sc) and quaternion u = (w, x, y, z): the link's
 // R = Rj R(u), R(u) as the symbolic chain's quaternion_rotation (symbolic/free_body.cpp), and the
 // motion axes of its four variables: the rotation ω = 2 G(u) u̇ / |u|² in the joint frame
@@ -133,6 +158,25 @@ void place_ball(const M3<S>& Rj, const V3<S>& pj, const S& sc, const S* u, LinkS
   }
 }
 
+// A link's inertia about its CoM in world axes, Ic = R I Rᵀ, and about the world origin,
+// Ī = Ic + m (|c|² 1 − c cᵀ) (the parallel-axis theorem): both symmetric, so each entry above
+// the diagonal is formed once and mirrored.
+template <class S>
+void own_inertia(const M3<S>& R, const Eigen::Matrix3d& I, const S& m, const V3<S>& c, M3<S>& Ic,
+                 M3<S>& Io) {
+  const M3<S> T = R * I.cast<S>();
+  const S c2 = dot3(c, c);
+  for (int a = 0; a < 3; ++a) {
+    for (int b = a; b < 3; ++b) {
+      Ic(a, b) = T(a, 0) * R(b, 0) + T(a, 1) * R(b, 1) + T(a, 2) * R(b, 2);
+      Io(a, b) = Ic(a, b) - m * c(a) * c(b);
+      if (a == b) Io(a, b) += m * c2;
+      Ic(b, a) = Ic(a, b);
+      Io(b, a) = Io(a, b);
+    }
+  }
+}
+
 // Link poses, motion axes and own inertias at the joint variables theta (Featherstone §4.1: the
 // forward pass of placement, parent before child). quat: the tree has ball joints (scales).
 template <class S>
@@ -157,9 +201,8 @@ void place(const Model& m, const std::vector<int>& ti, bool quat, const S* theta
     w.sc = sc;
     w.sl[0] = S(0.0);
     if (L.type == JointType::revolute) {
-      w.R = Rj * axis_rotation<S>(L.axis, theta[ti[i]]);
+      place_revolute<S>(L.axis, Rj, theta[ti[i]], w);
       w.p = pj;
-      w.sw[0] = Rj * L.axis.cast<S>();
       if (quat) w.sw[0] /= sc;      // the axis of the rotation part of Rj
       w.sv[0] = pj.cross(w.sw[0]);  // v_O = ω × (0 − p_j) = p_j × z
     } else if (L.type == JointType::prismatic) {
@@ -187,8 +230,7 @@ void place(const Model& m, const std::vector<int>& ti, bool quat, const S* theta
     w.m_own = S(L.mass);
     w.h_own = c * w.m_own;
     w.k_own = w.m_own * dot3(c, c);
-    w.Ic = w.R * L.inertia.cast<S>() * w.R.transpose();
-    w.I_own = w.Ic + w.m_own * (dot3(c, c) * M3<S>::Identity() - c * c.transpose());
+    own_inertia(w.R, L.inertia, w.m_own, c, w.Ic, w.I_own);
   }
 }
 
@@ -196,8 +238,8 @@ void place(const Model& m, const std::vector<int>& ti, bool quat, const S* theta
 // gradient of the kinetic energy ½ m |v + ω × c + λ c|² + ½ ωᵀ I_c ω): n = Ī ω + h × v,
 // f = m v − h × ω + λ h, e = h · v + k λ.
 template <class S>
-void apply_inertia(const S& m, const V3<S>& h, const M3<S>& I, const V3<S>& w, const V3<S>& v,
-                   V3<S>& n, V3<S>& f) {
+inline void apply_inertia(const S& m, const V3<S>& h, const M3<S>& I, const V3<S>& w,
+                          const V3<S>& v, V3<S>& n, V3<S>& f) {
   n = I * w + h.cross(v);
   f = m * v - h.cross(w);
 }
@@ -229,13 +271,43 @@ S pair(const LinkState<S>& w, int k, const V3<S>& n, const S& e, const V3<S>& f,
   return quat ? S(r + w.sl[k] * e) : r;
 }
 
+// crba below without ball joints: every movable link has one joint variable and no scale, so
+// (n, f) = I^c_i S_i is paired with each ancestor's single axis directly (the same sums in the
+// same order as pair() with quat false).
+template <class S>
+void crba_rigid(const Model& m, const std::vector<int>& ti, const LinkState<S>* ws, S* Mt,
+                Index nt) {  // nt: Mt's leading dimension
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const int a = ti[i];
+    if (a < 0) continue;
+    const LinkState<S>& w = ws[i];
+    V3<S> n, f;
+    apply_inertia(w.m, w.h, w.I, w.sw[0], w.sv[0], n, f);
+    Mt[a + a * nt] = dot3(w.sw[0], n) + dot3(w.sv[0], f);
+    for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+      const LinkState<S>& u = ws[j];
+      const int b = ti[static_cast<std::size_t>(j)];
+      if (b < 0) continue;
+      const S v = dot3(u.sw[0], n) + dot3(u.sv[0], f);
+      Mt[a + b * nt] = v;
+      Mt[b + a * nt] = v;
+    }
+  }
+}
+
 // M_θ (nt × nt, column-major in Mt) from the composite inertias: M_ii = S_iᵀ I^c_i S_i and, for
 // each ancestor j of i, M_ij = M_ji = S_jᵀ (I^c_i S_i) (Featherstone Table 6.2), one row and
-// column per joint variable.
+// column per joint variable. ld: Mt's leading dimension (0: nt).
 template <class S>
 void crba(const Model& m, const std::vector<int>& ti, bool quat, const LinkState<S>* ws, S* Mt,
-          Index nt) {
-  for (Index k = 0; k < nt * nt; ++k) Mt[k] = S(0.0);
+          Index nt, Index ld = 0) {
+  if (ld == 0) ld = nt;
+  for (Index j = 0; j < nt; ++j)
+    for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = S(0.0);
+  if (!quat) {
+    crba_rigid(m, ti, ws, Mt, ld);
+    return;
+  }
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     if (ti[i] < 0) continue;
     const LinkState<S>& w = ws[i];
@@ -249,15 +321,15 @@ void crba(const Model& m, const std::vector<int>& ti, bool quat, const LinkState
         f += w.h * w.sl[ka];
         e = dot3(w.h, w.sv[ka]) + w.k * w.sl[ka];
       }
-      for (int kb = 0; kb < nv; ++kb) Mt[a + (ti[i] + kb) * nt] = pair(w, kb, n, e, f, quat);
+      for (int kb = 0; kb < nv; ++kb) Mt[a + (ti[i] + kb) * ld] = pair(w, kb, n, e, f, quat);
       for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
         const auto ju = static_cast<std::size_t>(j);
         if (ti[ju] < 0) continue;
         for (int kb = 0; kb < variables(m.links[ju].type); ++kb) {
           const int b = ti[ju] + kb;
           const S v = pair(ws[ju], kb, n, e, f, quat);
-          Mt[a + b * nt] = v;
-          Mt[b + a * nt] = v;
+          Mt[a + b * ld] = v;
+          Mt[b + a * ld] = v;
         }
       }
     }
@@ -273,6 +345,18 @@ void crba(const Model& m, const std::vector<int>& ti, bool quat, const LinkState
 template <class S>
 void joint_motion(const Link& L, int first, bool quat, const S* thetad, const S* thetadd,
                   LinkState<S>& w) {
+  if (!quat) {  // one joint variable, no scale: the loop below with nv = 1, in the same order
+    const S qd = thetad[first];
+    w.aw += w.vw.cross(w.sw[0]) * qd;
+    w.av += (w.vw.cross(w.sv[0]) + w.vv.cross(w.sw[0])) * qd;
+    if (thetadd) {
+      w.aw += w.sw[0] * thetadd[first];
+      w.av += w.sv[0] * thetadd[first];
+    }
+    w.vw += w.sw[0] * qd;
+    w.vv += w.sv[0] * qd;
+    return;
+  }
   const int nv = variables(L.type);
   V3<S> jw = V3<S>::Zero(), jv = V3<S>::Zero();
   S jl(0.0), ud2(0.0);
@@ -910,14 +994,20 @@ double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatR
     theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
     place(merged_, theta_index_, quaternions_, w.theta, w.links);
     composite(merged_, w.links);
-    crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
-    to_coordinates(theta_terms_, w.Mt, M);
-    gravity_forces(merged_, theta_index_, quaternions_, w.links, w.tau);
-    to_coordinates(theta_terms_, w.tau, G);
+    // θ = q (each joint its own coordinate, in order): the passes write M, G, C q̇ themselves.
+    const bool direct = identity_map(theta_terms_, M.rows());
+    if (direct) {
+      crba(merged_, theta_index_, quaternions_, w.links, M.data(), n_theta_, M.outerStride());
+    } else {
+      crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
+      to_coordinates(theta_terms_, w.Mt, M);
+    }
+    gravity_forces(merged_, theta_index_, quaternions_, w.links, direct ? G.data() : w.tau);
+    if (!direct) to_coordinates(theta_terms_, w.tau, G);
     inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false, w.links,
-                             w.tau);
+                             direct ? Cqd.data() : w.tau);
     mark_moved(w, this);  // the velocity products' pass: the motions frame_twists reuses
-    to_coordinates(theta_terms_, w.tau, Cqd);
+    if (!direct) to_coordinates(theta_terms_, w.tau, Cqd);
   });
   return 0.0;
 }

@@ -79,8 +79,8 @@ UkResult uk_solve_singular(const Mat& M, const Mat& A, const Vec& b, const Vec& 
 /// (sw.own_rows[k]), M_kk += A_kᵀ α A_k and Q_k += A_kᵀ α b — the augmented form above, which
 /// keeps M block-diagonal, so the arrow solve of (M_a, Q_a) gives the q̈ and Qc of (M, Q). The
 /// blocks' originals are kept in sw (sw.scratch, sw.Qa) for restore_singular_blocks(). Returns
-/// false, with M and Q unchanged, if a block has no such row or stays singular (the caller then
-/// takes uk_solve_singular). O(Σ n_k²) over the structural blocks; allocation-free.
+/// false, M and Q unchanged, if a block has no such row; one that stays singular fails the
+/// caller's check of the factor (factor_mass, mass_factor_regular). O(Σ n_k²); allocation-free.
 bool augment_singular_blocks(const BlockLayout& layout, const Mat& A, const Vec& b, Mat& M, Vec& Q,
                              UkSingularWorkspace& sw);
 /// M_kk + A_kᵀ α A_k and Q_k + A_kᵀ α b on the structural blocks with their own rows, as
