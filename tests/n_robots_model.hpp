@@ -32,6 +32,9 @@ struct NRobotsOptions {
   bool robot_row = false;
   /// One more arm that nothing constrains.
   bool free_robot = false;
+  /// The grasps compiled into the arms' TapePool (numbers as inputs, one program for grasps
+  /// 1..N−1); false: each grasp its own tape with its numbers in it.
+  bool share_tapes = true;
 };
 
 inline std::string n_robots_num(double v) {
@@ -44,7 +47,9 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
   namespace sym = ukdyn::symbolic;
   const double l[3] = {0.5, 0.4, 0.3}, m[3] = {2.0, 1.5, 1.0};
   auto system = std::make_shared<ukdyn::System>();
-  sym::TapePool tapes;  // the arms share their tapes, as the instances of a scenario do
+  // The arms share their tapes, as the instances of a scenario do, and so do the grasps of robots
+  // 1..N−1 (their numbers are inputs; robot 0's grasp angle 0 leaves a term out of its rows).
+  sym::TapePool tapes;
   std::vector<std::string> all;
   const int arms = o.robots + (o.free_robot ? 1 : 0);
   std::vector<int> links(static_cast<std::size_t>(arms), 3);
@@ -100,7 +105,7 @@ inline std::shared_ptr<ukdyn::System> n_robots_system(const NRobotsOptions& o) {
               c.parse(tip_x[static_cast<std::size_t>(k)] + "-(L_x+0.3*cos(L_phi+" + a + "))"));
     c.add_row(name + "_z",
               c.parse(tip_z[static_cast<std::size_t>(k)] + "-(L_z+0.3*sin(L_phi+" + a + "))"));
-    system->add_constraint(sym::make_constraint(c));
+    system->add_constraint(sym::make_constraint(c, o.share_tapes ? &tapes : nullptr));
   };
   for (int k = 0; k < o.robots; ++k) grasp(k, "grasp" + std::to_string(k));
   if (o.duplicate_grasp) grasp(0, "grasp0_again");

@@ -30,6 +30,7 @@
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #include "ukdyn/symbolic/forces.hpp"
+#include "ukdyn/tree/tree.hpp"
 #endif
 
 namespace {
@@ -632,6 +633,38 @@ TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
                 1e-12 * (1.0 + fresh.lin.dqdd_dqd.cwiseAbs().maxCoeff()));
     }
   }
+}
+// A tree's potential from the placement forward() left in its slot (TreeSubsystem::potential with
+// `placed`, the per-sample recorder's path) is taken from that slot: no pass, so with no scratch
+// slot nothing is allocated. At another state the slot is not used: the fresh pass then needs a
+// buffer of its own, which the counter sees (both paths give the value of a fresh potential()).
+TEST(NoAlloc, PotentialFromThePlacementOfForwardAllocatesNothing) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/two_pandas_weld.yaml");
+  const ukdyn::System& sys = *sc.system;
+  const auto& L = sys.layout();
+  ukdyn::ForwardData data(sys);
+  const Vec qd = Vec::LinSpaced(sys.dof(), -0.3, 0.4);
+  ukdyn::forward(sys, data, 0.0, sc.q0, qd, Vec::Zero(sys.dof()));
+  Vec q2 = sc.q0;
+  q2.array() += 0.01;
+  int trees = 0;
+  for (std::size_t k = 0; k < sys.subsystems().size(); ++k) {
+    const auto* tree = dynamic_cast<const ukdyn::tree::TreeSubsystem*>(sys.subsystems()[k].get());
+    if (tree == nullptr) continue;
+    ++trees;
+    const ukdyn::ConstSlot placed(
+        data.slots.data() + data.slot_start[k],
+        static_cast<std::size_t>(data.slot_start[k + 1] - data.slot_start[k]));
+    const auto qk = sc.q0.segment(L.start[k], L.size[k]);
+    const auto q2k = q2.segment(L.start[k], L.size[k]);
+    double V = 0.0, V2 = 0.0;
+    EXPECT_EQ(allocations_in([&] { V = tree->potential(qk, placed, {}); }), 0);
+    EXPECT_GT(allocations_in([&] { V2 = tree->potential(q2k, placed, {}); }), 0);
+    EXPECT_EQ(V, tree->potential({}, qk));
+    EXPECT_EQ(V2, tree->potential({}, q2k));
+  }
+  EXPECT_EQ(trees, 2);
 }
 #endif
 

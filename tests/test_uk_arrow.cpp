@@ -198,6 +198,101 @@ TEST(UkArrow, OtherMethodsUseTheDenseSolve) {
   EXPECT_TRUE(data.used_arrow);
 }
 
+// The grasps compiled with their numbers as tape inputs and positional coordinates, one program
+// shared by robots 1..N−1 (TapePool; DerivedConstraint), against the same grasps compiled each with
+// its numbers in its own tape (no pool): the two compilations differ in the order and form of the
+// arithmetic, so they agree to round-off only. A, b, Φ, Φ̇ with and without slots, q̈ and Qc of
+// forward(), and the tangents of A q̈ − b and Aᵀλ, at random states; N = 3 and 8, with redundant
+// rows (a duplicated grasp), a row on the load and one on robot 0 alone.
+TEST(SharedGraspTapes, SameRowsAndAccelerationsAsSeparateTapes) {
+  struct SharedCase {
+    const char* name;
+    uktest::NRobotsOptions o;
+    double tol;
+  };
+  std::vector<SharedCase> cases;
+  for (int robots : {3, 8}) {
+    uktest::NRobotsOptions o;
+    o.robots = robots;
+    cases.push_back({"grasps", o, 1e-12});
+    o.duplicate_grasp = o.load_row = o.robot_row = true;
+    cases.push_back({"redundant grasps, a load row and a robot row", o, 1e-10});
+  }
+  namespace sym = ukdyn::symbolic;
+  const auto derived = [](const ukdyn::System& s, std::size_t c) {
+    return dynamic_cast<const sym::DerivedConstraint*>(s.constraints()[c].get());
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(std::string(c.name) + ", N = " + std::to_string(c.o.robots));
+    const auto shared = uktest::n_robots_system(c.o);
+    uktest::NRobotsOptions own = c.o;
+    own.share_tapes = false;
+    const auto separate = uktest::n_robots_system(own);
+    // Grasps 1..N−1 run one A, b tape; grasp 0 (grasp angle 0: a term fewer) its own; without the
+    // pool every grasp has its own.
+    for (int k = 2; k < c.o.robots; ++k) {
+      EXPECT_EQ(&derived(*shared, static_cast<std::size_t>(k))->ab_tape(),
+                &derived(*shared, 1)->ab_tape());
+      EXPECT_NE(&derived(*separate, static_cast<std::size_t>(k))->ab_tape(),
+                &derived(*separate, 1)->ab_tape());
+    }
+    EXPECT_NE(&derived(*shared, 0)->ab_tape(), &derived(*shared, 1)->ab_tape());
+    const Index n = shared->dof(), m = shared->rows();
+    ASSERT_EQ(separate->rows(), m);
+    ukdyn::ForwardData a(*shared), b(*separate);
+    std::mt19937 rng(20261205u);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    double worst = 0.0, worst_rows = 0.0;
+    const auto rel = [](const auto& x, const auto& y) {
+      return (x - y).template lpNorm<Eigen::Infinity>() /
+             std::max(1.0, y.template lpNorm<Eigen::Infinity>());
+    };
+    for (int s = 0; s < 30; ++s) {
+      Vec q(n), qd(n), tau(n), dq(n), dqd(n);
+      for (Index i = 0; i < n; ++i) {
+        q[i] = 1.5 * u(rng);
+        qd[i] = u(rng);
+        tau[i] = 2.0 * u(rng);
+        dq[i] = u(rng);
+        dqd[i] = u(rng);
+      }
+      const double t = u(rng);
+      ukdyn::forward(*shared, a, t, q, qd, tau);
+      ukdyn::forward(*separate, b, t, q, qd, tau);
+      ASSERT_TRUE(a.result.finite && b.result.finite);
+      EXPECT_EQ(a.result.rank, b.result.rank);
+      worst_rows = std::max({worst_rows, rel(a.A, b.A), rel(a.b, b.b)});
+      worst = std::max({worst, rel(a.qdd, b.qdd), rel(a.Qc, b.Qc)});
+      Vec phi_a(m), phi_b(m), phid_a(m), phid_b(m), phi_s(m), phid_s(m);
+      ukdyn::residuals(*shared, a, t, q, qd, phi_a, phid_a);  // in the slots
+      ukdyn::position_residuals(*shared, t, q, phi_s);        // without slots
+      ukdyn::velocity_residuals(*shared, t, q, qd, phid_s);
+      ukdyn::residuals(*separate, b, t, q, qd, phi_b, phid_b);
+      worst_rows = std::max({worst_rows, rel(phi_a, phi_b), rel(phid_a, phid_b)});
+      EXPECT_EQ(phi_s, phi_a);
+      EXPECT_EQ(phid_s, phid_a);
+      // Tangents of A q̈ − b and Aᵀλ along (dq, dq̇), in the slots and without.
+      for (std::size_t k = 0; k < shared->constraints().size(); ++k) {
+        const Index r = shared->constraints()[k]->rows();
+        const Vec lambda = Vec::LinSpaced(r, -1.0, 2.0);
+        Vec dr_a(r), dr_b(r), dr_s(r);
+        Vec df_a = Vec::Zero(n), df_b = Vec::Zero(n), df_s = Vec::Zero(n);
+        derived(*shared, k)
+            ->tangent({t, a.constraint_slots(k)}, q, qd, a.qdd, lambda, dq, dqd, dr_a, df_a);
+        derived(*shared, k)->tangent({t}, q, qd, a.qdd, lambda, dq, dqd, dr_s, df_s);
+        derived(*separate, k)
+            ->tangent({t, b.constraint_slots(k)}, q, qd, a.qdd, lambda, dq, dqd, dr_b, df_b);
+        worst_rows = std::max({worst_rows, rel(dr_a, dr_b), rel(df_a, df_b)});
+        EXPECT_EQ(dr_a, dr_s);
+        EXPECT_EQ(df_a, df_s);
+      }
+    }
+    EXPECT_LE(worst_rows, 1e-13);
+    EXPECT_LE(worst, c.tol);
+    ::testing::Test::RecordProperty("worst_rel", ::testing::PrintToString(worst));
+  }
+}
+
 #ifdef UKDYN_HAVE_IO
 // The arm written once and instantiated N times (`instances:`, tools/n_robots.py) is the same
 // system as the one built directly in C++ (tests/n_robots_model.hpp): names, M, A, b and q̈ at
@@ -226,6 +321,14 @@ TEST(Instances, GeneratedScenarioMatchesTheDirectModel) {
     EXPECT_EQ(tape_of(*s, 1), tape_of(*s, 0));
     EXPECT_EQ(tape_of(*s, 2), tape_of(*s, 0));
     EXPECT_NE(tape_of(*s, 3), tape_of(*s, 0));
+    // The grasps of robots 1 and 2 one A, b tape too (their numbers are inputs); robot 0's grasp
+    // angle 0 leaves a term out of its rows.
+    auto grasp_tape = [&](std::size_t c) {
+      return &dynamic_cast<const ukdyn::symbolic::DerivedConstraint&>(*s->constraints()[c])
+                  .ab_tape();
+    };
+    EXPECT_EQ(grasp_tape(2), grasp_tape(1));
+    EXPECT_NE(grasp_tape(0), grasp_tape(1));
   }
   const Index n = direct->dof();
   ukdyn::ForwardData a(*sc.system), b(*direct);

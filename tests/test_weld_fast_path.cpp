@@ -10,6 +10,7 @@
 
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace {
 
@@ -150,5 +151,54 @@ TEST(WeldFastPath, PlacementsOfAnotherStateAreNeverReused) {
       subs[k]->mass({0.0, d.subsystem_slot(k)}, q2.segment(L.start[k], L.size[k]), M);
     }
     expect_fresh(q2, qd1, "after mass() at another q");
+  }
+}
+
+// A tree's potential read from the placement an earlier forward() left in its slot
+// (TreeSubsystem::potential with `placed`: the per-sample recorder's V) is bitwise that of a fresh
+// pass without slots; a placement of another state (another q, one ulp away, or re-placed by
+// mass() without being moved) is never used, and V then is the fresh V of the state asked for,
+// which differs from the slot's.
+TEST(WeldFastPath, PotentialFromAPlacementIsTheFreshOneAndNeverStale) {
+  for (const char* file : {"two_pandas_weld.yaml", "four_panda_plate.yaml"}) {
+    SCOPED_TRACE(file);
+    const Scenario s = load_scenario(kSource / "scenarios" / file);
+    const System& sys = *s.system;
+    const auto& subs = sys.subsystems();
+    const auto& L = sys.layout();
+    ForwardData d(sys), scratch(sys);
+    Vec q1, qd1, q2, qd2;
+    some_state(s, 21, q1, qd1);
+    some_state(s, 22, q2, qd2);
+    const Vec tau = Vec::Zero(sys.dof());
+    int trees = 0;
+    for (std::size_t k = 0; k < subs.size(); ++k) {
+      const auto* arm = dynamic_cast<const tree::TreeSubsystem*>(subs[k].get());
+      if (arm == nullptr) continue;
+      ++trees;
+      const ConstSlot placed(d.slots.data() + d.slot_start[k],
+                             static_cast<std::size_t>(d.slot_start[k + 1] - d.slot_start[k]));
+      const auto at = [&](const Vec& q) { return q.segment(L.start[k], L.size[k]); };
+      auto V = [&](const Vec& q) {
+        return arm->potential(at(q), placed, scratch.subsystem_slot(k));
+      };
+      auto fresh = [&](const Vec& q) { return arm->potential({}, at(q)); };
+      forward(sys, d, 0.0, q1, qd1, tau);
+      EXPECT_EQ(V(q1), fresh(q1));
+      const double V2 = V(q2);
+      EXPECT_EQ(V2, fresh(q2));
+      EXPECT_NE(V2, fresh(q1));  // the states differ enough for V to tell them apart
+      Vec q3 = q1;
+      q3(L.start[k]) = std::nextafter(q3(L.start[k]), 10.0);  // the arm's first joint by one ulp
+      EXPECT_EQ(V(q3), fresh(q3));
+      Mat M(L.size[k], L.size[k]);
+      subs[k]->mass({0.0, d.subsystem_slot(k)}, at(q2), M);  // placed at q2, not moved
+      EXPECT_EQ(V(q1), fresh(q1));
+      EXPECT_EQ(V(q2), fresh(q2));
+      // The one-slot form reuses the slot it is given when that slot holds this q.
+      forward(sys, d, 0.0, q1, qd1, tau);
+      EXPECT_EQ(arm->potential({0.0, d.subsystem_slot(k)}, at(q1)), fresh(q1));
+    }
+    EXPECT_GE(trees, 2);
   }
 }

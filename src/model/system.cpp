@@ -468,30 +468,19 @@ bool time_varying(const System& system) {
   return false;
 }
 
-namespace {
-
-// Σ V_k(q, t) of the subsystems, subsystem k evaluated in slot_of(k), plus the potentials of the
-// applied forces.
-template <class SlotOf>
-double potential_sum(const System& system, double t, CVecRef q, SlotOf slot_of) {
-  const auto& L = system.layout();
-  const auto& subs = system.subsystems();
-  double V = 0.0;
-  for (std::size_t k = 0; k < subs.size(); ++k)
-    V += subs[k]->potential({t, slot_of(k)}, q.segment(L.start[k], L.size[k]));
-  for (const auto& f : system.applied_forces()) V += f->potential(q);
-  return V;
-}
-
-}  // namespace
-
 double potential_energy(const System& system, double t, CVecRef q) {
-  return potential_sum(system, t, q, [](std::size_t) { return Slot{}; });
+  const auto& subs = system.subsystems();
+  return detail::potential_sum(system, q, [&](std::size_t k, CVecRef qk) {
+    return subs[k]->potential({t, Slot{}}, qk);
+  });
 }
 
 double detail::potential_energy_in_slots(const System& system, ForwardData& data, double t,
                                          CVecRef q) {
-  return potential_sum(system, t, q, [&](std::size_t k) { return data.subsystem_slot(k); });
+  const auto& subs = system.subsystems();
+  return detail::potential_sum(system, q, [&](std::size_t k, CVecRef qk) {
+    return subs[k]->potential({t, data.subsystem_slot(k)}, qk);
+  });
 }
 
 }  // namespace ukdyn

@@ -26,6 +26,19 @@ SampleRecorder::SampleRecorder(const System& system, RunReport& rep, bool balanc
   rep.rank_min = static_cast<int>(system.rows());
   rep.sigma_min = std::numeric_limits<double>::infinity();
   rep.energy_balance = balance;
+  for (const auto& s : system.subsystems())
+    trees_.push_back(dynamic_cast<const tree::TreeSubsystem*>(s.get()));
+}
+
+double SampleRecorder::potential(double t, CVecRef q, const ForwardData& d) {
+  const auto& subs = sys_.subsystems();
+  return detail::potential_sum(sys_, q, [&](std::size_t k, CVecRef qk) {
+    const Slot scratch = scratch_.subsystem_slot(k);
+    if (trees_[k] == nullptr || d.built_for() != &sys_) return subs[k]->potential({t, scratch}, qk);
+    const auto b = d.slot_start[k], e = d.slot_start[k + 1];
+    return trees_[k]->potential(qk, ConstSlot(d.slots.data() + b, static_cast<std::size_t>(e - b)),
+                                scratch);
+  });
 }
 
 std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const ForwardData& d) {
@@ -39,7 +52,7 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
     position_residuals(sys_, scratch_, t, q, phi_);
   }
   const double T = kinetic_energy(d, qd);
-  const double V = detail::potential_energy_in_slots(sys_, scratch_, t, q);
+  const double V = potential(t, q, d);
   const double E = T + V;
   if (count_++ == 0) {
     rep_.E0 = E;

@@ -14,6 +14,7 @@
 #include "ukdyn/output/constraint_force_output.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/run/run.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -54,6 +55,9 @@ class SampleRecorder {
   /// One output sample: updates the report's extrema and (Needs::row) fills the row; returns the
   /// index of the first column after the trajectory_header() columns.
   std::size_t record(double t, CVecRef q, CVecRef qd, const ForwardData& d);
+  /// V at the sample: a tree's from the links the sample's forward() placed in d's slot when they
+  /// are of this q (TreeSubsystem::potential with `placed`), every other V in this recorder's slots.
+  double potential(double t, CVecRef q, const ForwardData& d);
 
   [[nodiscard]] std::vector<double>& row() { return row_; }
   [[nodiscard]] const Vec& phi() const { return phi_; }
@@ -66,6 +70,7 @@ class SampleRecorder {
   Needs needs_;
   std::vector<double> row_;
   ForwardData scratch_;  // the slots Φ, Φ̇ and V are evaluated in (not the run's: no allocation)
+  std::vector<const tree::TreeSubsystem*> trees_;  // per subsystem: the tree, or null
   std::vector<bool> vel_;  // per constraint row: velocity-level (its column is B q̇ + c)
   bool any_vel_ = false;
   Vec phi_, phid_;

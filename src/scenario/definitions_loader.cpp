@@ -438,7 +438,7 @@ std::shared_ptr<const Subsystem> load_free_body_subsystem(
 
 std::shared_ptr<const Constraint> load_definitions_constraint(
     const Loader& L, const Node& c, const std::string& name, bool holonomic,
-    const std::vector<std::string>& system_coordinates) {
+    const std::vector<std::string>& system_coordinates, symbolic::TapePool* pool) {
   L.only_keys(c, {"type", "name", "parameters", "let", "rows"});
   sym::ConstraintDef def(
       name,
@@ -477,7 +477,7 @@ std::shared_ptr<const Constraint> load_definitions_constraint(
   if (row_nodes.size() > system_coordinates.size() * 4 + 16)
     L.fail(rows, "too many rows for the number of coordinates");
   try {
-    return sym::make_constraint(def);
+    return sym::make_constraint(def, pool);
   } catch (const sym::DefinitionError& e) {
     if (e.row >= 0) L.fail(row_nodes[static_cast<std::size_t>(e.row)], e.what());
     L.fail(c, e.what());

@@ -67,10 +67,11 @@ void record_definition_bodies(DefinitionContext* context, const std::string& nam
                               const std::vector<std::string>& base = {});
 
 /// A constraint node with type: expression (holonomic) or nonholonomic. `system_coordinates` are
-/// all coordinates in order.
+/// all coordinates in order. Its tapes are kept in `pool` (if given): constraints that differ in
+/// their numbers only (the grasps of instances) share one (DerivedConstraint).
 std::shared_ptr<const Constraint> load_definitions_constraint(
     const Loader& L, const Node& c, const std::string& name, bool holonomic,
-    const std::vector<std::string>& system_coordinates);
+    const std::vector<std::string>& system_coordinates, symbolic::TapePool* pool = nullptr);
 
 /// What later constraints may refer to: the named points of serial chains, by subsystem name.
 std::shared_ptr<DefinitionContext> make_definition_context();

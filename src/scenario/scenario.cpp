@@ -637,8 +637,9 @@ std::shared_ptr<const Constraint> listed_constraint(const Loader& L, const Node&
   if (type == "cut_point_trajectory") return cut_point_trajectory(L, c, cname, sc, st);
   if (type == "coordinate") return coordinate_constraint(L, c, cname, sc, st);
   if (type == "expression" || type == "nonholonomic") {  // docs/definitions.md
-    return io_detail::load_definitions_constraint(L, c, cname, type == "expression",
-                                                  system_coordinates(st));
+    return io_detail::load_definitions_constraint(
+        L, c, cname, type == "expression", system_coordinates(st),
+        io_detail::tape_pool(st.definition_context.get()));
   }
   if (io_detail::is_frame_constraint(type)) {  // docs/frame-constraints.md
     return io_detail::load_frame_constraint(L, c, cname, type, system_coordinates(st),

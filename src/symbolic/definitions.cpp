@@ -2,6 +2,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <set>
@@ -962,12 +963,141 @@ ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline) 
   return d;
 }
 
+namespace {
+
+bool number_input(const ex& e) {
+  return GiNaC::is_a<GiNaC::numeric>(e) && GiNaC::ex_to<GiNaC::numeric>(e).is_real() &&
+         !GiNaC::ex_to<GiNaC::numeric>(e).is_integer();
+}
+
+bool is_spline(const ex& e) {
+  return GiNaC::is_a<GiNaC::function>(e) &&
+         GiNaC::ex_to<GiNaC::function>(e).get_name() == "ukdyn_spline";
+}
+
+// e with every non-integer number (number_input) replaced by one symbol: the shape of e, whatever
+// its numbers (exponents kept; splines as they are).
+class Blind : public GiNaC::map_function {
+ public:
+  explicit Blind(const symbol& any) : any_(any) {}
+  ex operator()(const ex& e) override {
+    if (number_input(e)) return any_;
+    if (GiNaC::is_a<GiNaC::power>(e)) return GiNaC::pow((*this)(e.op(0)), e.op(1));
+    if (is_spline(e)) return e;
+    return e.map(*this);
+  }
+
+ private:
+  symbol any_;
+};
+
+// The non-integer numbers of expressions as tape inputs: each distinct value (bitwise) becomes a
+// symbol c#j that reads q[first + j] of Tape::eval (`in` gains it), numbered in an order that does
+// not depend on the values themselves: the operands of a sum or product are visited in the
+// StructuralOrder of their shape (Blind), ties in the StructuralOrder of the operands. Rows that
+// differ only in their numbers (the grasps of N robots: each robot's mount and grasp angle) are
+// then the same expressions in the same symbols, which compile to one program (TapePool).
+class NumberInputs : public GiNaC::map_function {
+ public:
+  NumberInputs(InputMap& in, std::int32_t first) : in_(in), first_(first) {}
+  ex operator()(const ex& e) override {
+    // The double a tape makes of the number (Tape::compile: evalf, then to_double).
+    if (number_input(e)) return input(GiNaC::ex_to<GiNaC::numeric>(e.evalf()).to_double());
+    if (GiNaC::is_a<GiNaC::power>(e)) {
+      const ex expo = GiNaC::is_a<GiNaC::numeric>(e.op(1)) ? e.op(1) : (*this)(e.op(1));
+      return GiNaC::pow((*this)(e.op(0)), expo);
+    }
+    if (is_spline(e)) return e;
+    if (!GiNaC::is_a<GiNaC::add>(e) && !GiNaC::is_a<GiNaC::mul>(e)) return e.map(*this);
+    std::vector<ex> ops(e.begin(), e.end());
+    std::vector<std::uint64_t> keys;
+    for (const ex& o : ops) keys.push_back(shape_.hash(Blind(any_)(o)));
+    std::vector<std::size_t> at(ops.size());
+    for (std::size_t i = 0; i < at.size(); ++i) at[i] = i;
+    std::sort(at.begin(), at.end(), [&](std::size_t a, std::size_t b) {
+      if (keys[a] != keys[b]) return keys[a] < keys[b];
+      return shape_.compare(ops[a], ops[b]) < 0;
+    });
+    GiNaC::exvector lifted;
+    for (std::size_t i : at) lifted.push_back((*this)(ops[i]));
+    if (GiNaC::is_a<GiNaC::add>(e)) return GiNaC::dynallocate<GiNaC::add>(lifted);
+    return GiNaC::dynallocate<GiNaC::mul>(lifted);
+  }
+  [[nodiscard]] const std::vector<double>& values() const { return values_; }
+
+ private:
+  ex input(double v) {
+    const auto bits = std::bit_cast<std::uint64_t>(v);
+    if (auto it = index_.find(bits); it != index_.end()) return symbols_[it->second];
+    const symbol c("c#" + std::to_string(values_.size()));
+    in_[c] = {TapeInput::Source::q, first_ + static_cast<std::int32_t>(values_.size())};
+    index_[bits] = values_.size();
+    values_.push_back(v);
+    symbols_.push_back(c);
+    return c;
+  }
+
+  InputMap& in_;
+  std::int32_t first_;
+  symbol any_{"c#"};
+  StructuralOrder shape_;
+  std::map<std::uint64_t, std::size_t> index_;  // value bits → its input
+  std::vector<double> values_;
+  std::vector<symbol> symbols_;
+};
+
+// The coordinates (indices into `coordinates`) whose position or velocity symbol occurs in `es`,
+// ascending.
+std::vector<Index> coordinates_read(const std::vector<ex>& es, SymbolTable& table,
+                                    const std::vector<std::string>& coordinates) {
+  const InputMap in = coordinate_inputs(table, coordinates);
+  std::set<Index> cols;
+  for (const ex& e : es) {
+    for (auto it = e.preorder_begin(); it != e.preorder_end(); ++it) {
+      if (!GiNaC::is_a<symbol>(*it)) continue;
+      const auto f = in.find(*it);
+      if (f != in.end() && f->second.source != TapeInput::Source::time)
+        cols.insert(f->second.index);
+    }
+  }
+  return {cols.begin(), cols.end()};
+}
+
+// The tapes' q and q̇ at (q, q̇): with positional inputs, q of the coordinates cols[i] then the
+// numbers (null: zeros, for tangents), then q̇ of cols[i], written into `in` (2 |cols| + |numbers|
+// doubles); qd may be null (a position residual). Without, q and qd as given.
+struct TapeArgs {
+  const double* q;
+  const double* qd;
+};
+TapeArgs tape_args(bool positional, const std::vector<Index>& cols, const double* numbers,
+                   std::size_t count, const double* q, const double* qd, double* in) {
+  if (!positional) return {q, qd};
+  const std::size_t nc = cols.size();
+  for (std::size_t i = 0; i < nc; ++i) in[i] = q[cols[i]];
+  for (std::size_t j = 0; j < count; ++j) in[nc + j] = numbers ? numbers[j] : 0.0;
+  double* v = in + nc + count;
+  if (qd == nullptr) return {in, nullptr};
+  for (std::size_t i = 0; i < nc; ++i) v[i] = qd[cols[i]];
+  return {in, v};
+}
+
+// Room for the tapes' inputs without a slot: `stack` (kInputStack doubles) or, beyond, `heap`.
+constexpr std::size_t kInputStack = 256;
+double* input_room(std::size_t size, double* stack, std::vector<double>& heap) {
+  if (size <= kInputStack) return stack;
+  heap.resize(size);
+  return heap.data();
+}
+
+}  // namespace
+
 DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation)
     : DerivedConstraint(std::move(derivation), Deadline()) {}
 
-DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline)
+DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline,
+                                     TapePool* pool)
     : d_(std::move(derivation)), m_(static_cast<Index>(d_.row_names.size())) {
-  const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
   const auto& pv = d_.parameter_values;
   std::vector<ex> ab, phi, phid;
   for (unsigned r = 0; r < d_.A.rows(); ++r) {
@@ -984,15 +1114,42 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Dead
     phi.push_back(numeric_form(d_.phi(r, 0), pv));
     phid.push_back(numeric_form(d_.phid(r, 0), pv));
   }
-  ab_ = Tape(ab, in, deadline, "compiling A and b");
-  phi_ = Tape(phi, in, deadline, "compiling Phi");
-  phid_ = Tape(phid, in, deadline, "compiling the velocity form");
+  if (pool == nullptr) {
+    const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
+    ab_ = std::make_shared<const Tape>(ab, in, deadline, "compiling A and b");
+    phi_ = std::make_shared<const Tape>(phi, in, deadline, "compiling Phi");
+    phid_ = std::make_shared<const Tape>(phid, in, deadline, "compiling the velocity form");
+    return;
+  }
+  // Positional inputs: the coordinates read renamed q#i, q̇#i by their position among them, then
+  // the numbers as inputs after them (NumberInputs), all three tapes numbered together.
+  std::vector<ex> all = ab;
+  all.insert(all.end(), phi.begin(), phi.end());
+  all.insert(all.end(), phid.begin(), phid.end());
+  positional_ = true;
+  cols_ = coordinates_read(all, *d_.symbols, d_.coordinates);
+  std::vector<std::string> names;
+  for (Index c : cols_) names.push_back(d_.coordinates[static_cast<std::size_t>(c)]);
+  PositionalInputs p = positional_inputs(*d_.symbols, names);
+  NumberInputs lift(p.in, static_cast<std::int32_t>(cols_.size()));
+  for (ex& e : all) e = lift(e.subs(p.rename));
+  numbers_ = lift.values();
+  const auto part = [&](std::size_t first, std::size_t count) {
+    return std::vector<ex>(all.begin() + static_cast<std::ptrdiff_t>(first),
+                           all.begin() + static_cast<std::ptrdiff_t>(first + count));
+  };
+  const std::size_t na = ab.size(), nr = phi.size();
+  ab_ = pool->share(Tape(part(0, na), p.in, deadline, "compiling A and b"));
+  phi_ = pool->share(Tape(part(na, nr), p.in, deadline, "compiling Phi"));
+  phid_ = pool->share(Tape(part(na + nr, nr), p.in, deadline, "compiling the velocity form"));
 }
 
-// The A, b tape's outputs and work, twice: tangent() puts their tangents in the second half.
+// The tapes' inputs (positional: q of cols_ with the numbers, q̇ of cols_), then the A, b tape's
+// outputs and work, twice: tangent() puts the inputs' tangents and the outputs' tangents in the
+// second halves.
 Index DerivedConstraint::slot_size() const {
-  return static_cast<Index>(
-      std::max({2 * (ab_.outputs() + ab_.work_size()), phi_.work_size(), phid_.work_size()}));
+  return 2 * input_size() + static_cast<Index>(std::max({2 * (ab_->outputs() + ab_->work_size()),
+                                                         phi_->work_size(), phid_->work_size()}));
 }
 
 // A, b from the tape: its outputs and work buffer in this constraint's slot, or (no slot: the
@@ -1003,18 +1160,22 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
                                  VecRef b) const {
   const Slot own = ctx.slots.own();
   constexpr std::size_t kStack = 512;
-  double buf[kStack];
-  std::vector<double> big;
-  double* out = own.data();
-  if (own.size() == static_cast<std::size_t>(slot_size())) {
-    ab_.eval(ctx.t, q.data(), qd.data(), out, out + ab_.outputs());
+  double buf[kStack], in[kInputStack];
+  std::vector<double> big, heap;
+  const auto ni = static_cast<std::size_t>(input_size());
+  const bool slotted = own.size() == static_cast<std::size_t>(slot_size());
+  const TapeArgs x = tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(),
+                               qd.data(), slotted ? own.data() : input_room(ni, in, heap));
+  double* out = own.data() + ni;
+  if (slotted) {
+    ab_->eval(ctx.t, x.q, x.qd, out, out + ab_->outputs());
   } else {
     out = buf;
-    if (ab_.outputs() > kStack) {
-      big.resize(ab_.outputs());
+    if (ab_->outputs() > kStack) {
+      big.resize(ab_->outputs());
       out = big.data();
     }
-    ab_.eval(ctx.t, q.data(), qd.data(), out);
+    ab_->eval(ctx.t, x.q, x.qd, out);
   }
   if (!ctx.structural_only) zero_rows(A);
   std::size_t k = 0;
@@ -1025,21 +1186,27 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
 bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef lambda, CVecRef dq, CVecRef dqd, VecRef d_residual,
                                 VecRef d_force) const {
-  // The tape's outputs: A's structural entries (nz_), then b; with their tangents and the work
-  // buffers in this constraint's slot, or (no slot) in a buffer of its own. (CVecRef is contiguous.)
-  const std::size_t no = ab_.outputs(), nw = ab_.work_size();
+  // The inputs and their tangents, then the tape's outputs: A's structural entries (nz_), then b;
+  // with their tangents and the work buffers in this constraint's slot, or (no slot) in a buffer
+  // of its own. (CVecRef is contiguous.)
+  const std::size_t no = ab_->outputs(), nw = ab_->work_size();
+  const auto ni = static_cast<std::size_t>(input_size());
   const Slot own = ctx.slots.own();
   std::vector<double> buffer;
   double* base = own.data();
   if (own.size() != static_cast<std::size_t>(slot_size())) {
-    buffer.resize(2 * (no + nw));
+    buffer.resize(2 * (ni + no + nw));
     base = buffer.data();
   }
-  double* out = base;
+  const TapeArgs x =
+      tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(), qd.data(), base);
+  const TapeArgs dx =
+      tape_args(positional_, cols_, nullptr, numbers_.size(), dq.data(), dqd.data(), base + ni);
+  double* out = base + 2 * ni;
   double* dout = out + no;
   double* work = dout + no;
   double* dwork = work + nw;
-  ab_.eval_tangent(ctx.t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), out, dout, work, dwork);
+  ab_->eval_tangent(ctx.t, x.q, x.qd, 0.0, dx.q, dx.qd, out, dout, work, dwork);
   for (Index r = 0; r < m_; ++r) d_residual(r) = 0.0;
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) {
@@ -1061,26 +1228,38 @@ std::vector<std::vector<Index>> DerivedConstraint::row_columns() const {
 void DerivedConstraint::position_residual(const ConstraintContext& ctx, CVecRef q,
                                           VecRef phi) const {
   const Slot own = ctx.slots.own();
-  if (own.size() != static_cast<std::size_t>(slot_size())) {
-    phi_.eval(ctx.t, q.data(), nullptr, phi.data());
+  const auto ni = static_cast<std::size_t>(input_size());
+  double in[kInputStack];
+  std::vector<double> heap;
+  const bool slotted = own.size() == static_cast<std::size_t>(slot_size());
+  const TapeArgs x = tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(),
+                               nullptr, slotted ? own.data() : input_room(ni, in, heap));
+  if (!slotted) {
+    phi_->eval(ctx.t, x.q, nullptr, phi.data());
     return;
   }
-  phi_.eval(ctx.t, q.data(), nullptr, phi.data(), own.data());
+  phi_->eval(ctx.t, x.q, nullptr, phi.data(), own.data() + ni);
 }
 
 void DerivedConstraint::velocity_residual(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
                                           VecRef phid) const {
   const Slot own = ctx.slots.own();
-  if (own.size() != static_cast<std::size_t>(slot_size())) {
-    phid_.eval(ctx.t, q.data(), qd.data(), phid.data());
+  const auto ni = static_cast<std::size_t>(input_size());
+  double in[kInputStack];
+  std::vector<double> heap;
+  const bool slotted = own.size() == static_cast<std::size_t>(slot_size());
+  const TapeArgs x = tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(),
+                               qd.data(), slotted ? own.data() : input_room(ni, in, heap));
+  if (!slotted) {
+    phid_->eval(ctx.t, x.q, x.qd, phid.data());
     return;
   }
-  phid_.eval(ctx.t, q.data(), qd.data(), phid.data(), own.data());
+  phid_->eval(ctx.t, x.q, x.qd, phid.data(), own.data() + ni);
 }
 
-std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def) {
+std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def, TapePool* pool) {
   const Deadline deadline;  // bounded work (docs/definitions.md, Limits): derivation + compilation
-  return std::make_shared<DerivedConstraint>(derive(def, deadline), deadline);
+  return std::make_shared<DerivedConstraint>(derive(def, deadline), deadline, pool);
 }
 
 }  // namespace ukdyn::symbolic

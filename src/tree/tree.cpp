@@ -649,17 +649,25 @@ void mark_moved(const Workspace& w, const void* owner) {
   w.key[1] = 1.0;
 }
 
+// The θ, θ̇ (nt each) kept in `placed` (a slot of `size` doubles holding a workspace) if `owner`
+// placed and moved its links there (at those joint variables), else null.
+const double* moved_by(ConstSlot placed, Index size, std::size_t links, Index nt,
+                       const void* owner) {
+  if (static_cast<Index>(placed.size()) != size) return nullptr;
+  const double* key = placed.data() + key_offset(links, nt);
+  const double tag = owner_tag(owner);
+  if (key[1] != 1.0 || std::memcmp(key, &tag, sizeof(double)) != 0) return nullptr;
+  return placed.data() + theta_offset(links);
+}
+
 // The link states of `placed` (a slot of `size` doubles holding a workspace) if `owner` placed
 // and moved them at exactly these joint variables (bitwise: the same θ gives the same states),
 // else null.
 const LinkState<double>* placed_links(ConstSlot placed, Index size, std::size_t links, Index nt,
                                       const void* owner, const double* theta,
                                       const double* thetad) {
-  if (static_cast<Index>(placed.size()) != size) return nullptr;
-  const double* key = placed.data() + key_offset(links, nt);
-  const double tag = owner_tag(owner);
-  if (key[1] != 1.0 || std::memcmp(key, &tag, sizeof(double)) != 0) return nullptr;
-  const double* th = placed.data() + theta_offset(links);
+  const double* th = moved_by(placed, size, links, nt, owner);
+  if (!th) return nullptr;
   const auto bytes = static_cast<std::size_t>(nt) * sizeof(double);
   if (std::memcmp(th, theta, bytes) != 0 || std::memcmp(th + nt, thetad, bytes) != 0)
     return nullptr;
@@ -976,14 +984,46 @@ void TreeSubsystem::gravity(const EvalContext& c, CVecRef q, VecRef G) const {
   });
 }
 
+namespace {
+
+// The links of `placed` (a slot of `size` doubles holding a workspace) if `owner` placed them at
+// the joint variables of q, θ = offset + T q (computed as theta_of() does and compared bitwise
+// with the θ the slot keeps), else null. The placement alone is asked for: a slot whose links were
+// placed and moved (mark_moved) at this θ and any θ̇ qualifies.
+const LinkState<double>* placed_at_q(ConstSlot placed, Index size, std::size_t links, Index nt,
+                                     const void* owner, const std::vector<std::vector<Term>>& T,
+                                     const std::vector<double>& offset, const double* q) {
+  const double* th = moved_by(placed, size, links, nt, owner);
+  if (!th) return nullptr;
+  for (std::size_t a = 0; a < T.size(); ++a) {
+    double v = offset[a];
+    for (const Term& t : T[a]) v += t.coefficient * q[t.coordinate];
+    if (std::memcmp(&v, th + a, sizeof(double)) != 0) return nullptr;
+  }
+  return reinterpret_cast<const LinkState<double>*>(placed.data());
+}
+
+}  // namespace
+
 double TreeSubsystem::potential(const EvalContext& c, CVecRef q) const {
+  return potential(q, c.slot, c.slot);
+}
+
+double TreeSubsystem::potential(CVecRef q, ConstSlot placed, Slot scratch) const {
+  const std::size_t nl = merged_.links.size();
+  const auto of_links = [&](const LinkState<double>* links) {
+    Eigen::Vector3d h = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < nl; ++i) h += links[i].h_own;
+    return -dot3<double>(merged_.gravity, h) + potential0_;  // V = −Σ m g·c
+  };
+  const LinkState<double>* links =
+      placed_at_q(placed, slot_size_, nl, n_theta_, this, theta_terms_, theta_offset_, q.data());
+  if (links) return of_links(links);
   double V = 0.0;
-  with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
+  with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
     theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
     place(merged_, theta_index_, quaternions_, w.theta, w.links);
-    Eigen::Vector3d h = Eigen::Vector3d::Zero();
-    for (std::size_t i = 0; i < merged_.links.size(); ++i) h += w.links[i].h_own;
-    V = -dot3<double>(merged_.gravity, h) + potential0_;  // V = −Σ m g·c
+    V = of_links(w.links);
   });
   return V;
 }

@@ -289,7 +289,12 @@ class DerivedConstraint final : public Constraint {
  public:
   explicit DerivedConstraint(ConstraintDerivation derivation);
   /// The same with the tapes compiled within `deadline` (make_constraint: the derivation's budget).
-  DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline);
+  /// With a `pool`, the tapes read the coordinates the rows name by position and the rows'
+  /// non-integer numbers as inputs, so that constraints which differ only in those numbers and in
+  /// which coordinates they read (the grasps of N robots on one load: their mounts and grasp
+  /// angles) evaluate one program kept once in the pool, each with its own numbers.
+  DerivedConstraint(ConstraintDerivation derivation, const Deadline& deadline,
+                    TapePool* pool = nullptr);
   [[nodiscard]] Index rows() const override { return m_; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return d_.row_names; }
   /// Data slot: the A, b tape's outputs and the largest work buffer of the three tapes. Without it
@@ -311,17 +316,29 @@ class DerivedConstraint final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
-  [[nodiscard]] std::size_t tape_operations() const { return ab_.operations(); }
+  [[nodiscard]] std::size_t tape_operations() const { return ab_->operations(); }
+  /// The A, b tape (the same object for constraints that share it through a TapePool).
+  [[nodiscard]] const Tape& ab_tape() const { return *ab_; }
 
  private:
   ConstraintDerivation d_;
   Index m_;
   std::vector<std::pair<Index, Index>> nz_;  // (row, column) of each structurally nonzero A entry
-  Tape ab_, phi_, phid_;
+  // Positional inputs (compiled with a pool): the tapes' q is (q[cols_[0]], …, numbers_…) and their
+  // q̇ is (q̇[cols_[0]], …); without, cols_ is empty and the tapes read q and q̇ themselves.
+  std::vector<Index> cols_;
+  std::vector<double> numbers_;
+  bool positional_ = false;
+  std::shared_ptr<const Tape> ab_, phi_, phid_;
+  [[nodiscard]] Index input_size() const {
+    return positional_ ? static_cast<Index>(2 * cols_.size() + numbers_.size()) : 0;
+  }
 };
 
-/// derive + compile, both within one Deadline (limits::kDeriveSeconds).
-std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def);
+/// derive + compile, both within one Deadline (limits::kDeriveSeconds); with a `pool`, the tapes
+/// in the pool's keeping (DerivedConstraint's constructor).
+std::shared_ptr<DerivedConstraint> make_constraint(const ConstraintDef& def,
+                                                   TapePool* pool = nullptr);
 
 // ------------------------------------------------------------------------------- printing
 

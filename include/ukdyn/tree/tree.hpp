@@ -126,7 +126,14 @@ class TreeSubsystem : public Subsystem, public SubsystemColumns {
   void coriolis(const EvalContext& c, CVecRef q, CVecRef qd, MatRef C) const override;
   void coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd, VecRef Cqd) const override;
   void gravity(const EvalContext& c, CVecRef q, VecRef G) const override;
+  /// V(q) from the links placed in c.slot when this subsystem placed them there at q (dynamics()
+  /// at the same q, say), else placed anew in c.slot.
   [[nodiscard]] double potential(const EvalContext& c, CVecRef q) const override;
+  /// The same with the placement looked for in `placed` (this subsystem's data slot as an earlier
+  /// evaluation left it: dynamics() in the forward() of an output sample) and, when it is not of
+  /// this q (the slot keeps the joint variables it belongs to), made in `scratch` (slot_size()
+  /// doubles; none: a buffer of its own). Bitwise the same value either way.
+  [[nodiscard]] double potential(CVecRef q, ConstSlot placed, Slot scratch) const;
   double dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                   VecRef G) const override;
   [[nodiscard]] bool has_derivatives() const override { return true; }
