@@ -2227,9 +2227,12 @@ void quaternion_frame_column_columns(const Model& m, const std::vector<int>& ti,
 // ∂ID/∂q = Tᵀ (∂τ_θ/∂θ) T and ∂ID/∂q̇ = Tᵀ (∂τ_θ/∂θ̇) T at θ̈ = T q̈ by the analytic pass (one
 // forward and one backward recursion for every column; docs/derivatives.md, "Cost"): the rigid one
 // without ball joints (its links then left in the slot for frame_state_jacobian), the one on
-// similarity motions with the correction terms with them.
-bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd,
-                                              CVecRef qdd, MatRef dID_dq, MatRef dID_dqd) const {
+// similarity motions with the correction terms with them. [[gnu::flatten]] as
+// frame_state_jacobian.
+[[gnu::flatten]] bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q,
+                                                               CVecRef qd, CVecRef qdd,
+                                                               MatRef dID_dq,
+                                                               MatRef dID_dqd) const {
   const std::size_t nl = merged_.links.size();
   std::vector<double> own;
   const AnalyticWorkspace w = analytic_workspace(c.slot, slot_size_, nl, n_theta_, own);
@@ -2255,11 +2258,14 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
 // Without ball joints: the analytic columns on the links inverse_dynamics_jacobian() left in
 // `placed` at this state (no placement, no motion pass: its accelerations less a_0 = −g), else on
 // one placement and motion pass on doubles in `scratch`; with ball joints, the analytic columns on
-// similarity motions after one placement and motion pass in `scratch`.
-void TreeSubsystem::frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd, int frame_link,
-                                         const Eigen::Matrix3d& frame_R_offset,
-                                         const Eigen::Vector3d& frame_x_offset, ConstSlot placed,
-                                         Slot scratch, FrameState& value, MatRef J) const {
+// similarity motions after one placement and motion pass in `scratch`. [[gnu::flatten]]: every
+// call inlined (the chains' frame columns measured 7–10 % slower without it).
+[[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd,
+                                                          int frame_link,
+                                                          const Eigen::Matrix3d& frame_R_offset,
+                                                          const Eigen::Vector3d& frame_x_offset,
+                                                          ConstSlot placed, Slot scratch,
+                                                          FrameState& value, MatRef J) const {
   int link = -1;
   Eigen::Matrix3d R_offset = frame_R_offset;
   Eigen::Vector3d x_offset = frame_x_offset;
