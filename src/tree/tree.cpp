@@ -641,7 +641,7 @@ double* derivative_room(Slot slot, Index slot_size, Index offset, Index need,
 // The derivatives' part of a slot (after the forward workspace) starts with a key of its own:
 // key[0] the subsystem's tag, key[1] 1 when inverse_dynamics_jacobian()'s analytic pass left its
 // links there, placed and moved at the θ, θ̇, θ̈ stored beside them (gravity as a_0 = −g), for
-// frame_state_jacobian() to read. The lanes, the Christoffel matrix and the analytic pass share
+// frame_state_jacobian() to read. The Christoffel matrix's lanes and the analytic passes share
 // that room: every mapping of it clears key[1] (derivative_part), only a completed analytic pass
 // sets it, so a key never vouches for links another pass has overwritten.
 constexpr Index kDerivativeKey = 2;
