@@ -7,6 +7,9 @@
 //   tree/chain_<N>_id_jacobian, _frame_jacobian
 //                              its ∂ID/∂(q, q̇) and its tip frame's columns (the derivatives'
 //                              passes, docs/derivatives.md "Cost")
+//   tree/floating_<robot>_id_jacobian, _frame_jacobian
+//                              the same for the arm on a free joint (its MJCF file with a
+//                              <freejoint> on the base: a ball joint's similarity motions)
 //   scenario/<name>_forward    forward() of a shipped scenario at its initial state (the arms on
 //                              trees, their welds to the load numeric), when built with io
 //   mujoco/two_pandas_weld_mj_forward
@@ -22,7 +25,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
+#include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -149,6 +155,74 @@ std::shared_ptr<const ukdyn::tree::TreeSubsystem> chain(int n) {
   return ukdyn::tree::make_subsystem(std::move(m));
 }
 
+// robots/ROBOT.xml on a free joint (its base given a mass and an inertia), written to the system's
+// temporary directory: the arm on a floating base (7 + dof coordinates).
+std::shared_ptr<const ukdyn::tree::TreeSubsystem> floating_tree(const std::string& robot, int dof) {
+  std::ifstream in(robot_file(robot, "xml"));
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string xml = text.str();
+  const std::string base = "<body name=\"base_link\">";
+  const std::size_t at = xml.find(base);
+  if (at == std::string::npos) throw ukdyn::Error(robot + ": no base_link");
+  xml.insert(at + base.size(),
+             "<freejoint name=\"root\"/><inertial pos=\"0.02 -0.01 0.05\" mass=\"4\" "
+             "fullinertia=\"0.03 0.04 0.035 0.002 -0.001 0.003\"/>");
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("ukdyn_bench_floating_" + robot + ".xml"))
+          .string();
+  std::ofstream(path) << xml;
+  std::vector<std::string> q = {"x", "y", "z", "qw", "qx", "qy", "qz"};
+  for (int i = 1; i <= dof; ++i) q.push_back("q" + std::to_string(i));
+  sym::ChainDef c("floating_" + robot, q);
+  sym::append_mjcf(c, path, /*gravity=*/true);
+  sym::ChainTree t = sym::chain_tree(c);
+  if (!t.model) throw ukdyn::Error(robot + ": " + t.reason);
+  return ukdyn::tree::make_subsystem(std::move(*t.model));
+}
+
+// ∂ID/∂(q, q̇) of an arm on a floating base (a ball joint's similarity motions and the symbolic
+// body rate's correction terms in the analytic pass) and its flange frame's columns.
+void register_floating(const std::string& robot, int dof) {
+  const auto state_of = [dof](Vec& q, Vec& qd, Vec& qdd) {
+    state(7 + dof, q, qd);
+    q.segment(3, 4).normalize();
+    qdd = qd.reverse();
+  };
+  benchmark::RegisterBenchmark(
+      ("tree/floating_" + robot + "_id_jacobian").c_str(),
+      [robot, dof, state_of](benchmark::State& st) {
+        const auto t = floating_tree(robot, dof);
+        const Index n = t->dof();
+        Vec q, qd, qdd;
+        state_of(q, qd, qdd);
+        Mat Jq(n, n), Jqd(n, n);
+        std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+        for (auto _ : st) {
+          t->inverse_dynamics_jacobian({0.0, ukdyn::Slot(slot)}, q, qd, qdd, Jq, Jqd);
+          benchmark::DoNotOptimize(Jq.data());
+        }
+      });
+  benchmark::RegisterBenchmark(
+      ("tree/floating_" + robot + "_frame_jacobian").c_str(),
+      [robot, dof, state_of](benchmark::State& st) {
+        const auto t = floating_tree(robot, dof);
+        const Index n = t->dof();
+        Vec q, qd, qdd;
+        state_of(q, qd, qdd);
+        Mat J(t->frame_jacobian_rows(), 2 * n);
+        std::vector<double> b(12 * static_cast<std::size_t>(n));
+        ukdyn::tree::FrameState value(b.data(), b.data() + 3 * n, n);
+        std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
+        const int tip = static_cast<int>(t->model().links.size()) - 1;
+        for (auto _ : st) {
+          t->frame_state_jacobian(q, qd, qdd, tip, Eigen::Matrix3d::Identity(),
+                                  Eigen::Vector3d(0.0, 0.0, 0.1), {}, ukdyn::Slot(slot), value, J);
+          benchmark::DoNotOptimize(J.data());
+        }
+      });
+}
+
 void register_chains() {
   for (int n : {7, 15, 30, 60}) {
     benchmark::RegisterBenchmark(
@@ -176,7 +250,7 @@ void register_chains() {
           std::vector<double> slot(static_cast<std::size_t>(t->slot_size()));
           for (auto _ : st) {
             t->frame_state_jacobian(q, qd, qdd, n - 1, Eigen::Matrix3d::Identity(),
-                                    Eigen::Vector3d(0.3, 0, 0), ukdyn::Slot(slot), value, J);
+                                    Eigen::Vector3d(0.3, 0, 0), {}, ukdyn::Slot(slot), value, J);
             benchmark::DoNotOptimize(J.data());
           }
         });
@@ -456,6 +530,8 @@ QddDiff qdd_diff(const mjData* d, const Vec& qdd) {
 void register_tree_benchmarks() {
   register_robot("panda", 7);
   register_robot("ur5e", 6);
+  register_floating("panda", 7);
+  register_floating("ur5e", 6);
   register_chains();
 #ifdef UKDYN_BENCH_HAVE_IO
   register_scenarios();

@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <new>
+#include <string>
 #include <vector>
 
 #include "helpers.hpp"
@@ -331,6 +332,61 @@ TEST(NoAlloc, QuaternionTreeForwardAllocatesNothing) {
   EXPECT_EQ((C - C_own).lpNorm<Eigen::Infinity>(), 0.0);
   EXPECT_EQ((C_data - C_own).lpNorm<Eigen::Infinity>(), 0.0);
   EXPECT_GT(C.lpNorm<Eigen::Infinity>(), 0.0);
+}
+
+// linearize() asks a tree for ∂ID (inverse_dynamics_jacobian, in the subsystem's slot) and then,
+// per frame on it, for the frame's columns (frame_state_jacobian); the frame pass reads the links
+// the first left in the slot at the same (q, q̇, q̈) and needs no workspace then: without a scratch
+// it allocates nothing (the reuse taken), and at another state it runs its own pass (a buffer of
+// its own: allocations) with the same values as without the slot.
+TEST(NoAlloc, TreeFramePassOnTheInverseDynamicsLinksAllocatesNothing) {
+  namespace sym = ukdyn::symbolic;
+  sym::ChainDef c("arm", {"t1", "t2", "t3", "t4"});
+  c.gravity = {0.3, -0.2, -9.81};
+  for (int i = 0; i < 4; ++i) {
+    auto& j = c.add_joint("j" + std::to_string(i + 1), sym::JointDef::Type::revolute,
+                          "l" + std::to_string(i + 1));
+    j.coordinate = "t" + std::to_string(i + 1);
+    j.origin.xyz = {i == 0 ? 0.0 : 0.3, 0.02 * i, 0.1};
+    j.axis = i % 2 == 0 ? sym::Vec3Ex{0, 0, 1} : sym::Vec3Ex{0, 1, 0};
+    j.inertial.mass = 1.0 + 0.1 * i;
+    j.inertial.com = {0.1, 0.01, 0};
+    j.inertial.inertia = {0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.02};
+  }
+  sym::ChainTree t = sym::chain_tree(c);
+  ASSERT_TRUE(t.model) << t.reason;
+  const auto tree = ukdyn::tree::make_subsystem(std::move(*t.model));
+  const Eigen::Index n = tree->dof(), rows = tree->frame_jacobian_rows();
+  const Vec q = Vec::LinSpaced(n, -0.8, 0.9), qd = Vec::LinSpaced(n, 0.4, -0.3),
+            qdd = Vec::LinSpaced(n, 1.0, -2.0);
+  std::vector<double> slot(static_cast<std::size_t>(tree->slot_size()));
+  std::vector<double> b0(static_cast<std::size_t>(12 * n)), b1(b0);
+  ukdyn::tree::FrameState value(b0.data(), b0.data() + 3 * n, n),
+      alone(b1.data(), b1.data() + 3 * n, n);
+  ukdyn::Mat Jq(n, n), Jqd(n, n), J(rows, 2 * n), J_alone(rows, 2 * n);
+  const ukdyn::Slot s(slot);
+  const int tip = static_cast<int>(n) - 1;
+  const Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  const Eigen::Vector3d x(0.2, 0, 0);
+  tree->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd);
+  const long reused = allocations_in([&] {
+    for (int k = 0; k < 5; ++k) {
+      tree->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd);
+      tree->frame_state_jacobian(q, qd, qdd, tip, R, x, s, {}, value, J);
+    }
+  });
+  EXPECT_EQ(reused, 0) << "the frame pass did not take the links at their state";
+  tree->frame_state_jacobian(q, qd, qdd, tip, R, x, {}, {}, alone, J_alone);
+  EXPECT_LE((J - J_alone).lpNorm<Eigen::Infinity>(), 1e-13 * J_alone.lpNorm<Eigen::Infinity>());
+  Vec q1 = q;
+  q1(1) += 1e-3;
+  const long stale = allocations_in([&] {
+    tree->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd);
+    tree->frame_state_jacobian(q1, qd, qdd, tip, R, x, s, {}, value, J);
+  });
+  EXPECT_GT(stale, 0) << "the frame pass took links of another state";
+  tree->frame_state_jacobian(q1, qd, qdd, tip, R, x, {}, {}, alone, J_alone);
+  EXPECT_EQ(J, J_alone);
 }
 
 // The block-arrow solve (ukdyn/core/uk_arrow.hpp) at several N, with every rank decision taken

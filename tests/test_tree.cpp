@@ -379,7 +379,7 @@ TEST(Tree, AnalyticFrameDerivativesMatchTheOneDirectionTangents) {
       const ukdyn::Slot s = k % 2 ? ukdyn::Slot(slot) : ukdyn::Slot{};
       for (int link = -1; link < static_cast<int>(tr->model().links.size()); ++link) {
         Mat J(rows, 2 * n);
-        tr->frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, value, J);
+        tr->frame_state_jacobian(q, qd, qdd, link, Ro, xo, {}, s, value, J);
         for (Index j = 0; j < 2 * n; ++j) {
           Vec dq = Vec::Zero(n), dqd = Vec::Zero(n);
           (j < n ? dq : dqd)(j % n) = 1.0;
@@ -394,6 +394,64 @@ TEST(Tree, AnalyticFrameDerivativesMatchTheOneDirectionTangents) {
     }
     EXPECT_LE(worst, 1e-12) << name;
     std::printf("%s: analytic frame columns vs one-direction tangents: %.3g\n", name.c_str(),
+                worst);
+  }
+}
+
+// frame_state_jacobian() reads the links inverse_dynamics_jacobian() left in the subsystem's slot
+// only at their state: after the analytic pass at one state, the frame pass at the same state (a
+// frame on every link and on the root) matches the pass run on its own, and after any change —
+// one coordinate of q, of q̇ or of q̈ moved by 1e-12 (a change of the joint variables: the links
+// depend on q only through them, so one ulp of q can leave θ and the links as they were), the
+// Christoffel matrix run in the slot
+// since (its lanes overwrite the links), another subsystem of the same tree — it is bitwise the
+// pass run on its own (no stale placement or motion reused), with the slot also as its scratch.
+TEST(Tree, FramePassReusesTheInverseDynamicsLinksAtTheirStateOnly) {
+  std::mt19937_64 rng(31);
+  const Eigen::Matrix3d Ro = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+  const Eigen::Vector3d xo(0.1, -0.2, 0.3);
+  for (const auto& [name, tr] : analytic_cases()) {
+    SCOPED_TRACE(name);
+    const Index n = tr->dof(), rows = tr->frame_jacobian_rows();
+    const tree::TreeSubsystem twin(tr->model());
+    std::vector<double> slot(static_cast<std::size_t>(tr->slot_size())), scratch(slot);
+    std::vector<double> b0(12 * static_cast<std::size_t>(n)), b1(b0);
+    tree::FrameState value(b0.data(), b0.data() + 3 * n, n), alone(b1.data(), b1.data() + 3 * n, n);
+    const ukdyn::Slot s(slot), x(scratch);
+    const Vec q = random_vec(rng, n, -3, 3), qd = random_vec(rng, n, -2, 2),
+              qdd = random_vec(rng, n, -2, 2);
+    Mat Jq(n, n), Jqd(n, n), J(rows, 2 * n), J_alone(rows, 2 * n), C(n, n);
+    double worst = 0.0;
+    for (int link = -1; link < static_cast<int>(tr->model().links.size()); ++link) {
+      ASSERT_TRUE(tr->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd));
+      tr->frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, x, value, J);
+      tr->frame_state_jacobian(q, qd, qdd, link, Ro, xo, {}, {}, alone, J_alone);
+      const double scale = std::max(1.0, J_alone.cwiseAbs().maxCoeff());
+      worst = std::max(worst, (J - J_alone).cwiseAbs().maxCoeff() / scale);
+      worst = std::max(worst,
+                       (stacked_frame(value, n) - stacked_frame(alone, n)).cwiseAbs().maxCoeff());
+    }
+    EXPECT_LE(worst, 1e-13);
+    const int tip = static_cast<int>(tr->model().links.size()) - 1;
+    // Each change: what it does after the analytic pass at (q, q̇, q̈), and the state the frame
+    // pass then runs at.
+    for (int change = 0; change < 5; ++change) {
+      Vec q1 = q, qd1 = qd, qdd1 = qdd;
+      const Index j = change % n;
+      if (change == 0) q1(j) += 1e-12;
+      if (change == 1) qd1(j) += 1e-12;
+      if (change == 2) qdd1(j) += 1e-12;
+      for (const bool own_scratch : {true, false}) {
+        ASSERT_TRUE(tr->inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd));
+        if (change == 3) tr->coriolis({0.0, s}, q, qd, C);
+        const tree::TreeSubsystem& by = change == 4 ? twin : *tr;
+        by.frame_state_jacobian(q1, qd1, qdd1, tip, Ro, xo, s, own_scratch ? x : s, value, J);
+        by.frame_state_jacobian(q1, qd1, qdd1, tip, Ro, xo, {}, {}, alone, J_alone);
+        EXPECT_EQ(J, J_alone) << "change " << change;
+        EXPECT_EQ(stacked_frame(value, n), stacked_frame(alone, n)) << "change " << change;
+      }
+    }
+    std::printf("%s: frame pass on the inverse dynamics' links vs on its own: %.3g\n", name.c_str(),
                 worst);
   }
 }

@@ -10,7 +10,9 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <random>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -339,19 +341,45 @@ struct TreeCase {
   std::shared_ptr<const tree::TreeSubsystem> tree;
 };
 
+// robots/ROBOT.xml with a free joint on its base (given a mass and an inertia off its origin), in
+// the test's temporary directory: the arm on a floating base.
+std::string floating_mjcf(const std::string& robot) {
+  std::ifstream in(std::string(UKDYN_SOURCE_DIR) + "/robots/" + robot + ".xml");
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string xml = text.str();
+  const std::string base = "<body name=\"base_link\">";
+  const std::size_t at = xml.find(base);
+  EXPECT_NE(at, std::string::npos) << robot;
+  if (at == std::string::npos) return {};
+  xml.insert(at + base.size(),
+             "<freejoint name=\"root\"/><inertial pos=\"0.02 -0.01 0.05\" mass=\"4\" "
+             "fullinertia=\"0.03 0.04 0.035 0.002 -0.001 0.003\"/>");
+  const std::string path = ::testing::TempDir() + "/floating_" + robot + ".xml";
+  std::ofstream(path) << xml;
+  return path;
+}
+
 // The floating root with three revolute links, the ball joint in the middle of a chain and, with
-// MuJoCo, the UR5e and the Panda of robots/ (their MJCF files).
+// MuJoCo, the UR5e and the Panda of robots/ (their MJCF files), fixed and on a free joint.
 std::vector<TreeCase> jacobian_cases() {
   std::vector<TreeCase> out;
   for (const auto& c : {floating_arm(9.81), ball_arm(9.81)})
     out.push_back({c.name(), make_pair(c, false).tree});
   if (!sym::mjcf_supported()) return out;
   for (const auto& [robot, dof] : {std::pair{"ur5e", 6}, std::pair{"panda", 7}}) {
-    std::vector<std::string> coords;
-    for (int i = 1; i <= dof; ++i) coords.push_back("q" + std::to_string(i));
-    sym::ChainDef c(robot, coords);
-    sym::append_mjcf(c, std::string(UKDYN_SOURCE_DIR) + "/robots/" + robot + ".xml", true);
-    out.push_back({robot, make_pair(c, false).tree});
+    for (const bool floating : {false, true}) {
+      std::vector<std::string> coords;
+      if (floating) coords = {"x", "y", "z", "qw", "qx", "qy", "qz"};
+      for (int i = 1; i <= dof; ++i) coords.push_back("q" + std::to_string(i));
+      const std::string name = std::string(floating ? "floating_" : "") + robot;
+      sym::ChainDef c(name, coords);
+      sym::append_mjcf(c,
+                       floating ? floating_mjcf(robot)
+                                : std::string(UKDYN_SOURCE_DIR) + "/robots/" + robot + ".xml",
+                       true);
+      out.push_back({name, make_pair(c, false).tree});
+    }
   }
   return out;
 }
@@ -388,7 +416,7 @@ TEST(TreeQuaternion, AllColumnsAtOnceMatchOneDirectionAtATime) {
       const ukdyn::Slot s = k % 2 ? ukdyn::Slot(slot) : ukdyn::Slot{};
       Mat Jq(n, n), Jqd(n, n), J(rows, 2 * n);
       ASSERT_TRUE(tr.inverse_dynamics_jacobian({0.0, s}, q, qd, qdd, Jq, Jqd));
-      tr.frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, value, J);
+      tr.frame_state_jacobian(q, qd, qdd, link, Ro, xo, s, s, value, J);
       for (Index j = 0; j < 2 * n; ++j) {
         Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), one(n);
         (j < n ? dq : dqd)(j % n) = 1.0;

@@ -870,8 +870,8 @@ void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndSc
 
 // An end's state and its J (a tree's frame_state_jacobian(), an expressions end's tape tangents;
 // none for a fixed end). x: its scratch and tape-tangent room, t_cols: 12 nc doubles.
-LaneEnd lane_end(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x, double* t_cols,
-                 double* J, FrameState& v) {
+LaneEnd lane_end(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
+                 EndScratch x, double* t_cols, double* J, FrameState& v) {
   LaneEnd out{&v, nullptr, 36 + 12 * static_cast<Index>(e.cols.size()), {}};
   const NumericFrameEnd& spec = e.spec;
   if (spec.kind == NumericFrameEnd::Kind::fixed) {
@@ -886,7 +886,7 @@ LaneEnd lane_end(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x,
   const Index n = spec.tree->dof(), c0 = spec.first_coordinate;
   Eigen::Map<Mat> Jm(J, out.ld, 2 * n);
   spec.tree->frame_state_jacobian(q.segment(c0, n), qd.segment(c0, n), qdd.segment(c0, n),
-                                  spec.link, spec.offset_R, spec.offset_p,
+                                  spec.link, spec.offset_R, spec.offset_p, slots.subsystem(c0),
                                   Slot(x.scratch, static_cast<std::size_t>(e.scratch)), v, Jm);
   out.J = J;
   return out;
@@ -1055,10 +1055,10 @@ class Core {
 
   // tangent() along every direction of q and q̇ that moves an end, kLanes per pass, from the
   // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to.
-  bool tangent_columns(CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda, Slot slot,
-                       MatRef d_residual, MatRef d_force) const {
+  bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
+                       CVecRef lambda, MatRef d_residual, MatRef d_force) const {
     std::vector<double> own;
-    double* base = room(slot, own);
+    double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
@@ -1071,8 +1071,8 @@ class Core {
     double* ja = xb + tangent_room(b_);
     double* jb = ja + lane_room(a_);
     FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
-    LaneEnd A = lane_end(a_, q, qd, qdd, {sa, xa}, ta, ja, Va);
-    LaneEnd B = lane_end(b_, q, qd, qdd, {sb, xb}, tb, jb, Vb);
+    LaneEnd A = lane_end(a_, slots, q, qd, qdd, {sa, xa}, ta, ja, Va);
+    LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, tb, jb, Vb);
     d_residual.setZero();
     const Index n = q.size(), nc = static_cast<Index>(cols_.size());
     for (const bool rate : {false, true}) {
@@ -1161,7 +1161,7 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
   }
   bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
-    return core_->tangent_columns(q, qd, qdd, lambda, ctx.slots.own(), d_residual, d_force);
+    return core_->tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual, d_force);
   }
 
  private:

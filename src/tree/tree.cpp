@@ -705,20 +705,11 @@ constexpr std::size_t kLaneAlign = alignof(LinkState<Lanes>);
 static_assert(kLaneAlign % sizeof(double) == 0 && alignof(Lanes) <= kLaneAlign,
               "LinkState<Lanes> must live in a slot of doubles");
 
-// The links, then θ, θ̇, θ̈, τ (nt each), from the first kLaneAlign-aligned double; then the
-// links on doubles (the placement the directions of q̇ share).
-Index lane_workspace_doubles(std::size_t links, Index nt) {
-  const std::size_t bytes = links * sizeof(LinkState<Lanes>) +
-                            4 * static_cast<std::size_t>(nt) * sizeof(Lanes) + kLaneAlign +
-                            links * sizeof(LinkState<double>) +
-                            static_cast<std::size_t>(nt) * sizeof(double);
-  return static_cast<Index>((bytes + sizeof(double) - 1) / sizeof(double));
-}
-
 // The analytic derivatives' workspace (analytic_workspace below): the links on doubles, θ, θ̇,
-// θ̈, τ, Ψ̇ and Ψ̈ per joint variable, B^C per link and the two nt × nt results.
+// θ̈, τ, the directions per joint variable (22), B^C (49) and Λ, Qm (10) per link and the two
+// nt × nt results.
 Index analytic_workspace_doubles(std::size_t links, Index nt) {
-  return static_cast<Index>(links) * (kLinkDoubles + 36) + 16 * nt + 2 * nt * nt;
+  return static_cast<Index>(links) * (kLinkDoubles + 59) + 26 * nt + 2 * nt * nt;
 }
 
 // The Christoffel matrix's (coriolis()): the links, M_θ and θ on lanes from the first
@@ -737,6 +728,29 @@ double* derivative_room(Slot slot, Index slot_size, Index offset, Index need,
   if (static_cast<Index>(slot.size()) >= slot_size) return slot.data() + offset;
   own.resize(static_cast<std::size_t>(need));
   return own.data();
+}
+
+// The derivatives' part of a slot (after the forward workspace) starts with a key of its own:
+// key[0] the subsystem's tag, key[1] 1 when inverse_dynamics_jacobian()'s analytic pass left its
+// links there, placed and moved at the θ, θ̇, θ̈ stored beside them (gravity as a_0 = −g), for
+// frame_state_jacobian() to read. The Christoffel matrix's lanes and the analytic passes share
+// that room: every mapping of it clears key[1] (derivative_part), only a completed analytic pass
+// sets it, so a key never vouches for links another pass has overwritten.
+constexpr Index kDerivativeKey = 2;
+
+Index derivative_offset(std::size_t links, Index nt) {
+  return workspace_doubles(links, nt) + kDerivativeKey;
+}
+
+// derivative_room() at the start of the derivatives' part, its key cleared; `key` (may be null)
+// gets the key's address (null without the tree's slot).
+double* derivative_part(Slot slot, Index slot_size, std::size_t links, Index nt, Index need,
+                        std::vector<double>& own, double** key = nullptr) {
+  const bool in_slot = static_cast<Index>(slot.size()) >= slot_size;
+  double* k = in_slot ? slot.data() + workspace_doubles(links, nt) : nullptr;
+  if (k) k[1] = 0.0;
+  if (key) *key = k;
+  return derivative_room(slot, slot_size, derivative_offset(links, nt), need, own);
 }
 
 }  // namespace
@@ -859,11 +873,11 @@ TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(m
       ++n_theta_;
     }
   }
-  // The forward workspace, then the derivatives': lanes or the analytic pass
-  // (inverse_dynamics_jacobian(), frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()).
-  slot_size_ = workspace_doubles(merged_.links.size(), n_theta_) +
-               std::max(std::max(lane_workspace_doubles(merged_.links.size(), n_theta_),
-                                 analytic_workspace_doubles(merged_.links.size(), n_theta_)) +
+  // The forward workspace, then the derivatives': the analytic pass (inverse_dynamics_jacobian(),
+  // frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()), or the Christoffel
+  // matrix's lanes (coriolis()).
+  slot_size_ = derivative_offset(merged_.links.size(), n_theta_) +
+               std::max(analytic_workspace_doubles(merged_.links.size(), n_theta_) +
                             tangent_workspace_doubles(merged_.links.size(), n_theta_),
                         coriolis_workspace_doubles(merged_.links.size(), n_theta_));
 }
@@ -1074,8 +1088,7 @@ struct CoriolisWorkspace {
 
 CoriolisWorkspace coriolis_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                                      std::vector<double>& own) {
-  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
-                                 coriolis_workspace_doubles(nl, nt), own);
+  double* base = derivative_part(slot, slot_size, nl, nt, coriolis_workspace_doubles(nl, nt), own);
   while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
   CoriolisWorkspace w{};
   w.links = reinterpret_cast<LinkState<Lanes>*>(base);
@@ -1549,99 +1562,6 @@ bool TreeSubsystem::inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CV
 
 namespace {
 
-// The lane workspace after the forward workspace of a slot (or in `own`).
-struct LaneWorkspace {
-  LinkState<Lanes>* links;
-  Lanes* theta;
-  Lanes* thetad;
-  Lanes* thetadd;
-  Lanes* tau;
-  LinkState<double>* plain;
-  double* theta_plain;  // θ on doubles (nt)
-};
-
-LaneWorkspace lane_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
-                             std::vector<double>& own) {
-  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
-                                 lane_workspace_doubles(nl, nt), own);
-  while (reinterpret_cast<std::uintptr_t>(base) % kLaneAlign != 0) ++base;
-  LaneWorkspace w{};
-  w.links = reinterpret_cast<LinkState<Lanes>*>(base);
-  for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<Lanes>;
-  w.theta = reinterpret_cast<Lanes*>(w.links + nl);
-  for (Index k = 0; k < 4 * nt; ++k) new (&w.theta[k]) Lanes;
-  w.thetad = w.theta + nt;
-  w.thetadd = w.thetad + nt;
-  w.tau = w.thetadd + nt;
-  w.plain = reinterpret_cast<LinkState<double>*>(w.tau + nt);
-  for (std::size_t i = 0; i < nl; ++i) new (&w.plain[i]) LinkState<double>;
-  w.theta_plain = reinterpret_cast<double*>(w.plain + nl);
-  return w;
-}
-
-// The links placed on doubles at θ, lifted to lanes with zero tangents: what place<Lanes> gives
-// without seeds, at the cost of a pass on doubles (the directions of q̇ do not move the links).
-void place_constant(const Model& m, const std::vector<int>& ti, bool quat, const LaneWorkspace& w,
-                    Index nt) {
-  for (Index k = 0; k < nt; ++k) w.theta_plain[k] = w.theta[k].v;
-  place(m, ti, quat, w.theta_plain, w.plain);
-  for (std::size_t i = 0; i < m.links.size(); ++i) {
-    const LinkState<double>& a = w.plain[i];
-    LinkState<Lanes>& b = w.links[i];
-    b.R = a.R.cast<Lanes>();
-    b.p = a.p.cast<Lanes>();
-    for (int k = 0; k < 4; ++k) {
-      b.sw[k] = a.sw[k].cast<Lanes>();
-      b.sv[k] = a.sv[k].cast<Lanes>();
-      b.sl[k] = Lanes(a.sl[k]);
-    }
-    b.sc = Lanes(a.sc);
-    b.qs = Lanes(a.qs);
-    b.m_own = Lanes(a.m_own);
-    b.k_own = Lanes(a.k_own);
-    b.h_own = a.h_own.cast<Lanes>();
-    b.c = a.c.cast<Lanes>();
-    b.I_own = a.I_own.cast<Lanes>();
-    b.Ic = a.Ic.cast<Lanes>();
-  }
-}
-
-// θ, θ̇ and θ̈ = T q̈ on lanes: lane l of θ (of θ̇ when `rate`) seeded with the coefficient of
-// coordinate j0 + l, the direction e_{j0+l} of q (of q̇).
-void seed_lanes(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
-                CVecRef q, CVecRef qd, CVecRef qdd, Index j0, bool rate, const LaneWorkspace& w) {
-  for (std::size_t k = 0; k < T.size(); ++k) {
-    double v = offset[k], s = 0.0, a = 0.0;
-    for (const Term& t : T[k]) {
-      v += t.coefficient * q(t.coordinate);
-      s += t.coefficient * qd(t.coordinate);
-      a += t.coefficient * qdd(t.coordinate);
-    }
-    w.theta[k] = Lanes(v);
-    w.thetad[k] = Lanes(s);
-    w.thetadd[k] = Lanes(a);
-    Lanes& seeded = rate ? w.thetad[k] : w.theta[k];
-    for (const Term& t : T[k]) {
-      const Index l = t.coordinate - j0;
-      if (l >= 0 && l < kLanes) seeded.d[l] += t.coefficient;
-    }
-  }
-}
-
-// The lanes of x as columns col0 + l (l < lanes) of J from row `row` (a matrix: R(i, k) at 3i + k).
-template <int R, int C>
-void put_lanes(const Eigen::Matrix<Lanes, R, C>& x, Index row, Index col0, Index lanes, MatRef J) {
-  for (Index r = 0; r < R * C; ++r) {
-    const Lanes& e = x(static_cast<Index>(r / C), static_cast<Index>(r % C));
-    for (Index l = 0; l < lanes; ++l) J(row + r, col0 + l) = e.d[l];
-  }
-}
-
-template <int R, int C>
-Eigen::Matrix<double, R, C> values(const Eigen::Matrix<Lanes, R, C>& x) {
-  return x.unaryExpr([](const Lanes& e) { return e.value(); });
-}
-
 // A frame of model() on the merged tree: its link there, the offset composed with the link's
 // placement.
 void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame_link, int& link,
@@ -1652,36 +1572,6 @@ void on_merged(const std::vector<TreeSubsystem::Placement>& placement, int frame
   link = at.link;
   x_offset = at.p + at.R * x_offset;
   R_offset = at.R * R_offset;
-}
-
-// Columns j0 .. j0 + kLanes − 1 of ∂ID/∂q (rate false) or ∂ID/∂q̇ (rate true) per pass:
-// dID = Tᵀ dτ_θ lane by lane. The directions of q̇ do not move the links: the placement (on
-// doubles, lifted) is made once for all of them. [[gnu::flatten]]: every lane operation inlined
-// (GCC otherwise left Eigen's scalar functors of LaneDual as calls, a third of the time).
-[[gnu::flatten]] void lane_id_jacobian(const Model& m, const std::vector<int>& ti,
-                                       const std::vector<std::vector<Term>>& T,
-                                       const std::vector<double>& offset, bool quat,
-                                       const LaneWorkspace& w, CVecRef q, CVecRef qd, CVecRef qdd,
-                                       MatRef dID_dq, MatRef dID_dqd) {
-  const Index n = dID_dq.cols(), nt = static_cast<Index>(T.size());
-  dID_dq.setZero();
-  dID_dqd.setZero();
-  for (const bool rate : {true, false}) {
-    MatRef out = rate ? dID_dqd : dID_dq;
-    for (Index j0 = 0; j0 < n; j0 += kLanes) {
-      seed_lanes(T, offset, q, qd, qdd, j0, rate, w);
-      if (!rate) place(m, ti, quat, w.theta, w.links);
-      if (rate && j0 == 0) place_constant(m, ti, quat, w, nt);
-      inverse_dynamics<Lanes>(m, ti, quat, w.thetad, w.thetadd, true, w.links, w.tau);
-      const Index lanes = std::min<Index>(kLanes, n - j0);
-      for (std::size_t k = 0; k < T.size(); ++k) {
-        for (const Term& t : T[k]) {
-          for (Index l = 0; l < lanes; ++l)
-            out(t.coordinate, j0 + l) += t.coefficient * w.tau[k].d[l];
-        }
-      }
-    }
-  }
 }
 
 }  // namespace
@@ -1744,9 +1634,11 @@ V6 composite_times(const LinkState<double>& w, const V6& u) {
 }
 
 // The analytic pass's workspace after the forward workspace of a slot (or in `own`): the links,
-// θ, θ̇, θ̈, τ (nt each), Ψ̇ and Ψ̈ (6 + 6 per joint variable), B^C (36 per link, column-major),
-// then ∂τ/∂θ and ∂τ/∂θ̇ (nt × nt each, column-major).
+// θ, θ̇, θ̈, τ (nt each), the directions (Ψ̇ and Ψ̈, 6 + 6 per joint variable; with ball joints
+// P, Q, Q̇ and δλ, 22), B^C (36 per link, column-major; with ball joints 49), Λ and Qm (10 per
+// link, with ball joints), then ∂τ/∂θ and ∂τ/∂θ̇ (nt × nt each, column-major).
 struct AnalyticWorkspace {
+  double* key;  // the derivatives' key (null in a buffer of its own)
   LinkState<double>* links;
   double* theta;
   double* thetad;
@@ -1754,15 +1646,18 @@ struct AnalyticWorkspace {
   double* tau;
   double* psi;
   double* B;
+  double* ext;
   double* Dq;
   double* Dqd;
 };
 
 AnalyticWorkspace analytic_workspace(Slot slot, Index slot_size, std::size_t nl, Index nt,
                                      std::vector<double>& own) {
-  double* base = derivative_room(slot, slot_size, workspace_doubles(nl, nt),
-                                 analytic_workspace_doubles(nl, nt), own);
+  double* key = nullptr;
+  double* base =
+      derivative_part(slot, slot_size, nl, nt, analytic_workspace_doubles(nl, nt), own, &key);
   AnalyticWorkspace w{};
+  w.key = key;
   w.links = reinterpret_cast<LinkState<double>*>(base);
   for (std::size_t i = 0; i < nl; ++i) new (&w.links[i]) LinkState<double>;
   w.theta = base + static_cast<Index>(nl) * kLinkDoubles;
@@ -1770,8 +1665,9 @@ AnalyticWorkspace analytic_workspace(Slot slot, Index slot_size, std::size_t nl,
   w.thetadd = w.thetad + nt;
   w.tau = w.thetadd + nt;
   w.psi = w.tau + nt;
-  w.B = w.psi + 12 * nt;
-  w.Dq = w.B + 36 * static_cast<Index>(nl);
+  w.B = w.psi + 22 * nt;
+  w.ext = w.B + 49 * static_cast<Index>(nl);
+  w.Dq = w.ext + 10 * static_cast<Index>(nl);
   w.Dqd = w.Dq + nt * nt;
   return w;
 }
@@ -1851,15 +1747,46 @@ void analytic_columns(const Model& m, const std::vector<int>& ti, Index nt,
   }
 }
 
+// c + Σ_t t.coefficient x(t.coordinate), summed in the terms' order.
+double affine(const std::vector<Term>& terms, double c, CVecRef x) {
+  for (const Term& t : terms) c += t.coefficient * x(t.coordinate);
+  return c;
+}
+
 // θ = T q + c, θ̇ = T q̇, θ̈ = T q̈ into the analytic workspace.
 void analytic_theta(const std::vector<std::vector<Term>>& T, const std::vector<double>& offset,
                     CVecRef q, CVecRef qd, CVecRef qdd, const AnalyticWorkspace& w) {
-  theta_of(T, offset, q.data(), qd.data(), w.theta, w.thetad);
   for (std::size_t k = 0; k < T.size(); ++k) {
-    double a = 0.0;
-    for (const Term& t : T[k]) a += t.coefficient * qdd(t.coordinate);
-    w.thetadd[k] = a;
+    w.theta[k] = affine(T[k], offset[k], q);
+    w.thetad[k] = affine(T[k], 0.0, qd);
+    w.thetadd[k] = affine(T[k], 0.0, qdd);
   }
+}
+
+bool same_bits(double a, double b) {
+  return std::bit_cast<std::uint64_t>(a) == std::bit_cast<std::uint64_t>(b);
+}
+
+// The links inverse_dynamics_jacobian()'s analytic pass left in `placed` (a slot of `size`
+// doubles) if `owner` left them there (the derivatives' key) at exactly these θ, θ̇, θ̈ (bitwise,
+// computed as analytic_theta computes them: the same state gives the same bits), else null.
+const LinkState<double>* analytic_links(ConstSlot placed, Index size, std::size_t nl, Index nt,
+                                        const void* owner, const std::vector<std::vector<Term>>& T,
+                                        const std::vector<double>& offset, CVecRef q, CVecRef qd,
+                                        CVecRef qdd) {
+  if (static_cast<Index>(placed.size()) != size) return nullptr;
+  const double* key = placed.data() + workspace_doubles(nl, nt);
+  if (key[1] != 1.0 || !same_bits(key[0], owner_tag(owner))) return nullptr;
+  const double* base = placed.data() + derivative_offset(nl, nt);
+  const double* th = base + static_cast<Index>(nl) * kLinkDoubles;
+  for (std::size_t k = 0; k < T.size(); ++k) {
+    const auto i = static_cast<Index>(k);
+    if (!same_bits(th[i], affine(T[k], offset[k], q)) ||
+        !same_bits(th[nt + i], affine(T[k], 0.0, qd)) ||
+        !same_bits(th[2 * nt + i], affine(T[k], 0.0, qdd)))
+      return nullptr;
+  }
+  return reinterpret_cast<const LinkState<double>*>(base);
 }
 
 // x (a 3-vector, or a 3 × 3 matrix row by row) times k added to column `col` of J from `row`.
@@ -1871,7 +1798,9 @@ void add_column(MatRef J, Index row, Index col, double k, const Eigen::Matrix3d&
   for (int r = 0; r < 9; ++r) J(row + r, col) += k * X(r / 3, r % 3);
 }
 
-// A frame's derivatives from the same rigid transport (no scales, a_0 = 0 as frame_state's pass):
+// A frame's derivatives from the same rigid transport (no scales, a_0 = 0 as frame_state's pass;
+// links moved with a_0 = (0, a0) — inverse_dynamics_jacobian's, gravity — read less a0, their
+// linear accelerations being a0 more than with a_0 = 0):
 // along θ_j (joint j at or above the frame's link, axis S_j = (s_w, s_v)), the frame's p, R move
 // by the column (s_v + s_w × p, [s_w]× R), the vectors and matrices it carries turn with s_w and
 // the link's motion V = (ω, v_O) and acceleration A gain Ψ̇_j and Ψ̈_j + Ψ̇_j × V:
@@ -1881,7 +1810,8 @@ void add_column(MatRef J, Index row, Index col, double k, const Eigen::Matrix3d&
 // along θ̇_j, V gains S_j and A gains β = 2 Ψ̇_j + S_j × V: ṗ, Ṙ gain the column, and
 //   ∂p̈ = β_v + β_w × p + s_w × ṗ + ω × ∂p/∂θ_j,   ∂R̈ = ([β_w]× + [s_w]×[ω]× + [ω]×[s_w]×) R.
 void frame_motion_columns(const Model& m, const std::vector<int>& ti, const LinkState<double>* ws,
-                          int link, const FrameMotion<double>& f, Index n, MatRef J) {
+                          int link, const FrameMotion<double>& f, const Eigen::Vector3d& a0,
+                          Index n, MatRef J) {
   const LinkState<double>& at = ws[link];
   const V6 V = six(at.vw, at.vv);
   const Eigen::Matrix3d W = skew<double>(at.vw);
@@ -1891,7 +1821,7 @@ void frame_motion_columns(const Model& m, const std::vector<int>& ti, const Link
     const LinkState<double>& w = ws[ju];
     const int p = m.links[ju].parent;
     const V6 vp = p < 0 ? V6::Zero() : six(ws[p].vw, ws[p].vv);
-    const V6 ap = p < 0 ? V6::Zero() : six(ws[p].aw, ws[p].av);
+    const V6 ap = p < 0 ? V6::Zero() : six(ws[p].aw, ws[p].av - a0);
     const V6 S = axis_of(w), psid = cross_motion(vp, S);
     const V6 al = cross_motion(ap, S) + cross_motion(vp, psid) + cross_motion(psid, V);
     const V6 be = 2.0 * psid + cross_motion(S, V);
@@ -1950,37 +1880,522 @@ void frame_column_columns(const Model& m, const std::vector<int>& ti, const Link
   }
 }
 
+// ------------------------------------------- analytic derivatives of the RNEA with ball joints
+//
+// The same recursion (Carpentier & Mansard 2018, §III–IV) on the similarity motions of the
+// quaternion joints (docs/tree-algorithms.md, "Quaternion joints"): motions X = (ω, λ, v_O) with
+// the bracket [X, Y] of joint_motion, forces F = (n, e, f) paired as ω·n + λ e + v·f, and the dual
+// action X ×* F = (ω × n + v × f, v · f, ω × f − λ f) (⟨Y, X ×* F⟩ = −⟨[X, Y], F⟩). A change of a
+// joint variable θ_a of joint J moves J's link and its subtree by the similarity generated by T =
+// S_a (the rotation, the scale's rate λ_T and the translation): world motions below change by
+// [T, X], points by T(x) = v_T + ω_T × x + λ_T x, and the links' forces by T ×* F + 2 λ_T F (the
+// symbolic kinetic energy grows as the square of the scale). What is not carried along is, for
+// every link i at or below J,
+//   δV_i = [T, V_i] + P,   δA_i = [T, A_i] + Q + [P, V_i],
+//   P = [V_λ(J), T] + Σ_k (∂S_k/∂θ_a − [T, S_k]) θ̇_k,
+//   Q = [A_λ(J), T] + δJ − [T, J] − [P, V_J]    (J = A_J − A_λ(J), δJ its change along θ_a),
+// the sums over J's own variables k: their axes ∂S_k/∂θ_a are the paper's ∂S/∂q of a multi-degree
+// of freedom joint (its Eq. (8) with the motion subspace S(q) of a spherical joint, here the four
+// quaternion axes of place_ball: ω = 2 G(u) u̇ / |u|², λ = 2 u·u̇ / |u|²), zero for a revolute or
+// prismatic joint, whose P and Q reduce to Ψ̇, Ψ̈ of the analytic pass above; along θ̇_a nothing
+// moves, P = S_a and Q = [V_λ(J), S_a] + ∂B_J/∂θ̇_a − [S_a, V_J] (B_J: the ball's own axis rate,
+// joint_motion). A link's force f = Φ(c, I_c, V, A) (link_force) then changes by the transport
+// plus I Q + B P, B X = I [X, V] + ∂Φ/∂V X, and, with the composites I^C, B^C and the subtree
+// forces F,
+//   ∂τ_k/∂θ_a = ⟨S_k, T ×* F_J + 2 λ_T F_J + I^C_J Q + B^C_J P⟩ + ⟨∂S_k/∂θ_a, F_J⟩   (k at or above J),
+//             = 2 λ_T ⟨S_k, F_K⟩ + ⟨S_k, I^C_K Q + B^C_K P⟩                       (K below J),
+// ∂τ/∂θ̇ the same with T = 0. The correction terms of rate_scale_terms are differentiated along
+// the same transport (rate_scale_derivative below).
+
+using V7 = Eigen::Matrix<double, 7, 1>;
+using M7 = Eigen::Matrix<double, 7, 7>;
+
+V7 seven(const Eigen::Vector3d& w, double l, const Eigen::Vector3d& v) {
+  V7 x;
+  x << w, l, v;
+  return x;
+}
+
+Eigen::Vector3d ang(const V7& x) { return x.head<3>(); }
+Eigen::Vector3d lin(const V7& x) { return x.tail<3>(); }
+
+V7 axis7(const LinkState<double>& w, int k) { return seven(w.sw[k], w.sl[k], w.sv[k]); }
+V7 velocity7(const LinkState<double>& w) { return seven(w.vw, w.vl, w.vv); }
+V7 acceleration7(const LinkState<double>& w) { return seven(w.aw, w.al, w.av); }
+V7 force7(const LinkState<double>& w) { return seven(w.fn, w.fe, w.ff); }
+
+// [(ω1, λ1, v1), (ω2, λ2, v2)] = (ω1 × ω2, 0, ω1 × v2 + λ1 v2 − ω2 × v1 − λ2 v1) (joint_motion).
+V7 bracket(const V7& a, const V7& b) {
+  const Eigen::Vector3d aw = ang(a), av = lin(a), bw = ang(b), bv = lin(b);
+  return seven(aw.cross(bw), 0.0, aw.cross(bv) + a(3) * bv - bw.cross(av) - b(3) * av);
+}
+
+V7 cross_force7(const V7& a, const V7& F) {
+  const Eigen::Vector3d aw = ang(a), av = lin(a), n = ang(F), f = lin(F);
+  return seven(aw.cross(n) + av.cross(f), av.dot(f), aw.cross(f) - a(3) * f);
+}
+
+// (n, e, f) = I (ω, λ, v) for the inertia (m, h, Ī, k) (crba's, with the scale's k).
+V7 inertia7(double m, const Eigen::Vector3d& h, const Eigen::Matrix3d& I, double k, const V7& u) {
+  Eigen::Vector3d n, f;
+  apply_inertia<double>(m, h, I, ang(u), lin(u), n, f);
+  return seven(n, h.dot(lin(u)) + k * u(3), f + h * u(3));
+}
+
+V7 composite7(const LinkState<double>& w, const V7& u) { return inertia7(w.m, w.h, w.I, w.k, u); }
+
+// ∂Φ/∂V x: the change of link_force's (n, e, f) with the link's velocity along x (c and I_c fixed).
+V7 velocity_force(const Link& L, const LinkState<double>& w, const V7& x) {
+  if (L.mass == 0.0 && L.inertia.isZero(0.0)) return V7::Zero();
+  const Eigen::Vector3d xw = ang(x), cd = w.vv + w.vw.cross(w.c) + w.c * w.vl;
+  const Eigen::Vector3d dcd = lin(x) + xw.cross(w.c) + w.c * x(3);
+  const Eigen::Vector3d f = (xw.cross(cd) + w.vw.cross(dcd) + cd * x(3) + dcd * w.vl) * w.m_own;
+  const Eigen::Vector3d n = w.c.cross(f) + xw.cross(Eigen::Vector3d(w.Ic * w.vw)) +
+                            w.vw.cross(Eigen::Vector3d(w.Ic * xw));
+  return seven(n, w.c.dot(f), f);
+}
+
+// The space-frame rate matrix's columns g_k(u) (place_ball), linear in u.
+void rate_columns(const double* u, Eigen::Vector3d g[4]) {
+  g[0] = {-u[1], -u[2], -u[3]};
+  g[1] = {u[0], u[3], -u[2]};
+  g[2] = {-u[3], u[0], u[1]};
+  g[3] = {u[2], -u[1], u[0]};
+}
+
+// ∂S_k/∂u_l of a ball joint's axes (place_ball: ω_k = Rw g_k(u), Rw = R_j (2/|u|²) / sc, λ_k =
+// 2 u_k / |u|², v_k = p × ω_k − λ_k p): with qs = 2/|u|², ∂qs/∂u_l = −qs² u_l and, since
+// G(u) G(u)ᵀ = |u|² 1, Rw = Σ_k ω_k g_k(u)ᵀ / |u|².
+void ball_axis_derivatives(const LinkState<double>& w, const double* u, int l, V7 dS[4]) {
+  Eigen::Vector3d g[4], e[4];
+  rate_columns(u, g);
+  double unit[4] = {0.0, 0.0, 0.0, 0.0};
+  unit[l] = 1.0;
+  rate_columns(unit, e);
+  Eigen::Matrix3d Rw = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 4; ++k) Rw += w.sw[k] * g[k].transpose();
+  Rw *= 0.5 * w.qs;  // 1 / |u|²
+  for (int k = 0; k < 4; ++k) {
+    const Eigen::Vector3d dw = Rw * e[k] - w.sw[k] * (w.qs * u[l]);
+    const double dl = (k == l ? w.qs : 0.0) - w.qs * w.qs * u[k] * u[l];
+    dS[k] = seven(dw, dl, w.p.cross(dw) - w.p * dl);
+  }
+}
+
+// The ball joint's own axis rate B_J = (−λ ω_j, |u̇|² qs − λ², about p) (joint_motion; ω_j = Σ ω_k
+// u̇_k, λ = Σ λ_k u̇_k) differentiated along u_l (rate false: with ∂S_k/∂u_l in dS) or along u̇_l.
+V7 ball_rate_derivative(const LinkState<double>& w, const double* u, const double* ud, int l,
+                        const V7* dS, bool rate) {
+  Eigen::Vector3d jw = Eigen::Vector3d::Zero(), djw = Eigen::Vector3d::Zero();
+  double jl = 0.0, djl = 0.0, ud2 = 0.0;
+  for (int k = 0; k < 4; ++k) {
+    jw += w.sw[k] * ud[k];
+    jl += w.sl[k] * ud[k];
+    ud2 += ud[k] * ud[k];
+    if (!rate) {
+      djw += ang(dS[k]) * ud[k];
+      djl += dS[k](3) * ud[k];
+    }
+  }
+  double dal = 0.0;
+  if (rate) {
+    djw = w.sw[l];
+    djl = w.sl[l];
+    dal = 2.0 * ud[l] * w.qs - 2.0 * jl * djl;
+  } else {
+    dal = -ud2 * w.qs * w.qs * u[l] - 2.0 * jl * djl;
+  }
+  const Eigen::Vector3d daw = -(djw * jl + jw * djl);
+  return seven(daw, dal, w.p.cross(daw) - w.p * dal);
+}
+
+// Per link: Λ (Σ λ_b of the ball joints at or above it) and Qm (Σ λ_b Ir_b over the ball joints b
+// of its subtree, Ir_b their subtree's Σ I_c), after rate_scale_terms: 10 doubles.
+double path_scale(const AnalyticWorkspace& w, int link) {
+  return link < 0 ? 0.0 : w.ext[10 * static_cast<Index>(link)];
+}
+
+Eigen::Map<const Eigen::Matrix3d> scale_inertia(const AnalyticWorkspace& w, std::size_t link) {
+  return Eigen::Map<const Eigen::Matrix3d>(w.ext + 10 * static_cast<Index>(link) + 1);
+}
+
+Eigen::Vector3d path_rates(const LinkState<double>* ws, int link) {  // Y of the parent
+  return link < 0 ? Eigen::Vector3d::Zero() : ws[link].Y;
+}
+
+// The directions of joint variable a + l of link i (joint J): P, Q along θ, Q along θ̇ and δλ_J
+// along θ (22 doubles per variable, the formulas above).
+void quaternion_directions(const Model& m, const std::vector<int>& ti, const AnalyticWorkspace& w,
+                           std::size_t i, const V7& a0) {
+  const LinkState<double>* ws = w.links;
+  const LinkState<double>& s = ws[i];
+  const int p = m.links[i].parent, a = ti[i], nv = variables(m.links[i].type);
+  const bool ball = m.links[i].type == JointType::ball;
+  const V7 Vp = p < 0 ? V7::Zero() : velocity7(ws[p]), Ap = p < 0 ? a0 : acceleration7(ws[p]);
+  const V7 VJ = velocity7(s), Jp = acceleration7(s) - Ap;
+  const double *u = w.theta + a, *ud = w.thetad + a, *udd = w.thetadd + a;
+  for (int l = 0; l < nv; ++l) {
+    const V7 T = axis7(s, l);
+    V7 P = bracket(Vp, T), dJ = V7::Zero(), Qd = bracket(Vp, T) - bracket(T, VJ);
+    double dlam = 0.0;
+    if (ball) {
+      V7 dS[4];
+      ball_axis_derivatives(s, u, l, dS);
+      for (int k = 0; k < 4; ++k) {
+        P += (dS[k] - bracket(T, axis7(s, k))) * ud[k];
+        dJ += dS[k] * udd[k] + bracket(Vp, dS[k]) * ud[k];
+        dlam += dS[k](3) * ud[k];
+      }
+      dJ += ball_rate_derivative(s, u, ud, l, dS, false);
+      Qd += ball_rate_derivative(s, u, ud, l, dS, true);
+    }
+    double* d = w.psi + 22 * (a + l);
+    Eigen::Map<V7> P_out(d), Q_out(d + 7), Qd_out(d + 14);
+    P_out = P;
+    Q_out = bracket(Ap, T) + dJ - bracket(T, Jp) - bracket(P, VJ);
+    Qd_out = Qd;
+    d[21] = dlam;
+  }
+}
+
+// With ball joints: the RNEA on doubles (gravity as a_0), each link's own B (then B^C), Λ and Qm,
+// and each variable's directions.
+void quaternion_passes(const Model& m, const std::vector<int>& ti, const AnalyticWorkspace& w) {
+  LinkState<double>* ws = w.links;
+  place<double>(m, ti, true, w.theta, ws);
+  composite<double>(m, ws);
+  inverse_dynamics<double>(m, ti, true, w.thetad, w.thetadd, true, ws, w.tau);
+  const V7 a0 = seven(Eigen::Vector3d::Zero(), 0.0, -m.gravity);
+  const std::size_t nl = m.links.size();
+  for (std::size_t i = 0; i < nl; ++i) {
+    const Link& L = m.links[i];
+    const LinkState<double>& s = ws[i];
+    const bool ball = L.type == JointType::ball;
+    double* ext = w.ext + 10 * static_cast<Index>(i);
+    ext[0] = path_scale(w, L.parent) + (ball ? s.lj : 0.0);
+    Eigen::Map<Eigen::Matrix3d>(ext + 1) =
+        ball ? Eigen::Matrix3d(s.Ir * s.lj) : Eigen::Matrix3d::Zero();
+    Eigen::Map<M7> B(w.B + 49 * static_cast<Index>(i));
+    const V7 V = velocity7(s);
+    for (int c = 0; c < 7; ++c) {
+      const V7 x = V7::Unit(c);
+      B.col(c) =
+          inertia7(s.m_own, s.h_own, s.I_own, s.k_own, bracket(x, V)) + velocity_force(L, s, x);
+    }
+    if (ti[i] >= 0) quaternion_directions(m, ti, w, i, a0);
+  }
+  for (std::size_t i = nl; i-- > 0;) {
+    const int p = m.links[i].parent;
+    if (p < 0) continue;
+    Eigen::Map<M7>(w.B + 49 * static_cast<Index>(p)) +=
+        Eigen::Map<const M7>(w.B + 49 * static_cast<Index>(i));
+    Eigen::Map<Eigen::Matrix3d>(w.ext + 10 * static_cast<Index>(p) + 1) += scale_inertia(w, i);
+  }
+}
+
+// One direction (joint J, link j) as the correction terms of rate_scale_terms see it: the
+// transport (ω_T, λ_T; zero along θ̇), P's rotation pw, δλ_J, and the changes of J's subtree's
+// Ir, H and Z (the formulas of rate_scale_derivative).
+struct ScaleDirection {
+  Eigen::Vector3d wt, pw, dH, dZ;
+  double lt = 0.0, dlam = 0.0;
+  Eigen::Matrix3d dIr;
+};
+
+ScaleDirection scale_direction(const Model& m, const AnalyticWorkspace& w, std::size_t j,
+                               const V7& T, const Eigen::Vector3d& pw, double dlam) {
+  const LinkState<double>& s = w.links[j];
+  ScaleDirection d;
+  d.wt = ang(T);
+  d.lt = T(3);
+  d.pw = pw;
+  d.dlam = dlam;
+  const Eigen::Matrix3d W = skew<double>(d.wt);
+  d.dIr = W * s.Ir - s.Ir * W + 2.0 * d.lt * s.Ir;
+  d.dH = d.wt.cross(s.H) + 2.0 * d.lt * s.H + s.Ir * pw;
+  d.dZ = d.wt.cross(s.Z) + 2.0 * d.lt * s.Z + 2.0 * (scale_inertia(w, j) * pw);
+  if (m.links[j].type == JointType::ball) d.dZ += dlam * (s.H + s.Ir * s.vw);
+  return d;
+}
+
+// The change of the correction terms (rate_scale_terms) of joint K (link k, variable kk) at or above
+// J (link j) along direction d of J: Δτ = ω_kk · (Z_K + Ir_K Y_λ(K)) − [K ball] λ_kk ω_K · H_K, with
+// Z_K gaining d.dZ and, through the ball joints b between K and J (Λ, Y of the parents), λ_b (δH
+// + δIr ω_b); dS: ∂S_kk/∂θ when K is J (a ball joint, along its own θ), else null.
+double rate_above(const Model& m, const AnalyticWorkspace& w, std::size_t j, std::size_t k, int kk,
+                  const ScaleDirection& d, const V7* dS) {
+  const LinkState<double>* ws = w.links;
+  const LinkState<double>& K = ws[k];
+  const int pj = m.links[j].parent, pk = m.links[k].parent;
+  const Eigen::Vector3d YK = path_rates(ws, pk);
+  const Eigen::Vector3d dZ =
+      d.dZ + (path_scale(w, pj) - path_scale(w, pk)) * d.dH + d.dIr * (path_rates(ws, pj) - YK);
+  double r = K.sw[kk].dot(dZ + d.dIr * YK);
+  if (dS) r += ang(*dS).dot(K.Z + K.Ir * YK);
+  if (m.links[k].type == JointType::ball) {
+    const Eigen::Vector3d dw =
+        k == j ? Eigen::Vector3d(d.wt.cross(K.vw) + d.pw) : Eigen::Vector3d::Zero();
+    r -= (dS ? (*dS)(3) : 0.0) * K.vw.dot(K.H) + K.sl[kk] * (dw.dot(K.H) + K.vw.dot(d.dH));
+  }
+  return r;
+}
+
+// The same for joint variable l of link i strictly below K (link k), along a direction of K with
+// transport T (zero along θ̇), P's rotation pw and δλ_K: every term of i's subtree is carried
+// (its rotations cancel in the products), what remains is the scale's 2 λ_T, Qm and Ir times P,
+// and Y_λ(i)'s non-carried part (−ω_T × Y_λ(K) + δλ_K ω_K + (Λ_λ(i) − Λ_λ(K)) pw).
+double rate_below(const Model& m, const AnalyticWorkspace& w, std::size_t k, std::size_t i, int l,
+                  const V7& T, const Eigen::Vector3d& pw, double dlam) {
+  const LinkState<double>* ws = w.links;
+  const LinkState<double>& s = ws[i];
+  const int pi = m.links[i].parent, pk = m.links[k].parent;
+  const double lt = T(3);
+  Eigen::Vector3d y =
+      -ang(T).cross(path_rates(ws, pk)) + (path_scale(w, pi) - path_scale(w, pk)) * pw;
+  if (m.links[k].type == JointType::ball) y += dlam * ws[k].vw;
+  const Eigen::Vector3d t = 2.0 * lt * s.Z + 2.0 * (scale_inertia(w, i) * pw) +
+                            2.0 * lt * (s.Ir * path_rates(ws, pi)) + s.Ir * y;
+  double r = s.sw[l].dot(t);
+  if (m.links[i].type == JointType::ball)
+    r -= s.sl[l] * (pw.dot(s.H) + 2.0 * lt * s.vw.dot(s.H) + s.vw.dot(s.Ir * pw));
+  return r;
+}
+
+// The entries of joint J's column (its variables' directions on the torques at or above it).
+void quaternion_column(const Model& m, const std::vector<int>& ti, Index nt,
+                       const AnalyticWorkspace& w, std::size_t j) {
+  const LinkState<double>* ws = w.links;
+  const LinkState<double>& s = ws[j];
+  const bool ball = m.links[j].type == JointType::ball;
+  const M7 B = Eigen::Map<const M7>(w.B + 49 * static_cast<Index>(j));
+  const V7 F = force7(s);
+  for (int l = 0; l < variables(m.links[j].type); ++l) {
+    const Index a = ti[j] + l;
+    const V7 T = axis7(s, l);
+    const double* d = w.psi + 22 * a;
+    const V7 P = Eigen::Map<const V7>(d), Q = Eigen::Map<const V7>(d + 7),
+             Qd = Eigen::Map<const V7>(d + 14);
+    V7 dS[4];
+    if (ball) ball_axis_derivatives(s, w.theta + ti[j], l, dS);
+    const V7 X = cross_force7(T, F) + 2.0 * T(3) * F + composite7(s, Q) + B * P;
+    const V7 Xd = composite7(s, Qd) + B * T;
+    const ScaleDirection sq = scale_direction(m, w, j, T, ang(P), d[21]);
+    const ScaleDirection sd = scale_direction(m, w, j, V7::Zero(), ang(T), ball ? s.sl[l] : 0.0);
+    for (int k = static_cast<int>(j); k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+      const auto ku = static_cast<std::size_t>(k);
+      if (ti[ku] < 0) continue;
+      for (int kk = 0; kk < variables(m.links[ku].type); ++kk) {
+        const Index r = ti[ku] + kk;
+        const V7 S = axis7(ws[ku], kk);
+        const V7* own = ku == j && ball ? &dS[kk] : nullptr;
+        w.Dq[r + a * nt] =
+            S.dot(X) + (own ? own->dot(F) : 0.0) + rate_above(m, w, j, ku, kk, sq, own);
+        w.Dqd[r + a * nt] = S.dot(Xd) + rate_above(m, w, j, ku, kk, sd, nullptr);
+      }
+    }
+  }
+}
+
+// The entries of joint J's row along the directions of its strict ancestors K.
+void quaternion_row(const Model& m, const std::vector<int>& ti, Index nt,
+                    const AnalyticWorkspace& w, std::size_t j) {
+  const LinkState<double>* ws = w.links;
+  const LinkState<double>& s = ws[j];
+  const M7 B = Eigen::Map<const M7>(w.B + 49 * static_cast<Index>(j));
+  const V7 F = force7(s);
+  for (int l = 0; l < variables(m.links[j].type); ++l) {
+    const Index a = ti[j] + l;
+    const V7 Sl = axis7(s, l), U = composite7(s, Sl), W = B.transpose() * Sl;
+    const double tr = Sl.dot(F);
+    for (int k = m.links[j].parent; k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+      const auto ku = static_cast<std::size_t>(k);
+      if (ti[ku] < 0) continue;
+      const bool ball = m.links[ku].type == JointType::ball;
+      for (int kk = 0; kk < variables(m.links[ku].type); ++kk) {
+        const Index r = ti[ku] + kk;
+        const double* d = w.psi + 22 * r;
+        const V7 T = axis7(ws[ku], kk), P = Eigen::Map<const V7>(d),
+                 Q = Eigen::Map<const V7>(d + 7), Qd = Eigen::Map<const V7>(d + 14);
+        w.Dq[a + r * nt] =
+            2.0 * T(3) * tr + U.dot(Q) + W.dot(P) + rate_below(m, w, ku, j, l, T, ang(P), d[21]);
+        w.Dqd[a + r * nt] =
+            U.dot(Qd) + W.dot(T) +
+            rate_below(m, w, ku, j, l, V7::Zero(), ang(T), ball ? ws[ku].sl[kk] : 0.0);
+      }
+    }
+  }
+}
+
+void quaternion_columns(const Model& m, const std::vector<int>& ti, Index nt,
+                        const AnalyticWorkspace& w) {
+  std::fill_n(w.Dq, 2 * nt * nt, 0.0);
+  for (std::size_t j = 0; j < m.links.size(); ++j) {
+    if (ti[j] < 0) continue;
+    quaternion_column(m, ti, nt, w, j);
+    quaternion_row(m, ti, nt, w, j);
+  }
+}
+
+// A frame's derivatives with ball joints, from the same transport as quaternion_columns: along
+// θ_a of joint J (T = S_a, P, Q of quaternion_directions at a_0 = 0), the frame's p, R move by
+// T(p) = v_T + ω_T × p + λ_T p and (Tm) R (Tm = [ω_T]× + λ_T), its rates and accelerations turn
+// and scale with Tm and gain the link's P and X = Q + [P, V] (V = (ω, λ, v_O) the link's motion,
+// W = [ω]× + λ, Pm, Xm as Tm):
+//   ∂ṗ = Tm ṗ + P(p),            ∂Ṙ = Tm Ṙ + Pm R,
+//   ∂p̈ = Tm p̈ + X(p) + Pm ṗ + W P(p),   ∂R̈ = Tm R̈ + (Xm + W Pm + Pm W) R;
+// along θ̇_a (nothing carried, P = S_a, X = Q̇ + [S_a, V]) ṗ, Ṙ gain the column and
+//   ∂p̈ = X(p) + Tm ṗ + W T(p),   ∂R̈ = (Xm + W Tm + Tm W) R.
+Eigen::Vector3d at_point(const V7& x, const Eigen::Vector3d& p) {
+  return lin(x) + ang(x).cross(p) + x(3) * p;
+}
+
+Eigen::Matrix3d rate_matrix(const V7& x) {
+  return skew<double>(ang(x)) + x(3) * Eigen::Matrix3d::Identity();
+}
+
+void quaternion_frame_columns(const Model& m, const std::vector<int>& ti,
+                              const AnalyticWorkspace& w, int link, const FrameMotion<double>& f,
+                              Index n, MatRef J) {
+  const LinkState<double>& at = w.links[link];
+  const V7 V = velocity7(at);
+  const Eigen::Matrix3d W = rate_matrix(V);
+  for (int j = link; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+    const auto ju = static_cast<std::size_t>(j);
+    if (ti[ju] < 0) continue;
+    const Link& L = m.links[ju];
+    for (int l = 0; l < variables(L.type); ++l) {
+      const double* d = w.psi + 22 * (ti[ju] + l);
+      const V7 T = axis7(w.links[ju], l), P = Eigen::Map<const V7>(d);
+      const V7 X = Eigen::Map<const V7>(d + 7) + bracket(P, V);
+      const V7 Xd = Eigen::Map<const V7>(d + 14) + bracket(T, V);
+      const Eigen::Matrix3d Tm = rate_matrix(T), Pm = rate_matrix(P);
+      const Eigen::Vector3d dp = at_point(T, f.p), Pp = at_point(P, f.p);
+      const Eigen::Matrix3d dR = Tm * f.R;
+      const Eigen::Vector3d q_pd = Tm * f.pd + Pp;
+      const Eigen::Matrix3d q_Rd = Tm * f.Rd + Pm * f.R;
+      const Eigen::Vector3d q_pdd = Tm * f.pdd + at_point(X, f.p) + Pm * f.pd + W * Pp;
+      const Eigen::Matrix3d q_Rdd = Tm * f.Rdd + (rate_matrix(X) + W * Pm + Pm * W) * f.R;
+      const Eigen::Vector3d r_pdd = at_point(Xd, f.p) + Tm * f.pd + W * dp;
+      const Eigen::Matrix3d r_Rdd = (rate_matrix(Xd) + W * Tm + Tm * W) * f.R;
+      const auto [first, last] = variable_terms(L, l);
+      for (const Term* t = first; t != last; ++t) {
+        const Index c = t->coordinate;
+        const double k = t->coefficient;
+        add_column(J, 0, c, k, dp);
+        add_column(J, 3, c, k, dR);
+        add_column(J, 12, c, k, q_pd);
+        add_column(J, 15, c, k, q_Rd);
+        add_column(J, 24, c, k, q_pdd);
+        add_column(J, 27, c, k, q_Rdd);
+        add_column(J, 12, n + c, k, dp);
+        add_column(J, 15, n + c, k, dR);
+        add_column(J, 24, n + c, k, r_pdd);
+        add_column(J, 27, n + c, k, r_Rdd);
+      }
+    }
+  }
+}
+
+// ∂²x/∂θ_k∂θ_b (x = p, R) added as column k's change along coordinate direction of b and, when
+// `both`, column b's along k (the mixed derivatives are symmetric), through θ = T q + c.
+void add_second(const Link& K, int k, const Link& Lb, int b, bool both, const Eigen::Vector3d& hp,
+                const Eigen::Matrix3d& hR, MatRef J) {
+  const auto [k0, k1] = variable_terms(K, k);
+  const auto [b0, b1] = variable_terms(Lb, b);
+  for (const Term* x = k0; x != k1; ++x) {
+    for (const Term* y = b0; y != b1; ++y) {
+      const double c = x->coefficient * y->coefficient;
+      add_column(J, 36 + 12 * x->coordinate, y->coordinate, c, hp);
+      add_column(J, 39 + 12 * x->coordinate, y->coordinate, c, hR);
+      if (!both) continue;
+      add_column(J, 36 + 12 * y->coordinate, x->coordinate, c, hp);
+      add_column(J, 39 + 12 * y->coordinate, x->coordinate, c, hR);
+    }
+  }
+}
+
+// The derivatives of the frame's columns S_k(p), (Sm_k) R: for k of a joint above b's,
+// ∂²p/∂θ_k∂θ_b = Sm_k S_b(p) and ∂²R/∂θ_k∂θ_b = Sm_k Sm_b R; within a ball joint also the axes'
+// own change, ∂S_k/∂u_b (p) and (∂Sm_k/∂u_b) R.
+void quaternion_frame_column_columns(const Model& m, const std::vector<int>& ti,
+                                     const AnalyticWorkspace& w, int link,
+                                     const FrameMotion<double>& f, MatRef J) {
+  for (int l = link; l >= 0; l = m.links[static_cast<std::size_t>(l)].parent) {
+    const auto lu = static_cast<std::size_t>(l);
+    if (ti[lu] < 0) continue;
+    const Link& L = m.links[lu];
+    const LinkState<double>& s = w.links[lu];
+    for (int b = 0; b < variables(L.type); ++b) {
+      const V7 Sb = axis7(s, b);
+      const Eigen::Vector3d dp = at_point(Sb, f.p);
+      const Eigen::Matrix3d Mb = rate_matrix(Sb);
+      if (L.type == JointType::ball) {
+        V7 dS[4];
+        ball_axis_derivatives(s, w.theta + ti[lu], b, dS);
+        for (int k = 0; k < 4; ++k) {
+          const Eigen::Matrix3d Mk = rate_matrix(axis7(s, k));
+          add_second(L, k, L, b, false, at_point(dS[k], f.p) + Mk * dp,
+                     (rate_matrix(dS[k]) + Mk * Mb) * f.R, J);
+        }
+      } else {
+        add_second(L, b, L, b, false, Mb * dp, Mb * Mb * f.R, J);
+      }
+      for (int k = L.parent; k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
+        const auto ku = static_cast<std::size_t>(k);
+        if (ti[ku] < 0) continue;
+        for (int kk = 0; kk < variables(m.links[ku].type); ++kk) {
+          const Eigen::Matrix3d Mk = rate_matrix(axis7(w.links[ku], kk));
+          add_second(m.links[ku], kk, L, b, true, Mk * dp, Mk * Mb * f.R, J);
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
-// ∂ID/∂q = Tᵀ (∂τ_θ/∂θ) T and ∂ID/∂q̇ = Tᵀ (∂τ_θ/∂θ̇) T at θ̈ = T q̈: without ball joints by
-// the analytic pass (one forward and one backward recursion for every column; docs/derivatives.md,
-// "Cost", measured faster than the lanes for every tree there), with them by the lanes (the
-// quaternion joints' scales and rate_scale_terms are not in the analytic pass).
-bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd,
-                                              CVecRef qdd, MatRef dID_dq, MatRef dID_dqd) const {
+// ∂ID/∂q = Tᵀ (∂τ_θ/∂θ) T and ∂ID/∂q̇ = Tᵀ (∂τ_θ/∂θ̇) T at θ̈ = T q̈ by the analytic pass (one
+// forward and one backward recursion for every column; docs/derivatives.md, "Cost"): the rigid one
+// without ball joints (its links then left in the slot for frame_state_jacobian), the one on
+// similarity motions with the correction terms with them. [[gnu::flatten]] as
+// frame_state_jacobian.
+[[gnu::flatten]] bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q,
+                                                               CVecRef qd, CVecRef qdd,
+                                                               MatRef dID_dq,
+                                                               MatRef dID_dqd) const {
   const std::size_t nl = merged_.links.size();
   std::vector<double> own;
-  if (quaternions_) {
-    const LaneWorkspace w = lane_workspace(c.slot, slot_size_, nl, n_theta_, own);
-    lane_id_jacobian(merged_, theta_index_, theta_terms_, theta_offset_, true, w, q, qd, qdd,
-                     dID_dq, dID_dqd);
-    return true;
-  }
   const AnalyticWorkspace w = analytic_workspace(c.slot, slot_size_, nl, n_theta_, own);
   analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, w);
+  if (quaternions_) {
+    quaternion_passes(merged_, theta_index_, w);
+    quaternion_columns(merged_, theta_index_, n_theta_, w);
+    to_coordinates(theta_terms_, w.Dq, dID_dq);
+    to_coordinates(theta_terms_, w.Dqd, dID_dqd);
+    return true;
+  }
   analytic_passes(merged_, theta_index_, w);
   analytic_columns(merged_, theta_index_, n_theta_, w);
+  if (w.key) {  // the links placed and moved at this state: frame_state_jacobian reads them
+    w.key[0] = owner_tag(this);
+    w.key[1] = 1.0;
+  }
   to_coordinates(theta_terms_, w.Dq, dID_dq);
   to_coordinates(theta_terms_, w.Dqd, dID_dqd);
   return true;
 }
 
-// Without ball joints: one placement and motion pass on doubles and the analytic columns; with
-// them, frame_state_tangent's pass on lanes, kLanes directions per pass (the directions of q̇ on
-// one placement), the fields' lanes stacked into the columns of J.
-[[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(
-    CVecRef q, CVecRef qd, CVecRef qdd, int frame_link, const Eigen::Matrix3d& frame_R_offset,
-    const Eigen::Vector3d& frame_x_offset, Slot scratch, FrameState& value, MatRef J) const {
+// Without ball joints: the analytic columns on the links inverse_dynamics_jacobian() left in
+// `placed` at this state (no placement, no motion pass: its accelerations less a_0 = −g), else on
+// one placement and motion pass on doubles in `scratch`; with ball joints, the analytic columns on
+// similarity motions after one placement and motion pass in `scratch`. [[gnu::flatten]]: every
+// call inlined (the chains' frame columns measured 7–10 % slower without it).
+[[gnu::flatten]] void TreeSubsystem::frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd,
+                                                          int frame_link,
+                                                          const Eigen::Matrix3d& frame_R_offset,
+                                                          const Eigen::Vector3d& frame_x_offset,
+                                                          ConstSlot placed, Slot scratch,
+                                                          FrameState& value, MatRef J) const {
   int link = -1;
   Eigen::Matrix3d R_offset = frame_R_offset;
   Eigen::Vector3d x_offset = frame_x_offset;
@@ -1991,55 +2406,44 @@ bool TreeSubsystem::inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, C
   value.dp.setZero();
   value.dR.setZero();
   if (!quaternions_) {  // the analytic columns (frame_motion_columns, frame_column_columns)
-    const AnalyticWorkspace a =
-        analytic_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
-    analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, a);
-    place<double>(merged_, theta_index_, false, a.theta, a.links);
-    link_motion<double>(merged_, theta_index_, false, a.thetad, a.thetadd, Eigen::Vector3d::Zero(),
-                        a.links);
-    const FrameMotion<double> f = frame_motion(merged_, a.links, link, R_offset, x_offset);
-    copy_state(merged_, theta_index_, a.links, link, f, value);
+    const std::size_t nl = merged_.links.size();
+    const LinkState<double>* links = analytic_links(placed, slot_size_, nl, n_theta_, this,
+                                                    theta_terms_, theta_offset_, q, qd, qdd);
+    Eigen::Vector3d a0 = Eigen::Vector3d::Zero();  // the links' a_0 (linear part)
+    if (links) {
+      a0 = -merged_.gravity;
+    } else {
+      const AnalyticWorkspace a = analytic_workspace(scratch, slot_size_, nl, n_theta_, own);
+      analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, a);
+      place<double>(merged_, theta_index_, false, a.theta, a.links);
+      link_motion<double>(merged_, theta_index_, false, a.thetad, a.thetadd, a0, a.links);
+      links = a.links;
+    }
+    FrameMotion<double> f = frame_motion(merged_, links, link, R_offset, x_offset);
+    if (link >= 0) f.pdd -= a0;  // p̈ is linear in the link's a_O, with coefficient 1
+    copy_state(merged_, theta_index_, links, link, f, value);
     if (link < 0) return;
-    frame_motion_columns(merged_, theta_index_, a.links, link, f, n, J);
-    frame_column_columns(merged_, theta_index_, a.links, link, f, J);
+    frame_motion_columns(merged_, theta_index_, links, link, f, a0, n, J);
+    frame_column_columns(merged_, theta_index_, links, link, f, J);
     return;
   }
-  const LaneWorkspace w = lane_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
-  for (const bool rate : {true, false}) {
-    for (Index j0 = 0; j0 < n; j0 += kLanes) {
-      seed_lanes(theta_terms_, theta_offset_, q, qd, qdd, j0, rate, w);
-      if (!rate) place(merged_, theta_index_, quaternions_, w.theta, w.links);
-      if (rate && j0 == 0) place_constant(merged_, theta_index_, quaternions_, w, n_theta_);
-      link_motion<Lanes>(merged_, theta_index_, quaternions_, w.thetad, w.thetadd,
-                         V3<Lanes>::Zero(), w.links);
-      const FrameMotion<Lanes> f = frame_motion(merged_, w.links, link, R_offset, x_offset);
-      const Index col0 = (rate ? n : 0) + j0, lanes = std::min<Index>(kLanes, n - j0);
-      const bool first = rate && j0 == 0;
-      if (first) {
-        value.p = values(f.p);
-        value.R = values(f.R);
-        value.pd = values(f.pd);
-        value.Rd = values(f.Rd);
-        value.pdd = values(f.pdd);
-        value.Rdd = values(f.Rdd);
-      }
-      put_lanes(f.p, 0, col0, lanes, J);
-      put_lanes(f.R, 3, col0, lanes, J);
-      put_lanes(f.pd, 12, col0, lanes, J);
-      put_lanes(f.Rd, 15, col0, lanes, J);
-      put_lanes(f.pdd, 24, col0, lanes, J);
-      put_lanes(f.Rdd, 27, col0, lanes, J);
-      frame_columns(merged_, theta_index_, w.links, link, f.p, f.R,
-                    [&](Index c, double k, const V3<Lanes>& dp, const M3<Lanes>& dR) {
-                      for (int r = 0; r < 12; ++r) {
-                        const Lanes& e = r < 3 ? dp(r) : dR((r - 3) / 3, (r - 3) % 3);
-                        if (first) (r < 3 ? value.dp(r, c) : value.dR(r - 3, c)) += k * e.value();
-                        for (Index l = 0; l < lanes; ++l)
-                          J(36 + 12 * c + r, col0 + l) += k * e.d[l];
-                      }
-                    });
-    }
+  // With ball joints: one placement and motion pass on doubles (a_0 = 0), the directions of the
+  // joints above the frame, then the columns.
+  const AnalyticWorkspace a =
+      analytic_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, own);
+  analytic_theta(theta_terms_, theta_offset_, q, qd, qdd, a);
+  place<double>(merged_, theta_index_, true, a.theta, a.links);
+  link_motion<double>(merged_, theta_index_, true, a.thetad, a.thetadd, Eigen::Vector3d::Zero(),
+                      a.links);
+  const FrameMotion<double> f = frame_motion(merged_, a.links, link, R_offset, x_offset);
+  copy_state(merged_, theta_index_, a.links, link, f, value);
+  if (link < 0) return;
+  for (int j = link; j >= 0; j = merged_.links[static_cast<std::size_t>(j)].parent) {
+    if (theta_index_[static_cast<std::size_t>(j)] >= 0)
+      quaternion_directions(merged_, theta_index_, a, static_cast<std::size_t>(j), V7::Zero());
   }
+  quaternion_frame_columns(merged_, theta_index_, a, link, f, n, J);
+  quaternion_frame_column_columns(merged_, theta_index_, a, link, f, J);
 }
 
 std::shared_ptr<const TreeSubsystem> make_subsystem(Model model) {

@@ -140,10 +140,10 @@ class TreeSubsystem : public Subsystem, public SubsystemColumns {
   /// The RNEA with q̈ run once on dual numbers (forward-mode automatic differentiation).
   bool inverse_dynamics_tangent(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef dq, CVecRef dqd, VecRef dID) const override;
-  /// Every column at once: without ball joints the analytic derivatives of the RNEA (one forward
-  /// and one backward recursion; docs/tree-algorithms.md, "Derivatives"), with them the same pass
-  /// on dual numbers of several lanes, one lane per direction (vector-mode forward
-  /// differentiation), the placement shared by the directions of q̇.
+  /// Every column at once: the analytic derivatives of the RNEA (one forward and one backward
+  /// recursion, then products of motion and force vectors; with ball and floating joints on
+  /// their similarity motions and with the correction terms of the symbolic body rate;
+  /// docs/tree-algorithms.md, "Derivatives").
   bool inverse_dynamics_jacobian(const EvalContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
                                  MatRef dID_dq, MatRef dID_dqd) const override;
 
@@ -178,14 +178,18 @@ class TreeSubsystem : public Subsystem, public SubsystemColumns {
   void frame_twists(CVecRef q, CVecRef qd, int link, const Eigen::Matrix3d& R_offset,
                     const Eigen::Vector3d& x_offset, ConstSlot placed, Slot scratch,
                     FrameState& out, double* twists) const;
-  /// frame_state_tangent along every direction at once (analytic without ball joints, dual numbers
-  /// of several lanes with them): `value` as
+  /// frame_state_tangent along every direction at once (analytic, as inverse_dynamics_jacobian):
+  /// `value` as
   /// there, and J (frame_jacobian_rows() × 2 dof()) whose column j is the tangent along e_j of q,
   /// column dof() + j along e_j of q̇, of the fields stacked as p, R, pd, Rd, pdd, Rdd (3 or 9
   /// entries each, R(i, k) at 3 i + k), then dp and dR column by column (12 per coordinate).
+  /// `placed`: this subsystem's data slot as inverse_dynamics_jacobian() left it; without ball
+  /// joints the links it placed and moved there are reused when they are of the same (q, q̇, q̈)
+  /// (the slot keeps the joint variables they belong to), otherwise the pass is run in `scratch`
+  /// (slot_size() doubles; none: a buffer of its own).
   void frame_state_jacobian(CVecRef q, CVecRef qd, CVecRef qdd, int link,
                             const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
-                            Slot scratch, FrameState& value, MatRef J) const;
+                            ConstSlot placed, Slot scratch, FrameState& value, MatRef J) const;
   /// The rows of frame_state_jacobian's J: 36 + 12 dof().
   [[nodiscard]] Index frame_jacobian_rows() const { return 36 + 12 * dof(); }
   /// Number of joint variables θ (one per revolute or prismatic joint, four per ball joint, seven
