@@ -86,6 +86,12 @@ struct LinearizeData {
   ArrowKktWorkspace arrow;
   bool allow_arrow = true;  ///< false: always the dense KKT factorisation (the reference)
   bool used_arrow = false;  ///< whether the last call solved with the arrow blocks
+  /// Without the arrow blocks, at full row rank: the KKT solve by the row choice's factors (M =
+  /// L Lᵀ and the QR of L⁻¹ Aᵀ, whose R gives the Schur complement A M⁻¹ Aᵀ = P Rᵀ R Pᵀ) in place
+  /// of an LU of the whole KKT matrix. false (or allow_arrow false): always that LU (the
+  /// reference).
+  bool allow_schur = true;
+  bool used_schur = false;  ///< whether the last call solved with the Schur complement
 };
 
 /// The linearisation at (t, q, q̇, τ) into `data.lin` (see linearize() below for the errors).
