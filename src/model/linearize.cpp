@@ -237,8 +237,9 @@ void schur_solve(LinearizeData& d, Eigen::Ref<Mat> rhs, Out& X) {
   Y = d.qr.colsPermutation().transpose() * G;
   d.R.transpose().triangularView<Eigen::Lower>().solveInPlace(Y);
   d.R.triangularView<Eigen::Upper>().solveInPlace(Y);
-  Y = d.qr.colsPermutation() * Y;
-  F.noalias() += d.Xt * Y;
+  G = d.qr.colsPermutation() * Y;  // (not in place: Eigen's in-place permutation allocates)
+  Y = G;
+  F.noalias() += d.Xt * G;
   d.llt.matrixU().solveInPlace(F);
   X.topRows(n) = F;
 }
