@@ -628,11 +628,12 @@ TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
 // linearize() into its LinearizeData (ukdyn/model/linearize.hpp), arms on trees welded to a load
 // by numeric frame constraints, at states moving along the constraints (the rank of A stays): all
 // parts and ∂q̈/∂(q, q̇) alone allocate nothing after the first call, and give the same numbers as
-// the allocating linearize(). Both systems have the block-arrow structure; the three arms on a
-// free-body load run with the arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp; two robots keep the
-// dense one) and with the dense one (allow_arrow = false).
+// the allocating linearize(). The two weld systems have the block-arrow structure; the three arms
+// on a free-body load run with the arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp; two robots keep
+// the dense one, by the Schur complement) and with the dense LU (allow_arrow = false). The paper's
+// chains add derived constraints (their tape tangents, every direction in one call) and no arrow.
 TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
-  for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml"}) {
+  for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml", "paper_chain.yaml"}) {
     SCOPED_TRACE(name);
     const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + name);
     const ukdyn::System& sys = *sc.system;

@@ -222,11 +222,41 @@ void augment_columns(const System& system, const ForwardData& f, Eigen::Ref<Mat>
   }
 }
 
+// K⁻¹ rhs by the Schur complement (the range-space method: Nocedal & Wright, Numerical
+// Optimization, 2nd ed., §16.2), every row kept, with the row choice's factors M = L Lᵀ and
+// L⁻¹ Aᵀ = Q R Pᵀ (d.Xt, d.qr, d.R): M x − Aᵀ y = f, A x = g give u = L⁻¹ f,
+// y = (A M⁻¹ Aᵀ)⁻¹ (g − (L⁻¹ Aᵀ)ᵀ u) = P R⁻¹ R⁻ᵀ Pᵀ (g − (L⁻¹ Aᵀ)ᵀ u), x = L⁻ᵀ (u + L⁻¹ Aᵀ y).
+// rhs is overwritten.
+template <class Out>
+void schur_solve(LinearizeData& d, Eigen::Ref<Mat> rhs, Out& X) {
+  const Index n = d.Xt.rows(), r = rhs.rows() - n;
+  auto F = rhs.topRows(n);
+  auto G = rhs.bottomRows(r);
+  d.llt.matrixL().solveInPlace(F);
+  G.noalias() -= d.Xt.transpose() * F;
+  auto Y = X.bottomRows(r);
+  Y = d.qr.colsPermutation().transpose() * G;
+  d.R.transpose().triangularView<Eigen::Lower>().solveInPlace(Y);
+  d.R.triangularView<Eigen::Upper>().solveInPlace(Y);
+  G = d.qr.colsPermutation() * Y;  // (not in place: Eigen's in-place permutation allocates)
+  Y = G;
+  F.noalias() += d.Xt * G;
+  d.llt.matrixU().solveInPlace(F);
+  X.topRows(n) = F;
+}
+
 // X = K⁻¹ rhs for the KKT matrix K = [M −A_Rᵀ; A_R 0]: the arrow blocks (rhs's top rows are
-// changed by the augmentation) or the dense LU.
+// changed by the augmentation), the Schur complement with M_a where forward() augmented M (rhs
+// augmented likewise, then overwritten) or the dense LU.
 template <class Out>
 void kkt_solve(const System& system, LinearizeData& d, Eigen::Ref<Mat> rhs, Out& X) {
   X.resize(rhs.rows(), rhs.cols());
+  if (d.used_schur) {
+    const Index n = system.dof(), r = rhs.rows() - n;
+    augment_columns(system, d.fwd, rhs.topRows(n), rhs.bottomRows(r));
+    schur_solve(d, rhs, X);
+    return;
+  }
   if (!d.used_arrow) {
     X = d.lu.solve(rhs);
     return;
@@ -247,10 +277,21 @@ void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref
   }
 }
 
-// The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks solve
-// it), and [q̈; μ] at the state (d.sol); Qc, μ, q̈ and the agreement with forward()'s q̈ into d.lin.
-// `v`: a correction of b (m; linearize_corrected()), or null.
-void solve_kkt(const System& system, LinearizeData& d, Index n, const Vec* v = nullptr) {
+// Whether the dense KKT system can be solved by the row choice's factors (schur_solve): every
+// row kept, R square, and A M^{-1/2} far enough from singular (σ_m/σ_1 ≥ 1e-3) that solving with
+// R twice loses no more than an LU of K would. (With a structurally singular block the row choice
+// factorised the augmented M_a: kkt_solve augments the right-hand sides to match.)
+bool schur_applies(const LinearizeData& d, const RowChoice& rc, Index r) {
+  const Index m = d.fwd.A.rows();
+  return d.allow_schur && d.allow_arrow && !d.used_arrow && m > 0 && r == m && d.R.rows() == m &&
+         d.R.cols() == m && d.Xt.cols() == m && rc.sigma_ratio_kept >= 1e-3;
+}
+
+// The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks or the
+// row choice's factors solve it), and [q̈; μ] at the state (d.sol); Qc, μ, q̈ and the agreement
+// with forward()'s q̈ into d.lin. `v`: a correction of b (m; linearize_corrected()), or null.
+void solve_kkt(const System& system, LinearizeData& d, Index n, const RowChoice& rc,
+               const Vec* v = nullptr) {
   const ForwardData& f = d.fwd;
   Linearization& lin = d.lin;
   const auto r = static_cast<Index>(lin.kept_rows.size());
@@ -261,13 +302,15 @@ void solve_kkt(const System& system, LinearizeData& d, Index n, const Vec* v = n
   if (r == f.A.rows()) {
     if (!d.used_arrow) d.AR = f.A;
     d.bR = f.b;
+    if (v != nullptr) d.bR += *v;
   }
   for (Index k = 0; k < r && r < f.A.rows(); ++k) {
     d.AR.row(k) = f.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
     if (v != nullptr) d.bR(k) += (*v)(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
-  if (!d.used_arrow) {
+  d.used_schur = schur_applies(d, rc, r);
+  if (!d.used_arrow && !d.used_schur) {
     d.K.resize(n + r, n + r);
     d.K.setZero();
     d.K.topLeftCorner(n, n) = f.M;
@@ -482,7 +525,7 @@ void prepare_kkt(const System& system, LinearizeData& d, double t, CVecRef q, CV
   if (!d.used_arrow) rc = dense_rows(system, d, settings);
   lin.rank = static_cast<int>(lin.kept_rows.size());
   vouch(lin, rc, d.fwd.result, settings, m);
-  solve_kkt(system, d, n, v);
+  solve_kkt(system, d, n, rc, v);
 }
 
 // The structural pattern of the arrow path's right-hand sides (no applied forces; every row of A

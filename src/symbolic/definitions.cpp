@@ -16,6 +16,52 @@ namespace ukdyn::symbolic {
 
 namespace {
 
+// Doubles tape_columns() takes for a tape over n coordinates, K lanes a pass.
+std::size_t tape_columns_size(const Tape& tape, std::size_t n, std::size_t K) {
+  return (1 + K) * (tape.outputs() + tape.work_size()) + 2 * n * K;
+}
+
+// The tape's output tangents along every direction it reads, e_j of q for j in q_read, then of
+// q̇ for j in qd_read: K directions a pass (Tape::eval_tangents: the values once, bitwise the
+// one-direction tangents), use(dout, col) for each (col = j along q_j, n + j along q̇_j; dout the
+// outputs' tangents). buf: tape_columns_size() doubles (values, tangents, work, the directions).
+template <class Use>
+void tape_columns(const Tape& tape, double t, CVecRef q, CVecRef qd,
+                  const std::vector<Index>& q_read, const std::vector<Index>& qd_read,
+                  std::size_t K, double* buf, Use&& use) {
+  const std::size_t no = tape.outputs(), nw = tape.work_size();
+  const auto n = static_cast<std::size_t>(q.size());
+  double* out = buf;
+  double* dout = out + no;
+  double* work = dout + no * K;
+  double* dwork = work + nw;
+  double* dq = dwork + nw * K;
+  double* dqd = dq + n * K;
+  std::fill_n(dq, 2 * n * K, 0.0);
+  const std::size_t nq = q_read.size(), total = nq + qd_read.size();
+  // Lane k of a pass along direction i: e_j of q (j = q_read[i]) or of q̇.
+  auto unit = [&](std::size_t i, std::size_t k) -> double& {
+    return i < nq ? dq[static_cast<std::size_t>(q_read[i]) + n * k]
+                  : dqd[static_cast<std::size_t>(qd_read[i - nq]) + n * k];
+  };
+  for (std::size_t first = 0; first < total; first += K) {
+    const std::size_t lanes = std::min(K, total - first);
+    for (std::size_t k = 0; k < lanes; ++k) unit(first + k, k) = 1.0;
+    // (CVecRef is contiguous.)
+    tape.eval_tangents(lanes, t, q.data(), qd.data(), nullptr, dq, n, dqd, n, out, dout, work,
+                       dwork);
+    for (std::size_t k = 0; k < lanes; ++k) {
+      const std::size_t i = first + k;
+      use(dout + no * k, i < nq ? q_read[i] : q.size() + qd_read[i - nq]);
+      unit(i, k) = 0.0;
+    }
+  }
+}
+
+}  // namespace
+
+namespace {
+
 using GiNaC::ex;
 using GiNaC::matrix;
 using GiNaC::symbol;
@@ -601,6 +647,9 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
   if (d_.time_varying) all.push_back(num(d_.Lt));
   dyn_ = tape(all, "M, C q_dot and G");
+  q_read_ = dyn_->inputs_read(TapeInput::Source::q);
+  qd_read_ = dyn_->inputs_read(TapeInput::Source::qd);
+  lanes_ = std::min(kTapeLanes, q_read_.size() + qd_read_.size());
   cor_ = tape(c, "C");
   pot_ = tape({num(d_.V)}, "V");
   kin_ = tape({num(d_.T)}, "T");
@@ -676,10 +725,12 @@ void DerivedSubsystem::mass(const EvalContext& ctx, CVecRef q, MatRef M) const {
   symmetric_from_upper(out, n_, M);
 }
 
-// The dynamics tape's outputs and work, twice: the tangents' (dynamics_tangent()) follow.
+// The dynamics tape's outputs and work, twice: the tangents' (dynamics_tangent()) follow;
+// inverse_dynamics_jacobian() takes tape_columns_size().
 Index DerivedSubsystem::slot_size() const {
   return static_cast<Index>(
-      std::max(2 * (dyn_->outputs() + dyn_->work_size()), cor_->outputs() + cor_->work_size()));
+      std::max({2 * (dyn_->outputs() + dyn_->work_size()), cor_->outputs() + cor_->work_size(),
+                tape_columns_size(*dyn_, static_cast<std::size_t>(n_), lanes_)}));
 }
 
 namespace {
@@ -737,13 +788,30 @@ void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecR
   unpack_dynamics(out + dyn_->outputs(), dM, dCqd, dG);
 }
 
-// dID = dM q̈ + d(C q̇) + dG straight from the tangents of the packed outputs (M's upper triangle
-// row by row, then C q̇, G): no matrix is formed.
 bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd,
                                                 CVecRef qdd, CVecRef dq, CVecRef dqd,
                                                 VecRef dID) const {
   std::vector<double> own;
-  const double* dout = tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_->outputs();
+  id_from_tangents(tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_->outputs(),
+                   qdd, dID);
+  return true;
+}
+
+bool DerivedSubsystem::inverse_dynamics_jacobian(const EvalContext& ctx, CVecRef q, CVecRef qd,
+                                                 CVecRef qdd, MatRef dID_dq, MatRef dID_dqd) const {
+  if (ctx.slot.size() != static_cast<std::size_t>(slot_size()) || q.size() != n_) return false;
+  dID_dq.setZero();  // the directions the tape does not read
+  dID_dqd.setZero();
+  tape_columns(*dyn_, ctx.t, q, qd, q_read_, qd_read_, lanes_, ctx.slot.data(),
+               [&](const double* dout, Index col) {
+                 id_from_tangents(dout, qdd, col < n_ ? dID_dq.col(col) : dID_dqd.col(col - n_));
+               });
+  return true;
+}
+
+// dID = dM q̈ + d(C q̇) + dG straight from the tangents of the packed outputs (M's upper triangle
+// row by row, then C q̇, G): no matrix is formed.
+void DerivedSubsystem::id_from_tangents(const double* dout, CVecRef qdd, VecRef dID) const {
   dID.setZero();
   std::size_t k = 0;
   for (Index i = 0; i < n_; ++i) {
@@ -756,7 +824,6 @@ bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef 
   for (Index i = 0; i < n_; ++i) dID(i) += dout[k + static_cast<std::size_t>(i)];
   k += static_cast<std::size_t>(n_);
   for (Index i = 0; i < n_; ++i) dID(i) += dout[k + static_cast<std::size_t>(i)];
-  return true;
 }
 
 void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef C) const {
@@ -1114,11 +1181,18 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Dead
     phi.push_back(numeric_form(d_.phi(r, 0), pv));
     phid.push_back(numeric_form(d_.phid(r, 0), pv));
   }
+  by_column_.resize(nz_.size());
+  for (std::size_t k = 0; k < nz_.size(); ++k) by_column_[k] = k;
+  std::stable_sort(by_column_.begin(), by_column_.end(),
+                   [this](std::size_t a, std::size_t b) { return nz_[a].second < nz_[b].second; });
   if (pool == nullptr) {
     const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
     ab_ = std::make_shared<const Tape>(ab, in, deadline, "compiling A and b");
     phi_ = std::make_shared<const Tape>(phi, in, deadline, "compiling Phi");
     phid_ = std::make_shared<const Tape>(phid, in, deadline, "compiling the velocity form");
+    q_read_ = ab_->inputs_read(TapeInput::Source::q);
+    qd_read_ = ab_->inputs_read(TapeInput::Source::qd);
+    lanes_ = std::min(kTapeLanes, q_read_.size() + qd_read_.size());
     return;
   }
   // Positional inputs: the coordinates read renamed q#i, q̇#i by their position among them, then
@@ -1146,10 +1220,13 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Dead
 
 // The tapes' inputs (positional: q of cols_ with the numbers, q̇ of cols_), then the A, b tape's
 // outputs and work, twice: tangent() puts the inputs' tangents and the outputs' tangents in the
-// second halves.
+// second halves; tangent_columns() (without positional inputs) takes tape_columns_size().
 Index DerivedConstraint::slot_size() const {
-  return 2 * input_size() + static_cast<Index>(std::max({2 * (ab_->outputs() + ab_->work_size()),
-                                                         phi_->work_size(), phid_->work_size()}));
+  const std::size_t ow = ab_->outputs() + ab_->work_size();
+  const std::size_t lanes =
+      positional_ ? 0 : tape_columns_size(*ab_, static_cast<std::size_t>(d_.A.cols()), lanes_);
+  return 2 * input_size() +
+         static_cast<Index>(std::max({2 * ow, lanes, phi_->work_size(), phid_->work_size()}));
 }
 
 // A, b from the tape: its outputs and work buffer in this constraint's slot, or (no slot: the
@@ -1215,6 +1292,41 @@ bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef
     d_force(c) += dA * lambda(r);
   }
   for (Index r = 0; r < m_; ++r) d_residual(r) -= dout[k++];
+  return true;
+}
+
+void DerivedConstraint::column_from_tangents(const double* dout, CVecRef qdd, CVecRef lambda,
+                                             MatRef d_residual, MatRef d_force, Index col) const {
+  // In tangent()'s order: d(A q̈) row by row over nz_, then − db; d(Aᵀλ) summed per column over
+  // nz_ from 0 and then added (as linearize() adds tangent()'s d_force): the same bits.
+  auto res = d_residual.col(col);
+  std::size_t k = 0;
+  for (const auto& [r, c] : nz_) res(r) += dout[k++] * qdd(c);
+  for (Index r = 0; r < m_; ++r) res(r) -= dout[k++];
+  auto force = d_force.col(col);
+  for (std::size_t i = 0; i < by_column_.size();) {
+    const Index c = nz_[by_column_[i]].second;
+    double sum = 0.0;
+    for (; i < by_column_.size() && nz_[by_column_[i]].second == c; ++i) {
+      const std::size_t e = by_column_[i];
+      sum += dout[e] * lambda(nz_[e].first);
+    }
+    force(c) += sum;
+  }
+}
+
+bool DerivedConstraint::tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                                        CVecRef qdd, CVecRef lambda, MatRef d_residual,
+                                        MatRef d_force) const {
+  const Slot own = ctx.slots.own();
+  // Positional inputs (tapes shared through a pool): tangent() per direction.
+  if (positional_ || own.size() != static_cast<std::size_t>(slot_size()) || q.size() != d_.A.cols())
+    return false;
+  d_residual.setZero();  // the directions the tape does not read: zero columns
+  tape_columns(*ab_, ctx.t, q, qd, q_read_, qd_read_, lanes_, own.data(),
+               [&](const double* dout, Index col) {
+                 column_from_tangents(dout, qdd, lambda, d_residual, d_force, col);
+               });
   return true;
 }
 

@@ -616,13 +616,21 @@ Index tangent_room(const End& e) {
 constexpr int kLanes = 8;
 using Lanes = LaneDual<kLanes>;
 
+// Directions per pass of an expressions end's tape (Tape::eval_tangents) in its J.
+std::size_t tape_lanes(const End& e) {
+  return std::min<std::size_t>(symbolic::kTapeLanes, 2 * e.cols.size());
+}
+
 // A tree end's frame_state_jacobian() in the slot: (36 + 12 nc) × 2 nc doubles.
-// An expressions end's: the same J, then the two directions (n_system each) of its tape tangents.
+// An expressions end's: the same J, then its tape's tangents on tape_lanes() lanes: the lanes'
+// directions (n_system × lanes for q and for q̇), the work's and the outputs' tangents.
 Index lane_room(const End& e) {
   const auto nc = static_cast<Index>(e.cols.size());
   if (e.spec.kind == NumericFrameEnd::Kind::fixed) return 0;
   const Index J = (36 + 12 * nc) * 2 * nc;
-  return e.spec.kind == NumericFrameEnd::Kind::tree ? J : J + 2 * e.n_system;
+  if (e.spec.kind == NumericFrameEnd::Kind::tree) return J;
+  const auto lanes = static_cast<Index>(tape_lanes(e));
+  return J + lanes * (2 * e.n_system + static_cast<Index>(e.tape.work_size() + e.tape.outputs()));
 }
 
 // One end in a pass: its state (values v), its frame_state_jacobian() J (ld rows; null: a fixed
@@ -827,51 +835,103 @@ void put_tangents(const M& x, double* out) {
   for (Index r = 0; r < x.size(); ++r) out[r] = tangent_of(x(r / x.cols(), r % x.cols()));
 }
 
-// An expressions end's J as a tree's frame_state_jacobian() stacks it, column by column from its
-// tape's tangents (expression_end_tangent: one tape pass per direction of its coordinates), and
-// its state in v. t: room for one direction's columns (12 nc).
-void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x,
-                         double* t_cols, double* J, FrameState& v) {
+// Column `col` of an expressions end's J (ld = 36 + 12 nc doubles at o) from its tape's outputs
+// and their tangents along the column's direction (e_c of q, or of q̇ when col ≥ nc): what
+// expression_end_tangent() gives on dual numbers, ẋ = Σ_c ∂x/∂q_c q̇_c and ẍ = ẍ|q̈=0 +
+// Σ_c ∂x/∂q_c q̈_c differentiated term by term in the same order.
+void expression_column(const End& e, const double* out, const double* dout, CVecRef qd, CVecRef qdd,
+                       Index col, double* o) {
   const auto nc = static_cast<Index>(e.cols.size());
-  const Index ld = 36 + 12 * nc;
-  Eigen::Map<Vec> dq(J + ld * 2 * nc, e.n_system), dqd(J + ld * 2 * nc + e.n_system, e.n_system);
-  dq.setZero();
-  dqd.setZero();
-  FrameState t(t_cols, t_cols + 3 * nc, nc);
-  DualFrame s;
-  // An end that no coordinate moves (a frame of the world, turned or offset) has no column: its
-  // values come from one pass along the zero direction, not from the loop below (which would
-  // leave s unset).
-  if (nc == 0) expression_end_tangent(e, q, qd, qdd, dq, dqd, x, v, t, s);
-  for (Index col = 0; col < 2 * nc; ++col) {
-    double& seed = (col < nc ? dq : dqd)(e.cols[static_cast<std::size_t>(col % nc)]);
-    seed = 1.0;
-    expression_end_tangent(e, q, qd, qdd, dq, dqd, x, v, t, s);
-    seed = 0.0;
-    double* out = J + col * ld;
-    put_tangents(s.p, out);
-    put_tangents(s.R, out + 3);
-    put_tangents(s.pd, out + 12);
-    put_tangents(s.Rd, out + 15);
-    put_tangents(s.pdd, out + 24);
-    put_tangents(s.Rdd, out + 27);
+  const std::size_t acc = 12 * static_cast<std::size_t>(nc + 1);
+  for (std::size_t i = 0; i < 12; ++i) {
+    double rate = 0.0, accel = dout[acc + i];
     for (Index c = 0; c < nc; ++c) {
-      for (int i = 0; i < 3; ++i) out[36 + 12 * c + i] = t.dp(i, c);
-      for (int r = 0; r < 9; ++r) out[36 + 12 * c + 3 + r] = t.dR(r, c);
+      const std::size_t d = 12 * static_cast<std::size_t>(c + 1) + i;
+      const Index g = e.cols[static_cast<std::size_t>(c)];
+      rate += dout[d] * qd(g) + out[d] * (col == nc + c ? 1.0 : 0.0);
+      accel += dout[d] * qdd(g);
+      o[36 + 12 * c + static_cast<Index>(i)] = dout[d];
+    }
+    // (p, R) at rows 0, 3; (ṗ, Ṙ) at 12, 15; (p̈, R̈) at 24, 27 (put_tangents' layout).
+    const auto row = static_cast<Index>(i);
+    o[row] = dout[i];
+    o[12 + row] = rate;
+    o[24 + row] = accel;
+  }
+}
+
+// An expressions end's state in v from its tape's outputs (the values of expression_end_tangent).
+void expression_values(const End& e, const double* out, CVecRef qd, CVecRef qdd, FrameState& v) {
+  const auto nc = static_cast<Index>(e.cols.size());
+  const std::size_t acc = 12 * static_cast<std::size_t>(nc + 1);
+  for (int i = 0; i < 12; ++i) {
+    const auto u = static_cast<std::size_t>(i);
+    double x = out[u], rate = 0.0, accel = out[acc + u];
+    for (Index c = 0; c < nc; ++c) {
+      const double dx = out[12 * static_cast<std::size_t>(c + 1) + u];
+      const Index g = e.cols[static_cast<std::size_t>(c)];
+      rate += dx * qd(g);
+      accel += dx * qdd(g);
+      if (i < 3) {
+        v.dp(i, c) = dx;
+      } else {
+        v.dR(i - 3, c) = dx;
+      }
+    }
+    if (i < 3) {
+      v.p(i) = x;
+      v.pd(i) = rate;
+      v.pdd(i) = accel;
+    } else {
+      v.R((i - 3) / 3, (i - 3) % 3) = x;
+      v.Rd((i - 3) / 3, (i - 3) % 3) = rate;
+      v.Rdd((i - 3) / 3, (i - 3) % 3) = accel;
     }
   }
-  v.p = s.p.unaryExpr([](const Dual& a) { return a.value(); });
-  v.R = s.R.unaryExpr([](const Dual& a) { return a.value(); });
-  v.pd = s.pd.unaryExpr([](const Dual& a) { return a.value(); });
-  v.Rd = s.Rd.unaryExpr([](const Dual& a) { return a.value(); });
-  v.pdd = s.pdd.unaryExpr([](const Dual& a) { return a.value(); });
-  v.Rdd = s.Rdd.unaryExpr([](const Dual& a) { return a.value(); });
+}
+
+// An expressions end's J as a tree's frame_state_jacobian() stacks it, from its tape's tangents
+// along every direction of its coordinates, tape_lanes() of them per pass (Tape::eval_tangents:
+// the values once per pass), and its state in v. x.scratch: the tape's work and outputs; the
+// lanes' room (lane_room) follows J.
+void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndScratch x, double* J,
+                         FrameState& v) {
+  const auto nc = static_cast<Index>(e.cols.size());
+  const Index ld = 36 + 12 * nc;
+  const std::size_t nw = e.tape.work_size(), no = e.tape.outputs(), per_pass = tape_lanes(e);
+  const auto n = static_cast<std::size_t>(e.n_system);
+  double* work = x.scratch;
+  double* out = x.scratch + nw;
+  double* dq = J + ld * 2 * nc;
+  double* dqd = dq + n * per_pass;
+  double* dwork = dqd + n * per_pass;
+  double* dout = dwork + nw * per_pass;
+  // An end that no coordinate moves (a frame of the world, turned or offset) has no column.
+  if (nc == 0) e.tape.eval(0.0, q.data(), qd.data(), out, work);
+  std::fill_n(dq, 2 * n * per_pass, 0.0);
+  auto unit = [&](Index col, std::size_t k) -> double& {
+    const auto g = static_cast<std::size_t>(e.cols[static_cast<std::size_t>(col % nc)]);
+    return (col < nc ? dq : dqd)[g + n * k];
+  };
+  for (Index first = 0; first < 2 * nc; first += static_cast<Index>(per_pass)) {
+    const auto lanes = std::min(per_pass, static_cast<std::size_t>(2 * nc - first));
+    for (std::size_t k = 0; k < lanes; ++k) unit(first + static_cast<Index>(k), k) = 1.0;
+    e.tape.eval_tangents(lanes, 0.0, q.data(), qd.data(), nullptr, dq, n, dqd, n, out, dout, work,
+                         dwork);
+    for (std::size_t k = 0; k < lanes; ++k) {
+      const Index col = first + static_cast<Index>(k);
+      expression_column(e, out, dout + no * k, qd, qdd, col, J + col * ld);
+      unit(col, k) = 0.0;
+    }
+  }
+  expression_values(e, out, qd, qdd, v);
 }
 
 // An end's state and its J (a tree's frame_state_jacobian(), an expressions end's tape tangents;
-// none for a fixed end). x: its scratch and tape-tangent room, t_cols: 12 nc doubles.
+// none for a fixed end). x: its scratch (the tape's work and outputs of an expressions end).
+// A tree end reads the links its subsystem's slot holds at this state (frame_state_jacobian).
 LaneEnd lane_end(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
-                 EndScratch x, double* t_cols, double* J, FrameState& v) {
+                 EndScratch x, double* J, FrameState& v) {
   LaneEnd out{&v, nullptr, 36 + 12 * static_cast<Index>(e.cols.size()), {}};
   const NumericFrameEnd& spec = e.spec;
   if (spec.kind == NumericFrameEnd::Kind::fixed) {
@@ -879,7 +939,7 @@ LaneEnd lane_end(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef 
     return out;
   }
   if (spec.kind == NumericFrameEnd::Kind::expressions) {
-    expression_jacobian(e, q, qd, qdd, x, t_cols, J, v);
+    expression_jacobian(e, q, qd, qdd, x, J, v);
     out.J = J;
     return out;
   }
@@ -1071,22 +1131,24 @@ class Core {
     double* ja = xb + tangent_room(b_);
     double* jb = ja + lane_room(a_);
     FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
-    LaneEnd A = lane_end(a_, slots, q, qd, qdd, {sa, xa}, ta, ja, Va);
-    LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, tb, jb, Vb);
+    LaneEnd A = lane_end(a_, slots, q, qd, qdd, {sa, xa}, ja, Va);
+    LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, jb, Vb);
     d_residual.setZero();
     const Index n = q.size(), nc = static_cast<Index>(cols_.size());
-    for (const bool rate : {false, true}) {
-      for (Index i0 = 0; i0 < nc; i0 += kLanes) {
-        const int lanes = static_cast<int>(std::min<Index>(kLanes, nc - i0));
-        Index out_col[kLanes];
-        for (int l = 0; l < kLanes; ++l) {
-          const Index g = l < lanes ? cols_[static_cast<std::size_t>(i0 + l)] : -1;
-          out_col[l] = (rate ? n : 0) + g;
-          A.col[l] = lane_column(a_, g, rate);
-          B.col[l] = lane_column(b_, g, rate);
-        }
-        lane_pass(f_, a_, b_, A, B, lambda, out_col, lanes, d_residual, d_force);
+    // Direction i < nc along q of cols_[i], i ≥ nc along q̇ of cols_[i − nc]: the two kinds share
+    // a pass (⌈2 nc / 8⌉ passes, not 2 ⌈nc / 8⌉).
+    for (Index i0 = 0; i0 < 2 * nc; i0 += kLanes) {
+      const int lanes = static_cast<int>(std::min<Index>(kLanes, 2 * nc - i0));
+      Index out_col[kLanes];
+      for (int l = 0; l < kLanes; ++l) {
+        const Index i = i0 + l;
+        const bool rate = i >= nc;
+        const Index g = l < lanes ? cols_[static_cast<std::size_t>(i % nc)] : -1;
+        out_col[l] = (rate ? n : 0) + g;
+        A.col[l] = lane_column(a_, g, rate);
+        B.col[l] = lane_column(b_, g, rate);
       }
+      lane_pass(f_, a_, b_, A, B, lambda, out_col, lanes, d_residual, d_force);
     }
     return true;
   }

@@ -851,6 +851,16 @@ void Tape::run_tangents(std::size_t K, double t, const double* q, const double* 
   }
 }
 
+std::vector<Index> Tape::inputs_read(TapeInput::Source source) const {
+  std::vector<Index> read;
+  if (source == TapeInput::Source::time) return read;
+  for (const Load& ld : source == TapeInput::Source::q ? q_loads_ : qd_loads_)
+    read.push_back(ld.index);
+  std::sort(read.begin(), read.end());
+  read.erase(std::unique(read.begin(), read.end()), read.end());
+  return read;
+}
+
 void Tape::eval_tangent(double t, const double* q, const double* qd, double dt, const double* dq,
                         const double* dqd, double* out, double* dout, double* work,
                         double* dwork) const {

@@ -102,6 +102,12 @@ struct LinearizeData {
   /// when the last call gave it (`structured`; LinearizeParts::structured).
   ArrowResponse dqdd_dx;
   bool structured = false;
+  /// Without the arrow blocks, at full row rank: the KKT solve by the row choice's factors (M =
+  /// L Lᵀ and the QR of L⁻¹ Aᵀ, whose R gives the Schur complement A M⁻¹ Aᵀ = P Rᵀ R Pᵀ) in place
+  /// of an LU of the whole KKT matrix. false (or allow_arrow false): always that LU (the
+  /// reference).
+  bool allow_schur = true;
+  bool used_schur = false;  ///< whether the last call solved with the Schur complement
 };
 
 /// ∂q̈/∂q and ∂q̈/∂q̇ of the last call into `data`, dense: expanded from data.dqdd_dx when the call

@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/model/constraint.hpp"
 #include "ukdyn/model/subsystem.hpp"
 #include "ukdyn/model/system.hpp"
@@ -148,8 +149,12 @@ GiNaC::ex simplify_trig(const GiNaC::ex& e);
 /// The same, with the expansions and each substitution pass checked against `deadline`.
 GiNaC::ex simplify_trig(const GiNaC::ex& e, const Deadline& deadline, const std::string& where);
 
+/// Directions per pass of a tape in the every-direction tangents of DerivedSubsystem and
+/// DerivedConstraint (Tape::eval_tangents; docs/derivatives.md, "Cost").
+constexpr std::size_t kTapeLanes = 8;
+
 /// A ukdyn::Subsystem evaluated from compiled tapes of a derivation.
-class DerivedSubsystem final : public Subsystem {
+class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
  public:
   /// Compiles the tapes; with a pool, a tape identical to one already in it (another instance of
   /// the same robot, say) is shared instead of kept twice (TapePool).
@@ -192,6 +197,11 @@ class DerivedSubsystem final : public Subsystem {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef dq, CVecRef dqd, VecRef dID) const override;
+  /// inverse_dynamics_tangent() along every direction at once, in the context's slot (false
+  /// without it): the directions the dynamics tape reads, kTapeLanes at a time on one pass of the
+  /// tape (the columns of the others are zero). Bitwise the columns of the one-direction tangents.
+  bool inverse_dynamics_jacobian(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                                 MatRef dID_dq, MatRef dID_dqd) const override;
   /// Kinetic energy ½ q̇ᵀ M q̇ from its own tape (an independent path from M).
   [[nodiscard]] double kinetic(const EvalContext& ctx, CVecRef q, CVecRef qd) const;
   /// A mass of t must stay >= 0 (derive() checks it at t = 0 only): evaluates every mass of t at
@@ -212,6 +222,8 @@ class DerivedSubsystem final : public Subsystem {
  private:
   /// M, C q̇, G from the dynamics tape's outputs; returns ∂L/∂t (0 unless time-varying).
   double unpack_dynamics(const double* out, MatRef M, VecRef Cqd, VecRef G) const;
+  /// dID = dM q̈ + d(C q̇) + dG from the dynamics tape's output tangents along one direction.
+  void id_from_tangents(const double* dout, CVecRef qdd, VecRef dID) const;
 
   SubsystemDerivation d_;
   std::string name_;
@@ -219,6 +231,9 @@ class DerivedSubsystem final : public Subsystem {
   // Constant and possibly shared with other instances (TapePool).
   std::shared_ptr<const Tape> mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
   std::shared_ptr<const Tape> masses_of_t_;  // d_.masses_of_t, one output per body
+  // The directions the dynamics tape reads, and how many of them per pass (kTapeLanes at most).
+  std::vector<Index> q_read_, qd_read_;
+  std::size_t lanes_ = 0;
 };
 
 /// derive + compile.
@@ -285,7 +300,7 @@ ConstraintDerivation derive(const ConstraintDef& def);
 /// The same within `deadline` (DerivationTimeout is reported as a DefinitionError of the row).
 ConstraintDerivation derive(const ConstraintDef& def, const Deadline& deadline);
 
-class DerivedConstraint final : public Constraint {
+class DerivedConstraint final : public Constraint, public ConstraintColumns {
  public:
   explicit DerivedConstraint(ConstraintDerivation derivation);
   /// The same with the tapes compiled within `deadline` (make_constraint: the derivation's budget).
@@ -316,11 +331,21 @@ class DerivedConstraint final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// tangent() along every direction at once, in this constraint's slot (false without it, or
+  /// with positional inputs — tapes shared through a TapePool —: then tangent() per direction):
+  /// only the directions the A, b tape reads, kTapeLanes at a time on one pass of the tape
+  /// (Tape::eval_tangents; the columns of the other directions are zero). Bitwise the columns of
+  /// tangent() along each direction.
+  bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                       CVecRef lambda, MatRef d_residual, MatRef d_force) const override;
   [[nodiscard]] std::size_t tape_operations() const { return ab_->operations(); }
   /// The A, b tape (the same object for constraints that share it through a TapePool).
   [[nodiscard]] const Tape& ab_tape() const { return *ab_; }
 
  private:
+  // d(A q̈ − b) and d(Aᵀλ) from the tape's output tangents along one direction.
+  void column_from_tangents(const double* dout, CVecRef qdd, CVecRef lambda, MatRef d_residual,
+                            MatRef d_force, Index col) const;
   ConstraintDerivation d_;
   Index m_;
   std::vector<std::pair<Index, Index>> nz_;  // (row, column) of each structurally nonzero A entry
@@ -333,6 +358,11 @@ class DerivedConstraint final : public Constraint {
   [[nodiscard]] Index input_size() const {
     return positional_ ? static_cast<Index>(2 * cols_.size() + numbers_.size()) : 0;
   }
+  std::vector<std::size_t> by_column_;  // nz_'s entries ordered by column (stable)
+  // The directions the A, b tape reads (without positional inputs): q_j for j in q_read_, q̇_j for
+  // j in qd_read_; lanes_ of them per pass of tangent_columns().
+  std::vector<Index> q_read_, qd_read_;
+  std::size_t lanes_ = 0;
 };
 
 /// derive + compile, both within one Deadline (limits::kDeriveSeconds); with a `pool`, the tapes

@@ -107,6 +107,10 @@ class Tape {
   /// A hash of the program: equal for tapes with same_program().
   [[nodiscard]] std::uint64_t fingerprint() const;
 
+  /// The indices of `source` (q or q̇) that the tape reads, each once, ascending: the directions
+  /// along which its outputs can have a tangent (along any other their tangents are zero).
+  [[nodiscard]] std::vector<Index> inputs_read(TapeInput::Source source) const;
+
   /// Doubles of work buffer eval() needs (one per instruction slot).
   [[nodiscard]] std::size_t work_size() const { return code_.size(); }
   /// Evaluates every output into out[0..outputs()), with the caller's work buffer `work` of

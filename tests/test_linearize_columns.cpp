@@ -1,0 +1,170 @@
+// The every-direction derivatives of the derived components (DerivedConstraint::tangent_columns,
+// DerivedSubsystem::inverse_dynamics_jacobian: one pass of the tape for several directions) against
+// their one-direction tangents, and the KKT solve by the Schur complement (LinearizeData::
+// allow_schur) against the LU of the whole KKT matrix it replaces (docs/derivatives.md, "Cost").
+#include <gtest/gtest.h>
+
+#include <Eigen/SVD>
+#include <cmath>
+#include <filesystem>
+
+#include "ukdyn/model/column_derivatives.hpp"
+#include "ukdyn/model/linearize.hpp"
+#include "ukdyn/scenario/scenario.hpp"
+#include "ukdyn/symbolic/definitions.hpp"
+#include "ukdyn/symbolic/frame_constraints.hpp"
+
+namespace {
+
+using namespace ukdyn;
+const std::filesystem::path kSource = UKDYN_SOURCE_DIR;
+
+double rel(const Mat& a, const Mat& b) {
+  return (a - b).cwiseAbs().maxCoeff() / (1.0 + b.cwiseAbs().maxCoeff());
+}
+
+struct State {
+  Vec q, qd, tau;
+};
+
+// The scenario's q0 with a velocity along the constraints (null space of A) and a nonzero τ.
+State moving_state(const Scenario& sc) {
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  State s{sc.q0, sc.qd0, Vec(n)};
+  for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
+  ForwardData fd(sys);
+  forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
+  Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
+  Index rank = 0;
+  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+  for (Index k = rank; k < n; ++k)
+    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+  return s;
+}
+
+bool is_derived(const Constraint& c) {
+  if (dynamic_cast<const symbolic::DerivedConstraint*>(&c) != nullptr) return true;
+  const auto* f = dynamic_cast<const symbolic::FrameConstraint*>(&c);
+  return f != nullptr && f->derived() != nullptr;
+}
+
+// Every constraint's tangent_columns() against tangent() along each e_j of q and of q̇ (a derived
+// one bit for bit: the same tape operations on the same values; the numeric frame rows, whose
+// tree ends take the analytic passes, to 1e-12), and every derived subsystem's
+// inverse_dynamics_jacobian() against inverse_dynamics_tangent(); returns how many of them have
+// tangents that are not all zero.
+int expect_columns_match_tangents(const Scenario& sc) {
+  const System& sys = *sc.system;
+  const Index n = sys.dof();
+  const State s = moving_state(sc);
+  ForwardData fd(sys);
+  forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
+  int compared = 0;
+  for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+    const Constraint& con = *sys.constraints()[c];
+    const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+    if (all == nullptr) continue;
+    const Index m = con.rows();
+    Vec lambda(m);
+    for (Index i = 0; i < m; ++i) lambda(i) = std::cos(0.7 * static_cast<double>(i) + 0.2);
+    const ConstraintContext ctx{sc.sim.t0, fd.constraint_slots(c)};
+    Mat res_all(m, 2 * n), force_all = Mat::Constant(n, 2 * n, 0.25);
+    EXPECT_TRUE(all->tangent_columns(ctx, s.q, s.qd, fd.qdd, lambda, res_all, force_all));
+    Mat res_one(m, 2 * n), force_one = Mat::Constant(n, 2 * n, 0.25);
+    Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), res(m), force(n);
+    for (Index col = 0; col < 2 * n; ++col) {
+      Vec& dir = col < n ? dq : dqd;
+      dir(col % n) = 1.0;
+      force.setZero();
+      EXPECT_TRUE(con.tangent(ctx, s.q, s.qd, fd.qdd, lambda, dq, dqd, res, force));
+      res_one.col(col) = res;
+      force_one.col(col) += force;
+      dir(col % n) = 0.0;
+    }
+    if (is_derived(con)) {
+      EXPECT_EQ(res_all, res_one) << "constraint " << c << ": " << rel(res_all, res_one);
+      EXPECT_EQ(force_all, force_one) << "constraint " << c << ": " << rel(force_all, force_one);
+    } else {
+      EXPECT_LE(rel(res_all, res_one), 1e-12) << "constraint " << c;
+      EXPECT_LE(rel(force_all, force_one), 1e-12) << "constraint " << c;
+    }
+    if (res_one.cwiseAbs().maxCoeff() > 0.0) ++compared;  // (a row linear in q has none)
+  }
+  const auto& L = sys.layout();
+  for (std::size_t k = 0; k < sys.subsystems().size(); ++k) {
+    const auto* sub = dynamic_cast<const symbolic::DerivedSubsystem*>(sys.subsystems()[k].get());
+    if (sub == nullptr) continue;
+    const Index s0 = L.start[k], nk = L.size[k];
+    const EvalContext ctx{sc.sim.t0, fd.subsystem_slot(k)};
+    const Vec q = s.q.segment(s0, nk), qd = s.qd.segment(s0, nk), qdd = fd.qdd.segment(s0, nk);
+    Mat dq_all(nk, nk), dqd_all(nk, nk);
+    EXPECT_TRUE(sub->inverse_dynamics_jacobian(ctx, q, qd, qdd, dq_all, dqd_all));
+    Mat dq_one(nk, nk), dqd_one(nk, nk);
+    Vec dq = Vec::Zero(nk), dqd = Vec::Zero(nk), dID(nk);
+    for (Index col = 0; col < 2 * nk; ++col) {
+      Vec& dir = col < nk ? dq : dqd;
+      dir(col % nk) = 1.0;
+      EXPECT_TRUE(sub->inverse_dynamics_tangent(ctx, q, qd, qdd, dq, dqd, dID));
+      (col < nk ? dq_one : dqd_one).col(col % nk) = dID;
+      dir(col % nk) = 0.0;
+    }
+    EXPECT_EQ(dq_all, dq_one) << "subsystem " << k << ": " << rel(dq_all, dq_one);
+    EXPECT_EQ(dqd_all, dqd_one) << "subsystem " << k << ": " << rel(dqd_all, dqd_one);
+    if (dq_one.cwiseAbs().maxCoeff() > 0.0) ++compared;
+  }
+  return compared;
+}
+
+}  // namespace
+
+// The paper's chains (points_coincide and point_trajectory rows derived from the chains' points: 24
+// directions, three passes of eight lanes), its definitions twin (derived subsystems too), the
+// free-body load of two UR5e (its dynamics tape, its unit-quaternion row, and the welds' numeric
+// rows with the load's frame as an expressions end: its tape on lanes) and the two Pandas.
+TEST(DerivedColumns, EveryDirectionAtOnceMatchesOneDirectionAtATime) {
+  int total = 0;
+  for (const char* name :
+       {"paper_chain.yaml", "paper_generic.yaml", "two_ur5e_load.yaml", "two_pandas_weld.yaml"}) {
+    SCOPED_TRACE(name);
+    const int compared = expect_columns_match_tangents(load_scenario(kSource / "scenarios" / name));
+    EXPECT_GE(compared, 2);
+    total += compared;
+  }
+  EXPECT_GE(total, 10);
+}
+
+// linearize() with the KKT system solved by the Schur complement (the row choice's Cholesky and QR
+// factors) against the LU of the whole KKT matrix (allow_schur = false), every part: the same rows
+// and trust, every matrix within 1e-12 relative.
+TEST(LinearizeSchur, MatchesTheLuOfTheKktMatrix) {
+  for (const char* name :
+       {"paper_chain.yaml", "paper_generic.yaml", "two_ur5e_load.yaml", "two_pandas_weld.yaml"}) {
+    SCOPED_TRACE(name);
+    const Scenario sc = load_scenario(kSource / "scenarios" / name);
+    const System& sys = *sc.system;
+    const State s = moving_state(sc);
+    LinearizeData schur(sys), lu(sys);
+    lu.allow_schur = false;
+    linearize(sys, schur, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+    linearize(sys, lu, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+    EXPECT_TRUE(schur.used_schur);
+    EXPECT_FALSE(lu.used_schur);
+    const Linearization &a = schur.lin, &d = lu.lin;
+    EXPECT_TRUE(a.trusted) << a.message;
+    EXPECT_EQ(a.message, d.message);
+    EXPECT_EQ(a.kept_rows, d.kept_rows);
+    EXPECT_LE(a.kkt_agreement, 1e-10);
+    const std::pair<const Mat*, const Mat*> pairs[] = {
+        {&a.dqdd_dq, &d.dqdd_dq}, {&a.dqdd_dqd, &d.dqdd_dqd}, {&a.dqdd_dtau, &d.dqdd_dtau},
+        {&a.dQc_dq, &d.dQc_dq},   {&a.dQc_dqd, &d.dQc_dqd},   {&a.dQc_dtau, &d.dQc_dtau},
+        {&a.dmu_dq, &d.dmu_dq},   {&a.dmu_dqd, &d.dmu_dqd},   {&a.dmu_dtau, &d.dmu_dtau}};
+    for (const auto& [x, y] : pairs) {
+      ASSERT_EQ(x->rows(), y->rows());
+      ASSERT_EQ(x->cols(), y->cols());
+      EXPECT_LE(rel(*x, *y), 1e-12);
+    }
+    EXPECT_LE(rel(a.qdd, d.qdd), 1e-12);
+    EXPECT_LE(rel(a.mu, d.mu), 1e-12);
+  }
+}
