@@ -21,6 +21,7 @@
 #include <cmath>
 
 #include "model/linearize_corrected.hpp"
+#include "ukdyn/run/run.hpp"
 
 namespace ukdyn {
 
@@ -175,6 +176,16 @@ bool exact_law_jacobian(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRe
   if (const auto missing = components_without_derivatives(sys); !missing.empty()) {
     why_not = "the law's model has no exact derivatives for " + missing.front();
     return false;
+  }
+  // dv's ∂Φ̇/∂q = −½ ∂b/∂q̇ (linearize_corrected) holds for position-level rows only: a servo row
+  // that is velocity-level (nonholonomic) takes the differences.
+  const std::vector<bool> vel = velocity_level_rows(sys);
+  for (std::size_t i = 0; i < vel.size(); ++i) {
+    if (vel[i] && md.row_servo[i]) {
+      why_not = "servo row '" + sys.constraint_row_names()[i] +
+                "' is velocity-level (nonholonomic): its exact correction term is not derived";
+      return false;
+    }
   }
   const Index n = sys.dof(), m = sys.rows();
   Vec phi(m), phid(m);

@@ -1216,15 +1216,22 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Dead
   ab_ = pool->share(Tape(part(0, na), p.in, deadline, "compiling A and b"));
   phi_ = pool->share(Tape(part(na, nr), p.in, deadline, "compiling Phi"));
   phid_ = pool->share(Tape(part(na + nr, nr), p.in, deadline, "compiling the velocity form"));
+  // The directions: positions among cols_ (the numbers after them are no direction).
+  const auto nc = static_cast<Index>(cols_.size());
+  for (Index j : ab_->inputs_read(TapeInput::Source::q))
+    if (j < nc) q_read_.push_back(j);
+  qd_read_ = ab_->inputs_read(TapeInput::Source::qd);
+  lanes_ = std::min(kTapeLanes, q_read_.size() + qd_read_.size());
 }
 
 // The tapes' inputs (positional: q of cols_ with the numbers, q̇ of cols_), then the A, b tape's
 // outputs and work, twice: tangent() puts the inputs' tangents and the outputs' tangents in the
-// second halves; tangent_columns() (without positional inputs) takes tape_columns_size().
+// second halves; tangent_columns() takes tape_columns_size() after the inputs.
 Index DerivedConstraint::slot_size() const {
   const std::size_t ow = ab_->outputs() + ab_->work_size();
-  const std::size_t lanes =
-      positional_ ? 0 : tape_columns_size(*ab_, static_cast<std::size_t>(d_.A.cols()), lanes_);
+  const std::size_t n =
+      positional_ ? cols_.size() + numbers_.size() : static_cast<std::size_t>(d_.A.cols());
+  const std::size_t lanes = tape_columns_size(*ab_, n, lanes_);
   return 2 * input_size() +
          static_cast<Index>(std::max({2 * ow, lanes, phi_->work_size(), phid_->work_size()}));
 }
@@ -1319,13 +1326,27 @@ bool DerivedConstraint::tangent_columns(const ConstraintContext& ctx, CVecRef q,
                                         CVecRef qdd, CVecRef lambda, MatRef d_residual,
                                         MatRef d_force) const {
   const Slot own = ctx.slots.own();
-  // Positional inputs (tapes shared through a pool): tangent() per direction.
-  if (positional_ || own.size() != static_cast<std::size_t>(slot_size()) || q.size() != d_.A.cols())
-    return false;
+  if (own.size() != static_cast<std::size_t>(slot_size()) || q.size() != d_.A.cols()) return false;
   d_residual.setZero();  // the directions the tape does not read: zero columns
-  tape_columns(*ab_, ctx.t, q, qd, q_read_, qd_read_, lanes_, own.data(),
-               [&](const double* dout, Index col) {
-                 column_from_tangents(dout, qdd, lambda, d_residual, d_force, col);
+  if (!positional_) {
+    tape_columns(*ab_, ctx.t, q, qd, q_read_, qd_read_, lanes_, own.data(),
+                 [&](const double* dout, Index col) {
+                   column_from_tangents(dout, qdd, lambda, d_residual, d_force, col);
+                 });
+    return true;
+  }
+  // Positional inputs (tapes shared through a pool): the tape's q is (q of cols_, the numbers),
+  // its q̇ q̇ of cols_; its column j (j < nx along q, nx + j along q̇) is cols_[j] of the system.
+  const auto ni = static_cast<std::size_t>(input_size());
+  const TapeArgs x = tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(),
+                               qd.data(), own.data());
+  const auto nc = static_cast<Index>(cols_.size());
+  const Index nx = nc + static_cast<Index>(numbers_.size()), N = d_.A.cols();
+  tape_columns(*ab_, ctx.t, Eigen::Map<const Vec>(x.q, nx), Eigen::Map<const Vec>(x.qd, nc),
+               q_read_, qd_read_, lanes_, own.data() + 2 * ni, [&](const double* dout, Index col) {
+                 const Index c = col < nx ? cols_[static_cast<std::size_t>(col)]
+                                          : N + cols_[static_cast<std::size_t>(col - nx)];
+                 column_from_tangents(dout, qdd, lambda, d_residual, d_force, c);
                });
   return true;
 }
