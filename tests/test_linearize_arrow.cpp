@@ -11,6 +11,7 @@
 #include <sstream>
 #include <string>
 
+#include "moving_state.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 
@@ -62,25 +63,8 @@ std::string n_robots_weld(int n, bool duplicate) {
   return y.str();
 }
 
-struct State {
-  Vec q, qd, tau;
-};
-
-// The scenario's q0 with a velocity along the constraints (null space of A) and a nonzero τ.
-State moving_state(const Scenario& sc) {
-  const System& sys = *sc.system;
-  const Index n = sys.dof();
-  State s{sc.q0, sc.qd0, Vec(n)};
-  for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
-  ForwardData fd(sys);
-  forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
-  Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
-  Index rank = 0;
-  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
-  for (Index k = rank; k < n; ++k)
-    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
-  return s;
-}
+using test::moving_state;
+using test::State;
 
 // linearize() with the arrow KKT and with the dense one, every part: the same rows and trust, and
 // every matrix within 1e-10 relative.
@@ -140,7 +124,6 @@ TEST(LinearizeArrow, EightRobotsMatchTheDenseKkt) {
 TEST(LinearizeArrow, RedundantRowsTakeTheDenseRowChoice) {
   const Scenario sc = load_scenario_text(n_robots_weld(8, true), "n8_redundant.yaml");
   const System& sys = *sc.system;
-  const Index n = sys.dof();
   const State s = moving_state(sc);
   LinearizeData arrow(sys), dense(sys);
   dense.allow_arrow = false;
@@ -152,25 +135,7 @@ TEST(LinearizeArrow, RedundantRowsTakeTheDenseRowChoice) {
   EXPECT_EQ(arrow.lin.kept_rows, dense.lin.kept_rows);
   EXPECT_EQ(arrow.lin.dqdd_dq, dense.lin.dqdd_dq);
   EXPECT_EQ(arrow.lin.dmu_dq, dense.lin.dmu_dq);
-  ForwardData fd(sys);
-  auto qdd_at = [&](const Vec& q, const Vec& qd) {
-    forward(sys, fd, sc.sim.t0, q, qd, s.tau, sc.sim.uk);
-    return Vec(fd.qdd);
-  };
-  for (int which = 0; which < 2; ++which) {
-    const Mat& exact = which == 0 ? arrow.lin.dqdd_dq : arrow.lin.dqdd_dqd;
-    for (Index j = 0; j < n; j += 5) {
-      auto central = [&](double h) {
-        Vec qp = s.q, qm = s.q, vp = s.qd, vm = s.qd;
-        (which == 0 ? qp : vp)(j) += h;
-        (which == 0 ? qm : vm)(j) -= h;
-        return Vec((qdd_at(qp, vp) - qdd_at(qm, vm)) / (2 * h));
-      };
-      const Vec d = (4 * central(5e-4) - central(1e-3)) / 3;
-      EXPECT_LE((exact.col(j) - d).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + d.cwiseAbs().maxCoeff()))
-          << "which " << which << " column " << j;
-    }
-  }
+  test::expect_columns_match_differences(sc, s, arrow.lin.dqdd_dq, arrow.lin.dqdd_dqd);
 }
 
 namespace {
@@ -234,31 +199,12 @@ TEST(LinearizeArrow, StructuredMatchesCentralDifferences) {
                           load_scenario_text(n_robots_weld(8, false), "n8.yaml")};
   for (const Scenario& sc : scs) {
     const System& sys = *sc.system;
-    const Index n = sys.dof();
     const State s = moving_state(sc);
     LinearizeData d(sys);
     linearize(sys, d, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, LinearizeParts{false, false, true});
     ASSERT_TRUE(d.structured);
     Mat dq, dqd;
     dqdd_dx_dense(d, dq, dqd);
-    ForwardData fd(sys);
-    auto qdd_at = [&](const Vec& q, const Vec& qd) {
-      forward(sys, fd, sc.sim.t0, q, qd, s.tau, sc.sim.uk);
-      return Vec(fd.qdd);
-    };
-    for (int which = 0; which < 2; ++which) {
-      const Mat& exact = which == 0 ? dq : dqd;
-      for (Index j = 0; j < n; j += 5) {
-        auto central = [&](double h) {
-          Vec qp = s.q, qm = s.q, vp = s.qd, vm = s.qd;
-          (which == 0 ? qp : vp)(j) += h;
-          (which == 0 ? qm : vm)(j) -= h;
-          return Vec((qdd_at(qp, vp) - qdd_at(qm, vm)) / (2 * h));
-        };
-        const Vec c = (4 * central(5e-4) - central(1e-3)) / 3;
-        EXPECT_LE((exact.col(j) - c).cwiseAbs().maxCoeff(), 1e-6 * (1.0 + c.cwiseAbs().maxCoeff()))
-            << sys.dof() << " coordinates, which " << which << " column " << j;
-      }
-    }
+    test::expect_columns_match_differences(sc, s, dq, dqd);
   }
 }

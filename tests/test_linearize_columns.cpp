@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "moving_state.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/model/linearize.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -23,25 +24,8 @@ double rel(const Mat& a, const Mat& b) {
   return (a - b).cwiseAbs().maxCoeff() / (1.0 + b.cwiseAbs().maxCoeff());
 }
 
-struct State {
-  Vec q, qd, tau;
-};
-
-// The scenario's q0 with a velocity along the constraints (null space of A) and a nonzero τ.
-State moving_state(const Scenario& sc) {
-  const System& sys = *sc.system;
-  const Index n = sys.dof();
-  State s{sc.q0, sc.qd0, Vec(n)};
-  for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
-  ForwardData fd(sys);
-  forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
-  Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
-  Index rank = 0;
-  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
-  for (Index k = rank; k < n; ++k)
-    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
-  return s;
-}
+using test::moving_state;
+using test::State;
 
 bool is_derived(const Constraint& c) {
   if (dynamic_cast<const symbolic::DerivedConstraint*>(&c) != nullptr) return true;

@@ -1798,6 +1798,28 @@ void add_column(MatRef J, Index row, Index col, double k, const Eigen::Matrix3d&
   for (int r = 0; r < 9; ++r) J(row + r, col) += k * X(r / 3, r % 3);
 }
 
+// A frame's derivatives along one joint variable, the columns of J (frame_state_jacobian's rows:
+// p 0, R 3, ṗ 12, Ṙ 15, p̈ 24, R̈ 27): along q, ∂p, ∂R, ∂ṗ, ∂Ṙ, ∂p̈, ∂R̈; along q̇ (column n + c),
+// ∂ṗ = ∂p, ∂Ṙ = ∂R and the rate parts of p̈, R̈.
+struct VariableColumns {
+  Eigen::Vector3d dp, q_pd, q_pdd, r_pdd;
+  Eigen::Matrix3d dR, q_Rd, q_Rdd, r_Rdd;
+};
+
+// The columns of one term (coordinate c, coefficient k) of the variable added to J.
+void add_term_columns(MatRef J, Index n, Index c, double k, const VariableColumns& v) {
+  add_column(J, 0, c, k, v.dp);
+  add_column(J, 3, c, k, v.dR);
+  add_column(J, 12, c, k, v.q_pd);
+  add_column(J, 15, c, k, v.q_Rd);
+  add_column(J, 24, c, k, v.q_pdd);
+  add_column(J, 27, c, k, v.q_Rdd);
+  add_column(J, 12, n + c, k, v.dp);
+  add_column(J, 15, n + c, k, v.dR);
+  add_column(J, 24, n + c, k, v.r_pdd);
+  add_column(J, 27, n + c, k, v.r_Rdd);
+}
+
 // A frame's derivatives from the same rigid transport (no scales, a_0 = 0 as frame_state's pass;
 // links moved with a_0 = (0, a0) — inverse_dynamics_jacobian's, gravity — read less a0, their
 // linear accelerations being a0 more than with a_0 = 0):
@@ -1838,16 +1860,7 @@ void frame_motion_columns(const Model& m, const std::vector<int>& ti, const Link
     for (const Term& t : m.links[ju].terms) {
       const Index c = t.coordinate;
       const double k = t.coefficient;
-      add_column(J, 0, c, k, dp);
-      add_column(J, 3, c, k, dR);
-      add_column(J, 12, c, k, q_pd);
-      add_column(J, 15, c, k, q_Rd);
-      add_column(J, 24, c, k, q_pdd);
-      add_column(J, 27, c, k, q_Rdd);
-      add_column(J, 12, n + c, k, dp);
-      add_column(J, 15, n + c, k, dR);
-      add_column(J, 24, n + c, k, r_pdd);
-      add_column(J, 27, n + c, k, r_Rdd);
+      add_term_columns(J, n, c, k, {dp, q_pd, q_pdd, r_pdd, dR, q_Rd, q_Rdd, r_Rdd});
     }
   }
 }
@@ -2281,16 +2294,7 @@ void quaternion_frame_columns(const Model& m, const std::vector<int>& ti,
       for (const Term* t = first; t != last; ++t) {
         const Index c = t->coordinate;
         const double k = t->coefficient;
-        add_column(J, 0, c, k, dp);
-        add_column(J, 3, c, k, dR);
-        add_column(J, 12, c, k, q_pd);
-        add_column(J, 15, c, k, q_Rd);
-        add_column(J, 24, c, k, q_pdd);
-        add_column(J, 27, c, k, q_Rdd);
-        add_column(J, 12, n + c, k, dp);
-        add_column(J, 15, n + c, k, dR);
-        add_column(J, 24, n + c, k, r_pdd);
-        add_column(J, 27, n + c, k, r_Rdd);
+        add_term_columns(J, n, c, k, {dp, q_pd, q_pdd, r_pdd, dR, q_Rd, q_Rdd, r_Rdd});
       }
     }
   }
