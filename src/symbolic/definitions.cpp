@@ -1250,7 +1250,7 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
   const bool slotted = own.size() == static_cast<std::size_t>(slot_size());
   const TapeArgs x = tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(),
                                qd.data(), slotted ? own.data() : input_room(ni, in, heap));
-  double* out = own.data() + ni;
+  double* out = slotted ? own.data() + ni : nullptr;  // (no offset from a null slot: UBSan)
   if (slotted) {
     ab_->eval(ctx.t, x.q, x.qd, out, out + ab_->outputs());
   } else {
