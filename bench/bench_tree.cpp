@@ -295,11 +295,15 @@ DerivativeState derivative_state(const ukdyn::Scenario& sc) {
   for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
   ukdyn::ForwardData d(sys);
   ukdyn::forward(sys, d, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
-  Eigen::JacobiSVD<Mat> svd(d.A, Eigen::ComputeFullV);
+  // Without constraint rows every direction is free (Eigen's SVD of a 0 × n matrix is not used).
+  Mat V = Mat::Identity(n, n);
   Index rank = 0;
-  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
-  for (Index k = rank; k < n; ++k)
-    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+  if (d.A.rows() > 0) {
+    Eigen::JacobiSVD<Mat> svd(d.A, Eigen::ComputeFullV);
+    V = svd.matrixV();
+    while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+  }
+  for (Index k = rank; k < n; ++k) s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * V.col(k);
   return s;
 }
 

@@ -25,11 +25,15 @@ inline State moving_state(const Scenario& sc) {
   for (Index i = 0; i < n; ++i) s.tau(i) = 0.3 * std::sin(1.7 * static_cast<double>(i) + 0.4);
   ForwardData fd(sys);
   forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
-  Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
+  // Without constraint rows every direction is free (Eigen's SVD of a 0 × n matrix is not used).
+  Mat V = Mat::Identity(n, n);
   Index rank = 0;
-  while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
-  for (Index k = rank; k < n; ++k)
-    s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * svd.matrixV().col(k);
+  if (fd.A.rows() > 0) {
+    Eigen::JacobiSVD<Mat> svd(fd.A, Eigen::ComputeFullV);
+    V = svd.matrixV();
+    while (rank < svd.singularValues().size() && svd.singularValues()(rank) > 1e-9) ++rank;
+  }
+  for (Index k = rank; k < n; ++k) s.qd += 0.3 * std::cos(1.3 * static_cast<double>(k)) * V.col(k);
   return s;
 }
 
