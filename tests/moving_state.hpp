@@ -7,7 +7,9 @@
 
 #include <Eigen/SVD>
 #include <cmath>
+#include <utility>
 
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 
@@ -62,6 +64,29 @@ inline void expect_columns_match_differences(const Scenario& sc, const State& s,
           << n << " coordinates, which " << which << " column " << j;
     }
   }
+}
+
+// Two linearisations of one state by two solves: the same trust, message and rows, every
+// derivative matrix and μ within `tol` relative, q̈ within 1e-12.
+inline void expect_same_linearization(const Linearization& a, const Linearization& d, double tol) {
+  const auto rel = [](const Mat& x, const Mat& y) {
+    return (x - y).cwiseAbs().maxCoeff() / (1.0 + y.cwiseAbs().maxCoeff());
+  };
+  EXPECT_TRUE(a.trusted) << a.message;
+  EXPECT_EQ(a.message, d.message);
+  EXPECT_EQ(a.kept_rows, d.kept_rows);
+  EXPECT_LE(a.kkt_agreement, 1e-10);
+  const std::pair<const Mat*, const Mat*> pairs[] = {
+      {&a.dqdd_dq, &d.dqdd_dq}, {&a.dqdd_dqd, &d.dqdd_dqd}, {&a.dqdd_dtau, &d.dqdd_dtau},
+      {&a.dQc_dq, &d.dQc_dq},   {&a.dQc_dqd, &d.dQc_dqd},   {&a.dQc_dtau, &d.dQc_dtau},
+      {&a.dmu_dq, &d.dmu_dq},   {&a.dmu_dqd, &d.dmu_dqd},   {&a.dmu_dtau, &d.dmu_dtau}};
+  for (const auto& [x, y] : pairs) {
+    ASSERT_EQ(x->rows(), y->rows());
+    ASSERT_EQ(x->cols(), y->cols());
+    EXPECT_LE(rel(*x, *y), tol);
+  }
+  EXPECT_LE(rel(a.qdd, d.qdd), 1e-12);
+  EXPECT_LE(rel(a.mu, d.mu), tol);
 }
 
 }  // namespace ukdyn::test
