@@ -908,7 +908,15 @@ void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndSc
   double* dout = dwork + nw * per_pass;
   // An end that no coordinate moves (a frame of the world, turned or offset) has no column.
   if (nc == 0) e.tape.eval(0.0, q.data(), qd.data(), out, work);
-  std::fill_n(dq, 2 * n * per_pass, 0.0);
+  // The tape reads the directions of its inputs alone, the end's coordinates (e.cols: every
+  // coordinate its pose depends on): only those entries of each lane are zeroed, O(columns) in
+  // place of O(n) per lane.
+  for (std::size_t k = 0; k < per_pass; ++k) {
+    for (const Index g : e.cols) {
+      dq[static_cast<std::size_t>(g) + n * k] = 0.0;
+      dqd[static_cast<std::size_t>(g) + n * k] = 0.0;
+    }
+  }
   auto unit = [&](Index col, std::size_t k) -> double& {
     const auto g = static_cast<std::size_t>(e.cols[static_cast<std::size_t>(col % nc)]);
     return (col < nc ? dq : dqd)[g + n * k];
@@ -1055,12 +1063,19 @@ class Core {
     f(Sa, Sb, da, db, r);
   }
 
-  // A and b at (q, q̇) (with_twists, add_twist_columns).
-  void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b) const {
+  // A and b at (q, q̇) (with_twists, add_twist_columns). `structural`: only A's columns of the
+  // ends' coordinates (columns()) are zeroed and written, the rest of its rows left as they are
+  // (ConstraintContext::structural_only: O(columns) per call, not O(n)).
+  void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b,
+                bool structural) const {
     with_twists(slots, q, qd,
                 [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db,
                     const RowValues<double>& r) {
-                  zero_rows(A);
+                  if (structural) {
+                    for (const Index c : cols_) A.col(c).setZero();
+                  } else {
+                    zero_rows(A);
+                  }
                   add_end_columns(a_, Sa, da, r, kPa, kRa, A);
                   add_end_columns(b_, Sb, db, r, kPb, kRb, A);
                   b = -(r.D.topRows(r.m) * rates(Sa, Sb, true) + r.Q.head(r.m));
@@ -1114,9 +1129,11 @@ class Core {
   }
 
   // tangent() along every direction of q and q̇ that moves an end, kLanes per pass, from the
-  // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to.
+  // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to. `structural`:
+  // only d_residual's columns of those directions are written (O(columns), not O(n): the others
+  // are zero and left as they are; ConstraintContext::structural_only).
   bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
-                       CVecRef lambda, MatRef d_residual, MatRef d_force) const {
+                       CVecRef lambda, MatRef d_residual, MatRef d_force, bool structural) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -1133,8 +1150,15 @@ class Core {
     FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
     LaneEnd A = lane_end(a_, slots, q, qd, qdd, {sa, xa}, ja, Va);
     LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, jb, Vb);
-    d_residual.setZero();
     const Index n = q.size(), nc = static_cast<Index>(cols_.size());
+    if (structural) {
+      for (const Index c : cols_) {
+        d_residual.col(c).setZero();
+        d_residual.col(n + c).setZero();
+      }
+    } else {
+      d_residual.setZero();
+    }
     // Direction i < nc along q of cols_[i], i ≥ nc along q̇ of cols_[i − nc]: the two kinds share
     // a pass (⌈2 nc / 8⌉ passes, not 2 ⌈nc / 8⌉).
     for (Index i0 = 0; i0 < 2 * nc; i0 += kLanes) {
@@ -1194,7 +1218,7 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
   }
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override {
-    core_->evaluate(ctx.slots, q, qd, A, b);
+    core_->evaluate(ctx.slots, q, qd, A, b, ctx.structural_only);
   }
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override {
     // The rates are not used: q stands in for q̇.
@@ -1223,7 +1247,8 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
   }
   bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
-    return core_->tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual, d_force);
+    return core_->tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual, d_force,
+                                  ctx.structural_only);
   }
 
  private:

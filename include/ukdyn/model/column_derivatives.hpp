@@ -24,10 +24,10 @@ class SubsystemColumns {
 class ConstraintColumns {
  public:
   virtual ~ConstraintColumns() = default;
-  /// Constraint::tangent() along every direction of (q, q̇) (n coordinates): column j of
-  /// d_residual (rows() × 2n) and of d_force (n × 2n) along e_j of q, column n + j along e_j of
-  /// q̇; d_residual is written, d_force added to. False when this constraint has no such pass at
-  /// present (then the caller runs tangent() per direction).
+  /// Constraint::tangent() along every direction of (q, q̇): column j of d_residual (rows() × 2n)
+  /// and of d_force (n × 2n) along e_j of q, n + j along e_j of q̇; d_residual written (with
+  /// c.structural_only may be its row_columns()' directions alone), d_force added to. False: no
+  /// such pass at present (then the caller runs tangent() per direction).
   virtual bool tangent_columns(const ConstraintContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
                                CVecRef lambda, MatRef d_residual, MatRef d_force) const = 0;
 };

@@ -56,9 +56,9 @@ class ConstraintSlots {
 struct ConstraintContext {
   double t = 0.0;
   ConstraintSlots slots{};
-  /// evaluate(): write only the entries of A listed by row_columns() (and b); the other entries of
-  /// its rows may be left untouched (they are 0 when only this constraint writes them), which is
-  /// O(non-zeros) instead of O(rows × n). A constraint may ignore it and write every entry.
+  /// evaluate() (tangent_columns(): d_residual's columns): write only A's entries of row_columns()
+  /// (and b); the other entries of its rows may be left untouched (0 when only it writes them):
+  /// O(non-zeros), not O(rows × n). A constraint may ignore it and write every entry.
   bool structural_only = false;
 };
 
