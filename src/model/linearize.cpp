@@ -200,9 +200,11 @@ namespace {
 // With a structurally singular block augmented (core/uk_singular.hpp; forward() factored M_a),
 // M X − Aᵀ Y = F with A_own X = G_own is M_a X − Aᵀ Y = F + A_ownᵀ α G_own: α_i of
 // augmented_blocks() (max diag M_k / |a_i|²) on the block's own rows. Every row is kept on the
-// arrow path, so row i of G is row i of A.
+// arrow path, so row i of G is row i of A. `own_columns` (the arrow path's state columns, 2n of
+// them: G's row of a block's own row is zero outside the block's directions of q and of q̇):
+// those columns alone, not F's whole rows.
 void augment_columns(const System& system, const ForwardData& f, Eigen::Ref<Mat> F,
-                     const Eigen::Ref<const Mat>& G) {
+                     const Eigen::Ref<const Mat>& G, bool own_columns = false) {
   const UkSingularWorkspace& sw = f.singular;
   if (!sw.active) return;
   const auto& lay = system.layout();
@@ -216,7 +218,13 @@ void augment_columns(const System& system, const ForwardData& f, Eigen::Ref<Mat>
       if (!(nn > 0.0)) continue;
       for (Index c = 0; c < nk; ++c) {
         const double coef = scale / nn * f.A(i, s + c);
-        if (coef != 0.0) F.row(s + c) += coef * G.row(i);
+        if (coef == 0.0) continue;
+        if (!own_columns) {
+          F.row(s + c) += coef * G.row(i);
+          continue;
+        }
+        for (const Index o : {Index{0}, F.cols() / 2})
+          F.row(s + c).segment(o + s, nk) += coef * G.row(i).segment(o + s, nk);
       }
     }
   }
@@ -561,21 +569,25 @@ void for_constraint_blocks(const ArrowStructure& st, const LinearizeData& d, Ind
   f(st.load_start, st.load_size);
 }
 
-// Constraint c's tangents on the arrow path: d(A q̈ − b) into the contiguous d.dres_cols (a
-// tangent_columns() pass zeroes all of its rows × 2n; there one memset, in G's rows a short one
-// per column), then −d(A q̈ − b) of each row by its group's directions into G; d(Aᵀλ) added to
-// d.dforce_all. Without tangent_columns(), tangent() along the directions of the blocks its rows
-// touch only (the others move none of its coordinates: zero).
+// Constraint c's tangents on the arrow path: d(A q̈ − b) into the contiguous d.dres_cols, whose
+// columns of the blocks its rows touch (its groups' robots and the load, what is read below) are
+// zeroed first and then written by a structural_only tangent_columns() pass (its row_columns()'
+// directions alone: O(columns), not O(n) per constraint), then −d(A q̈ − b) of each row by its
+// group's directions into G; d(Aᵀλ) added to d.dforce_all. Without tangent_columns(), tangent()
+// along the directions of those blocks only (the others move none of its coordinates: zero).
 void arrow_constraint_columns(const System& system, LinearizeData& d, double t, CVecRef q,
                               CVecRef qd, std::size_t c) {
   const Index n = system.dof();
   const ArrowStructure& st = *system.arrow();
   const Constraint& con = *system.constraints()[c];
   const Index rows = con.rows(), off = system.constraint_row_offsets()[c];
-  const ConstraintContext ctx{t, d.fwd.constraint_slots(c)};
+  const ConstraintContext ctx{t, d.fwd.constraint_slots(c), /*structural_only=*/true};
   const auto lambda = d.lambda.segment(off, rows);
   if (d.dres_cols.size() < rows * 2 * n) d.dres_cols.resize(rows * 2 * n);
   Eigen::Map<Mat> dres(d.dres_cols.data(), rows, 2 * n);
+  for_constraint_blocks(st, d, off, rows, [&](Index s0, Index nb) {
+    for (const Index o : {Index{0}, n}) dres.middleCols(o + s0, nb).setZero();
+  });
   const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
   if (all == nullptr || !all->tangent_columns(ctx, q, qd, d.lin.qdd, lambda, dres, d.dforce_all)) {
     for_constraint_blocks(st, d, off, rows, [&](Index s0, Index nb) {
@@ -615,7 +627,7 @@ void arrow_constraint_columns(const System& system, LinearizeData& d, double t, 
 // writes them while d.rhs_pattern holds): O(N) blocks zeroed, summed and signed, in place of
 // O(N²) entries. The subsystems assign their diagonal blocks of F, the constraints write their
 // rows of G by their groups' directions (arrow_constraint_columns) and add d(Aᵀλ) into
-// d.dforce_all. Then either the
+// d.dforce_all, summed into F after (as the dense path sums them: the same bits). Then either the
 // dense ∂q̈/∂(q, q̇) straight into lin.dqdd_dq, lin.dqdd_dqd (one solve per half: X_k = own − Q_k X_L
 // written there; the robots' dμ only with constraint_force) or the structured d.dqdd_dx.
 void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
@@ -645,7 +657,7 @@ void arrow_state_columns(const System& system, LinearizeData& d, double t, CVecR
   });
   auto G = d.rhs_all.bottomRows(m);
   auto F = d.rhs_all.topRows(n);
-  augment_columns(system, d.fwd, F, G);
+  augment_columns(system, d.fwd, F, G, /*own_columns=*/true);
   Linearization& lin = d.lin;
   d.structured = parts.structured && !parts.constraint_force;
   if (d.structured) {
