@@ -1111,5 +1111,5 @@ instead (run.assembly says what it did). Ctrl-C stops the run and raises Keyboar
                " coordinates, " + std::to_string(s.sc.system->rows()) + " constraint rows>";
       });
   bind_state(m, scenario_class);
-  bind_sensitivity(scenario_class);
+  bind_sensitivity(m, scenario_class);
 }

@@ -32,8 +32,9 @@ void require_finite(double t, const char* what);
 py::array_t<double> numpy_of(const ukdyn::Vec& v);
 py::array_t<double> numpy_of(const ukdyn::Mat& M);
 
-/// Binds Scenario.parameter_derivatives and Scenario.sensitivities (sensitivity.cpp).
-void bind_sensitivity(PyScenarioClass& cls);
+/// Binds Scenario.parameter_derivatives, Scenario.sensitivities, Scenario.closed_loop_linearize
+/// and Scenario.linearize_structured with its StructuredDerivatives (sensitivity.cpp).
+void bind_sensitivity(py::module_& m, PyScenarioClass& cls);
 
 /// Binds Data, Scenario.forward(q, qd, t=, tau=, out=), forward_qdd, forward_batch, energies,
 /// constraints and inverse_dynamics (state.cpp).

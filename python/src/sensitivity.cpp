@@ -1,17 +1,22 @@
-// Scenario.parameter_derivatives, Scenario.sensitivities and Scenario.closed_loop_linearize
-// (docs/python.md, docs/derivatives.md "Sensitivities to parameters", "Controlled runs"):
-// ukdyn/run/sensitivity.hpp and closed_loop_derivatives.hpp with numpy arrays, the C++ work with
+// Scenario.parameter_derivatives, Scenario.sensitivities, Scenario.closed_loop_linearize and
+// Scenario.linearize_structured (docs/python.md, docs/derivatives.md "Sensitivities to
+// parameters", "Controlled runs", "Cost"): ukdyn/run/sensitivity.hpp, closed_loop_derivatives.hpp
+// and the structured ∂q̈/∂(q, q̇) of ukdyn/model/linearize.hpp with numpy arrays, the C++ work with
 // the GIL released.
 #include "ukdyn/run/sensitivity.hpp"
 
 #include <pybind11/stl.h>
 
+#include <cmath>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "scenario_bindings.hpp"
+#include "ukdyn/model/linearize.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/run/closed_loop_derivatives.hpp"
+#include "ukdyn/run/eval_protocol.hpp"
 
 namespace ukdyn_python {
 
@@ -134,9 +139,120 @@ py::dict closed_loop_linearize(const PyScenario& s, const py::object& t_in, cons
   return d;
 }
 
+// ∂q̈/∂(q, q̇) as LinearizeParts::structured gives it (ukdyn/model/linearize.hpp): the load's
+// response XL and, per block, its own part on its columns and its response Q to the load, kept
+// in the C++ LinearizeData for dqdd_dx_times() and dense(); the dense matrices where the
+// block-arrow KKT solve did not run (structured False).
+struct StructuredDerivatives {
+  std::shared_ptr<PyScenario> scenario;  // the System the data was built for
+  std::shared_ptr<ukdyn::LinearizeData> data;
+  py::object qdd, XL, blocks;
+};
+
+StructuredDerivatives linearize_structured(const std::shared_ptr<PyScenario>& s, double t,
+                                           const py::object& q_in, const py::object& qd_in,
+                                           const py::object& tau_in) {
+  const ukdyn::Scenario& sc = s->sc;
+  const ukdyn::System& sys = *sc.system;
+  const Index n = sys.dof();
+  require_finite(t, "t");
+  const ukdyn::Vec q = vector_arg(q_in, n, "q");
+  const ukdyn::Vec qd = vector_arg(qd_in, n, "qd");
+  const ukdyn::Vec tau =
+      tau_in.is_none() ? ukdyn::Vec(ukdyn::Vec::Zero(n)) : vector_arg(tau_in, n, "tau");
+  StructuredDerivatives r{s, std::make_shared<ukdyn::LinearizeData>(sys), py::none(), py::none(),
+                          py::list()};
+  {
+    py::gil_scoped_release release;
+    ukdyn::linearize(sys, *r.data, t, q, qd, tau, sc.sim.uk,
+                     ukdyn::LinearizeParts{false, false, true});
+  }
+  r.qdd = numpy_of(r.data->lin.qdd);
+  if (r.data->structured) {
+    const ukdyn::ArrowResponse& x = r.data->dqdd_dx;
+    r.XL = numpy_of(x.XL);
+    py::list blocks;
+    for (const auto& b : x.blocks) {
+      py::dict d;
+      d["start"] = b.start;
+      d["size"] = b.size;
+      d["cols"] = b.cols;
+      d["own"] = numpy_of(b.own);
+      d["Q"] = numpy_of(b.Q);
+      blocks.append(d);
+    }
+    r.blocks = blocks;
+  }
+  const auto off = ukdyn::constraint_offset(sys, t, q, qd, sc.initial_tolerance);
+  if (!off.warning.empty() && PyErr_WarnEx(PyExc_UserWarning, off.warning.c_str(), 1) != 0)
+    throw py::error_already_set();  // warnings turned into errors
+  return r;
+}
+
+// [∂q̈/∂q ∂q̈/∂q̇] V for V of shape (2n,) or (2n, k), without the dense matrices where the
+// result is structured (ukdyn::dqdd_dx_times).
+py::array_t<double> structured_times(const StructuredDerivatives& r, const py::object& v) {
+  using Rows = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  const Index n = r.data->lin.qdd.size();
+  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+  if (!a || a.ndim() < 1 || a.ndim() > 2 || a.shape(0) != 2 * n)
+    throw py::value_error("dqdd_dx_times: V must have shape (" + std::to_string(2 * n) + ",) or (" +
+                          std::to_string(2 * n) + ", k)");
+  const Index k = a.ndim() == 2 ? a.shape(1) : 1;
+  const ukdyn::Mat V = Eigen::Map<const Rows>(a.data(), 2 * n, k);
+  if (!V.allFinite()) throw py::value_error("dqdd_dx_times: V has an entry that is not finite");
+  ukdyn::Mat out(n, k), scratch;
+  ukdyn::dqdd_dx_times(*r.data, V, out, scratch);
+  if (a.ndim() == 1) return numpy_of(ukdyn::Vec(out.col(0)));
+  return numpy_of(out);
+}
+
+py::tuple structured_dense(const StructuredDerivatives& r) {
+  ukdyn::Mat dq, dqd;
+  ukdyn::dqdd_dx_dense(*r.data, dq, dqd);
+  return py::make_tuple(numpy_of(dq), numpy_of(dqd));
+}
+
+void bind_structured(py::module_& m, PyScenarioClass& cls) {
+  py::class_<StructuredDerivatives>(
+      m, "StructuredDerivatives",
+      "dqdd/d(q, qd) of N robots on one load in O(N) storage (docs/derivatives.md, \"Cost\")")
+      .def_property_readonly(
+          "structured", [](const StructuredDerivatives& r) { return r.data->structured; },
+          "True when the block-arrow KKT solve gave the blocks; False: the "
+          "dense matrices (two robots, redundant rows, applied forces)")
+      .def_readonly("qdd", &StructuredDerivatives::qdd, "qdd of the KKT system, n")
+      .def_readonly("XL", &StructuredDerivatives::XL,
+                    "the load's rows of [dqdd/dq dqdd/dqd], n_L x 2n (None unless structured)")
+      .def_readonly("blocks", &StructuredDerivatives::blocks,
+                    "per block a dict start, size, cols, own (size x len(cols)), Q (size x n_L): "
+                    "its rows are own on cols minus Q XL ([] unless structured)")
+      .def_property_readonly(
+          "load_start", [](const StructuredDerivatives& r) { return r.data->dqdd_dx.load_start; },
+          "the load's first coordinate")
+      .def_property_readonly(
+          "load_size", [](const StructuredDerivatives& r) { return r.data->dqdd_dx.load_size; },
+          "the load's coordinates n_L")
+      .def_property_readonly(
+          "trusted", [](const StructuredDerivatives& r) { return r.data->lin.trusted; },
+          "False where ukdyn cannot vouch for the derivatives (see message)")
+      .def_property_readonly(
+          "message", [](const StructuredDerivatives& r) { return r.data->lin.message; },
+          "why not trusted ('' if trusted)")
+      .def("dqdd_dx_times", &structured_times, py::arg("V"),
+           "[dqdd/dq dqdd/dqd] V for V of shape (2n,) or (2n, k), in O(N k) when structured")
+      .def("dense", &structured_dense, "(dqdd_dq, dqdd_dqd), n x n each, expanded");
+  cls.def("linearize_structured", &linearize_structured, py::arg("t"), py::arg("q"), py::arg("qd"),
+          py::arg("tau") = py::none(),
+          "dqdd/d(q, qd) at (t, q, qd, tau) (default 0) as the load's response and per-robot "
+          "blocks (O(N) storage for N robots on one load) where the block-arrow KKT solve runs, "
+          "else the dense matrices: a StructuredDerivatives (docs/derivatives.md, \"Cost\").");
+}
+
 }  // namespace
 
-void bind_sensitivity(PyScenarioClass& cls) {
+void bind_sensitivity(py::module_& m, PyScenarioClass& cls) {
+  bind_structured(m, cls);
   cls.def("parameter_derivatives", &parameter_derivatives, py::arg("parameters"), py::arg("t"),
           py::arg("q"), py::arg("qd"), py::arg("tau") = py::none(),
           "Derivatives of qdd and Qc at (t, q, qd, tau) with respect to numbers of the scenario "

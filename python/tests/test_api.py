@@ -344,6 +344,57 @@ def test_linearize_minimal_and_discrete():
         sc.linearize(0.0, q, zero, tau, dt=-1.0)
 
 
+def moving_state(sc):
+    """q0 with a velocity along the constraints (the null space of A) and a non-zero tau."""
+    n = sc.dof
+    q, tau = np.array(sc.q0), 0.3 * np.sin(1.7 * np.arange(n) + 0.4)
+    A = sc.forward(0.0, q, np.zeros(n), tau).A
+    _, s, vt = np.linalg.svd(A)
+    rank = int((s > 1e-9 * s[0]).sum())
+    qd = np.array(sc.qd0) + vt[rank:].T @ (0.3 * np.cos(1.3 * np.arange(rank, n)))
+    return q, qd, tau
+
+
+def test_linearize_structured_matches_the_dense_derivatives():
+    # The structured dqdd/d(q, qd) (docs/derivatives.md, "Cost") against the dense one of
+    # linearize() (its own KKT solve: X in full, no blocks), <= 1e-12 relative: its blocks put
+    # together here in numpy (own on cols minus Q XL), dense() and dqdd_dx_times(V).
+    for name, structured in [("n_robots_4_weld.yaml", True), ("two_ur5e_load.yaml", False)]:
+        sc = ukdyn.load_scenario(scenario_path(name))
+        n = sc.dof
+        q, qd, tau = moving_state(sc)
+        lin = sc.linearize(0.0, q, qd, tau)
+        st = sc.linearize_structured(0.0, q, qd, tau)
+        assert st.structured == structured and st.trusted, (name, st.message)
+        dense = np.hstack([lin.dqdd_dq, lin.dqdd_dqd])
+        scale = np.abs(dense).max()
+        assert scale > 0.0
+        np.testing.assert_allclose(st.qdd, lin.qdd, rtol=0, atol=1e-12 * (1 + np.abs(lin.qdd).max()))
+        dq, dqd = st.dense()
+        assert np.abs(np.hstack([dq, dqd]) - dense).max() <= 1e-12 * scale, name
+        V = np.cos(np.outer(np.arange(2 * n), [0.3, 1.1, 2.3]))
+        assert np.abs(st.dqdd_dx_times(V) - dense @ V).max() <= 1e-12 * scale * 2 * n, name
+        assert np.abs(st.dqdd_dx_times(V[:, 0]) - dense @ V[:, 0]).max() <= 1e-12 * scale * 2 * n
+        with pytest.raises(ValueError, match="dqdd_dx_times"):
+            st.dqdd_dx_times(np.zeros(n))
+        if not structured:
+            assert st.XL is None and st.blocks == []
+            continue
+        L0, nL = st.load_start, st.load_size
+        assert st.XL.shape == (nL, 2 * n)
+        X = np.zeros((n, 2 * n))
+        X[L0:L0 + nL] = st.XL
+        for b in st.blocks:
+            rows = slice(b["start"], b["start"] + b["size"])
+            assert b["own"].shape == (b["size"], len(b["cols"]))
+            if b["Q"].size:
+                X[rows] = -b["Q"] @ st.XL
+            X[rows, b["cols"]] += b["own"]
+        assert np.abs(X - dense).max() <= 1e-12 * scale
+        # O(N) storage: every block's own part on its and the load's 2 (n_k + n_L) columns.
+        assert all(len(b["cols"]) <= 2 * (b["size"] + nL) for b in st.blocks)
+
+
 def test_cli_linearize_npz_matches_json(tmp_path):
     # `ukdyn linearize --out FILE.npz`: numpy reads the uncompressed archive ukdyn writes itself;
     # the arrays equal the JSON's numbers bit for bit.

@@ -253,6 +253,25 @@ class Linearization:
     rheonomic: Optional[bool]
     minimal_note: str
 
+class StructuredDerivatives:
+    @property
+    def structured(self) -> bool: ...
+    qdd: FloatArray
+    XL: Optional[FloatArray]
+    blocks: list[dict[str, Any]]
+    @property
+    def load_start(self) -> int: ...
+    @property
+    def load_size(self) -> int: ...
+    @property
+    def trusted(self) -> bool: ...
+    @property
+    def message(self) -> str: ...
+    def dqdd_dx_times(self, V: ArrayLike) -> FloatArray:
+        """[dqdd/dq dqdd/dqd] V for V of shape (2n,) or (2n, k), O(N k) when structured"""
+    def dense(self) -> tuple[FloatArray, FloatArray]:
+        """(dqdd_dq, dqdd_dqd), n x n each, expanded"""
+
 class Optimized:
     t: FloatArray
     knot: list[bool]
@@ -455,6 +474,16 @@ class Scenario:
         """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted; minimal: the model
         in minimal coordinates on the constraint manifold; dt: the zero-order-hold discrete model
         (docs/derivatives.md)"""
+    def linearize_structured(
+        self,
+        t: float,
+        q: ArrayLike,
+        qd: ArrayLike,
+        tau: Optional[ArrayLike] = None,
+    ) -> StructuredDerivatives:
+        """dqdd/d(q, qd) as the load's response XL and per-robot blocks (O(N) storage for N
+        robots on one load) where the block-arrow KKT solve runs, else the dense matrices
+        (docs/derivatives.md, "Cost")"""
     def parameter_derivatives(
         self,
         parameters: Sequence[str],
