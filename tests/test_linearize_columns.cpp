@@ -7,6 +7,8 @@
 #include <Eigen/SVD>
 #include <cmath>
 #include <filesystem>
+#include <utility>
+#include <vector>
 
 #include "moving_state.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
@@ -116,6 +118,66 @@ TEST(DerivedColumns, EveryDirectionAtOnceMatchesOneDirectionAtATime) {
     total += compared;
   }
   EXPECT_GE(total, 10);
+}
+
+// ConstraintContext::structural_only (what the arrow path asks for): the numeric frame rows'
+// evaluate() and tangent_columns() then write only the entries of their row_columns() (A's
+// columns, d(A q̈ − b)'s directions of q and q̇ of those coordinates) and leave the others as they
+// are. Those hold NaN here and must still hold NaN; the written entries must equal the full call's,
+// whose other entries must be zero. On the N-robot welds (a free-body load as an expressions end)
+// and two UR5e on a load.
+TEST(DerivedColumns, StructuralOnlyWritesTheRowColumnsAlone) {
+  for (const char* name : {"n_robots_4_weld.yaml", "two_ur5e_load.yaml"}) {
+    SCOPED_TRACE(name);
+    const Scenario sc = load_scenario(kSource / "scenarios" / name);
+    const System& sys = *sc.system;
+    const Index n = sys.dof();
+    const State s = moving_state(sc);
+    ForwardData fd(sys);
+    forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
+    int numeric = 0;
+    for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+      const Constraint& con = *sys.constraints()[c];
+      const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+      if (dynamic_cast<const symbolic::FrameConstraint*>(&con) == nullptr || is_derived(con) ||
+          all == nullptr)
+        continue;
+      const Index m = con.rows();
+      std::vector<char> own(static_cast<std::size_t>(n), 0);
+      const auto row_columns = con.row_columns();
+      for (const Index j : row_columns.at(0)) own[static_cast<std::size_t>(j)] = 1;
+      const ConstraintContext full{sc.sim.t0, fd.constraint_slots(c)};
+      const ConstraintContext structural{sc.sim.t0, fd.constraint_slots(c), true};
+      Mat A_full(m, n), A_st = Mat::Constant(m, n, std::nan(""));
+      Vec b_full(m), b_st(m);
+      con.evaluate(full, s.q, s.qd, A_full, b_full);
+      con.evaluate(structural, s.q, s.qd, A_st, b_st);
+      const Vec lambda = Vec::LinSpaced(m, -1.0, 1.0);
+      Mat r_full(m, 2 * n), r_st = Mat::Constant(m, 2 * n, std::nan(""));
+      Mat f_full = Mat::Zero(n, 2 * n), f_st = Mat::Zero(n, 2 * n);
+      ASSERT_TRUE(all->tangent_columns(full, s.q, s.qd, fd.qdd, lambda, r_full, f_full));
+      ASSERT_TRUE(all->tangent_columns(structural, s.q, s.qd, fd.qdd, lambda, r_st, f_st));
+      EXPECT_EQ(b_st, b_full);
+      EXPECT_EQ(f_st, f_full);
+      for (Index j = 0; j < n; ++j) {
+        const bool mine = own[static_cast<std::size_t>(j)] != 0;
+        for (Index i = 0; i < m; ++i) {
+          for (const auto& [got, want] :
+               {std::pair{A_st(i, j), A_full(i, j)}, std::pair{r_st(i, j), r_full(i, j)},
+                std::pair{r_st(i, n + j), r_full(i, n + j)}}) {
+            if (mine) {
+              EXPECT_EQ(got, want) << "constraint " << c << " row " << i << " column " << j;
+            } else {
+              EXPECT_TRUE(std::isnan(got)) << "constraint " << c << " wrote column " << j;
+              EXPECT_EQ(want, 0.0) << "constraint " << c << " column " << j;
+            }
+          }
+        }
+      }
+      ++numeric;
+    }
+    EXPECT_GE(numeric, 2);  // the welds' numeric rows
+  }
 }
 
 // linearize() with the KKT system solved by the Schur complement (the row choice's Cholesky and QR
