@@ -7,6 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/dense_kernels.hpp"
 #include "model/linearize_corrected.hpp"
 #include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
@@ -723,24 +724,27 @@ void mass_solve_columns(const System& system, LinearizeData& d, Eigen::Ref<Mat> 
     const double* inv = uk.inv_diag.data() + s;
     auto Y = d.X.topLeftCorner(c, nk);
     Y = X.middleRows(s, nk).transpose();
-    double* y = d.X.data();  // column i of Y at y + i ld
-    const auto update = [&](Index i, Index l, double a) {
-      double* yi = y + i * ld;
-      const double* yl = y + l * ld;
-      for (Index r = 0; r < c; ++r) yi[r] -= a * yl[r];
-    };
-    const auto scale = [&](Index i) {
-      double* yi = y + i * ld;
-      for (Index r = 0; r < c; ++r) yi[r] *= inv[i];
-    };
-    for (Index i = 0; i < nk; ++i) {
-      for (Index l = 0; l < i; ++l) update(i, l, Lk[i + l * ldl]);
-      scale(i);
-    }
-    for (Index i = nk; i-- > 0;) {
-      for (Index l = i + 1; l < nk; ++l) update(i, l, Lk[l + i * ldl]);
-      scale(i);
-    }
+    double* y = d.X.data();                    // column i of Y at y + i ld
+    detail::with_block_size(nk, [&](auto N) {  // the loops over the block unrolled for its size
+      const Index nb = decltype(N)::value > 0 ? Index{decltype(N)::value} : nk;
+      const auto update = [&](Index i, Index l, double a) {
+        double* yi = y + i * ld;
+        const double* yl = y + l * ld;
+        for (Index r = 0; r < c; ++r) yi[r] -= a * yl[r];
+      };
+      const auto scale = [&](Index i) {
+        double* yi = y + i * ld;
+        for (Index r = 0; r < c; ++r) yi[r] *= inv[i];
+      };
+      for (Index i = 0; i < nb; ++i) {
+        for (Index l = 0; l < i; ++l) update(i, l, Lk[i + l * ldl]);
+        scale(i);
+      }
+      for (Index i = nb; i-- > 0;) {
+        for (Index l = i + 1; l < nb; ++l) update(i, l, Lk[l + i * ldl]);
+        scale(i);
+      }
+    });
     X.middleRows(s, nk) = Y.transpose();
   }
 }
