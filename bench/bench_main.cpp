@@ -204,8 +204,8 @@ void print_summary(const Timings& ts) {
               "mujoco/two_pandas_weld_mj_forward", "scenario/two_pandas_weld_forward", 3.0);
   // Exact derivatives (∂q̈ and ∂Qc w.r.t. q, q̇, τ): cost in forward calls (target <= 8) and
   // speed-up over central differences of forward() (q̈ only; target >= 10).
-  for (const std::string sc :
-       {"paper_chain", "two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"}) {
+  for (const std::string sc : {"paper_chain", "two_ur5e_load", "four_panda_plate",
+                               "n_robots_4_weld", "two_pandas_weld", "panda_arm", "iiwa_arm"}) {
     const Timing* l = find(ts, "derivatives/" + sc + "_linearize");
     const Timing* f = find(ts, "scenario/" + sc + "_forward");
     if (l != nullptr && f != nullptr)

@@ -393,13 +393,16 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
   }
 }
 
-// The shipped multi-arm scenarios, and the files listed in UKDYN_BENCH_SCENARIOS (paths separated
-// by ':'; e.g. tools/n_robots.py 64 --weld > /tmp/n64.yaml for the N-robot scaling).
+// The shipped multi-arm scenarios, one Panda and one iiwa alone (bench/panda_arm.yaml,
+// iiwa_arm.yaml: no constraint rows), and the files listed in UKDYN_BENCH_SCENARIOS (paths
+// separated by ':'; e.g. tools/n_robots.py 64 --weld > /tmp/n64.yaml for the N-robot scaling).
 void register_scenarios() {
   std::vector<std::pair<std::string, std::string>> files;
   for (const std::string name :
        {"paper_chain", "two_ur5e_load", "four_panda_plate", "n_robots_4_weld", "two_pandas_weld"})
     files.emplace_back(name, std::string(UKDYN_BENCH_SOURCE_DIR) + "/scenarios/" + name + ".yaml");
+  for (const std::string name : {"panda_arm", "iiwa_arm"})
+    files.emplace_back(name, std::string(UKDYN_BENCH_SOURCE_DIR) + "/bench/" + name + ".yaml");
   if (const char* extra = std::getenv("UKDYN_BENCH_SCENARIOS")) {
     std::string list = extra;
     for (std::size_t a = 0; a < list.size();) {

@@ -83,10 +83,15 @@ inline void expect_same_linearization(const Linearization& a, const Linearizatio
   for (const auto& [x, y] : pairs) {
     ASSERT_EQ(x->rows(), y->rows());
     ASSERT_EQ(x->cols(), y->cols());
-    EXPECT_LE(rel(*x, *y), tol);
+    if (x->size() > 0) {  // (no rows: μ and its derivatives empty)
+      EXPECT_LE(rel(*x, *y), tol);
+    }
   }
   EXPECT_LE(rel(a.qdd, d.qdd), 1e-12);
-  EXPECT_LE(rel(a.mu, d.mu), tol);
+  ASSERT_EQ(a.mu.size(), d.mu.size());
+  if (a.mu.size() > 0) {
+    EXPECT_LE(rel(a.mu, d.mu), tol);
+  }
 }
 
 }  // namespace ukdyn::test

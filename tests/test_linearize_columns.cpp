@@ -1,12 +1,18 @@
 // The every-direction derivatives of the derived components (DerivedConstraint::tangent_columns,
 // DerivedSubsystem::inverse_dynamics_jacobian: one pass of the tape for several directions) against
 // their one-direction tangents, and the KKT solve by the Schur complement (LinearizeData::
-// allow_schur) against the LU of the whole KKT matrix it replaces (docs/derivatives.md, "Cost").
+// allow_schur) against the LU of the whole KKT matrix it replaces, and the path without constraint
+// rows (M⁻¹ times the inverse dynamics' derivatives) against the same LU and against differences
+// (docs/derivatives.md, "Cost").
 #include <gtest/gtest.h>
 
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <memory>
+#include <random>
 #include <utility>
 #include <vector>
 
@@ -197,5 +203,71 @@ TEST(LinearizeSchur, MatchesTheLuOfTheKktMatrix) {
     EXPECT_TRUE(schur.used_schur);
     EXPECT_FALSE(lu.used_schur);
     test::expect_same_linearization(schur.lin, lu.lin, 1e-12);
+  }
+}
+
+// A system without constraint rows (a lone arm; a floating-base chain with its unit-norm row left
+// out; the flyball governor's definitions subsystem and spring-dampers without its drive row, for
+// the applied forces' columns) takes no KKT system: ∂q̈/∂x = M⁻¹ (−∂ID/∂x) with forward()'s Cholesky factors of M. Against
+// the general path forced to the LU of its KKT matrix K = M (allow_schur = false), every part, at
+// random states: the same trust and sizes, every matrix within 1e-12 relative; the fast path forms
+// no K (data.K stays empty). ∂q̈/∂τ times M is the identity (1e-12), ∂q̈/∂(q, q̇) alone is bitwise
+// the same as with every part, and every fifth column agrees with central differences of
+// forward() (expect_columns_match_differences).
+TEST(LinearizeWithoutRows, MatchesTheKktPathAndDifferences) {
+  const Scenario floating = load_scenario(kSource / "bench" / "floating_chain7.yaml");
+  auto no_rows = std::make_shared<System>();
+  for (const auto& sub : floating.system->subsystems()) no_rows->add_subsystem(sub);
+  Scenario floating_free = floating;
+  floating_free.system = no_rows;
+  Scenario governor = load_scenario(kSource / "scenarios" / "benchmarks" / "flyball_governor.yaml");
+  auto forces_only = std::make_shared<System>();
+  for (const auto& sub : governor.system->subsystems()) forces_only->add_subsystem(sub);
+  for (const auto& f : governor.system->applied_forces()) forces_only->add_applied_force(f);
+  ASSERT_FALSE(forces_only->applied_forces().empty());
+  governor.system = forces_only;
+  const Scenario cases[] = {load_scenario(kSource / "bench" / "panda_arm.yaml"),
+                            load_scenario(kSource / "bench" / "iiwa_arm.yaml"), floating_free,
+                            governor};
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (const Scenario& sc : cases) {
+    const System& sys = *sc.system;
+    const Index n = sys.dof();
+    SCOPED_TRACE(sc.name + ", " + std::to_string(n) + " coordinates");
+    ASSERT_EQ(sys.rows(), 0);
+    double worst = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      State s{sc.q0, Vec(n), Vec(n)};
+      for (Index i = 0; i < n; ++i) {
+        s.q(i) += 0.5 * u(rng);
+        s.qd(i) = u(rng);
+        s.tau(i) = 5.0 * u(rng);
+      }
+      LinearizeData fast(sys), lu(sys), alone(sys);
+      lu.allow_schur = false;
+      linearize(sys, fast, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+      linearize(sys, lu, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+      EXPECT_EQ(fast.K.size(), 0);
+      EXPECT_EQ(lu.K.rows(), n);
+      EXPECT_EQ(fast.lin.rank, 0);
+      EXPECT_EQ(fast.lin.Qc, Vec::Zero(n));
+      test::expect_same_linearization(fast.lin, lu.lin, 1e-12);
+      for (const auto& [a, b] : {std::pair{&fast.lin.dqdd_dq, &lu.lin.dqdd_dq},
+                                 {&fast.lin.dqdd_dqd, &lu.lin.dqdd_dqd},
+                                 {&fast.lin.dqdd_dtau, &lu.lin.dqdd_dtau}})
+        worst = std::max(worst, rel(*a, *b));
+      ForwardData fd(sys);
+      forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk);
+      EXPECT_LE(rel(fast.lin.dqdd_dtau * fd.M, Mat::Identity(n, n)), 1e-12);
+      linearize(sys, alone, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, LinearizeParts{false, false});
+      EXPECT_EQ(alone.lin.dqdd_dq, fast.lin.dqdd_dq);
+      EXPECT_EQ(alone.lin.dqdd_dqd, fast.lin.dqdd_dqd);
+      EXPECT_EQ(alone.lin.dqdd_dtau.size(), 0);
+      EXPECT_EQ(alone.lin.dQc_dq.size(), 0);
+      test::expect_columns_match_differences(sc, s, fast.lin.dqdd_dq, fast.lin.dqdd_dqd);
+    }
+    std::printf("%s (%td coordinates): without rows vs the LU of K = M: %.2g\n", sc.name.c_str(), n,
+                worst);
   }
 }

@@ -632,8 +632,11 @@ TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
 // on a free-body load run with the arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp; two robots keep
 // the dense one, by the Schur complement) and with the dense LU (allow_arrow = false). The paper's
 // chains add derived constraints (their tape tangents, every direction in one call) and no arrow.
+// A lone Panda (bench/panda_arm.yaml) has no constraint rows: M⁻¹ times the inverse dynamics'
+// derivatives, no KKT system (with allow_arrow = false the LU of K = M, the reference).
 TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
-  for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml", "paper_chain.yaml"}) {
+  for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml", "paper_chain.yaml",
+                           "../bench/panda_arm.yaml"}) {
     SCOPED_TRACE(name);
     const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + name);
     const ukdyn::System& sys = *sc.system;

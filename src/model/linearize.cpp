@@ -7,6 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "core/dense_kernels.hpp"
 #include "model/linearize_corrected.hpp"
 #include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
@@ -718,11 +719,116 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
   store_solutions(system, d, n, parts);
 }
 
+// X ← M⁻¹ X (at most 2n columns) with forward()'s block Cholesky factors of M (d.fwd.uk: L_k L_kᵀ
+// per subsystem). Each block's two triangular solves run on Y = X_kᵀ (columns × n_k, in d.X, kept
+// 2n × n), whose columns are X's rows as contiguous vectors: y_i ← (y_i − Σ_l L_il y_l) / L_ii
+// forward, then with Lᵀ backward, every step one vectorised update of all the columns at once (not
+// a dependency chain per column).
+void mass_solve_columns(const System& system, LinearizeData& d, Eigen::Ref<Mat> X) {
+  const auto& lay = system.layout();
+  const UkWorkspace& uk = d.fwd.uk;
+  const Index ldl = uk.L.rows(), c = X.cols(), n = system.dof();
+  d.X.resize(2 * n, n);
+  const Index ld = d.X.rows();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], nk = lay.size[k];
+    const double* Lk = uk.L.data() + s + s * ldl;
+    const double* inv = uk.inv_diag.data() + s;
+    auto Y = d.X.topLeftCorner(c, nk);
+    Y = X.middleRows(s, nk).transpose();
+    double* y = d.X.data();                    // column i of Y at y + i ld
+    detail::with_block_size(nk, [&](auto N) {  // the loops over the block unrolled for its size
+      const Index nb = decltype(N)::value > 0 ? Index{decltype(N)::value} : nk;
+      const auto update = [&](Index i, Index l, double a) {
+        double* yi = y + i * ld;
+        const double* yl = y + l * ld;
+        for (Index r = 0; r < c; ++r) yi[r] -= a * yl[r];
+      };
+      const auto scale = [&](Index i) {
+        double* yi = y + i * ld;
+        for (Index r = 0; r < c; ++r) yi[r] *= inv[i];
+      };
+      for (Index i = 0; i < nb; ++i) {
+        for (Index l = 0; l < i; ++l) update(i, l, Lk[i + l * ldl]);
+        scale(i);
+      }
+      for (Index i = nb; i-- > 0;) {
+        for (Index l = i + 1; l < nb; ++l) update(i, l, Lk[l + i * ldl]);
+        scale(i);
+      }
+    });
+    X.middleRows(s, nk) = Y.transpose();
+  }
+}
+
+// Without constraint rows (m = 0) there is no KKT system: M q̈ = Q, so
+//   ∂q̈/∂x = M⁻¹ (∂Q_a/∂x − ∂ID/∂x)|_q̈,   ∂q̈/∂τ = M⁻¹,   Qc = 0, μ empty, rank 0
+// (the ABA's derivatives as M⁻¹ times the RNEA's: J. Carpentier, N. Mansard, "Analytical
+// Derivatives of Rigid Body Dynamics Algorithms", RSS 2018, §III), every column solved with
+// forward()'s own Cholesky factors of M. Taken unless the reference is asked for (allow_schur or
+// allow_arrow false: the LU of K = M below) or forward() solved with an augmented M (a
+// structurally singular block); false then, and the general path runs. Allocation-free after the
+// first call.
+bool linearize_without_rows(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                            CVecRef tau, const UkSettings& settings, LinearizeParts parts) {
+  const Index n = system.dof();
+  if (system.rows() != 0 || !d.allow_schur || !d.allow_arrow) return false;
+  check_data_for(system, d.fwd, "linearize");
+  forward(system, d.fwd, t, q, qd, tau, settings);
+  if (!d.fwd.result.finite)
+    throw Error("linearize: the forward dynamics is not finite at this state");
+  if (d.fwd.used_arrow || d.fwd.singular.active) return false;
+  Linearization& lin = d.lin;
+  lin.trusted = true;
+  lin.message.clear();
+  lin.kept_rows.clear();
+  lin.rank = 0;
+  vouch(lin, RowChoice{}, d.fwd.result, settings, 0);
+  d.used_arrow = d.used_schur = d.structured = d.rhs_pattern = false;
+  lin.qdd = d.fwd.qdd;
+  lin.Qc.setZero(n);
+  lin.mu.resize(0);
+  lin.kkt_agreement = 0.0;
+  // rhs_all (n × 2n): −∂ID/∂(q, q̇) in the subsystems' diagonal blocks, plus ∂Q_a.
+  d.rhs_all.resize(n, 2 * n);
+  if (system.subsystems().size() > 1) d.rhs_all.setZero();
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k)
+    subsystem_columns(system, d, t, q, qd, k);
+  applied_force_columns(system, d, t, q, qd);
+  mass_solve_columns(system, d, d.rhs_all);
+  lin.dqdd_dq = d.rhs_all.leftCols(n);
+  lin.dqdd_dqd = d.rhs_all.rightCols(n);
+  const bool force = parts.constraint_force;
+  lin.dmu_dq.resize(0, force ? n : 0);
+  lin.dmu_dqd.resize(0, force ? n : 0);
+  lin.dmu_dtau.resize(0, force && parts.tau ? n : 0);
+  if (force) {
+    lin.dQc_dq.setZero(n, n);
+    lin.dQc_dqd.setZero(n, n);
+  } else {
+    lin.dQc_dq.resize(0, 0);
+    lin.dQc_dqd.resize(0, 0);
+  }
+  if (force && parts.tau) {
+    lin.dQc_dtau.setZero(n, n);
+  } else {
+    lin.dQc_dtau.resize(0, 0);
+  }
+  if (!parts.tau) {
+    lin.dqdd_dtau.resize(0, 0);
+    return true;
+  }
+  lin.dqdd_dtau.setIdentity(n, n);
+  mass_solve_columns(system, d, lin.dqdd_dtau);
+  return true;
+}
+
 }  // namespace
 
 void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, CVecRef tau,
                const UkSettings& settings, LinearizeParts parts) {
   check_inputs(system, t, q, qd, tau);
+  if (linearize_without_rows(system, d, t, q, qd, tau, settings, parts)) return;
   prepare_kkt(system, d, t, q, qd, tau, settings);
   state_columns(system, d, t, q, qd, parts);
 }

@@ -1601,7 +1601,6 @@ namespace {
 // products of 6-vectors for the n × n entries (d: the depth of the tree).
 
 using V6 = Eigen::Matrix<double, 6, 1>;
-using M6 = Eigen::Matrix<double, 6, 6>;
 
 // A motion (ω, v_O) or a force (n_O, f) about the world origin as one 6-vector.
 V6 six(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
@@ -1635,8 +1634,9 @@ V6 composite_times(const LinkState<double>& w, const V6& u) {
 
 // The analytic pass's workspace after the forward workspace of a slot (or in `own`): the links,
 // θ, θ̇, θ̈, τ (nt each), the directions (Ψ̇ and Ψ̈, 6 + 6 per joint variable; with ball joints
-// P, Q, Q̇ and δλ, 22), B^C (36 per link, column-major; with ball joints 49), Λ and Qm (10 per
-// link, with ball joints), then ∂τ/∂θ and ∂τ/∂θ̇ (nt × nt each, column-major).
+// P, Q, Q̇ and δλ, 22), B^C (its blocks B₁₁, B₂₁: 18 per link, column-major, see
+// analytic_passes; with ball joints the whole 7 × 7, 49), Λ and Qm (10 per link, with ball
+// joints), then ∂τ/∂θ and ∂τ/∂θ̇ (nt × nt each, column-major).
 struct AnalyticWorkspace {
   double* key;  // the derivatives' key (null in a buffer of its own)
   LinkState<double>* links;
@@ -1687,7 +1687,6 @@ void analytic_passes(const Model& m, const std::vector<int>& ti, const AnalyticW
   for (std::size_t i = 0; i < nl; ++i) {
     const LinkState<double>& L = ws[i];
     const int p = m.links[i].parent;
-    const V6 vi = six(L.vw, L.vv);
     if (ti[i] >= 0) {
       const V6 vp = p < 0 ? V6::Zero() : six(ws[p].vw, ws[p].vv);
       const V6 ap = p < 0 ? a0 : six(ws[p].aw, ws[p].av);
@@ -1696,20 +1695,29 @@ void analytic_passes(const Model& m, const std::vector<int>& ti, const AnalyticW
       psid = cross_motion(vp, S);
       psidd = cross_motion(ap, S) + cross_motion(vp, psid);
     }
-    // B u = v ×* I u − I (v × u) + u ×* I v, column by column, with the link's own inertia.
-    Eigen::Map<M6> B(w.B + 36 * static_cast<Index>(i));
-    const V6 Iv = inertia_times(L.m_own, L.h_own, L.I_own, vi);
-    for (int c = 0; c < 6; ++c) {
-      const V6 u = V6::Unit(c);
-      B.col(c) = cross_force(vi, inertia_times(L.m_own, L.h_own, L.I_own, u)) -
-                 inertia_times(L.m_own, L.h_own, L.I_own, cross_motion(vi, u)) + cross_force(u, Iv);
-    }
+    // B u = v ×* I u − I (v × u) + u ×* I v with the link's own inertia, in closed form: with
+    // v = (ω, ν), I = [Ī [h]×; −[h]× m1] and I v = (p_n, p_f) = (Ī ω + h × ν, m ν + ω × h),
+    //   B = [ [ω]× Ī − Ī [ω]× − [ν]×[h]× − [h]×[ν]× − [p_n]×   0 ]
+    //       [ −2 [p_f]×                                         0 ]
+    // ([ω]×[h]× − [h]×[ω]× = [ω × h]× cancels the top right; [a]×[b]× = b aᵀ − (a·b) 1). Only
+    // its two left blocks are stored: B₁₁, B₂₁ (3 × 3 each).
+    Eigen::Map<Eigen::Matrix3d> B11(w.B + 18 * static_cast<Index>(i)),
+        B21(w.B + 18 * static_cast<Index>(i) + 9);
+    const Eigen::Matrix3d Wx = skew(L.vw);
+    const Eigen::Vector3d pn = L.I_own * L.vw + L.h_own.cross(L.vv);
+    const Eigen::Vector3d pf = L.m_own * L.vv + L.vw.cross(L.h_own);
+    B11.noalias() = Wx * L.I_own;
+    B11.noalias() -= L.I_own * Wx;
+    B11.noalias() -= L.h_own * L.vv.transpose() + L.vv * L.h_own.transpose();
+    B11.diagonal().array() += 2.0 * L.h_own.dot(L.vv);
+    B11 -= skew(pn);
+    B21 = -2.0 * skew(pf);
   }
   for (std::size_t i = nl; i-- > 0;) {
     const int p = m.links[i].parent;
     if (p >= 0)
-      Eigen::Map<M6>(w.B + 36 * static_cast<Index>(p)) +=
-          Eigen::Map<const M6>(w.B + 36 * static_cast<Index>(i));
+      Eigen::Map<Eigen::Matrix<double, 18, 1>>(w.B + 18 * static_cast<Index>(p)) +=
+          Eigen::Map<const Eigen::Matrix<double, 18, 1>>(w.B + 18 * static_cast<Index>(i));
   }
 }
 
@@ -1724,13 +1732,22 @@ void analytic_columns(const Model& m, const std::vector<int>& ti, Index nt,
     if (j < 0) continue;
     const LinkState<double>& L = ws[i];
     // Local copies (aligned): the sums in the products then do not depend on the slot's address.
-    const M6 B = Eigen::Map<const M6>(w.B + 36 * static_cast<Index>(i));
+    // B^C = [B₁₁ 0; B₂₁ 0] (analytic_passes) acts on a motion's angular part alone.
+    const double* Bi = w.B + 18 * static_cast<Index>(i);
+    const Eigen::Matrix3d B11 = Eigen::Map<const Eigen::Matrix3d>(Bi),
+                          B21 = Eigen::Map<const Eigen::Matrix3d>(Bi + 9);
+    const auto B_times = [&](const V6& u) -> V6 {
+      const Eigen::Vector3d uw = u.head<3>();
+      return six(B11 * uw, B21 * uw);
+    };
     const V6 S = axis_of(L), F = six(L.fn, L.ff);
     const V6 psid = Eigen::Map<const V6>(w.psi + 12 * j),
              psidd = Eigen::Map<const V6>(w.psi + 12 * j + 6);
-    const V6 fq = cross_force(S, F) + composite_times(L, psidd) + B * psid;
-    const V6 fv = composite_times(L, 2.0 * psid) + B * S;
-    const V6 U = composite_times(L, S), W = B.transpose() * S;
+    const V6 fq = cross_force(S, F) + composite_times(L, psidd) + B_times(psid);
+    const V6 fv = composite_times(L, 2.0 * psid) + B_times(S);
+    const V6 U = composite_times(L, S),
+             W = six(B11.transpose() * L.sw[0] + B21.transpose() * L.sv[0],
+                     Eigen::Vector3d::Zero());
     for (int k = static_cast<int>(i); k >= 0; k = m.links[static_cast<std::size_t>(k)].parent) {
       const auto ku = static_cast<std::size_t>(k);
       const int r = ti[ku];
