@@ -9,6 +9,7 @@
 
 #include "core/lane_dual.hpp"
 #include "symbolic/ex_helpers.hpp"
+#include "symbolic/numeric_frame_lanes.hpp"
 #include "tree/dual.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
@@ -979,10 +980,129 @@ Index lane_column(const End& e, Index g, bool rate) {
   add_force_lanes(B, b.cols, r, kPb, kRb, lambda, out_col, lanes, d_force);
 }
 
+// ------------------------------------------------ every direction at once (doubles)
+
+// One nonzero of a row's Hessian H_i = ∂²Φ_i/∂x² (x = (p_a, R_a, p_b, R_b), RowValues::D's
+// columns): ∂D(row, col)/∂x_wrt = h. Every row is at most bilinear in x (the header's comment), so
+// H_i is constant, D_i(x) = ∂Φ_i/∂x is affine and Q_i = ẋᵀ H_i ẋ.
+struct HessianEntry {
+  int row, col, wrt;
+  double h;
+};
+
+// The rows' Hessians, read once off D's tangents along the 24 entries of x (row_values on lanes,
+// three passes of eight, at x = 0 with zero rates: D is affine in x, so its tangents are H exactly).
+std::vector<HessianEntry> row_hessians(const NumericFrameSpec& f) {
+  std::vector<HessianEntry> out;
+  for (int j0 = 0; j0 < 24; j0 += kLanes) {
+    LaneFrame<Lanes> a, b;
+    for (LaneFrame<Lanes>* s : {&a, &b}) {
+      s->p.setConstant(Lanes(0.0));
+      s->pd = s->pdd = s->p;
+      s->R.setConstant(Lanes(0.0));
+      s->Rd = s->Rdd = s->R;
+    }
+    for (int l = 0; l < kLanes && j0 + l < 24; ++l) {
+      LaneFrame<Lanes>& s = j0 + l < 12 ? a : b;
+      const int k = (j0 + l) % 12;
+      (k < 3 ? s.p(k) : s.R((k - 3) / 3, (k - 3) % 3)).d[l] = 1.0;
+    }
+    RowValues<Lanes> r;
+    row_values(f, a, b, r);
+    for (int i = 0; i < r.m; ++i)
+      for (int c = 0; c < 24; ++c)
+        for (int l = 0; l < kLanes && j0 + l < 24; ++l)
+          if (r.D(i, c).d[l] != 0.0) out.push_back({i, c, j0 + l, r.D(i, c).d[l]});
+  }
+  return out;
+}
+
+// What every direction of the doubles pass shares: per end, the gradient of each row of
+// A q̈ − b = D ẍ + ẋᵀHẋ over the end's 36 stacked entries of its J column (p, R, their rates and
+// accelerations at q̈),
+//   d(A q̈ − b)_i = (H_i ẍ)·dx + d(ẋᵀ H_i ẋ) + D_i·dẍ,
+// and g = Dᵀλ (24: both ends' x). d(Dᵀλ) = (Σ_i λ_i H_i) dx is formed per direction.
+struct ColumnMaps {
+  Eigen::Matrix<double, kMaxRows, 36> G[2];
+  Eigen::Matrix<double, 24, 1> g;
+};
+
+void column_maps(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess,
+                 const FrameState& a, const FrameState& b, CVecRef lambda, ColumnMaps& c) {
+  RowValues<double> r;
+  row_values(f, a, b, r);
+  const Eigen::Matrix<double, 24, 1> xd = rates(a, b, false), xdd = rates(a, b, true);
+  c.G[0].setZero();
+  c.G[1].setZero();
+  for (const HessianEntry& e : hess) {
+    c.G[e.wrt / 12](e.row, e.wrt % 12) += e.h * xdd(e.col);
+    c.G[e.wrt / 12](e.row, 12 + e.wrt % 12) += e.h * xd(e.col);
+    c.G[e.col / 12](e.row, 12 + e.col % 12) += e.h * xd(e.wrt);
+  }
+  for (int i = 0; i < r.m; ++i) {
+    for (int k = 0; k < 12; ++k) {
+      c.G[0](i, 24 + k) = r.D(i, k);
+      c.G[1](i, 24 + k) = r.D(i, 12 + k);
+    }
+  }
+  c.g = r.D.topRows(r.m).transpose() * lambda;
+}
+
+// d_force(cols, out) += d(J_endᵀ D_endᵀ λ) along one direction: dg (12, the end's part of
+// d(Dᵀλ)) against its columns ∂x/∂q_c, and g (12) against their tangents (J's rows 36 + 12 c on,
+// column `col`; −1: the direction does not move the end).
+void add_force_column(const LaneEnd& e, const std::vector<Index>& cols, const double* g,
+                      const double* dg, Index col, Index out, MatRef d_force) {
+  const double* t = col >= 0 ? e.J + 36 + col * e.ld : nullptr;
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    const auto ci = static_cast<Index>(c);
+    double f = 0.0;
+    for (int k = 0; k < 3; ++k) f += dg[k] * e.v->dp(k, ci);
+    for (int k = 0; k < 9; ++k) f += dg[3 + k] * e.v->dR(k, ci);
+    if (t != nullptr)
+      for (int k = 0; k < 12; ++k) f += g[k] * t[12 * ci + k];
+    d_force(cols[c], out) += f;
+  }
+}
+
+// lane_pass's results on doubles, one direction at a time over the ends' J (column_maps): the
+// rows' tangents are linear in the J column, so nothing is lifted to lanes. Direction i < nc along
+// q of cols[i], i ≥ nc along q̇ of cols[i − nc]; d_residual's columns written, d_force's added to.
+void column_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess, const End& a,
+                 const End& b, const LaneEnd& A, const LaneEnd& B, const std::vector<Index>& cols,
+                 Index n, CVecRef lambda, MatRef d_residual, MatRef d_force) {
+  ColumnMaps maps;
+  column_maps(f, hess, *A.v, *B.v, lambda, maps);
+  const Index m = d_residual.rows(), nc = static_cast<Index>(cols.size());
+  for (Index i = 0; i < 2 * nc; ++i) {
+    const bool rate = i >= nc;
+    const Index g = cols[static_cast<std::size_t>(i % nc)], out = (rate ? n : 0) + g;
+    const Index ca = lane_column(a, g, rate), cb = lane_column(b, g, rate);
+    Eigen::Matrix<double, kMaxRows, 1> res = Eigen::Matrix<double, kMaxRows, 1>::Zero();
+    Eigen::Matrix<double, 24, 1> dx = Eigen::Matrix<double, 24, 1>::Zero();
+    if (ca >= 0) {
+      const Eigen::Map<const Eigen::Matrix<double, 36, 1>> ja(A.J + ca * A.ld);
+      res += maps.G[0] * ja;
+      dx.head<12>() = ja.head<12>();
+    }
+    if (cb >= 0) {
+      const Eigen::Map<const Eigen::Matrix<double, 36, 1>> jb(B.J + cb * B.ld);
+      res += maps.G[1] * jb;
+      dx.tail<12>() = jb.head<12>();
+    }
+    d_residual.col(out) = res.head(m);
+    double dg[24] = {};
+    for (const HessianEntry& e : hess) dg[e.col] += lambda(e.row) * e.h * dx(e.wrt);
+    add_force_column(A, a.cols, maps.g.data(), dg, ca, out, d_force);
+    add_force_column(B, b.cols, maps.g.data() + 12, dg + 12, cb, out, d_force);
+  }
+}
+
 // What the constraint and its wrench map share: the spec, the two ends and the slot layout.
 class Core {
  public:
-  Core(NumericFrameSpec f, End a, End b) : f_(std::move(f)), a_(std::move(a)), b_(std::move(b)) {
+  Core(NumericFrameSpec f, End a, End b)
+      : f_(std::move(f)), a_(std::move(a)), b_(std::move(b)), hess_(row_hessians(f_)) {
     names_ = row_names(f_);
     std::set<Index> all(a_.cols.begin(), a_.cols.end());
     all.insert(b_.cols.begin(), b_.cols.end());
@@ -1113,10 +1233,13 @@ class Core {
     add_force_tangent(Vb, Tb, b_.cols, r, kPb, kRb, lambda, d_force);
   }
 
-  // tangent() along every direction of q and q̇ that moves an end, kLanes per pass, from the
-  // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to.
+  // tangent() along every direction of q and q̇ that moves an end, from the ends' J (lane_end):
+  // d_residual (rows × 2n) written, d_force (n × 2n) added to. On doubles (column_pass), or
+  // `on_lanes`: the rows lifted to kLanes directions per pass (lane_pass, the reference the tests
+  // compare column_pass with).
   bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
-                       CVecRef lambda, MatRef d_residual, MatRef d_force) const {
+                       CVecRef lambda, MatRef d_residual, MatRef d_force,
+                       bool on_lanes = false) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -1135,6 +1258,10 @@ class Core {
     LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, jb, Vb);
     d_residual.setZero();
     const Index n = q.size(), nc = static_cast<Index>(cols_.size());
+    if (!on_lanes) {
+      column_pass(f_, hess_, a_, b_, A, B, cols_, n, lambda, d_residual, d_force);
+      return true;
+    }
     // Direction i < nc along q of cols_[i], i ≥ nc along q̇ of cols_[i − nc]: the two kinds share
     // a pass (⌈2 nc / 8⌉ passes, not 2 ⌈nc / 8⌉).
     for (Index i0 = 0; i0 < 2 * nc; i0 += kLanes) {
@@ -1159,6 +1286,7 @@ class Core {
  private:
   NumericFrameSpec f_;
   End a_, b_;
+  std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
 };
@@ -1271,6 +1399,7 @@ class NumericFrameWrenches final : public FrameWrenches {
       twist_jacobian(b, core_->b().cols, n_, Jb);
     });
   }
+  [[nodiscard]] const Core& core() const { return *core_; }
   void jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const override {
     core_->with(q, q, Slot(ws.out),
                 [&](const FrameState& a, const FrameState& b, const RowValues<double>&) {
@@ -1285,6 +1414,14 @@ class NumericFrameWrenches final : public FrameWrenches {
 };
 
 }  // namespace
+
+bool numeric_frame_columns_on_lanes(const FrameConstraint& c, const ConstraintContext& ctx,
+                                    CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+                                    MatRef d_residual, MatRef d_force) {
+  const auto* w = dynamic_cast<const NumericFrameWrenches*>(&c.wrench());
+  return w != nullptr &&
+         w->core().tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual, d_force, true);
+}
 
 std::pair<Eigen::Vector3d, Eigen::Vector3d> perpendicular_pair(const Eigen::Vector3d& u) {
   int k = 0;
