@@ -928,6 +928,58 @@ void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndSc
   expression_values(e, out, qd, qdd, v);
 }
 
+// A free-body end's J (free_body_frame) in closed form, what expression_jacobian() gives from its
+// tape: with R(u) = B(u, u) (quaternion_bilinear), p = x + R(u) o and R = R(u) R_o,
+//   Ṙ(u) = 2 B(u, u̇),   R̈(u) at q̈ = 2 B(u̇, u̇) + 2 B(u, ü),   ∂R(u)/∂u_k = 2 B(e_k, u),
+// so along δu of q: δR(u) = 2 B(u, δu), δṘ(u) = 2 B(δu, u̇), δR̈(u) = 2 B(δu, ü), δ∂R(u)/∂u_k =
+// 2 B(e_k, δu); along δu̇ of q̇: δṘ(u) = 2 B(u, δu̇), δR̈(u) = 4 B(u̇, δu̇); δx, δẋ move p, ṗ by
+// themselves. The state in v with its acceleration at q̈ (as expression_values).
+void free_body_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, double* J,
+                        FrameState& v) {
+  free_body_state(e, q, qd, v);
+  double u[4], ud[4], udd[4];
+  for (std::size_t c = 0; c < 7; ++c) {
+    const double a = qdd(e.cols[c]);
+    v.pdd += v.dp.col(static_cast<Index>(c)) * a;
+    for (int i = 0; i < 9; ++i) v.Rdd(i / 3, i % 3) += v.dR(i, static_cast<Index>(c)) * a;
+    if (c >= 3) {
+      u[c - 3] = q(e.cols[c]);
+      ud[c - 3] = qd(e.cols[c]);
+      udd[c - 3] = a;
+    }
+  }
+  const Index ld = 36 + 12 * 7;
+  // Rows r.. of column o: the position part M o (3), then the rotation M R_o (9, row-major).
+  const auto put = [&e](double* o, Index r, const Eigen::Matrix3d& M) {
+    const Eigen::Vector3d x = M * e.fb_o;
+    const Eigen::Matrix3d R = M * e.fb_Ro;
+    for (int i = 0; i < 3; ++i) o[r + i] = x(i);
+    for (int i = 0; i < 9; ++i) o[r + 3 + i] = R(i / 3, i % 3);
+  };
+  for (Index col = 0; col < 14; ++col) {
+    double* o = J + col * ld;
+    std::fill_n(o, ld, 0.0);
+    const bool rate = col >= 7;
+    const Index c = col % 7;
+    double du[4] = {0.0, 0.0, 0.0, 0.0};
+    if (c >= 3) du[c - 3] = 1.0;
+    if (!rate) {
+      put(o, 0, 2.0 * quaternion_bilinear(u, du));
+      put(o, 12, 2.0 * quaternion_bilinear(du, ud));
+      put(o, 24, 2.0 * quaternion_bilinear(du, udd));
+      for (Index k = 0; k < 4 && c >= 3; ++k) {
+        double ek[4] = {0.0, 0.0, 0.0, 0.0};
+        ek[k] = 1.0;
+        put(o, 36 + 12 * (3 + k), 2.0 * quaternion_bilinear(ek, du));
+      }
+    } else {
+      put(o, 12, 2.0 * quaternion_bilinear(u, du));
+      put(o, 24, 4.0 * quaternion_bilinear(ud, du));
+    }
+    if (c < 3) o[(rate ? 12 : 0) + c] += 1.0;
+  }
+}
+
 // An end's state and its J (a tree's frame_state_jacobian(), an expressions end's tape tangents;
 // none for a fixed end). x: its scratch (the tape's work and outputs of an expressions end).
 // A tree end reads the links its subsystem's slot holds at this state (frame_state_jacobian).
@@ -940,7 +992,11 @@ LaneEnd lane_end(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef 
     return out;
   }
   if (spec.kind == NumericFrameEnd::Kind::expressions) {
-    expression_jacobian(e, q, qd, qdd, x, J, v);
+    if (e.free_body) {
+      free_body_jacobian(e, q, qd, qdd, J, v);
+    } else {
+      expression_jacobian(e, q, qd, qdd, x, J, v);
+    }
     out.J = J;
     return out;
   }
@@ -1048,53 +1104,74 @@ void column_maps(const NumericFrameSpec& f, const std::vector<HessianEntry>& hes
   c.g = r.D.topRows(r.m).transpose() * lambda;
 }
 
-// d_force(cols, out) += d(J_endᵀ D_endᵀ λ) along one direction: dg (12, the end's part of
-// d(Dᵀλ)) against its columns ∂x/∂q_c, and g (12) against their tangents (J's rows 36 + 12 c on,
-// column `col`; −1: the direction does not move the end).
-void add_force_column(const LaneEnd& e, const std::vector<Index>& cols, const double* g,
-                      const double* dg, Index col, Index out, MatRef d_force) {
-  const double* t = col >= 0 ? e.J + 36 + col * e.ld : nullptr;
-  for (std::size_t c = 0; c < cols.size(); ++c) {
-    const auto ci = static_cast<Index>(c);
-    double f = 0.0;
-    for (int k = 0; k < 3; ++k) f += dg[k] * e.v->dp(k, ci);
-    for (int k = 0; k < 9; ++k) f += dg[3 + k] * e.v->dR(k, ci);
-    if (t != nullptr)
-      for (int k = 0; k < 12; ++k) f += g[k] * t[12 * ci + k];
-    d_force(cols[c], out) += f;
+// f(first, coordinate, length) for each run of consecutive coordinates in cols (sorted): cols[first
+// .. first + length) = coordinate .. coordinate + length (one run for a tree's end).
+template <class F>
+void for_runs(const std::vector<Index>& cols, F&& f) {
+  std::size_t i = 0;
+  while (i < cols.size()) {
+    std::size_t k = i + 1;
+    while (k < cols.size() && cols[k] == cols[k - 1] + 1) ++k;
+    f(static_cast<Index>(i), cols[i], static_cast<Index>(k - i));
+    i = k;
   }
 }
 
-// lane_pass's results on doubles, one direction at a time over the ends' J (column_maps): the
-// rows' tangents are linear in the J column, so nothing is lifted to lanes. Direction i < nc along
-// q of cols[i], i ≥ nc along q̇ of cols[i − nc]; d_residual's columns written, d_force's added to.
-void column_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess, const End& a,
-                 const End& b, const LaneEnd& A, const LaneEnd& B, const std::vector<Index>& cols,
-                 Index n, CVecRef lambda, MatRef d_residual, MatRef d_force) {
+// lane_pass's results on doubles over every direction at once: the rows' tangents are linear in
+// the ends' J columns (column_maps), so nothing is lifted to lanes and each end's directions are
+// matrix products with its J (q's columns, then q̇'s) by runs of consecutive coordinates:
+//   d(A q̈ − b)                 += G_s J_s                 (every row, the end's 36 entries)
+//   d(J_tᵀ D_tᵀ λ)  (t's rows)  += X_tᵀ Hλ[t, s] J_s(x)    (Hλ = Σ_i λ_i H_i; X_t = ∂x_t/∂q)
+//   d(J_sᵀ D_sᵀ λ)  (s's rows)  += (d X_s)ᵀ g_s           (g = Dᵀλ; d X_s: J_s's rows 36 on)
+// for each source end s and target end t. P (12 (na + nb) doubles) holds X_tᵀ Hλ[t, s]. d_residual
+// written (zeroed by the caller), d_force added to.
+void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess, const End& a,
+                const End& b, const LaneEnd& A, const LaneEnd& B, Index n, CVecRef lambda,
+                double* P, MatRef d_residual, MatRef d_force) {
+  const End* ends[2] = {&a, &b};
+  const LaneEnd* lanes[2] = {&A, &B};
   ColumnMaps maps;
   column_maps(f, hess, *A.v, *B.v, lambda, maps);
-  const Index m = d_residual.rows(), nc = static_cast<Index>(cols.size());
-  for (Index i = 0; i < 2 * nc; ++i) {
-    const bool rate = i >= nc;
-    const Index g = cols[static_cast<std::size_t>(i % nc)], out = (rate ? n : 0) + g;
-    const Index ca = lane_column(a, g, rate), cb = lane_column(b, g, rate);
-    Eigen::Matrix<double, kMaxRows, 1> res = Eigen::Matrix<double, kMaxRows, 1>::Zero();
-    Eigen::Matrix<double, 24, 1> dx = Eigen::Matrix<double, 24, 1>::Zero();
-    if (ca >= 0) {
-      const Eigen::Map<const Eigen::Matrix<double, 36, 1>> ja(A.J + ca * A.ld);
-      res += maps.G[0] * ja;
-      dx.head<12>() = ja.head<12>();
+  Eigen::Matrix<double, 24, 24> Hl = Eigen::Matrix<double, 24, 24>::Zero();
+  for (const HessianEntry& e : hess) Hl(e.col, e.wrt) += lambda(e.row) * e.h;
+  const Index m = d_residual.rows();
+  using CMap = Eigen::Map<const Mat, 0, Eigen::OuterStride<>>;
+  for (int s = 0; s < 2; ++s) {
+    const std::vector<Index>& cs = ends[s]->cols;
+    if (lanes[s]->J == nullptr || cs.empty()) continue;
+    const auto ns = static_cast<Index>(cs.size());
+    const Index ld = lanes[s]->ld;
+    const CMap J(lanes[s]->J, ld, 2 * ns, Eigen::OuterStride<>(ld));
+    for_runs(cs, [&](Index c, Index g, Index len) {
+      for (Index rate = 0; rate < 2; ++rate)
+        d_residual.middleCols(rate * n + g, len).noalias() +=
+            maps.G[s].topRows(m).lazyProduct(J.block(0, rate * ns + c, 36, len));
+    });
+    double* Pt = P;
+    for (int t = 0; t < 2; ++t) {
+      const FrameState& X = *lanes[t]->v;
+      const auto nt = static_cast<Index>(ends[t]->cols.size());
+      Eigen::Map<Mat> Pm(Pt, nt, 12);
+      Pm.noalias() = X.dp.transpose() * Hl.block(12 * t, 12 * s, 3, 12);
+      Pm.noalias() += X.dR.transpose() * Hl.block(12 * t + 3, 12 * s, 9, 12);
+      for_runs(ends[t]->cols, [&](Index ct, Index gt, Index lt) {
+        for_runs(cs, [&](Index c, Index g, Index len) {
+          for (Index rate = 0; rate < 2; ++rate)
+            d_force.block(gt, rate * n + g, lt, len).noalias() +=
+                Pm.middleRows(ct, lt).lazyProduct(J.block(0, rate * ns + c, 12, len));
+        });
+      });
+      Pt += 12 * nt;
     }
-    if (cb >= 0) {
-      const Eigen::Map<const Eigen::Matrix<double, 36, 1>> jb(B.J + cb * B.ld);
-      res += maps.G[1] * jb;
-      dx.tail<12>() = jb.head<12>();
+    const Eigen::Map<const Eigen::Matrix<double, 12, 1>> gs(maps.g.data() + 12 * s);
+    for (Index k = 0; k < 2 * ns; ++k) {
+      const Index out = (k >= ns ? n : 0) + cs[static_cast<std::size_t>(k % ns)];
+      const Eigen::Map<const Eigen::Matrix<double, 12, Eigen::Dynamic>> dX(J.col(k).data() + 36, 12,
+                                                                           ns);
+      for_runs(cs, [&](Index c, Index g, Index len) {
+        d_force.col(out).segment(g, len).noalias() += dX.middleCols(c, len).transpose() * gs;
+      });
     }
-    d_residual.col(out) = res.head(m);
-    double dg[24] = {};
-    for (const HessianEntry& e : hess) dg[e.col] += lambda(e.row) * e.h * dx(e.wrt);
-    add_force_column(A, a.cols, maps.g.data(), dg, ca, out, d_force);
-    add_force_column(B, b.cols, maps.g.data() + 12, dg + 12, cb, out, d_force);
   }
 }
 
@@ -1234,9 +1311,9 @@ class Core {
   }
 
   // tangent() along every direction of q and q̇ that moves an end, from the ends' J (lane_end):
-  // d_residual (rows × 2n) written, d_force (n × 2n) added to. On doubles (column_pass), or
+  // d_residual (rows × 2n) written, d_force (n × 2n) added to. On doubles (block_pass), or
   // `on_lanes`: the rows lifted to kLanes directions per pass (lane_pass, the reference the tests
-  // compare column_pass with).
+  // compare block_pass with).
   bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force,
                        bool on_lanes = false) const {
@@ -1258,8 +1335,8 @@ class Core {
     LaneEnd B = lane_end(b_, slots, q, qd, qdd, {sb, xb}, jb, Vb);
     d_residual.setZero();
     const Index n = q.size(), nc = static_cast<Index>(cols_.size());
-    if (!on_lanes) {
-      column_pass(f_, hess_, a_, b_, A, B, cols_, n, lambda, d_residual, d_force);
+    if (!on_lanes) {  // the one-direction tangent's columns ta, tb hold block_pass's P
+      block_pass(f_, hess_, a_, b_, A, B, n, lambda, ta, d_residual, d_force);
       return true;
     }
     // Direction i < nc along q of cols_[i], i ≥ nc along q̇ of cols_[i − nc]: the two kinds share
