@@ -1123,7 +1123,8 @@ void for_runs(const std::vector<Index>& cols, F&& f) {
 //   d(A q̈ − b)                 += G_s J_s                 (every row, the end's 36 entries)
 //   d(J_tᵀ D_tᵀ λ)  (t's rows)  += X_tᵀ Hλ[t, s] J_s(x)    (Hλ = Σ_i λ_i H_i; X_t = ∂x_t/∂q)
 //   d(J_sᵀ D_sᵀ λ)  (s's rows)  += (d X_s)ᵀ g_s           (g = Dᵀλ; d X_s: J_s's rows 36 on)
-// for each source end s and target end t. P (12 (na + nb) doubles) holds X_tᵀ Hλ[t, s]. d_residual
+// for each source end s and target end t. The pose x and X = ∂x/∂q do not depend on q̇: along q̇
+// only the first product is not zero. P (12 (na + nb) doubles) holds X_tᵀ Hλ[t, s]. d_residual
 // written (zeroed by the caller), d_force added to.
 void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess, const End& a,
                 const End& b, const LaneEnd& A, const LaneEnd& B, Index n, CVecRef lambda,
@@ -1143,9 +1144,10 @@ void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess
     const Index ld = lanes[s]->ld;
     const CMap J(lanes[s]->J, ld, 2 * ns, Eigen::OuterStride<>(ld));
     for_runs(cs, [&](Index c, Index g, Index len) {
-      for (Index rate = 0; rate < 2; ++rate)
-        d_residual.middleCols(rate * n + g, len).noalias() +=
-            maps.G[s].topRows(m).lazyProduct(J.block(0, rate * ns + c, 36, len));
+      d_residual.middleCols(g, len).noalias() +=
+          maps.G[s].topRows(m).lazyProduct(J.block(0, c, 36, len));
+      d_residual.middleCols(n + g, len).noalias() +=
+          maps.G[s].block(0, 12, m, 24).lazyProduct(J.block(12, ns + c, 24, len));
     });
     double* Pt = P;
     for (int t = 0; t < 2; ++t) {
@@ -1156,16 +1158,15 @@ void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess
       Pm.noalias() += X.dR.transpose() * Hl.block(12 * t + 3, 12 * s, 9, 12);
       for_runs(ends[t]->cols, [&](Index ct, Index gt, Index lt) {
         for_runs(cs, [&](Index c, Index g, Index len) {
-          for (Index rate = 0; rate < 2; ++rate)
-            d_force.block(gt, rate * n + g, lt, len).noalias() +=
-                Pm.middleRows(ct, lt).lazyProduct(J.block(0, rate * ns + c, 12, len));
+          d_force.block(gt, g, lt, len).noalias() +=
+              Pm.middleRows(ct, lt).lazyProduct(J.block(0, c, 12, len));
         });
       });
       Pt += 12 * nt;
     }
     const Eigen::Map<const Eigen::Matrix<double, 12, 1>> gs(maps.g.data() + 12 * s);
-    for (Index k = 0; k < 2 * ns; ++k) {
-      const Index out = (k >= ns ? n : 0) + cs[static_cast<std::size_t>(k % ns)];
+    for (Index k = 0; k < ns; ++k) {
+      const Index out = cs[static_cast<std::size_t>(k)];
       const Eigen::Map<const Eigen::Matrix<double, 12, Eigen::Dynamic>> dX(J.col(k).data() + 36, 12,
                                                                            ns);
       for_runs(cs, [&](Index c, Index g, Index len) {
