@@ -1154,8 +1154,8 @@ void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess
       const FrameState& X = *lanes[t]->v;
       const auto nt = static_cast<Index>(ends[t]->cols.size());
       Eigen::Map<Mat> Pm(Pt, nt, 12);
-      Pm.noalias() = X.dp.transpose() * Hl.block(12 * t, 12 * s, 3, 12);
-      Pm.noalias() += X.dR.transpose() * Hl.block(12 * t + 3, 12 * s, 9, 12);
+      Pm.noalias() = X.dp.transpose().lazyProduct(Hl.block(12 * t, 12 * s, 3, 12));
+      Pm.noalias() += X.dR.transpose().lazyProduct(Hl.block(12 * t + 3, 12 * s, 9, 12));
       for_runs(ends[t]->cols, [&](Index ct, Index gt, Index lt) {
         for_runs(cs, [&](Index c, Index g, Index len) {
           d_force.block(gt, g, lt, len).noalias() +=
@@ -1170,7 +1170,8 @@ void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess
       const Eigen::Map<const Eigen::Matrix<double, 12, Eigen::Dynamic>> dX(J.col(k).data() + 36, 12,
                                                                            ns);
       for_runs(cs, [&](Index c, Index g, Index len) {
-        d_force.col(out).segment(g, len).noalias() += dX.middleCols(c, len).transpose() * gs;
+        d_force.col(out).segment(g, len).noalias() +=
+            dX.middleCols(c, len).transpose().lazyProduct(gs);
       });
     }
   }
