@@ -1118,7 +1118,9 @@ void for_runs(const std::vector<Index>& cols, F&& f) {
 }
 
 // lane_pass's results on doubles over every direction at once: the rows' tangents are linear in
-// the ends' J columns (column_maps), so nothing is lifted to lanes and each end's directions are
+// the ends' J columns (column_maps; the frame rows' counterpart of the frame acceleration
+// derivatives of J. Carpentier and N. Mansard, "Analytical Derivatives of Rigid Body Dynamics
+// Algorithms", RSS 2018), so nothing is lifted to lanes and each end's directions are
 // matrix products with its J (q's columns, then q̇'s) by runs of consecutive coordinates:
 //   d(A q̈ − b)                 += G_s J_s                 (every row, the end's 36 entries)
 //   d(J_tᵀ D_tᵀ λ)  (t's rows)  += X_tᵀ Hλ[t, s] J_s(x)    (Hλ = Σ_i λ_i H_i; X_t = ∂x_t/∂q)
