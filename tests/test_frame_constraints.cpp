@@ -8,12 +8,14 @@
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <random>
 #include <sstream>
 
 #include "helpers.hpp"
+#include "symbolic/numeric_frame_lanes.hpp"
 #include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/model/system.hpp"
 #include "ukdyn/symbolic/chain.hpp"
@@ -183,6 +185,74 @@ TEST(FrameConstraints, FreeBodyFrameInClosedFormMatchesTheDerivedRows) {
       EXPECT_LE((v1 - v2).cwiseAbs().maxCoeff(), 1e-13 * (1.0 + v1.cwiseAbs().maxCoeff()));
     }
   }
+}
+
+// The numeric rows' every-direction tangents with an expressions end whose coordinates are not
+// consecutive in q (a free body's seven among two coordinates it does not read, in two orders: the
+// frame recognised as a free body's, its J in closed form, and not, its J from its tape): the
+// doubles pass of tangent_columns() (by runs of consecutive coordinates) against the rows on lanes
+// and against tangent() along each direction (the tape on one-direction dual numbers), to 1e-12 of
+// the largest entry.
+TEST(FrameConstraints, ColumnsOfAnEndWithScatteredCoordinates) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();
+  const auto body = sym::free_body_definition("load", 5.0, {0.3, 0, 0, 0, 0.2, 0, 0, 0, 0.5},
+                                              {0, 0, -kG}, {}, symbols);
+  sym::FrameTable t;
+  t.add_bodies(body);
+  const auto& c = body.coordinates();
+  ASSERT_EQ(c.size(), 7u);
+  const std::vector<std::vector<std::string>> orders = {
+      {c[0], "e1", c[1], c[2], c[3], "e2", c[4], c[5], c[6]},
+      {"e1", c[3], c[4], "e2", c[0], c[1], c[2], c[5], c[6]}};
+  const sym::OriginDef ob{{sym::exact_number(0.37), sym::exact_number(-0.1), 0},
+                          {sym::exact_number(3.1), sym::exact_number(0.2), sym::exact_number(2.4)}};
+  const auto max_rel = [](const Mat& a, const Mat& b) {
+    return (a - b).cwiseAbs().maxCoeff() / std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  };
+  std::mt19937_64 rng(31);
+  double worst = 0.0;
+  for (const auto& coords : orders) {
+    for (K kind : {K::weld, K::hinge}) {
+      auto f = frame_def(kind, "c", t, "world", "load.load", {}, ob);
+      sym::NumericFrameSpec spec;
+      spec.kind = kind;
+      spec.name = "c";
+      spec.frame_a = "world";
+      spec.frame_b = "load.load";
+      spec.axis = Vec3(0.2, -0.3, 1.0).normalized();
+      sym::NumericFrameEnd b;
+      b.kind = sym::NumericFrameEnd::Kind::expressions;
+      b.pose = f.b;
+      const auto numeric = sym::make_numeric_frame_constraint(spec, {}, b, coords, symbols);
+      const Index m = numeric->rows(), n = 9;
+      for (int trial = 0; trial < 5; ++trial) {
+        const Vec q = random_vec(rng, n, -1.0, 1.0), qd = random_vec(rng, n, -2.0, 2.0),
+                  qdd = random_vec(rng, n, -3.0, 3.0), lambda = random_vec(rng, m, -2.0, 2.0);
+        Mat dres(m, 2 * n), dforce = Mat::Zero(n, 2 * n), lres(m, 2 * n), lforce = dforce;
+        ASSERT_TRUE(numeric->tangent_columns({}, q, qd, qdd, lambda, dres, dforce));
+        ASSERT_TRUE(
+            sym::numeric_frame_columns_on_lanes(*numeric, {}, q, qd, qdd, lambda, lres, lforce));
+        Mat ores(m, 2 * n), oforce(n, 2 * n);
+        for (Index j = 0; j < 2 * n; ++j) {
+          Vec dq = Vec::Zero(n), dqd = Vec::Zero(n), r(m), fo = Vec::Zero(n);
+          (j < n ? dq(j) : dqd(j - n)) = 1.0;
+          ASSERT_TRUE(numeric->tangent({}, q, qd, qdd, lambda, dq, dqd, r, fo));
+          ores.col(j) = r;
+          oforce.col(j) = fo;
+        }
+        for (const char* e : {"e1", "e2"}) {  // the coordinates the frame does not read
+          const auto k =
+              static_cast<Index>(std::find(coords.begin(), coords.end(), e) - coords.begin());
+          EXPECT_EQ(dres.col(k).cwiseAbs().maxCoeff() + dres.col(n + k).cwiseAbs().maxCoeff(), 0.0);
+        }
+        const double e = std::max({max_rel(dres, lres), max_rel(dforce, lforce),
+                                   max_rel(dres, ores), max_rel(dforce, oforce)});
+        EXPECT_LE(e, 1e-12) << sym::to_string(kind);
+        worst = std::max(worst, e);
+      }
+    }
+  }
+  RecordProperty("worst_rel", ::testing::PrintToString(worst));
 }
 
 // ------------------------------------------------------------------------------ weld range

@@ -616,6 +616,8 @@ TEST(TreeScenario, DynamicsKey) {
 #endif
 
 #ifdef UKDYN_HAVE_IO
+#include "moving_state.hpp"
+#include "symbolic/numeric_frame_lanes.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
 
@@ -762,6 +764,68 @@ TEST(TreeScenario, NumericFrameColumnsMatchTheOneDirectionTangents) {
     }
   }
   RecordProperty("worst_rel", ::testing::PrintToString(worst));
+}
+
+// The doubles pass of the numeric frame rows' tangent_columns() (each row's tangent linear in the
+// ends' J columns, through the rows' constant Hessians) against the same columns computed on lanes
+// (the rows lifted to dual numbers of eight directions, numeric_frame_columns_on_lanes): every
+// kind, tree ends (both ends of `ww` on one tree), a free body's frame and frames fixed in the
+// world, at random states; then the welds of two UR5e to a free-body load (an expressions end) and
+// of two Pandas to their plate at a state moving along the constraints, with the forward data's
+// slots. Relative to the largest entry of each matrix, bound 1e-12.
+TEST(TreeScenario, NumericFrameColumnsOnDoublesMatchTheLanes) {
+  const auto max_rel = [](const Mat& a, const Mat& b) {
+    return (a - b).cwiseAbs().maxCoeff() / std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  };
+  double worst = 0.0;
+  int compared = 0;
+  const auto check = [&](const ukdyn::System& sys, ukdyn::ForwardData* fd, const Vec& q,
+                         const Vec& qd, const Vec& qdd, std::mt19937_64& rng) {
+    const Index n = sys.dof();
+    for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+      const auto* f = dynamic_cast<const sym::FrameConstraint*>(sys.constraints()[c].get());
+      if (f == nullptr || f->derived() != nullptr) continue;
+      const Index m = f->rows();
+      const Vec lambda = random_vec(rng, m, -2, 2);
+      const ukdyn::ConstraintContext ctx{
+          0.0, fd != nullptr ? fd->constraint_slots(c) : ukdyn::ConstraintSlots{}};
+      Mat dres(m, 2 * n), dforce = Mat::Constant(n, 2 * n, 0.25);
+      Mat lres(m, 2 * n), lforce = dforce;
+      ASSERT_TRUE(f->tangent_columns(ctx, q, qd, qdd, lambda, dres, dforce));
+      ASSERT_TRUE(sym::numeric_frame_columns_on_lanes(*f, ctx, q, qd, qdd, lambda, lres, lforce));
+      ASSERT_GT(lres.cwiseAbs().maxCoeff(), 0.0) << f->row_names()[0];
+      const double e = std::max(max_rel(dres, lres), max_rel(dforce, lforce));
+      ASSERT_TRUE(std::isfinite(e)) << f->row_names()[0];
+      EXPECT_LE(e, 1e-12) << f->row_names()[0];
+      worst = std::max(worst, e);
+      ++compared;
+    }
+  };
+  ukdyn::LoadOptions opt;
+  opt.check_initial = false;
+  const ukdyn::Scenario sc =
+      ukdyn::load_scenario_text(frames_scenario("", kFixedEnds), "n.yaml", opt);
+  const Index n = sc.system->dof();
+  std::mt19937_64 rng(29);
+  for (int k = 0; k < 10; ++k) {
+    const Vec q = random_vec(rng, n, -1.5, 1.5), qd = random_vec(rng, n, -2, 2),
+              qdd = random_vec(rng, n, -3, 3);
+    check(*sc.system, nullptr, q, qd, qdd, rng);
+  }
+  EXPECT_GE(compared, 10 * 11);  // the 11 numeric constraints above, every state
+  for (const char* name : {"two_ur5e_load.yaml", "two_pandas_weld.yaml"}) {
+    const ukdyn::Scenario robots =
+        ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + name);
+    const ukdyn::test::State s = ukdyn::test::moving_state(robots);
+    ukdyn::ForwardData fd(*robots.system);
+    ukdyn::forward(*robots.system, fd, robots.sim.t0, s.q, s.qd, s.tau);
+    const int before = compared;
+    check(*robots.system, &fd, s.q, s.qd, fd.qdd, rng);
+    EXPECT_GE(compared - before, 2) << name;
+  }
+  RecordProperty("worst_rel", ::testing::PrintToString(worst));
+  std::printf("numeric frame columns, doubles against lanes: %d constraints, worst %.2g\n",
+              compared, worst);
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 
 #include "core/lane_dual.hpp"
 #include "symbolic/ex_helpers.hpp"
+#include "symbolic/numeric_frame_lanes.hpp"
 #include "tree/dual.hpp"
 #include "ukdyn/model/column_derivatives.hpp"
 #include "ukdyn/symbolic/free_body.hpp"
@@ -935,6 +936,58 @@ void expression_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, EndSc
   expression_values(e, out, qd, qdd, v);
 }
 
+// A free-body end's J (free_body_frame) in closed form, what expression_jacobian() gives from its
+// tape: with R(u) = B(u, u) (quaternion_bilinear), p = x + R(u) o and R = R(u) R_o,
+//   Ṙ(u) = 2 B(u, u̇),   R̈(u) at q̈ = 2 B(u̇, u̇) + 2 B(u, ü),   ∂R(u)/∂u_k = 2 B(e_k, u),
+// so along δu of q: δR(u) = 2 B(u, δu), δṘ(u) = 2 B(δu, u̇), δR̈(u) = 2 B(δu, ü), δ∂R(u)/∂u_k =
+// 2 B(e_k, δu); along δu̇ of q̇: δṘ(u) = 2 B(u, δu̇), δR̈(u) = 4 B(u̇, δu̇); δx, δẋ move p, ṗ by
+// themselves. The state in v with its acceleration at q̈ (as expression_values).
+void free_body_jacobian(const End& e, CVecRef q, CVecRef qd, CVecRef qdd, double* J,
+                        FrameState& v) {
+  free_body_state(e, q, qd, v);
+  double u[4], ud[4], udd[4];
+  for (std::size_t c = 0; c < 7; ++c) {
+    const double a = qdd(e.cols[c]);
+    v.pdd += v.dp.col(static_cast<Index>(c)) * a;
+    for (int i = 0; i < 9; ++i) v.Rdd(i / 3, i % 3) += v.dR(i, static_cast<Index>(c)) * a;
+    if (c >= 3) {
+      u[c - 3] = q(e.cols[c]);
+      ud[c - 3] = qd(e.cols[c]);
+      udd[c - 3] = a;
+    }
+  }
+  const Index ld = 36 + 12 * 7;
+  // Rows r.. of column o: the position part M o (3), then the rotation M R_o (9, row-major).
+  const auto put = [&e](double* o, Index r, const Eigen::Matrix3d& M) {
+    const Eigen::Vector3d x = M * e.fb_o;
+    const Eigen::Matrix3d R = M * e.fb_Ro;
+    for (int i = 0; i < 3; ++i) o[r + i] = x(i);
+    for (int i = 0; i < 9; ++i) o[r + 3 + i] = R(i / 3, i % 3);
+  };
+  for (Index col = 0; col < 14; ++col) {
+    double* o = J + col * ld;
+    std::fill_n(o, ld, 0.0);
+    const bool rate = col >= 7;
+    const Index c = col % 7;
+    double du[4] = {0.0, 0.0, 0.0, 0.0};
+    if (c >= 3) du[c - 3] = 1.0;
+    if (!rate) {
+      put(o, 0, 2.0 * quaternion_bilinear(u, du));
+      put(o, 12, 2.0 * quaternion_bilinear(du, ud));
+      put(o, 24, 2.0 * quaternion_bilinear(du, udd));
+      for (Index k = 0; k < 4 && c >= 3; ++k) {
+        double ek[4] = {0.0, 0.0, 0.0, 0.0};
+        ek[k] = 1.0;
+        put(o, 36 + 12 * (3 + k), 2.0 * quaternion_bilinear(ek, du));
+      }
+    } else {
+      put(o, 12, 2.0 * quaternion_bilinear(u, du));
+      put(o, 24, 4.0 * quaternion_bilinear(ud, du));
+    }
+    if (c < 3) o[(rate ? 12 : 0) + c] += 1.0;
+  }
+}
+
 // An end's state and its J (a tree's frame_state_jacobian(), an expressions end's tape tangents;
 // none for a fixed end). x: its scratch (the tape's work and outputs of an expressions end).
 // A tree end reads the links its subsystem's slot holds at this state (frame_state_jacobian).
@@ -947,7 +1000,11 @@ LaneEnd lane_end(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef 
     return out;
   }
   if (spec.kind == NumericFrameEnd::Kind::expressions) {
-    expression_jacobian(e, q, qd, qdd, x, J, v);
+    if (e.free_body) {
+      free_body_jacobian(e, q, qd, qdd, J, v);
+    } else {
+      expression_jacobian(e, q, qd, qdd, x, J, v);
+    }
     out.J = J;
     return out;
   }
@@ -987,10 +1044,154 @@ Index lane_column(const End& e, Index g, bool rate) {
   add_force_lanes(B, b.cols, r, kPb, kRb, lambda, out_col, lanes, d_force);
 }
 
+// ------------------------------------------------ every direction at once (doubles)
+
+// One nonzero of a row's Hessian H_i = ∂²Φ_i/∂x² (x = (p_a, R_a, p_b, R_b), RowValues::D's
+// columns): ∂D(row, col)/∂x_wrt = h. Every row is at most bilinear in x (the header's comment), so
+// H_i is constant, D_i(x) = ∂Φ_i/∂x is affine and Q_i = ẋᵀ H_i ẋ.
+struct HessianEntry {
+  int row, col, wrt;
+  double h;
+};
+
+// The rows' Hessians, read once off D's tangents along the 24 entries of x (row_values on lanes,
+// three passes of eight, at x = 0 with zero rates: D is affine in x, so its tangents are H exactly).
+std::vector<HessianEntry> row_hessians(const NumericFrameSpec& f) {
+  std::vector<HessianEntry> out;
+  for (int j0 = 0; j0 < 24; j0 += kLanes) {
+    LaneFrame<Lanes> a, b;
+    for (LaneFrame<Lanes>* s : {&a, &b}) {
+      s->p.setConstant(Lanes(0.0));
+      s->pd = s->pdd = s->p;
+      s->R.setConstant(Lanes(0.0));
+      s->Rd = s->Rdd = s->R;
+    }
+    for (int l = 0; l < kLanes && j0 + l < 24; ++l) {
+      LaneFrame<Lanes>& s = j0 + l < 12 ? a : b;
+      const int k = (j0 + l) % 12;
+      (k < 3 ? s.p(k) : s.R((k - 3) / 3, (k - 3) % 3)).d[l] = 1.0;
+    }
+    RowValues<Lanes> r;
+    row_values(f, a, b, r);
+    for (int i = 0; i < r.m; ++i)
+      for (int c = 0; c < 24; ++c)
+        for (int l = 0; l < kLanes && j0 + l < 24; ++l)
+          if (r.D(i, c).d[l] != 0.0) out.push_back({i, c, j0 + l, r.D(i, c).d[l]});
+  }
+  return out;
+}
+
+// What every direction of the doubles pass shares: per end, the gradient of each row of
+// A q̈ − b = D ẍ + ẋᵀHẋ over the end's 36 stacked entries of its J column (p, R, their rates and
+// accelerations at q̈),
+//   d(A q̈ − b)_i = (H_i ẍ)·dx + d(ẋᵀ H_i ẋ) + D_i·dẍ,
+// and g = Dᵀλ (24: both ends' x). d(Dᵀλ) = (Σ_i λ_i H_i) dx is formed per direction.
+struct ColumnMaps {
+  Eigen::Matrix<double, kMaxRows, 36> G[2];
+  Eigen::Matrix<double, 24, 1> g;
+};
+
+void column_maps(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess,
+                 const FrameState& a, const FrameState& b, CVecRef lambda, ColumnMaps& c) {
+  RowValues<double> r;
+  row_values(f, a, b, r);
+  const Eigen::Matrix<double, 24, 1> xd = rates(a, b, false), xdd = rates(a, b, true);
+  c.G[0].setZero();
+  c.G[1].setZero();
+  for (const HessianEntry& e : hess) {
+    c.G[e.wrt / 12](e.row, e.wrt % 12) += e.h * xdd(e.col);
+    c.G[e.wrt / 12](e.row, 12 + e.wrt % 12) += e.h * xd(e.col);
+    c.G[e.col / 12](e.row, 12 + e.col % 12) += e.h * xd(e.wrt);
+  }
+  for (int i = 0; i < r.m; ++i) {
+    for (int k = 0; k < 12; ++k) {
+      c.G[0](i, 24 + k) = r.D(i, k);
+      c.G[1](i, 24 + k) = r.D(i, 12 + k);
+    }
+  }
+  c.g = r.D.topRows(r.m).transpose() * lambda;
+}
+
+// f(first, coordinate, length) for each run of consecutive coordinates in cols (sorted): cols[first
+// .. first + length) = coordinate .. coordinate + length (one run for a tree's end).
+template <class F>
+void for_runs(const std::vector<Index>& cols, F&& f) {
+  std::size_t i = 0;
+  while (i < cols.size()) {
+    std::size_t k = i + 1;
+    while (k < cols.size() && cols[k] == cols[k - 1] + 1) ++k;
+    f(static_cast<Index>(i), cols[i], static_cast<Index>(k - i));
+    i = k;
+  }
+}
+
+// lane_pass's results on doubles over every direction at once: the rows' tangents are linear in
+// the ends' J columns (column_maps; the frame rows' counterpart of the frame acceleration
+// derivatives of J. Carpentier and N. Mansard, "Analytical Derivatives of Rigid Body Dynamics
+// Algorithms", RSS 2018), so nothing is lifted to lanes and each end's directions are
+// matrix products with its J (q's columns, then q̇'s) by runs of consecutive coordinates:
+//   d(A q̈ − b)                 += G_s J_s                 (every row, the end's 36 entries)
+//   d(J_tᵀ D_tᵀ λ)  (t's rows)  += X_tᵀ Hλ[t, s] J_s(x)    (Hλ = Σ_i λ_i H_i; X_t = ∂x_t/∂q)
+//   d(J_sᵀ D_sᵀ λ)  (s's rows)  += (d X_s)ᵀ g_s           (g = Dᵀλ; d X_s: J_s's rows 36 on)
+// for each source end s and target end t. The pose x and X = ∂x/∂q do not depend on q̇: along q̇
+// only the first product is not zero. P (12 (na + nb) doubles) holds X_tᵀ Hλ[t, s]. d_residual
+// written (zeroed by the caller), d_force added to.
+void block_pass(const NumericFrameSpec& f, const std::vector<HessianEntry>& hess, const End& a,
+                const End& b, const LaneEnd& A, const LaneEnd& B, Index n, CVecRef lambda,
+                double* P, MatRef d_residual, MatRef d_force) {
+  const End* ends[2] = {&a, &b};
+  const LaneEnd* lanes[2] = {&A, &B};
+  ColumnMaps maps;
+  column_maps(f, hess, *A.v, *B.v, lambda, maps);
+  Eigen::Matrix<double, 24, 24> Hl = Eigen::Matrix<double, 24, 24>::Zero();
+  for (const HessianEntry& e : hess) Hl(e.col, e.wrt) += lambda(e.row) * e.h;
+  const Index m = d_residual.rows();
+  using CMap = Eigen::Map<const Mat, 0, Eigen::OuterStride<>>;
+  for (int s = 0; s < 2; ++s) {
+    const std::vector<Index>& cs = ends[s]->cols;
+    if (lanes[s]->J == nullptr || cs.empty()) continue;
+    const auto ns = static_cast<Index>(cs.size());
+    const Index ld = lanes[s]->ld;
+    const CMap J(lanes[s]->J, ld, 2 * ns, Eigen::OuterStride<>(ld));
+    for_runs(cs, [&](Index c, Index g, Index len) {
+      d_residual.middleCols(g, len).noalias() +=
+          maps.G[s].topRows(m).lazyProduct(J.block(0, c, 36, len));
+      d_residual.middleCols(n + g, len).noalias() +=
+          maps.G[s].block(0, 12, m, 24).lazyProduct(J.block(12, ns + c, 24, len));
+    });
+    double* Pt = P;
+    for (int t = 0; t < 2; ++t) {
+      const FrameState& X = *lanes[t]->v;
+      const auto nt = static_cast<Index>(ends[t]->cols.size());
+      Eigen::Map<Mat> Pm(Pt, nt, 12);
+      Pm.noalias() = X.dp.transpose().lazyProduct(Hl.block(12 * t, 12 * s, 3, 12));
+      Pm.noalias() += X.dR.transpose().lazyProduct(Hl.block(12 * t + 3, 12 * s, 9, 12));
+      for_runs(ends[t]->cols, [&](Index ct, Index gt, Index lt) {
+        for_runs(cs, [&](Index c, Index g, Index len) {
+          d_force.block(gt, g, lt, len).noalias() +=
+              Pm.middleRows(ct, lt).lazyProduct(J.block(0, c, 12, len));
+        });
+      });
+      Pt += 12 * nt;
+    }
+    const Eigen::Map<const Eigen::Matrix<double, 12, 1>> gs(maps.g.data() + 12 * s);
+    for (Index k = 0; k < ns; ++k) {
+      const Index out = cs[static_cast<std::size_t>(k)];
+      const Eigen::Map<const Eigen::Matrix<double, 12, Eigen::Dynamic>> dX(J.col(k).data() + 36, 12,
+                                                                           ns);
+      for_runs(cs, [&](Index c, Index g, Index len) {
+        d_force.col(out).segment(g, len).noalias() +=
+            dX.middleCols(c, len).transpose().lazyProduct(gs);
+      });
+    }
+  }
+}
+
 // What the constraint and its wrench map share: the spec, the two ends and the slot layout.
 class Core {
  public:
-  Core(NumericFrameSpec f, End a, End b) : f_(std::move(f)), a_(std::move(a)), b_(std::move(b)) {
+  Core(NumericFrameSpec f, End a, End b)
+      : f_(std::move(f)), a_(std::move(a)), b_(std::move(b)), hess_(row_hessians(f_)) {
     names_ = row_names(f_);
     std::set<Index> all(a_.cols.begin(), a_.cols.end());
     all.insert(b_.cols.begin(), b_.cols.end());
@@ -1128,12 +1329,15 @@ class Core {
     add_force_tangent(Vb, Tb, b_.cols, r, kPb, kRb, lambda, d_force);
   }
 
-  // tangent() along every direction of q and q̇ that moves an end, kLanes per pass, from the
-  // ends' J (lane_end): d_residual (rows × 2n) written, d_force (n × 2n) added to. `structural`:
-  // only d_residual's columns of those directions are written (O(columns), not O(n): the others
-  // are zero and left as they are; ConstraintContext::structural_only).
+  // tangent() along every direction of q and q̇ that moves an end, from the ends' J (lane_end):
+  // d_residual (rows × 2n) written, d_force (n × 2n) added to. `structural`: only d_residual's
+  // columns of those directions are written (O(columns), not O(n): the others are zero and left
+  // as they are; ConstraintContext::structural_only). On doubles (block_pass), or `on_lanes`: the
+  // rows lifted to kLanes directions per pass (lane_pass, the reference the tests compare
+  // block_pass with).
   bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
-                       CVecRef lambda, MatRef d_residual, MatRef d_force, bool structural) const {
+                       CVecRef lambda, MatRef d_residual, MatRef d_force, bool structural,
+                       bool on_lanes = false) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -1159,6 +1363,10 @@ class Core {
     } else {
       d_residual.setZero();
     }
+    if (!on_lanes) {  // the one-direction tangent's columns ta, tb hold block_pass's P
+      block_pass(f_, hess_, a_, b_, A, B, n, lambda, ta, d_residual, d_force);
+      return true;
+    }
     // Direction i < nc along q of cols_[i], i ≥ nc along q̇ of cols_[i − nc]: the two kinds share
     // a pass (⌈2 nc / 8⌉ passes, not 2 ⌈nc / 8⌉).
     for (Index i0 = 0; i0 < 2 * nc; i0 += kLanes) {
@@ -1183,6 +1391,7 @@ class Core {
  private:
   NumericFrameSpec f_;
   End a_, b_;
+  std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
 };
@@ -1296,6 +1505,7 @@ class NumericFrameWrenches final : public FrameWrenches {
       twist_jacobian(b, core_->b().cols, n_, Jb);
     });
   }
+  [[nodiscard]] const Core& core() const { return *core_; }
   void jacobians(CVecRef q, Workspace& ws, Mat& Ja, Mat& Jb) const override {
     core_->with(q, q, Slot(ws.out),
                 [&](const FrameState& a, const FrameState& b, const RowValues<double>&) {
@@ -1310,6 +1520,14 @@ class NumericFrameWrenches final : public FrameWrenches {
 };
 
 }  // namespace
+
+bool numeric_frame_columns_on_lanes(const FrameConstraint& c, const ConstraintContext& ctx,
+                                    CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
+                                    MatRef d_residual, MatRef d_force) {
+  const auto* w = dynamic_cast<const NumericFrameWrenches*>(&c.wrench());
+  return w != nullptr && w->core().tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual,
+                                                   d_force, ctx.structural_only, true);
+}
 
 std::pair<Eigen::Vector3d, Eigen::Vector3d> perpendicular_pair(const Eigen::Vector3d& u) {
   int k = 0;
