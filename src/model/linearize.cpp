@@ -706,6 +706,76 @@ void state_columns(const System& system, LinearizeData& d, double t, CVecRef q, 
   store_solutions(system, d, n, parts);
 }
 
+// The right-hand side of the time column (dt = 1, dq = dq̇ = dτ = 0) into d.rhs_t (n + r):
+// −∂ID/∂t + ∂Q_a/∂t + ∂(Aᵀλ)/∂t over −∂(A_R q̈ − b_R)/∂t, and ∂(Aᵀλ)/∂t into d.dforce_t, from
+// the components' time tangents. False with lin.time_message naming the first component without
+// an exact ∂/∂t.
+bool time_rhs(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd) {
+  const Index n = system.dof(), m = system.rows();
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
+  Linearization& lin = d.lin;
+  d.rhs_t.setZero(n + r);
+  d.dforce_t.setZero(n);
+  d.dres_t.resize(m);
+  const auto& lay = system.layout();
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k) {
+    const Subsystem& sub = *system.subsystems()[k];
+    const Index s = lay.start[k], nk = lay.size[k];
+    auto dID = d.dID.segment(s, nk);
+    if (!sub.inverse_dynamics_time_tangent(EvalContext{t, d.fwd.subsystem_slot(k)},
+                                           q.segment(s, nk), qd.segment(s, nk),
+                                           lin.qdd.segment(s, nk), dID)) {
+      lin.time_message = "no exact d/dt for subsystem '" + sub.name() + "'";
+      return false;
+    }
+    d.rhs_t.segment(s, nk) = -dID;
+  }
+  for (const auto& f : system.applied_forces()) {
+    if (!f->add_time_tangent(t, q, qd, d.rhs_t.head(n))) {
+      lin.time_message = "no exact d/dt for applied force '" + f->name() + "'";
+      return false;
+    }
+  }
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < system.constraints().size(); ++c) {
+    const Constraint& con = *system.constraints()[c];
+    const Index rows = con.rows(), off = offs[c];
+    if (!con.time_tangent(ConstraintContext{t, d.fwd.constraint_slots(c)}, q, qd, lin.qdd,
+                          d.lambda.segment(off, rows), d.dres_t.segment(off, rows), d.dforce_t)) {
+      const auto& names = system.constraint_row_names();
+      const auto row = static_cast<std::size_t>(off);
+      lin.time_message = "no exact d/dt for constraint of row '" +
+                         (row < names.size() ? names[row] : std::string("?")) + "'";
+      return false;
+    }
+  }
+  d.rhs_t.head(n) += d.dforce_t;
+  for (Index i = 0; i < r; ++i)
+    d.rhs_t(n + i) = -d.dres_t(d.lin.kept_rows[static_cast<std::size_t>(i)]);
+  return true;
+}
+
+// ∂q̈/∂t, ∂μ/∂t and ∂Qc/∂t (dQc = ∂(Aᵀλ)/∂t + A_Rᵀ dμ) as `parts` asks: one more right-hand side
+// of the factorisation the state columns used (dense LU, Schur complement or arrow blocks alike).
+void time_column(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                 LinearizeParts parts) {
+  Linearization& lin = d.lin;
+  lin.time_message.clear();
+  const Index n = system.dof(), r = static_cast<Index>(lin.kept_rows.size());
+  if (!parts.time || !time_rhs(system, d, t, q, qd)) {
+    lin.dqdd_dt.resize(0);
+    lin.dQc_dt.resize(0);
+    lin.dmu_dt.resize(0);
+    return;
+  }
+  kkt_solve(system, d, d.rhs_t, d.sol_t);
+  lin.dqdd_dt = d.sol_t.head(n);
+  lin.dmu_dt = d.sol_t.tail(r);
+  lin.dQc_dt = d.dforce_t;
+  add_at_times(system, d, Eigen::Map<const Mat>(lin.dmu_dt.data(), r, 1),
+               Eigen::Map<Mat>(lin.dQc_dt.data(), n, 1));
+}
+
 }  // namespace
 
 void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, CVecRef tau,
@@ -713,6 +783,7 @@ void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVec
   check_inputs(system, t, q, qd, tau);
   prepare_kkt(system, d, t, q, qd, tau, settings);
   state_columns(system, d, t, q, qd, parts);
+  time_column(system, d, t, q, qd, parts);
 }
 
 void dqdd_dx_dense(const LinearizeData& data, Mat& dqdd_dq, Mat& dqdd_dqd) {
@@ -750,6 +821,9 @@ void linearize_corrected(const System& system, LinearizeData& d, double t, CVecR
   d.allow_arrow = false;
   prepare_kkt(system, d, t, q, qd, tau, settings, &correction.v);
   state_columns(system, d, t, q, qd, LinearizeParts{}, &correction);
+  LinearizeParts no_time;  // (the correction v depends on t through Φ, Φ̇: not differentiated)
+  no_time.time = false;
+  time_column(system, d, t, q, qd, no_time);
 }
 
 void constraint_tangent_columns(const System& system, LinearizeData& d, double t, CVecRef q,

@@ -44,6 +44,12 @@ class ClosureConstraint final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// A and b do not depend on t: ∂/∂t is 0 (exact).
+  bool time_tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, VecRef d_residual,
+                    VecRef) const override {
+    d_residual.setZero();
+    return true;
+  }
 
  private:
   std::shared_ptr<const MobileManipulator> left_, right_;
@@ -74,6 +80,10 @@ class CutPointTrajectory final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// A = J_axis(q) does not depend on t and b = f̈(t) − c_axis(q, q̇): ∂(A q̈ − b)/∂t = −f⃛(t)
+  /// (TimeFunction::eval, d = 3), ∂(Aᵀλ)/∂t = 0.
+  bool time_tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                    CVecRef lambda, VecRef d_residual, VecRef d_force) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> arm_;
@@ -102,6 +112,12 @@ class CoordinateConstraint final : public Constraint {
   bool tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef,
                VecRef d_residual, VecRef) const override {
     d_residual.setZero();
+    return true;
+  }
+  /// ∂(A q̈ − b)/∂t = −f⃛(t) (TimeFunction::eval, d = 3); A is constant: ∂(Aᵀλ)/∂t = 0.
+  bool time_tangent(const ConstraintContext& ctx, CVecRef, CVecRef, CVecRef, CVecRef,
+                    VecRef d_residual, VecRef) const override {
+    d_residual(0) = -f_.eval(ctx.t, 3);
     return true;
   }
 
