@@ -277,14 +277,47 @@ void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref
   }
 }
 
+// Whether augment_columns() augments the right-hand sides as forward()'s singular solve augmented
+// the M_a the row choice factorised (after an arrow forward() solve dense_rows() augments with the
+// own rows itself: they agree): forward() augments each singular block with
+// the rows lying in it alone at the state (row_block), or all of M when it went dense;
+// augment_columns() adds the structural blocks' declared own rows. They agree when forward() did
+// not go dense, augmented no block but the structural ones, and each structural block's rows are
+// its own rows. (A row on a free body alone that declares no sparsity, a `coordinate` row on its z
+// say, is in row_block but not in own_rows: the Schur solve would then miss its augmentation.)
+bool augmentation_matches(const System& system, const ForwardData& f) {
+  const UkSingularWorkspace& sw = f.singular;
+  if (!sw.active || f.used_arrow) return true;  // after the arrow solve: dense_rows()' own rows
+  if (sw.dense_used) return false;
+  const auto& lay = system.layout();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], nk = lay.size[k];
+    if (!sw.structural[k]) {
+      if (sw.Ma.block(s, s, nk, nk) != f.M.block(s, s, nk, nk)) return false;
+      continue;
+    }
+    std::size_t in_block = 0;
+    for (std::size_t i = 0; i < sw.row_block.size(); ++i) {
+      if (sw.row_block[i] != static_cast<Index>(k)) continue;
+      ++in_block;
+      const auto& own = sw.own_rows[k];
+      if (std::find(own.begin(), own.end(), static_cast<Index>(i)) == own.end()) return false;
+    }
+    if (in_block != sw.own_rows[k].size()) return false;
+  }
+  return true;
+}
+
 // Whether the dense KKT system can be solved by the row choice's factors (schur_solve): every
 // row kept, R square, and A M^{-1/2} far enough from singular (σ_m/σ_1 ≥ 1e-3) that solving with
 // R twice loses no more than an LU of K would. (With a structurally singular block the row choice
-// factorised the augmented M_a: kkt_solve augments the right-hand sides to match.)
-bool schur_applies(const LinearizeData& d, const RowChoice& rc, Index r) {
+// factorised the augmented M_a: kkt_solve augments the right-hand sides to match, where it can:
+// augmentation_matches().)
+bool schur_applies(const System& system, const LinearizeData& d, const RowChoice& rc, Index r) {
   const Index m = d.fwd.A.rows();
   return d.allow_schur && d.allow_arrow && !d.used_arrow && m > 0 && r == m && d.R.rows() == m &&
-         d.R.cols() == m && d.Xt.cols() == m && rc.sigma_ratio_kept >= 1e-3;
+         d.R.cols() == m && d.Xt.cols() == m && rc.sigma_ratio_kept >= 1e-3 &&
+         augmentation_matches(system, d.fwd);
 }
 
 // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks or the
@@ -309,7 +342,7 @@ void solve_kkt(const System& system, LinearizeData& d, Index n, const RowChoice&
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
     if (v != nullptr) d.bR(k) += (*v)(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
-  d.used_schur = schur_applies(d, rc, r);
+  d.used_schur = schur_applies(system, d, rc, r);
   if (!d.used_arrow && !d.used_schur) {
     d.K.resize(n + r, n + r);
     d.K.setZero();

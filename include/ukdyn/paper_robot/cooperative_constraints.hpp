@@ -101,6 +101,9 @@ class CoordinateConstraint final : public Constraint {
   CoordinateConstraint(Index coordinate, TimeFunction f, std::string name);
   [[nodiscard]] Index rows() const override { return 1; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
+  /// A = e_jᵀ: column j alone (a row on a free body's z is then one of its own rows, which the
+  /// singular solve and the derivatives' augmentation count alike, ukdyn/core/uk_singular.hpp).
+  [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override { return {{j_}}; }
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override;
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
