@@ -17,6 +17,8 @@
 
 #include "moving_state.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/output/control_output.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/scenario/scenario.hpp"
 #ifdef UKDYN_CLI
 #include <nlohmann/json.hpp>
@@ -423,4 +425,30 @@ TEST(TimeDerivatives, AnUndeclaredRowOnAFreeBodyKeepsTheLuSolve) {
   EXPECT_LE(rel_error(d.lin.dqdd_dt, c.qdd), 1e-7);
   EXPECT_LE(rel_error(d.lin.dQc_dt, c.Qc), 1e-7);
   test::expect_columns_match_differences(sc, s, d.lin.dqdd_dq, d.lin.dqdd_dqd);
+}
+
+// The closed loop's time column (paper_control: the servo law's reference moves with t):
+// d/dt q̈(t, q, q̇, τ(t, q, q̇)) = ∂q̈/∂t + ∂q̈/∂τ ∂τ/∂t against differences in t of forward() of
+// the plant under the law's τ at each time (the law's own ∂τ/∂t is a difference quotient: 1e-6).
+TEST(TimeDerivatives, ClosedLoopAddsTheLawsTimeDerivative) {
+  const Scenario sc = load_scenario(kSource / "scenarios" / "paper_control.yaml");
+  const auto run = make_control_run(sc);
+  ASSERT_TRUE(run);
+  const Vec q = run->q0, qd = run->qd0;
+  const double t = 0.6;
+  const ClosedLoopLinearization cl = closed_loop_linearization(sc, t, q, qd);
+  ASSERT_EQ(cl.lin.dqdd_dt.size(), q.size()) << cl.lin.time_message;
+  ForwardData fd(*run->plant);
+  auto closed_qdd = [&](double at) {
+    const Vec tau = law_derivatives(*run, at, q, qd).tau;
+    forward(*run->plant, fd, at, q, qd, tau, sc.sim.uk);
+    return Vec(fd.qdd);
+  };
+  auto central = [&](double h) { return Vec((closed_qdd(t + h) - closed_qdd(t - h)) / (2 * h)); };
+  const Vec c = (4 * central(5e-4) - central(1e-3)) / 3;
+  const Linearization plant = linearize(*run->plant, t, q, qd, cl.law.tau, sc.sim.uk);
+  std::cout << "[ time ] paper_control closed loop: " << rel_error(cl.lin.dqdd_dt, c)
+            << " (the plant's alone: " << rel_error(plant.dqdd_dt, c) << ")\n";
+  EXPECT_GT(rel_error(plant.dqdd_dt, c), 1e-3);  // the law's share matters here
+  EXPECT_LE(rel_error(cl.lin.dqdd_dt, c), 1e-6);
 }

@@ -287,7 +287,7 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
       "dtau_dq, dtau_dqd: exact when dtau_method is \"exact\", else (dtau_method says why) "
       "Richardson central differences of the law (step 1e-6 max(1, |x_j|)); dtau_dt: Richardson "
       "differences; F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives "
-      "with them";
+      "with them; derivatives.dqdd_dt/dQc_dt: the plant's exact d/dt plus dqdd_dtau dtau_dt";
   return j;
 }
 
