@@ -326,8 +326,8 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
           }
           st.counters["dof"] = static_cast<double>(sc.system->dof());
         }));
-    // The same into a LinearizeData kept across calls (no allocation), all parts or only
-    // ∂q̈/∂(q, q̇) (what the implicit integrators' Jacobian takes).
+    // The same into a LinearizeData kept across calls (no allocation), all parts (∂/∂t included)
+    // or only ∂q̈/∂(q, q̇) (what the implicit integrators' Jacobian takes).
     for (const bool all : {true, false}) {
       with_min_max(benchmark::RegisterBenchmark(
           ("derivatives/" + name + (all ? "_linearize_workspace" : "_linearize_dqdd_dx")).c_str(),
@@ -339,7 +339,7 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
             }
             const DerivativeState s = derivative_state(sc);
             ukdyn::LinearizeData data(*sc.system);
-            const ukdyn::LinearizeParts parts{all, all};
+            const ukdyn::LinearizeParts parts{all, all, false, all};
             for (auto _ : st) {
               ukdyn::linearize(*sc.system, data, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, parts);
               benchmark::DoNotOptimize(data.lin.dqdd_dq.data());
@@ -358,7 +358,7 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
           }
           const DerivativeState s = derivative_state(sc);
           ukdyn::LinearizeData data(*sc.system);
-          const ukdyn::LinearizeParts parts{false, false, true};
+          const ukdyn::LinearizeParts parts{false, false, true, false};
           for (auto _ : st) {
             ukdyn::linearize(*sc.system, data, sc.sim.t0, s.q, s.qd, s.tau, sc.sim.uk, parts);
             benchmark::DoNotOptimize(data.dqdd_dx.XL.data());

@@ -631,9 +631,10 @@ TEST(NoAlloc, ConstraintForceColumnsAllocateNothing) {
 // the allocating linearize(). The two weld systems have the block-arrow structure; the three arms
 // on a free-body load run with the arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp; two robots keep
 // the dense one, by the Schur complement) and with the dense LU (allow_arrow = false). The paper's
-// chains add derived constraints (their tape tangents, every direction in one call) and no arrow.
-// A lone Panda (bench/panda_arm.yaml) has no constraint rows: M⁻¹ times the inverse dynamics'
-// derivatives, no KKT system (with allow_arrow = false the LU of K = M, the reference).
+// chains add derived constraints (their tape tangents, every direction in one call; their time
+// tangents, the trajectory's, for ∂q̈/∂t) and no arrow. A lone Panda (bench/panda_arm.yaml) has no
+// constraint rows: M⁻¹ times the inverse dynamics' derivatives, no KKT system (with allow_arrow =
+// false the LU of K = M, the reference).
 TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
   for (const char* name : {"two_ur5e_load.yaml", "n_robots_3_weld.yaml", "paper_chain.yaml",
                            "../bench/panda_arm.yaml"}) {
@@ -663,6 +664,9 @@ TEST(NoAlloc, LinearizeInItsWorkspaceAllocatesNothing) {
         const ukdyn::Linearization& ref = fresh.lin;
         EXPECT_EQ(data.lin.dqdd_dq, ref.dqdd_dq);
         EXPECT_EQ(data.lin.dqdd_dqd, ref.dqdd_dqd);
+        // The time column (LinearizeParts::time, on in both) too: the same numbers.
+        ASSERT_EQ(data.lin.dqdd_dt.size(), n) << data.lin.time_message;
+        EXPECT_EQ(data.lin.dqdd_dt, ref.dqdd_dt);
         if (all) {
           EXPECT_EQ(data.lin.dqdd_dtau, ref.dqdd_dtau);
           EXPECT_EQ(data.lin.dQc_dq, ref.dQc_dq);

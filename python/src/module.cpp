@@ -394,6 +394,9 @@ struct PyLinearization {
              Fd_min = py::none(), Gd_min = py::none();
   py::object at_rest = py::none(), rheonomic = py::none();
   std::string minimal_note;
+  // d/dt at fixed (q, qd, tau): None where a component has no exact d/dt (time_message says which).
+  py::object dqdd_dt = py::none(), dQc_dt = py::none(), dmu_dt = py::none();
+  std::string time_message;
 };
 
 // The discrete and minimal parts of a linearisation (with the GIL held: numpy arrays).
@@ -459,6 +462,12 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   r.dQc_dq = numpy_of(lin.dQc_dq);
   r.dQc_dqd = numpy_of(lin.dQc_dqd);
   r.dQc_dtau = numpy_of(lin.dQc_dtau);
+  if (lin.dqdd_dt.size() == n) {
+    r.dqdd_dt = numpy_of(lin.dqdd_dt);
+    r.dQc_dt = numpy_of(lin.dQc_dt);
+    r.dmu_dt = numpy_of(lin.dmu_dt);
+  }
+  r.time_message = lin.time_message;
   r.F = numpy_of(F);
   r.G = numpy_of(G);
   r.rank = lin.rank;
@@ -798,6 +807,13 @@ PYBIND11_MODULE(_ukdyn, m) {
       .def_readonly("dQc_dq", &PyLinearization::dQc_dq, "d Qc / d q, n x n")
       .def_readonly("dQc_dqd", &PyLinearization::dQc_dqd, "d Qc / d qd, n x n")
       .def_readonly("dQc_dtau", &PyLinearization::dQc_dtau, "d Qc / d tau, n x n")
+      .def_readonly("dqdd_dt", &PyLinearization::dqdd_dt,
+                    "d qdd / d t at fixed (q, qd, tau), n, or None (see time_message)")
+      .def_readonly("dQc_dt", &PyLinearization::dQc_dt, "d Qc / d t, n, or None")
+      .def_readonly("dmu_dt", &PyLinearization::dmu_dt,
+                    "d mu / d t of the kept rows' multipliers, r, or None")
+      .def_readonly("time_message", &PyLinearization::time_message,
+                    "why d/dt is None ('' when given)")
       .def_readonly("F", &PyLinearization::F, "state matrix of x = (q, qd), 2n x 2n")
       .def_readonly("G", &PyLinearization::G, "input matrix of tau, 2n x n")
       .def_readonly("rank", &PyLinearization::rank, "rank of A")

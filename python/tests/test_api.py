@@ -307,6 +307,34 @@ def test_linearize_matches_differences_of_forward(tmp_path):
     assert lin.trusted and np.all(np.isfinite(lin.dqdd_dq))
 
 
+def test_linearize_time_column_matches_differences_in_t(tmp_path):
+    # d qdd/dt, d Qc/dt at fixed (q, qd, tau) (docs/derivatives.md, "Time"): the paper's cut-point
+    # trajectory moves with t; Richardson central differences in t of forward() are the reference.
+    sc = ukdyn.load_scenario(scenario_path("paper.yaml"))
+    q, qd = np.array(sc.q0), np.array(sc.qd0)
+    tau = np.zeros(len(q))
+    t = 0.6
+    lin = sc.linearize(t, q, qd, tau)
+    assert lin.trusted and lin.time_message == "", lin.time_message
+
+    def central(h):
+        p, m = sc.forward(t + h, q, qd, tau), sc.forward(t - h, q, qd, tau)
+        return (p.qdd - m.qdd) / (2 * h), (p.Qc - m.Qc) / (2 * h)
+
+    (a, ac), (b, bc) = central(5e-4), central(1e-3)
+    d, dc = (4 * a - b) / 3, (4 * ac - bc) / 3
+    assert np.abs(d).max() > 1e-2
+    assert np.abs(lin.dqdd_dt - d).max() <= 1e-7 * np.abs(d).max()
+    assert np.abs(lin.dQc_dt - dc).max() <= 1e-7 * np.abs(dc).max()
+    assert lin.dmu_dt.shape == (lin.rank,)
+    # Nothing of the tree arm depends on t: exactly 0.
+    path = tmp_path / "arm.yaml"
+    path.write_text(ARM_YAML)
+    arm = ukdyn.load_scenario(path)
+    still = arm.linearize(0.3, np.array([0.3, -0.7, 1.1]), np.array([0.5, -1.2, 0.8]))
+    assert np.array_equal(still.dqdd_dt, np.zeros(3)) and np.array_equal(still.dQc_dt, np.zeros(3))
+
+
 def test_linearize_minimal_and_discrete():
     # Minimal coordinates on the constraint manifold and the zero-order hold (docs/derivatives.md):
     # the five-bar (4 angles, 2 closure rows) held at rest by tau = G.

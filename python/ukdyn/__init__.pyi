@@ -232,6 +232,10 @@ class Linearization:
     dQc_dq: FloatArray
     dQc_dqd: FloatArray
     dQc_dtau: FloatArray
+    dqdd_dt: Optional[FloatArray]
+    dQc_dt: Optional[FloatArray]
+    dmu_dt: Optional[FloatArray]
+    time_message: str
     F: FloatArray
     G: FloatArray
     rank: int

@@ -286,14 +286,47 @@ void add_at_times(const System& system, const LinearizeData& d, const Eigen::Ref
   }
 }
 
+// Whether augment_columns() augments the right-hand sides as forward()'s singular solve augmented
+// the M_a the row choice factorised (after an arrow forward() solve dense_rows() augments with the
+// own rows itself: they agree): forward() augments each singular block with
+// the rows lying in it alone at the state (row_block), or all of M when it went dense;
+// augment_columns() adds the structural blocks' declared own rows. They agree when forward() did
+// not go dense, augmented no block but the structural ones, and each structural block's rows are
+// its own rows. (A row on a free body alone that declares no sparsity, a `coordinate` row on its z
+// say, is in row_block but not in own_rows: the Schur solve would then miss its augmentation.)
+bool augmentation_matches(const System& system, const ForwardData& f) {
+  const UkSingularWorkspace& sw = f.singular;
+  if (!sw.active || f.used_arrow) return true;  // after the arrow solve: dense_rows()' own rows
+  if (sw.dense_used) return false;
+  const auto& lay = system.layout();
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], nk = lay.size[k];
+    if (!sw.structural[k]) {
+      if (sw.Ma.block(s, s, nk, nk) != f.M.block(s, s, nk, nk)) return false;
+      continue;
+    }
+    std::size_t in_block = 0;
+    for (std::size_t i = 0; i < sw.row_block.size(); ++i) {
+      if (sw.row_block[i] != static_cast<Index>(k)) continue;
+      ++in_block;
+      const auto& own = sw.own_rows[k];
+      if (std::find(own.begin(), own.end(), static_cast<Index>(i)) == own.end()) return false;
+    }
+    if (in_block != sw.own_rows[k].size()) return false;
+  }
+  return true;
+}
+
 // Whether the dense KKT system can be solved by the row choice's factors (schur_solve): every
 // row kept, R square, and A M^{-1/2} far enough from singular (σ_m/σ_1 ≥ 1e-3) that solving with
 // R twice loses no more than an LU of K would. (With a structurally singular block the row choice
-// factorised the augmented M_a: kkt_solve augments the right-hand sides to match.)
-bool schur_applies(const LinearizeData& d, const RowChoice& rc, Index r) {
+// factorised the augmented M_a: kkt_solve augments the right-hand sides to match, where it can:
+// augmentation_matches().)
+bool schur_applies(const System& system, const LinearizeData& d, const RowChoice& rc, Index r) {
   const Index m = d.fwd.A.rows();
   return d.allow_schur && d.allow_arrow && !d.used_arrow && m > 0 && r == m && d.R.rows() == m &&
-         d.R.cols() == m && d.Xt.cols() == m && rc.sigma_ratio_kept >= 1e-3;
+         d.R.cols() == m && d.Xt.cols() == m && rc.sigma_ratio_kept >= 1e-3 &&
+         augmentation_matches(system, d.fwd);
 }
 
 // The KKT matrix of the kept rows, [M −A_Rᵀ; A_R 0], factorised (unless the arrow blocks or the
@@ -318,7 +351,7 @@ void solve_kkt(const System& system, LinearizeData& d, Index n, const RowChoice&
     d.bR(k) = f.b(lin.kept_rows[static_cast<std::size_t>(k)]);
     if (v != nullptr) d.bR(k) += (*v)(lin.kept_rows[static_cast<std::size_t>(k)]);
   }
-  d.used_schur = schur_applies(d, rc, r);
+  d.used_schur = schur_applies(system, d, rc, r);
   if (!d.used_arrow && !d.used_schur) {
     d.K.resize(n + r, n + r);
     d.K.setZero();
@@ -823,14 +856,93 @@ bool linearize_without_rows(const System& system, LinearizeData& d, double t, CV
   return true;
 }
 
+// The right-hand side of the time column (dt = 1, dq = dq̇ = dτ = 0) into d.rhs_t (n + r):
+// −∂ID/∂t + ∂Q_a/∂t + ∂(Aᵀλ)/∂t over −∂(A_R q̈ − b_R)/∂t, and ∂(Aᵀλ)/∂t into d.dforce_t, from
+// the components' time tangents. False with lin.time_message naming the first component without
+// an exact ∂/∂t.
+bool time_rhs(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd) {
+  const Index n = system.dof(), m = system.rows();
+  const auto r = static_cast<Index>(d.lin.kept_rows.size());
+  Linearization& lin = d.lin;
+  d.rhs_t.setZero(n + r);
+  d.dforce_t.setZero(n);
+  d.dres_t.resize(m);
+  const auto& lay = system.layout();
+  for (std::size_t k = 0; k < system.subsystems().size(); ++k) {
+    const Subsystem& sub = *system.subsystems()[k];
+    const Index s = lay.start[k], nk = lay.size[k];
+    auto dID = d.dID.segment(s, nk);
+    if (!sub.inverse_dynamics_time_tangent(EvalContext{t, d.fwd.subsystem_slot(k)},
+                                           q.segment(s, nk), qd.segment(s, nk),
+                                           lin.qdd.segment(s, nk), dID)) {
+      lin.time_message = "no exact d/dt for subsystem '" + sub.name() + "'";
+      return false;
+    }
+    d.rhs_t.segment(s, nk) = -dID;
+  }
+  for (const auto& f : system.applied_forces()) {
+    if (!f->add_time_tangent(t, q, qd, d.rhs_t.head(n))) {
+      lin.time_message = "no exact d/dt for applied force '" + f->name() + "'";
+      return false;
+    }
+  }
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < system.constraints().size(); ++c) {
+    const Constraint& con = *system.constraints()[c];
+    const Index rows = con.rows(), off = offs[c];
+    if (!con.time_tangent(ConstraintContext{t, d.fwd.constraint_slots(c)}, q, qd, lin.qdd,
+                          d.lambda.segment(off, rows), d.dres_t.segment(off, rows), d.dforce_t)) {
+      const auto& names = system.constraint_row_names();
+      const auto row = static_cast<std::size_t>(off);
+      lin.time_message = "no exact d/dt for constraint of row '" +
+                         (row < names.size() ? names[row] : std::string("?")) + "'";
+      return false;
+    }
+  }
+  d.rhs_t.head(n) += d.dforce_t;
+  for (Index i = 0; i < r; ++i)
+    d.rhs_t(n + i) = -d.dres_t(d.lin.kept_rows[static_cast<std::size_t>(i)]);
+  return true;
+}
+
+// ∂q̈/∂t, ∂μ/∂t and ∂Qc/∂t (dQc = ∂(Aᵀλ)/∂t + A_Rᵀ dμ) as `parts` asks: one more right-hand side
+// of the factorisation the state columns used (dense LU, Schur complement or arrow blocks alike;
+// `without_rows`: linearize_without_rows() ran, M⁻¹ with forward()'s Cholesky factors of M).
+void time_column(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
+                 LinearizeParts parts, bool without_rows = false) {
+  Linearization& lin = d.lin;
+  lin.time_message.clear();
+  const Index n = system.dof(), r = static_cast<Index>(lin.kept_rows.size());
+  if (!parts.time || !time_rhs(system, d, t, q, qd)) {
+    lin.dqdd_dt.resize(0);
+    lin.dQc_dt.resize(0);
+    lin.dmu_dt.resize(0);
+    return;
+  }
+  if (without_rows) {  // r = 0: rhs_t is −∂ID/∂t + ∂Q_a/∂t alone
+    mass_solve_columns(system, d, Eigen::Map<Mat>(d.rhs_t.data(), n, 1));
+    d.sol_t = d.rhs_t;
+  } else {
+    kkt_solve(system, d, d.rhs_t, d.sol_t);
+  }
+  lin.dqdd_dt = d.sol_t.head(n);
+  lin.dmu_dt = d.sol_t.tail(r);
+  lin.dQc_dt = d.dforce_t;
+  add_at_times(system, d, Eigen::Map<const Mat>(lin.dmu_dt.data(), r, 1),
+               Eigen::Map<Mat>(lin.dQc_dt.data(), n, 1));
+}
 }  // namespace
 
 void linearize(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd, CVecRef tau,
                const UkSettings& settings, LinearizeParts parts) {
   check_inputs(system, t, q, qd, tau);
-  if (linearize_without_rows(system, d, t, q, qd, tau, settings, parts)) return;
+  if (linearize_without_rows(system, d, t, q, qd, tau, settings, parts)) {
+    time_column(system, d, t, q, qd, parts, true);
+    return;
+  }
   prepare_kkt(system, d, t, q, qd, tau, settings);
   state_columns(system, d, t, q, qd, parts);
+  time_column(system, d, t, q, qd, parts);
 }
 
 void dqdd_dx_dense(const LinearizeData& data, Mat& dqdd_dq, Mat& dqdd_dqd) {
@@ -868,6 +980,9 @@ void linearize_corrected(const System& system, LinearizeData& d, double t, CVecR
   d.allow_arrow = false;
   prepare_kkt(system, d, t, q, qd, tau, settings, &correction.v);
   state_columns(system, d, t, q, qd, LinearizeParts{}, &correction);
+  LinearizeParts no_time;  // (the correction v depends on t through Φ, Φ̇: not differentiated)
+  no_time.time = false;
+  time_column(system, d, t, q, qd, no_time);
 }
 
 void constraint_tangent_columns(const System& system, LinearizeData& d, double t, CVecRef q,

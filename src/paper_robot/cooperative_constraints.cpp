@@ -166,6 +166,14 @@ bool CutPointTrajectory::tangent(const ConstraintContext& /*ctx*/, CVecRef q, CV
   return true;
 }
 
+bool CutPointTrajectory::time_tangent(const ConstraintContext& ctx, CVecRef /*q*/, CVecRef /*qd*/,
+                                      CVecRef /*qdd*/, CVecRef /*lambda*/, VecRef d_residual,
+                                      VecRef /*d_force*/) const {
+  for (std::size_t i = 0; i < axis_.size(); ++i)
+    d_residual(static_cast<Index>(i)) = -f_[i].eval(ctx.t, 3);
+  return true;
+}
+
 // ------------------------------------------------------------------- coordinate = f(t)
 
 CoordinateConstraint::CoordinateConstraint(Index coordinate, TimeFunction f, std::string name)

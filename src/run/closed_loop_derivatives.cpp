@@ -145,6 +145,12 @@ ClosedLoopLinearization closed_loop_linearization(const Scenario& sc, double t, 
   lin.dqdd_dqd += lin.dqdd_dtau * out.law.dtau_dqd;
   lin.dQc_dq += lin.dQc_dtau * out.law.dtau_dq;
   lin.dQc_dqd += lin.dQc_dtau * out.law.dtau_dqd;
+  // d/dt of q̈(t, q, q̇, τ(t, q, q̇)) = ∂q̈/∂t + ∂q̈/∂τ ∂τ/∂t (the law's ∂τ/∂t by differences).
+  if (lin.dqdd_dt.size() > 0 && out.law.dtau_dt.size() == lin.dqdd_dt.size()) {
+    lin.dqdd_dt += lin.dqdd_dtau * out.law.dtau_dt;
+    lin.dQc_dt += lin.dQc_dtau * out.law.dtau_dt;
+    lin.dmu_dt += lin.dmu_dtau * out.law.dtau_dt;
+  }
   return out;
 }
 

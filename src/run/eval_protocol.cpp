@@ -104,6 +104,12 @@ json linearization_json(const System& sys, const Linearization& lin) {
   out["dQc_dq"] = rows_of(lin.dQc_dq);
   out["dQc_dqd"] = rows_of(lin.dQc_dqd);
   out["dQc_dtau"] = rows_of(lin.dQc_dtau);
+  // ∂/∂t at fixed (q, q̇, τ) (docs/derivatives.md, "Time"): null, with time_message saying why,
+  // when a component has no exact ∂/∂t.
+  const bool timed = lin.dqdd_dt.size() == lin.qdd.size();
+  out["dqdd_dt"] = timed ? vec_of(lin.dqdd_dt) : json(nullptr);
+  out["dQc_dt"] = timed ? vec_of(lin.dQc_dt) : json(nullptr);
+  out["time_message"] = lin.time_message;
   return out;
 }
 
@@ -281,7 +287,7 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
       "dtau_dq, dtau_dqd: exact when dtau_method is \"exact\", else (dtau_method says why) "
       "Richardson central differences of the law (step 1e-6 max(1, |x_j|)); dtau_dt: Richardson "
       "differences; F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives "
-      "with them";
+      "with them; derivatives.dqdd_dt/dQc_dt: the plant's exact d/dt plus dqdd_dtau dtau_dt";
   return j;
 }
 
@@ -336,6 +342,10 @@ json linearization_object(const Scenario& sc, double t, const Vec& q, const Vec&
   }
   if (opt.minimal || cl) j["minimal"] = minimal_json(sys, t, q, qd, tau, lin, opt.dt);
   trusted = lin.trusted;
+  if (opt.warnings && !lin.time_message.empty())
+    *opt.warnings << printable("ukdyn: warning: dqdd_dt, dQc_dt not given: " + lin.time_message,
+                               true)
+                  << "\n";
   if (cl) {
     j["closed_loop"] = closed_loop_json(sys, t, q, qd, *cl, to_string(sc.control->law.kind));
     if (!cl->law.kinks.empty()) {

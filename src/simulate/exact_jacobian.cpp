@@ -46,9 +46,10 @@ bool ExactJacobian::operator()(double t, const double* x, double* J) {
   // Called from SUNDIALS (C): nothing may propagate out of it.
   try {
     if (tau_fn_) tau_fn_(t, q, qd, tau_);
-    // ∂q̈/∂τ only for the chain rule through τ(t, q, q̇); ∂Qc is not a term of f.
+    // ∂q̈/∂τ only for the chain rule through τ(t, q, q̇); ∂Qc and ∂/∂t are not terms of ∂f/∂x.
     linearize(system_, lin_, t, q, qd, tau_, s_.uk,
-              LinearizeParts{/*tau=*/static_cast<bool>(tau_fn_), /*constraint_force=*/false});
+              LinearizeParts{/*tau=*/static_cast<bool>(tau_fn_), /*constraint_force=*/false,
+                             /*structured=*/false, /*time=*/false});
     const Linearization& lin = lin_.lin;
     if (!lin.trusted) return false;
     for (Index i = 0; i < n_; ++i) Jm(i, n_ + i) = 1.0;  // ∂q̇/∂q̇ = I

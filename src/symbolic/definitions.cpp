@@ -735,10 +735,11 @@ Index DerivedSubsystem::slot_size() const {
 
 namespace {
 
-// The tape's values (returned) and, after them, their tangents along (dq, dq̇): in the slot when it
-// has `size` doubles (2 (outputs + work)), else in `own`.
+// The tape's values (returned) and, after them, their tangents along (dt, dq, dq̇) (dq, dqd null:
+// zero): in the slot when it has `size` doubles (2 (outputs + work)), else in `own`.
 const double* tape_tangent(const Tape& tape, const EvalContext& ctx, Index size, CVecRef q,
-                           CVecRef qd, CVecRef dq, CVecRef dqd, std::vector<double>& own) {
+                           CVecRef qd, double dt, const double* dq, const double* dqd,
+                           std::vector<double>& own) {
   const std::size_t no = tape.outputs(), nw = tape.work_size();
   double* base = ctx.slot.data();
   if (ctx.slot.size() != static_cast<std::size_t>(size)) {
@@ -746,8 +747,8 @@ const double* tape_tangent(const Tape& tape, const EvalContext& ctx, Index size,
     base = own.data();
   }
   // (CVecRef is contiguous.)
-  tape.eval_tangent(ctx.t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), base, base + no,
-                    base + 2 * no, base + 2 * no + nw);
+  tape.eval_tangent(ctx.t, q.data(), qd.data(), dt, dq, dqd, base, base + no, base + 2 * no,
+                    base + 2 * no + nw);
   return base;
 }
 
@@ -783,7 +784,7 @@ void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecR
                                         CVecRef dqd, MatRef M, VecRef Cqd, VecRef G, MatRef dM,
                                         VecRef dCqd, VecRef dG) const {
   std::vector<double> own;
-  const double* out = tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own);
+  const double* out = tape_tangent(*dyn_, ctx, slot_size(), q, qd, 0.0, dq.data(), dqd.data(), own);
   unpack_dynamics(out, M, Cqd, G);
   unpack_dynamics(out + dyn_->outputs(), dM, dCqd, dG);
 }
@@ -792,8 +793,22 @@ bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef 
                                                 CVecRef qdd, CVecRef dq, CVecRef dqd,
                                                 VecRef dID) const {
   std::vector<double> own;
-  id_from_tangents(tape_tangent(*dyn_, ctx, slot_size(), q, qd, dq, dqd, own) + dyn_->outputs(),
+  id_from_tangents(tape_tangent(*dyn_, ctx, slot_size(), q, qd, 0.0, dq.data(), dqd.data(), own) +
+                       dyn_->outputs(),
                    qdd, dID);
+  return true;
+}
+
+bool DerivedSubsystem::inverse_dynamics_time_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd,
+                                                     CVecRef qdd, VecRef dID) const {
+  if (!d_.time_varying) {  // the tape does not read t
+    dID.setZero();
+    return true;
+  }
+  std::vector<double> own;
+  id_from_tangents(
+      tape_tangent(*dyn_, ctx, slot_size(), q, qd, 1.0, nullptr, nullptr, own) + dyn_->outputs(),
+      qdd, dID);
   return true;
 }
 
@@ -1270,6 +1285,20 @@ void DerivedConstraint::evaluate(const ConstraintContext& ctx, CVecRef q, CVecRe
 bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef lambda, CVecRef dq, CVecRef dqd, VecRef d_residual,
                                 VecRef d_force) const {
+  tangent_along(ctx, q, qd, qdd, lambda, 0.0, dq.data(), dqd.data(), d_residual, d_force);
+  return true;
+}
+
+bool DerivedConstraint::time_tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                                     CVecRef qdd, CVecRef lambda, VecRef d_residual,
+                                     VecRef d_force) const {
+  tangent_along(ctx, q, qd, qdd, lambda, 1.0, nullptr, nullptr, d_residual, d_force);
+  return true;
+}
+
+void DerivedConstraint::tangent_along(const ConstraintContext& ctx, CVecRef q, CVecRef qd,
+                                      CVecRef qdd, CVecRef lambda, double dt, const double* dq,
+                                      const double* dqd, VecRef d_residual, VecRef d_force) const {
   // The inputs and their tangents, then the tape's outputs: A's structural entries (nz_), then b;
   // with their tangents and the work buffers in this constraint's slot, or (no slot) in a buffer
   // of its own. (CVecRef is contiguous.)
@@ -1284,13 +1313,15 @@ bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef
   }
   const TapeArgs x =
       tape_args(positional_, cols_, numbers_.data(), numbers_.size(), q.data(), qd.data(), base);
+  // (Along t alone no input moves: null tangents, zero to the tape.)
   const TapeArgs dx =
-      tape_args(positional_, cols_, nullptr, numbers_.size(), dq.data(), dqd.data(), base + ni);
+      dq == nullptr ? TapeArgs{nullptr, nullptr}
+                    : tape_args(positional_, cols_, nullptr, numbers_.size(), dq, dqd, base + ni);
   double* out = base + 2 * ni;
   double* dout = out + no;
   double* work = dout + no;
   double* dwork = work + nw;
-  ab_->eval_tangent(ctx.t, x.q, x.qd, 0.0, dx.q, dx.qd, out, dout, work, dwork);
+  ab_->eval_tangent(ctx.t, x.q, x.qd, dt, dx.q, dx.qd, out, dout, work, dwork);
   for (Index r = 0; r < m_; ++r) d_residual(r) = 0.0;
   std::size_t k = 0;
   for (const auto& [r, c] : nz_) {
@@ -1299,7 +1330,6 @@ bool DerivedConstraint::tangent(const ConstraintContext& ctx, CVecRef q, CVecRef
     d_force(c) += dA * lambda(r);
   }
   for (Index r = 0; r < m_; ++r) d_residual(r) -= dout[k++];
-  return true;
 }
 
 void DerivedConstraint::column_from_tangents(const double* dout, CVecRef qdd, CVecRef lambda,

@@ -191,26 +191,37 @@ DerivedAppliedForce::DerivedAppliedForce(ForceDerivation derivation, std::string
 
 bool DerivedAppliedForce::add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                                       VecRef dQ) const {
-  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
-  std::vector<double> out(q_.outputs()), dout(q_.outputs()), work(q_.work_size()),
-      dwork(q_.work_size());
-  q_.eval_tangent(t, qc.data(), qdc.data(), 0.0, dqc.data(), dqdc.data(), out.data(), dout.data(),
-                  work.data(), dwork.data());
-  std::size_t k = 0;
-  for (const Index i : q_index_) dQ(i) += dout[k++];
-  if (!springs_.empty()) add_spring_tangent(t, qc, qdc, dqc, dqdc, dQ);
+  add_tangent_along(t, q, qd, 0.0, dq, dqd, dQ);
   return true;
 }
 
-// The spring-dampers' dQ along (dq, dq̇): forward mode on the d, ḋ, J_d tape (Tape::eval_tangent)
+bool DerivedAppliedForce::add_time_tangent(double t, CVecRef q, CVecRef qd, VecRef dQ) const {
+  const Vec zero = Vec::Zero(q.size());
+  add_tangent_along(t, q, qd, 1.0, zero, zero, dQ);
+  return true;
+}
+
+void DerivedAppliedForce::add_tangent_along(double t, CVecRef q, CVecRef qd, double dt, CVecRef dq,
+                                            CVecRef dqd, VecRef dQ) const {
+  const Vec qc = q, qdc = qd, dqc = dq, dqdc = dqd;
+  std::vector<double> out(q_.outputs()), dout(q_.outputs()), work(q_.work_size()),
+      dwork(q_.work_size());
+  q_.eval_tangent(t, qc.data(), qdc.data(), dt, dqc.data(), dqdc.data(), out.data(), dout.data(),
+                  work.data(), dwork.data());
+  std::size_t k = 0;
+  for (const Index i : q_index_) dQ(i) += dout[k++];
+  if (!springs_.empty()) add_spring_tangent(t, qc, qdc, dt, dqc, dqdc, dQ);
+}
+
+// The spring-dampers' dQ along (dt, dq, dq̇) (t: the ends of a moving spring): forward mode on the d, ḋ, J_d tape (Tape::eval_tangent)
 // gives δd, δḋ, δJ; then the chain rule through add_to()'s formulas, with u_e = d_axis J_e / L:
 //   δL = d·δd / L,  δL̇ = (δd·ḋ + d·δḋ) / L − L̇ δL / L,  δg = k δL + c δL̇  (g = k (L − L0) + c L̇),
 //   δu_e = (δd_axis J_e + d_axis δJ_e) / L − u_e δL / L,   δQ_j −= δg u_e + g δu_e.
-void DerivedAppliedForce::add_spring_tangent(double t, const Vec& q, const Vec& qd, const Vec& dq,
-                                             const Vec& dqd, VecRef dQ) const {
+void DerivedAppliedForce::add_spring_tangent(double t, const Vec& q, const Vec& qd, double dt,
+                                             const Vec& dq, const Vec& dqd, VecRef dQ) const {
   const std::size_t m = springs_tape_.outputs(), w = springs_tape_.work_size();
   std::vector<double> out(m), dout(m), work(w), dwork(w);
-  springs_tape_.eval_tangent(t, q.data(), qd.data(), 0.0, dq.data(), dqd.data(), out.data(),
+  springs_tape_.eval_tangent(t, q.data(), qd.data(), dt, dq.data(), dqd.data(), out.data(),
                              dout.data(), work.data(), dwork.data());
   for (const auto& s : springs_) {
     const double* d = out.data() + s.first;

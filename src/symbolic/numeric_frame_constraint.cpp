@@ -1454,6 +1454,12 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
     core_->tangent(q, qd, qdd, lambda, dq, dqd, ctx.slots.own(), d_residual, d_force);
     return true;
   }
+  // No end moves with t (an expressions end of t is refused when the rows are built): 0, exact.
+  bool time_tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, VecRef d_residual,
+                    VecRef) const override {
+    d_residual.setZero();
+    return true;
+  }
   bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
     return core_->tangent_columns(ctx.slots, q, qd, qdd, lambda, d_residual, d_force,

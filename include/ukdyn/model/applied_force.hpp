@@ -30,6 +30,13 @@ class AppliedForce {
     (void)t, (void)q, (void)qd, (void)dq, (void)dqd, (void)dQ;
     return false;
   }
+  /// Adds ∂Q_a/∂t at fixed (q, q̇) to dQ, exact (docs/derivatives.md, "Time"); a force that does
+  /// not depend on t adds nothing. Returns false when this force has no exact ∂/∂t (the default:
+  /// add_to() is given t, so no default can vouch for 0).
+  virtual bool add_time_tangent(double t, CVecRef q, CVecRef qd, VecRef dQ) const {
+    (void)t, (void)q, (void)qd, (void)dQ;
+    return false;
+  }
 };
 
 }  // namespace ukdyn

@@ -110,6 +110,16 @@ class Constraint {
         (void)d_force;
     return false;
   }
+  /// The time tangents at fixed (q, q̇), q̈ and λ: d_residual = ∂(A q̈ − b)/∂t (rows()), written,
+  /// and ∂(Aᵀλ)/∂t (n) added to d_force, exact: what linearize() needs for ∂q̈/∂t
+  /// (docs/derivatives.md, "Time"). A constraint whose A and b do not depend on t writes 0 and
+  /// adds nothing. Returns false when this constraint has no exact ∂/∂t (the default: a
+  /// constraint may read t through its context, so no default can vouch for 0).
+  virtual bool time_tangent(const ConstraintContext& c, CVecRef q, CVecRef qd, CVecRef qdd,
+                            CVecRef lambda, VecRef d_residual, VecRef d_force) const {
+    (void)c, (void)q, (void)qd, (void)qdd, (void)lambda, (void)d_residual, (void)d_force;
+    return false;
+  }
 };
 
 /// Sets every entry of a block of constraint rows to 0 (for evaluate(), before writing the

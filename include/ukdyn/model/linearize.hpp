@@ -13,7 +13,10 @@
 //   A_R dq̈ = −d(A_R q̈ − b_R)|_q̈,            dQc = (dA_R)ᵀ μ + A_Rᵀ dμ.
 // Every directional derivative of the model comes from the components' exact tangents
 // (Subsystem::inverse_dynamics_tangent, Constraint::tangent, AppliedForce::add_tangent): no finite
-// differences. One factorisation of the KKT matrix serves every column.
+// differences. One factorisation of the KKT matrix serves every column. The time t is one more
+// direction (dt = 1, dq = dq̇ = dτ = 0), its column from the components' time tangents
+// (Subsystem::inverse_dynamics_time_tangent, Constraint::time_tangent,
+// AppliedForce::add_time_tangent): ∂q̈/∂t of trajectory rows, forces and masses of t.
 #pragma once
 
 #include <Eigen/Cholesky>
@@ -38,6 +41,14 @@ struct Linearization {
   /// derivatives (r × n each): the force each independent row carries.
   Vec mu;
   Mat dmu_dq, dmu_dqd, dmu_dtau;
+  /// ∂q̈/∂t, ∂Qc/∂t (n) and ∂μ/∂t (r) at fixed (q, q̇, τ): what time-varying constraints, forces
+  /// and masses add (0 for a system in which nothing depends on t). Empty when not asked for
+  /// (LinearizeParts::time) or when a component has no exact ∂/∂t (time_message says which): the
+  /// other derivatives are given all the same.
+  Vec dqdd_dt, dQc_dt, dmu_dt;
+  /// Empty when ∂/∂t was given or not asked for; else why not ("no exact d/dt for constraint of
+  /// row 'x'").
+  std::string time_message;
   int rank = 0;                  ///< rank of A (rows kept: kept_rows)
   std::vector<Index> kept_rows;  ///< the independent rows R of A the derivatives use
   /// max |q̈_KKT − q̈_forward| / (1 + max |q̈_forward|): the two formulations at the state.
@@ -64,6 +75,9 @@ struct LinearizeParts {
   /// and without constraint_force; elsewhere the dense matrices as usual. LinearizeData::structured
   /// says which one a call gave; dqdd_dx_dense() and dqdd_dx_times() read either.
   bool structured = false;
+  /// ∂q̈/∂t, ∂Qc/∂t and ∂μ/∂t (Linearization::dqdd_dt, ...): one more right-hand side of the same
+  /// factorisation and one time tangent per component, on the dense, Schur and arrow paths alike.
+  bool time = true;
 };
 
 /// Everything one linearize() call writes, for one system, owned by the caller (Model / Data: the
@@ -84,7 +98,8 @@ struct LinearizeData {
   Mat K, AR, rhs_all, X, dforce_all, rhs_tau, X_tau;
   Eigen::PartialPivLU<Mat> lu;
   Vec Qa, bR, rhs, sol, lambda, dID, dQa, dres, dforce_c, dq, dqd;
-  std::vector<std::size_t> owner;  ///< the subsystem of each coordinate
+  Vec rhs_t, sol_t, dres_t, dforce_t;  ///< the time column (LinearizeParts::time)
+  std::vector<std::size_t> owner;      ///< the subsystem of each coordinate
   /// The block-arrow KKT solve (ukdyn/core/uk_arrow_kkt.hpp), built when the system has the
   /// arrow structure: used when forward() took the arrow path with three robots or more and
   /// every row of A is kept.

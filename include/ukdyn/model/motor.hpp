@@ -78,6 +78,8 @@ class MotorFriction : public AppliedForce {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                    VecRef dQ) const override;
+  /// Q_f does not depend on t: ∂Q_f/∂t = 0 (exact).
+  bool add_time_tangent(double, CVecRef, CVecRef, VecRef) const override { return true; }
 
  private:
   std::string name_;

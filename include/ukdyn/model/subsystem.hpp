@@ -86,6 +86,17 @@ class Subsystem {
     (void)c, (void)q, (void)qd, (void)qdd, (void)dq, (void)dqd, (void)dID;
     return false;
   }
+  /// The time tangent of the inverse dynamics at fixed (q, q̇, q̈): dID = ∂ID/∂t = (∂M/∂t) q̈ +
+  /// ∂(C q̇)/∂t + ∂G/∂t (C q̇ with its (∂M/∂t) q̇ term), exact; what linearize() needs for ∂q̈/∂t
+  /// (docs/derivatives.md, "Time"). The default: 0 for a subsystem that is not time_varying()
+  /// (nothing of it depends on t), and false (no exact ∂/∂t) for one that is.
+  virtual bool inverse_dynamics_time_tangent(const EvalContext& c, CVecRef q, CVecRef qd,
+                                             CVecRef qdd, VecRef dID) const {
+    (void)c, (void)q, (void)qd, (void)qdd;
+    if (time_varying()) return false;
+    dID.setZero();
+    return true;
+  }
 };
 
 }  // namespace ukdyn

@@ -1,4 +1,4 @@
-// Scalar functions of time for trajectory (servo) constraints, with exact first and second
+// Scalar functions of time for trajectory (servo) constraints, with exact first, second and third
 // derivatives.
 #pragma once
 
@@ -34,7 +34,7 @@ struct TimeFunction {
     return f;
   }
 
-  /// d-th derivative (d = 0, 1, 2) at t.
+  /// d-th derivative (d = 0, 1, 2, 3) at t (the third: ∂b/∂t of a trajectory row, b = f̈).
   [[nodiscard]] double eval(double t, int d = 0) const {
     switch (kind) {
       case Kind::constant:
@@ -43,7 +43,8 @@ struct TimeFunction {
         const double arg = omega * t + phase;
         if (d == 0) return mean + amplitude * std::cos(arg);
         if (d == 1) return -amplitude * omega * std::sin(arg);
-        return -amplitude * omega * omega * std::cos(arg);
+        if (d == 2) return -amplitude * omega * omega * std::cos(arg);
+        return amplitude * omega * omega * omega * std::sin(arg);
       }
       case Kind::polynomial: {
         double value = 0.0;

@@ -44,6 +44,12 @@ class ClosureConstraint final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// A and b do not depend on t: ∂/∂t is 0 (exact).
+  bool time_tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, VecRef d_residual,
+                    VecRef) const override {
+    d_residual.setZero();
+    return true;
+  }
 
  private:
   std::shared_ptr<const MobileManipulator> left_, right_;
@@ -74,6 +80,10 @@ class CutPointTrajectory final : public Constraint {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// A = J_axis(q) does not depend on t and b = f̈(t) − c_axis(q, q̇): ∂(A q̈ − b)/∂t = −f⃛(t)
+  /// (TimeFunction::eval, d = 3), ∂(Aᵀλ)/∂t = 0.
+  bool time_tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                    CVecRef lambda, VecRef d_residual, VecRef d_force) const override;
 
  private:
   std::shared_ptr<const MobileManipulator> arm_;
@@ -91,6 +101,9 @@ class CoordinateConstraint final : public Constraint {
   CoordinateConstraint(Index coordinate, TimeFunction f, std::string name);
   [[nodiscard]] Index rows() const override { return 1; }
   [[nodiscard]] const std::vector<std::string>& row_names() const override { return names_; }
+  /// A = e_jᵀ: column j alone (a row on a free body's z is then one of its own rows, which the
+  /// singular solve and the derivatives' augmentation count alike, ukdyn/core/uk_singular.hpp).
+  [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override { return {{j_}}; }
   void evaluate(const ConstraintContext& ctx, CVecRef q, CVecRef qd, MatRef A,
                 VecRef b) const override;
   void position_residual(const ConstraintContext& ctx, CVecRef q, VecRef phi) const override;
@@ -102,6 +115,12 @@ class CoordinateConstraint final : public Constraint {
   bool tangent(const ConstraintContext&, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef, CVecRef,
                VecRef d_residual, VecRef) const override {
     d_residual.setZero();
+    return true;
+  }
+  /// ∂(A q̈ − b)/∂t = −f⃛(t) (TimeFunction::eval, d = 3); A is constant: ∂(Aᵀλ)/∂t = 0.
+  bool time_tangent(const ConstraintContext& ctx, CVecRef, CVecRef, CVecRef, CVecRef,
+                    VecRef d_residual, VecRef) const override {
+    d_residual(0) = -f_.eval(ctx.t, 3);
     return true;
   }
 

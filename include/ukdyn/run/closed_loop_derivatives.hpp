@@ -59,8 +59,9 @@ Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, 
 /// The closed loop at one state of the plant.
 struct ClosedLoopLinearization {
   LawDerivatives law;
-  /// linearize() of the plant (physical rows only) at τ = law.tau, with ∂q̈/∂(q, q̇) and
-  /// ∂Qc/∂(q, q̇) those of the closed loop (the law's chain rule added); ∂/∂τ stay the plant's.
+  /// linearize() of the plant (physical rows only) at τ = law.tau, with ∂q̈/∂(q, q̇), ∂Qc/∂(q, q̇)
+  /// and ∂/∂t (q̈, Qc, μ) those of the closed loop (the law's chain rule added; its ∂τ/∂t by
+  /// differences); ∂/∂τ stay the plant's.
   Linearization lin;
 };
 

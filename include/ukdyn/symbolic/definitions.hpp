@@ -197,6 +197,10 @@ class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                                 CVecRef dq, CVecRef dqd, VecRef dID) const override;
+  /// ∂ID/∂t: forward mode on the dynamics tape along dt = 1 (t is one of its inputs), dq = dq̇ =
+  /// 0; 0 when no mass depends on t. Allocation-free with the context's slot.
+  bool inverse_dynamics_time_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                                     VecRef dID) const override;
   /// inverse_dynamics_tangent() along every direction at once, in the context's slot (false
   /// without it): the directions the dynamics tape reads, kTapeLanes at a time on one pass of the
   /// tape (the columns of the others are zero). Bitwise the columns of the one-direction tangents.
@@ -331,6 +335,10 @@ class DerivedConstraint final : public Constraint, public ConstraintColumns {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd, CVecRef lambda,
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override;
+  /// ∂(A q̈ − b)/∂t and ∂(Aᵀλ)/∂t: the same forward mode along dt = 1 (t is an input of the A, b
+  /// tape: trajectories, splines), dq = dq̇ = 0. Allocation-free with this constraint's slot.
+  bool time_tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                    CVecRef lambda, VecRef d_residual, VecRef d_force) const override;
   /// tangent() along every direction at once, in this constraint's slot (false without it, or
   /// with positional inputs — tapes shared through a TapePool —: then tangent() per direction):
   /// only the directions the A, b tape reads, kTapeLanes at a time on one pass of the tape
@@ -343,6 +351,10 @@ class DerivedConstraint final : public Constraint, public ConstraintColumns {
   [[nodiscard]] const Tape& ab_tape() const { return *ab_; }
 
  private:
+  // tangent() along (dt, dq, dq̇); dq, dqd null: zero.
+  void tangent_along(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                     CVecRef lambda, double dt, const double* dq, const double* dqd,
+                     VecRef d_residual, VecRef d_force) const;
   // d(A q̈ − b) and d(Aᵀλ) from the tape's output tangents along one direction.
   void column_from_tangents(const double* dout, CVecRef qdd, CVecRef lambda, MatRef d_residual,
                             MatRef d_force, Index col) const;

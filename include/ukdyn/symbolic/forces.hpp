@@ -106,6 +106,9 @@ class DerivedAppliedForce final : public AppliedForce {
   [[nodiscard]] bool has_derivatives() const override { return true; }
   bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                    VecRef dQ) const override;
+  /// ∂Q/∂t of the expression forces and the spring-dampers: add_tangent()'s forward mode along
+  /// dt = 1 (t is an input of the tapes), dq = dq̇ = 0.
+  bool add_time_tangent(double t, CVecRef q, CVecRef qd, VecRef dQ) const override;
 
  private:
   struct CompiledSpring {
@@ -121,8 +124,11 @@ class DerivedAppliedForce final : public AppliedForce {
   Tape q_, springs_tape_, d_only_;
   std::vector<CompiledSpring> springs_;
   bool has_potential_ = false;
-  void add_spring_tangent(double t, const Vec& q, const Vec& qd, const Vec& dq, const Vec& dqd,
-                          VecRef dQ) const;
+  /// dQ += the tangent along (dt, dq, dq̇) of the expression forces and the spring-dampers.
+  void add_tangent_along(double t, CVecRef q, CVecRef qd, double dt, CVecRef dq, CVecRef dqd,
+                         VecRef dQ) const;
+  void add_spring_tangent(double t, const Vec& q, const Vec& qd, double dt, const Vec& dq,
+                          const Vec& dqd, VecRef dQ) const;
 };
 
 std::shared_ptr<DerivedAppliedForce> make_applied_force(const ForceDef& def);

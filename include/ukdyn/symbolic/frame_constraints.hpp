@@ -208,6 +208,10 @@ class FrameConstraint final : public Constraint, public ConstraintColumns {
                CVecRef dq, CVecRef dqd, VecRef d_residual, VecRef d_force) const override {
     return c_->tangent(ctx, q, qd, qdd, lambda, dq, dqd, d_residual, d_force);
   }
+  bool time_tangent(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
+                    CVecRef lambda, VecRef d_residual, VecRef d_force) const override {
+    return c_->time_tangent(ctx, q, qd, qdd, lambda, d_residual, d_force);
+  }
   /// The rows' tangent_columns() where they have one (the numeric rows of frames on trees).
   bool tangent_columns(const ConstraintContext& ctx, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force) const override {
