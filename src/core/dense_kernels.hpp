@@ -153,9 +153,11 @@ struct LdltPivots {
                                                       double* t, const RankRule& rule) {
   LdltPivots pv;
   double cutoff = 0.0, count_floor = 0.0;
+#pragma GCC unroll 16
   for (Index k = 0; k < m; ++k) {
     Index p = k;
     double dp = W[k + k * ldw];
+#pragma GCC unroll 16
     for (Index i = k + 1; i < m; ++i) {
       if (W[i + i * ldw] > dp) {
         dp = W[i + i * ldw];
@@ -171,21 +173,27 @@ struct LdltPivots {
     piv[k] = p;
     if (p != k) {
       // Symmetric swap of rows/columns k and p in lower storage.
+#pragma GCC unroll 16
       for (Index j = 0; j < k; ++j) std::swap(W[k + j * ldw], W[p + j * ldw]);
       std::swap(W[k + k * ldw], W[p + p * ldw]);
+#pragma GCC unroll 16
       for (Index j = k + 1; j < p; ++j) std::swap(W[j + k * ldw], W[p + j * ldw]);
+#pragma GCC unroll 16
       for (Index i = p + 1; i < m; ++i) std::swap(W[i + k * ldw], W[i + p * ldw]);
     }
     const double inv_d = 1.0 / dp;
     double* colk = W + k * ldw;
+#pragma GCC unroll 16
     for (Index i = k + 1; i < m; ++i) {
       t[i] = colk[i];
       colk[i] *= inv_d;  // L_ik
     }
     // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
+#pragma GCC unroll 16
     for (Index j = k + 1; j < m; ++j) {
       const double tj = t[j];
       double* colj = W + j * ldw;
+#pragma GCC unroll 16
       for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
     }
     if (dp - rule.shift > count_floor) {
