@@ -194,9 +194,9 @@ struct ArrowPivots {
 // docs/performance.md, "Two Pandas welded to a plate") runs with all three fixed, so the loops
 // unroll into fixed-length vector operations, as solve_impl<MM, NB> does for the paper's shapes
 // (uk_solve.cpp). Both instantiations do the same operations in the same order. The triangular
-// loops carry `#pragma GCC unroll 16`, as in dense_kernels.hpp, and the sums that ran through
-// pointers the compiler could not tell apart run on fixed-size Eigen vectors: neither changes an
-// operation or its order (docs/performance.md, "Unrolled triangular loops").
+// loops carry UKDYN_UNROLL (`#pragma GCC unroll 16`, dense_kernels.hpp), and the sums that ran
+// through pointers the compiler could not tell apart run on fixed-size Eigen vectors: neither
+// changes an operation or its order (docs/performance.md, "Unrolled triangular loops").
 template <int NK, int MK, int NL>
 struct ArrowSizes {
   Index mk, nk, nL;
@@ -274,7 +274,7 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   double* S = gb.S.data();
   const Index lds = gb.S.rows();
   double w_ref = 0.0;
-#pragma GCC unroll 16
+  UKDYN_UNROLL
   for (Index j = 0; j < mk; ++j) {
     double acc[MK > 0 ? MK : 1] = {};
     double* a = MK > 0 ? acc : S + j * lds;
@@ -284,9 +284,10 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       const double xj = Xt[j + l * mk];
       for (Index i = (MK > 0 ? 0 : j); i < mk; ++i) a[i] += Xt[i + l * mk] * xj;
     }
-    if constexpr (MK > 0)
-#pragma GCC unroll 16
+    if constexpr (MK > 0) {
+      UKDYN_UNROLL
       for (Index i = j; i < mk; ++i) S[i + j * lds] = a[i];
+    }
     double c2 = 0.0;
     for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
     w_ref = std::max(w_ref, S[j + j * lds] + c2);
@@ -302,7 +303,7 @@ double reduce_groups(const ArrowProblem& P) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL;
   for (Index j = 0; j < nL; ++j) {
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index i = j; i < nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
     ws.gL[j] = P.Q[P.sL + j];
   }
@@ -346,10 +347,10 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   }
   // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
   // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
-#pragma GCC unroll 16
+  UKDYN_UNROLL
   for (Index i = 1; i < mk; ++i) {
     const Index pe = std::min(i, kp);
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index p = 0; p < pe; ++p) {
       const double l = gb.S(i, p);
       if (l == 0.0) continue;
@@ -369,11 +370,11 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   const Index ldh = NL > 0 ? Index{NL} : ws.H.rows();
   for (Index i = 0; i < kp; ++i) {
     const double inv = 1.0 / gb.S(i, i);
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index jj = 0; jj < nL; ++jj) {
       const double tj = T[jj + i * nL] * inv;
       if (tj == 0.0) continue;
-#pragma GCC unroll 16
+      UKDYN_UNROLL
       for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
       ws.gL[jj] += tj * gb.z[i];
     }
@@ -409,18 +410,18 @@ Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots)
 template <int NL>
 bool cholesky_in_place(double* H, Index n_rt) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
-#pragma GCC unroll 16
+  UKDYN_UNROLL
   for (Index j = 0; j < n; ++j) {
     double dj = H[j + j * n];
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index k = 0; k < j; ++k) dj -= H[j + k * n] * H[j + k * n];
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
     H[j + j * n] = ljj;
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index i = j + 1; i < n; ++i) {
       double v = H[i + j * n];
-#pragma GCC unroll 16
+      UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) v -= H[i + k * n] * H[j + k * n];
       H[i + j * n] = v / ljj;
     }
@@ -432,10 +433,10 @@ bool cholesky_in_place(double* H, Index n_rt) {
 template <int NL>
 void h_solve(const double* H, Index n_rt, double* x) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
-#pragma GCC unroll 16
+  UKDYN_UNROLL
   for (Index i = 0; i < n; ++i) {
     double v = x[i];
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index k = 0; k < i; ++k) v -= H[i + k * n] * x[k];
     x[i] = v / H[i + i * n];
   }
@@ -443,10 +444,10 @@ void h_solve(const double* H, Index n_rt, double* x) {
 template <int NL>
 void ht_solve(const double* H, Index n_rt, double* x) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
-#pragma GCC unroll 16
+  UKDYN_UNROLL
   for (Index i = n - 1; i >= 0; --i) {
     double v = x[i];
-#pragma GCC unroll 16
+    UKDYN_UNROLL
     for (Index k = i + 1; k < n; ++k) v -= H[k + i * n] * x[k];
     x[i] = v / H[i + i * n];
   }
