@@ -193,7 +193,10 @@ struct ArrowPivots {
 // more 7-joint arms on x, y, yaw platforms welded to a free body (n_k = 10, m_k = 6, n_L = 7,
 // docs/performance.md, "Two Pandas welded to a plate") runs with all three fixed, so the loops
 // unroll into fixed-length vector operations, as solve_impl<MM, NB> does for the paper's shapes
-// (uk_solve.cpp). Both instantiations do the same operations in the same order.
+// (uk_solve.cpp). Both instantiations do the same operations in the same order. The triangular
+// loops carry UKDYN_UNROLL (`#pragma GCC unroll 16`, dense_kernels.hpp), and the sums that ran
+// through pointers the compiler could not tell apart run on fixed-size Eigen vectors: neither
+// changes an operation or its order (docs/performance.md, "Unrolled triangular loops").
 template <int NK, int MK, int NL>
 struct ArrowSizes {
   Index mk, nk, nL;
@@ -220,18 +223,29 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   double* Xt = gb.Xt.data();
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
-  for (Index i = 0; i < mk; ++i) {
-    const Index row = grp.rows[static_cast<std::size_t>(i)];
-    for (Index j = 0; j < nk; ++j) B[i + j * mk] = Ad[row + (s + j) * lda];
-    for (Index j = 0; j < nL; ++j) C[i + j * mk] = Ad[row + (P.sL + j) * lda];
-    gb.bb[i] = P.b[row];
-  }
+  const Index* rows = grp.rows.data();
+  for (Index j = 0; j < nk; ++j)
+    for (Index i = 0; i < mk; ++i) B[i + j * mk] = Ad[rows[i] + (s + j) * lda];
+  for (Index j = 0; j < nL; ++j)
+    for (Index i = 0; i < mk; ++i) C[i + j * mk] = Ad[rows[i] + (P.sL + j) * lda];
+  for (Index i = 0; i < mk; ++i) gb.bb[i] = P.b[rows[i]];
   double* y = gb.w.data();
   for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
   detail::l_solve<NK>(Lk, P.ldl, id, y, nk);
   // Xᵀ(:, l) = (B(:, l) − Σ_{p<l} L_lp Xᵀ(:, p)) / L_ll; the same for C and the load's factor.
+  // MK > 0: each column a fixed-size vector (the same operations, element by element, in
+  // registers).
   auto forward_columns = [mk](const double* L, Index ldl, const double* inv, const double* in,
                               double* out, Index n) {
+    if constexpr (MK > 0) {
+      using Col = Eigen::Matrix<double, MK, 1>;
+      for (Index l = 0; l < n; ++l) {
+        Col c = Eigen::Map<const Col>(in + l * mk);
+        for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * mk);
+        Eigen::Map<Col>(out + l * mk) = c * inv[l];
+      }
+      return;
+    }
     for (Index l = 0; l < n; ++l) {
       double col[MK > 0 ? MK : 1];
       double* c = MK > 0 ? col : out + l * mk;
@@ -246,12 +260,21 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   forward_columns(Lk, P.ldl, id, B, Xt, nk);
   forward_columns(P.Ld + P.sL + P.sL * P.ldl, P.ldl, P.idg + P.sL, C, Y, nL);
   double* r = gb.r.data();
-  for (Index i = 0; i < mk; ++i) r[i] = gb.bb[i];
-  for (Index l = 0; l < nk; ++l)
-    for (Index i = 0; i < mk; ++i) r[i] -= Xt[i + l * mk] * y[l];
+  if constexpr (MK > 0) {
+    using Col = Eigen::Matrix<double, MK, 1>;
+    Col rv = gb.bb.template head<MK>();
+    for (Index l = 0; l < nk; ++l) rv -= Eigen::Map<const Col>(Xt + l * mk) * y[l];
+    Eigen::Map<Col> r_out(r);
+    r_out = rv;
+  } else {
+    for (Index i = 0; i < mk; ++i) r[i] = gb.bb[i];
+    for (Index l = 0; l < nk; ++l)
+      for (Index i = 0; i < mk; ++i) r[i] -= Xt[i + l * mk] * y[l];
+  }
   double* S = gb.S.data();
   const Index lds = gb.S.rows();
   double w_ref = 0.0;
+  UKDYN_UNROLL
   for (Index j = 0; j < mk; ++j) {
     double acc[MK > 0 ? MK : 1] = {};
     double* a = MK > 0 ? acc : S + j * lds;
@@ -261,8 +284,10 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       const double xj = Xt[j + l * mk];
       for (Index i = (MK > 0 ? 0 : j); i < mk; ++i) a[i] += Xt[i + l * mk] * xj;
     }
-    if constexpr (MK > 0)
+    if constexpr (MK > 0) {
+      UKDYN_UNROLL
       for (Index i = j; i < mk; ++i) S[i + j * lds] = a[i];
+    }
     double c2 = 0.0;
     for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
     w_ref = std::max(w_ref, S[j + j * lds] + c2);
@@ -278,6 +303,7 @@ double reduce_groups(const ArrowProblem& P) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL;
   for (Index j = 0; j < nL; ++j) {
+    UKDYN_UNROLL
     for (Index i = j; i < nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
     ws.gL[j] = P.Q[P.sL + j];
   }
@@ -303,27 +329,38 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   gb.kept = pv.kept;
   const Index kp = gb.kept;
   pivots.add(pv);
-  // The same row order for C (into T), r and b (into z, lam as scratch).
+  // The same row order for C (into T), r and b (into z, lam as scratch). T is kept transposed in
+  // its buffer (row i at T + i n_L, contiguous), so the row operations below, the rank-1 updates
+  // of H and the products with q̈_L (group_multipliers) run down contiguous memory.
   double* T = gb.T.data();
   const double* C = gb.C.data();
-  for (Index j = 0; j < nL * mk; ++j) T[j] = C[j];
+  for (Index i = 0; i < mk; ++i)
+    for (Index j = 0; j < nL; ++j) T[j + i * nL] = C[i + j * mk];
   for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
   for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
   for (Index k = 0; k < kp; ++k) {
     const Index p = gb.piv[static_cast<std::size_t>(k)];
     if (p != k)
-      for (Index j = 0; j < nL; ++j) std::swap(T[k + j * mk], T[p + j * mk]);
+      for (Index j = 0; j < nL; ++j) std::swap(T[j + k * nL], T[j + p * nL]);
     std::swap(gb.z[k], gb.z[p]);
     std::swap(gb.lam[k], gb.lam[p]);
   }
   // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
   // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
+  UKDYN_UNROLL
   for (Index i = 1; i < mk; ++i) {
     const Index pe = std::min(i, kp);
+    UKDYN_UNROLL
     for (Index p = 0; p < pe; ++p) {
       const double l = gb.S(i, p);
       if (l == 0.0) continue;
-      for (Index j = 0; j < nL; ++j) T[i + j * mk] -= l * T[p + j * mk];
+      if constexpr (NL > 0) {  // a fixed-size row: the same operations, vectorised
+        using Row = Eigen::Matrix<double, NL, 1>;
+        Eigen::Map<Row> ti(T + i * nL);
+        ti -= l * Eigen::Map<const Row>(T + p * nL);
+      } else {
+        for (Index j = 0; j < nL; ++j) T[j + i * nL] -= l * T[j + p * nL];
+      }
       if (i < kp) gb.z[i] -= l * gb.z[p];
       gb.lam[i] -= l * gb.lam[p];
     }
@@ -333,15 +370,17 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   const Index ldh = NL > 0 ? Index{NL} : ws.H.rows();
   for (Index i = 0; i < kp; ++i) {
     const double inv = 1.0 / gb.S(i, i);
+    UKDYN_UNROLL
     for (Index jj = 0; jj < nL; ++jj) {
-      const double tj = T[i + jj * mk] * inv;
+      const double tj = T[jj + i * nL] * inv;
       if (tj == 0.0) continue;
-      for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[i + ii * mk] * tj;
+      UKDYN_UNROLL
+      for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
       ws.gL[jj] += tj * gb.z[i];
     }
   }
   for (Index i = kp; i < mk; ++i) {
-    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = T[i + j * mk];
+    for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = T[j + i * nL];
     ws.d[mD] = gb.lam[i];
     ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
     ++mD;
@@ -371,14 +410,18 @@ Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots)
 template <int NL>
 bool cholesky_in_place(double* H, Index n_rt) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
+  UKDYN_UNROLL
   for (Index j = 0; j < n; ++j) {
     double dj = H[j + j * n];
+    UKDYN_UNROLL
     for (Index k = 0; k < j; ++k) dj -= H[j + k * n] * H[j + k * n];
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
     H[j + j * n] = ljj;
+    UKDYN_UNROLL
     for (Index i = j + 1; i < n; ++i) {
       double v = H[i + j * n];
+      UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) v -= H[i + k * n] * H[j + k * n];
       H[i + j * n] = v / ljj;
     }
@@ -390,8 +433,10 @@ bool cholesky_in_place(double* H, Index n_rt) {
 template <int NL>
 void h_solve(const double* H, Index n_rt, double* x) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
+  UKDYN_UNROLL
   for (Index i = 0; i < n; ++i) {
     double v = x[i];
+    UKDYN_UNROLL
     for (Index k = 0; k < i; ++k) v -= H[i + k * n] * x[k];
     x[i] = v / H[i + i * n];
   }
@@ -399,8 +444,10 @@ void h_solve(const double* H, Index n_rt, double* x) {
 template <int NL>
 void ht_solve(const double* H, Index n_rt, double* x) {
   const Index n = NL > 0 ? Index{NL} : n_rt;
+  UKDYN_UNROLL
   for (Index i = n - 1; i >= 0; --i) {
     double v = x[i];
+    UKDYN_UNROLL
     for (Index k = i + 1; k < n; ++k) v -= H[k + i * n] * x[k];
     x[i] = v / H[i + i * n];
   }
@@ -451,10 +498,10 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const Index mk = sz.mk, nk = sz.nk, nL = sz.nL, kp = gb.kept;
   const double* qL = P.ws.qddL.data();
-  const double* T = gb.T.data();
+  const double* T = gb.T.data();  // transposed (eliminate_group)
   for (Index i = 0; i < kp; ++i) {
     double v = gb.z[i];
-    for (Index j = 0; j < nL; ++j) v -= T[i + j * mk] * qL[j];
+    for (Index j = 0; j < nL; ++j) v -= T[j + i * nL] * qL[j];
     gb.lam[i] = v / gb.S(i, i);
   }
   for (Index e = kp; e < mk; ++e) {
@@ -471,13 +518,19 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   const Index s = grp.start;
   const double* B = gb.B.data();
   const double* C = gb.C.data();
-  for (Index i = 0; i < mk; ++i) {
-    const double li = gb.lam[i];
-    P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = li;
-    if (li == 0.0) continue;
-    for (Index j = 0; j < nk; ++j) Qc[s + j] += B[i + j * mk] * li;
-    for (Index j = 0; j < nL; ++j) Qc[P.sL + j] += C[i + j * mk] * li;
-  }
+  const double* lam = gb.lam.data();
+  for (Index i = 0; i < mk; ++i) P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = lam[i];
+  // Qc += Bᵀ λ_k, Cᵀ λ_k entry by entry down B's and C's contiguous columns: each entry gets its
+  // terms in the order of the rows, as one row at a time (a dropped row's λ_i = 0 adds an exact 0).
+  auto add_columns = [&](const double* X, double* out, Index n) {
+    for (Index j = 0; j < n; ++j) {
+      double v = out[j];
+      for (Index i = 0; i < mk; ++i) v += X[i + j * mk] * lam[i];
+      out[j] = v;
+    }
+  };
+  add_columns(B, Qc.data() + s, nk);
+  add_columns(C, Qc.data() + P.sL, nL);
 }
 
 // Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
@@ -553,18 +606,35 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
     const double* B = gb.B.data();
     const double* C = gb.C.data();
+    // Every row's sums side by side down B's and C's columns, each in the order of j as one row
+    // at a time would add them (r and z are free by now: runtime sizes use them as the arrays).
+    double v_buf[MK > 0 ? MK : 1], ab_buf[MK > 0 ? MK : 1];
+    double* v = MK > 0 ? v_buf : P.ws.g[gi].r.data();
+    double* ab = MK > 0 ? ab_buf : P.ws.g[gi].z.data();
     for (Index i = 0; i < mk; ++i) {
-      double v = -gb.bb[i], ab = 0.0;
-      for (Index j = 0; j < nk; ++j) {
-        v += B[i + j * mk] * qdd[s + j];
-        ab += std::abs(B[i + j * mk]);
-      }
-      for (Index j = 0; j < nL; ++j) {
-        v += C[i + j * mk] * qdd[P.sL + j];
-        ab += std::abs(C[i + j * mk]);
-      }
-      add_row(v, ab, gb.bb[i]);
+      v[i] = -gb.bb[i];
+      ab[i] = 0.0;
     }
+    auto add_block = [&](const double* X, const double* x, Index n) {
+      if constexpr (MK > 0) {  // fixed-size columns: the same operations, vectorised
+        using Col = Eigen::Matrix<double, MK, 1>;
+        Eigen::Map<Col> vm(v), am(ab);
+        for (Index j = 0; j < n; ++j) {
+          const Eigen::Map<const Col> xj(X + j * mk);
+          vm += xj * x[j];
+          am += xj.cwiseAbs();
+        }
+        return;
+      }
+      for (Index j = 0; j < n; ++j)
+        for (Index i = 0; i < mk; ++i) {
+          v[i] += X[i + j * mk] * x[j];
+          ab[i] += std::abs(X[i + j * mk]);
+        }
+    };
+    add_block(B, qdd.data() + s, nk);
+    add_block(C, qdd.data() + P.sL, nL);
+    for (Index i = 0; i < mk; ++i) add_row(v[i], ab[i], gb.bb[i]);
   }
   for (const Index row : P.st.load_rows) {
     double v = -P.b[row], ab = 0.0;

@@ -92,6 +92,12 @@ void level_row(const St& a, const Eigen::Vector3d& u, const Eigen::Vector3d& e, 
   ++r.m;
 }
 
+// The leading rows of row_values() that are position_rows() (D = ±1 on p_a, p_b, nothing else)
+// and are followed only by rows that do not read p_a, p_b: 3 for a weld, a ball and a hinge.
+int position_row_count(const NumericFrameSpec& f) {
+  return f.kind == K::weld || f.kind == K::ball || f.kind == K::hinge ? 3 : 0;
+}
+
 // The rows of frame_rows() (frame_constraints.cpp, rows_for) in the same order.
 template <class S, class St>
 void row_values(const NumericFrameSpec& f, const St& a, const St& b, RowValues<S>& r) {
@@ -515,36 +521,44 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
 }
 
 // A(:, cols[c]) += G t_c (m rows, MR > 0: known at compile time), each column summed in a local
-// array down G's columns, the same terms in the same order as one row at a time.
-template <int MR>
+// array down G's columns, the same terms in the same order as one row at a time. The first np rows
+// are an end's position alone (position_rows: G(i, :) = ±e_iᵀ, so G t_c is ±t_c(i), its only
+// non-zero term) and the rows after them do not read the positions (weld_row, hinge_row: G's
+// columns 0–2 are 0 there, so their sums start at column k0 = 3); np = 0: every row in full.
+template <int MR, int NP>
 void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
-                     const double* twists, int m_rt, MatRef A) {
-  if constexpr (MR > 0) {  // fixed-size vectors of MR rows: the same sums, vectorised
+                     const double* twists, int m_rt, int np_rt, MatRef A) {
+  const int m = MR > 0 ? MR : m_rt, np = MR > 0 ? NP : np_rt, k0 = np > 0 ? 3 : 0;
+  if constexpr (MR > 0) {  // fixed-size vectors of MR − NP rows: the same sums, vectorised
+    constexpr int MO = MR - NP;
     for (std::size_t c = 0; c < cols.size(); ++c) {
       const double* t = twists + 7 * c;
-      Eigen::Matrix<double, MR, 1> v = G.col(0).template head<MR>() * t[0];
-      for (int k = 1; k < 7; ++k) v += G.col(k).template head<MR>() * t[k];
-      A.col(cols[c]).template head<MR>() += v;
+      for (int i = 0; i < NP; ++i) A(i, cols[c]) += G(i, i) * t[i];
+      Eigen::Matrix<double, MO, 1> v = G.col(k0).template segment<MO>(NP) * t[k0];
+      for (int k = k0 + 1; k < 7; ++k) v += G.col(k).template segment<MO>(NP) * t[k];
+      A.col(cols[c]).template segment<MO>(NP) += v;
     }
     return;
   }
-  const int m = MR > 0 ? MR : m_rt;
   for (std::size_t c = 0; c < cols.size(); ++c) {
     const double* t = twists + 7 * c;
     double v[kMaxRows] = {};
-    for (int k = 0; k < 7; ++k)
-      for (int i = 0; i < m; ++i) v[i] += G(i, k) * t[k];
+    for (int i = 0; i < np; ++i) v[i] = G(i, i) * t[i];
+    for (int k = k0; k < 7; ++k)
+      for (int i = np; i < m; ++i) v[i] += G(i, k) * t[k];
     for (int i = 0; i < m; ++i) A(i, cols[c]) += v[i];
   }
 }
 
 // A(:, cols) += G t_c over a tree end's twist columns t_c = (v, ω, s): with ∂p = v and
 // ∂R = ([ω]× + s) R, D ∂x = D_p v + Σ_c D_R(:, c) · (ω × R_c + s R_c), so G = [D_p, Σ_c R_c × d_c,
-// Σ_c R_c · d_c] per row (d_c: the row's ∂Φ/∂R(:, c), R_c: R's column c).
+// Σ_c R_c · d_c] per row (d_c: the row's ∂Φ/∂R(:, c), R_c: R's column c). np: the leading position
+// rows of add_map_columns, whose G is ±e_iᵀ (only their diagonal is formed).
 void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, const double* twists,
-                       const RowValues<double>& r, int p0, int r0, MatRef A) {
+                       const RowValues<double>& r, int p0, int r0, int np, MatRef A) {
   Eigen::Matrix<double, kMaxRows, 7> G;
-  for (int i = 0; i < r.m; ++i) {
+  for (int i = 0; i < np; ++i) G(i, i) = r.D(i, p0 + i);
+  for (int i = np; i < r.m; ++i) {
     Eigen::Vector3d w = Eigen::Vector3d::Zero();
     double sc = 0.0;
     for (int c = 0; c < 3; ++c) {
@@ -558,10 +572,12 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
     }
     G(i, 6) = sc;
   }
-  if (r.m == kMaxRows) {
-    add_map_columns<kMaxRows>(G, cols, twists, r.m, A);
+  if (r.m == kMaxRows && np == 3) {
+    add_map_columns<kMaxRows, 3>(G, cols, twists, r.m, np, A);
+  } else if (r.m == kMaxRows && np == 0) {
+    add_map_columns<kMaxRows, 0>(G, cols, twists, r.m, np, A);
   } else {
-    add_map_columns<0>(G, cols, twists, r.m, A);
+    add_map_columns<0, 0>(G, cols, twists, r.m, np, A);
   }
 }
 
@@ -810,9 +826,9 @@ void add_force_tangent(const FrameState& v, const FrameState& t, const std::vect
 // A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree or
 // free-body end, dp and dR of any other.
 void add_end_columns(const End& e, const FrameState& s, const double* twists,
-                     const RowValues<double>& r, int p0, int r0, MatRef A) {
+                     const RowValues<double>& r, int p0, int r0, int np, MatRef A) {
   if (e.spec.kind == NumericFrameEnd::Kind::tree || e.free_body) {
-    add_twist_columns(s, e.cols, twists, r, p0, r0, A);
+    add_twist_columns(s, e.cols, twists, r, p0, r0, np, A);
   } else {
     add_columns(s, e.cols, r, p0, r0, A);
   }
@@ -1277,8 +1293,9 @@ class Core {
                   } else {
                     zero_rows(A);
                   }
-                  add_end_columns(a_, Sa, da, r, kPa, kRa, A);
-                  add_end_columns(b_, Sb, db, r, kPb, kRb, A);
+                  const int np = position_row_count(f_);
+                  add_end_columns(a_, Sa, da, r, kPa, kRa, np, A);
+                  add_end_columns(b_, Sb, db, r, kPb, kRb, np, A);
                   b = -(r.D.topRows(r.m) * rates(Sa, Sb, true) + r.Q.head(r.m));
                 });
   }
