@@ -928,6 +928,7 @@ void time_column(const System& system, LinearizeData& d, double t, CVecRef q, CV
   lin.dqdd_dt = d.sol_t.head(n);
   lin.dmu_dt = d.sol_t.tail(r);
   lin.dQc_dt = d.dforce_t;
+  if (r == 0) return;  // no kept row (no A_R: without rows, A_R was never formed)
   add_at_times(system, d, Eigen::Map<const Mat>(lin.dmu_dt.data(), r, 1),
                Eigen::Map<Mat>(lin.dQc_dt.data(), n, 1));
 }
