@@ -307,6 +307,13 @@ DerivativeState derivative_state(const ukdyn::Scenario& sc) {
   return s;
 }
 
+// Skips the case (and says why) when a component of the scenario has no exact derivatives.
+bool skip_without_derivatives(const ukdyn::Scenario& sc, benchmark::State& st) {
+  if (ukdyn::components_without_derivatives(*sc.system).empty()) return false;
+  st.SkipWithError("a component has no exact derivatives");
+  return true;
+}
+
 // The exact derivatives (linearize(): ∂q̈/∂(q, q̇, τ) and ∂Qc/∂(q, q̇, τ)) against what a user
 // without them does: central differences of forward(), 2 calls per column of (q, q̇, τ) (q̈ only).
 void register_derivatives(const std::vector<std::pair<std::string, std::string>>& files) {
@@ -314,10 +321,7 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
     with_min_max(benchmark::RegisterBenchmark(
         ("derivatives/" + name + "_linearize").c_str(), [path](benchmark::State& st) {
           const ukdyn::Scenario sc = ukdyn::load_scenario(path);
-          if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
-            st.SkipWithError("a component has no exact derivatives");
-            return;
-          }
+          if (skip_without_derivatives(sc, st)) return;
           const DerivativeState s = derivative_state(sc);
           for (auto _ : st) {
             const ukdyn::Linearization l =
@@ -337,10 +341,7 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
       with_min_max(benchmark::RegisterBenchmark(
           ("derivatives/" + name + suffix).c_str(), [path, parts](benchmark::State& st) {
             const ukdyn::Scenario sc = ukdyn::load_scenario(path);
-            if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
-              st.SkipWithError("a component has no exact derivatives");
-              return;
-            }
+            if (skip_without_derivatives(sc, st)) return;
             const DerivativeState s = derivative_state(sc);
             ukdyn::LinearizeData data(*sc.system);
             for (auto _ : st) {
@@ -355,10 +356,7 @@ void register_derivatives(const std::vector<std::pair<std::string, std::string>>
         ("derivatives/" + name + "_linearize_dqdd_dx_structured").c_str(),
         [path](benchmark::State& st) {
           const ukdyn::Scenario sc = ukdyn::load_scenario(path);
-          if (!ukdyn::components_without_derivatives(*sc.system).empty()) {
-            st.SkipWithError("a component has no exact derivatives");
-            return;
-          }
+          if (skip_without_derivatives(sc, st)) return;
           const DerivativeState s = derivative_state(sc);
           ukdyn::LinearizeData data(*sc.system);
           const ukdyn::LinearizeParts parts{false, false, true, false};
