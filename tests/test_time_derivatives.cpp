@@ -4,7 +4,8 @@
 // independent path: the U-K solve, no KKT, no tangents) at random states of systems whose
 // trajectory rows, forces and masses depend on t; exactly 0 where nothing does; the dense, Schur
 // and arrow solves against one another; and a component without an exact ∂/∂t refusing the time
-// column only.
+// column only. Also the time column of linearize_parameters(), and the minimal model's
+// D = ∂(A_R q̇ + Φ_t)/∂q of rheonomic rows (exact) against differences and a closed form.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -17,6 +18,8 @@
 
 #include "moving_state.hpp"
 #include "ukdyn/model/linearize.hpp"
+#include "ukdyn/model/minimal_linearize.hpp"
+#include "ukdyn/model/parameter_sensitivity.hpp"
 #include "ukdyn/output/control_output.hpp"
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/scenario/scenario.hpp"
@@ -128,6 +131,69 @@ simulation:
   sample_dt: 0.01
   initial_tolerance: 1
 )";
+}
+
+// D = ∂(A_R q̇ + Φ_t)/∂q at fixed q̇ by (4 D(h/2) − D(h)) / 3 of central differences of the kept
+// rows' velocity residuals (error O(h⁴), h = 1e-3 (1 + |q|∞)): the reference for the exact D of
+// minimal_model() (an independent path: velocity_residual(), no tangents).
+Mat velocity_residual_differences(const System& sys, double t, const Vec& q, const Vec& qd,
+                                  const std::vector<Index>& kept) {
+  const Index n = sys.dof(), r = static_cast<Index>(kept.size());
+  Vec phid(sys.rows());
+  auto kept_rows = [&](const Vec& x) {
+    velocity_residuals(sys, t, x, qd, phid);
+    Vec out(r);
+    for (Index k = 0; k < r; ++k) out(k) = phid(kept[static_cast<std::size_t>(k)]);
+    return out;
+  };
+  const double h = 1e-3 * (1.0 + q.cwiseAbs().maxCoeff());
+  Mat D(r, n);
+  for (Index j = 0; j < n; ++j) {
+    auto central = [&](double step) {
+      Vec xp = q, xm = q;
+      xp(j) += step;
+      xm(j) -= step;
+      return Vec((kept_rows(xp) - kept_rows(xm)) / (2.0 * step));
+    };
+    D.col(j) = (4.0 * central(h / 2) - central(h)) / 3.0;
+  }
+  return D;
+}
+
+// At `states` random states near the scenario's moving state (as expect_time_column_matches, and
+// at rest): the minimal model's D against velocity_residual_differences() to `tol` of 1 + |D|;
+// the model says its rows are rheonomic. Returns the largest |D| seen.
+double expect_minimal_d_matches(const Scenario& sc, int states, double tol) {
+  const System& sys = *sc.system;
+  const test::State s0 = test::moving_state(sc);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  double largest = 0.0, worst = 0.0;
+  for (int k = 0; k < states; ++k) {
+    Vec q = s0.q, qd = k == 0 ? Vec(Vec::Zero(sys.dof())) : s0.qd;
+    for (Index i = 0; i < q.size(); ++i) {
+      q(i) += 0.05 * u(rng);
+      if (k > 0) qd(i) += 0.05 * u(rng);
+    }
+    const double t = 0.85 + 0.75 * u(rng);
+    const Linearization lin = linearize(sys, t, q, qd, s0.tau, sc.sim.uk);
+    const MinimalModel mm = minimal_model(sys, t, q, qd, s0.tau, lin);
+    EXPECT_TRUE(mm.rheonomic) << sc.name;
+    EXPECT_NE(mm.note.find("rheonomic rows"), std::string::npos) << mm.note;
+    EXPECT_EQ(mm.note.find("Richardson"), std::string::npos) << mm.note;
+    const Mat ref = velocity_residual_differences(sys, t, q, qd, lin.kept_rows);
+    if (mm.D.rows() != ref.rows() || mm.D.cols() != ref.cols()) {
+      ADD_FAILURE() << "D is " << mm.D.rows() << " x " << mm.D.cols();
+      return largest;
+    }
+    const double err = (mm.D - ref).cwiseAbs().maxCoeff() / (1.0 + ref.cwiseAbs().maxCoeff());
+    EXPECT_LE(err, tol) << sc.name << " state " << k << " t " << t;
+    worst = std::max(worst, err);
+    largest = std::max(largest, mm.D.cwiseAbs().maxCoeff());
+  }
+  std::cout << "[ minimal D ] " << sc.name << ": " << worst
+            << " of 1 + |D| from the differences (largest |D| " << largest << ")\n";
+  return largest;
 }
 
 }  // namespace
@@ -451,4 +517,101 @@ TEST(TimeDerivatives, ClosedLoopAddsTheLawsTimeDerivative) {
             << " (the plant's alone: " << rel_error(plant.dqdd_dt, c) << ")\n";
   EXPECT_GT(rel_error(plant.dqdd_dt, c), 1e-3);  // the law's share matters here
   EXPECT_LE(rel_error(cl.lin.dqdd_dt, c), 1e-6);
+}
+
+// linearize_parameters() carries the time column as linearize() does (with the state columns):
+// against the differences of forward() in t and equal to linearize()'s; without the state
+// columns it is not computed and time_message says so.
+TEST(TimeDerivatives, ParameterLinearizationCarriesTheTimeColumn) {
+  const Scenario sc = load_scenario(kSource / "scenarios" / "paper.yaml");
+  const System& sys = *sc.system;
+  const test::State s = test::moving_state(sc);
+  const double t = 0.6;
+  const Index n = sys.dof(), m = sys.rows();
+  const std::vector<ModelParameterDerivative> dp = {
+      {Mat::Zero(n, n), Vec::Zero(n), Mat::Zero(m, n), Vec::Zero(m)}};
+  const ParameterLinearization pl = linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk);
+  ASSERT_EQ(pl.lin.dqdd_dt.size(), n) << pl.lin.time_message;
+  EXPECT_TRUE(pl.lin.time_message.empty()) << pl.lin.time_message;
+  EXPECT_EQ(pl.lin.dQc_dt.size(), n);
+  EXPECT_EQ(pl.lin.dmu_dt.size(), pl.lin.rank);
+  const TimeDifferences c = time_differences(sc, t, s.q, s.qd, s.tau);
+  EXPECT_LE(rel_error(pl.lin.dqdd_dt, c.qdd), 1e-7);
+  EXPECT_LE(rel_error(pl.lin.dQc_dt, c.Qc), 1e-7);
+  EXPECT_GT(c.qdd.cwiseAbs().maxCoeff(), 1e-2);
+  const Linearization lin = linearize(sys, t, s.q, s.qd, s.tau, sc.sim.uk);
+  EXPECT_LE((pl.lin.dqdd_dt - lin.dqdd_dt).cwiseAbs().maxCoeff(),
+            1e-12 * (1.0 + lin.dqdd_dt.cwiseAbs().maxCoeff()));
+  EXPECT_LE(pl.dqdd_dp.cwiseAbs().maxCoeff(), 0.0);  // a zero parameter derivative
+  const ParameterLinearization bare =
+      linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk, false);
+  EXPECT_EQ(bare.lin.dqdd_dt.size(), 0);
+  EXPECT_NE(bare.lin.time_message.find("not computed"), std::string::npos);
+}
+
+// The minimal model's D = ∂(A_R q̇ + Φ_t)/∂q = ½ ∂(A_R q̈ − b_R)/∂q̇ (exact, from the rows'
+// tangents along q̇) against differences of the velocity residuals at random states, at rest and
+// moving: the paper's cut-point trajectory rows (and its closure and `coordinate` rows), and a
+// `coordinate` row of t (q_j = f(t): A constant, Φ_t = −ḟ(t) independent of q, so D = 0).
+TEST(MinimalRheonomic, DMatchesDifferencesOnTrajectoryRows) {
+  const Scenario paper = load_scenario(kSource / "scenarios" / "paper.yaml");
+  EXPECT_GT(expect_minimal_d_matches(paper, 4, 1e-8), 1e-2);
+  const Scenario coord = load_scenario_text(
+      double_pendulum("coordinate_cosine", "m2",
+                      "constraints:\n  - {type: coordinate, name: drive, coordinate: th2, value: "
+                      "{type: cosine, mean: -0.3, amplitude: 0.4, omega: 2.5, phase: 0.3}}\n"),
+      "coordinate.yaml");
+  EXPECT_EQ(expect_minimal_d_matches(coord, 4, 1e-8), 0.0);
+}
+
+// A point mass in the x-y plane held on a circle of radius R whose centre goes round,
+// c(t) = a (cos ωt, sin ωt): Φ = |p − c|² − R², A = 2 (p − c)ᵀ, Φ_t = −2 (p − c)·ċ, so
+// D = ∂(A q̇ + Φ_t)/∂q = 2 (q̇ − ċ)ᵀ with ċ = a ω (−sin ωt, cos ωt), on or off the circle, at rest
+// (D = −2 ċᵀ: the ∂Φ_t/∂q part alone) and moving; and x = T z keeps the linearised velocity
+// constraint, [D, A_R] T = 0.
+TEST(MinimalRheonomic, PointOnAMovingCircleHasTheClosedFormD) {
+  const Scenario sc = load_scenario_text(R"(
+ukdyn: 1
+name: moving_circle
+gravity: 9.81
+subsystems:
+  - name: point
+    type: definitions
+    coordinates: [x, y]
+    parameters: {m: 1.3}
+    bodies:
+      - {name: p, mass: m, com: [x, y, 0]}
+constraints:
+  - type: expression
+    name: circle
+    parameters: {a: 0.4, w: 1.7, R: 0.9}
+    rows: {r: (x - a*cos(w*t))^2 + (y - a*sin(w*t))^2 - R^2}
+initial:
+  q: [1.3, 0]
+  qd: [0, 0.5]
+simulation: {t_end: 1, sample_dt: 0.01, initial_tolerance: 1}
+)",
+                                         "moving_circle.yaml");
+  const System& sys = *sc.system;
+  const double a = 0.4, w = 1.7;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int k = 0; k < 6; ++k) {
+    const double t = 2.0 * u(rng);
+    Vec q(2), qd(2), tau = Vec::Zero(2);
+    q << 1.3 + 0.2 * u(rng), 0.3 * u(rng);
+    qd << (k == 0 ? 0.0 : u(rng)), (k == 0 ? 0.0 : u(rng));
+    const Linearization lin = linearize(sys, t, q, qd, tau, sc.sim.uk);
+    const MinimalModel mm = minimal_model(sys, t, q, qd, tau, lin);
+    Vec cdot(2);
+    cdot << -a * w * std::sin(w * t), a * w * std::cos(w * t);
+    const Vec expect = 2.0 * (qd - cdot);
+    ASSERT_EQ(mm.D.rows(), 1);
+    EXPECT_LE((mm.D.transpose() - expect).cwiseAbs().maxCoeff(), 1e-14 * (1.0 + expect.norm()))
+        << "t " << t << " state " << k;
+    EXPECT_TRUE(mm.rheonomic);
+    Mat DA(1, 4);
+    DA << mm.D, mm.AR;
+    EXPECT_LE((DA * mm.T).cwiseAbs().maxCoeff(), 1e-13);
+  }
 }

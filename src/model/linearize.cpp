@@ -1018,7 +1018,12 @@ ParameterLinearization linearize_parameters(const System& system, double t, CVec
   }
   LinearizeData d(system);
   prepare_kkt(system, d, t, q, qd, tau, settings);
-  if (with_state) state_columns(system, d, t, q, qd, LinearizeParts{});
+  if (with_state) {  // the state columns and the time column, as linearize() gives them
+    state_columns(system, d, t, q, qd, LinearizeParts{});
+    time_column(system, d, t, q, qd, LinearizeParts{});
+  } else {
+    d.lin.time_message = "not computed: linearize_parameters without the state columns";
+  }
   // Implicit differentiation of the KKT system in p at fixed (t, q, q̇):
   //   M ∂q̈ − A_Rᵀ ∂μ = ∂Q − ∂M q̈ + (∂A_R)ᵀ μ,   A_R ∂q̈ = ∂b_R − ∂A_R q̈,
   //   ∂Qc = (∂A_R)ᵀ μ + A_Rᵀ ∂μ   (the same factorisation as the state columns).

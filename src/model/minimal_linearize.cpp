@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "model/linearize_corrected.hpp"
 #include "ukdyn/model/constraint_jacobians.hpp"
 
 namespace ukdyn {
@@ -36,47 +37,42 @@ void require_position_rows(const System& system, ForwardData& d, double t, CVecR
       "of A); ukdyn builds minimal coordinates for holonomic rows only");
 }
 
-// D = ∂(A_R q̇)/∂q at fixed q̇ from the constraints' exact tangents (constraint_jacobians.hpp).
-Mat velocity_jacobian(const System& system, ForwardData& d, double t, CVecRef q, CVecRef qd,
-                      const std::vector<Index>& kept) {
-  Mat D;
-  std::vector<Mat> unused;
-  constraint_state_jacobians(system, d, t, q, qd, kept, {}, D, unused);
+// D = ∂(A_R q̇ + Φ_t)/∂q at fixed q̇ (r × n) at (t, q, v), exact; ld.fwd must hold forward() at
+// (t, q, v) (the constraints' slots). For a holonomic row Φ(q, t) = 0 the velocity constraint is
+// Φ̇ = Φ_q q̇ + Φ_t = 0 and the acceleration row A q̈ = b has A = Φ_q and
+//   b = −(∂(Φ_q q̇)/∂q) q̇ − 2 Φ_tq q̇ − Φ_tt
+// (Φ̈ = 0: the right-hand side γ of the acceleration equations, [Nikravesh1988]), quadratic in q̇.
+// With the symmetric second derivatives of Φ, ∂b/∂q̇ = −2 (∂(Φ_q q̇)/∂q + Φ_tq) = −2 ∂Φ̇/∂q, so
+//   D = ∂Φ̇/∂q = −½ ∂b/∂q̇ = ½ ∂(A q̈ − b)/∂q̇   (A = Φ_q does not depend on q̇):
+// column j is half the constraints' exact tangent along e_j of q̇ (constraint_tangent_columns(),
+// its columns n .. 2n − 1, at q̈ = 0 and λ = 0), the rheonomic part ∂Φ_t/∂q included. The same
+// identity gives linearize_corrected() its ∂Φ̇/∂q. The rows must be position-level
+// (require_position_rows()); a velocity-level row has no Φ.
+Mat velocity_constraint_jacobian(const System& system, LinearizeData& ld, double t, CVecRef q,
+                                 CVecRef v, const std::vector<Index>& kept) {
+  const Index n = system.dof(), r = static_cast<Index>(kept.size());
+  Mat dres, dforce;
+  constraint_tangent_columns(system, ld, t, q, v, Vec::Zero(n), Vec::Zero(system.rows()), dres,
+                             dforce);
+  Mat D(r, n);
+  for (Index k = 0; k < r; ++k)
+    D.row(k) = 0.5 * dres.row(kept[static_cast<std::size_t>(k)]).tail(n);
   return D;
 }
 
-// Rheonomic rows (Φ(q, t)): the velocity constraint is A q̇ + Φ_t = 0, so its linearisation has
-// the extra term ∂Φ_t/∂q δq. Φ_t(q) is the velocity residual at q̇ = 0 (exactly 0 for a
-// scleronomic row, velocity_residual() = A q̇); where it is not 0 at the state or a probe around
-// it, ∂Φ_t/∂q comes from Richardson-extrapolated central differences of it (error O(h⁴); the
-// constraints have no tangent of Φ_t) and `rheonomic` is set. Returns the r × n term.
-Mat phi_t_jacobian(const System& system, ForwardData& d, double t, CVecRef q,
-                   const std::vector<Index>& kept, bool& rheonomic) {
-  const Index n = system.dof(), m = system.rows(), r = static_cast<Index>(kept.size());
-  const Vec zero = Vec::Zero(n);
-  Vec phit(m);
-  auto phi_t = [&](const Vec& x) {
-    velocity_residuals(system, d, t, x, zero, phit);
-    Vec out(r);
-    for (Index k = 0; k < r; ++k) out(k) = phit(kept[static_cast<std::size_t>(k)]);
-    return out;
-  };
-  const double h = 1e-3 * (1.0 + q.cwiseAbs().maxCoeff());
-  Mat E(r, n);
-  double seen = phi_t(q).cwiseAbs().maxCoeff();
-  for (Index j = 0; j < n; ++j) {
-    auto central = [&](double step) {
-      Vec xp = q, xm = q;
-      xp(j) += step;
-      xm(j) -= step;
-      const Vec fp = phi_t(xp), fm = phi_t(xm);
-      seen = std::max({seen, fp.cwiseAbs().maxCoeff(), fm.cwiseAbs().maxCoeff()});
-      return Vec((fp - fm) / (2.0 * step));
-    };
-    E.col(j) = (4.0 * central(h / 2) - central(h)) / 3.0;
-  }
-  rheonomic = r > 0 && seen > 0.0;
-  return rheonomic ? E : Mat::Zero(r, n);
+// Whether a kept row's velocity constraint depends on t at q: Φ_t ≠ 0 (the velocity residual at
+// q̇ = 0; exactly 0 for a scleronomic row) or ∂Φ_t/∂q ≠ 0 (D at q̇ = 0). Leaves ld.fwd at
+// (t, q, 0). D0: D at q̇ = 0, i.e. ∂Φ_t/∂q.
+bool rheonomic_rows(const System& system, LinearizeData& ld, double t, CVecRef q, CVecRef tau,
+                    const std::vector<Index>& kept, Mat& D0) {
+  const Vec zero = Vec::Zero(system.dof());
+  forward(system, ld.fwd, t, q, zero, tau);
+  D0 = velocity_constraint_jacobian(system, ld, t, q, zero, kept);
+  Vec phit(system.rows());
+  velocity_residuals(system, ld.fwd, t, q, zero, phit);
+  bool moving = !D0.isZero(0.0);
+  for (Index row : kept) moving = moving || phit(row) != 0.0;
+  return moving;
 }
 
 }  // namespace
@@ -109,21 +105,25 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
   if (lin.dqdd_dq.rows() != n || q.size() != n || qd.size() != n || tau.size() != n)
     throw std::invalid_argument("minimal_model: the linearisation or the state has the wrong size");
   MinimalModel mm;
-  ForwardData d(system);
+  LinearizeData ld(system);
+  ForwardData& d = ld.fwd;
   forward(system, d, t, q, qd, tau);
   const Index r = static_cast<Index>(lin.kept_rows.size());
   mm.AR.resize(r, n);
   for (Index k = 0; k < r; ++k) mm.AR.row(k) = d.A.row(lin.kept_rows[static_cast<std::size_t>(k)]);
   require_position_rows(system, d, t, q, mm.AR, lin.kept_rows);
-  forward(system, d, t, q, qd, tau);  // the slots again at the state, for the tangents
   mm.N = null_space_basis(mm.AR);
   const Index k = mm.N.cols();
   mm.null_residual = r > 0 && k > 0 ? (mm.AR * mm.N).cwiseAbs().maxCoeff() : 0.0;
   mm.ortho_residual =
       k > 0 ? (mm.N.transpose() * mm.N - Mat::Identity(k, k)).cwiseAbs().maxCoeff() : 0.0;
   mm.at_rest = qd.isZero(0.0);
-  mm.D = mm.at_rest ? Mat::Zero(r, n) : velocity_jacobian(system, d, t, q, qd, lin.kept_rows);
-  if (r > 0) mm.D += phi_t_jacobian(system, d, t, q, lin.kept_rows, mm.rheonomic);
+  mm.D = Mat::Zero(r, n);
+  if (r > 0) mm.rheonomic = rheonomic_rows(system, ld, t, q, tau, lin.kept_rows, mm.D);
+  if (r > 0 && !mm.at_rest) {
+    forward(system, d, t, q, qd, tau);  // the slots at the state, for the tangents
+    mm.D = velocity_constraint_jacobian(system, ld, t, q, qd, lin.kept_rows);
+  }
   forward(system, d, t, q, qd, tau);  // leave the slots at the state
   state_space(lin, mm.F, mm.G);
   // T = [[N, 0], [−A_R⁺ D N, N]], A_R⁺ = A_Rᵀ (A_R A_Rᵀ)⁻¹ by the normal equations (the kept rows
@@ -154,10 +154,9 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
               ", |Phi'| " + sci(mm.velocity_residual) + ")";
   }
   if (mm.rheonomic) {
-    mm.note +=
-        std::string(mm.note.empty() ? "" : "; ") +
-        "rheonomic rows: the d(Phi_t)/dq part of D is by Richardson central differences (the "
-        "constraints give no tangent of Phi_t)";
+    mm.note += std::string(mm.note.empty() ? "" : "; ") +
+               "rheonomic rows: the manifold moves with t and N is frozen at this t (D holds the "
+               "exact d(Phi_t)/dq)";
   }
   if (!mm.at_rest) {
     mm.note +=

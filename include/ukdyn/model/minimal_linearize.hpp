@@ -11,9 +11,10 @@
 // x = T z, T = [[N, 0], [−A_R⁺ D N, N]]; with P = diag(Nᵀ, Nᵀ) (P T = I) the reduced model is
 //   ż = F_min z + G_min δτ,   F_min = P F T,   G_min = P G,
 // i.e. F_min = [[0, I], [Nᵀ(∂q̈/∂q − ∂q̈/∂q̇ A_R⁺ D)N, Nᵀ ∂q̈/∂q̇ N]], G_min = [[0], [Nᵀ ∂q̈/∂τ]].
-// At rest (q̇ = 0) D = 0. At an equilibrium (q̇ = 0, q̈ = 0) the manifold's tangent space range(T)
-// is invariant under F (F T = T F_min) and the spectrum of F is that of F_min plus 2r zeros (the
-// constraint directions, along which the linearised Φ̈ = 0 leaves a double zero). Elsewhere the
+// At rest (q̇ = 0) D = ∂Φ_t/∂q (0 for scleronomic rows). At an equilibrium (q̇ = 0, q̈ = 0) of
+// scleronomic rows the manifold's tangent space range(T) is invariant under F (F T = T F_min) and
+// the spectrum of F is that of F_min plus 2r zeros (the constraint directions, along which the
+// linearised Φ̈ = 0 leaves a double zero). Elsewhere the
 // tangent space moves with the state and N is frozen at it: F_min is the instantaneous projection
 // of the linear time-varying model along the trajectory, like F itself away from an equilibrium.
 //
@@ -34,8 +35,8 @@ namespace ukdyn {
 struct MinimalModel {
   Mat N;   ///< n × k orthonormal basis of null(A_R), k = n − rank
   Mat AR;  ///< r × n: the kept rows of A at the state
-  /// r × n: ∂(A_R q̇ + Φ_t)/∂q at fixed q̇: the A_R q̇ part exact (the constraints' tangents), the
-  /// Φ_t part of rheonomic rows by Richardson central differences (`rheonomic`)
+  /// r × n: ∂(A_R q̇ + Φ_t)/∂q at fixed q̇, exact: ½ ∂(A_R q̈ − b_R)/∂q̇ from the constraints'
+  /// tangents (b is quadratic in q̇ for a holonomic row, docs/derivatives.md)
   Mat D;
   Mat T;                        ///< 2n × 2k: x = T z, the tangent of the manifold in (δq, δq̇)
   Mat F, G;                     ///< the full model (state_space())
@@ -45,8 +46,9 @@ struct MinimalModel {
   /// max |Φ_R| and max |A_R q̇ + Φ_t| at the state: how far it is from the manifold the model
   /// describes (the note says so above 1e-8)
   double position_residual = 0.0, velocity_residual = 0.0;
-  bool at_rest = true;  ///< q̇ = 0 (then D = 0 unless a row is rheonomic)
-  /// A kept row has Φ_t ≠ 0 near the state: D holds ∂Φ_t/∂q, by central differences.
+  bool at_rest = true;  ///< q̇ = 0 (then D = ∂Φ_t/∂q, 0 unless a row is rheonomic)
+  /// A kept row's velocity constraint depends on t at the state: Φ_t ≠ 0 or ∂Φ_t/∂q ≠ 0 (the
+  /// manifold moves with t; D holds ∂Φ_t/∂q exactly either way).
   bool rheonomic = false;
   std::string note;  ///< what the model means away from rest, how D was had ("" otherwise)
 };

@@ -30,10 +30,13 @@ struct ModelParameterDerivative {
 /// The linearisation of a state and its derivatives with respect to P parameters (one column per
 /// parameter, in the order given).
 struct ParameterLinearization {
-  Linearization lin;  ///< q̈, Qc, rank, trusted, message; the state columns when with_state
-  Mat dqdd_dp;        ///< n × P
-  Mat dQc_dp;         ///< n × P
-  Mat dmu_dp;         ///< r × P (the kept rows' multipliers, lin.kept_rows)
+  /// q̈, Qc, rank, trusted, message; with_state: the state columns and the time column
+  /// (dqdd_dt, dQc_dt, dmu_dt, or empty with time_message naming the component), as linearize()
+  /// gives them; without: neither, time_message saying so
+  Linearization lin;
+  Mat dqdd_dp;  ///< n × P
+  Mat dQc_dp;   ///< n × P
+  Mat dmu_dp;   ///< r × P (the kept rows' multipliers, lin.kept_rows)
 };
 
 /// The derivatives at (t, q, q̇, τ) of q̈ and Qc along the model derivatives `dp`. with_state: also
