@@ -101,42 +101,74 @@ py::array_t<double> copy_of(CVecRef v) {
   return a;
 }
 
-// Calls f(t, q, qd) (the GIL taken) and adds (add = true) or writes its n numbers into out.
-void call_python(const py::object& f, const char* what, CallbackErrors& errors, double t, CVecRef q,
-                 CVecRef qd, VecRef out, bool add) {
+// Calls f(t, q, qd) (the GIL taken) and hands its numbers (C order) to take(p); the result must be
+// `rows` numbers (cols = 0) or a rows × cols array. An exception or another shape is recorded in
+// `errors` and take(nullptr) is called (the caller writes NaN).
+template <class Take>
+void call_python_array(const py::object& f, const char* what, CallbackErrors& errors, double t,
+                       CVecRef q, CVecRef qd, Index rows, Index cols, Take take) {
   py::gil_scoped_acquire gil;
   if (!errors.first) {
     try {
       const py::object r = f(t, copy_of(q), copy_of(qd));
       const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(r);
+      const std::string expected = cols == 0 ? std::to_string(rows) + " numbers"
+                                             : "an array of shape (" + std::to_string(rows) + ", " +
+                                                   std::to_string(cols) + ")";
       if (!a) {
         PyErr_Clear();
         throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) + ": returned " +
-                           py::repr(r).cast<std::string>() + ", expected a sequence of " +
-                           std::to_string(out.size()) + " numbers");
+                           py::repr(r).cast<std::string>() + ", expected " +
+                           (cols == 0 ? "a sequence of " : "") + expected);
       }
-      if (a.ndim() != 1 || a.size() != out.size()) {
-        throw ukdyn::Error(std::string(what) + " at t = " + std::to_string(t) +
-                           ": returned an array of shape " +
-                           py::repr(a.attr("shape")).cast<std::string>() + ", expected " +
-                           std::to_string(out.size()) + " numbers");
+      const bool fits = cols == 0 ? a.ndim() == 1 && a.size() == rows
+                                  : a.ndim() == 2 && a.shape(0) == rows && a.shape(1) == cols;
+      if (!fits) {
+        throw ukdyn::Error(
+            std::string(what) + " at t = " + std::to_string(t) + ": returned an array of shape " +
+            py::repr(a.attr("shape")).cast<std::string>() + ", expected " + expected);
       }
-      const double* p = a.data();
-      for (Index i = 0; i < out.size(); ++i) out(i) = add ? out(i) + p[i] : p[i];
+      take(a.data());
       return;
     } catch (...) {
       errors.first = std::current_exception();
     }
   }
-  out.setConstant(std::numeric_limits<double>::quiet_NaN());
+  take(nullptr);
+}
+
+// Calls f(t, q, qd) (the GIL taken) and adds (add = true) or writes its n numbers into out.
+void call_python(const py::object& f, const char* what, CallbackErrors& errors, double t, CVecRef q,
+                 CVecRef qd, VecRef out, bool add) {
+  call_python_array(f, what, errors, t, q, qd, out.size(), 0, [&](const double* p) {
+    if (p == nullptr) {
+      out.setConstant(std::numeric_limits<double>::quiet_NaN());
+      return;
+    }
+    for (Index i = 0; i < out.size(); ++i) out(i) = add ? out(i) + p[i] : p[i];
+  });
+}
+
+// The method `name` of a Python force object, or None when it has none (or it is not callable).
+py::object force_method(const py::object& f, const char* name) {
+  py::gil_scoped_acquire gil;
+  if (py::hasattr(f, name) && PyCallable_Check(f.attr(name).ptr())) return f.attr(name);
+  return py::none();
 }
 
 // A Python callable f(t, q, qd) -> Q_a (n numbers) as an applied force: all of it
-// non-conservative (no potential), its power Q_aᵀ q̇ counted in the energy balance.
+// non-conservative (no potential), its power Q_aᵀ q̇ counted in the energy balance. Its exact
+// derivatives (docs/python.md, docs/derivatives.md) are its optional methods f.dQ_dq(t, q, qd) and
+// f.dQ_dqd(t, q, qd) (n × n each, both or neither: add_tangent) and f.dQ_dt(t, q, qd) (n:
+// add_time_tangent); without them the force has no exact derivatives, as a C++ AppliedForce
+// without the overrides.
 class PythonForce final : public ukdyn::AppliedForce {
  public:
   PythonForce(py::object f, std::string name, Index n, CallbackErrors& errors)
       : f_(new py::object(std::move(f)), release_with_gil),
+        dq_(new py::object(force_method(*f_, "dQ_dq")), release_with_gil),
+        dqd_(new py::object(force_method(*f_, "dQ_dqd")), release_with_gil),
+        dt_(new py::object(force_method(*f_, "dQ_dt")), release_with_gil),
         name_(std::move(name)),
         errors_(errors),
         buffer_(n) {}
@@ -148,13 +180,42 @@ class PythonForce final : public ukdyn::AppliedForce {
     return buffer_.dot(qd);
   }
   [[nodiscard]] double potential(CVecRef) const override { return 0.0; }
+  [[nodiscard]] bool has_derivatives() const override {
+    return !dq_->is_none() && !dqd_->is_none();
+  }
+  // dQ += ∂Q_a/∂q dq + ∂Q_a/∂q̇ dqd, each matrix asked for only where its direction is not 0.
+  bool add_tangent(double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
+                   VecRef dQ) const override {
+    if (!has_derivatives()) return false;
+    const Index n = dQ.size();
+    for (const bool rate : {false, true}) {
+      const CVecRef dir = rate ? dqd : dq;
+      if (dir.isZero(0.0)) continue;
+      call_python_array(
+          *(rate ? dqd_ : dq_), rate ? "applied force's dQ_dqd" : "applied force's dQ_dq", errors_,
+          t, q, qd, n, n, [&](const double* p) {
+            if (p == nullptr) {
+              dQ.setConstant(std::numeric_limits<double>::quiet_NaN());
+              return;
+            }
+            using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+            dQ += Eigen::Map<const RowMajor>(p, n, n) * dir;
+          });
+    }
+    return true;
+  }
+  bool add_time_tangent(double t, CVecRef q, CVecRef qd, VecRef dQ) const override {
+    if (dt_->is_none()) return false;
+    call_python(*dt_, "applied force's dQ_dt", errors_, t, q, qd, dQ, true);
+    return true;
+  }
 
  private:
   static void release_with_gil(py::object* p) {
     py::gil_scoped_acquire gil;
     delete p;
   }
-  std::shared_ptr<py::object> f_;
+  std::shared_ptr<py::object> f_, dq_, dqd_, dt_;
   std::string name_;
   CallbackErrors& errors_;
   mutable Vec buffer_;
@@ -429,7 +490,7 @@ void add_minimal_and_discrete(PyLinearization& r, const ukdyn::MinimalModel* mm,
 // The exact derivatives at (t, q, qd, tau) (ukdyn/model/linearize.hpp, docs/derivatives.md).
 PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
                           const py::object& qd_in, const py::object& tau_in, bool minimal,
-                          const py::object& dt_in) {
+                          const py::object& dt_in, const std::vector<py::object>& forces) {
   double dt = 0.0;
   if (!dt_in.is_none()) {
     dt = dt_in.cast<double>();
@@ -437,7 +498,9 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
       throw std::invalid_argument("linearize: dt must be a positive finite step (or None)");
   }
   const ukdyn::Scenario& sc = s.sc;
-  const ukdyn::System& sys = *sc.system;
+  CallbackErrors errors;
+  const auto with_forces = make_run_system(sc, forces, errors);
+  const ukdyn::System& sys = *with_forces;
   const Index n = sys.dof();
   require_finite(t, "t");
   const Vec q = vector_arg(q_in, n, "q");
@@ -446,12 +509,19 @@ PyLinearization linearize(const PyScenario& s, double t, const py::object& q_in,
   ukdyn::Linearization lin;
   ukdyn::MinimalModel mm;
   Mat F, G;
+  std::exception_ptr failed;
   {
     py::gil_scoped_release release;
-    lin = ukdyn::linearize(sys, t, q, qd, tau, sc.sim.uk);
-    ukdyn::state_space(lin, F, G);
-    if (minimal) mm = ukdyn::minimal_model(sys, t, q, qd, tau, lin);
+    try {
+      lin = ukdyn::linearize(sys, t, q, qd, tau, sc.sim.uk);
+      ukdyn::state_space(lin, F, G);
+      if (minimal) mm = ukdyn::minimal_model(sys, t, q, qd, tau, lin);
+    } catch (...) {
+      failed = std::current_exception();
+    }
   }
+  rethrow_recorded(errors);  // a Python force's own exception first
+  if (failed) std::rethrow_exception(failed);
   PyLinearization r;
   add_minimal_and_discrete(r, minimal ? &mm : nullptr, F, G, dt);
   r.qdd = numpy_of(lin.qdd);
@@ -1084,14 +1154,17 @@ Q, A, b, Qc, qdd, rank, residual as `ukdyn eval` answers them. forces: Python ca
 f(t, q, qd) -> Q_a (n numbers) added as applied forces.)doc")
       .def("linearize", &linearize, py::arg("t"), py::arg("q"), py::arg("qd"),
            py::arg("tau") = py::none(), py::kw_only(), py::arg("minimal") = false,
-           py::arg("dt") = py::none(),
+           py::arg("dt") = py::none(), py::arg("forces") = std::vector<py::object>{},
            R"doc(Exact derivatives of qdd and Qc at (t, q, qd) with generalized forces tau (default
 0): implicit differentiation of the KKT form of the U-K equation over the model's exact tangents
 (no finite differences). Check .trusted: False at or near a singular position, after a damped
 solve, or with inconsistent constraints (.message says which). Raises ukdyn.Error naming a
 component without exact derivatives. minimal=True: also N, T, D, F_min, G_min, the model in
 z = (N^T dq, N^T dqd) on the constraint manifold (raises ukdyn.Error for velocity-level rows).
-dt: also the zero-order-hold Fd, Gd (and Fd_min, Gd_min). docs/derivatives.md.)doc")
+dt: also the zero-order-hold Fd, Gd (and Fd_min, Gd_min). forces: Python applied forces
+f(t, q, qd) -> Q_a as in forward(), with their exact derivatives as methods f.dQ_dq(t, q, qd) and
+f.dQ_dqd(t, q, qd) (n x n each; without them: ukdyn.Error) and, for dqdd_dt, f.dQ_dt(t, q, qd)
+(n; without it dqdd_dt is None, time_message naming the force). docs/derivatives.md.)doc")
       .def("simulate", &simulate, py::arg("controller") = py::none(),
            py::arg("forces") = std::vector<py::object>{}, py::kw_only(),
            py::arg("control_law") = py::none(), py::arg("q0") = py::none(),

@@ -335,6 +335,77 @@ def test_linearize_time_column_matches_differences_in_t(tmp_path):
     assert np.array_equal(still.dqdd_dt, np.zeros(3)) and np.array_equal(still.dQc_dt, np.zeros(3))
 
 
+class ForceOfTime:
+    """Q_a = k sin(w t + p) q + c cos(w t + p) qd (elementwise), its exact derivatives as methods."""
+
+    def __init__(self, n, time=True):
+        self.k, self.c, self.w, self.p = np.linspace(2.0, 5.0, n), np.linspace(-1.5, 1.0, n), 3.0, 0.7
+        if time:
+            self.dQ_dt = lambda t, q, qd: self.w * (self.k * np.cos(self.w * t + self.p) * q
+                                                    - self.c * np.sin(self.w * t + self.p) * qd)
+
+    def __call__(self, t, q, qd):
+        return self.k * np.sin(self.w * t + self.p) * q + self.c * np.cos(self.w * t + self.p) * qd
+
+    def dQ_dq(self, t, q, qd):
+        return np.diag(self.k * np.sin(self.w * t + self.p))
+
+    def dQ_dqd(self, t, q, qd):
+        return np.diag(self.c * np.cos(self.w * t + self.p))
+
+
+def test_linearize_with_a_python_force_of_time():
+    # A Python force with dQ_dq, dQ_dqd and dQ_dt (docs/python.md): the time column against
+    # Richardson central differences in t of forward() with the same force, the state columns
+    # against differences in q and qd; without dQ_dt the time column alone is refused (None,
+    # time_message naming the force); without dQ_dq / dQ_dqd linearize() raises naming it.
+    sc = ukdyn.load_scenario(scenario_path("five_bar_redundant.yaml"))  # 2 degrees of freedom
+    q, qd = np.array(sc.q0), np.array(sc.qd0)  # on the constraints
+    tau = np.zeros(sc.dof)
+    t = 0.4
+    f = ForceOfTime(sc.dof)
+    lin = sc.linearize(t, q, qd, tau, forces=[f])
+    assert lin.trusted and lin.time_message == "", lin.time_message
+
+    def central(h, dt=0.0, dq=None, dqd=None):
+        z = np.zeros(sc.dof)
+        dq, dqd = (z if dq is None else dq), (z if dqd is None else dqd)
+        p = sc.forward(t + dt * h, q + h * dq, qd + h * dqd, tau, forces=[f])
+        m = sc.forward(t - dt * h, q - h * dq, qd - h * dqd, tau, forces=[f])
+        return (p.qdd - m.qdd) / (2 * h), (p.Qc - m.Qc) / (2 * h)
+
+    def richardson(**kw):
+        (a, ac), (b, bc) = central(5e-4, **kw), central(1e-3, **kw)
+        return (4 * a - b) / 3, (4 * ac - bc) / 3
+
+    d, dc = richardson(dt=1.0)
+    assert np.abs(lin.dqdd_dt - d).max() <= 1e-7 * np.abs(d).max()
+    assert np.abs(lin.dQc_dt - dc).max() <= 1e-7 * np.abs(dc).max()
+    assert np.abs(d).max() > 1e-2
+    # Nothing else of the five-bar depends on t: d qdd/dt is the force's share alone.
+    assert np.array_equal(sc.linearize(t, q, qd, tau).dqdd_dt, np.zeros(sc.dof))
+    for j in range(sc.dof):
+        e = np.eye(sc.dof)[j]
+        dq_col, _ = richardson(dq=e)
+        dqd_col, _ = richardson(dqd=e)
+        assert np.abs(lin.dqdd_dq[:, j] - dq_col).max() <= 1e-6 * (1 + np.abs(dq_col).max())
+        assert np.abs(lin.dqdd_dqd[:, j] - dqd_col).max() <= 1e-6 * (1 + np.abs(dqd_col).max())
+    no_time = sc.linearize(t, q, qd, tau, forces=[ForceOfTime(sc.dof, time=False)])
+    assert no_time.dqdd_dt is None and no_time.dQc_dt is None
+    assert "no exact d/dt for applied force 'python_force_0'" in no_time.time_message
+    np.testing.assert_allclose(no_time.dqdd_dq, lin.dqdd_dq, rtol=0, atol=1e-13)
+    with pytest.raises(ukdyn.Error, match="no exact derivatives for applied force 'python_force_0'"):
+        sc.linearize(t, q, qd, tau, forces=[lambda t, q, qd: np.zeros(len(q))])
+
+    class BadShape(ForceOfTime):
+        def dQ_dq(self, t, q, qd):
+            return np.zeros(len(q))
+
+    shape = rf"dQ_dq at t = .*expected an array of shape \({sc.dof}, {sc.dof}\)"
+    with pytest.raises(ukdyn.Error, match=shape):
+        sc.linearize(t, q, qd, tau, forces=[BadShape(sc.dof)])
+
+
 def test_linearize_minimal_and_discrete():
     # Minimal coordinates on the constraint manifold and the zero-order hold (docs/derivatives.md):
     # the five-bar (4 angles, 2 closure rows) held at rest by tau = G.

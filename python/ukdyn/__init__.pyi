@@ -474,10 +474,12 @@ class Scenario:
         *,
         minimal: bool = False,
         dt: Optional[float] = None,
+        forces: Sequence[Callback] = (),
     ) -> Linearization:
         """Exact derivatives of qdd and Qc at (t, q, qd, tau); check .trusted; minimal: the model
-        in minimal coordinates on the constraint manifold; dt: the zero-order-hold discrete model
-        (docs/derivatives.md)"""
+        in minimal coordinates on the constraint manifold; dt: the zero-order-hold discrete model;
+        forces: Python applied forces with methods dQ_dq, dQ_dqd (and dQ_dt for dqdd_dt)
+        (docs/derivatives.md, docs/python.md)"""
     def linearize_structured(
         self,
         t: float,
