@@ -519,9 +519,9 @@ TEST(TimeDerivatives, ClosedLoopAddsTheLawsTimeDerivative) {
   EXPECT_LE(rel_error(cl.lin.dqdd_dt, c), 1e-6);
 }
 
-// linearize_parameters() carries the time column as linearize() does (with the state columns):
-// against the differences of forward() in t and equal to linearize()'s; without the state
-// columns it is not computed and time_message says so.
+// linearize_parameters() with with_time carries the time column as linearize() does: against the
+// differences of forward() in t and equal to linearize()'s; not asked for, it is not computed and
+// time_message says so.
 TEST(TimeDerivatives, ParameterLinearizationCarriesTheTimeColumn) {
   const Scenario sc = load_scenario(kSource / "scenarios" / "paper.yaml");
   const System& sys = *sc.system;
@@ -530,7 +530,8 @@ TEST(TimeDerivatives, ParameterLinearizationCarriesTheTimeColumn) {
   const Index n = sys.dof(), m = sys.rows();
   const std::vector<ModelParameterDerivative> dp = {
       {Mat::Zero(n, n), Vec::Zero(n), Mat::Zero(m, n), Vec::Zero(m)}};
-  const ParameterLinearization pl = linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk);
+  const ParameterLinearization pl =
+      linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk, true, true);
   ASSERT_EQ(pl.lin.dqdd_dt.size(), n) << pl.lin.time_message;
   EXPECT_TRUE(pl.lin.time_message.empty()) << pl.lin.time_message;
   EXPECT_EQ(pl.lin.dQc_dt.size(), n);
@@ -543,10 +544,16 @@ TEST(TimeDerivatives, ParameterLinearizationCarriesTheTimeColumn) {
   EXPECT_LE((pl.lin.dqdd_dt - lin.dqdd_dt).cwiseAbs().maxCoeff(),
             1e-12 * (1.0 + lin.dqdd_dt.cwiseAbs().maxCoeff()));
   EXPECT_LE(pl.dqdd_dp.cwiseAbs().maxCoeff(), 0.0);  // a zero parameter derivative
-  const ParameterLinearization bare =
-      linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk, false);
-  EXPECT_EQ(bare.lin.dqdd_dt.size(), 0);
-  EXPECT_NE(bare.lin.time_message.find("not computed"), std::string::npos);
+  // Not asked for (the default, what the run's variational equations take), or without the
+  // state columns: empty, and time_message says so.
+  for (const bool with_state : {true, false}) {
+    const ParameterLinearization bare =
+        linearize_parameters(sys, t, s.q, s.qd, s.tau, dp, sc.sim.uk, with_state);
+    EXPECT_EQ(bare.lin.dqdd_dt.size(), 0);
+    EXPECT_EQ(bare.lin.dQc_dt.size(), 0);
+    EXPECT_NE(bare.lin.time_message.find("not computed"), std::string::npos);
+    EXPECT_EQ(bare.lin.dqdd_dq.rows(), with_state ? n : 0);
+  }
 }
 
 // The minimal model's D = ∂(A_R q̇ + Φ_t)/∂q = ½ ∂(A_R q̈ − b_R)/∂q̇ (exact, from the rows'

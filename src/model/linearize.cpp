@@ -1006,7 +1006,8 @@ Linearization linearize(const System& system, double t, CVecRef q, CVecRef qd, C
 ParameterLinearization linearize_parameters(const System& system, double t, CVecRef q, CVecRef qd,
                                             CVecRef tau,
                                             const std::vector<ModelParameterDerivative>& dp,
-                                            const UkSettings& settings, bool with_state) {
+                                            const UkSettings& settings, bool with_state,
+                                            bool with_time) {
   check_sizes(system, t, q, qd, tau);
   if (with_state) require_derivatives(system);
   const Index n = system.dof(), m = system.rows();
@@ -1018,11 +1019,11 @@ ParameterLinearization linearize_parameters(const System& system, double t, CVec
   }
   LinearizeData d(system);
   prepare_kkt(system, d, t, q, qd, tau, settings);
-  if (with_state) {  // the state columns and the time column, as linearize() gives them
-    state_columns(system, d, t, q, qd, LinearizeParts{});
+  if (with_state) state_columns(system, d, t, q, qd, LinearizeParts{});
+  if (with_state && with_time) {  // the time column as linearize() gives it
     time_column(system, d, t, q, qd, LinearizeParts{});
   } else {
-    d.lin.time_message = "not computed: linearize_parameters without the state columns";
+    d.lin.time_message = "not computed: linearize_parameters without with_state and with_time";
   }
   // Implicit differentiation of the KKT system in p at fixed (t, q, q̇):
   //   M ∂q̈ − A_Rᵀ ∂μ = ∂Q − ∂M q̈ + (∂A_R)ᵀ μ,   A_R ∂q̈ = ∂b_R − ∂A_R q̈,

@@ -30,9 +30,9 @@ struct ModelParameterDerivative {
 /// The linearisation of a state and its derivatives with respect to P parameters (one column per
 /// parameter, in the order given).
 struct ParameterLinearization {
-  /// q̈, Qc, rank, trusted, message; with_state: the state columns and the time column
-  /// (dqdd_dt, dQc_dt, dmu_dt, or empty with time_message naming the component), as linearize()
-  /// gives them; without: neither, time_message saying so
+  /// q̈, Qc, rank, trusted, message; with_state: the state columns as linearize() gives them;
+  /// with_time: the time column too (dqdd_dt, dQc_dt, dmu_dt, or empty with time_message naming
+  /// the component without an exact ∂/∂t), else empty with time_message saying it was not asked
   Linearization lin;
   Mat dqdd_dp;  ///< n × P
   Mat dQc_dp;   ///< n × P
@@ -41,12 +41,16 @@ struct ParameterLinearization {
 
 /// The derivatives at (t, q, q̇, τ) of q̈ and Qc along the model derivatives `dp`. with_state: also
 /// the state columns of linearize() (then every component must have exact tangents, as for
-/// linearize()); without, only the KKT solve is needed and any system will do. `lin.trusted` and
-/// `lin.message` say, as for linearize(), when the derivatives cannot be vouched for.
+/// linearize()); without, only the KKT solve is needed and any system will do. with_time (with
+/// with_state): also linearize()'s time column, one more right-hand side of the same
+/// factorisation; off by default: the variational equations of a run (ukdyn/run/sensitivity.hpp),
+/// which call this at every right-hand-side evaluation, do not use it (about 10 % of their time on
+/// the five-bar, docs/derivatives.md). `lin.trusted` and `lin.message` say, as for linearize(), when
+/// the derivatives cannot be vouched for.
 ParameterLinearization linearize_parameters(const System& system, double t, CVecRef q, CVecRef qd,
                                             CVecRef tau,
                                             const std::vector<ModelParameterDerivative>& dp,
-                                            const UkSettings& settings = {},
-                                            bool with_state = true);
+                                            const UkSettings& settings = {}, bool with_state = true,
+                                            bool with_time = false);
 
 }  // namespace ukdyn
