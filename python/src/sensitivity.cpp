@@ -94,6 +94,7 @@ py::dict sensitivities(const PyScenario& s, const std::vector<std::string>& para
   d["trusted"] = rs.trusted;
   d["message"] = rs.message;
   d["warnings"] = rs.warnings;
+  if (!rs.law_derivative.empty()) d["law_derivative"] = rs.law_derivative;
   return d;
 }
 

@@ -502,7 +502,8 @@ class Scenario:
     def sensitivities(self, parameters: Sequence[str]) -> dict[str, Any]:
         """dq/dp, dqd/dp (P x T x n) of the scenario's run by the variational equations, with t,
         q, qd, steps, rhs_evaluations, trusted, message, warnings (a control scenario: the
-        plant's closed loop; a gain such as 'control.kappa' is a parameter)"""
+        plant's closed loop; a gain such as 'control.kappa' is a parameter; law_derivative says
+        how the law's d tau/dx was taken, exact or by directional differences)"""
     def closed_loop_linearize(
         self,
         t: Optional[float] = None,

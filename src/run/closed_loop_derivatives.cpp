@@ -2,9 +2,13 @@
 // docs/derivatives.md, "Controlled runs").
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
+#include <optional>
 
 #include "run/law_jacobian.hpp"
 #include "run/richardson.hpp"
@@ -91,8 +95,10 @@ LawDerivatives derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd, boo
   out.tau = ps[0].tau;
   out.u = run.loop->u;
   std::string why_not = "asked for";
-  if (!differences && exact_law_jacobian(run, t, q, qd, ps[0].u_raw, out.dtau_dq, out.dtau_dqd,
-                                         out.kinks, why_not)) {
+  std::optional<LinearizeData> ld;
+  if (!differences) ld.emplace(*run.model.system);
+  if (ld && exact_law_jacobian(run, *ld, t, q, qd, ps[0].u_raw, out.dtau_dq, out.dtau_dqd,
+                               out.kinks, why_not)) {
     out.method = "exact";
   } else {
     jacobian_by_differences(run, t, q, qd, ps, out);
@@ -128,6 +134,27 @@ Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, 
   // A step of 1e-6 max(1, |x|∞) in x along the direction, whatever the direction's size.
   const double h = law_step(scale) / size;
   return directional(run, t, q, qd, dq, dqd, h, ps, kinks);
+}
+
+bool law_jacobian(const ControlRun& run, LawJacobianWorkspace& ws, double t, CVecRef q, CVecRef qd,
+                  Mat& dtau_dq, Mat& dtau_dqd) {
+  run.loop->evaluate(t, q, qd);
+  ws.kinks.clear();
+  ws.why_not.clear();
+  if (!exact_law_jacobian(run, ws.ld, t, q, qd, run.loop->u_raw, dtau_dq, dtau_dqd, ws.kinks,
+                          ws.why_not))
+    return false;
+  if (ws.kinks.empty()) return true;
+  ws.why_not = "a kink of the law: " + ws.kinks.front();
+  return false;
+}
+
+ForceJacobian law_force_jacobian(const ControlRun& run) {
+  auto ws = std::make_shared<LawJacobianWorkspace>(run);
+  return [&run, ws](double t, CVecRef q, CVecRef qd, Mat& dtau_dq, Mat& dtau_dqd) {
+    if (!law_jacobian(run, *ws, t, q, qd, dtau_dq, dtau_dqd))
+      throw Error(fmt::format("the law's d tau/d(q, qd) at t = {:g}: {}", t, ws->why_not));
+  };
 }
 
 ClosedLoopLinearization closed_loop_linearization(const Scenario& sc, double t, CVecRef q,

@@ -21,6 +21,7 @@
 #include <cmath>
 
 #include "model/linearize_corrected.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/run.hpp"
 
 namespace ukdyn {
@@ -168,32 +169,38 @@ std::string actuator_kink(const std::string& name, double limit) {
   return fmt::format("actuator '{}' at its limit {:g}", name, limit);
 }
 
-bool exact_law_jacobian(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef u_raw,
-                        Mat& dtau_dq, Mat& dtau_dqd, std::vector<std::string>& kinks,
-                        std::string& why_not) {
-  const ControlModel& md = run.model;
-  const System& sys = *md.system;
-  if (const auto missing = components_without_derivatives(sys); !missing.empty()) {
-    why_not = "the law's model has no exact derivatives for " + missing.front();
-    return false;
-  }
+std::string law_jacobian_gap(const ControlRun& run) {
+  // A user's law in the loop (run_scenario_in_memory()'s MemoryRunOptions::law): not run.law.
+  if (run.law == nullptr || &run.loop->law != static_cast<const ControlLaw*>(run.law.get()))
+    return "the loop's law is a user's (its d tau/d(q, qd) is not known)";
+  const System& sys = *run.model.system;
+  if (const auto missing = components_without_derivatives(sys); !missing.empty())
+    return "the law's model has no exact derivatives for " + missing.front();
   // dv's ∂Φ̇/∂q = −½ ∂b/∂q̇ (linearize_corrected) holds for position-level rows only: a servo row
   // that is velocity-level (nonholonomic) takes the differences.
   const std::vector<bool> vel = velocity_level_rows(sys);
   for (std::size_t i = 0; i < vel.size(); ++i) {
-    if (vel[i] && md.row_servo[i]) {
-      why_not = "servo row '" + sys.constraint_row_names()[i] +
-                "' is velocity-level (nonholonomic): its exact correction term is not derived";
-      return false;
+    if (vel[i] && run.model.row_servo[i]) {
+      return "servo row '" + sys.constraint_row_names()[i] +
+             "' is velocity-level (nonholonomic): its exact correction term is not derived";
     }
   }
+  return {};
+}
+
+bool exact_law_jacobian(const ControlRun& run, LinearizeData& ld, double t, CVecRef q, CVecRef qd,
+                        CVecRef u_raw, Mat& dtau_dq, Mat& dtau_dqd, std::vector<std::string>& kinks,
+                        std::string& why_not) {
+  const ControlModel& md = run.model;
+  const System& sys = *md.system;
+  why_not = law_jacobian_gap(run);
+  if (!why_not.empty()) return false;
   const Index n = sys.dof(), m = sys.rows();
   Vec phi(m), phid(m);
   position_residuals(sys, t, q, phi);
   velocity_residuals(sys, t, q, qd, phid);
   std::vector<std::string> found;
   const RhsCorrection corr = law_correction(md, run.law->settings(), phi, phid, found);
-  LinearizeData ld(sys);
   Mat du;
   try {
     linearize_corrected(sys, ld, t, q, qd, md.tau, corr, md.uk);

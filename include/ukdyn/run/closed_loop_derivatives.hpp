@@ -56,6 +56,36 @@ LawDerivatives law_derivatives_by_differences(ControlRun& run, double t, CVecRef
 Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, CVecRef dqd,
                   std::vector<std::string>& kinks);
 
+/// Why the law's ∂τ/∂(q, q̇) cannot be exact at any state (the loop runs a user's law, the law's
+/// model has a component without tangents, a servo row is velocity-level); empty when it can.
+std::string law_jacobian_gap(const ControlRun& run);
+
+/// The buffers of law_jacobian() for one run: the law's model's linearisation (LinearizeData,
+/// allocated once), and why the last call was not exact.
+struct LawJacobianWorkspace {
+  explicit LawJacobianWorkspace(const ControlRun& run) : ld(*run.model.system) {}
+  LinearizeData ld;
+  std::vector<std::string> kinks;  ///< the kinks of the last call (no derivative given there)
+  std::string why_not;             ///< why the last call gave none (a kink, or not exact)
+};
+
+/// The loop evaluated at (t, q, q̇) and the law's exact ∂τ/∂(q, q̇) there (dtau_dq, dtau_dqd:
+/// n × n, resized): one evaluation of the loop, one linearize_corrected() of the law's model, the
+/// actuation solve's derivative (run/law_jacobian.hpp). False, with ws.why_not, where it is not
+/// exact at this state: law_jacobian_gap(), the model's KKT derivatives not vouched for, or a kink
+/// of the law within 1e-6 (relative) of the state (ws.kinks; the exact derivative there would be
+/// that of one side only). The caller then takes differences. The loop is left at the state.
+bool law_jacobian(const ControlRun& run, LawJacobianWorkspace& ws, double t, CVecRef q, CVecRef qd,
+                  Mat& dtau_dq, Mat& dtau_dqd);
+
+/// SimulationSettings::tau_jacobian for a run of run's loop (docs/derivatives.md, "Exact Jacobians
+/// in the implicit integrators"): law_jacobian() into a workspace of its own. Where that gives no
+/// exact derivative it throws ukdyn::Error (with ws.why_not): the integrator's exact Jacobian then
+/// builds that one Jacobian by differences of f and counts it (SimulationStats::
+/// jacobian_fallbacks). References run (it must outlive the function); the function's copies share
+/// one workspace (one run at a time). Set it only when law_jacobian_gap(run) is empty.
+ForceJacobian law_force_jacobian(const ControlRun& run);
+
 /// The closed loop at one state of the plant.
 struct ClosedLoopLinearization {
   LawDerivatives law;
