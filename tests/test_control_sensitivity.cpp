@@ -137,18 +137,20 @@ std::string underactuated_yaml() {
 // law_derivatives_by_differences()'s 1e-6, whose round-off on paper_control (|τ| ≈ 200 against
 // |∂τ/∂q| ≈ 30) reaches 1e-7 of the largest entry; smaller than 1e-3, whose truncation error near
 // the servo rows reaches 5e-6 for the robust term −ρ β/‖β‖ (curvature ρ/‖β‖²).
+// Column 2n: ∂τ/∂t at fixed (q, q̇), the same way in t.
 Mat richardson_jacobian(ControlRun& run, double t, const Vec& q, const Vec& qd) {
   const Index n = q.size();
-  Mat D(n, 2 * n);
+  Mat D(n, 2 * n + 1);
   std::array<Vec, 4> tau;
-  for (Index j = 0; j < 2 * n; ++j) {
-    const double h = 1e-4 * std::max(1.0, std::abs(j < n ? q(j) : qd(j - n)));
+  for (Index j = 0; j <= 2 * n; ++j) {
+    const double h = 1e-4 * std::max(1.0, std::abs(j < n ? q(j) : j < 2 * n ? qd(j - n) : t));
     const std::array<double, 4> at = {h, -h, h / 2, -h / 2};
     for (std::size_t k = 0; k < 4; ++k) {
       Vec a = q, b = qd;
-      (j < n ? a(j) : b(j - n)) += at[k];
+      double tk = t;
+      (j < n ? a(j) : j < 2 * n ? b(j - n) : tk) += at[k];
       tau[k].resize(n);
-      run.loop->evaluate(t, a, b);
+      run.loop->evaluate(tk, a, b);
       run.loop->plant_tau(tau[k]);
     }
     D.col(j) = ((4.0 / h) * (tau[2] - tau[3]) - (0.5 / h) * (tau[0] - tau[1])) / 3.0;
@@ -171,15 +173,22 @@ std::pair<double, double> exact_against_differences(Scenario sc, const ServoLawS
   const double t = 0.1 + 0.5 * (1.0 + Vec::Random(1)(0));
   const LawDerivatives exact = law_derivatives(*run, t, q, qd);
   EXPECT_EQ(exact.method, "exact") << sc.name;
+  EXPECT_EQ(exact.dtau_dt_method, "exact") << sc.name;
   EXPECT_TRUE(exact.kinks.empty()) << sc.name;
   const LawDerivatives diff = law_derivatives_by_differences(*run, t, q, qd);
   EXPECT_EQ(diff.method, "differences: asked for");
-  Mat a(n, 2 * n), b(n, 2 * n);
-  a << exact.dtau_dq, exact.dtau_dqd;
-  b << diff.dtau_dq, diff.dtau_dqd;
+  EXPECT_EQ(diff.dtau_dt_method, "differences: asked for");
+  Mat a(n, 2 * n + 1), b(n, 2 * n + 1);
+  a << exact.dtau_dq, exact.dtau_dqd, exact.dtau_dt;
+  b << diff.dtau_dq, diff.dtau_dqd, diff.dtau_dt;
   const Mat ref = richardson_jacobian(*run, t, q, qd);
   EXPECT_GT(ref.cwiseAbs().maxCoeff(), 0.0);
-  return {rel(a, ref), rel(a, b)};
+  // ∂τ/∂t on its own scale (it is 0 where nothing depends on t, tiny against ∂τ/∂x elsewhere)
+  const double dt_scale = std::max(ref.col(2 * n).cwiseAbs().maxCoeff(), 1e-3);
+  const double dt_err = (a.col(2 * n) - ref.col(2 * n)).cwiseAbs().maxCoeff() / dt_scale;
+  EXPECT_LT(dt_err, 1e-7) << sc.name << ": d tau/dt " << a.col(2 * n).transpose() << " against "
+                          << ref.col(2 * n).transpose();
+  return {std::max(rel(a, ref), dt_err), rel(a, b)};
 }
 
 }  // namespace
@@ -256,9 +265,9 @@ TEST(ControlDerivatives, ExactLawJacobianMatchesDifferences) {
         worst_fallback = std::max(worst_fallback, r_fallback);
       }
     }
-    std::cout << "[ control ] " << sname << ", five laws at three random states: exact d tau/dx "
-              << "against Richardson (step 1e-4) " << worst << ", against the fallback (step 1e-6) "
-              << worst_fallback << "\n";
+    std::cout << "[ control ] " << sname << ", five laws at three random states: exact "
+              << "d tau/d(x, t) against Richardson (step 1e-4) " << worst
+              << ", against the fallback (step 1e-6) " << worst_fallback << "\n";
   }
 }
 

@@ -511,6 +511,6 @@ class Scenario:
         qd: Optional[ArrayLike] = None,
     ) -> dict[str, Any]:
         """A control scenario's closed loop at (t, q, qd), default its start: tau, u, dtau_dq,
-        dtau_dqd, dtau_dt, F, N, F_min, kinks, trusted, message"""
+        dtau_dqd, dtau_dt, dtau_method, dtau_dt_method, F, N, F_min, kinks, trusted, message"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...
