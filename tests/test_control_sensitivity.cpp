@@ -15,12 +15,14 @@
 #include <fstream>
 #include <iostream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "control_systems.hpp"
+#include "simulate/exact_jacobian.hpp"
 #include "ukdyn/model/minimal_linearize.hpp"
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/run.hpp"
@@ -135,18 +137,20 @@ std::string underactuated_yaml() {
 // law_derivatives_by_differences()'s 1e-6, whose round-off on paper_control (|τ| ≈ 200 against
 // |∂τ/∂q| ≈ 30) reaches 1e-7 of the largest entry; smaller than 1e-3, whose truncation error near
 // the servo rows reaches 5e-6 for the robust term −ρ β/‖β‖ (curvature ρ/‖β‖²).
+// Column 2n: ∂τ/∂t at fixed (q, q̇), the same way in t.
 Mat richardson_jacobian(ControlRun& run, double t, const Vec& q, const Vec& qd) {
   const Index n = q.size();
-  Mat D(n, 2 * n);
+  Mat D(n, 2 * n + 1);
   std::array<Vec, 4> tau;
-  for (Index j = 0; j < 2 * n; ++j) {
-    const double h = 1e-4 * std::max(1.0, std::abs(j < n ? q(j) : qd(j - n)));
+  for (Index j = 0; j <= 2 * n; ++j) {
+    const double h = 1e-4 * std::max(1.0, std::abs(j < n ? q(j) : j < 2 * n ? qd(j - n) : t));
     const std::array<double, 4> at = {h, -h, h / 2, -h / 2};
     for (std::size_t k = 0; k < 4; ++k) {
       Vec a = q, b = qd;
-      (j < n ? a(j) : b(j - n)) += at[k];
+      double tk = t;
+      (j < n ? a(j) : j < 2 * n ? b(j - n) : tk) += at[k];
       tau[k].resize(n);
-      run.loop->evaluate(t, a, b);
+      run.loop->evaluate(tk, a, b);
       run.loop->plant_tau(tau[k]);
     }
     D.col(j) = ((4.0 / h) * (tau[2] - tau[3]) - (0.5 / h) * (tau[0] - tau[1])) / 3.0;
@@ -169,15 +173,22 @@ std::pair<double, double> exact_against_differences(Scenario sc, const ServoLawS
   const double t = 0.1 + 0.5 * (1.0 + Vec::Random(1)(0));
   const LawDerivatives exact = law_derivatives(*run, t, q, qd);
   EXPECT_EQ(exact.method, "exact") << sc.name;
+  EXPECT_EQ(exact.dtau_dt_method, "exact") << sc.name;
   EXPECT_TRUE(exact.kinks.empty()) << sc.name;
   const LawDerivatives diff = law_derivatives_by_differences(*run, t, q, qd);
   EXPECT_EQ(diff.method, "differences: asked for");
-  Mat a(n, 2 * n), b(n, 2 * n);
-  a << exact.dtau_dq, exact.dtau_dqd;
-  b << diff.dtau_dq, diff.dtau_dqd;
+  EXPECT_EQ(diff.dtau_dt_method, "differences: asked for");
+  Mat a(n, 2 * n + 1), b(n, 2 * n + 1);
+  a << exact.dtau_dq, exact.dtau_dqd, exact.dtau_dt;
+  b << diff.dtau_dq, diff.dtau_dqd, diff.dtau_dt;
   const Mat ref = richardson_jacobian(*run, t, q, qd);
   EXPECT_GT(ref.cwiseAbs().maxCoeff(), 0.0);
-  return {rel(a, ref), rel(a, b)};
+  // ∂τ/∂t on its own scale (it is 0 where nothing depends on t, tiny against ∂τ/∂x elsewhere)
+  const double dt_scale = std::max(ref.col(2 * n).cwiseAbs().maxCoeff(), 1e-3);
+  const double dt_err = (a.col(2 * n) - ref.col(2 * n)).cwiseAbs().maxCoeff() / dt_scale;
+  EXPECT_LT(dt_err, 1e-7) << sc.name << ": d tau/dt " << a.col(2 * n).transpose() << " against "
+                          << ref.col(2 * n).transpose();
+  return {std::max(rel(a, ref), dt_err), rel(a, b)};
 }
 
 }  // namespace
@@ -254,9 +265,9 @@ TEST(ControlDerivatives, ExactLawJacobianMatchesDifferences) {
         worst_fallback = std::max(worst_fallback, r_fallback);
       }
     }
-    std::cout << "[ control ] " << sname << ", five laws at three random states: exact d tau/dx "
-              << "against Richardson (step 1e-4) " << worst << ", against the fallback (step 1e-6) "
-              << worst_fallback << "\n";
+    std::cout << "[ control ] " << sname << ", five laws at three random states: exact "
+              << "d tau/d(x, t) against Richardson (step 1e-4) " << worst
+              << ", against the fallback (step 1e-6) " << worst_fallback << "\n";
   }
 }
 
@@ -372,6 +383,9 @@ TEST(ControlRunSensitivity, ClosedFormOfThePendulumServo) {
   EXPECT_LT(rk, 1e-6);
   EXPECT_LT(rl, 1e-6);
   EXPECT_LT(rm, 1e-6);
+  // the law's ∂τ/∂x exact at every right-hand side (no kink: ρ = 0, no limit)
+  EXPECT_EQ(rs.law_derivative.rfind("exact at ", 0), 0u) << rs.law_derivative;
+  EXPECT_EQ(rs.law_derivative.find("differences"), std::string::npos) << rs.law_derivative;
 }
 
 // paper_control.yaml over 2 s (0.3 s under a sanitizer; tolerance 1e-10 for the variational run): dq/dp for a mass of the
@@ -443,6 +457,8 @@ TEST(ControlRunSensitivity, PaperControlMatchesWholeRuns) {
     // same to 4e-15) moved this error between 2.5e-7 and 1.03e-6 (docs/derivatives.md).
     EXPECT_LT(r, 2e-6) << rs.parameters[j];
   }
+  std::cout << "[ control ] the law's d tau/dx: " << rs.law_derivative << "\n";
+  EXPECT_EQ(rs.law_derivative.rfind("exact at ", 0), 0u) << rs.law_derivative;
   // the robust law crosses its boundary layer in this run: said, with the law and the time
   ASSERT_FALSE(rs.warnings.empty());
   EXPECT_NE(rs.warnings[0].find("the robust control law is not differentiable at t = "),
@@ -573,3 +589,164 @@ TEST(ControlCli, LinearizeClosedLoopAndGainSensitivities) {
             std::string::npos);
 }
 #endif
+
+namespace {
+
+// paper_control.yaml (the plant under the robust law) for `t_end` s at tolerance `tol`, its plant
+// path made absolute.
+Scenario paper_control(double t_end, double tol) {
+  Scenario sc = load_scenario(kSource / "scenarios" / "paper_control.yaml");
+  sc.sim.t_end = t_end;
+  sc.sim.abs_tol = sc.sim.rel_tol = tol;
+  return sc;
+}
+
+struct LoopEnd {
+  SimulationStats stats;
+  Vec q, qd;
+};
+
+// The plant of `sc` under its loop from the offset start, as run_scenario() runs it (run_forces():
+// the law's exact ∂τ/∂(q, q̇) as SimulationSettings::tau_jacobian).
+LoopEnd run_loop(const Scenario& sc, IntegratorKind kind, JacobianKind jac) {
+  const auto run = make_control_run(sc);
+  SimulationSettings s = sc.sim;
+  s.integrator = kind;
+  s.jacobian = jac;
+  EXPECT_EQ(law_jacobian_gap(*run), "");
+  s.tau_jacobian = law_force_jacobian(*run);
+  LoopEnd e;
+  e.stats = simulate(*run->plant, run->q0, run->qd0, run->loop->force_function(), s,
+                     [&e](double, CVecRef q, CVecRef qd, const ForwardData&) {
+                       e.q = q;
+                       e.qd = qd;
+                       return true;
+                     });
+  return e;
+}
+
+}  // namespace
+
+// The implicit integrators' exact ∂f/∂x on a controlled run (docs/derivatives.md, "Exact
+// Jacobians in the implicit integrators"): the law's ∂τ/∂(q, q̇) chained through ∂q̈/∂τ equals
+// central differences of the integrators' own right-hand side (the plant under the loop) at states
+// off the start; and at a state on the robust law's boundary layer the law gives none (the kink
+// named) and the exact Jacobian declines that call (the integrator then takes differences).
+TEST(ControlDerivatives, ExactJacobianOfTheClosedLoopEqualsDifferencesOfF) {
+  const Scenario sc = paper_control(0.1, 1e-10);
+  const auto run = make_control_run(sc);
+  SimulationSettings s = sc.sim;
+  s.integrator = IntegratorKind::bdf;
+  s.energy_balance = false;
+  s.tau_jacobian = law_force_jacobian(*run);
+  const ForceFunction tau = run->loop->force_function();
+  const System& plant = *run->plant;
+  EXPECT_EQ(detail::exact_jacobian_gap(plant, tau, s), "");
+  const Index n = plant.dof();
+  std::srand(7);
+  double worst = 0.0;
+  for (int trial = 0; trial < 3; ++trial) {
+    std::vector<double> x(static_cast<std::size_t>(2 * n));
+    const Vec q = run->q0 + 1e-2 * Vec::Random(n), qd = run->qd0 + 0.1 * Vec::Random(n);
+    for (Index i = 0; i < n; ++i) {
+      x[static_cast<std::size_t>(i)] = q(i);
+      x[static_cast<std::size_t>(n + i)] = qd(i);
+    }
+    const double t = 0.05 + 0.1 * trial;
+    detail::ExactJacobian jac(plant, tau, s);
+    Mat J = Mat::Zero(2 * n, 2 * n);
+    ASSERT_TRUE(jac(t, x.data(), J.data())) << "trial " << trial;
+    IntegratorRhs f(plant, tau, s);
+    Mat D(2 * n, 2 * n);
+    std::array<std::vector<double>, 4> fx;
+    for (std::size_t j = 0; j < x.size(); ++j) {  // Richardson, step 1e-4 (richardson_jacobian)
+      const double h = 1e-4 * std::max(std::abs(x[j]), 1.0);
+      const std::array<double, 4> at = {h, -h, h / 2, -h / 2};
+      for (std::size_t k = 0; k < 4; ++k) {
+        std::vector<double> xk = x;
+        xk[j] += at[k];
+        fx[k].resize(x.size());
+        f(xk, fx[k], t);
+      }
+      for (std::size_t i = 0; i < x.size(); ++i) {
+        D(static_cast<Index>(i), static_cast<Index>(j)) =
+            ((4.0 / h) * (fx[2][i] - fx[3][i]) - (0.5 / h) * (fx[0][i] - fx[1][i])) / 3.0;
+      }
+    }
+    worst = std::max(worst, rel(J, D));
+  }
+  std::cout << "[ control ] paper_control: exact df/dx of the closed loop against Richardson "
+               "differences of f, three random states: "
+            << worst << "\n";
+  EXPECT_LT(worst, 1e-7);
+
+  // On the boundary layer: the held pendulum at e = 0 moving with ė = ε/ρ (‖μ‖ = ρ|ė| = ε).
+  const double rho = 2.0, eps = 0.01;
+  const Scenario hold = load_scenario_text(
+      hold_yaml("  law: robust\n  lambda: 2\n  kappa: 5\n  rho: 2\n  epsilon: 0.01\n"),
+      "hold.yaml");
+  const auto hr = make_control_run(hold);
+  const Vec hq = (Vec(2) << std::sin(kTheta), -std::cos(kTheta)).finished();
+  const Vec on = (eps / rho) * (Vec(2) << std::cos(kTheta), std::sin(kTheta)).finished();
+  LawJacobianWorkspace ws(*hr);
+  Mat a, b;
+  EXPECT_FALSE(law_jacobian(*hr, ws, 0.0, hq, on, a, b));
+  ASSERT_EQ(ws.kinks.size(), 1u);
+  EXPECT_NE(ws.why_not.find("boundary layer"), std::string::npos) << ws.why_not;
+  EXPECT_TRUE(law_jacobian(*hr, ws, 0.0, hq, 1.5 * on, a, b)) << ws.why_not;  // off the layer
+  SimulationSettings hs = hold.sim;
+  hs.integrator = IntegratorKind::bdf;
+  hs.energy_balance = false;
+  hs.tau_jacobian = law_force_jacobian(*hr);
+  const ForceFunction htau = hr->loop->force_function();
+  detail::ExactJacobian hjac(*hr->plant, htau, hs);
+  const std::vector<double> hx = {hq(0), hq(1), on(0), on(1)};
+  Mat HJ = Mat::Zero(4, 4);
+  EXPECT_FALSE(hjac(0.0, hx.data(), HJ.data()));
+}
+
+// bdf and esdirk on paper_control.yaml with the law's exact Jacobian: the same end state as rkf78
+// at 1e-13 and as their difference-quotient twins, to the tolerance; bdf with fewer evaluations
+// of f (no 2n per Jacobian); the run's summary says "exact" (jacobian auto).
+TEST(ControlDerivatives, ImplicitIntegratorsOnAControlledRunTakeTheExactJacobian) {
+  if (!bdf_available() || !esdirk_available()) GTEST_SKIP() << "built without SUNDIALS";
+#ifdef UKDYN_TEST_SANITIZED
+  const Scenario sc = paper_control(0.1, 1e-10);  // 10-20 times slower: the same paths, 0.1 s
+#else
+  const Scenario sc = paper_control(0.5, 1e-10);
+#endif
+  const LoopEnd ref = run_loop(sc, IntegratorKind::rkf78, JacobianKind::automatic);
+  ASSERT_EQ(ref.stats.status, RunStatus::completed) << ref.stats.message;
+  for (auto kind : {IntegratorKind::bdf, IntegratorKind::esdirk}) {
+    const std::string name = to_string(kind);
+    const LoopEnd ex = run_loop(sc, kind, JacobianKind::exact);
+    const LoopEnd dq = run_loop(sc, kind, JacobianKind::difference);
+    ASSERT_EQ(ex.stats.status, RunStatus::completed) << name << ex.stats.message;
+    ASSERT_EQ(dq.stats.status, RunStatus::completed) << name << dq.stats.message;
+    EXPECT_EQ(ex.stats.jacobian, "exact") << name;
+    EXPECT_EQ(dq.stats.jacobian, "difference") << name;
+    std::cout << "[ control ] paper_control 0.5 s, " << name << ": f evaluations "
+              << ex.stats.rhs_evaluations << " exact, " << dq.stats.rhs_evaluations
+              << " difference; Jacobians " << ex.stats.jacobian_evaluations << " ("
+              << ex.stats.jacobian_fallbacks << " fallbacks), " << dq.stats.jacobian_evaluations
+              << "; max |q - q_ref| " << (ex.q - ref.q).cwiseAbs().maxCoeff() << ", "
+              << (dq.q - ref.q).cwiseAbs().maxCoeff() << "\n";
+    if (kind == IntegratorKind::bdf) {
+      EXPECT_LT(ex.stats.rhs_evaluations, dq.stats.rhs_evaluations) << name;
+    }
+    const double tol = 1e-7;  // the runs' 1e-10 over 0.5 s, with the global error's growth
+    for (Index i = 0; i < ref.q.size(); ++i) {
+      EXPECT_NEAR(ex.q(i), ref.q(i), tol) << name << " q" << i;
+      EXPECT_NEAR(ex.q(i), dq.q(i), tol) << name << " q" << i;
+      EXPECT_NEAR(ex.qd(i), ref.qd(i), 10 * tol) << name << " qd" << i;
+    }
+  }
+  // run_scenario_in_memory (as `ukdyn simulate`): jacobian auto takes the exact one, said in the
+  // summary
+  Scenario bdf = sc;
+  bdf.sim.integrator = IntegratorKind::bdf;
+  const MemoryRun mr = run_scenario_in_memory(bdf, {});
+  const auto summary = nlohmann::json::parse(mr.summary_json);
+  EXPECT_EQ(summary["jacobian"]["kind"], "exact") << summary["jacobian"].dump();
+  EXPECT_GT(summary["jacobian"]["evaluations"].get<long>(), 0);
+}

@@ -94,6 +94,7 @@ py::dict sensitivities(const PyScenario& s, const std::vector<std::string>& para
   d["trusted"] = rs.trusted;
   d["message"] = rs.message;
   d["warnings"] = rs.warnings;
+  if (!rs.law_derivative.empty()) d["law_derivative"] = rs.law_derivative;
   return d;
 }
 
@@ -130,6 +131,7 @@ py::dict closed_loop_linearize(const PyScenario& s, const py::object& t_in, cons
   d["dtau_dqd"] = numpy_of(cl.law.dtau_dqd);
   d["dtau_dt"] = numpy_of(cl.law.dtau_dt);
   d["dtau_method"] = cl.law.method;
+  d["dtau_dt_method"] = cl.law.dtau_dt_method;
   d["F"] = numpy_of(F);
   d["N"] = numpy_of(mm.N);
   d["F_min"] = numpy_of(mm.F_min);

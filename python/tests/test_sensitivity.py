@@ -162,6 +162,8 @@ def test_controlled_run_sensitivities_closed_form(tmp_path):
     s = sc.sensitivities(["m", "control.kappa", "control.lambda"])
     assert s["trusted"], s["message"]
     assert s["warnings"] == []
+    # the law's d tau/dx exact at every right-hand side (no kink: rho = 0, no limit)
+    assert s["law_derivative"].startswith("exact at ") and "differences" not in s["law_derivative"]
     t = s["t"]
     lam, kap, e0 = 2.0, 5.0, 1e-3
     a, b, D = np.exp(-lam * t), np.exp(-kap * t), kap - lam
@@ -178,6 +180,7 @@ def test_controlled_run_sensitivities_closed_form(tmp_path):
     assert np.max(np.abs(s["dq_dp"][0])) < 1e-6 * np.max(np.abs(s["dq_dp"][1]))
     hold = sc.closed_loop_linearize(0.0, [np.sin(0.3), -np.cos(0.3)], [0.0, 0.0])
     assert hold["trusted"] and hold["kinks"] == [] and hold["dtau_method"] == "exact"
+    assert hold["dtau_dt_method"] == "exact"
     ev = np.sort(np.linalg.eigvals(hold["F_min"]).real)
     assert np.allclose(ev, [-5.0, -2.0], rtol=0, atol=1e-8)
     start = sc.closed_loop_linearize()  # the closed loop's start: 1e-3 off the servo row

@@ -504,7 +504,8 @@ class Scenario:
     def sensitivities(self, parameters: Sequence[str]) -> dict[str, Any]:
         """dq/dp, dqd/dp (P x T x n) of the scenario's run by the variational equations, with t,
         q, qd, steps, rhs_evaluations, trusted, message, warnings (a control scenario: the
-        plant's closed loop; a gain such as 'control.kappa' is a parameter)"""
+        plant's closed loop; a gain such as 'control.kappa' is a parameter; law_derivative says
+        how the law's d tau/dx was taken, exact or by directional differences)"""
     def closed_loop_linearize(
         self,
         t: Optional[float] = None,
@@ -512,6 +513,6 @@ class Scenario:
         qd: Optional[ArrayLike] = None,
     ) -> dict[str, Any]:
         """A control scenario's closed loop at (t, q, qd), default its start: tau, u, dtau_dq,
-        dtau_dqd, dtau_dt, F, N, F_min, kinks, trusted, message"""
+        dtau_dqd, dtau_dt, dtau_method, dtau_dt_method, F, N, F_min, kinks, trusted, message"""
 
 def load_scenario(path: Union[str, PathLike[str]], check_initial: bool = True) -> Scenario: ...

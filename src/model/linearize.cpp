@@ -908,8 +908,9 @@ bool time_rhs(const System& system, LinearizeData& d, double t, CVecRef q, CVecR
 // ∂q̈/∂t, ∂μ/∂t and ∂Qc/∂t (dQc = ∂(Aᵀλ)/∂t + A_Rᵀ dμ) as `parts` asks: one more right-hand side
 // of the factorisation the state columns used (dense LU, Schur complement or arrow blocks alike;
 // `without_rows`: linearize_without_rows() ran, M⁻¹ with forward()'s Cholesky factors of M).
+// `dv_dt`: ∂v/∂t of a correction b + v (m; linearize_corrected_time()), or null.
 void time_column(const System& system, LinearizeData& d, double t, CVecRef q, CVecRef qd,
-                 LinearizeParts parts, bool without_rows = false) {
+                 LinearizeParts parts, bool without_rows = false, const Vec* dv_dt = nullptr) {
   Linearization& lin = d.lin;
   lin.time_message.clear();
   const Index n = system.dof(), r = static_cast<Index>(lin.kept_rows.size());
@@ -919,6 +920,8 @@ void time_column(const System& system, LinearizeData& d, double t, CVecRef q, CV
     lin.dmu_dt.resize(0);
     return;
   }
+  for (Index i = 0; i < r && dv_dt != nullptr; ++i)  // A q̈ = b + v: ∂(A q̈ − b − v)/∂t
+    d.rhs_t(n + i) += (*dv_dt)(lin.kept_rows[static_cast<std::size_t>(i)]);
   if (without_rows) {  // r = 0: rhs_t is −∂ID/∂t + ∂Q_a/∂t alone
     mass_solve_columns(system, d, Eigen::Map<Mat>(d.rhs_t.data(), n, 1));
     d.sol_t = d.rhs_t;
@@ -984,6 +987,28 @@ void linearize_corrected(const System& system, LinearizeData& d, double t, CVecR
   LinearizeParts no_time;  // (the correction v depends on t through Φ, Φ̇: not differentiated)
   no_time.time = false;
   time_column(system, d, t, q, qd, no_time);
+}
+
+void linearize_corrected_time(const System& system, LinearizeData& d, double t, CVecRef q,
+                              CVecRef qd, const Vec& dv_dt) {
+  if (dv_dt.size() != system.rows())
+    throw std::invalid_argument("linearize_corrected_time: dv_dt needs m rows");
+  time_column(system, d, t, q, qd, LinearizeParts{}, false, &dv_dt);
+}
+
+bool constraint_time_tangent(const System& system, LinearizeData& d, double t, CVecRef q,
+                             CVecRef qd, CVecRef qdd, CVecRef lambda, Vec& dres, Vec& dforce) {
+  dres.setZero(system.rows());
+  dforce.setZero(system.dof());
+  const auto& offs = system.constraint_row_offsets();
+  for (std::size_t c = 0; c < system.constraints().size(); ++c) {
+    const Constraint& con = *system.constraints()[c];
+    const Index rows = con.rows(), off = offs[c];
+    if (!con.time_tangent(ConstraintContext{t, d.fwd.constraint_slots(c)}, q, qd, qdd,
+                          lambda.segment(off, rows), dres.segment(off, rows), dforce))
+      return false;
+  }
+  return true;
 }
 
 void constraint_tangent_columns(const System& system, LinearizeData& d, double t, CVecRef q,

@@ -25,6 +25,18 @@ void linearize_corrected(const System& system, LinearizeData& data, double t, CV
                          CVecRef tau, const RhsCorrection& correction,
                          const UkSettings& settings = {});
 
+/// After linearize_corrected() at (t, q, q̇): its time column with ∂v/∂t at fixed (q, q̇) (m), into
+/// data.lin.dqdd_dt, dQc_dt, dmu_dt (one more right-hand side of its factorisation); those are
+/// left empty, with data.lin.time_message, when a component has no exact ∂/∂t.
+void linearize_corrected_time(const System& system, LinearizeData& data, double t, CVecRef q,
+                              CVecRef qd, const Vec& dv_dt);
+
+/// Every constraint's exact time tangents at (q̈, λ): ∂(A q̈ − b)/∂t into dres (m) and ∂(Aᵀλ)/∂t
+/// into dforce (n), at fixed (q, q̇); data.fwd as for constraint_tangent_columns(). False when a
+/// constraint has no exact ∂/∂t.
+bool constraint_time_tangent(const System& system, LinearizeData& data, double t, CVecRef q,
+                             CVecRef qd, CVecRef qdd, CVecRef lambda, Vec& dres, Vec& dforce);
+
 /// Every constraint's exact tangents at (q̈, λ) (λ: m, every row) along e_j of q (column j) and
 /// of q̇ (column n + j): d(A q̈ − b) into dres (m × 2n), d(Aᵀλ) into dforce (n × 2n). data.fwd
 /// must hold forward() at (t, q, q̇) (the constraints' slots), as after linearize().

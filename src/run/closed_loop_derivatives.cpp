@@ -2,9 +2,13 @@
 // docs/derivatives.md, "Controlled runs").
 #include "ukdyn/run/closed_loop_derivatives.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
+#include <optional>
 
 #include "run/law_jacobian.hpp"
 #include "run/richardson.hpp"
@@ -83,7 +87,16 @@ void jacobian_by_differences(ControlRun& run, double t, CVecRef q, CVecRef qd,
   }
 }
 
-// τ, u, ∂τ/∂(q, q̇) (exact unless `differences` or the exact path declines) and ∂τ/∂t.
+// ∂τ/∂t at fixed (q, q̇) by Richardson differences of the loop in t (ps[0]: the centre).
+Vec dtau_dt_by_differences(ControlRun& run, double t, CVecRef q, CVecRef qd,
+                           std::array<Probe, 5>& ps, std::vector<std::string>& kinks) {
+  const double ht = law_step(t);
+  for (std::size_t k = 0; k < 4; ++k) probe(run, t + kProbeOffsets[k] * ht, q, qd, ps[k + 1]);
+  find_kinks(run, ps, kinks);
+  return richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, ht);
+}
+
+// τ, u, ∂τ/∂(q, q̇) and ∂τ/∂t (exact unless `differences` or the exact path declines).
 LawDerivatives derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd, bool differences) {
   LawDerivatives out;
   std::array<Probe, 5> ps;
@@ -91,17 +104,25 @@ LawDerivatives derivatives(ControlRun& run, double t, CVecRef q, CVecRef qd, boo
   out.tau = ps[0].tau;
   out.u = run.loop->u;
   std::string why_not = "asked for";
-  if (!differences && exact_law_jacobian(run, t, q, qd, ps[0].u_raw, out.dtau_dq, out.dtau_dqd,
-                                         out.kinks, why_not)) {
+  std::optional<LinearizeData> ld;
+  if (!differences) ld.emplace(*run.model.system);
+  LawTimeDerivative dt;
+  dt.why_not = why_not;
+  if (ld && exact_law_jacobian(run, *ld, t, q, qd, ps[0].u_raw, out.dtau_dq, out.dtau_dqd,
+                               out.kinks, why_not, &dt)) {
     out.method = "exact";
   } else {
     jacobian_by_differences(run, t, q, qd, ps, out);
     out.method = "differences: " + why_not;
+    if (dt.why_not.empty()) dt.why_not = why_not;
   }
-  const double ht = law_step(t);
-  for (std::size_t k = 0; k < 4; ++k) probe(run, t + kProbeOffsets[k] * ht, q, qd, ps[k + 1]);
-  find_kinks(run, ps, out.kinks);
-  out.dtau_dt = richardson(ps[1].tau, ps[2].tau, ps[3].tau, ps[4].tau, ht);
+  if (dt.exact) {
+    out.dtau_dt = dt.dtau_dt;
+    out.dtau_dt_method = "exact";
+  } else {
+    out.dtau_dt = dtau_dt_by_differences(run, t, q, qd, ps, out.kinks);
+    out.dtau_dt_method = "differences: " + dt.why_not;
+  }
   run.loop->evaluate(t, q, qd);  // the loop left at the state itself
   return out;
 }
@@ -130,6 +151,27 @@ Vec law_direction(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef dq, 
   return directional(run, t, q, qd, dq, dqd, h, ps, kinks);
 }
 
+bool law_jacobian(const ControlRun& run, LawJacobianWorkspace& ws, double t, CVecRef q, CVecRef qd,
+                  Mat& dtau_dq, Mat& dtau_dqd) {
+  run.loop->evaluate(t, q, qd);
+  ws.kinks.clear();
+  ws.why_not.clear();
+  if (!exact_law_jacobian(run, ws.ld, t, q, qd, run.loop->u_raw, dtau_dq, dtau_dqd, ws.kinks,
+                          ws.why_not))
+    return false;
+  if (ws.kinks.empty()) return true;
+  ws.why_not = "a kink of the law: " + ws.kinks.front();
+  return false;
+}
+
+ForceJacobian law_force_jacobian(const ControlRun& run) {
+  auto ws = std::make_shared<LawJacobianWorkspace>(run);
+  return [&run, ws](double t, CVecRef q, CVecRef qd, Mat& dtau_dq, Mat& dtau_dqd) {
+    if (!law_jacobian(run, *ws, t, q, qd, dtau_dq, dtau_dqd))
+      throw Error(fmt::format("the law's d tau/d(q, qd) at t = {:g}: {}", t, ws->why_not));
+  };
+}
+
 ClosedLoopLinearization closed_loop_linearization(const Scenario& sc, double t, CVecRef q,
                                                   CVecRef qd) {
   const std::unique_ptr<ControlRun> run = make_control_run(sc);
@@ -145,7 +187,7 @@ ClosedLoopLinearization closed_loop_linearization(const Scenario& sc, double t, 
   lin.dqdd_dqd += lin.dqdd_dtau * out.law.dtau_dqd;
   lin.dQc_dq += lin.dQc_dtau * out.law.dtau_dq;
   lin.dQc_dqd += lin.dQc_dtau * out.law.dtau_dqd;
-  // d/dt of q̈(t, q, q̇, τ(t, q, q̇)) = ∂q̈/∂t + ∂q̈/∂τ ∂τ/∂t (the law's ∂τ/∂t by differences).
+  // d/dt of q̈(t, q, q̇, τ(t, q, q̇)) = ∂q̈/∂t + ∂q̈/∂τ ∂τ/∂t (the law's ∂τ/∂t: dtau_dt_method).
   if (lin.dqdd_dt.size() > 0 && out.law.dtau_dt.size() == lin.dqdd_dt.size()) {
     lin.dqdd_dt += lin.dqdd_dtau * out.law.dtau_dt;
     lin.dQc_dt += lin.dQc_dtau * out.law.dtau_dt;

@@ -55,6 +55,7 @@ ShadowEstimate::ShadowEstimate(const Scenario& sc, const std::atomic<bool>* canc
                              return true;
                            });
   shadow_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  settings_.tau_jacobian = {};  // a law's references ctl, which ends here
 }
 
 void ShadowEstimate::compare(double t, CVecRef q) {

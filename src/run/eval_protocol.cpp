@@ -283,10 +283,12 @@ json closed_loop_json(const System& plant, double t, const Vec& q, const Vec& qd
   j["eigenvalues"] = rows_of(ev);  // of the minimal F: [re, im] per row
   j["kinks"] = cl.law.kinks;
   j["dtau_method"] = cl.law.method;
+  j["dtau_dt_method"] = cl.law.dtau_dt_method;
   j["note"] =
       "dtau_dq, dtau_dqd: exact when dtau_method is \"exact\", else (dtau_method says why) "
-      "Richardson central differences of the law (step 1e-6 max(1, |x_j|)); dtau_dt: Richardson "
-      "differences; F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact derivatives "
+      "Richardson central differences of the law (step 1e-6 max(1, |x_j|)); dtau_dt: the same "
+      "as dtau_dt_method says; F, derivatives.dqdd_dq/dqdd_dqd, minimal.F: the plant's exact "
+      "derivatives "
       "with them; derivatives.dqdd_dt/dQc_dt: the plant's exact d/dt plus dqdd_dtau dtau_dt";
   return j;
 }

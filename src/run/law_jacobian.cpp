@@ -21,6 +21,7 @@
 #include <cmath>
 
 #include "model/linearize_corrected.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 #include "ukdyn/run/run.hpp"
 
 namespace ukdyn {
@@ -91,9 +92,12 @@ struct ProjectorTangent {
   CVecRef q, qd;
   std::vector<Index> phys;  // the physical rows of A
   Mat Ap_pinv, P;           // n × m_p, n × n
-  Mat dres0, dforce;
+  const Mat& dres0;         // d(A·0 − b) along every direction of (q, q̇)
+  bool time = false;        // a column 2n along t too
+  Vec dres0_t;              // ∂(A·0 − b)/∂t (time)
+  Mat dforce;
 
-  // dP z along every direction (n × 2n).
+  // dP z along every direction (n × 2n; n × (2n + 1) with `time`).
   Mat operator()(const Vec& z) {
     const Index n = sys.dof(), mp = static_cast<Index>(phys.size());
     Vec lambda = Vec::Zero(sys.rows());
@@ -102,22 +106,50 @@ struct ProjectorTangent {
     const Vec w = P * z;
     Mat dres;
     constraint_tangent_columns(sys, ld, t, q, qd, w, lambda, dres, dforce);
-    Mat dAw(mp, 2 * n);  // dA_p w = d(A_p w − b_p) − d(A_p·0 − b_p)
+    Vec dres_t, dforce_t;
+    if (time && !constraint_time_tangent(sys, ld, t, q, qd, w, lambda, dres_t, dforce_t))
+      throw Error("a constraint of the law's model has no exact d/dt");
+    const Index cols = 2 * n + (time ? 1 : 0);
+    Mat dAw(mp, cols);  // dA_p w = d(A_p w − b_p) − d(A_p·0 − b_p)
     for (Index a = 0; a < mp; ++a) {
       const Index i = phys[static_cast<std::size_t>(a)];
-      dAw.row(a) = dres.row(i) - dres0.row(i);
+      dAw.row(a).head(2 * n) = dres.row(i) - dres0.row(i);
+      if (time) dAw(a, 2 * n) = dres_t(i) - dres0_t(i);
     }
-    return -(Ap_pinv * dAw) - P * dforce;
+    Mat dF(n, cols);
+    dF.leftCols(2 * n) = dforce;
+    if (time) dF.col(2 * n) = dforce_t;
+    return -(Ap_pinv * dAw) - P * dF;
   }
 };
 
-// du (k × 2n) of u = G⁺ P Qc' (the header's formula), or false with why_not.
+// ∂Qc'/∂t at fixed (q, q̇) into ld.lin.dQc_dt: the corrected KKT system's time column with
+// ∂v/∂t = ∂v/∂Φ Φ_t + ∂v/∂Φ̇ Φ̇_t, Φ_t = Φ̇ − A q̇ and, for the (holonomic) servo rows,
+// Φ̇_t = −b + ½ (∂b/∂q̇) q̇ (b = −(∂Φ̇/∂q) q̇ − ∂Φ̇/∂t with ∂Φ̇/∂q = −½ ∂b/∂q̇, as
+// linearize_corrected()); dres0: d(A·0 − b) along (q, q̇), its q̇ half −∂b/∂q̇. False with
+// why_not when a component of the model has no exact ∂/∂t.
+bool corrected_time_column(const System& sys, LinearizeData& ld, double t, CVecRef q, CVecRef qd,
+                           const Vec& phid, const RhsCorrection& corr, const Mat& dres0,
+                           std::string& why_not) {
+  const Index n = sys.dof();
+  const Vec phi_t = phid - ld.fwd.A * qd;
+  const Vec phid_t = -ld.fwd.b - 0.5 * (dres0.rightCols(n) * qd);
+  const Vec dv_dt = corr.dv_dphi * phi_t + corr.dv_dphid * phid_t;
+  linearize_corrected_time(sys, ld, t, q, qd, dv_dt);
+  if (ld.lin.dQc_dt.size() == n) return true;
+  why_not = "the law's model: " + ld.lin.time_message;
+  return false;
+}
+
+// du (k × 2n; with `time` k × (2n + 1), ∂u/∂t last, ld.lin.dQc_dt computed) of u = G⁺ P Qc' (the
+// header's formula, t one more direction), or false with why_not. dres0: d(A·0 − b) along (q, q̇).
 bool actuation_jacobian(const ControlModel& md, LinearizeData& ld, double t, CVecRef q, CVecRef qd,
-                        CVecRef u_raw, Mat& du, std::string& why_not) {
+                        CVecRef u_raw, const Mat& dres0, bool time, Mat& du, std::string& why_not) {
   const System& sys = *md.system;
-  const Index n = sys.dof(), k = md.actuators.count();
+  const Index n = sys.dof(), k = md.actuators.count(), cols = 2 * n + (time ? 1 : 0);
   const Mat& B = md.actuators.B;
-  ProjectorTangent dP{sys, ld, t, q, qd, {}, Mat::Zero(n, 0), Mat::Identity(n, n), {}, {}};
+  ProjectorTangent dP{sys,   ld,   t,  q, qd, {}, Mat::Zero(n, 0), Mat::Identity(n, n),
+                      dres0, time, {}, {}};
   for (Index i = 0; i < sys.rows(); ++i)
     if (!md.row_servo[static_cast<std::size_t>(i)]) dP.phys.push_back(i);
   const Mat Ap = select_rows(ld.fwd.A, md.row_servo, false);
@@ -130,7 +162,7 @@ bool actuation_jacobian(const ControlModel& md, LinearizeData& ld, double t, CVe
     dP.P -= Ap.transpose() * ApT_pinv;
   }
   const Mat G = dP.P * B;
-  du.setZero(k, 2 * n);
+  du.setZero(k, cols);
   if (k == 0 || G.norm() <= kRankTol * B.norm()) return true;  // u = 0 (solve_actuation())
   Eigen::CompleteOrthogonalDecomposition<Mat> cod;
   cod.setThreshold(kRankTol);
@@ -143,12 +175,15 @@ bool actuation_jacobian(const ControlModel& md, LinearizeData& ld, double t, CVe
     why_not = fmt::format("the KKT solve and the law's U-K solve give u {:.3g} apart", agree);
     return false;
   }
-  constraint_tangent_columns(sys, ld, t, q, qd, Vec::Zero(n), Vec::Zero(sys.rows()), dP.dres0,
-                             dP.dforce);
+  Vec dforce0_t;
+  if (time && !constraint_time_tangent(sys, ld, t, q, qd, Vec::Zero(n), Vec::Zero(sys.rows()),
+                                       dP.dres0_t, dforce0_t))
+    throw Error("a constraint of the law's model has no exact d/dt");
   const Vec za = Qc - B * u;
   const Vec zc = Gp.transpose() * u;
-  Mat dQc(n, 2 * n);
-  dQc << ld.lin.dQc_dq, ld.lin.dQc_dqd;
+  Mat dQc(n, cols);
+  dQc.leftCols(2 * n) << ld.lin.dQc_dq, ld.lin.dQc_dqd;
+  if (time) dQc.col(2 * n) = ld.lin.dQc_dt;
   du = Gp * (dP(za) + dP.P * dQc) + Gp * (Gp.transpose() * (B.transpose() * dP(dP.P * za))) +
        (Mat::Identity(k, k) - Gp * G) * (B.transpose() * dP(zc));
   return true;
@@ -168,40 +203,50 @@ std::string actuator_kink(const std::string& name, double limit) {
   return fmt::format("actuator '{}' at its limit {:g}", name, limit);
 }
 
-bool exact_law_jacobian(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRef u_raw,
-                        Mat& dtau_dq, Mat& dtau_dqd, std::vector<std::string>& kinks,
-                        std::string& why_not) {
-  const ControlModel& md = run.model;
-  const System& sys = *md.system;
-  if (const auto missing = components_without_derivatives(sys); !missing.empty()) {
-    why_not = "the law's model has no exact derivatives for " + missing.front();
-    return false;
-  }
+std::string law_jacobian_gap(const ControlRun& run) {
+  // A user's law in the loop (run_scenario_in_memory()'s MemoryRunOptions::law): not run.law.
+  if (run.law == nullptr || &run.loop->law != static_cast<const ControlLaw*>(run.law.get()))
+    return "the loop's law is a user's (its d tau/d(q, qd) is not known)";
+  const System& sys = *run.model.system;
+  if (const auto missing = components_without_derivatives(sys); !missing.empty())
+    return "the law's model has no exact derivatives for " + missing.front();
   // dv's ∂Φ̇/∂q = −½ ∂b/∂q̇ (linearize_corrected) holds for position-level rows only: a servo row
   // that is velocity-level (nonholonomic) takes the differences.
   const std::vector<bool> vel = velocity_level_rows(sys);
   for (std::size_t i = 0; i < vel.size(); ++i) {
-    if (vel[i] && md.row_servo[i]) {
-      why_not = "servo row '" + sys.constraint_row_names()[i] +
-                "' is velocity-level (nonholonomic): its exact correction term is not derived";
-      return false;
+    if (vel[i] && run.model.row_servo[i]) {
+      return "servo row '" + sys.constraint_row_names()[i] +
+             "' is velocity-level (nonholonomic): its exact correction term is not derived";
     }
   }
+  return {};
+}
+
+bool exact_law_jacobian(const ControlRun& run, LinearizeData& ld, double t, CVecRef q, CVecRef qd,
+                        CVecRef u_raw, Mat& dtau_dq, Mat& dtau_dqd, std::vector<std::string>& kinks,
+                        std::string& why_not, LawTimeDerivative* dt) {
+  const ControlModel& md = run.model;
+  const System& sys = *md.system;
+  why_not = law_jacobian_gap(run);
+  if (!why_not.empty()) return false;
   const Index n = sys.dof(), m = sys.rows();
   Vec phi(m), phid(m);
   position_residuals(sys, t, q, phi);
   velocity_residuals(sys, t, q, qd, phid);
   std::vector<std::string> found;
   const RhsCorrection corr = law_correction(md, run.law->settings(), phi, phid, found);
-  LinearizeData ld(sys);
-  Mat du;
+  Mat du, dres0, dforce0;
+  bool time = false;
   try {
     linearize_corrected(sys, ld, t, q, qd, md.tau, corr, md.uk);
     if (!ld.lin.trusted) {
       why_not = "the law's model: " + ld.lin.message;
       return false;
     }
-    if (!actuation_jacobian(md, ld, t, q, qd, u_raw, du, why_not)) return false;
+    constraint_tangent_columns(sys, ld, t, q, qd, Vec::Zero(n), Vec::Zero(m), dres0, dforce0);
+    if (dt != nullptr)
+      time = corrected_time_column(sys, ld, t, q, qd, phid, corr, dres0, dt->why_not);
+    if (!actuation_jacobian(md, ld, t, q, qd, u_raw, dres0, time, du, why_not)) return false;
   } catch (const Error& e) {
     why_not = e.what();
     return false;
@@ -217,7 +262,10 @@ bool exact_law_jacobian(ControlRun& run, double t, CVecRef q, CVecRef qd, CVecRe
   }
   const Mat dtau = act.B * du;
   dtau_dq = dtau.leftCols(n);
-  dtau_dqd = dtau.rightCols(n);
+  dtau_dqd = dtau.middleCols(n, n);
+  // τ_plant and the disturbance τ_d of make_control_run() are constant: ∂τ/∂t = B ∂sat(u)/∂t.
+  if (dt != nullptr) dt->exact = time;
+  if (time) dt->dtau_dt = dtau.col(2 * n);
   for (const auto& f : found) add_kink(kinks, f);
   return true;
 }

@@ -839,7 +839,8 @@ void print_run_report(std::ostream& os, const Scenario& sc, const RunReport& rep
         "  jacobian            {} ({} evaluations{}){}\n", rep.stats.jacobian,
         rep.stats.jacobian_evaluations,
         rep.stats.jacobian_fallbacks > 0
-            ? fmt::format(", {} by differences at untrusted states", rep.stats.jacobian_fallbacks)
+            ? fmt::format(", {} by differences at untrusted states or kinks of the law",
+                          rep.stats.jacobian_fallbacks)
             : "",
         rep.stats.jacobian_note.empty() ? "" : ": " + p(rep.stats.jacobian_note));
   }

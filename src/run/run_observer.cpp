@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "model/slot_energy.hpp"
+#include "ukdyn/run/closed_loop_derivatives.hpp"
 
 namespace ukdyn::io_detail {
 
@@ -109,7 +110,12 @@ std::size_t SampleRecorder::record(double t, CVecRef q, CVecRef qd, const Forwar
 }
 
 ForceFunction run_forces(const Scenario& sc, const ControlRun* ctl, SimulationSettings& settings) {
-  if (ctl) return ctl->loop->force_function();
+  if (ctl) {
+    // The law's exact ∂τ/∂(q, q̇) (docs/derivatives.md, "Exact Jacobians in the implicit
+    // integrators"); where its model has none, no tau_jacobian: difference quotients, said.
+    if (law_jacobian_gap(*ctl).empty()) settings.tau_jacobian = law_force_jacobian(*ctl);
+    return ctl->loop->force_function();
+  }
   settings.tau_jacobian = zero_force_jacobian;
   return [&sc](double, CVecRef, CVecRef, VecRef o) { o = sc.tau; };
 }

@@ -27,9 +27,11 @@ inline double nanmax(double a, double b) {
 /// trajectory_header(), the frame constraints' forces (`forces`; null for a control run), then
 /// the control and motor columns.
 /// The applied forces τ(t, q, q̇) of a run of `sc`: the closed loop's (ctl, docs/control.md) or the
-/// scenario's constant forces.tau (which must outlive the function). For the constant τ,
-/// `settings` gets ∂τ/∂(q, q̇) = 0 (the exact Jacobian of bdf / esdirk); a control law has none
-/// (difference quotients, said in the stats' jacobian_note).
+/// scenario's constant forces.tau (which must outlive the function). `settings` gets ∂τ/∂(q, q̇)
+/// for the exact Jacobian of bdf / esdirk: 0 for the constant τ; the law's exact one
+/// (law_force_jacobian(), differences at the states where it has none, counted) unless its model
+/// has no exact derivatives at all (law_jacobian_gap(): then none, difference quotients, said in
+/// the stats' jacobian_note).
 ForceFunction run_forces(const Scenario& sc, const ControlRun* ctl, SimulationSettings& settings);
 
 std::vector<std::string> run_csv_header(const System& sys, bool balance,

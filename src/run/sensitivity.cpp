@@ -9,6 +9,7 @@
 #include <cmath>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <ostream>
 #include <utility>
 
@@ -465,8 +466,10 @@ namespace {
 // The right-hand side of a control scenario's closed loop (docs/derivatives.md, "Controlled
 // runs"): x = (q, q̇) of the plant under τ(t, q, q̇) of the law, and per parameter
 // ṡ_j = [s_q̇; ∂q̈/∂q s_q + ∂q̈/∂q̇ s_q̇ + ∂q̈/∂τ (∂τ/∂x s_j) + ∂q̈/∂p_j], ∂q̈/∂(q, q̇, τ) the
-// plant's exact ones, ∂τ/∂x s_j and ∂q̈/∂p_j Richardson differences (of the law along s_j, and of
-// the closed loops re-loaded with p ± h, p ± h/2).
+// plant's exact ones; ∂τ/∂x the law's exact one (law_jacobian(): one per right-hand side, shared
+// by every parameter), or where it has none (a kink, law_jacobian_gap()) Richardson differences of
+// the law along s_j (4 evaluations per parameter); ∂q̈/∂p_j Richardson differences of the closed
+// loops re-loaded with p ± h, p ± h/2.
 struct ClosedLoopVariationalRhs {
   const Scenario& sc;
   const std::vector<ScenarioParameter>& ps;
@@ -477,13 +480,21 @@ struct ClosedLoopVariationalRhs {
   std::vector<std::string> kinks;  // the causes met so far, and the first time of each
   std::vector<double> kink_t;
   long kink_evaluations = 0;
+  std::optional<LawJacobianWorkspace>
+      ws;           // the law's exact ∂τ/∂x, when law_jacobian_gap() is empty
+  std::string gap;  // law_jacobian_gap(), or the first state's why_not
+  Mat dtau_dq, dtau_dqd;
+  long exact_rhs = 0, difference_rhs = 0;
 
   void operator()(const OdeState& x, OdeState& dx, double t) {
     const Index n = run.plant->dof();
     if (!start_rhs(x, dx, n, out)) return;
     const Eigen::Map<const Vec> q(x.data(), n), qd(x.data() + n, n);
     Vec tau(n), tau_k(n);
-    run.loop->evaluate(t, q, qd);
+    const bool exact = ws && law_jacobian(run, *ws, t, q, qd, dtau_dq, dtau_dqd);  // loop at x
+    if (!ws) run.loop->evaluate(t, q, qd);
+    if (ws && !exact && gap.empty()) gap = fmt::format("at t = {:.6g}: {}", t, ws->why_not);
+    ++(exact ? exact_rhs : difference_rhs);
     run.loop->plant_tau(tau);
     const Linearization lin = linearize(*run.plant, t, q, qd, tau, sc.sim.uk);
     if (!lin.trusted && out.trusted) {
@@ -495,9 +506,14 @@ struct ClosedLoopVariationalRhs {
     for (std::size_t j = 0; j < ps.size(); ++j) {
       const std::size_t o = 2 * static_cast<std::size_t>(n) * (j + 1);
       const Eigen::Map<const Vec> sq(x.data() + o, n), sqd(x.data() + o + n, n);
-      std::vector<std::string> found;
-      const Vec dtau = law_direction(run, t, q, qd, sq, sqd, found);
-      note_kinks(found, t);
+      Vec dtau;
+      if (exact) {
+        dtau.noalias() = dtau_dq * sq + dtau_dqd * sqd;
+      } else {
+        std::vector<std::string> found;
+        dtau = law_direction(run, t, q, qd, sq, sqd, found);
+        note_kinks(found, t);
+      }
       std::array<Vec, 4> qdd;
       for (std::size_t k = 0; k < 4; ++k) {
         ControlRun& r = *perturbed[4 * j + k];
@@ -520,6 +536,15 @@ struct ClosedLoopVariationalRhs {
       kinks.push_back(f);
       kink_t.push_back(t);
     }
+  }
+
+  // RunSensitivities::law_derivative: how many right-hand sides took the exact ∂τ/∂x.
+  [[nodiscard]] std::string law_derivative() const {
+    const long all = exact_rhs + difference_rhs;
+    if (difference_rhs == 0) return fmt::format("exact at {} of {} right-hand sides", all, all);
+    return fmt::format(
+        "exact at {} of {} right-hand sides, directional differences of the law at {} ({})",
+        exact_rhs, all, difference_rhs, gap);
   }
 
   // RunSensitivities::warnings: each cause of a kink the law's differences met, first time.
@@ -616,7 +641,8 @@ void integrate_variational(const Scenario& sc, CVecRef q0, CVecRef qd0, const Ma
 void closed_loop_sensitivities(const Scenario& sc, const std::vector<ScenarioParameter>& ps,
                                RunSensitivities& rs, const std::atomic<bool>* cancel) {
   const auto run = make_control_run(sc);
-  ClosedLoopVariationalRhs rhs{sc, ps, *run, perturbed_control_runs(sc, ps), {}, rs, {}, {}, 0};
+  ClosedLoopVariationalRhs rhs{
+      sc, ps, *run, perturbed_control_runs(sc, ps), {}, rs, {}, {}, 0, {}, {}, {}, {}, 0, 0};
   const Index n = run->plant->dof(), P = static_cast<Index>(ps.size());
   Mat dq0(n, P), dqd0(n, P);
   for (Index j = 0; j < P; ++j) {
@@ -627,8 +653,11 @@ void closed_loop_sensitivities(const Scenario& sc, const std::vector<ScenarioPar
     dqd0.col(j) = richardson(r[o]->qd0, r[o + 1]->qd0, r[o + 2]->qd0, r[o + 3]->qd0, h);
   }
   for (const auto& r : rhs.perturbed) rhs.data.push_back(std::make_unique<ForwardData>(*r->plant));
+  rhs.gap = law_jacobian_gap(*run);
+  if (rhs.gap.empty()) rhs.ws.emplace(*run);
   integrate_variational(sc, run->q0, run->qd0, dq0, dqd0, rhs, rs, cancel);
   rhs.report_kinks();
+  rs.law_derivative = rhs.law_derivative();
 }
 
 }  // namespace
@@ -691,6 +720,7 @@ bool write_run_sensitivities(const Scenario& sc, const std::vector<ScenarioParam
   j["trusted"] = rs.trusted;
   j["message"] = rs.message;
   j["warnings"] = rs.warnings;
+  if (!rs.law_derivative.empty()) j["law_derivative"] = rs.law_derivative;
   report << j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) << "\n";
   return rs.trusted;
 }

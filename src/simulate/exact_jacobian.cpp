@@ -15,7 +15,9 @@ std::string exact_jacobian_gap(const System& system, const ForceFunction& tau,
     add("no exact derivatives for " + names);
   }
   if (tau && !s.tau_jacobian) {
-    add("the applied torques tau(t, q, qd) (a control law) have no exact d tau/d(q, qd)");
+    add("the applied torques tau(t, q, qd) (a control law whose model has no exact derivatives, "
+        "or a force function without SimulationSettings::tau_jacobian) have no exact "
+        "d tau/d(q, qd)");
   }
   if (s.drift.kind == DriftControl::baumgarte && system.rows() > 0) {
     add("the Baumgarte terms in b (-2 alpha Phi_dot - beta^2 Phi) are not differentiated");

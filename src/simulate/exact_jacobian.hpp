@@ -34,8 +34,10 @@ std::string exact_jacobian_gap(const System& system, const ForceFunction& tau,
 class ExactJacobian {
  public:
   ExactJacobian(const System& system, const ForceFunction& tau, const SimulationSettings& settings);
-  /// J: column-major (2n + 1 with the energy balance) squared, zeroed by the caller. False (J unspecified) when linearize() is not
-  /// trusted at the state (Linearization::trusted: a rank change near, a damped solve) or fails.
+  /// J: column-major (2n + 1 with the energy balance) squared, zeroed by the caller. False (J
+  /// unspecified) when linearize() is not trusted at the state (Linearization::trusted: a rank
+  /// change near, a damped solve) or fails, or when SimulationSettings::tau_jacobian throws (a
+  /// control law with no exact ∂τ/∂x at this state: a kink, run/closed_loop_derivatives.hpp).
   bool operator()(double t, const double* x, double* J);
 
  private:

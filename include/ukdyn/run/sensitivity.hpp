@@ -83,6 +83,9 @@ struct RunSensitivities {
   /// (max |dΦ(q0, t0)/dp| or max |dΦ̇(q0, q̇0, t0)/dp| above 1e-8): its perturbed runs start off
   /// the constraints, so dq/dp is that of the ODE from the file's q0, not of a consistent motion.
   std::vector<std::string> warnings;
+  /// A control scenario: how the law's term ∂τ/∂x · s_j was taken ("exact at N of N right-hand
+  /// sides", or with the number by directional differences and why the first was); else empty.
+  std::string law_derivative;
 };
 
 /// Integrates x = (q, q̇) with the variational equations s' = (∂f/∂x) s + ∂f/∂p, s(t0) = dx0/dp,
