@@ -750,3 +750,30 @@ TEST(ControlDerivatives, ImplicitIntegratorsOnAControlledRunTakeTheExactJacobian
   EXPECT_EQ(summary["jacobian"]["kind"], "exact") << summary["jacobian"].dump();
   EXPECT_GT(summary["jacobian"]["evaluations"].get<long>(), 0);
 }
+
+// A loop built by hand with a disturbance of t (make_control_run()'s is constant): the exact
+// ∂τ/∂t would miss ∂τ_d/∂t, so the time column falls back to differences and says why; with
+// the differences it matches the Richardson reference, which the exact column without τ_d's
+// share (0.7 cos 3t on every coordinate) would not.
+TEST(ControlDerivatives, ADisturbanceOfTimeTakesTheDifferencesForDtauDt) {
+  const Scenario sc = load_scenario(kSource / "scenarios" / "paper_control.yaml");
+  const auto run = make_control_run(sc);
+  run->loop->disturbance = [](double t, VecRef d) { d.setConstant(0.7 * std::sin(3.0 * t)); };
+  const double t = 0.4;
+  const LawDerivatives out = law_derivatives(*run, t, run->q0, run->qd0);
+  EXPECT_EQ(out.method, "exact");
+  EXPECT_EQ(out.dtau_dt_method, "differences: the loop's disturbance tau_d(t) depends on t");
+  const Index n = run->q0.size();
+  const Mat ref = richardson_jacobian(*run, t, run->q0, run->qd0);
+  const double err = (out.dtau_dt - ref.col(2 * n)).cwiseAbs().maxCoeff();
+  EXPECT_LT(err, 1e-7 * ref.col(2 * n).cwiseAbs().maxCoeff());
+  // A constant disturbance keeps the exact column, which lacks exactly τ_d's share 2.1 cos 3t.
+  run->loop->disturbance = [](double, VecRef d) { d.setConstant(0.7); };
+  const LawDerivatives still = law_derivatives(*run, t, run->q0, run->qd0);
+  EXPECT_EQ(still.dtau_dt_method, "exact");
+  const Vec share = Vec::Constant(n, 2.1 * std::cos(3.0 * t));
+  EXPECT_LT((out.dtau_dt - still.dtau_dt - share).cwiseAbs().maxCoeff(),
+            1e-7 * ref.col(2 * n).cwiseAbs().maxCoeff());
+  std::cout << "[ control ] d tau_d/dt share " << share(0) << ", scale "
+            << ref.col(2 * n).cwiseAbs().maxCoeff() << "\n";
+}

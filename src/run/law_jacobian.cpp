@@ -189,6 +189,21 @@ bool actuation_jacobian(const ControlModel& md, LinearizeData& ld, double t, CVe
   return true;
 }
 
+// True when the loop's disturbance is unset or gives bitwise the same τ_d at t − h, t and t + h
+// (h = 1e-3 max(1, |t|)): a constant τ_d, as make_control_run() builds it.
+bool disturbance_constant_near(const ClosedLoop& loop, double t) {
+  if (!loop.disturbance) return true;
+  const Index n = loop.tau_plant.size();
+  const double h = 1e-3 * std::max(1.0, std::abs(t));
+  Vec d0 = Vec::Zero(n), d = Vec::Zero(n);
+  loop.disturbance(t, d0);
+  for (const double s : {-h, h}) {
+    loop.disturbance(t + s, d);
+    if (d != d0) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 void add_kink(std::vector<std::string>& kinks, const std::string& kink) {
@@ -264,6 +279,12 @@ bool exact_law_jacobian(const ControlRun& run, LinearizeData& ld, double t, CVec
   dtau_dq = dtau.leftCols(n);
   dtau_dqd = dtau.middleCols(n, n);
   // τ_plant and the disturbance τ_d of make_control_run() are constant: ∂τ/∂t = B ∂sat(u)/∂t.
+  // A loop built by hand may carry a τ_d(t): probed at t ± h, a τ_d that moves there has no
+  // exact ∂/∂t here, and the time column falls back to differences, saying why.
+  if (time && !disturbance_constant_near(*run.loop, t)) {
+    time = false;
+    if (dt != nullptr) dt->why_not = "the loop's disturbance tau_d(t) depends on t";
+  }
   if (dt != nullptr) dt->exact = time;
   if (time) dt->dtau_dt = dtau.col(2 * n);
   for (const auto& f : found) add_kink(kinks, f);
