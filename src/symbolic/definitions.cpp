@@ -607,72 +607,6 @@ PositionalInputs positional_inputs(SymbolTable& table, const std::vector<std::st
   return p;
 }
 
-// A free body in quaternion coordinates (x, y, z, q_w, q_x, q_y, q_z: free_body.hpp): its M, C q̇ and
-// G in closed form, M = diag(m I, 4 E(u)ᵀ J E(u)), C q̇ = (0, 4 E(u̇)ᵀ J ω) with ω = 2 E(u) u̇ and
-// E(u) the quaternion's 3 × 4 body-rate map (quaternion_body_rate; Udwadia & Schutte 2010, "An
-// alternative derivation of the quaternion equations of motion for rigid-body rotational
-// dynamics", J. Appl. Mech. 77: E(u) v = −E(v) u gives ∂T/∂u = −2 E(u̇)ᵀ J ω and Ṁ u̇ = 2 E(u̇)ᵀ J ω),
-// G = (G_x, G_y, G_z, 0): upper triangle of M, C q̇, G as the dynamics tape's outputs, m, J and G_xyz
-// read off the derivation (J = M_qq / 4 at u = (1, 0, 0, 0)). Only when every entry equals the
-// derivation's exactly (expanded difference 0, parameters as symbols); otherwise none (the tape of
-// the derivation's expanded polynomials stays). Its tape has far fewer operations: the products
-// E(u)ᵀ (J E(u)) and J ω are shared instead of expanded.
-std::optional<std::vector<ex>> free_body_dynamics(const SubsystemDerivation& d) {
-  if (d.coordinates.size() != 7 || d.time_varying) return std::nullopt;
-  SymbolTable& table = *d.symbols;
-  ex u[4], ud[4];
-  for (unsigned i = 0; i < 4; ++i) {
-    u[i] = coordinate_symbol(table, d.coordinates[3 + i]);
-    ud[i] = velocity_symbol(table, d.coordinates[3 + i]);
-  }
-  // E(w, x, y, z) rows: ω_body = 2 E(u) u̇ (quaternion_body_rate).
-  const auto E = [](const ex(&v)[4]) {
-    return matrix{
-        {-v[1], v[0], v[3], -v[2]}, {-v[2], -v[3], v[0], v[1]}, {-v[3], v[2], -v[1], v[0]}};
-  };
-  GiNaC::exmap at_identity;
-  at_identity[u[0]] = 1;
-  for (unsigned i = 1; i < 4; ++i) at_identity[u[i]] = 0;
-  const ex mass = d.M(0, 0);
-  matrix J(3, 3);
-  for (unsigned a = 0; a < 3; ++a)
-    for (unsigned b = 0; b < 3; ++b) J(a, b) = (d.M(4 + a, 4 + b).subs(at_identity) / 4).expand();
-  for (const ex& v :
-       {mass, ex(J(0, 0)), ex(J(1, 1)), ex(J(2, 2)), ex(J(0, 1)), ex(J(0, 2)), ex(J(1, 2))}) {
-    for (const ex& c : u)
-      if (v.has(c)) return std::nullopt;
-  }
-  const matrix Eu = E(u), Eud = E(ud);
-  const matrix JE = J.mul(Eu);
-  const matrix Mq = Eu.transpose().mul(JE).mul_scalar(4);
-  matrix om(3, 1);
-  for (unsigned a = 0; a < 3; ++a) {
-    ex w = 0;
-    for (unsigned k = 0; k < 4; ++k) w += 2 * Eu(a, k) * ud[k];
-    om(a, 0) = w;
-  }
-  const matrix Cq = Eud.transpose().mul(J.mul(om)).mul_scalar(4);
-  std::vector<ex> m, cqd, g;
-  for (unsigned i = 0; i < 7; ++i) {
-    for (unsigned j = i; j < 7; ++j) {
-      const ex v = i < 3 ? (i == j ? mass : ex(0)) : (j < 3 ? ex(0) : ex(Mq(i - 3, j - 3)));
-      if (!(v - d.M(i, j)).expand().is_zero()) return std::nullopt;
-      m.push_back(v);
-    }
-    const ex c = i < 3 ? ex(0) : ex(Cq(i - 3, 0));
-    if (!(c - d.Cqd(i, 0)).expand().is_zero()) return std::nullopt;
-    cqd.push_back(c);
-    const ex gi = i < 3 ? d.G(i, 0) : ex(0);
-    if (gi.has(u[0]) || gi.has(u[1]) || gi.has(u[2]) || gi.has(u[3]) ||
-        !(gi - d.G(i, 0)).expand().is_zero())
-      return std::nullopt;
-    g.push_back(gi);
-  }
-  m.insert(m.end(), cqd.begin(), cqd.end());
-  m.insert(m.end(), g.begin(), g.end());
-  return m;
-}
-
 }  // namespace
 
 DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string name, TapePool* pool)
@@ -712,13 +646,6 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   all.insert(all.end(), g.begin(), g.end());
   // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
   if (d_.time_varying) all.push_back(num(d_.Lt));
-  // A free body: the same outputs from their closed form (free_body_dynamics, checked equal).
-  // Not expanded (numeric_form would expand them back into the derivation's polynomials); the
-  // tape orders their operands structurally (canonical.hpp), so the order is the same in every run.
-  if (auto closed = free_body_dynamics(d_)) {
-    all.clear();
-    for (const ex& e : *closed) all.push_back(e.subs(d_.parameter_values).subs(p.rename));
-  }
   dyn_ = tape(all, "M, C q_dot and G");
   q_read_ = dyn_->inputs_read(TapeInput::Source::q);
   qd_read_ = dyn_->inputs_read(TapeInput::Source::qd);
