@@ -553,7 +553,15 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   for (Index i = 0; i < mk; ++i) P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = lam[i];
   // Qc += Bᵀ λ_k, Cᵀ λ_k entry by entry down B's and C's contiguous columns: each entry gets its
   // terms in the order of the rows, as one row at a time (a dropped row's λ_i = 0 adds an exact 0).
+  // MK > 0: each column's sum a fixed-size dot product (vectorised; the terms summed pairwise, so
+  // the last bits differ from the runtime-size path's).
   auto add_columns = [&](const double* X, double* out, Index n) {
+    if constexpr (MK > 0) {
+      using Col = Eigen::Matrix<double, MK, 1>;
+      const Eigen::Map<const Col> lv(lam);
+      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * mk).dot(lv);
+      return;
+    }
     for (Index j = 0; j < n; ++j) {
       double v = out[j];
       for (Index i = 0; i < mk; ++i) v += X[i + j * mk] * lam[i];
@@ -600,6 +608,11 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     const double* y = gb.w.data();
     double* x = qdd.data() + s;
     for (Index l = 0; l < nk; ++l) {
+      if constexpr (MK > 0) {  // a fixed-size dot product, as in group_multipliers
+        using Col = Eigen::Matrix<double, MK, 1>;
+        x[l] = y[l] + Eigen::Map<const Col>(Xt + l * mk).dot(Eigen::Map<const Col>(gb.lam.data()));
+        continue;
+      }
       double v = y[l];
       for (Index i = 0; i < mk; ++i) v += Xt[i + l * mk] * gb.lam[i];
       x[l] = v;
