@@ -224,10 +224,22 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
-  for (Index j = 0; j < nk; ++j)
-    for (Index i = 0; i < mk; ++i) B[i + j * mk] = Ad[rows[i] + (s + j) * lda];
-  for (Index j = 0; j < nL; ++j)
-    for (Index i = 0; i < mk; ++i) C[i + j * mk] = Ad[rows[i] + (P.sL + j) * lda];
+  // B and C gathered column by column; rows that are consecutive in A (a weld's 6) as fixed-size
+  // columns (copies: the same values).
+  auto gather = [&](double* out, Index c0, Index n) {
+    if constexpr (MK > 0) {
+      if (rows[MK - 1] - rows[0] == MK - 1) {
+        using Col = Eigen::Matrix<double, MK, 1>;
+        for (Index j = 0; j < n; ++j)
+          Eigen::Map<Col>(out + j * mk) = Eigen::Map<const Col>(Ad + rows[0] + (c0 + j) * lda);
+        return;
+      }
+    }
+    for (Index j = 0; j < n; ++j)
+      for (Index i = 0; i < mk; ++i) out[i + j * mk] = Ad[rows[i] + (c0 + j) * lda];
+  };
+  gather(B, s, nk);
+  gather(C, P.sL, nL);
   for (Index i = 0; i < mk; ++i) gb.bb[i] = P.b[rows[i]];
   double* y = gb.w.data();
   for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
@@ -273,6 +285,17 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   }
   double* S = gb.S.data();
   const Index lds = gb.S.rows();
+  // |L_L⁻¹ C_iᵀ|² of every row at once (MK > 0: down Y's columns, each row's terms in the order of
+  // l as one row at a time).
+  double c2v[MK > 0 ? MK : 1] = {};
+  if constexpr (MK > 0) {
+    using Col = Eigen::Matrix<double, MK, 1>;
+    Eigen::Map<Col> c2m(c2v);
+    for (Index l = 0; l < nL; ++l) {
+      const Eigen::Map<const Col> yl(Y + l * mk);
+      c2m += yl.cwiseProduct(yl);
+    }
+  }
   double w_ref = 0.0;
   UKDYN_UNROLL
   for (Index j = 0; j < mk; ++j) {
@@ -280,16 +303,24 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
     double* a = MK > 0 ? acc : S + j * lds;
     if constexpr (MK == 0)
       for (Index i = j; i < mk; ++i) a[i] = 0.0;
+    // MK > 0: the rows from j rounded down to even, so that columns 2t and 2t + 1 run on the same
+    // whole pairs of rows (vectorised) and the rows above the diagonal are mostly not formed.
+    const Index i0 = MK > 0 ? (j & ~Index{1}) : j;
     for (Index l = 0; l < nk; ++l) {
       const double xj = Xt[j + l * mk];
-      for (Index i = (MK > 0 ? 0 : j); i < mk; ++i) a[i] += Xt[i + l * mk] * xj;
+      UKDYN_UNROLL
+      for (Index i = i0; i < mk; ++i) a[i] += Xt[i + l * mk] * xj;
     }
     if constexpr (MK > 0) {
       UKDYN_UNROLL
       for (Index i = j; i < mk; ++i) S[i + j * lds] = a[i];
     }
     double c2 = 0.0;
-    for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
+    if constexpr (MK > 0) {
+      c2 = c2v[j];
+    } else {
+      for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
+    }
     w_ref = std::max(w_ref, S[j + j * lds] + c2);
   }
   return w_ref;
@@ -522,7 +553,15 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   for (Index i = 0; i < mk; ++i) P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = lam[i];
   // Qc += Bᵀ λ_k, Cᵀ λ_k entry by entry down B's and C's contiguous columns: each entry gets its
   // terms in the order of the rows, as one row at a time (a dropped row's λ_i = 0 adds an exact 0).
+  // MK > 0: each column's sum a fixed-size dot product (vectorised; the terms summed pairwise, so
+  // the last bits differ from the runtime-size path's).
   auto add_columns = [&](const double* X, double* out, Index n) {
+    if constexpr (MK > 0) {
+      using Col = Eigen::Matrix<double, MK, 1>;
+      const Eigen::Map<const Col> lv(lam);
+      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * mk).dot(lv);
+      return;
+    }
     for (Index j = 0; j < n; ++j) {
       double v = out[j];
       for (Index i = 0; i < mk; ++i) v += X[i + j * mk] * lam[i];
@@ -569,6 +608,11 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     const double* y = gb.w.data();
     double* x = qdd.data() + s;
     for (Index l = 0; l < nk; ++l) {
+      if constexpr (MK > 0) {  // a fixed-size dot product, as in group_multipliers
+        using Col = Eigen::Matrix<double, MK, 1>;
+        x[l] = y[l] + Eigen::Map<const Col>(Xt + l * mk).dot(Eigen::Map<const Col>(gb.lam.data()));
+        continue;
+      }
       double v = y[l];
       for (Index i = 0; i < mk; ++i) v += Xt[i + l * mk] * gb.lam[i];
       x[l] = v;
@@ -644,12 +688,14 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     }
     add_row(v, ab, P.b[row]);
   }
-  double q2 = 0.0;
-  bool finite = true;
+  // q̈ and Qc finite: x · 0 is ±0 for a finite x and NaN for ±inf and NaN, so the sum of them is
+  // 0 exactly when all are finite (one pass without a test and branch per entry).
+  double q2 = 0.0, nan_if_not_finite = 0.0;
   for (Index j = 0; j < P.dws.layout.dof(); ++j) {
     q2 += qdd[j] * qdd[j];
-    finite = finite && std::isfinite(qdd[j]) && std::isfinite(Qc[j]);
+    nan_if_not_finite += qdd[j] * 0.0 + Qc[j] * 0.0;
   }
+  const bool finite = nan_if_not_finite == 0.0;
   res = UkResult{};
   res.rank = static_cast<int>(pivots.rank);
   res.sigma_max = std::sqrt(pivots.max);

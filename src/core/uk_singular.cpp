@@ -63,6 +63,18 @@ bool augment_row(const Mat& A, const Vec& b, Index i, Index s, Index n, double s
   return true;
 }
 
+// The n × n block at (s, s) of `from` into the same place of `to`, and segment s of n of x into y:
+// plain loops (Eigen's dynamic-size block assignment peels for alignment per column, which cost
+// more than the copy on a free body's 7 × 7 block).
+void copy_block(const Mat& from, Mat& to, const Vec& x, Vec& y, Index s, Index n) {
+  const Index ldf = from.rows(), ldt = to.rows();
+  const double* f = from.data() + s + s * ldf;
+  double* t = to.data() + s + s * ldt;
+  for (Index j = 0; j < n; ++j)
+    for (Index i = 0; i < n; ++i) t[i + j * ldt] = f[i + j * ldf];
+  for (Index i = s; i < s + n; ++i) y[i] = x[i];
+}
+
 void set_nan(Vec& qdd, Vec& Qc) {
   qdd.setConstant(std::numeric_limits<double>::quiet_NaN());
   Qc.setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -175,9 +187,7 @@ bool augment_singular_blocks(const BlockLayout& lay, const Mat& A, const Vec& b,
                              UkSingularWorkspace& sw) {
   for (std::size_t k = 0; k < lay.blocks(); ++k) {
     if (!sw.structural[k]) continue;
-    const Index s = lay.start[k], nk = lay.size[k];
-    sw.scratch.block(s, s, nk, nk) = M.block(s, s, nk, nk);
-    sw.Qa.segment(s, nk) = Q.segment(s, nk);
+    copy_block(M, sw.scratch, Q, sw.Qa, lay.start[k], lay.size[k]);
   }
   augmented_blocks(lay, A, b, sw, M, Q);
   // A block with no row of its own stays singular. Whether the others came out positive definite
@@ -194,9 +204,7 @@ void restore_singular_blocks(const BlockLayout& lay, Mat& M, Vec& Q,
                              const UkSingularWorkspace& sw) {
   for (std::size_t k = 0; k < lay.blocks(); ++k) {
     if (!sw.structural[k]) continue;
-    const Index s = lay.start[k], nk = lay.size[k];
-    M.block(s, s, nk, nk) = sw.scratch.block(s, s, nk, nk);
-    Q.segment(s, nk) = sw.Qa.segment(s, nk);
+    copy_block(sw.scratch, M, sw.Qa, Q, lay.start[k], lay.size[k]);
   }
 }
 

@@ -525,18 +525,26 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
 // are an end's position alone (position_rows: G(i, :) = ±e_iᵀ, so G t_c is ±t_c(i), its only
 // non-zero term) and the rows after them do not read the positions (weld_row, hinge_row: G's
 // columns 0–2 are 0 there, so their sums start at column k0 = 3); np = 0: every row in full.
-template <int MR, int NP>
+// SET (MR > 0 only): A(:, cols[c]) = G t_c instead, for columns no other end writes (the bits of
+// 0 + G t_c).
+template <int MR, int NP, bool SET = false>
 void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
                      const double* twists, int m_rt, int np_rt, MatRef A) {
+  static_assert(MR > 0 || !SET, "SET needs the rows at compile time");
   const int m = MR > 0 ? MR : m_rt, np = MR > 0 ? NP : np_rt, k0 = np > 0 ? 3 : 0;
   if constexpr (MR > 0) {  // fixed-size vectors of MR − NP rows: the same sums, vectorised
     constexpr int MO = MR - NP;
     for (std::size_t c = 0; c < cols.size(); ++c) {
       const double* t = twists + 7 * c;
-      for (int i = 0; i < NP; ++i) A(i, cols[c]) += G(i, i) * t[i];
       Eigen::Matrix<double, MO, 1> v = G.col(k0).template segment<MO>(NP) * t[k0];
       for (int k = k0 + 1; k < 7; ++k) v += G.col(k).template segment<MO>(NP) * t[k];
-      A.col(cols[c]).template segment<MO>(NP) += v;
+      if constexpr (SET) {
+        for (int i = 0; i < NP; ++i) A(i, cols[c]) = G(i, i) * t[i];
+        A.col(cols[c]).template segment<MO>(NP) = v;
+      } else {
+        for (int i = 0; i < NP; ++i) A(i, cols[c]) += G(i, i) * t[i];
+        A.col(cols[c]).template segment<MO>(NP) += v;
+      }
     }
     return;
   }
@@ -554,23 +562,28 @@ void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vec
 // ∂R = ([ω]× + s) R, D ∂x = D_p v + Σ_c D_R(:, c) · (ω × R_c + s R_c), so G = [D_p, Σ_c R_c × d_c,
 // Σ_c R_c · d_c] per row (d_c: the row's ∂Φ/∂R(:, c), R_c: R's column c). np: the leading position
 // rows of add_map_columns, whose G is ±e_iᵀ (only their diagonal is formed).
+// G(i, 3..6) = (Σ_c R_c × d_c, Σ_c R_c · d_c) of one row, d_c its ∂Φ/∂R(:, c), c in order.
+void rotation_map_row(const Eigen::Matrix3d& R, const Eigen::Vector3d (&d)[3],
+                      Eigen::Matrix<double, kMaxRows, 7>& G, int i) {
+  Eigen::Vector3d w = Eigen::Vector3d::Zero();
+  double sc = 0.0;
+  for (int c = 0; c < 3; ++c) {
+    w += R.col(c).cross(d[c]);
+    sc += R.col(c).dot(d[c]);
+  }
+  for (int k = 0; k < 3; ++k) G(i, 3 + k) = w(k);
+  G(i, 6) = sc;
+}
+
 void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, const double* twists,
                        const RowValues<double>& r, int p0, int r0, int np, MatRef A) {
   Eigen::Matrix<double, kMaxRows, 7> G;
   for (int i = 0; i < np; ++i) G(i, i) = r.D(i, p0 + i);
   for (int i = np; i < r.m; ++i) {
-    Eigen::Vector3d w = Eigen::Vector3d::Zero();
-    double sc = 0.0;
-    for (int c = 0; c < 3; ++c) {
-      const Eigen::Vector3d d(r.D(i, r0 + c), r.D(i, r0 + 3 + c), r.D(i, r0 + 6 + c));
-      w += s.R.col(c).cross(d);
-      sc += s.R.col(c).dot(d);
-    }
-    for (int k = 0; k < 3; ++k) {
-      G(i, k) = r.D(i, p0 + k);
-      G(i, 3 + k) = w(k);
-    }
-    G(i, 6) = sc;
+    Eigen::Vector3d d[3];
+    for (int c = 0; c < 3; ++c) d[c] = {r.D(i, r0 + c), r.D(i, r0 + 3 + c), r.D(i, r0 + 6 + c)};
+    rotation_map_row(s.R, d, G, i);
+    for (int k = 0; k < 3; ++k) G(i, k) = r.D(i, p0 + k);
   }
   if (r.m == kMaxRows && np == 3) {
     add_map_columns<kMaxRows, 3>(G, cols, twists, r.m, np, A);
@@ -578,6 +591,58 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
     add_map_columns<kMaxRows, 0>(G, cols, twists, r.m, np, A);
   } else {
     add_map_columns<0, 0>(G, cols, twists, r.m, np, A);
+  }
+}
+
+// rotation_map_row() for a weld row (i, j), whose d has the columns i and j only: the same sums
+// without the column of zeros (x + 0 = x: the same bits).
+inline void weld_map_row(const Eigen::Matrix3d& R, int i, int j, const Eigen::Vector3d (&d)[3],
+                         Eigen::Matrix<double, kMaxRows, 7>& G, int row) {
+  const int lo = std::min(i, j), hi = std::max(i, j);
+  const Eigen::Vector3d w = R.col(lo).cross(d[lo]) + R.col(hi).cross(d[hi]);
+  for (int k = 0; k < 3; ++k) G(row, 3 + k) = w(k);
+  G(row, 6) = R.col(lo).dot(d[lo]) + R.col(hi).dot(d[hi]);
+}
+
+// A weld between two twist ends (a tree's or a free body's) for evaluate(), without forming
+// RowValues' D (144 entries, mostly zeros) and its product with the 24 rates: its rows are
+// position_rows (G = ±e_iᵀ on p_a, p_b) and weld_row (i, j) for (2, 1), (0, 2), (1, 0), whose
+// ∂Φ/∂R_a has the columns d_i = ½ R_b(:, j), d_j = −½ R_b(:, i) and ∂Φ/∂R_b the columns
+// d_j = ½ R_a(:, i), d_i = −½ R_a(:, j) (the values weld_row writes into D, so G and A are
+// add_twist_columns' bit for bit). b = −(D ẍ + ẋᵀHẋ) on the same non-zero terms.
+// `disjoint`: the ends have no column in common, so A's columns are set (no zeroing first).
+void weld_twist_rows(const FrameState& a, const FrameState& b, const std::vector<Index>& cols_a,
+                     const double* ta, const std::vector<Index>& cols_b, const double* tb,
+                     bool disjoint, MatRef A, VecRef bv) {
+  constexpr int ij[3][2] = {{2, 1}, {0, 2}, {1, 0}};
+  Eigen::Matrix<double, kMaxRows, 7> Ga, Gb;
+  for (int k = 0; k < 3; ++k) {
+    Ga(k, k) = 1.0;
+    Gb(k, k) = -1.0;
+    bv(k) = -(a.pdd(k) - b.pdd(k));
+  }
+  for (int w = 0; w < 3; ++w) {
+    const int i = ij[w][0], j = ij[w][1], row = 3 + w;
+    Eigen::Vector3d da[3], db[3];
+    const int other = 3 - i - j;
+    da[other] = db[other] = Eigen::Vector3d::Zero();
+    da[i] = 0.5 * b.R.col(j);
+    da[j] = -(0.5 * b.R.col(i));
+    db[j] = 0.5 * a.R.col(i);
+    db[i] = -(0.5 * a.R.col(j));
+    weld_map_row(a.R, i, j, da, Ga, row);
+    weld_map_row(b.R, i, j, db, Gb, row);
+    const double dx = da[i].dot(a.Rdd.col(i)) + da[j].dot(a.Rdd.col(j)) + db[j].dot(b.Rdd.col(j)) +
+                      db[i].dot(b.Rdd.col(i));
+    const double hx = a.Rd.col(i).dot(b.Rd.col(j)) - a.Rd.col(j).dot(b.Rd.col(i));
+    bv(row) = -(dx + hx);
+  }
+  if (disjoint) {
+    add_map_columns<kMaxRows, 3, true>(Ga, cols_a, ta, kMaxRows, 3, A);
+    add_map_columns<kMaxRows, 3, true>(Gb, cols_b, tb, kMaxRows, 3, A);
+  } else {
+    add_map_columns<kMaxRows, 3>(Ga, cols_a, ta, kMaxRows, 3, A);
+    add_map_columns<kMaxRows, 3>(Gb, cols_b, tb, kMaxRows, 3, A);
   }
 }
 
@@ -823,11 +888,14 @@ void add_force_tangent(const FrameState& v, const FrameState& t, const std::vect
   }
 }
 
+// Whether an end gives its columns as twists (end_twists: a tree or a free body).
+bool twist_end(const End& e) { return e.spec.kind == NumericFrameEnd::Kind::tree || e.free_body; }
+
 // A(:, cols) += D_end ∂x_end/∂q of an end as end_twists left it: twist columns of a tree or
 // free-body end, dp and dR of any other.
 void add_end_columns(const End& e, const FrameState& s, const double* twists,
                      const RowValues<double>& r, int p0, int r0, int np, MatRef A) {
-  if (e.spec.kind == NumericFrameEnd::Kind::tree || e.free_body) {
+  if (twist_end(e)) {
     add_twist_columns(s, e.cols, twists, r, p0, r0, np, A);
   } else {
     add_columns(s, e.cols, r, p0, r0, A);
@@ -1212,6 +1280,7 @@ class Core {
     std::set<Index> all(a_.cols.begin(), a_.cols.end());
     all.insert(b_.cols.begin(), b_.cols.end());
     cols_.assign(all.begin(), all.end());
+    disjoint_ = cols_.size() == a_.cols.size() + b_.cols.size();
   }
   [[nodiscard]] const NumericFrameSpec& spec() const { return f_; }
   [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
@@ -1265,6 +1334,17 @@ class Core {
   // layout as with() (a tree end's 7 twist doubles per column where with() keeps its 12 of dp, dR).
   template <class F>
   void with_twists(const ConstraintSlots& slots, CVecRef q, CVecRef qd, F&& f) const {
+    with_end_twists(
+        slots, q, qd,
+        [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db) {
+          RowValues<double> r;
+          row_values(f_, Sa, Sb, r);
+          f(Sa, Sb, da, db, r);
+        });
+  }
+  // with_twists() without the rows' values: f(Sa, Sb, da, db).
+  template <class F>
+  void with_end_twists(const ConstraintSlots& slots, CVecRef q, CVecRef qd, F&& f) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -1275,9 +1355,7 @@ class Core {
     FrameState Sa(da, da + 3 * na, na), Sb(db, db + 3 * nb, nb);
     end_twists(a_, slots, q, qd, sa, Sa, da);
     end_twists(b_, slots, q, qd, sb, Sb, db);
-    RowValues<double> r;
-    row_values(f_, Sa, Sb, r);
-    f(Sa, Sb, da, db, r);
+    f(Sa, Sb, da, db);
   }
 
   // A and b at (q, q̇) (with_twists, add_twist_columns). `structural`: only A's columns of the
@@ -1285,6 +1363,19 @@ class Core {
   // (ConstraintContext::structural_only: O(columns) per call, not O(n)).
   void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b,
                 bool structural) const {
+    if (f_.kind == K::weld && twist_end(a_) && twist_end(b_)) {  // weld_twist_rows
+      with_end_twists(
+          slots, q, qd,
+          [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db) {
+            if (!structural) {
+              zero_rows(A);
+            } else if (!disjoint_) {
+              for (const Index c : cols_) A.col(c).setZero();
+            }
+            weld_twist_rows(Sa, Sb, a_.cols, da, b_.cols, db, disjoint_, A, b);
+          });
+      return;
+    }
     with_twists(slots, q, qd,
                 [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db,
                     const RowValues<double>& r) {
@@ -1411,6 +1502,7 @@ class Core {
   std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
+  bool disjoint_ = false;  // the ends share no column
 };
 
 // ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
