@@ -104,6 +104,29 @@ M3<S> axis_rotation(const Eigen::Vector3d& a, const S& th) {
 // yaw) R_a(θ) turns e_i to c e_i + s e_j and e_j to −s e_i + c e_j ((k, i, j) cyclic) and keeps
 // e_k, so R's columns are those of Rj mixed in pairs and the axis is Rj's column k: neither
 // Rodrigues' matrix nor the 3 × 3 product is formed.
+template <class S, int K>
+void turn_about(const M3<S>& Rj, const S& c, const S& s, LinkState<S>& w) {
+  constexpr int i = (K + 1) % 3, j = (K + 2) % 3;
+  w.R.col(i) = c * Rj.col(i) + s * Rj.col(j);
+  w.R.col(j) = c * Rj.col(j) - s * Rj.col(i);
+  w.R.col(K) = Rj.col(K);
+  w.sw[0] = Rj.col(K);
+}
+
+template <class S>
+void turn_about_axis(int k, const M3<S>& Rj, const S& th, LinkState<S>& w) {
+  using std::cos;
+  using std::sin;
+  const S c = cos(th), s = sin(th);
+  if (k == 2) {
+    turn_about<S, 2>(Rj, c, s, w);
+  } else if (k == 0) {
+    turn_about<S, 0>(Rj, c, s, w);
+  } else {
+    turn_about<S, 1>(Rj, c, s, w);
+  }
+}
+
 template <class S>
 void place_revolute(const Eigen::Vector3d& a, const M3<S>& Rj, const S& th, LinkState<S>& w) {
   const int k = a(2) == 1.0 ? 2 : a(0) == 1.0 ? 0 : a(1) == 1.0 ? 1 : -1;
@@ -112,16 +135,7 @@ void place_revolute(const Eigen::Vector3d& a, const M3<S>& Rj, const S& th, Link
     w.sw[0] = Rj * a.cast<S>();
     return;
   }
-  using std::cos;
-  using std::sin;
-  const S c = cos(th), s = sin(th);
-  const int i = (k + 1) % 3, j = (k + 2) % 3;
-  for (int r = 0; r < 3; ++r) {
-    w.R(r, i) = c * Rj(r, i) + s * Rj(r, j);
-    w.R(r, j) = c * Rj(r, j) - s * Rj(r, i);
-    w.R(r, k) = Rj(r, k);
-    w.sw[0](r) = Rj(r, k);
-  }
+  turn_about_axis(k, Rj, th, w);
 }
 
 // A ball joint at pj with joint frame Rj (scale sc) and quaternion u = (w, x, y, z): the link's
@@ -541,6 +555,305 @@ bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
 
 }  // namespace
 
+// ------------------------------------------------------------------------------ the rigid path
+
+// What the forward passes of a tree without ball joints know of each link before any call
+// (TreeSubsystem's constructor): where its joint frame's columns come from, which coordinate
+// axis its joint turns or slides along, whether it has mass, and its movable ancestors.
+struct LinkPlan {
+  // The fixed rotation of the joint frame (origin_rotation, merged): its column c is
+  // sign[c] e_perm[c] (a signed permutation: identity, URDF's rpy of ±π/2 and π), or general.
+  bool permutation = false;
+  int perm[3] = {0, 1, 2};
+  double sign[3] = {1.0, 1.0, 1.0};
+  int axis = -1;                // the joint's axis is e_axis of the joint frame (−1: any other)
+  int terms = 0, term[3] = {};  // the nonzero entries of origin_translation
+  bool massless = false;        // no mass and no inertia (flange, tool0, a platform's x, y)
+  std::size_t ancestors = 0, ancestors_end = 0;  // ForwardPlan::ancestors: the movable ones
+};
+struct ForwardPlan {
+  std::vector<LinkPlan> links;
+  std::vector<std::pair<std::size_t, int>> ancestors;  // (link, joint variable), nearest first
+  bool every_pair = false;  // each joint variable's link has every earlier one as an ancestor
+  bool identity = false;    // θ = q (identity_map)
+};
+
+namespace {
+
+// A rotation within round-off of a signed permutation made exactly that permutation: the URDF's
+// rpy of ±π/2 and π give entries of cos(π/2) = 6.1e-17 and sin(π) = 1.2e-16 (the double nearest
+// π/2 is not π/2) where the rotation meant has exact zeros. 1e-15 is 4.5 ε: the round-off of a
+// few products of rotations, far below any rotation a robot file means. Returns whether it did.
+bool snap_permutation(Eigen::Matrix3d& R) {
+  constexpr double tol = 1e-15;
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  int rows_used = 0;
+  for (int c = 0; c < 3; ++c) {
+    int at = -1;
+    for (int r = 0; r < 3; ++r) {
+      if (std::abs(std::abs(R(r, c)) - 1.0) <= tol) {
+        if (at >= 0) return false;
+        at = r;
+      } else if (!(std::abs(R(r, c)) <= tol)) {
+        return false;
+      }
+    }
+    if (at < 0 || (rows_used & (1 << at)) != 0) return false;
+    rows_used |= 1 << at;
+    P(at, c) = R(at, c) > 0.0 ? 1.0 : -1.0;
+  }
+  R = P;
+  return true;
+}
+
+LinkPlan link_plan(const Link& L) {
+  LinkPlan p;
+  const Eigen::Matrix3d& R = L.origin_rotation;
+  p.permutation = true;
+  for (int c = 0; c < 3 && p.permutation; ++c) {
+    int nonzero = 0;
+    for (int r = 0; r < 3; ++r) {
+      if (R(r, c) == 0.0) continue;
+      ++nonzero;
+      p.perm[c] = r;
+      p.sign[c] = R(r, c);
+    }
+    p.permutation = nonzero == 1 && std::abs(p.sign[c]) == 1.0;
+  }
+  if (!p.permutation) p = LinkPlan{};
+  for (int k = 0; k < 3; ++k) {
+    if (L.axis(k) == 1.0 && L.axis((k + 1) % 3) == 0.0 && L.axis((k + 2) % 3) == 0.0) p.axis = k;
+    if (L.origin_translation(k) != 0.0) p.term[p.terms++] = k;
+  }
+  p.massless = L.mass == 0.0 && L.inertia.isZero(0.0);
+  return p;
+}
+
+// theta_of when T is the identity (identity_map): θ = offset + q, θ̇ = q̇ (qd may be null), the
+// same values without the terms' loops.
+void theta_of_identity(const std::vector<double>& offset, const double* q, const double* qd,
+                       double* theta, double* thetad) {
+  for (std::size_t a = 0; a < offset.size(); ++a) {
+    theta[a] = offset[a] + q[a];
+    if (qd) thetad[a] = 0.0 + qd[a];
+  }
+}
+
+// True if T is the identity: one variable per coordinate, variable i being coordinate i with
+// coefficient 1 (an arm whose joints each have a coordinate of their own, in order). Then
+// Tᵀ X T = X and Tᵀ x = x: copies.
+bool identity_map(const std::vector<std::vector<Term>>& T, Index coordinates) {
+  if (static_cast<Index>(T.size()) != coordinates) return false;
+  for (std::size_t i = 0; i < T.size(); ++i) {
+    if (T[i].size() != 1 || T[i][0].coordinate != static_cast<Index>(i) ||
+        T[i][0].coefficient != 1.0)
+      return false;
+  }
+  return true;
+}
+
+ForwardPlan forward_plan(const Model& m, const std::vector<int>& ti, bool identity) {
+  ForwardPlan plan;
+  plan.identity = identity;
+  plan.every_pair = true;
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    LinkPlan p = link_plan(m.links[i]);
+    p.ancestors = plan.ancestors.size();
+    for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
+      const auto ju = static_cast<std::size_t>(j);
+      if (ti[ju] >= 0) plan.ancestors.emplace_back(ju, ti[ju]);
+    }
+    p.ancestors_end = plan.ancestors.size();
+    if (ti[i] >= 0 && static_cast<int>(p.ancestors_end - p.ancestors) != ti[i])
+      plan.every_pair = false;
+    plan.links.push_back(p);
+  }
+  return plan;
+}
+
+// The joint frame Rj = Rp origin_rotation; with the plan's signed permutation its columns are
+// Rp's, signed (the product's value: the other two terms of each entry are exact zeros).
+Eigen::Matrix3d joint_frame(const Eigen::Matrix3d& Rp, const Link& L, const LinkPlan& P) {
+  if (!P.permutation) return Rp * L.origin_rotation;
+  Eigen::Matrix3d Rj;
+  for (int c = 0; c < 3; ++c) Rj.col(c) = Rp.col(P.perm[c]) * P.sign[c];
+  return Rj;
+}
+
+// A link's own inertia for the rigid passes: its CoM c, Ic = R I Rᵀ, and the inertia about the
+// world origin written as the start of the composite sums (m, h, I). The own Ī and k are not
+// kept apart (link_force_rigid reads c and Ic, the CRBA and G the composite sums); h_own is
+// (potential() reads it).
+void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
+  if (massless) {
+    w.m_own = 0.0;
+    w.h_own.setZero();
+    w.Ic.setZero();
+    w.c = w.p;
+    w.m = 0.0;
+    w.h.setZero();
+    w.I.setZero();
+    return;
+  }
+  w.c = w.p + w.R * L.com;
+  w.m_own = L.mass;
+  w.h_own = w.c * L.mass;
+  // own_inertia's sums column by column (vectorised; the same products in the same order), the
+  // upper triangle mirrored.
+  const Eigen::Matrix3d T = w.R * L.inertia;
+  w.Ic.noalias() = T * w.R.transpose();
+  w.Ic(1, 0) = w.Ic(0, 1);
+  w.Ic(2, 0) = w.Ic(0, 2);
+  w.Ic(2, 1) = w.Ic(1, 2);
+  const Eigen::Vector3d mc = L.mass * w.c;
+  for (int b = 0; b < 3; ++b) w.I.col(b) = w.Ic.col(b) - mc * w.c(b);
+  const double mc2 = L.mass * dot3(w.c, w.c);
+  for (int a = 0; a < 3; ++a) w.I(a, a) += mc2;
+  w.m = L.mass;
+  w.h = w.h_own;
+}
+
+// place() for a tree without ball joints, with the plan (TreeSubsystem's constructor): the joint
+// frame as a signed permutation of the parent's axes, the translation by its nonzero entries,
+// a revolute joint about a coordinate axis by place_revolute's column mixing; then
+// own_inertia_rigid. Writes what frame_twists and potential() read of the slot (R, p, the axes
+// with sl = 0) as place() does.
+void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
+                 const double* theta, LinkState<double>* ws) {
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const Link& L = m.links[i];
+    const LinkPlan& P = plan.links[i];
+    LinkState<double>& w = ws[i];
+    const bool root = L.parent < 0;
+    const Eigen::Matrix3d& Rp = root ? m.root_rotation : ws[L.parent].R;
+    const Eigen::Vector3d& pp = root ? m.root_translation : ws[L.parent].p;
+    const Eigen::Matrix3d Rj = joint_frame(Rp, L, P);
+    Eigen::Vector3d t = Eigen::Vector3d::Zero();
+    for (int k = 0; k < P.terms; ++k) t += Rp.col(P.term[k]) * L.origin_translation(P.term[k]);
+    const Eigen::Vector3d pj = pp + t;
+    w.sc = 1.0;
+    w.sl[0] = 0.0;
+    if (L.type == JointType::revolute) {
+      if (P.axis >= 0) {
+        turn_about_axis<double>(P.axis, Rj, theta[ti[i]], w);
+      } else {
+        place_revolute<double>(L.axis, Rj, theta[ti[i]], w);
+      }
+      w.p = pj;
+      w.sv[0] = pj.cross(w.sw[0]);
+    } else if (L.type == JointType::prismatic) {
+      w.R = Rj;
+      w.sw[0].setZero();
+      w.sv[0] = P.axis >= 0 ? Eigen::Vector3d(Rj.col(P.axis)) : Eigen::Vector3d(Rj * L.axis);
+      w.p = pj + w.sv[0] * theta[ti[i]];
+    } else {
+      w.R = Rj;
+      w.p = pj;
+    }
+    own_inertia_rigid(L, P.massless, w);
+  }
+}
+
+// composite() for the rigid passes: place_rigid started the sums; k is not summed (no scales).
+void composite_rigid(const Model& m, LinkState<double>* ws) {
+  for (std::size_t i = m.links.size(); i-- > 0;) {
+    const int p = m.links[i].parent;
+    if (p < 0) continue;
+    ws[p].m += ws[i].m;
+    ws[p].h += ws[i].h;
+    ws[p].I += ws[i].I;
+  }
+}
+
+// crba_rigid and gravity_forces in one pass over the links, the ancestors from the plan (the
+// same sums in the same order). Mt (leading dimension ld) is zeroed first unless every pair of
+// joint variables is a link and its ancestor (a serial chain: then every entry is written).
+void crba_gravity_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
+                        const LinkState<double>* ws, double* Mt, Index nt, Index ld, double* G) {
+  if (!plan.every_pair) {
+    for (Index j = 0; j < nt; ++j)
+      for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = 0.0;
+  }
+  const Eigen::Vector3d& g = m.gravity;
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    const int a = ti[i];
+    if (a < 0) continue;
+    const LinkState<double>& w = ws[i];
+    Eigen::Vector3d n, f;
+    apply_inertia(w.m, w.h, w.I, w.sw[0], w.sv[0], n, f);
+    Mt[a + a * ld] = dot3(w.sw[0], n) + dot3(w.sv[0], f);
+    const LinkPlan& P = plan.links[i];
+    for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k) {
+      const auto [j, b] = plan.ancestors[k];
+      const double v = dot3(ws[j].sw[0], n) + dot3(ws[j].sv[0], f);
+      Mt[a + b * ld] = v;
+      Mt[b + a * ld] = v;
+    }
+    const Eigen::Vector3d gn = -w.h.cross(g), gf = -g * w.m;
+    G[a] = dot3(w.sw[0], gn) + dot3(w.sv[0], gf);
+  }
+}
+
+// link_force's rigid case on the CoM: ċ = v_O + ω × c, c̈ = a_O + α × c + ω × ċ, f = m c̈,
+// n = c × f + Ic α + ω × Ic ω (Newton–Euler about the CoM, moved to the world origin; its
+// scaled form above with λ = 0). Reads c and Ic only, not the own Ī.
+void link_force_rigid(bool massless, LinkState<double>& w) {
+  w.fe = 0.0;
+  if (massless) {
+    w.fn.setZero();
+    w.ff.setZero();
+    return;
+  }
+  const Eigen::Vector3d cd = w.vv + w.vw.cross(w.c);
+  const Eigen::Vector3d cdd = w.av + w.aw.cross(w.c) + w.vw.cross(cd);
+  w.ff = cdd * w.m_own;
+  w.fn = w.c.cross(w.ff) + w.Ic * w.aw + w.vw.cross(Eigen::Vector3d(w.Ic * w.vw));
+}
+
+// The velocity products C(θ, θ̇) θ̇ of a tree without ball joints (inverse_dynamics at θ̈ = 0
+// without gravity): each link's motion (link_motion, a_0 = 0) and own force in one forward pass,
+// then τ and the sums into the parents in one backward pass.
+void velocity_products_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
+                             const double* thetad, LinkState<double>* ws, double* tau) {
+  for (std::size_t i = 0; i < m.links.size(); ++i) {
+    LinkState<double>& w = ws[i];
+    const int p = m.links[i].parent;
+    Eigen::Vector3d vw = Eigen::Vector3d::Zero(), vv = vw, aw = vw, av = vw;
+    if (p >= 0) {
+      vw = ws[p].vw;
+      vv = ws[p].vv;
+      aw = ws[p].aw;
+      av = ws[p].av;
+    }
+    if (ti[i] >= 0) {  // joint_motion's rigid case at θ̈ = 0, on locals
+      const double qd = thetad[ti[i]];
+      const Eigen::Vector3d sw = w.sw[0], sv = w.sv[0];
+      aw += vw.cross(sw) * qd;
+      av += (vw.cross(sv) + vv.cross(sw)) * qd;
+      vw += sw * qd;
+      vv += sv * qd;
+    }
+    w.vw = vw;
+    w.vv = vv;
+    w.aw = aw;
+    w.av = av;
+    w.vl = 0.0;
+    w.al = 0.0;
+    link_force_rigid(plan.links[i].massless, w);
+  }
+  for (std::size_t i = m.links.size(); i-- > 0;) {
+    const LinkState<double>& w = ws[i];
+    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw[0], w.fn) + dot3(w.sv[0], w.ff);
+    const int p = m.links[i].parent;
+    if (p >= 0) {
+      ws[p].fn += w.fn;
+      ws[p].ff += w.ff;
+    }
+  }
+}
+
+}  // namespace
+
 // ------------------------------------------------------------------------------ validation
 
 void validate(const Model& model) {
@@ -858,6 +1171,7 @@ Model merge_fixed_links(const Model& m, bool merge, std::vector<TreeSubsystem::P
 TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(model)) {
   validate(model_);
   merged_ = merge_fixed_links(model_, merge_fixed, placement_, potential0_);
+  for (Link& L : merged_.links) snap_permutation(L.origin_rotation);
   theta_index_.assign(merged_.links.size(), -1);
   for (std::size_t i = 0; i < merged_.links.size(); ++i) {
     const Link& L = merged_.links[i];
@@ -873,6 +1187,8 @@ TreeSubsystem::TreeSubsystem(Model model, bool merge_fixed) : model_(std::move(m
       ++n_theta_;
     }
   }
+  plan_ = std::make_shared<const ForwardPlan>(
+      forward_plan(merged_, theta_index_, identity_map(theta_terms_, dof())));
   // The forward workspace, then the derivatives': the analytic pass (inverse_dynamics_jacobian(),
   // frame_state_jacobian()) and dual numbers (inverse_dynamics_tangent()), or the Christoffel
   // matrix's lanes (coriolis()).
@@ -920,19 +1236,6 @@ void theta_of(const std::vector<std::vector<Term>>& T, const std::vector<double>
   }
 }
 
-// True if T is the identity: one variable per coordinate, variable i being coordinate i with
-// coefficient 1 (an arm whose joints each have a coordinate of their own, in order). Then
-// Tᵀ X T = X and Tᵀ x = x: copies.
-bool identity_map(const std::vector<std::vector<Term>>& T, Index coordinates) {
-  if (static_cast<Index>(T.size()) != coordinates) return false;
-  for (std::size_t i = 0; i < T.size(); ++i) {
-    if (T[i].size() != 1 || T[i][0].coordinate != static_cast<Index>(i) ||
-        T[i][0].coefficient != 1.0)
-      return false;
-  }
-  return true;
-}
-
 // M_q = Tᵀ M_θ T.
 void to_coordinates(const std::vector<std::vector<Term>>& T, const double* Mt, MatRef M) {
   const auto nt = static_cast<Index>(T.size());
@@ -967,12 +1270,52 @@ void to_coordinates(const std::vector<std::vector<Term>>& T, const double* x, Ve
 
 }  // namespace
 
+namespace {
+
+// M_θ (leading dimension ld) and G_θ of a tree without ball joints: place_rigid, the composite
+// sums, crba_gravity_rigid.
+void dynamics_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
+                    const Workspace& w, Index nt, double* Mt, Index ld, double* G) {
+  place_rigid(m, plan, ti, w.theta, w.links);
+  composite_rigid(m, w.links);
+  crba_gravity_rigid(m, plan, ti, w.links, Mt, nt, ld, G);
+}
+
+// θ (and θ̇: qd may be null) of q, q̇: theta_of_identity when the plan says T is the identity.
+void theta_at(const ForwardPlan& plan, const std::vector<std::vector<Term>>& T,
+              const std::vector<double>& offset, const double* q, const double* qd, double* theta,
+              double* thetad) {
+  if (plan.identity) {
+    theta_of_identity(offset, q, qd, theta, thetad);
+  } else {
+    theta_of(T, offset, q, qd, theta, thetad);
+  }
+}
+
+// The links placed at θ: place_rigid without ball joints (every entry point of the forward
+// dynamics places them so, so that dynamics() and mass(), coriolis_times_qd(), gravity(),
+// potential() and frame_twists() give the same bits), else place().
+void place_for(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti, bool quat,
+               const double* theta, LinkState<double>* ws) {
+  if (quat) {
+    place(m, ti, quat, theta, ws);
+  } else {
+    place_rigid(m, plan, ti, theta, ws);
+  }
+}
+
+}  // namespace
+
 void TreeSubsystem::mass(const EvalContext& c, CVecRef q, MatRef M) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, quaternions_, w.theta, w.links);
-    composite(merged_, w.links);
-    crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    if (quaternions_) {
+      place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      composite(merged_, w.links);
+      crba(merged_, theta_index_, quaternions_, w.links, w.Mt, n_theta_);
+    } else {  // G_θ comes along in τ's room
+      dynamics_rigid(merged_, *plan_, theta_index_, w, n_theta_, w.Mt, n_theta_, w.tau);
+    }
     to_coordinates(theta_terms_, w.Mt, M);
   });
 }
@@ -980,20 +1323,29 @@ void TreeSubsystem::mass(const EvalContext& c, CVecRef q, MatRef M) const {
 void TreeSubsystem::coriolis_times_qd(const EvalContext& c, CVecRef q, CVecRef qd,
                                       VecRef Cqd) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
-    place(merged_, theta_index_, quaternions_, w.theta, w.links);
-    inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false, w.links,
-                             w.tau);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    if (quaternions_) {
+      place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      inverse_dynamics<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr, false,
+                               w.links, w.tau);
+    } else {
+      place_rigid(merged_, *plan_, theta_index_, w.theta, w.links);
+      velocity_products_rigid(merged_, *plan_, theta_index_, w.thetad, w.links, w.tau);
+    }
     to_coordinates(theta_terms_, w.tau, Cqd);
   });
 }
 
 void TreeSubsystem::gravity(const EvalContext& c, CVecRef q, VecRef G) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, quaternions_, w.theta, w.links);
-    composite(merged_, w.links);
-    gravity_forces(merged_, theta_index_, quaternions_, w.links, w.tau);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    if (quaternions_) {
+      place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      composite(merged_, w.links);
+      gravity_forces(merged_, theta_index_, quaternions_, w.links, w.tau);
+    } else {  // M_θ comes along in its room
+      dynamics_rigid(merged_, *plan_, theta_index_, w, n_theta_, w.Mt, n_theta_, w.tau);
+    }
     to_coordinates(theta_terms_, w.tau, G);
   });
 }
@@ -1035,8 +1387,8 @@ double TreeSubsystem::potential(CVecRef q, ConstSlot placed, Slot scratch) const
   if (links) return of_links(links);
   double V = 0.0;
   with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
-    place(merged_, theta_index_, quaternions_, w.theta, w.links);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), nullptr, w.theta, nullptr);
+    place_for(merged_, *plan_, theta_index_, quaternions_, w.theta, w.links);
     V = of_links(w.links);
   });
   return V;
@@ -1045,11 +1397,24 @@ double TreeSubsystem::potential(CVecRef q, ConstSlot placed, Slot scratch) const
 double TreeSubsystem::dynamics(const EvalContext& c, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                                VecRef G) const {
   with_workspace(c.slot, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    // θ = q (each joint its own coordinate, in order): the passes write M, G, C q̇ themselves.
+    const bool direct = plan_->identity;
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    if (!quaternions_) {
+      dynamics_rigid(merged_, *plan_, theta_index_, w, n_theta_, direct ? M.data() : w.Mt,
+                     direct ? M.outerStride() : n_theta_, direct ? G.data() : w.tau);
+      if (!direct) {
+        to_coordinates(theta_terms_, w.Mt, M);
+        to_coordinates(theta_terms_, w.tau, G);
+      }
+      velocity_products_rigid(merged_, *plan_, theta_index_, w.thetad, w.links,
+                              direct ? Cqd.data() : w.tau);
+      mark_moved(w, this);  // the motions frame_twists reuses
+      if (!direct) to_coordinates(theta_terms_, w.tau, Cqd);
+      return;
+    }
     place(merged_, theta_index_, quaternions_, w.theta, w.links);
     composite(merged_, w.links);
-    // θ = q (each joint its own coordinate, in order): the passes write M, G, C q̇ themselves.
-    const bool direct = identity_map(theta_terms_, M.rows());
     if (direct) {
       crba(merged_, theta_index_, quaternions_, w.links, M.data(), n_theta_, M.outerStride());
     } else {
@@ -1402,11 +1767,11 @@ void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
   const MergedFrame at = merged_frame(placement_, frame_link, R_offset, x_offset);
   const std::size_t nl = merged_.links.size();
   with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
     const LinkState<double>* links =
         placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
     if (!links) {  // not placed at this state: the pass of frame_state
-      place(merged_, theta_index_, quaternions_, w.theta, w.links);
+      place_for(merged_, *plan_, theta_index_, quaternions_, w.theta, w.links);
       link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
                           Eigen::Vector3d::Zero(), w.links);
       mark_moved(w, this);
@@ -1425,8 +1790,8 @@ void TreeSubsystem::frame_state(CVecRef q, CVecRef qd, int frame_link,
   const MergedFrame at = merged_frame(placement_, frame_link, frame_R_offset, frame_x_offset);
   const int link = at.link;
   with_workspace(scratch, slot_size_, merged_.links.size(), n_theta_, [&](Workspace w) {
-    theta_of(theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
-    place(merged_, theta_index_, quaternions_, w.theta, w.links);
+    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+    place_for(merged_, *plan_, theta_index_, quaternions_, w.theta, w.links);
     link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
                         Eigen::Vector3d::Zero(), w.links);
     mark_moved(w, this);

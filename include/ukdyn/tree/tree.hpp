@@ -32,6 +32,8 @@
 
 namespace ukdyn::tree {
 
+struct ForwardPlan;  // src/tree/tree.cpp: what the forward passes know of each link in advance
+
 /// floating: 7 terms (x, y, z, qw, qx, qy, qz), ball: 4 terms (qw, qx, qy, qz), one coordinate each
 /// with coefficient 1; their axis and offset are not used.
 enum class JointType { revolute, prismatic, fixed, floating, ball };
@@ -215,6 +217,7 @@ class TreeSubsystem : public Subsystem, public SubsystemColumns {
   std::vector<std::vector<Term>> theta_terms_;  // per joint variable: θ = Σ terms (+ offset)
   std::vector<double> theta_offset_;            // per joint variable
   bool quaternions_ = false;                    // merged_ has ball joints (floating ones split)
+  std::shared_ptr<const ForwardPlan> plan_;     // per link of merged_ (tree.cpp)
   Index n_theta_ = 0;
   Index slot_size_ = 0;
 };
