@@ -31,6 +31,7 @@ class HiddenSparsity final : public ukdyn::Constraint {
     return inner_->row_names();
   }
   [[nodiscard]] Index slot_size() const override { return inner_->slot_size(); }
+  [[nodiscard]] Index shared_slot_size() const override { return inner_->shared_slot_size(); }
   void evaluate(const ukdyn::ConstraintContext& c, ukdyn::CVecRef q, ukdyn::CVecRef qd,
                 ukdyn::MatRef A, ukdyn::VecRef b) const override {
     inner_->evaluate(c, q, qd, A, b);

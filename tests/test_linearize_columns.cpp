@@ -186,6 +186,61 @@ TEST(DerivedColumns, StructuralOnlyWritesTheRowColumnsAlone) {
   }
 }
 
+// The numeric frame rows keep their ends' J in the scratch every constraint of a ForwardData shares
+// (ConstraintSlots::shared(), after the slots): the data holds the largest shared_slot_size() once,
+// and a call must write every entry it reads there. The area is filled with NaN before each call
+// (what another constraint could leave) and the tangents must equal, bit for bit, those of the
+// same call on a zeroed area; the call must have written the area (it is in use). Then linearize()
+// with the area NaN-filled between calls against a fresh LinearizeData, every part.
+TEST(DerivedColumns, SharedScratchCarriesNothingBetweenCalls) {
+  for (const char* name : {"n_robots_4_weld.yaml", "two_ur5e_load.yaml", "four_panda_plate.yaml"}) {
+    SCOPED_TRACE(name);
+    const Scenario sc = load_scenario(kSource / "scenarios" / name);
+    const System& sys = *sc.system;
+    const Index n = sys.dof();
+    const State s = moving_state(sc);
+    ForwardData fd(sys);
+    Index largest = 0;
+    for (const auto& con : sys.constraints()) largest = std::max(largest, con->shared_slot_size());
+    ASSERT_GT(largest, 0);
+    ASSERT_EQ(fd.slots.size(), fd.slot_start.back() + largest);
+    auto shared = fd.slots.tail(largest);
+    forward(sys, fd, sc.sim.t0, s.q, s.qd, s.tau);
+    int numeric = 0;
+    for (std::size_t c = 0; c < sys.constraints().size(); ++c) {
+      const Constraint& con = *sys.constraints()[c];
+      const auto* all = dynamic_cast<const ConstraintColumns*>(&con);
+      if (all == nullptr || con.shared_slot_size() == 0) continue;
+      const Index m = con.rows();
+      const ConstraintContext ctx{sc.sim.t0, fd.constraint_slots(c), true};
+      ASSERT_EQ(ctx.slots.shared().size(), static_cast<std::size_t>(largest));
+      const Vec lambda = Vec::LinSpaced(m, -1.0, 1.0);
+      Mat r_zero = Mat::Zero(m, 2 * n), r_nan = Mat::Zero(m, 2 * n);
+      Mat f_zero = Mat::Zero(n, 2 * n), f_nan = Mat::Zero(n, 2 * n);
+      shared.setZero();
+      ASSERT_TRUE(all->tangent_columns(ctx, s.q, s.qd, fd.qdd, lambda, r_zero, f_zero));
+      shared.setConstant(std::nan(""));
+      ASSERT_TRUE(all->tangent_columns(ctx, s.q, s.qd, fd.qdd, lambda, r_nan, f_nan));
+      EXPECT_TRUE(r_nan.array().isFinite().all() && f_nan.array().isFinite().all());
+      EXPECT_EQ(r_nan, r_zero) << "constraint " << c;
+      EXPECT_EQ(f_nan, f_zero) << "constraint " << c;
+      EXPECT_GT(shared.array().isFinite().count(), 0) << "constraint " << c << " left it unused";
+      ++numeric;
+    }
+    EXPECT_GE(numeric, 2);  // the welds' numeric rows
+    LinearizeData fresh(sys), reused(sys);
+    linearize(sys, fresh, sc.sim.t0, s.q, s.qd, s.tau);
+    for (int k = 0; k < 2; ++k) {
+      reused.fwd.slots.tail(largest).setConstant(std::nan(""));
+      linearize(sys, reused, sc.sim.t0, s.q, s.qd, s.tau);
+    }
+    EXPECT_EQ(reused.lin.dqdd_dq, fresh.lin.dqdd_dq);
+    EXPECT_EQ(reused.lin.dqdd_dqd, fresh.lin.dqdd_dqd);
+    EXPECT_EQ(reused.lin.dQc_dq, fresh.lin.dQc_dq);
+    EXPECT_EQ(reused.lin.dQc_dqd, fresh.lin.dQc_dqd);
+  }
+}
+
 // linearize() with the KKT system solved by the Schur complement (the row choice's Cholesky and QR
 // factors) against the LU of the whole KKT matrix (allow_schur = false), every part: the same rows
 // and trust, every matrix within 1e-12 relative.

@@ -159,7 +159,9 @@ ForwardData::ForwardData(const System& system)
       singular(system.layout(), system.rows()),
       slot_start(slot_starts(system)),
       system_(&system) {
-  slots = Vec::Zero(slot_start.back());
+  Index shared = 0;
+  for (const auto& con : system.constraints()) shared = std::max(shared, con->shared_slot_size());
+  slots = Vec::Zero(slot_start.back() + shared);
   // Blocks whose M is singular at every state (core/uk_singular.hpp): M_k at three fixed
   // pseudo-random states (components in [-1, 1]), smallest eigenvalue under 1e-10 of the largest.
   const auto& subs = system.subsystems();
@@ -207,8 +209,10 @@ ConstraintSlots ForwardData::constraint_slots(std::size_t c) {
   const Slot own{slots.data() + slot_start[i],
                  static_cast<std::size_t>(slot_start[i + 1] - slot_start[i])};
   const auto& starts = system_->layout().start;
+  const Index end = slot_start.back();
   return {own, slots.data(), std::span<const Index>(starts.data(), starts.size()),
-          std::span<const Index>(slot_start.data(), subs + 1)};
+          std::span<const Index>(slot_start.data(), subs + 1),
+          Slot{slots.data() + end, static_cast<std::size_t>(slots.size() - end)}};
 }
 
 void check_data_for(const System& system, const ForwardData& data, const char* where) {

@@ -1289,9 +1289,12 @@ class Core {
   // tape tangents' room of an expressions end (as much as its scratch).
   [[nodiscard]] Index slot_size() const {
     const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
-    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_) +
-           lane_room(a_) + lane_room(b_);
+    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
   }
+  // tangent_columns()'s ends' J (lane_room): dead once its columns are written, so they live in
+  // the scratch every constraint of a ForwardData shares (ConstraintSlots::shared()), not in this
+  // constraint's slot: N welds then reuse one area that stays cached instead of streaming N.
+  [[nodiscard]] Index shared_size() const { return lane_room(a_) + lane_room(b_); }
 
   // The two ends' states and the rows at (q, q̇) with `slot` (slot_size() doubles); f gets
   // (a, b, rows).
@@ -1299,6 +1302,13 @@ class Core {
   double* room(Slot slot, std::vector<double>& own) const {
     if (static_cast<Index>(slot.size()) >= slot_size()) return slot.data();
     own.assign(static_cast<std::size_t>(slot_size()), 0.0);
+    return own.data();
+  }
+  // The shared scratch's room (shared_size() doubles), or `own` sized to it when it is smaller.
+  double* shared_room(const ConstraintSlots& slots, std::vector<double>& own) const {
+    const Slot shared = slots.shared();
+    if (static_cast<Index>(shared.size()) >= shared_size()) return shared.data();
+    own.assign(static_cast<std::size_t>(shared_size()), 0.0);
     return own.data();
   }
 
@@ -1446,18 +1456,18 @@ class Core {
   bool tangent_columns(const ConstraintSlots& slots, CVecRef q, CVecRef qd, CVecRef qdd,
                        CVecRef lambda, MatRef d_residual, MatRef d_force, bool structural,
                        bool on_lanes = false) const {
-    std::vector<double> own;
+    std::vector<double> own, own_j;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
     double* sa = base;
     double* sb = sa + a_.scratch;
-    double* va = sb + b_.scratch;  // the layout of tangent(), then the ends' J (lane_room)
+    double* va = sb + b_.scratch;  // the layout of tangent()
     double* vb = va + 12 * na;
     double* ta = vb + 12 * nb;
     double* tb = ta + 12 * na;
     double* xa = tb + 12 * nb;
     double* xb = xa + tangent_room(a_);
-    double* ja = xb + tangent_room(b_);
+    double* ja = shared_room(slots, own_j);  // the ends' J (lane_room), every entry written
     double* jb = ja + lane_room(a_);
     FrameState Va(va, va + 3 * na, na), Vb(vb, vb + 3 * nb, nb);
     LaneEnd A = lane_end(a_, slots, q, qd, qdd, {sa, xa}, ja, Va);
@@ -1531,6 +1541,7 @@ class NumericFrameRows final : public Constraint, public ConstraintColumns {
     return core_->names();
   }
   [[nodiscard]] Index slot_size() const override { return core_->slot_size(); }
+  [[nodiscard]] Index shared_slot_size() const override { return core_->shared_size(); }
   [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override {
     return std::vector<std::vector<Index>>(static_cast<std::size_t>(rows()), core_->columns());
   }

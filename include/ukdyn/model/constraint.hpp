@@ -11,19 +11,24 @@
 namespace ukdyn {
 
 /// What a constraint sees of one ForwardData's data slots (ForwardData::slots): its own slot
-/// (scratch, slot_size() doubles) and, read-only, the slots its subsystems filled in
-/// dynamics() earlier in the same forward(). A default-constructed view has no slots (every
-/// lookup is empty).
+/// (scratch, slot_size() doubles), the scratch every constraint of the data shares (at least
+/// shared_slot_size() doubles) and, read-only, the slots its subsystems filled in dynamics()
+/// earlier in the same forward(). A default-constructed view has no slots (every lookup is empty).
 class ConstraintSlots {
  public:
   ConstraintSlots() = default;
   /// own: this constraint's slot; starts: the subsystems' first coordinates in q (ascending);
-  /// subsystem k's slot is base[slot_start[k], slot_start[k + 1]) (slot_start has one more entry).
+  /// subsystem k's slot is base[slot_start[k], slot_start[k + 1]) (slot_start has one more entry);
+  /// shared: the scratch shared by every constraint.
   ConstraintSlots(Slot own, const double* base, std::span<const Index> starts,
-                  std::span<const Index> slot_start)
-      : own_(own), base_(base), starts_(starts), slot_start_(slot_start) {}
+                  std::span<const Index> slot_start, Slot shared = {})
+      : own_(own), shared_(shared), base_(base), starts_(starts), slot_start_(slot_start) {}
   /// This constraint's slot (empty if it declared none).
   [[nodiscard]] Slot own() const { return own_; }
+  /// The scratch every constraint of the data shares (the largest shared_slot_size(); empty
+  /// without slots): its content is dead outside one call of one constraint, which may leave
+  /// anything there.
+  [[nodiscard]] Slot shared() const { return shared_; }
   /// The slot of the subsystem whose first coordinate is `first_coordinate` in q (empty if no
   /// subsystem starts there). Its content is whatever that subsystem wrote in dynamics(): a
   /// reader must check that it belongs to the state it evaluates (MobileManipulator keeps the
@@ -44,6 +49,7 @@ class ConstraintSlots {
 
  private:
   Slot own_;
+  Slot shared_;
   const double* base_ = nullptr;
   std::span<const Index> starts_;
   std::span<const Index> slot_start_;
@@ -75,6 +81,10 @@ class Constraint {
   [[nodiscard]] virtual const std::vector<std::string>& row_names() const = 0;
   /// Doubles of data slot this constraint uses (0: none); ForwardData holds one per constraint.
   [[nodiscard]] virtual Index slot_size() const { return 0; }
+  /// Doubles of scratch it needs within one call and never after (0: none): ForwardData holds one
+  /// area of the largest of these, shared by every constraint (ConstraintSlots::shared()), so a
+  /// pass over many constraints reuses the same memory instead of one copy per constraint.
+  [[nodiscard]] virtual Index shared_slot_size() const { return 0; }
   /// Structural sparsity of A: for each row, the columns (coordinates of q, ascending) whose
   /// entries may be non-zero. Empty (the default): not known, every column may be. System uses it
   /// once, when the constraint is added, to find a block-arrow structure (ukdyn/core/uk_arrow.hpp).

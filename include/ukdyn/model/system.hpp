@@ -116,8 +116,10 @@ struct ForwardData {
 
   /// Data slots (Subsystem::slot_size(), Constraint::slot_size()) back to back, zero-filled on
   /// construction: subsystem k's is [slot_start[k], slot_start[k + 1]), constraint c's is block
-  /// subsystems + c. Written and read only within one evaluation (forward(), the residuals); what a
-  /// stage leaves there for a later one carries the state it belongs to (see ConstraintSlots).
+  /// subsystems + c; after slot_start.back() the constraints' shared scratch (the largest
+  /// Constraint::shared_slot_size(), ConstraintSlots::shared()). Written and read only within one
+  /// evaluation (forward(), the residuals); what a stage leaves there for a later one carries the
+  /// state it belongs to (see ConstraintSlots).
   Vec slots;
   std::vector<Index> slot_start;  ///< subsystems + constraints + 1 entries
 

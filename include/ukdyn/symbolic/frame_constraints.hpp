@@ -185,6 +185,7 @@ class FrameConstraint final : public Constraint, public ConstraintColumns {
     return c_->row_names();
   }
   [[nodiscard]] Index slot_size() const override { return c_->slot_size(); }
+  [[nodiscard]] Index shared_slot_size() const override { return c_->shared_slot_size(); }
   [[nodiscard]] std::vector<std::vector<Index>> row_columns() const override {
     return c_->row_columns();
   }
