@@ -60,7 +60,9 @@ fuzz() {
   # so an input the loader refuses at that limit is not a finding, and a hang past it still is. The
   # largest accepted seed (Bricard, 0.9 s in a release build) derives in about 5 s under ASan +
   # UBSan on a loaded 2-core machine; a sum of ~500 sines in one body's position (a mutation of
-  # tests/hostile's 600-sine case) takes the whole 60 s before it is refused.
+  # tests/hostile's 600-sine case) took the whole 60 s before it was refused, and is now refused
+  # from the size of its M before the derivatives (380 sines: 3.0 s of CPU here, docs/definitions.md
+  # "Limits").
   "$build/fuzz/$target" "$corpus" "$seeds" -dict="$dict" -max_total_time="$secs" -timeout=90 \
     -report_slow_units=90 \
     -rss_limit_mb=2048 -max_len="$max_len" -artifact_prefix="$artifacts/" -print_final_stats=1 ||

@@ -4,8 +4,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 #include <string>
 
+#include "symbolic/mass_matrix_size.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
@@ -109,6 +111,123 @@ TEST(Limits, ExpandedSizeIsBoundedBeforeExpanding) {
   }
 }
 
+// A random small expression in x, y, sin(x), cos(y) and small integers: sums, products and integer
+// powers (negative too) of depth up to `depth`.
+GiNaC::ex random_expression(std::mt19937& rng, const GiNaC::ex& x, const GiNaC::ex& y, int depth) {
+  auto pick = [&](int n) { return static_cast<int>(rng() % static_cast<unsigned>(n)); };
+  const GiNaC::ex leaves[] = {x, y, GiNaC::sin(x), GiNaC::cos(y), 2, -1, 3};
+  if (depth == 0 || pick(4) == 0) return leaves[pick(7)];
+  const int kind = pick(3), arity = 2 + pick(2);
+  if (kind == 2) return GiNaC::pow(random_expression(rng, x, y, depth - 1), pick(5) - 1);
+  GiNaC::ex r = kind == 0 ? 0 : 1;
+  for (int k = 0; k < arity; ++k) {
+    const GiNaC::ex c = random_expression(rng, x, y, depth - 1);
+    r = kind == 0 ? r + c : r * c;
+  }
+  return r;
+}
+
+// The bound on the terms of an expansion that check_expression_size() refuses on is an upper
+// bound: never below the terms of GiNaC's expand(), on random small expressions. The bound B(e) is
+// seen through the limit: e · P with P = A B + C (A, B, C sums of fresh symbols, P expanding to
+// exactly K = |A| |B| + |C| terms, the least K with N K past the limit, N the terms of e's
+// expansion) expands to exactly N K terms, so it must be refused; kept, B(e) K ≤ the limit < N K.
+TEST(Limits, ExpansionBoundIsNeverBelowTheExpansion) {
+  sym::SymbolTable symbols;
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"),
+                  y = sym::coordinate_symbol(symbols, "y");
+  auto fresh_sum = [](long n, const std::string& name) {
+    GiNaC::ex s = 0;
+    for (long k = 0; k < n; ++k) s += GiNaC::symbol(name + std::to_string(k));
+    return s;
+  };
+  std::mt19937 rng(20261205);
+  int checked = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    const GiNaC::ex e = random_expression(rng, x, y, 3);
+    const GiNaC::ex expanded = e.expand();
+    const long n = expanded.is_zero()                  ? 0
+                   : GiNaC::is_a<GiNaC::add>(expanded) ? static_cast<long>(expanded.nops())
+                                                       : 1;
+    if (n == 0 || n > 400) continue;
+    const auto limit = static_cast<long>(lim::kExpandedTerms);
+    const long K = limit / n + 1, a = static_cast<long>(std::sqrt(static_cast<double>(K)));
+    const GiNaC::ex P = fresh_sum(a, "a") * fresh_sum(a, "b") + fresh_sum(K - a * a, "c");
+    ASSERT_GT(n * K, limit);
+    EXPECT_THROW(sym::check_expression_size(e * P, "e"), sym::ExpressionError)
+        << e << " expands to " << n << " terms: its bound is below that";
+    ++checked;
+  }
+  EXPECT_GT(checked, 100);
+}
+
+// The nodes of an expression written out (the count check_expression_size() limits).
+double nodes_of(const GiNaC::ex& e) {
+  double n = 1;
+  for (std::size_t k = 0; k < e.nops(); ++k) n += nodes_of(e.op(k));
+  return n;
+}
+
+// mass_matrix_nodes counts the size of each M(i, j) = ∂²T/∂q̇_i∂q̇_j from T's terms before any
+// derivative is taken (so that an entry too large is refused before the derivatives): on random
+// kinetic energies (sums of random coefficients times random functions of q times q̇_i q̇_j, and
+// squares of such velocities) it must be exactly the size of the entry as differentiated.
+TEST(Limits, MassMatrixSizeBeforeTheDerivatives) {
+  sym::SymbolTable symbols;
+  const GiNaC::ex x = sym::coordinate_symbol(symbols, "x"),
+                  y = sym::coordinate_symbol(symbols, "y");
+  const std::vector<GiNaC::symbol> qd = {sym::velocity_symbol(symbols, "x"),
+                                         sym::velocity_symbol(symbols, "y"),
+                                         sym::velocity_symbol(symbols, "z")};
+  const GiNaC::ex coefficients[] = {1, GiNaC::numeric(1, 2), 2, -3, GiNaC::numeric(3, 7)};
+  std::mt19937 rng(7);
+  auto pick = [&](int n) { return static_cast<int>(rng() % static_cast<unsigned>(n)); };
+  for (int trial = 0; trial < 300; ++trial) {
+    GiNaC::ex T = 0;
+    const int terms = 1 + pick(6);
+    for (int k = 0; k < terms; ++k) {
+      const GiNaC::ex f = pick(3) == 0 ? GiNaC::ex(1) : random_expression(rng, x, y, 2);
+      if (pick(3) == 0) {  // ½ m v², v a sum of functions times velocities
+        const GiNaC::ex v = f * qd[pick(3)] + random_expression(rng, x, y, 1) * qd[pick(3)];
+        T += coefficients[pick(5)] * v * v;
+      } else {
+        T += coefficients[pick(5)] * f * qd[pick(3)] * qd[pick(3)];
+      }
+    }
+    T = T.expand();
+    const std::vector<double> nodes = sym::mass_matrix_nodes(T, qd);
+    for (std::size_t i = 0; i < 3; ++i) {
+      for (std::size_t j = i; j < 3; ++j) {
+        const GiNaC::ex m = T.diff(qd[i]).diff(qd[j]).expand();
+        EXPECT_EQ(nodes[i * 3 + j], nodes_of(m)) << "M(" << i << ", " << j << ") of T = " << T;
+      }
+    }
+  }
+}
+
+// A position of 200 sines of one coordinate: an M(x, x) of 20100 terms, about 2.2 · 10^5 nodes, is
+// refused before it is derived, naming the entry and the limit; 60 sines derive.
+TEST(Limits, MassMatrixEntryTooLargeIsRefusedBeforeItIsDerived) {
+  auto sines = [](int n) {
+    sym::SubsystemDef d("s", {"x", "phi"});
+    std::string p;
+    for (int k = 1; k <= n; ++k) p += (k > 1 ? "+" : "") + ("sin(" + std::to_string(k) + "*x)");
+    auto& b = d.add_body("b");
+    b.mass = 1;
+    b.com = {d.parse(p), d.parse("phi"), 0};
+    return d;
+  };
+  try {
+    (void)sym::derive(sines(200));
+    FAIL();
+  } catch (const sym::ExpressionError& e) {
+    EXPECT_NE(std::string(e.what()).find("M(x, x) would be too large (more than 200000 nodes"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_NO_THROW((void)sym::derive(sines(60)));
+}
+
 TEST(Limits, DeadlineNamesThePlace) {
   EXPECT_NO_THROW(sym::Deadline(60.0).check("M(x, x)"));
   try {
@@ -142,6 +261,14 @@ TEST(Limits, CheckedExpansionIsGiNaCsExpansion) {
     EXPECT_TRUE((a - b).expand().is_zero()) << e << ": " << a << " vs " << b;
     EXPECT_TRUE(a.is_equal(b)) << e << ": " << a << " vs " << b;
   }
+  // A sum of ~2.3 · 10^4 distinct terms, more than one combination of the partial sums holds (the
+  // derivative of an expanded square of 150 sines: not marked expanded, so taken term by term).
+  GiNaC::ex sines = 0;
+  for (int k = 1; k <= 150; ++k) sines += GiNaC::sin(k * x);
+  const GiNaC::ex big = (sines * sines).expand().diff(GiNaC::ex_to<GiNaC::symbol>(x));
+  const GiNaC::ex a = sym::expand_checked(big, deadline, "big"), b = big.expand();
+  EXPECT_GT(b.nops(), 20000u);
+  EXPECT_TRUE(a.is_equal(b));
 }
 
 // An 8-link chain with skewed hinge axes (each not along a frame axis, so every rotation entry

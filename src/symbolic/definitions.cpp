@@ -5,10 +5,12 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <set>
 #include <sstream>
 
 #include "symbolic/ex_helpers.hpp"
+#include "symbolic/mass_matrix_size.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
@@ -460,6 +462,28 @@ void check_every_coordinate_used(const DerivationSymbols& s) {
   }
 }
 
+// Refuses an entry of M over limits::kTreeNodes (as check_expression_size() would refuse the
+// derived entry) from its size counted in T's terms, before the derivatives: a position of a few
+// hundred sines of one coordinate gives an M(x, x) of ~10^5 terms, and T.diff(q̇) of ~10^5 terms
+// of nested sines takes seconds (docs/definitions.md, "Limits").
+void check_mass_matrix_size(const SubsystemDerivation& d, const DerivationSymbols& s) {
+  const std::size_t n = s.qd.size();
+  const std::vector<double> nodes = mass_matrix_nodes(d.T, s.qd);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t j = i; j < n; ++j) {
+      if (nodes[i * n + j] <= static_cast<double>(limits::kTreeNodes)) continue;
+      std::ostringstream os;
+      os << "M(" << d.coordinates[i] << ", " << d.coordinates[j]
+         << ") would be too large (more than " << limits::kTreeNodes
+         << " nodes written out: " << static_cast<long long>(nodes[i * n + j])
+         << ", counted from the terms in " << d.coordinates[i] << "_dot*" << d.coordinates[j]
+         << "_dot of the kinetic energy T): write the positions with fewer terms or split the "
+            "subsystem (a serial_chain: dynamics: tree)";
+      throw ExpressionError(os.str(), 0);
+    }
+  }
+}
+
 // M = ∂²T/∂q̇∂q̇ (the paper's Eq. (5) for any T), which must not depend on q̇.
 void derive_mass_matrix(SubsystemDerivation& d, const DerivationSymbols& s,
                         const Deadline& deadline) {
@@ -536,6 +560,77 @@ void derive_velocity_and_gravity_terms(SubsystemDerivation& d, const DerivationS
 
 }  // namespace
 
+namespace {
+
+using VelocityIndex = std::map<ex, std::size_t, GiNaC::ex_is_less>;
+
+// Nodes of e written out, as check_expression_size() counts them (a subexpression at each use),
+// or -1 if e holds a velocity.
+double nodes_written_out(const ex& e, const VelocityIndex& velocity) {
+  if (GiNaC::is_a<GiNaC::symbol>(e) && velocity.count(e)) return -1;
+  double n = 1;
+  for (std::size_t k = 0; k < e.nops(); ++k) {
+    const double c = nodes_written_out(e.op(k), velocity);
+    if (c < 0) return -1;
+    n += c;
+  }
+  return n;
+}
+
+}  // namespace
+
+std::vector<double> mass_matrix_nodes(const ex& T, const std::vector<symbol>& qd) {
+  VelocityIndex velocity;
+  for (std::size_t i = 0; i < qd.size(); ++i) velocity[qd[i]] = i;
+  const std::size_t n = qd.size();
+  std::vector<double> nodes(n * n, 0.0), terms(n * n, 0.0);
+  // One term of T: its velocities, its numeric coefficient c and its other factors; GiNaC writes
+  // the entry's term as c' f (c' = 2 c for a square), c' f1 · f2 ... as one product (one node, c'
+  // one more unless 1), a lone f1 (c' = 1) as f1 and no factor at all as the number c'.
+  auto add_term = [&](const ex& term) {
+    std::size_t v[2], k = 0, factors = 0;
+    double factor_nodes = 0;
+    GiNaC::numeric c = 1;
+    const bool product = GiNaC::is_a<GiNaC::mul>(term);
+    for (std::size_t f = 0; f < (product ? term.nops() : 1); ++f) {
+      const ex factor = product ? term.op(f) : term;
+      const bool square = GiNaC::is_a<GiNaC::power>(factor) && factor.op(1).is_equal(2);
+      if (auto it = velocity.find(square ? factor.op(0) : factor); it != velocity.end()) {
+        if (k + (square ? 2 : 1) > 2) return;  // of degree 3 or more in q̇
+        v[k++] = it->second;
+        if (square) v[k++] = it->second;
+      } else if (GiNaC::is_a<GiNaC::numeric>(factor)) {
+        c = GiNaC::ex_to<GiNaC::numeric>(factor);
+      } else {
+        const double size = nodes_written_out(factor, velocity);
+        if (size < 0) return;  // a velocity inside a function or a power: not quadratic
+        ++factors;
+        factor_nodes += size;
+      }
+    }
+    if (k != 2) return;
+    if (v[0] == v[1]) c *= 2;
+    double entry = 1;  // the number c' alone
+    if (factors == 1 && c.is_equal(1))
+      entry = factor_nodes;
+    else if (factors > 0)
+      entry = 1 + factor_nodes + (c.is_equal(1) ? 0 : 1);
+    const std::size_t at = std::min(v[0], v[1]) * n + std::max(v[0], v[1]);
+    nodes[at] += entry;
+    terms[at] += 1;
+  };
+  if (GiNaC::is_a<GiNaC::add>(T)) {
+    for (std::size_t k = 0; k < T.nops(); ++k) add_term(T.op(k));
+  } else {
+    add_term(T);
+  }
+  for (std::size_t k = 0; k < n * n; ++k) {
+    if (terms[k] == 0) nodes[k] = 1;  // the number 0
+    if (terms[k] > 1) nodes[k] += 1;  // the sum
+  }
+  return nodes;
+}
+
 SubsystemDerivation derive(const SubsystemDef& def) { return derive(def, Deadline()); }
 
 SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline) {
@@ -563,6 +658,7 @@ SubsystemDerivation derive(const SubsystemDef& def, const Deadline& deadline) {
   d.symbols = def.symbol_table();
   d.T = expand_checked(T, deadline, "the kinetic energy T");
   d.V = expand_checked(V, deadline, "the potential energy V");
+  check_mass_matrix_size(d, s);
   // Time-varying iff ∂T/∂t or ∂V/∂t is not identically 0 (a t that cancels, sin(t)^2 + cos(t)^2,
   // leaves the subsystem time-invariant).
   d.time_varying = (d.T.has(s.t) && !simplify_trig(d.T.diff(s.t)).is_zero()) ||

@@ -1,5 +1,6 @@
 #include "ukdyn/symbolic/expression.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -502,9 +503,12 @@ void Deadline::check(const std::string& where) const {
 
 namespace {
 
-// A sum built from expanded parts: kept as a list and combined (like terms added) once the list
-// holds about 10^4 terms, with the deadline checked at each combination, so no one combination
-// is large and a list of many small parts is not combined term by term (quadratic).
+// A sum built from expanded parts: kept as a list and combined (like terms added) once the parts
+// added since the last combination hold about 10^4 terms and at least as many as the combined sum,
+// with the deadline checked at each combination, so no one combination is large, a list of many
+// small parts is not combined term by term, and a sum of N distinct terms costs O(N log N) in all
+// (a threshold of 10^4 alone re-combined the whole sum at every part once it held more: 55 s for
+// the 20100 terms of a sum of 200 sines' M(x, x), docs/definitions.md "Limits").
 class CheckedSum {
  public:
   CheckedSum(const Deadline& deadline, const std::string& where)
@@ -512,11 +516,12 @@ class CheckedSum {
   void add(const ex& part) {
     pending_ += GiNaC::is_a<GiNaC::add>(part) ? part.nops() : 1;
     parts_.push_back(part);
-    if (pending_ > 10000) {
+    if (pending_ > std::max<std::size_t>(10000, folded_)) {
       deadline_.check(where_);
       const ex folded = sum();
       parts_.assign(1, folded);
-      pending_ = GiNaC::is_a<GiNaC::add>(folded) ? folded.nops() : 1;
+      folded_ = GiNaC::is_a<GiNaC::add>(folded) ? folded.nops() : 1;
+      pending_ = 0;
     }
   }
   [[nodiscard]] ex sum() const { return GiNaC::dynallocate<GiNaC::add>(parts_); }
@@ -525,7 +530,8 @@ class CheckedSum {
   const Deadline& deadline_;
   const std::string& where_;
   GiNaC::exvector parts_;
-  std::size_t pending_ = 0;
+  std::size_t folded_ = 0;   // terms of the combined sum parts_[0] (0: none yet)
+  std::size_t pending_ = 0;  // terms of the parts added since
 };
 
 // A · B of two expanded expressions, expanded: a monomial times anything at once (linear in the
