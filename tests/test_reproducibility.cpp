@@ -1,10 +1,11 @@
-// Same input → same output bytes in every process (issue 9, item 3). GiNaC orders the terms of sums
+// Same input → same output bytes in every process. GiNaC orders the terms of sums
 // and products by hash values seeded from addresses (ginac/hash_seed.h), so with address-space
 // randomisation a compiled tape used to add the same terms in a different order in each process
 // (ukdyn/symbolic/canonical.hpp). Every scenario shipped in scenarios/ (benchmarks/ included) is
 // run twice, in two processes, with `ukdyn simulate` (trajectory.csv) and `ukdyn eval` (stdout),
 // on a short horizon; the bytes must be identical. One test per scenario
-// (Shipped/Reproducibility.SameBytesInTwoProcesses/<scenario>).
+// (Shipped/Reproducibility.SameBytesInTwoProcesses/<scenario>). DeriveCli.SameBytesInTwoProcesses
+// does the same for the printed derivations (`ukdyn derive`, every format).
 #include <gtest/gtest.h>
 
 #include <algorithm>

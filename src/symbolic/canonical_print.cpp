@@ -74,7 +74,8 @@ class Printer {
     if (is_a<GiNaC::mul>(e)) return product(e, level);
     if (sum_power(e)) {  // through the product path, where its sign is made canonical
       numeric k = 1;
-      const std::string s = assemble(k, texts({e}, k));
+      const Texts t = texts({e}, k);
+      const std::string s = assemble(k, t);
       return kMul <= level ? open() + s + close() : s;
     }
     if (is_a<GiNaC::power>(e)) return power(e.op(0), e.op(1), level, nullptr);
