@@ -1,10 +1,11 @@
-// Same input → same output bytes in every process (issue 9, item 3). GiNaC orders the terms of sums
+// Same input → same output bytes in every process. GiNaC orders the terms of sums
 // and products by hash values seeded from addresses (ginac/hash_seed.h), so with address-space
 // randomisation a compiled tape used to add the same terms in a different order in each process
 // (ukdyn/symbolic/canonical.hpp). Every scenario shipped in scenarios/ (benchmarks/ included) is
 // run twice, in two processes, with `ukdyn simulate` (trajectory.csv) and `ukdyn eval` (stdout),
 // on a short horizon; the bytes must be identical. One test per scenario
-// (Shipped/Reproducibility.SameBytesInTwoProcesses/<scenario>).
+// (Shipped/Reproducibility.SameBytesInTwoProcesses/<scenario>). DeriveCli.SameBytesInTwoProcesses
+// does the same for the printed derivations (`ukdyn derive`, every format).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -144,6 +145,44 @@ TEST(ReproducibilityList, CoversTheShippedScenarios) {
   EXPECT_NE(std::find(list.begin(), list.end(), "paper.yaml"), list.end());
   EXPECT_TRUE(std::any_of(list.begin(), list.end(),
                           [](const std::string& s) { return s.rfind("benchmarks/", 0) == 0; }));
+}
+
+}  // namespace
+
+#endif  // UKDYN_CLI
+
+#ifdef UKDYN_CLI
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// `ukdyn derive` in every format, twice, in two processes: the same bytes. GiNaC's printers list
+// the terms of a sum in GiNaC's operand order, which differs between processes; the printers of
+// src/symbolic/canonical_print.cpp use an order of their own. A scenario by definitions (both arms
+// of the paper, five constraint blocks) and one by serial chains with a weld to a load
+// (paper_chain.yaml: frame constraints derived from the chains' link poses).
+TEST(DeriveCli, SameBytesInTwoProcesses) {
+  if (ukdyn_test::slurp("/proc/sys/kernel/randomize_va_space").rfind('0', 0) == 0)
+    GTEST_SKIP() << "address-space randomisation is off: two processes would not differ anyway";
+  const ukdyn_test::ScratchDir dir("ukdyn_derive_repro");
+  for (const std::string scenario : {"paper_generic.yaml", "paper_chain.yaml"}) {
+    for (const std::string format : {"latex", "c", "matlab", "text"}) {
+      std::string out[2];
+      for (int k = 0; k < 2; ++k) {
+        const fs::path file = dir.path / (format + "_" + std::to_string(k) + ".txt");
+        const int rc = ukdyn_test::shell(
+            ukdyn_test::sh(UKDYN_CLI) + " derive -f " + format + " " +
+            ukdyn_test::sh((fs::path(UKDYN_SOURCE_DIR) / "scenarios" / scenario).string()) + " > " +
+            ukdyn_test::sh(file.string()) + " 2>&1");
+        ASSERT_EQ(rc, 0) << scenario << " " << format << ": " << ukdyn_test::slurp(file);
+        out[k] = ukdyn_test::slurp(file);
+        ASSERT_GT(out[k].size(), 1000u) << scenario << " " << format;
+      }
+      EXPECT_TRUE(out[0] == out[1])
+          << scenario << ", --format " << format << ": the output differs between two processes";
+    }
+  }
 }
 
 }  // namespace

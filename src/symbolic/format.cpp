@@ -5,12 +5,16 @@
 // a comment; C comments are /* */ with "*/" broken up), a C function name is made an identifier, a
 // symbol whose name is one of the generated names (q, qd, t, M, C, G, Phi, A, b) is renamed with a
 // trailing '_' in C and MATLAB, and the constant pi prints as M_PI in C and pi in MATLAB.
+#include <algorithm>
+#include <map>
 #include <set>
 #include <sstream>
 
+#include "symbolic/canonical_print.hpp"
+#include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
-#include "ukdyn/tree/tree.hpp"
 #include "ukdyn/symbolic/frame_constraints.hpp"
+#include "ukdyn/tree/tree.hpp"
 
 namespace ukdyn::symbolic {
 
@@ -25,16 +29,22 @@ ex collected(const ex& e) {
   GiNaC::exset kernels;
   e.find(GiNaC::sin(GiNaC::wild()), kernels);
   e.find(GiNaC::cos(GiNaC::wild()), kernels);
+  // The kernels in a process-independent order (GiNaC's exset is ordered by address-seeded hashes).
+  std::vector<ex> sorted(kernels.begin(), kernels.end());
+  StructuralOrder order;
+  std::stable_sort(sorted.begin(), sorted.end(),
+                   [&](const ex& a, const ex& b) { return order.compare(a, b) < 0; });
   GiNaC::lst vars;
-  for (const ex& k : kernels) vars.append(k);
-  GiNaC::exset syms;
+  for (const ex& k : sorted) vars.append(k);
+  std::map<std::string, ex> syms;  // by name, not in GiNaC's (process-dependent) walk order
   for (GiNaC::const_preorder_iterator it = e.preorder_begin(); it != e.preorder_end(); ++it) {
     if (GiNaC::is_a<GiNaC::symbol>(*it)) {
       const std::string n = GiNaC::ex_to<GiNaC::symbol>(*it).get_name();
-      if (n == "t" || (n.size() > 4 && n.compare(n.size() - 4, 4, "_dot") == 0)) syms.insert(*it);
+      if (n == "t" || (n.size() > 4 && n.compare(n.size() - 4, 4, "_dot") == 0))
+        syms.emplace(n, *it);
     }
   }
-  for (const ex& s : syms) vars.append(s);
+  for (const auto& [n, s] : syms) vars.append(s);
   if (vars.nops() == 0) return e;
   // Collecting is cosmetic: GiNaC refuses to collect a polynomial in t or a velocity that the
   // expression holds with a non-integer exponent (sqrt(1 − t²) from d/dt acos(t): "mul::ldegree()
@@ -44,6 +54,18 @@ ex collected(const ex& e) {
   } catch (const std::exception&) {
     return e;
   }
+}
+
+// The parameters by name (an exmap is ordered by GiNaC's process-dependent hashes).
+std::vector<std::pair<ex, ex>> by_name(const GiNaC::exmap& params) {
+  std::vector<std::pair<ex, ex>> v(params.begin(), params.end());
+  const auto name = [](const ex& e) {
+    return GiNaC::is_a<GiNaC::symbol>(e) ? GiNaC::ex_to<GiNaC::symbol>(e).get_name()
+                                         : canonical_print(e, Format::text);
+  };
+  std::stable_sort(v.begin(), v.end(),
+                   [&](const auto& a, const auto& b) { return name(a.first) < name(b.first); });
+  return v;
 }
 
 // Printable ASCII only: a control byte (CR, LF, ...) is shown as '?'.
@@ -93,19 +115,9 @@ GiNaC::exmap renames(const ex& e, Format f) {
 std::string print(const ex& e0, Format f, const GiNaC::exmap& rename = {}) {
   ex e = collected(e0);
   if (!rename.empty()) e = e.subs(rename);
-  std::ostringstream os;
-  switch (f) {
-    case Format::latex:
-      os << GiNaC::latex << e;
-      break;
-    case Format::c:
-      os << GiNaC::csrc_double << e.subs(GiNaC::Pi == GiNaC::symbol("M_PI"));
-      break;
-    default:
-      os << GiNaC::dflt << e;
-      break;
-  }
-  std::string s = os.str();
+  // Sums and products in a canonical order, not GiNaC's (canonical_print.hpp).
+  std::string s =
+      canonical_print(f == Format::c ? e.subs(GiNaC::Pi == GiNaC::symbol("M_PI")) : e, f);
   if (f == Format::matlab || f == Format::text) {
     // GiNaC prints the constant π as "Pi".
     std::string out;
@@ -180,16 +192,17 @@ void header(std::ostream& os, Format f, const std::vector<std::string>& coords,
   if (params.empty()) return;
   if (f == Format::latex) {
     line = "parameters:";
-    for (const auto& [s, v] : params)
+    for (const auto& [s, v] : by_name(params))
       line += " " + print(s, Format::text) + " = " + print(v, Format::text) + ";";
     os << comment_line(f, line);
   } else if (f == Format::c) {
-    for (const auto& [s, v] : params) {
+    for (const auto& [s, v] : by_name(params)) {
       const std::string n = print(s, f, rename);
       os << "  const double " << n << " = " << print(v, f) << ";\n  (void)" << n << ";\n";
     }
   } else {
-    for (const auto& [s, v] : params) os << print(s, f, rename) << " = " << print(v, f) << ";\n";
+    for (const auto& [s, v] : by_name(params))
+      os << print(s, f, rename) << " = " << print(v, f) << ";\n";
   }
 }
 
@@ -235,7 +248,7 @@ ex all_symbols(SymbolTable& symbols, const std::vector<std::string>& coords,
     l.append(coordinate_symbol(symbols, c));
     l.append(velocity_symbol(symbols, c));
   }
-  for (const auto& [s, v] : params) l.append(s);
+  for (const auto& [s, v] : by_name(params)) l.append(s);
   return l;
 }
 
@@ -353,9 +366,10 @@ std::string format_system(const System& system, Format f) {
       os << format_derivation(dv, d->name(), f);
       if (f == Format::c) os << "}\n";
     } else if (dynamic_cast<const tree::TreeSubsystem*>(subs[k].get()) != nullptr) {
-      os << comment_line(f, "subsystem '" + subs[k]->name() +
-                                "': dynamics: tree (recursive algorithms, docs/tree-algorithms.md), "
-                                "not derived; dynamics: auto or symbolic derives it");
+      os << comment_line(f,
+                         "subsystem '" + subs[k]->name() +
+                             "': dynamics: tree (recursive algorithms, docs/tree-algorithms.md), "
+                             "not derived; dynamics: auto or symbolic derives it");
     } else {
       os << comment_line(
           f, "subsystem '" + subs[k]->name() + "': built-in closed-form model, not derived");
