@@ -348,7 +348,7 @@ std::size_t tape_work(const std::vector<ex>& outputs, std::size_t limit, const s
       os << "compiling the tapes would take more than " << limit << " operand visits (stopped at "
          << where
          << "; counted over their distinct subexpressions before any is compiled): write the "
-            "positions with fewer terms or split the subsystem";
+            "positions (or constraint rows) with fewer terms or split the subsystem";
       throw DerivationTimeout(os.str());
     }
     if (e.nops() == 0 || !seen.insert(e).second) continue;
