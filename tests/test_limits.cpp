@@ -8,6 +8,7 @@
 #include <string>
 
 #include "symbolic/mass_matrix_size.hpp"
+#include "symbolic/tape_work.hpp"
 #include "ukdyn/symbolic/chain.hpp"
 #include "ukdyn/symbolic/constraint_kinds.hpp"
 #include "ukdyn/symbolic/definitions.hpp"
@@ -357,6 +358,77 @@ TEST(Limits, DeadlineCoversTheTapeCompilation) {
   const std::string tape =
       stopped_at([&] { (void)sym::Tape({GiNaC::sin(x)}, in, spent, "compiling the sum"); });
   EXPECT_NE(tape.find("(stopped at compiling the sum)"), std::string::npos) << tape;
+}
+
+// The work of a compilation is the operand count of the outputs as a DAG (tape_work.hpp), against
+// its closed form: Σ_{i<j} x_i x_j over m symbols is one sum of C(m, 2) products of two symbols,
+// 1 + 3 C(m, 2) visits; a shared subexpression is visited once more per use but expanded once, so
+// {e², e} gives 1 (the power) + 2 (e and 2) + 3 C(m, 2) + 1 (the second output, seen); the count
+// goes on from `done` and is refused just past the limit, accepted at it.
+TEST(Limits, TapeWorkIsTheOperandCountOfTheDag) {
+  const std::size_t m = 30, pairs = m * (m - 1) / 2;
+  std::vector<GiNaC::symbol> x;
+  for (std::size_t i = 0; i < m; ++i) x.emplace_back("x" + std::to_string(i));
+  GiNaC::ex e = 0;
+  for (std::size_t i = 0; i < m; ++i) {
+    for (std::size_t j = i + 1; j < m; ++j) e += x[i] * x[j];
+  }
+  ASSERT_EQ(e.nops(), pairs);
+  const std::size_t one = 1 + 3 * pairs;
+  EXPECT_EQ(sym::tape_work({e}, lim::kTapeWork, "e"), one);
+  EXPECT_EQ(sym::tape_work({GiNaC::sin(e)}, lim::kTapeWork, "sin e"), one + 1);
+  EXPECT_EQ(sym::tape_work({GiNaC::pow(e, 2), e}, lim::kTapeWork, "e^2, e"), one + 3);
+  EXPECT_EQ(sym::tape_work({e, e}, lim::kTapeWork, "e, e"), one + 1);
+  EXPECT_EQ(sym::tape_work({e}, lim::kTapeWork, "e", 1000), one + 1000);
+  EXPECT_EQ(sym::tape_work({e}, one, "e"), one);
+  try {
+    (void)sym::tape_work({e}, one - 1, "compiling e");
+    FAIL();
+  } catch (const sym::DerivationTimeout& err) {
+    const std::string what = err.what();
+    EXPECT_NE(what.find("would take more than " + std::to_string(one - 1) +
+                        " operand visits (stopped at compiling e"),
+              std::string::npos)
+        << what;
+  }
+  EXPECT_THROW((void)sym::tape_work({e}, lim::kTapeWork, "e", lim::kTapeWork - one + 1),
+               sym::DerivationTimeout);
+}
+
+// A generated subsystem past the work limit (100 sines sin(a q_i + q_j) of pairs of 4 coordinates
+// in one position, as tests/hostile/tape_work_sines_of_pairs.yaml; every entry of M and C under
+// the node limit) is refused by the count, naming the limit and the tape, before any tape is
+// compiled; 40 such sines compile.
+TEST(Limits, TapeWorkRefusesADerivedSubsystemPastTheLimit) {
+  auto sines = [](int n) {
+    const std::vector<std::string> q{"q0", "q1", "q2", "q3"};
+    sym::SubsystemDef d("s", q);
+    std::string p;
+    for (int s = 0; s < n; ++s) {
+      const int pair = s % 12, i = pair / 3, k = pair % 3, j = k < i ? k : k + 1;
+      p += (s > 0 ? "+" : "") +
+           ("sin(" + std::to_string(1 + s / 12) + "*" + q[i] + "+" + q[j] + ")");
+    }
+    auto& b = d.add_body("p");
+    b.mass = 1;
+    b.com = {d.parse(p), 0, 0};
+    for (const std::string& c : q) {
+      auto& o = d.add_body("b" + c);
+      o.mass = 1;
+      o.com = {0, d.parse(c), 0};
+    }
+    return d;
+  };
+  EXPECT_NO_THROW((void)sym::make_subsystem(sines(40)));
+  try {
+    (void)sym::make_subsystem(sines(100));
+    FAIL();
+  } catch (const sym::DerivationTimeout& e) {
+    EXPECT_NE(std::string(e.what()).find("compiling the tapes would take more than 1000000 "
+                                         "operand visits (stopped at compiling C;"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 TEST(Limits, DerivedSubsystemCoordinatesAreCapped) {

@@ -11,6 +11,7 @@
 
 #include "symbolic/ex_helpers.hpp"
 #include "symbolic/mass_matrix_size.hpp"
+#include "symbolic/tape_work.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/tape_inputs.hpp"
 
@@ -689,6 +690,15 @@ struct PositionalInputs {
   InputMap in;
 };
 
+// The work of compiling these tapes (outputs, what) together, counted before any of them is
+// compiled and refused past limits::kTapeWork (tape_work.hpp): the size of the results, not the
+// clock, decides whether they are compiled (docs/definitions.md, "Limits").
+void check_tape_work(const std::vector<std::pair<const std::vector<ex>*, std::string>>& tapes) {
+  std::size_t done = 0;
+  for (const auto& [outputs, what] : tapes)
+    done = tape_work(*outputs, limits::kTapeWork, "compiling " + what, done);
+}
+
 PositionalInputs positional_inputs(SymbolTable& table, const std::vector<std::string>& coords) {
   PositionalInputs p;
   for (std::size_t i = 0; i < coords.size(); ++i) {
@@ -732,9 +742,6 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
     g.push_back(num(d_.G(i, 0)));
     for (unsigned j = 0; j < un; ++j) c.push_back(num(d_.C(i, j)));
   }
-  mass_ = tape(m, "M");
-  cqd_ = tape(cqd, "C q_dot");
-  grav_ = tape(g, "G");
   // One tape for forward(): M's upper triangle, C q̇ and G together, so that the subexpressions
   // they share (the sin/cos of the angles, above all) are computed once per evaluation.
   std::vector<ex> all = m;
@@ -742,15 +749,27 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   all.insert(all.end(), g.begin(), g.end());
   // A time-varying subsystem's dynamics tape also gives ∂L/∂t (its last output).
   if (d_.time_varying) all.push_back(num(d_.Lt));
+  const std::vector<ex> v{num(d_.V)}, t{num(d_.T)};
+  std::vector<ex> masses;
+  for (const ex& mt : d_.masses_of_t) masses.push_back(num(mt));
+  check_tape_work({{&m, "M"},
+                   {&cqd, "C q_dot"},
+                   {&g, "G"},
+                   {&all, "M, C q_dot and G"},
+                   {&c, "C"},
+                   {&v, "V"},
+                   {&t, "T"},
+                   {&masses, "the masses"}});
+  mass_ = tape(m, "M");
+  cqd_ = tape(cqd, "C q_dot");
+  grav_ = tape(g, "G");
   dyn_ = tape(all, "M, C q_dot and G");
   q_read_ = dyn_->inputs_read(TapeInput::Source::q);
   qd_read_ = dyn_->inputs_read(TapeInput::Source::qd);
   lanes_ = std::min(kTapeLanes, q_read_.size() + qd_read_.size());
   cor_ = tape(c, "C");
-  pot_ = tape({num(d_.V)}, "V");
-  kin_ = tape({num(d_.T)}, "T");
-  std::vector<ex> masses;
-  for (const ex& mt : d_.masses_of_t) masses.push_back(num(mt));
+  pot_ = tape(v, "V");
+  kin_ = tape(t, "T");
   masses_of_t_ = tape(masses, "the masses");
   d_.compile_seconds = seconds_since(t0);
 }
@@ -1296,6 +1315,7 @@ DerivedConstraint::DerivedConstraint(ConstraintDerivation derivation, const Dead
   for (std::size_t k = 0; k < nz_.size(); ++k) by_column_[k] = k;
   std::stable_sort(by_column_.begin(), by_column_.end(),
                    [this](std::size_t a, std::size_t b) { return nz_[a].second < nz_[b].second; });
+  check_tape_work({{&ab, "A and b"}, {&phi, "Phi"}, {&phid, "the velocity form"}});
   if (pool == nullptr) {
     const InputMap in = coordinate_inputs(*d_.symbols, d_.coordinates);
     ab_ = std::make_shared<const Tape>(ab, in, deadline, "compiling A and b");

@@ -5,8 +5,10 @@
 #include <cmath>
 #include <map>
 #include <sstream>
+#include <unordered_set>
 
 #include "core/fnv1a.hpp"
+#include "symbolic/tape_work.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
 #include "ukdyn/symbolic/expression.hpp"
 #include "ukdyn/symbolic/spline.hpp"
@@ -329,6 +331,30 @@ InputMap coordinate_inputs(SymbolTable& table, const std::vector<std::string>& c
   }
   if (set == InputSet::q_qd_time) in[time_symbol(table)] = {TapeInput::Source::time, 0};
   return in;
+}
+
+std::size_t tape_work(const std::vector<ex>& outputs, std::size_t limit, const std::string& where,
+                      std::size_t done) {
+  // Looked up only (never iterated): GiNaC's address-seeded hash places the entries, it does not
+  // change the count.
+  std::unordered_set<ex, std::hash<ex>, GiNaC::ex_is_equal> seen;
+  std::vector<ex> pending(outputs.rbegin(), outputs.rend());
+  std::size_t work = done;
+  while (!pending.empty()) {
+    const ex e = pending.back();
+    pending.pop_back();
+    if (++work > limit) {
+      std::ostringstream os;
+      os << "compiling the tapes would take more than " << limit << " operand visits (stopped at "
+         << where
+         << "; counted over their distinct subexpressions before any is compiled): write the "
+            "positions (or constraint rows) with fewer terms or split the subsystem";
+      throw DerivationTimeout(os.str());
+    }
+    if (e.nops() == 0 || !seen.insert(e).second) continue;
+    for (std::size_t i = e.nops(); i-- > 0;) pending.push_back(e.op(i));
+  }
+  return work;
 }
 
 Tape::Tape(const std::vector<ex>& outputs, const InputMap& inputs) { build(outputs, inputs); }
