@@ -396,7 +396,7 @@ TEST(Limits, TapeWorkIsTheOperandCountOfTheDag) {
 }
 
 // A generated subsystem past the work limit (100 sines sin(a q_i + q_j) of pairs of 4 coordinates
-// in one position, as tests/hostile/tape_work_sines_of_pairs.yaml; every entry of M and C under
+// in one position, as tests/limits/tape_work_sines_of_pairs.yaml; every entry of M and C under
 // the node limit) is refused by the count, naming the limit and the tape, before any tape is
 // compiled; 40 such sines compile.
 TEST(Limits, TapeWorkRefusesADerivedSubsystemPastTheLimit) {
