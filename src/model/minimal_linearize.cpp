@@ -129,16 +129,22 @@ MinimalModel minimal_model(const System& system, double t, CVecRef q, CVecRef qd
   // T = [[N, 0], [−A_R⁺ D N, N]], A_R⁺ = A_Rᵀ (A_R A_Rᵀ)⁻¹ by the normal equations (the kept rows
   // are independent; their Gram matrix squares cond(A_R), which the rank rule keeps moderate).
   mm.T = Mat::Zero(2 * n, 2 * k);
-  mm.T.topLeftCorner(n, k) = mm.N;
-  mm.T.bottomRightCorner(n, k) = mm.N;
-  if (r > 0 && !mm.D.isZero(0.0)) {
+  // k = 0 (the rows fix every coordinate): T and P are empty, and a block at row n of an empty
+  // matrix would offset its null data pointer (undefined behaviour the sanitizer reports).
+  if (k > 0) {
+    mm.T.topLeftCorner(n, k) = mm.N;
+    mm.T.bottomRightCorner(n, k) = mm.N;
+  }
+  if (k > 0 && r > 0 && !mm.D.isZero(0.0)) {
     const Mat ARt = mm.AR.transpose();
     const Mat gram = mm.AR * ARt;
     mm.T.bottomLeftCorner(n, k) = -ARt * gram.partialPivLu().solve(mm.D * mm.N);
   }
   Mat P = Mat::Zero(2 * k, 2 * n);
-  P.topLeftCorner(k, n) = mm.N.transpose();
-  P.bottomRightCorner(k, n) = mm.N.transpose();
+  if (k > 0) {
+    P.topLeftCorner(k, n) = mm.N.transpose();
+    P.bottomRightCorner(k, n) = mm.N.transpose();
+  }
   mm.F_min = P * mm.F * mm.T;
   mm.G_min = P * mm.G;
   Vec phi(system.rows()), phid(system.rows());
