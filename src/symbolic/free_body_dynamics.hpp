@@ -1,10 +1,11 @@
-// A free body's M, C q̇ and G in closed form (docs/free-bodies.md, "The closed form"), evaluated by
-// DerivedSubsystem instead of its dynamics tape. In q = (p, u), u = (w, x, y, z), with
+// A free body's M, C q̇ and G in closed form (docs/free-bodies.md, "The closed form of M, C q̇ and
+// G"), evaluated by DerivedSubsystem instead of its dynamics tape. In q = (p, u), u = (w, x, y, z):
 //   E(u) = [−x w z −y; −y −z w x; −z y −x w],  ω = 2 E(u) u̇  (free_body.hpp, [Udwadia2010b]),
 // T = ½ m ṗ·ṗ + ½ ωᵀ J ω and V = G_p · p + const give, as polynomial identities in (u, u̇) valid off
 // |u| = 1 too (E is linear, E(a) b = −E(b) a, E(u̇) u̇ = 0):
 //   M = diag(m I₃, 4 E(u)ᵀ J E(u)),
-//   C q̇ = Ṁ q̇ − ∂T/∂q = (0, 2 E(u̇)ᵀ J ω + 2 E(u̇)ᵀ J ω) = (0, 4 E(u̇)ᵀ J ω),
+//   C q̇ = Ṁ q̇ − ∂T/∂q = (0, 2 E(u̇)ᵀ J ω + 2 E(u̇)ᵀ J ω) = (0, 4 E(u̇)ᵀ J ω)
+//   (Ṁ u̇ = 4 E(u̇)ᵀ J E u̇ + 4 Eᵀ J E(u̇) u̇, the second 0; ∂T/∂u = −2 E(u̇)ᵀ J ω),
 //   G = ∂V/∂q = (G_p, 0)   (G_p = −m g for gravity g).
 // Internal to ukdyn::symbolic (not installed).
 #pragma once
