@@ -47,6 +47,15 @@ std::shared_ptr<const FreeBodyDynamics> free_body_closed_form(const SubsystemDer
     q[i] = coordinate_symbol(*d.symbols, d.coordinates[i]);
     v[i] = velocity_symbol(*d.symbols, d.coordinates[i]);
   }
+  // Cheap refusals first (a 7-coordinate arm must not pay for expanding its T here): M's first
+  // three rows are m I of a constant m, and T does not read p.
+  for (unsigned i = 0; i < 3; ++i) {
+    for (unsigned j = 0; j < 7; ++j) {
+      const ex& e = d.M(i, j);
+      if (j == i ? !real_number(numeric_form(e, d.parameter_values)) : !e.is_zero()) return nullptr;
+    }
+    if (d.T.has(q[i])) return nullptr;
+  }
   // What the tapes compile (parameters substituted, exact coefficients): the closed form must be
   // that derivation, checked as an identity of polynomials in (q, q̇), not at sample points.
   const ex T = numeric_form(d.T, d.parameter_values);
