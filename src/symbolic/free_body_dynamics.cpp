@@ -91,8 +91,8 @@ void free_body_mass(const FreeBodyDynamics& f, CVecRef q, MatRef M) {
   const double w = q(3), x = q(4), y = q(5), z = q(6);
   const double E[3][4] = {{-x, w, z, -y}, {-y, -z, w, x}, {-z, y, -x, w}};
   const auto& J = f.inertia4;
-  double JE[3]
-           [4];  // (4 J) E; the products by J's zeros left out when J is diagonal (the same bits)
+  // (4 J) E; the products by J's zeros left out when J is diagonal (the same bits).
+  double JE[3][4];
   if (f.diagonal) {
     for (std::size_t i = 0; i < 3; ++i)
       for (std::size_t c = 0; c < 4; ++c) JE[i][c] = J[4 * i] * E[i][c];
@@ -101,8 +101,16 @@ void free_body_mass(const FreeBodyDynamics& f, CVecRef q, MatRef M) {
       for (std::size_t c = 0; c < 4; ++c)
         JE[i][c] = J[3 * i] * E[0][c] + J[3 * i + 1] * E[1][c] + J[3 * i + 2] * E[2][c];
   }
-  // Column by column through the data pointer (M is a block of the system's M): every entry
-  // written once, the quaternion block's lower triangle mirrored from its upper one.
+  // The quaternion block Eᵀ (4 J) E, its lower triangle mirrored from its upper one (exactly
+  // symmetric), column by column (B[b] is column b).
+  double B[4][4];
+  for (std::size_t b = 0; b < 4; ++b) {
+    for (std::size_t a = 0; a <= b; ++a) {
+      B[b][a] = E[0][a] * JE[0][b] + E[1][a] * JE[1][b] + E[2][a] * JE[2][b];
+      B[a][b] = B[b][a];
+    }
+  }
+  // Through the data pointer (M is a block of the system's M), every entry written once.
   double* const m = M.data();
   const Index s = M.outerStride();
   for (Index j = 0; j < 3; ++j) {
@@ -113,11 +121,7 @@ void free_body_mass(const FreeBodyDynamics& f, CVecRef q, MatRef M) {
   for (std::size_t b = 0; b < 4; ++b) {
     double* col = m + static_cast<Index>(3 + b) * s;
     col[0] = col[1] = col[2] = 0.0;
-    for (std::size_t a = 0; a <= b; ++a) {
-      const double e = E[0][a] * JE[0][b] + E[1][a] * JE[1][b] + E[2][a] * JE[2][b];
-      col[3 + a] = e;
-      m[static_cast<Index>(3 + a) * s + static_cast<Index>(3 + b)] = e;
-    }
+    for (std::size_t a = 0; a < 4; ++a) col[3 + a] = B[b][a];
   }
 }
 
