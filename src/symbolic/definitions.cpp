@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "symbolic/ex_helpers.hpp"
+#include "symbolic/free_body_dynamics.hpp"
 #include "symbolic/mass_matrix_size.hpp"
 #include "symbolic/tape_work.hpp"
 #include "ukdyn/symbolic/canonical.hpp"
@@ -771,6 +772,7 @@ DerivedSubsystem::DerivedSubsystem(SubsystemDerivation derivation, std::string n
   pot_ = tape(v, "V");
   kin_ = tape(t, "T");
   masses_of_t_ = tape(masses, "the masses");
+  closed_ = free_body_closed_form(d_);
   d_.compile_seconds = seconds_since(t0);
 }
 
@@ -829,6 +831,10 @@ std::size_t symmetric_from_upper(const double* out, Index n, MatRef M) {
 }  // namespace
 
 void DerivedSubsystem::mass(const EvalContext& ctx, CVecRef q, MatRef M) const {
+  if (closed_) {
+    free_body_mass(*closed_, q, M);
+    return;
+  }
   double buf[64 * 65 / 2];
   std::vector<double> big;
   double* out = buf;
@@ -871,6 +877,12 @@ const double* tape_tangent(const Tape& tape, const EvalContext& ctx, Index size,
 
 double DerivedSubsystem::dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M,
                                   VecRef Cqd, VecRef G) const {
+  if (closed_) {  // a free body (free_body_dynamics.hpp): not of t, so ∂L/∂t = 0
+    free_body_mass(*closed_, q, M);
+    free_body_velocity_products(*closed_, q, qd, Cqd);
+    free_body_gravity(*closed_, G);
+    return 0.0;
+  }
   if (ctx.slot.size() != static_cast<std::size_t>(slot_size())) {
     constexpr std::size_t kStack = 32 * 33 / 2 + 2 * 32 + 1;
     double buf[kStack];
@@ -902,6 +914,7 @@ void DerivedSubsystem::dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecR
   const double* out = tape_tangent(*dyn_, ctx, slot_size(), q, qd, 0.0, dq.data(), dqd.data(), own);
   unpack_dynamics(out, M, Cqd, G);
   unpack_dynamics(out + dyn_->outputs(), dM, dCqd, dG);
+  if (closed_) dynamics(ctx, q, qd, M, Cqd, G);  // the values bitwise dynamics()'s
 }
 
 bool DerivedSubsystem::inverse_dynamics_tangent(const EvalContext& ctx, CVecRef q, CVecRef qd,
@@ -979,10 +992,18 @@ void DerivedSubsystem::coriolis(const EvalContext& ctx, CVecRef q, CVecRef qd, M
 
 void DerivedSubsystem::coriolis_times_qd(const EvalContext& ctx, CVecRef q, CVecRef qd,
                                          VecRef Cqd) const {
+  if (closed_) {
+    free_body_velocity_products(*closed_, q, qd, Cqd);
+    return;
+  }
   cqd_->eval(ctx.t, q.data(), qd.data(), Cqd.data());
 }
 
 void DerivedSubsystem::gravity(const EvalContext& ctx, CVecRef q, VecRef G) const {
+  if (closed_) {
+    free_body_gravity(*closed_, G);
+    return;
+  }
   grav_->eval(ctx.t, q.data(), nullptr, G.data());
 }
 

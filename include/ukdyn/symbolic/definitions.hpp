@@ -153,6 +153,9 @@ GiNaC::ex simplify_trig(const GiNaC::ex& e, const Deadline& deadline, const std:
 /// DerivedConstraint (Tape::eval_tangents; docs/derivatives.md, "Cost").
 constexpr std::size_t kTapeLanes = 8;
 
+/// A free body's M, C q̇ and G in closed form (src/symbolic/free_body_dynamics.hpp).
+struct FreeBodyDynamics;
+
 /// A ukdyn::Subsystem evaluated from compiled tapes of a derivation.
 class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
  public:
@@ -183,7 +186,7 @@ class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
   /// at least the C tape's outputs and work (coriolis()): allocation-free at any size.
   [[nodiscard]] Index slot_size() const override;
   /// M, C q̇, G (and ∂L/∂t, returned) from one tape (shared subexpressions computed once), in the
-  /// context's slot if it has one.
+  /// context's slot if it has one; a free body's from closed_form().
   double dynamics(const EvalContext& ctx, CVecRef q, CVecRef qd, MatRef M, VecRef Cqd,
                   VecRef G) const override;
   /// Directional derivatives of M, C q̇ and G along (dq, dqd) at (ctx.t, q, q̇), t held fixed:
@@ -222,6 +225,11 @@ class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
   }
   /// The tape forward() runs (M, C q̇, G): the same object for instances that share it.
   [[nodiscard]] const Tape& dynamics_tape() const { return *dyn_; }
+  /// Non-null when the derivation is a free body's (docs/free-bodies.md, "The closed form"):
+  /// dynamics(), mass(), coriolis_times_qd(), gravity() and the values of dynamics_tangent() then
+  /// evaluate that closed form instead of the tapes (equal to round-off); the tapes stay for the
+  /// rest (derivatives, C, T, V, printing).
+  [[nodiscard]] const FreeBodyDynamics* closed_form() const { return closed_.get(); }
 
  private:
   /// M, C q̇, G from the dynamics tape's outputs; returns ∂L/∂t (0 unless time-varying).
@@ -234,7 +242,8 @@ class DerivedSubsystem final : public Subsystem, public SubsystemColumns {
   Index n_;
   // Constant and possibly shared with other instances (TapePool).
   std::shared_ptr<const Tape> mass_, cqd_, grav_, cor_, pot_, kin_, dyn_;
-  std::shared_ptr<const Tape> masses_of_t_;  // d_.masses_of_t, one output per body
+  std::shared_ptr<const Tape> masses_of_t_;         // d_.masses_of_t, one output per body
+  std::shared_ptr<const FreeBodyDynamics> closed_;  // closed_form()
   // The directions the dynamics tape reads, and how many of them per pass (kTapeLanes at most).
   std::vector<Index> q_read_, qd_read_;
   std::size_t lanes_ = 0;
