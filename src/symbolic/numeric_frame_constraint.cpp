@@ -297,7 +297,7 @@ void free_body_frame(End& end, const std::vector<GiNaC::symbol>& q, const std::v
 
 // a ⊗ b (Hamilton's product) of quaternions (w, x, y, z): R(a ⊗ b) = R(a) R(b) for
 // quaternion_rotation's homogeneous R (Shoemake 1985).
-void quaternion_product(const double* a, const double* b, double* out) {
+inline void quaternion_product(const double* a, const double* b, double* out) {
   out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
   out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
   out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
@@ -380,15 +380,15 @@ void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double
   const Eigen::Vector3d rv = free_body_pose(e, q, qd, s, x, !weld);
   const double w = x[3], a = x[4], b = x[5], c = x[6];
   const double qs = 2.0 / (w * w + a * a + b * b + c * c);
-  const double g[4][3] = {{-a, -b, -c}, {w, c, -b}, {-c, w, a}, {b, -a, w}};
   const double r[3] = {rv(0), rv(1), rv(2)};
   for (int k = 0; k < 3 && !weld; ++k) {
     double* t = twists + 7 * k;
     for (int i = 0; i < 7; ++i) t[i] = i == k ? 1.0 : 0.0;
   }
-  for (int k = 0; k < 4; ++k) {  // v = ω × r + s r
-    double* t = twists + 7 * (3 + k);
-    const double o0 = qs * g[k][0], o1 = qs * g[k][1], o2 = qs * g[k][2], sk = qs * x[3 + k];
+  // 2 G(u) = 2 [−x w −z y; −y z w −x; −z −y x w] (its columns e_k's ω up to 1/|u|²), and s_k:
+  // every entry is ± one of qs·(w, x, y, z).
+  const double sw = qs * w, sa = qs * a, sb = qs * b, sc = qs * c;
+  const auto twist = [&r](double* t, double o0, double o1, double o2, double sk) {  // ω × r + s r
     t[0] = (o1 * r[2] - o2 * r[1]) + sk * r[0];
     t[1] = (o2 * r[0] - o0 * r[2]) + sk * r[1];
     t[2] = (o0 * r[1] - o1 * r[0]) + sk * r[2];
@@ -396,7 +396,11 @@ void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double
     t[4] = o1;
     t[5] = o2;
     t[6] = sk;
-  }
+  };
+  twist(twists + 21, -sa, -sb, -sc, sw);
+  twist(twists + 28, sw, sc, -sb, sa);
+  twist(twists + 35, -sc, sw, sa, sb);
+  twist(twists + 42, sb, -sa, sw, sc);
 }
 
 End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTable& table,
@@ -654,23 +658,24 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
 }
 
 // One end's columns of a weld's A (weld_twist_rows), its G given as W (G's columns 3–5 of the
-// orientation rows) and g (column 6): A(0:3, c) = sign t_c(0:3) (the position rows, G = sign e_iᵀ)
-// and A(3:6, c) = W ω_c + g s_c, the terms in add_map_columns' order (ω's three, then s's). The
-// end's first unit_columns are a free body's translations (t_c = e_c: sign e_c and zeros, no
+// orientation rows) and g (column 6): A(0:3, c) = ±t_c(0:3) (the position rows, G = ±e_iᵀ; NEG:
+// −) and A(3:6, c) = W ω_c + g s_c, the terms in add_map_columns' order (ω's three, then s's).
+// The end's first unit_columns are a free body's translations (t_c = e_c: ±e_c and zeros, no
 // products); without End::scale (a tree of revolute and prismatic joints: every s_c is an exact
-// zero) the term g s_c is left out. SET: the columns are set (no other end writes them), else
-// added to. Two columns at a time, one in each lane of a 2-vector (the same sums per column), W and
-// g in locals: no reload per column.
-template <bool SCALE, bool SET>
+// zero) the term g s_c is left out. SET: the columns are set, else added to. Two columns at a
+// time, one in each lane of a 2-vector (the same sums per column), W and g in locals: no reload
+// per column.
+template <bool SCALE, bool SET, bool NEG>
 void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3],
-                      const double (&g)[3], double sign, MatRef A) {
+                      const double (&g)[3], MatRef A) {
   using P = Eigen::Array2d;
   const Index ld = A.outerStride();
   const auto put = [](double& x, double v) { x = SET ? v : x + v; };
   const auto unit = static_cast<std::size_t>(e.unit_columns), n = e.cols.size();
+  constexpr double one = NEG ? -1.0 : 1.0, zero = NEG ? -0.0 : 0.0;  // ±1 · (1, 0)
   for (std::size_t c = 0; c < unit; ++c) {
     double* a = A.data() + ld * e.cols[c];
-    for (std::size_t i = 0; i < 3; ++i) put(a[i], sign * (i == c ? 1.0 : 0.0));
+    for (std::size_t i = 0; i < 3; ++i) put(a[i], i == c ? one : zero);
     if constexpr (SET) a[3] = a[4] = a[5] = 0.0;
   }
   P w[3][3], gs[3];
@@ -678,7 +683,7 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
     for (int k = 0; k < 3; ++k) w[r][k] = P::Constant(W[r][k]);
     gs[r] = P::Constant(g[r]);
   }
-  // Rows 3–5 of columns c and c + 1 (a second column of zeros past the last).
+  // Rows 3–5 of columns c and c + 1 (a second copy of c past the last).
   const auto rows = [&](std::size_t c, bool two, P (&v)[3]) {
     const double* t = twists + 7 * c;
     const double* u = two ? t + 7 : t;
@@ -688,34 +693,40 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
       if constexpr (SCALE) v[r] += gs[r] * P(t[6], u[6]);
     }
   };
+  const auto column = [&](std::size_t c, const P (&v)[3], int h) {
+    const double* t = twists + 7 * c;
+    double* a = A.data() + ld * e.cols[c];
+    const P p = Eigen::Map<const P>(t);
+    Eigen::Map<P> ap(a);
+    if constexpr (SET) {
+      ap = NEG ? P(-p) : p;
+    } else {
+      ap += NEG ? P(-p) : p;
+    }
+    put(a[2], NEG ? -t[2] : t[2]);
+    for (int r = 0; r < 3; ++r) put(a[3 + r], v[r](h));
+  };
   std::size_t c = unit;
   for (; c + 1 < n; c += 2) {
     P v[3];
     rows(c, true, v);
-    for (int h = 0; h < 2; ++h) {
-      const double* t = twists + 7 * (c + h);
-      double* a = A.data() + ld * e.cols[c + h];
-      for (int i = 0; i < 3; ++i) put(a[i], sign * t[i]);
-      for (int r = 0; r < 3; ++r) put(a[3 + r], v[r](h));
-    }
+    column(c, v, 0);
+    column(c + 1, v, 1);
   }
   if (c < n) {
     P v[3];
     rows(c, false, v);
-    const double* t = twists + 7 * c;
-    double* a = A.data() + ld * e.cols[c];
-    for (int i = 0; i < 3; ++i) put(a[i], sign * t[i]);
-    for (int r = 0; r < 3; ++r) put(a[3 + r], v[r](0));
+    column(c, v, 0);
   }
 }
 
-template <bool SET>
+template <bool SET, bool NEG>
 void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3],
-                      const double (&g)[3], double sign, MatRef A) {
+                      const double (&g)[3], MatRef A) {
   if (e.scale) {
-    weld_end_columns<true, SET>(e, twists, W, g, sign, A);
+    weld_end_columns<true, SET, NEG>(e, twists, W, g, A);
   } else {
-    weld_end_columns<false, SET>(e, twists, W, g, sign, A);
+    weld_end_columns<false, SET, NEG>(e, twists, W, g, A);
   }
 }
 
@@ -744,7 +755,8 @@ inline void cross_difference(const double* x, const double* y, const double* z, 
 // on the same non-zero terms. The ½ is taken out of each sum (w = ½ (R_a(:, i) × R_b(:, j) −
 // R_a(:, j) × R_b(:, i)), …): a power of two, so the same bits as the terms scaled one by one.
 // `disjoint`: the ends have no column in common, so A's columns are set (no zeroing first). On
-// raw doubles (R's column k at R.data() + 3 k).
+// raw doubles (R's column k at R.data() + 3 k). End a's columns are set: when they are not
+// disjoint, b's are added to them.
 // weld_twist_rows' orientation row w = (i, j) (the 3 − i − j of (2, 1), (0, 2), (1, 0)): W's row
 // w, g(w) and b(3 + w), the indices known at compile time (constant offsets into R, Ṙ, R̈).
 template <int W, int I, int J>
@@ -774,12 +786,11 @@ void weld_twist_rows(const FrameState& a, const FrameState& b, const End& ea, co
   for (int r = 0; r < 3; ++r)
     for (int k = 0; k < 3; ++k) Wb[r][k] = -Wa[r][k];
   for (int k = 0; k < 6; ++k) bv(k) = bo[k];
-  if (disjoint) {
-    weld_end_columns<true>(ea, ta, Wa, g, 1.0, A);
-    weld_end_columns<true>(eb, tb, Wb, g, -1.0, A);
+  weld_end_columns<true, false>(ea, ta, Wa, g, A);  // A's columns of the ends zeroed first
+  if (disjoint) {                                    // unless disjoint (evaluate())
+    weld_end_columns<true, true>(eb, tb, Wb, g, A);
   } else {
-    weld_end_columns<false>(ea, ta, Wa, g, 1.0, A);
-    weld_end_columns<false>(eb, tb, Wb, g, -1.0, A);
+    weld_end_columns<false, true>(eb, tb, Wb, g, A);
   }
 }
 
