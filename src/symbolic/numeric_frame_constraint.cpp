@@ -202,6 +202,9 @@ struct End {
   // body, a tree with a ball or floating joint; revolute and prismatic joints give s_c = 0 exactly).
   Index unit_columns = 0;
   bool scale = true;
+  // Its columns are consecutive coordinates (a tree's always; a free body's when its coordinates
+  // are): weld_twist_rows walks A's columns by its stride.
+  bool consecutive = false;
 };
 
 // Σ |c| over the terms c·(monomial) of a polynomial in `vars` (∞ if it is not one, or has other
@@ -309,10 +312,10 @@ inline void quaternion_product(const double* a, const double* b, double* out) {
 // u_o of R_o (End::fb_uo) the frame's rotation is R(u) R_o = R(u ⊗ u_o) = B(u', u') with
 // u' = u ⊗ u_o, and by polarisation of R(a ⊗ u_o) = R(a) R_o its rates are Ṙ R_o = 2 B(u', u̇')
 // and R̈ R_o = 2 B(u̇', u̇'), u̇' = u̇ ⊗ u_o (the 2 in u̇': exact): two quaternion products instead of
-// three 3 × 3 ones; the offset is then (R(u) R_o) R_oᵀ o. `rate_p`: ṗ too (evaluate()'s weld rows
-// read neither p nor ṗ).
+// three 3 × 3 ones; the offset is then (R(u) R_o) R_oᵀ o. `position`: p and ṗ too (evaluate()'s
+// weld rows read neither).
 Eigen::Vector3d free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* xq,
-                               bool rate_p = true) {
+                               bool position = true) {
   double v[7];
   for (std::size_t c = 0; c < 7; ++c) {
     xq[c] = q(e.cols[c]);
@@ -330,8 +333,10 @@ Eigen::Vector3d free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& 
     quaternion_bilinear(uf, udf2, s.Rd.data());
     quaternion_bilinear(udf, udf2, s.Rdd.data());
     const Eigen::Vector3d r = s.R * e.fb_of;
-    s.p = x + r;
-    if (rate_p) s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + s.Rd * e.fb_of;
+    if (position) {
+      s.p = x + r;
+      s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + s.Rd * e.fb_of;
+    }
     s.pdd = s.Rdd * e.fb_of;
     return r;
   }
@@ -454,6 +459,9 @@ End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTa
     end.scratch = static_cast<Index>(end.tape.work_size() + end.tape.outputs());
     free_body_frame(end, q, x);
   }
+  end.consecutive = true;
+  for (std::size_t c = 1; c < end.cols.size(); ++c)
+    end.consecutive = end.consecutive && end.cols[c] == end.cols[0] + static_cast<Index>(c);
   return end;
 }
 
@@ -660,8 +668,8 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
 // One end's columns of a weld's A (weld_twist_rows), its G given as W (G's columns 3–5 of the
 // orientation rows) and g (column 6): A(0:3, c) = ±t_c(0:3) (the position rows, G = ±e_iᵀ; NEG:
 // −) and A(3:6, c) = W ω_c + g s_c, the terms in add_map_columns' order (ω's three, then s's).
-// The end's first unit_columns are a free body's translations (t_c = e_c: ±e_c and zeros, no
-// products); without End::scale (a tree of revolute and prismatic joints: every s_c is an exact
+// The end's first unit_columns (0 or 3) are a free body's translations (t_c = e_c: ±e_c and
+// zeros, no products); its columns are consecutive (End::consecutive); without End::scale (a tree of revolute and prismatic joints: every s_c is an exact
 // zero) the term g s_c is left out. SET: the columns are set, else added to. Two columns at a
 // time, one in each lane of a 2-vector (the same sums per column), W and g in locals: no reload
 // per column.
@@ -672,11 +680,17 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
   const Index ld = A.outerStride();
   const auto put = [](double& x, double v) { x = SET ? v : x + v; };
   const auto unit = static_cast<std::size_t>(e.unit_columns), n = e.cols.size();
+  if (n == 0) return;
+  double* const A0 = A.data() + ld * e.cols[0];  // column c of the end at A0 + ld c
   constexpr double one = NEG ? -1.0 : 1.0, zero = NEG ? -0.0 : 0.0;  // ±1 · (1, 0)
-  for (std::size_t c = 0; c < unit; ++c) {
-    double* a = A.data() + ld * e.cols[c];
-    for (std::size_t i = 0; i < 3; ++i) put(a[i], i == c ? one : zero);
-    if constexpr (SET) a[3] = a[4] = a[5] = 0.0;
+  if (unit == 3) {
+    for (std::size_t c = 0; c < 3; ++c) {
+      double* a = A0 + ld * static_cast<Index>(c);
+      put(a[0], c == 0 ? one : zero);
+      put(a[1], c == 1 ? one : zero);
+      put(a[2], c == 2 ? one : zero);
+      if constexpr (SET) a[3] = a[4] = a[5] = 0.0;
+    }
   }
   P w[3][3], gs[3];
   for (int r = 0; r < 3; ++r) {
@@ -695,7 +709,7 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
   };
   const auto column = [&](std::size_t c, const P (&v)[3], int h) {
     const double* t = twists + 7 * c;
-    double* a = A.data() + ld * e.cols[c];
+    double* a = A0 + ld * static_cast<Index>(c);
     const P p = Eigen::Map<const P>(t);
     Eigen::Map<P> ap(a);
     if constexpr (SET) {
@@ -1429,16 +1443,17 @@ class Core {
     all.insert(b_.cols.begin(), b_.cols.end());
     cols_.assign(all.begin(), all.end());
     disjoint_ = cols_.size() == a_.cols.size() + b_.cols.size();
+    weld_twists_ = f_.kind == K::weld && twist_end(a_) && twist_end(b_) && a_.consecutive &&
+                   b_.consecutive;
+    const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
+    slot_size_ = a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
   }
   [[nodiscard]] const NumericFrameSpec& spec() const { return f_; }
   [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
   [[nodiscard]] const std::vector<Index>& columns() const { return cols_; }
   // The ends' scratch and columns (with()), then for tangent() the columns' tangents and the
   // tape tangents' room of an expressions end (as much as its scratch).
-  [[nodiscard]] Index slot_size() const {
-    const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
-    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
-  }
+  [[nodiscard]] Index slot_size() const { return slot_size_; }
   // tangent_columns()'s ends' J (lane_room): dead once its columns are written, so they live in
   // the scratch every constraint of a ForwardData shares (ConstraintSlots::shared()), not in this
   // constraint's slot: N welds then reuse one area that stays cached instead of streaming N.
@@ -1523,7 +1538,7 @@ class Core {
   // (ConstraintContext::structural_only: O(columns) per call, not O(n)).
   void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b,
                 bool structural) const {
-    if (f_.kind == K::weld && twist_end(a_) && twist_end(b_)) {  // weld_twist_rows
+    if (weld_twists_) {
       with_end_twists(
           slots, q, qd,
           [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db) {
@@ -1663,7 +1678,9 @@ class Core {
   std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
-  bool disjoint_ = false;  // the ends share no column
+  bool disjoint_ = false;
+  bool weld_twists_ = false;  // evaluate() by weld_twist_rows
+  Index slot_size_ = 0;  // the ends share no column
 };
 
 // ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
