@@ -698,7 +698,7 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
     gs[r] = P::Constant(g[r]);
   }
   // Rows 3–5 of columns c and c + 1 (a second copy of c past the last).
-  const auto rows = [&](std::size_t c, bool two, P (&v)[3]) {
+  const auto rows = [&](std::size_t c, bool two, P(&v)[3]) {
     const double* t = twists + 7 * c;
     const double* u = two ? t + 7 : t;
     const P t3(t[3], u[3]), t4(t[4], u[4]), t5(t[5], u[5]);
@@ -707,7 +707,7 @@ void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3
       if constexpr (SCALE) v[r] += gs[r] * P(t[6], u[6]);
     }
   };
-  const auto column = [&](std::size_t c, const P (&v)[3], int h) {
+  const auto column = [&](std::size_t c, const P(&v)[3], int h) {
     const double* t = twists + 7 * c;
     double* a = A0 + ld * static_cast<Index>(c);
     const P p = Eigen::Map<const P>(t);
@@ -757,20 +757,6 @@ inline void cross_difference(const double* x, const double* y, const double* z, 
   out[2] = (x[0] * y[1] - x[1] * y[0]) - (z[0] * v[1] - z[1] * v[0]);
 }
 
-// A weld between two twist ends (a tree's or a free body's) for evaluate(), without forming
-// RowValues' D (144 entries, mostly zeros) and its product with the 24 rates: its rows are
-// position_rows (G = ±e_iᵀ on p_a, p_b) and weld_row (i, j) for (2, 1), (0, 2), (1, 0), whose
-// ∂Φ/∂R_a has the columns d_i = ½ R_b(:, j), d_j = −½ R_b(:, i) and ∂Φ/∂R_b the columns
-// d_j = ½ R_a(:, i), d_i = −½ R_a(:, j) (the values weld_row writes into D). G's orientation
-// rows by rotation_map_row's sums without its column of zeros: end a's (w, g) with
-// w = R_a(:, i) × d_i + R_a(:, j) × d_j, g = R_a(:, i)·d_i + R_a(:, j)·d_j, and end b's (−w, g)
-// exactly (each cross product of b's is one of a's with its factors swapped, each dot product one
-// of a's with its factors swapped), so A is add_twist_columns' bit for bit. b = −(D ẍ + ẋᵀHẋ)
-// on the same non-zero terms. The ½ is taken out of each sum (w = ½ (R_a(:, i) × R_b(:, j) −
-// R_a(:, j) × R_b(:, i)), …): a power of two, so the same bits as the terms scaled one by one.
-// `disjoint`: the ends have no column in common, so A's columns are set (no zeroing first). On
-// raw doubles (R's column k at R.data() + 3 k). End a's columns are set: when they are not
-// disjoint, b's are added to them.
 // weld_twist_rows' orientation row w = (i, j) (the 3 − i − j of (2, 1), (0, 2), (1, 0)): W's row
 // w, g(w) and b(3 + w), the indices known at compile time (constant offsets into R, Ṙ, R̈).
 template <int W, int I, int J>
@@ -790,6 +776,19 @@ void weld_orientation_row(const FrameState& a, const FrameState& b, double (&Wm)
   bo[3 + W] = -(dx + hx);
 }
 
+// A weld between two twist ends (a tree's or a free body's) for evaluate(), without forming
+// RowValues' D (144 entries, mostly zeros) and its product with the 24 rates: its rows are
+// position_rows (G = ±e_iᵀ on p_a, p_b) and weld_row (i, j) for (2, 1), (0, 2), (1, 0), whose
+// ∂Φ/∂R_a has the columns d_i = ½ R_b(:, j), d_j = −½ R_b(:, i) and ∂Φ/∂R_b the columns
+// d_j = ½ R_a(:, i), d_i = −½ R_a(:, j) (the values weld_row writes into D). G's orientation
+// rows by rotation_map_row's sums without its column of zeros: end a's (w, g) with
+// w = R_a(:, i) × d_i + R_a(:, j) × d_j, g = R_a(:, i)·d_i + R_a(:, j)·d_j, and end b's (−w, g)
+// exactly (each cross product of b's is one of a's with its factors swapped, each dot product one
+// of a's with its factors swapped), so A is add_twist_columns' bit for bit. b = −(D ẍ + ẋᵀHẋ)
+// on the same non-zero terms. The ½ is taken out of each sum (w = ½ (R_a(:, i) × R_b(:, j) −
+// R_a(:, j) × R_b(:, i)), …): a power of two, so the same bits as the terms scaled one by one.
+// On raw doubles (R's column k at R.data() + 3 k). End a's columns of A are set; `disjoint` (the
+// ends have no column in common): b's are set too, else added onto a's.
 void weld_twist_rows(const FrameState& a, const FrameState& b, const End& ea, const double* ta,
                      const End& eb, const double* tb, bool disjoint, MatRef A, VecRef bv) {
   double Wa[3][3], Wb[3][3], g[3], bo[6];
@@ -800,8 +799,8 @@ void weld_twist_rows(const FrameState& a, const FrameState& b, const End& ea, co
   for (int r = 0; r < 3; ++r)
     for (int k = 0; k < 3; ++k) Wb[r][k] = -Wa[r][k];
   for (int k = 0; k < 6; ++k) bv(k) = bo[k];
-  weld_end_columns<true, false>(ea, ta, Wa, g, A);  // A's columns of the ends zeroed first
-  if (disjoint) {                                    // unless disjoint (evaluate())
+  weld_end_columns<true, false>(ea, ta, Wa, g, A);
+  if (disjoint) {
     weld_end_columns<true, true>(eb, tb, Wb, g, A);
   } else {
     weld_end_columns<false, true>(eb, tb, Wb, g, A);
@@ -1443,8 +1442,8 @@ class Core {
     all.insert(b_.cols.begin(), b_.cols.end());
     cols_.assign(all.begin(), all.end());
     disjoint_ = cols_.size() == a_.cols.size() + b_.cols.size();
-    weld_twists_ = f_.kind == K::weld && twist_end(a_) && twist_end(b_) && a_.consecutive &&
-                   b_.consecutive;
+    weld_twists_ =
+        f_.kind == K::weld && twist_end(a_) && twist_end(b_) && a_.consecutive && b_.consecutive;
     const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
     slot_size_ = a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
   }
@@ -1678,9 +1677,9 @@ class Core {
   std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
-  bool disjoint_ = false;
+  bool disjoint_ = false;     // the ends share no column
   bool weld_twists_ = false;  // evaluate() by weld_twist_rows
-  Index slot_size_ = 0;  // the ends share no column
+  Index slot_size_ = 0;
 };
 
 // ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
