@@ -255,6 +255,95 @@ TEST(FrameConstraints, ColumnsOfAnEndWithScatteredCoordinates) {
   RecordProperty("worst_rel", ::testing::PrintToString(worst));
 }
 
+// A weld between two twist ends as forward() evaluates it when each end's coordinates are
+// consecutive (weld_twist_rows: G's orientation rows as W and g, end b's as −W and g, each end's
+// columns written by A's stride, a free body's x, y, z columns as ±e_c) against the same weld with
+// the coordinates spread among two it does not read: in each body's order (the ends still free
+// bodies', on the general path: G from RowValues' D by rotation_map_row, add_twist_columns,
+// b = −(D ẍ + ẋᵀHẋ) from D; A bit for bit) and reordered within each body (no longer recognised
+// as free bodies: the ends' tapes, dp and dR, add_columns; A to 1e-14). b to 1e-13 of its largest
+// entry. At random states off the constraint and off |u| = 1; frames on two free bodies (disjoint
+// columns, set) and two frames on one body (b's columns added onto a's), the offsets turned so
+// that R_o is a general rotation (free_body_pose's quaternion u_o).
+TEST(FrameConstraints, WeldOfTwistEndsMatchesTheGeneralPath) {
+  const auto symbols = std::make_shared<sym::SymbolTable>();
+  const auto one = sym::free_body_definition("one", 5.0, {0.3, 0, 0, 0, 0.2, 0, 0, 0, 0.5},
+                                             {0, 0, -kG}, {}, symbols);
+  const auto two = sym::free_body_definition("two", 2.0, {0.1, 0, 0, 0, 0.3, 0, 0, 0, 0.2},
+                                             {0, 0, -kG}, {}, symbols);
+  sym::FrameTable t;
+  t.add_bodies(one);
+  t.add_bodies(two);
+  const auto& c1 = one.coordinates();
+  const auto& c2 = two.coordinates();
+  const std::vector<std::string> packed = concat(c1, c2);
+  const std::vector<std::vector<std::string>> spread = {
+      {c2[0], "e1", c1[0], c1[1], c2[1], c1[2], c2[2], c2[3], c1[3], "e2", c1[4], c2[4], c2[5],
+       c1[5], c1[6], c2[6]},
+      {c2[3], "e1", c1[0], c2[0], c1[4], c1[5], c2[1], c1[1], c2[2], c1[2], "e2", c2[4], c1[3],
+       c1[6], c2[5], c2[6]}};
+  const auto at = [](const std::vector<std::string>& v, const std::string& name) {
+    return static_cast<Index>(std::find(v.begin(), v.end(), name) - v.begin());
+  };
+  const sym::OriginDef oa{
+      {sym::exact_number(0.2), sym::exact_number(0.1), sym::exact_number(-0.3)},
+      {sym::exact_number(0.7), sym::exact_number(-1.1), sym::exact_number(2.9)}};
+  const sym::OriginDef ob{{sym::exact_number(-0.4), 0, sym::exact_number(0.15)},
+                          {sym::exact_number(3.1), sym::exact_number(0.2), sym::exact_number(2.4)}};
+  const auto max_rel = [](const Mat& a, const Mat& b) {
+    return (a - b).cwiseAbs().maxCoeff() / std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  };
+  std::mt19937_64 rng(41);
+  double worst_A = 0.0, worst_b = 0.0;
+  for (const char* fb : {"two.two", "one.one"}) {
+    const auto f = frame_def(K::weld, "w", t, "one.one", fb, oa, ob);
+    sym::NumericFrameSpec spec;
+    spec.name = "w";
+    spec.frame_a = "one.one";
+    spec.frame_b = fb;
+    sym::NumericFrameEnd a, b;
+    a.kind = b.kind = sym::NumericFrameEnd::Kind::expressions;
+    a.pose = f.a;
+    b.pose = f.b;
+    const auto fast = sym::make_numeric_frame_constraint(spec, a, b, packed, symbols);
+    for (std::size_t order = 0; order < spread.size(); ++order) {
+      const auto& sc = spread[order];
+      const auto general = sym::make_numeric_frame_constraint(spec, a, b, sc, symbols);
+      const Index m = fast->rows(), n = 14, ns = 16;
+      for (int trial = 0; trial < 10; ++trial) {
+        const Vec q = random_vec(rng, n, -1.0, 1.0), qd = random_vec(rng, n, -2.0, 2.0);
+        Vec qs = random_vec(rng, ns, -1.0, 1.0), qds = random_vec(rng, ns, -2.0, 2.0);
+        for (Index j = 0; j < n; ++j) {
+          const Index k = at(sc, packed[static_cast<std::size_t>(j)]);
+          qs(k) = q(j);
+          qds(k) = qd(j);
+        }
+        Mat A1(m, n), A2(m, ns), A2p(m, n);
+        Vec b1(m), b2(m);
+        fast->evaluate({}, q, qd, A1, b1);
+        general->evaluate({}, qs, qds, A2, b2);
+        for (Index j = 0; j < n; ++j)
+          A2p.col(j) = A2.col(at(sc, packed[static_cast<std::size_t>(j)]));
+        EXPECT_EQ(A2.col(at(sc, "e1")).cwiseAbs().maxCoeff(), 0.0);
+        EXPECT_EQ(A2.col(at(sc, "e2")).cwiseAbs().maxCoeff(), 0.0);
+        if (std::string(fb) == "one.one") {  // the second body's columns stay 0
+          EXPECT_EQ(A1.rightCols(7).cwiseAbs().maxCoeff(), 0.0);
+        }
+        if (order == 0) {
+          EXPECT_EQ((A1 - A2p).cwiseAbs().maxCoeff(), 0.0) << fb;
+        } else {
+          EXPECT_LE(max_rel(A1, A2p), 1e-14) << fb;
+          worst_A = std::max(worst_A, max_rel(A1, A2p));
+        }
+        EXPECT_LE(max_rel(b1, b2), 1e-13) << fb;
+        worst_b = std::max(worst_b, max_rel(b1, b2));
+      }
+    }
+  }
+  RecordProperty("worst_rel_A_tapes", ::testing::PrintToString(worst_A));
+  RecordProperty("worst_rel_b", ::testing::PrintToString(worst_b));
+}
+
 // ------------------------------------------------------------------------------ weld range
 
 // The weld's orientation rows as a function of the relative rotation: their Jacobian with respect

@@ -193,6 +193,18 @@ struct End {
   bool free_body = false;
   Eigen::Vector3d fb_o = Eigen::Vector3d::Zero();
   Eigen::Matrix3d fb_Ro = Eigen::Matrix3d::Identity();
+  // R_o as a unit quaternion u_o and R_oᵀ o (free_body_pose), when R(u_o) is R_o to round-off.
+  bool fb_quaternion = false;
+  double fb_uo[4] = {1.0, 0.0, 0.0, 0.0};
+  Eigen::Vector3d fb_of = Eigen::Vector3d::Zero();
+  // The shape of its twist columns (weld_end_columns): the first unit_columns are translations
+  // along the world axes (a free body's x, y, z: t_c = e_c); `scale`: s_c may be non-zero (a free
+  // body, a tree with a ball or floating joint; revolute and prismatic joints give s_c = 0 exactly).
+  Index unit_columns = 0;
+  bool scale = true;
+  // Its columns are consecutive coordinates (a tree's always; a free body's when its coordinates
+  // are): weld_twist_rows walks A's columns by its stride.
+  bool consecutive = false;
 };
 
 // Σ |c| over the terms c·(monomial) of a polynomial in `vars` (∞ if it is not one, or has other
@@ -215,6 +227,30 @@ double coefficient_sum(const ex& d, const GiNaC::lst& vars, const GiNaC::exmap& 
     add(e);
   }
   return sum;
+}
+
+// B(a, b) = B(b, a) with B(u, u) = R(u) (quaternion_rotation, quadratic in u = (w, x, y, z)): the
+// polarisation of R, so that ∂R/∂u_k = 2 B(e_k, u), Ṙ = 2 B(u, u̇) and R̈|ü=0 = 2 B(u̇, u̇).
+// Into B's column-major storage (a Matrix3d's data()).
+inline void quaternion_bilinear(const double* a, const double* b, double* B) {
+  const double ww = a[0] * b[0], xx = a[1] * b[1], yy = a[2] * b[2], zz = a[3] * b[3];
+  const double xy = a[1] * b[2] + a[2] * b[1], xz = a[1] * b[3] + a[3] * b[1];
+  const double yz = a[2] * b[3] + a[3] * b[2], wx = a[0] * b[1] + a[1] * b[0];
+  const double wy = a[0] * b[2] + a[2] * b[0], wz = a[0] * b[3] + a[3] * b[0];
+  B[0] = ww + xx - yy - zz;
+  B[3] = xy - wz;
+  B[6] = xz + wy;
+  B[1] = xy + wz;
+  B[4] = ww - xx + yy - zz;
+  B[7] = yz - wx;
+  B[2] = xz - wy;
+  B[5] = yz + wx;
+  B[8] = ww - xx - yy + zz;
+}
+Eigen::Matrix3d quaternion_bilinear(const double* a, const double* b) {
+  Eigen::Matrix3d B;
+  quaternion_bilinear(a, b, B.data());
+  return B;
 }
 
 // Whether the pose x (p, then R row-major) over the end's 7 coordinates q is a frame fixed on a
@@ -250,26 +286,36 @@ void free_body_frame(End& end, const std::vector<GiNaC::symbol>& q, const std::v
     }
   }
   end.free_body = true;
+  end.unit_columns = 3;
   for (int i = 0; i < 3; ++i) end.fb_o(i) = off[i];
   for (int i = 0; i < 9; ++i) end.fb_Ro(i / 3, i % 3) = off[3 + i];
+  const Eigen::Quaterniond uo = Eigen::Quaterniond(end.fb_Ro).normalized();
+  const double c[4] = {uo.w(), uo.x(), uo.y(), uo.z()};
+  if ((quaternion_bilinear(c, c) - end.fb_Ro).cwiseAbs().maxCoeff() <= 1e-14) {
+    end.fb_quaternion = true;
+    std::copy(c, c + 4, end.fb_uo);
+    end.fb_of = end.fb_Ro.transpose() * end.fb_o;
+  }
 }
 
-// B(a, b) = B(b, a) with B(u, u) = R(u) (quaternion_rotation, quadratic in u = (w, x, y, z)): the
-// polarisation of R, so that ∂R/∂u_k = 2 B(e_k, u), Ṙ = 2 B(u, u̇) and R̈|ü=0 = 2 B(u̇, u̇).
-Eigen::Matrix3d quaternion_bilinear(const double* a, const double* b) {
-  const double ww = a[0] * b[0], xx = a[1] * b[1], yy = a[2] * b[2], zz = a[3] * b[3];
-  const double xy = a[1] * b[2] + a[2] * b[1], xz = a[1] * b[3] + a[3] * b[1];
-  const double yz = a[2] * b[3] + a[3] * b[2], wx = a[0] * b[1] + a[1] * b[0];
-  const double wy = a[0] * b[2] + a[2] * b[0], wz = a[0] * b[3] + a[3] * b[0];
-  Eigen::Matrix3d B;
-  B << ww + xx - yy - zz, xy - wz, xz + wy, xy + wz, ww - xx + yy - zz, yz - wx, xz - wy, yz + wx,
-      ww - xx - yy + zz;
-  return B;
+// a ⊗ b (Hamilton's product) of quaternions (w, x, y, z): R(a ⊗ b) = R(a) R(b) for
+// quaternion_rotation's homogeneous R (Shoemake 1985).
+inline void quaternion_product(const double* a, const double* b, double* out) {
+  out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
+  out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
+  out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
+  out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0];
 }
 
 // A free-body end's pose and rates (free_body_frame) in closed form; the body's coordinates x,
-// u = (w, x, y, z) into xq (7).
-void free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* xq) {
+// u = (w, x, y, z) into xq (7), the offset R(u) o returned (p = x + R(u) o). With the quaternion
+// u_o of R_o (End::fb_uo) the frame's rotation is R(u) R_o = R(u ⊗ u_o) = B(u', u') with
+// u' = u ⊗ u_o, and by polarisation of R(a ⊗ u_o) = R(a) R_o its rates are Ṙ R_o = 2 B(u', u̇')
+// and R̈ R_o = 2 B(u̇', u̇'), u̇' = u̇ ⊗ u_o (the 2 in u̇': exact): two quaternion products instead of
+// three 3 × 3 ones; the offset is then (R(u) R_o) R_oᵀ o. `position`: p and ṗ too (evaluate()'s
+// weld rows read neither).
+Eigen::Vector3d free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* xq,
+                               bool position = true) {
   double v[7];
   for (std::size_t c = 0; c < 7; ++c) {
     xq[c] = q(e.cols[c]);
@@ -277,15 +323,34 @@ void free_body_pose(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* 
   }
   const double* u = xq + 3;
   const double* ud = v + 3;
+  const Eigen::Vector3d x(xq[0], xq[1], xq[2]);
+  if (e.fb_quaternion) {
+    double uf[4], udf[4], udf2[4];
+    quaternion_product(u, e.fb_uo, uf);
+    quaternion_product(ud, e.fb_uo, udf);
+    for (int k = 0; k < 4; ++k) udf2[k] = 2.0 * udf[k];
+    quaternion_bilinear(uf, uf, s.R.data());
+    quaternion_bilinear(uf, udf2, s.Rd.data());
+    quaternion_bilinear(udf, udf2, s.Rdd.data());
+    const Eigen::Vector3d r = s.R * e.fb_of;
+    if (position) {
+      s.p = x + r;
+      s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + s.Rd * e.fb_of;
+    }
+    s.pdd = s.Rdd * e.fb_of;
+    return r;
+  }
   const Eigen::Matrix3d R = quaternion_bilinear(u, u);
   const Eigen::Matrix3d Rd = 2.0 * quaternion_bilinear(u, ud);
   const Eigen::Matrix3d Rdd = 2.0 * quaternion_bilinear(ud, ud);
-  s.p = Eigen::Vector3d(xq[0], xq[1], xq[2]) + R * e.fb_o;
+  const Eigen::Vector3d r = R * e.fb_o;
+  s.p = x + r;
   s.R = R * e.fb_Ro;
   s.pd = Eigen::Vector3d(v[0], v[1], v[2]) + Rd * e.fb_o;
   s.Rd = Rd * e.fb_Ro;
   s.pdd = Rdd * e.fb_o;
   s.Rdd = Rdd * e.fb_Ro;
+  return r;
 }
 
 // A free-body end's state (free_body_frame) in closed form: what its tape computes, without it.
@@ -312,28 +377,35 @@ void free_body_state(const End& e, CVecRef q, CVecRef qd, FrameState& s) {
 // (add_twist_columns). ∂R(u)/∂u_k = ([ω_k]× + s_k) R(u) with ω_k = 2 G(u) e_k / |u|² and
 // s_k = 2 u_k / |u|² (a ball joint's axes, src/tree/tree.cpp place_ball), so the frame moves by
 // ∂R = ([ω_k]× + s_k) R and ∂p = ω_k × (p − x) + s_k (p − x); x_c moves it by v = e_c.
-void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* twists) {
+// `weld`: for weld_twist_rows, which reads neither ṗ nor the columns of x (End::unit_columns):
+// they are not written.
+void free_body_twists(const End& e, CVecRef q, CVecRef qd, FrameState& s, double* twists,
+                      bool weld = false) {
   double x[7];
-  free_body_pose(e, q, qd, s, x);
+  const Eigen::Vector3d rv = free_body_pose(e, q, qd, s, x, !weld);
   const double w = x[3], a = x[4], b = x[5], c = x[6];
   const double qs = 2.0 / (w * w + a * a + b * b + c * c);
-  const Eigen::Vector3d g[4] = {{-a, -b, -c}, {w, c, -b}, {-c, w, a}, {b, -a, w}};
-  const Eigen::Vector3d r = s.p - Eigen::Vector3d(x[0], x[1], x[2]);
-  for (int k = 0; k < 3; ++k) {
+  const double r[3] = {rv(0), rv(1), rv(2)};
+  for (int k = 0; k < 3 && !weld; ++k) {
     double* t = twists + 7 * k;
     for (int i = 0; i < 7; ++i) t[i] = i == k ? 1.0 : 0.0;
   }
-  for (int k = 0; k < 4; ++k) {
-    double* t = twists + 7 * (3 + k);
-    const Eigen::Vector3d om = qs * g[k];
-    const double sk = qs * x[3 + k];
-    const Eigen::Vector3d v = om.cross(r) + sk * r;
-    for (int i = 0; i < 3; ++i) {
-      t[i] = v(i);
-      t[3 + i] = om(i);
-    }
+  // 2 G(u) = 2 [−x w −z y; −y z w −x; −z −y x w] (its columns e_k's ω up to 1/|u|²), and s_k:
+  // every entry is ± one of qs·(w, x, y, z).
+  const double sw = qs * w, sa = qs * a, sb = qs * b, sc = qs * c;
+  const auto twist = [&r](double* t, double o0, double o1, double o2, double sk) {  // ω × r + s r
+    t[0] = (o1 * r[2] - o2 * r[1]) + sk * r[0];
+    t[1] = (o2 * r[0] - o0 * r[2]) + sk * r[1];
+    t[2] = (o0 * r[1] - o1 * r[0]) + sk * r[2];
+    t[3] = o0;
+    t[4] = o1;
+    t[5] = o2;
     t[6] = sk;
-  }
+  };
+  twist(twists + 21, -sa, -sb, -sc, sw);
+  twist(twists + 28, sw, sc, -sb, sa);
+  twist(twists + 35, -sc, sw, sa, sb);
+  twist(twists + 42, sb, -sa, sw, sc);
 }
 
 End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTable& table,
@@ -345,6 +417,10 @@ End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTa
   if (s.kind == NumericFrameEnd::Kind::tree) {
     for (Index j = 0; j < s.tree->dof(); ++j) end.cols.push_back(s.first_coordinate + j);
     end.scratch = s.tree->slot_size();
+    const auto& links = s.tree->model().links;
+    end.scale = std::any_of(links.begin(), links.end(), [](const tree::Link& l) {
+      return l.type == tree::JointType::ball || l.type == tree::JointType::floating;
+    });
   } else if (s.kind == NumericFrameEnd::Kind::expressions) {
     const InputMap in = coordinate_inputs(table, coords, InputSet::q_qd_time);
     std::vector<ex> x;
@@ -383,6 +459,9 @@ End make_end(NumericFrameEnd e, const std::vector<std::string>& coords, SymbolTa
     end.scratch = static_cast<Index>(end.tape.work_size() + end.tape.outputs());
     free_body_frame(end, q, x);
   }
+  end.consecutive = true;
+  for (std::size_t c = 1; c < end.cols.size(); ++c)
+    end.consecutive = end.consecutive && end.cols[c] == end.cols[0] + static_cast<Index>(c);
   return end;
 }
 
@@ -501,13 +580,13 @@ void add_columns(const FrameState& s, const std::vector<Index>& cols, const RowV
 
 // An end's state for evaluate(): a tree end by frame_twists (its columns as twists (v, ω, s),
 // 7 per coordinate, in `twists`; the link placements its subsystem's dynamics() left in its slot
-// reused when they are of this state), a free-body end by free_body_twists (twists too), any other
-// end by end_state (dp, dR).
+// reused when they are of this state), a free-body end by free_body_twists (twists too; `weld`:
+// what weld_twist_rows reads of it), any other end by end_state (dp, dR).
 void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef qd, double* scratch,
-                FrameState& s, double* twists) {
+                FrameState& s, double* twists, bool weld = false) {
   const NumericFrameEnd& spec = e.spec;
   if (e.free_body) {
-    free_body_twists(e, q, qd, s, twists);
+    free_body_twists(e, q, qd, s, twists, weld);
     return;
   }
   if (spec.kind != NumericFrameEnd::Kind::tree) {
@@ -525,12 +604,9 @@ void end_twists(const End& e, const ConstraintSlots& slots, CVecRef q, CVecRef q
 // are an end's position alone (position_rows: G(i, :) = ±e_iᵀ, so G t_c is ±t_c(i), its only
 // non-zero term) and the rows after them do not read the positions (weld_row, hinge_row: G's
 // columns 0–2 are 0 there, so their sums start at column k0 = 3); np = 0: every row in full.
-// SET (MR > 0 only): A(:, cols[c]) = G t_c instead, for columns no other end writes (the bits of
-// 0 + G t_c).
-template <int MR, int NP, bool SET = false>
+template <int MR, int NP>
 void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vector<Index>& cols,
                      const double* twists, int m_rt, int np_rt, MatRef A) {
-  static_assert(MR > 0 || !SET, "SET needs the rows at compile time");
   const int m = MR > 0 ? MR : m_rt, np = MR > 0 ? NP : np_rt, k0 = np > 0 ? 3 : 0;
   if constexpr (MR > 0) {  // fixed-size vectors of MR − NP rows: the same sums, vectorised
     constexpr int MO = MR - NP;
@@ -538,13 +614,8 @@ void add_map_columns(const Eigen::Matrix<double, kMaxRows, 7>& G, const std::vec
       const double* t = twists + 7 * c;
       Eigen::Matrix<double, MO, 1> v = G.col(k0).template segment<MO>(NP) * t[k0];
       for (int k = k0 + 1; k < 7; ++k) v += G.col(k).template segment<MO>(NP) * t[k];
-      if constexpr (SET) {
-        for (int i = 0; i < NP; ++i) A(i, cols[c]) = G(i, i) * t[i];
-        A.col(cols[c]).template segment<MO>(NP) = v;
-      } else {
-        for (int i = 0; i < NP; ++i) A(i, cols[c]) += G(i, i) * t[i];
-        A.col(cols[c]).template segment<MO>(NP) += v;
-      }
+      for (int i = 0; i < NP; ++i) A(i, cols[c]) += G(i, i) * t[i];
+      A.col(cols[c]).template segment<MO>(NP) += v;
     }
     return;
   }
@@ -594,55 +665,145 @@ void add_twist_columns(const FrameState& s, const std::vector<Index>& cols, cons
   }
 }
 
-// rotation_map_row() for a weld row (i, j), whose d has the columns i and j only: the same sums
-// without the column of zeros (x + 0 = x: the same bits).
-inline void weld_map_row(const Eigen::Matrix3d& R, int i, int j, const Eigen::Vector3d (&d)[3],
-                         Eigen::Matrix<double, kMaxRows, 7>& G, int row) {
-  const int lo = std::min(i, j), hi = std::max(i, j);
-  const Eigen::Vector3d w = R.col(lo).cross(d[lo]) + R.col(hi).cross(d[hi]);
-  for (int k = 0; k < 3; ++k) G(row, 3 + k) = w(k);
-  G(row, 6) = R.col(lo).dot(d[lo]) + R.col(hi).dot(d[hi]);
+// One end's columns of a weld's A (weld_twist_rows), its G given as W (G's columns 3–5 of the
+// orientation rows) and g (column 6): A(0:3, c) = ±t_c(0:3) (the position rows, G = ±e_iᵀ; NEG:
+// −) and A(3:6, c) = W ω_c + g s_c, the terms in add_map_columns' order (ω's three, then s's).
+// The end's first unit_columns (0 or 3) are a free body's translations (t_c = e_c: ±e_c and
+// zeros, no products); its columns are consecutive (End::consecutive); without End::scale (a tree of revolute and prismatic joints: every s_c is an exact
+// zero) the term g s_c is left out. SET: the columns are set, else added to. Two columns at a
+// time, one in each lane of a 2-vector (the same sums per column), W and g in locals: no reload
+// per column.
+template <bool SCALE, bool SET, bool NEG>
+void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3],
+                      const double (&g)[3], MatRef A) {
+  using P = Eigen::Array2d;
+  const Index ld = A.outerStride();
+  const auto put = [](double& x, double v) { x = SET ? v : x + v; };
+  const auto unit = static_cast<std::size_t>(e.unit_columns), n = e.cols.size();
+  if (n == 0) return;
+  double* const A0 = A.data() + ld * e.cols[0];  // column c of the end at A0 + ld c
+  constexpr double one = NEG ? -1.0 : 1.0, zero = NEG ? -0.0 : 0.0;  // ±1 · (1, 0)
+  if (unit == 3) {
+    for (std::size_t c = 0; c < 3; ++c) {
+      double* a = A0 + ld * static_cast<Index>(c);
+      put(a[0], c == 0 ? one : zero);
+      put(a[1], c == 1 ? one : zero);
+      put(a[2], c == 2 ? one : zero);
+      if constexpr (SET) a[3] = a[4] = a[5] = 0.0;
+    }
+  }
+  P w[3][3], gs[3];
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) w[r][k] = P::Constant(W[r][k]);
+    gs[r] = P::Constant(g[r]);
+  }
+  // Rows 3–5 of columns c and c + 1 (a second copy of c past the last).
+  const auto rows = [&](std::size_t c, bool two, P(&v)[3]) {
+    const double* t = twists + 7 * c;
+    const double* u = two ? t + 7 : t;
+    const P t3(t[3], u[3]), t4(t[4], u[4]), t5(t[5], u[5]);
+    for (int r = 0; r < 3; ++r) {
+      v[r] = w[r][0] * t3 + w[r][1] * t4 + w[r][2] * t5;
+      if constexpr (SCALE) v[r] += gs[r] * P(t[6], u[6]);
+    }
+  };
+  const auto column = [&](std::size_t c, const P(&v)[3], int h) {
+    const double* t = twists + 7 * c;
+    double* a = A0 + ld * static_cast<Index>(c);
+    const P p = Eigen::Map<const P>(t);
+    Eigen::Map<P> ap(a);
+    if constexpr (SET) {
+      ap = NEG ? P(-p) : p;
+    } else {
+      ap += NEG ? P(-p) : p;
+    }
+    put(a[2], NEG ? -t[2] : t[2]);
+    for (int r = 0; r < 3; ++r) put(a[3 + r], v[r](h));
+  };
+  std::size_t c = unit;
+  for (; c + 1 < n; c += 2) {
+    P v[3];
+    rows(c, true, v);
+    column(c, v, 0);
+    column(c + 1, v, 1);
+  }
+  if (c < n) {
+    P v[3];
+    rows(c, false, v);
+    column(c, v, 0);
+  }
+}
+
+template <bool SET, bool NEG>
+void weld_end_columns(const End& e, const double* twists, const double (&W)[3][3],
+                      const double (&g)[3], MatRef A) {
+  if (e.scale) {
+    weld_end_columns<true, SET, NEG>(e, twists, W, g, A);
+  } else {
+    weld_end_columns<false, SET, NEG>(e, twists, W, g, A);
+  }
+}
+
+// x·y of 3-vectors, summed as Eigen sums a Vector3d's dot: (x0 y0 + x1 y1) + x2 y2.
+inline double dot3(const double* x, const double* y) {
+  return x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+}
+
+// x × y − z × v of 3-vectors into out (each cross product as Eigen's, then subtracted).
+inline void cross_difference(const double* x, const double* y, const double* z, const double* v,
+                             double* out) {
+  out[0] = (x[1] * y[2] - x[2] * y[1]) - (z[1] * v[2] - z[2] * v[1]);
+  out[1] = (x[2] * y[0] - x[0] * y[2]) - (z[2] * v[0] - z[0] * v[2]);
+  out[2] = (x[0] * y[1] - x[1] * y[0]) - (z[0] * v[1] - z[1] * v[0]);
+}
+
+// weld_twist_rows' orientation row w = (i, j) (the 3 − i − j of (2, 1), (0, 2), (1, 0)): W's row
+// w, g(w) and b(3 + w), the indices known at compile time (constant offsets into R, Ṙ, R̈).
+template <int W, int I, int J>
+void weld_orientation_row(const FrameState& a, const FrameState& b, double (&Wm)[3][3],
+                          double (&g)[3], double (&bo)[6]) {
+  const double *ai = a.R.data() + 3 * I, *aj = a.R.data() + 3 * J;
+  const double *bi = b.R.data() + 3 * I, *bj = b.R.data() + 3 * J;
+  double c[3];
+  cross_difference(ai, bj, aj, bi, c);
+  for (int k = 0; k < 3; ++k) Wm[W][k] = 0.5 * c[k];
+  g[W] = 0.5 * (dot3(ai, bj) - dot3(aj, bi));
+  const double dx = 0.5 * (((dot3(bj, a.Rdd.data() + 3 * I) - dot3(bi, a.Rdd.data() + 3 * J)) +
+                            dot3(ai, b.Rdd.data() + 3 * J)) -
+                           dot3(aj, b.Rdd.data() + 3 * I));
+  const double hx = dot3(a.Rd.data() + 3 * I, b.Rd.data() + 3 * J) -
+                    dot3(a.Rd.data() + 3 * J, b.Rd.data() + 3 * I);
+  bo[3 + W] = -(dx + hx);
 }
 
 // A weld between two twist ends (a tree's or a free body's) for evaluate(), without forming
 // RowValues' D (144 entries, mostly zeros) and its product with the 24 rates: its rows are
 // position_rows (G = ±e_iᵀ on p_a, p_b) and weld_row (i, j) for (2, 1), (0, 2), (1, 0), whose
 // ∂Φ/∂R_a has the columns d_i = ½ R_b(:, j), d_j = −½ R_b(:, i) and ∂Φ/∂R_b the columns
-// d_j = ½ R_a(:, i), d_i = −½ R_a(:, j) (the values weld_row writes into D, so G and A are
-// add_twist_columns' bit for bit). b = −(D ẍ + ẋᵀHẋ) on the same non-zero terms.
-// `disjoint`: the ends have no column in common, so A's columns are set (no zeroing first).
-void weld_twist_rows(const FrameState& a, const FrameState& b, const std::vector<Index>& cols_a,
-                     const double* ta, const std::vector<Index>& cols_b, const double* tb,
-                     bool disjoint, MatRef A, VecRef bv) {
-  constexpr int ij[3][2] = {{2, 1}, {0, 2}, {1, 0}};
-  Eigen::Matrix<double, kMaxRows, 7> Ga, Gb;
-  for (int k = 0; k < 3; ++k) {
-    Ga(k, k) = 1.0;
-    Gb(k, k) = -1.0;
-    bv(k) = -(a.pdd(k) - b.pdd(k));
-  }
-  for (int w = 0; w < 3; ++w) {
-    const int i = ij[w][0], j = ij[w][1], row = 3 + w;
-    Eigen::Vector3d da[3], db[3];
-    const int other = 3 - i - j;
-    da[other] = db[other] = Eigen::Vector3d::Zero();
-    da[i] = 0.5 * b.R.col(j);
-    da[j] = -(0.5 * b.R.col(i));
-    db[j] = 0.5 * a.R.col(i);
-    db[i] = -(0.5 * a.R.col(j));
-    weld_map_row(a.R, i, j, da, Ga, row);
-    weld_map_row(b.R, i, j, db, Gb, row);
-    const double dx = da[i].dot(a.Rdd.col(i)) + da[j].dot(a.Rdd.col(j)) + db[j].dot(b.Rdd.col(j)) +
-                      db[i].dot(b.Rdd.col(i));
-    const double hx = a.Rd.col(i).dot(b.Rd.col(j)) - a.Rd.col(j).dot(b.Rd.col(i));
-    bv(row) = -(dx + hx);
-  }
+// d_j = ½ R_a(:, i), d_i = −½ R_a(:, j) (the values weld_row writes into D). G's orientation
+// rows by rotation_map_row's sums without its column of zeros: end a's (w, g) with
+// w = R_a(:, i) × d_i + R_a(:, j) × d_j, g = R_a(:, i)·d_i + R_a(:, j)·d_j, and end b's (−w, g)
+// exactly (each cross product of b's is one of a's with its factors swapped, each dot product one
+// of a's with its factors swapped), so A is add_twist_columns' bit for bit. b = −(D ẍ + ẋᵀHẋ)
+// on the same non-zero terms. The ½ is taken out of each sum (w = ½ (R_a(:, i) × R_b(:, j) −
+// R_a(:, j) × R_b(:, i)), …): a power of two, so the same bits as the terms scaled one by one.
+// On raw doubles (R's column k at R.data() + 3 k). End a's columns of A are set; `disjoint` (the
+// ends have no column in common): b's are set too, else added onto a's.
+void weld_twist_rows(const FrameState& a, const FrameState& b, const End& ea, const double* ta,
+                     const End& eb, const double* tb, bool disjoint, MatRef A, VecRef bv) {
+  double Wa[3][3], Wb[3][3], g[3], bo[6];
+  for (int k = 0; k < 3; ++k) bo[k] = -(a.pdd(k) - b.pdd(k));
+  weld_orientation_row<0, 2, 1>(a, b, Wa, g, bo);
+  weld_orientation_row<1, 0, 2>(a, b, Wa, g, bo);
+  weld_orientation_row<2, 1, 0>(a, b, Wa, g, bo);
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) Wb[r][k] = -Wa[r][k];
+  for (int k = 0; k < 6; ++k) bv(k) = bo[k];
+  weld_end_columns<true, false>(ea, ta, Wa, g, A);
   if (disjoint) {
-    add_map_columns<kMaxRows, 3, true>(Ga, cols_a, ta, kMaxRows, 3, A);
-    add_map_columns<kMaxRows, 3, true>(Gb, cols_b, tb, kMaxRows, 3, A);
+    weld_end_columns<true, true>(eb, tb, Wb, g, A);
   } else {
-    add_map_columns<kMaxRows, 3>(Ga, cols_a, ta, kMaxRows, 3, A);
-    add_map_columns<kMaxRows, 3>(Gb, cols_b, tb, kMaxRows, 3, A);
+    weld_end_columns<false, true>(eb, tb, Wb, g, A);
   }
 }
 
@@ -1281,16 +1442,17 @@ class Core {
     all.insert(b_.cols.begin(), b_.cols.end());
     cols_.assign(all.begin(), all.end());
     disjoint_ = cols_.size() == a_.cols.size() + b_.cols.size();
+    weld_twists_ =
+        f_.kind == K::weld && twist_end(a_) && twist_end(b_) && a_.consecutive && b_.consecutive;
+    const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
+    slot_size_ = a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
   }
   [[nodiscard]] const NumericFrameSpec& spec() const { return f_; }
   [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
   [[nodiscard]] const std::vector<Index>& columns() const { return cols_; }
   // The ends' scratch and columns (with()), then for tangent() the columns' tangents and the
   // tape tangents' room of an expressions end (as much as its scratch).
-  [[nodiscard]] Index slot_size() const {
-    const auto cols = static_cast<Index>(a_.cols.size() + b_.cols.size());
-    return a_.scratch + b_.scratch + 24 * cols + tangent_room(a_) + tangent_room(b_);
-  }
+  [[nodiscard]] Index slot_size() const { return slot_size_; }
   // tangent_columns()'s ends' J (lane_room): dead once its columns are written, so they live in
   // the scratch every constraint of a ForwardData shares (ConstraintSlots::shared()), not in this
   // constraint's slot: N welds then reuse one area that stays cached instead of streaming N.
@@ -1352,9 +1514,11 @@ class Core {
           f(Sa, Sb, da, db, r);
         });
   }
-  // with_twists() without the rows' values: f(Sa, Sb, da, db).
+  // with_twists() without the rows' values: f(Sa, Sb, da, db). `weld`: for weld_twist_rows
+  // (end_twists).
   template <class F>
-  void with_end_twists(const ConstraintSlots& slots, CVecRef q, CVecRef qd, F&& f) const {
+  void with_end_twists(const ConstraintSlots& slots, CVecRef q, CVecRef qd, F&& f,
+                       bool weld = false) const {
     std::vector<double> own;
     double* base = room(slots.own(), own);
     const auto na = static_cast<Index>(a_.cols.size()), nb = static_cast<Index>(b_.cols.size());
@@ -1363,8 +1527,8 @@ class Core {
     double* da = sb + b_.scratch;
     double* db = da + 12 * na;
     FrameState Sa(da, da + 3 * na, na), Sb(db, db + 3 * nb, nb);
-    end_twists(a_, slots, q, qd, sa, Sa, da);
-    end_twists(b_, slots, q, qd, sb, Sb, db);
+    end_twists(a_, slots, q, qd, sa, Sa, da, weld);
+    end_twists(b_, slots, q, qd, sb, Sb, db, weld);
     f(Sa, Sb, da, db);
   }
 
@@ -1373,7 +1537,7 @@ class Core {
   // (ConstraintContext::structural_only: O(columns) per call, not O(n)).
   void evaluate(const ConstraintSlots& slots, CVecRef q, CVecRef qd, MatRef A, VecRef b,
                 bool structural) const {
-    if (f_.kind == K::weld && twist_end(a_) && twist_end(b_)) {  // weld_twist_rows
+    if (weld_twists_) {
       with_end_twists(
           slots, q, qd,
           [&](const FrameState& Sa, const FrameState& Sb, const double* da, const double* db) {
@@ -1382,8 +1546,9 @@ class Core {
             } else if (!disjoint_) {
               for (const Index c : cols_) A.col(c).setZero();
             }
-            weld_twist_rows(Sa, Sb, a_.cols, da, b_.cols, db, disjoint_, A, b);
-          });
+            weld_twist_rows(Sa, Sb, a_, da, b_, db, disjoint_, A, b);
+          },
+          true);
       return;
     }
     with_twists(slots, q, qd,
@@ -1512,7 +1677,9 @@ class Core {
   std::vector<HessianEntry> hess_;
   std::vector<std::string> names_;
   std::vector<Index> cols_;
-  bool disjoint_ = false;  // the ends share no column
+  bool disjoint_ = false;     // the ends share no column
+  bool weld_twists_ = false;  // evaluate() by weld_twist_rows
+  Index slot_size_ = 0;
 };
 
 // ẋ and ẍ|q̈=0 of both ends as the 24-vectors of RowValues::D's columns.
