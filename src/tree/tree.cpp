@@ -987,6 +987,24 @@ const LinkState<double>* placed_links(ConstSlot placed, Index size, std::size_t 
   return reinterpret_cast<const LinkState<double>*>(placed.data());
 }
 
+// placed_links for a plan whose joint variables are the coordinates (ForwardPlan::identity):
+// θ = offset + q and θ̇ = 0 + q̇ formed entry by entry (theta_of_identity's bits) and compared
+// with the slot's as they are formed, without writing them anywhere.
+const LinkState<double>* placed_links_identity(ConstSlot placed, Index size, std::size_t links,
+                                               Index nt, const void* owner,
+                                               const std::vector<double>& offset, const double* q,
+                                               const double* qd) {
+  const double* th = moved_by(placed, size, links, nt, owner);
+  if (!th) return nullptr;
+  for (Index a = 0; a < nt; ++a) {
+    const double v = offset[static_cast<std::size_t>(a)] + q[a], vd = 0.0 + qd[a];
+    if (std::bit_cast<std::uint64_t>(v) != std::bit_cast<std::uint64_t>(th[a]) ||
+        std::bit_cast<std::uint64_t>(vd) != std::bit_cast<std::uint64_t>(th[nt + a]))
+      return nullptr;
+  }
+  return reinterpret_cast<const LinkState<double>*>(placed.data());
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------ derivatives
@@ -1665,6 +1683,43 @@ FrameMotion<S> frame_motion(const Model& m, const LinkState<S>* ws, int link,
   return f;
 }
 
+// True if R is exactly the identity (then R X = X and R x = x: 1 × x plus exact zeros).
+bool is_identity(const Eigen::Matrix3d& R) { return R == Eigen::Matrix3d::Identity(); }
+
+// frame_motion of a tree without ball joints (λ = 0, α and ω of the link's motion), written into
+// `out`: Ṙ and R̈ column by column, Ṙ_c = ω × R_c (the entries of [ω]× R without its exact zero
+// terms: the same bits) and R̈_c = α × R_c + ω × Ṙ_c (([α]× + [ω]×²) R regrouped: 6 cross
+// products instead of three 3 × 3 products; equal to round-off).
+void frame_motion_rigid(const Model& m, const LinkState<double>* ws, int link,
+                        const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
+                        FrameState& out) {
+  if (link < 0) {
+    out.p = m.root_translation + m.root_rotation * x_offset;
+    out.R = m.root_rotation * R_offset;
+    out.pd.setZero();
+    out.pdd.setZero();
+    out.Rd.setZero();
+    out.Rdd.setZero();
+    return;
+  }
+  const LinkState<double>& L = ws[link];
+  const Eigen::Vector3d vw = L.vw, aw = L.aw;
+  out.p = L.p + L.R * x_offset;
+  if (is_identity(R_offset)) {
+    out.R = L.R;
+  } else {
+    out.R.noalias() = L.R * R_offset;
+  }
+  out.pd = L.vv + vw.cross(out.p);
+  out.pdd = L.av + aw.cross(out.p) + vw.cross(out.pd);
+  for (int c = 0; c < 3; ++c) {
+    const Eigen::Vector3d Rc = out.R.col(c);
+    const Eigen::Vector3d Rdc = vw.cross(Rc);
+    out.Rd.col(c) = Rdc;
+    out.Rdd.col(c) = aw.cross(Rc) + vw.cross(Rdc);
+  }
+}
+
 // The terms of joint variable k of link L: a ball joint's variable k is its coordinate k.
 std::pair<const Term*, const Term*> variable_terms(const Link& L, int k) {
   if (L.type == JointType::ball)
@@ -1707,6 +1762,7 @@ MergedFrame merged_frame(const std::vector<TreeSubsystem::Placement>& placement,
                          const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset) {
   if (frame_link < 0) return {-1, R_offset, x_offset};
   const TreeSubsystem::Placement& at = placement[static_cast<std::size_t>(frame_link)];
+  if (is_identity(at.R)) return {at.link, R_offset, at.p + x_offset};
   return {at.link, at.R * R_offset, at.p + at.R * x_offset};
 }
 
@@ -1758,6 +1814,35 @@ void twist_columns(const Model& m, const std::vector<int>& ti, const LinkState<d
   }
 }
 
+// twist_columns of a tree without ball joints whose joint variables are its coordinates
+// (ForwardPlan::identity): each movable link at or above `link` writes its own column
+// (s_v + s_w × p, s_w, 0) (the bits of twist_columns' 0 + 1 × x); the others are zeroed unless
+// every column is written.
+void twist_columns_rigid(const ForwardPlan& plan, const std::vector<int>& ti,
+                         const LinkState<double>* ws, int link, const Eigen::Vector3d& p,
+                         Index cols, double* twists) {
+  const auto put = [&](const LinkState<double>& w, int a) {
+    double* c = twists + 7 * a;
+    const Eigen::Vector3d sw = w.sw[0], v = w.sv[0] + sw.cross(p);
+    for (int r = 0; r < 3; ++r) {
+      c[r] = v(r);
+      c[3 + r] = sw(r);
+    }
+    c[6] = 0.0;
+  };
+  if (link < 0) {
+    std::fill_n(twists, 7 * cols, 0.0);
+    return;
+  }
+  const auto lu = static_cast<std::size_t>(link);
+  const LinkPlan& P = plan.links[lu];
+  const auto written = static_cast<Index>(P.ancestors_end - P.ancestors) + (ti[lu] >= 0 ? 1 : 0);
+  if (written != cols) std::fill_n(twists, 7 * cols, 0.0);
+  if (ti[lu] >= 0) put(ws[lu], ti[lu]);
+  for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k)
+    put(ws[plan.ancestors[k].first], plan.ancestors[k].second);
+}
+
 }  // namespace
 
 void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
@@ -1766,16 +1851,26 @@ void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
                                  double* twists) const {
   const MergedFrame at = merged_frame(placement_, frame_link, R_offset, x_offset);
   const std::size_t nl = merged_.links.size();
+  const LinkState<double>* links =
+      plan_->identity ? placed_links_identity(placed, slot_size_, nl, n_theta_, this, theta_offset_,
+                                              q.data(), qd.data())
+                      : nullptr;
   with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
-    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
-    const LinkState<double>* links =
-        placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
+    if (!links) {
+      theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+      links = placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
+    }
     if (!links) {  // not placed at this state: the pass of frame_state
       place_for(merged_, *plan_, theta_index_, quaternions_, w.theta, w.links);
       link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
                           Eigen::Vector3d::Zero(), w.links);
       mark_moved(w, this);
       links = w.links;
+    }
+    if (!quaternions_ && plan_->identity) {
+      frame_motion_rigid(merged_, links, at.link, at.R, at.x, out);
+      twist_columns_rigid(*plan_, theta_index_, links, at.link, out.p, dof(), twists);
+      return;
     }
     const FrameMotion<double> f = frame_motion(merged_, links, at.link, at.R, at.x);
     copy_motion(f, out);
