@@ -765,15 +765,43 @@ void composite_rigid(const Model& m, LinkState<double>* ws) {
   }
 }
 
+// The axes of a serial chain's joint variables as rows (s[k][b]: s_w of variable b for k < 3,
+// s_v for k ≥ 3), for chain_pairs; chains of up to kChainPairs variables.
+constexpr Index kChainPairs = 32;
+struct ChainAxes {
+  double s[6][kChainPairs];
+};
+
+// The CRBA's pairs of link a of a serial chain whose joint variables are in order
+// (ForwardPlan::every_pair: the movable ancestors of variable a are 0 … a − 1): column a above the
+// diagonal, M(b, a) = S_bᵀ (n, f) for b < a, down the column from the axes as rows (the sums of
+// dot3(s_w, n) + dot3(s_v, f) in the same order, vectorised across b), then mirrored into row a.
+void chain_pairs(const ChainAxes& ax, int a, const Eigen::Vector3d& n, const Eigen::Vector3d& f,
+                 double* Mt, Index ld) {
+  double* col = Mt + a * ld;
+  const double n0 = n(0), n1 = n(1), n2 = n(2), f0 = f(0), f1 = f(1), f2 = f(2);
+  for (int b = 0; b < a; ++b) {
+    col[b] = (ax.s[0][b] * n0 + ax.s[1][b] * n1 + ax.s[2][b] * n2) +
+             (ax.s[3][b] * f0 + ax.s[4][b] * f1 + ax.s[5][b] * f2);
+  }
+  for (int b = 0; b < a; ++b) Mt[a + b * ld] = col[b];
+}
+
+// Zeroes Mt (leading dimension ld) unless every pair of joint variables is a link and its
+// ancestor (a serial chain: then the CRBA writes every entry).
+void zero_unless_every_pair(const ForwardPlan& plan, double* Mt, Index nt, Index ld) {
+  if (plan.every_pair) return;
+  for (Index j = 0; j < nt; ++j)
+    for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = 0.0;
+}
+
 // crba_rigid and gravity_forces in one pass over the links, the ancestors from the plan (the
-// same sums in the same order). Mt (leading dimension ld) is zeroed first unless every pair of
-// joint variables is a link and its ancestor (a serial chain: then every entry is written).
+// same sums in the same order; a serial chain's by chain_pairs).
 void crba_gravity_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                         const LinkState<double>* ws, double* Mt, Index nt, Index ld, double* G) {
-  if (!plan.every_pair) {
-    for (Index j = 0; j < nt; ++j)
-      for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = 0.0;
-  }
+  zero_unless_every_pair(plan, Mt, nt, ld);
+  ChainAxes ax;  // the axes of the variables before a (a serial chain of up to kChainPairs)
+  const bool chain = plan.every_pair && nt <= kChainPairs;
   const Eigen::Vector3d& g = m.gravity;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     const int a = ti[i];
@@ -782,12 +810,20 @@ void crba_gravity_rigid(const Model& m, const ForwardPlan& plan, const std::vect
     Eigen::Vector3d n, f;
     apply_inertia(w.m, w.h, w.I, w.sw[0], w.sv[0], n, f);
     Mt[a + a * ld] = dot3(w.sw[0], n) + dot3(w.sv[0], f);
-    const LinkPlan& P = plan.links[i];
-    for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k) {
-      const auto [j, b] = plan.ancestors[k];
-      const double v = dot3(ws[j].sw[0], n) + dot3(ws[j].sv[0], f);
-      Mt[a + b * ld] = v;
-      Mt[b + a * ld] = v;
+    if (chain) {
+      chain_pairs(ax, a, n, f, Mt, ld);
+      for (int k = 0; k < 3; ++k) {
+        ax.s[k][a] = w.sw[0](k);
+        ax.s[3 + k][a] = w.sv[0](k);
+      }
+    } else {
+      const LinkPlan& P = plan.links[i];
+      for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k) {
+        const auto [j, b] = plan.ancestors[k];
+        const double v = dot3(ws[j].sw[0], n) + dot3(ws[j].sv[0], f);
+        Mt[a + b * ld] = v;
+        Mt[b + a * ld] = v;
+      }
     }
     const Eigen::Vector3d gn = -w.h.cross(g), gf = -g * w.m;
     G[a] = dot3(w.sw[0], gn) + dot3(w.sv[0], gf);
