@@ -18,6 +18,7 @@
 
 #include "core/lane_dual.hpp"
 #include "tree/dual.hpp"
+#include "tree/sin_cos.hpp"
 
 namespace ukdyn::tree {
 
@@ -124,6 +125,20 @@ void turn_about_axis(int k, const M3<S>& Rj, const S& th, LinkState<S>& w) {
     turn_about<S, 0>(Rj, c, s, w);
   } else {
     turn_about<S, 1>(Rj, c, s, w);
+  }
+}
+
+// turn_about_axis on doubles for the rigid passes: cos θ and sin θ from trig::sin_cos (one
+// reduction and two polynomials, no call into the C library; within 1 ulp of std::cos, std::sin).
+void turn_about_axis_rigid(int k, const Eigen::Matrix3d& Rj, double th, LinkState<double>& w) {
+  double s = 0.0, c = 0.0;
+  trig::sin_cos(th, s, c);
+  if (k == 2) {
+    turn_about<double, 2>(Rj, c, s, w);
+  } else if (k == 0) {
+    turn_about<double, 0>(Rj, c, s, w);
+  } else {
+    turn_about<double, 1>(Rj, c, s, w);
   }
 }
 
@@ -735,7 +750,7 @@ void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>
     w.sl[0] = 0.0;
     if (L.type == JointType::revolute) {
       if (P.axis >= 0) {
-        turn_about_axis<double>(P.axis, Rj, theta[ti[i]], w);
+        turn_about_axis_rigid(P.axis, Rj, theta[ti[i]], w);
       } else {
         place_revolute<double>(L.axis, Rj, theta[ti[i]], w);
       }
