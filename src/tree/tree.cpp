@@ -716,7 +716,10 @@ void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
   // own_inertia's sums column by column (vectorised; the same products in the same order), the
   // upper triangle mirrored.
   const Eigen::Matrix3d T = w.R * L.inertia;
-  w.Ic.noalias() = T * w.R.transpose();
+  const Eigen::Matrix3d& R = w.R;
+  w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
+  w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
+  w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
   w.Ic(1, 0) = w.Ic(0, 1);
   w.Ic(2, 0) = w.Ic(0, 2);
   w.Ic(2, 1) = w.Ic(1, 2);
@@ -858,7 +861,10 @@ void link_force_rigid(bool massless, LinkState<double>& w) {
   const Eigen::Vector3d cd = w.vv + w.vw.cross(w.c);
   const Eigen::Vector3d cdd = w.av + w.aw.cross(w.c) + w.vw.cross(cd);
   w.ff = cdd * w.m_own;
-  w.fn = w.c.cross(w.ff) + w.Ic * w.aw + w.vw.cross(Eigen::Vector3d(w.Ic * w.vw));
+  Eigen::Matrix<double, 3, 2> av;  // α and ω through Ic in one product
+  av << w.aw, w.vw;
+  const Eigen::Matrix<double, 3, 2> Iav = w.Ic * av;
+  w.fn = w.c.cross(w.ff) + Iav.col(0) + w.vw.cross(Eigen::Vector3d(Iav.col(1)));
 }
 
 // The velocity products C(θ, θ̇) θ̇ of a tree without ball joints (inverse_dynamics at θ̈ = 0
