@@ -18,6 +18,7 @@
 
 #include "core/lane_dual.hpp"
 #include "tree/dual.hpp"
+#include "tree/sin_cos.hpp"
 
 namespace ukdyn::tree {
 
@@ -124,6 +125,20 @@ void turn_about_axis(int k, const M3<S>& Rj, const S& th, LinkState<S>& w) {
     turn_about<S, 0>(Rj, c, s, w);
   } else {
     turn_about<S, 1>(Rj, c, s, w);
+  }
+}
+
+// turn_about_axis on doubles for the rigid passes: cos θ and sin θ from trig::sin_cos (one
+// reduction and two polynomials, no call into the C library; within 1 ulp of std::cos, std::sin).
+void turn_about_axis_rigid(int k, const Eigen::Matrix3d& Rj, double th, LinkState<double>& w) {
+  double s = 0.0, c = 0.0;
+  trig::sin_cos(th, s, c);
+  if (k == 2) {
+    turn_about<double, 2>(Rj, c, s, w);
+  } else if (k == 0) {
+    turn_about<double, 0>(Rj, c, s, w);
+  } else {
+    turn_about<double, 1>(Rj, c, s, w);
   }
 }
 
@@ -701,7 +716,10 @@ void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
   // own_inertia's sums column by column (vectorised; the same products in the same order), the
   // upper triangle mirrored.
   const Eigen::Matrix3d T = w.R * L.inertia;
-  w.Ic.noalias() = T * w.R.transpose();
+  const Eigen::Matrix3d& R = w.R;
+  w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
+  w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
+  w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
   w.Ic(1, 0) = w.Ic(0, 1);
   w.Ic(2, 0) = w.Ic(0, 2);
   w.Ic(2, 1) = w.Ic(1, 2);
@@ -735,7 +753,7 @@ void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>
     w.sl[0] = 0.0;
     if (L.type == JointType::revolute) {
       if (P.axis >= 0) {
-        turn_about_axis<double>(P.axis, Rj, theta[ti[i]], w);
+        turn_about_axis_rigid(P.axis, Rj, theta[ti[i]], w);
       } else {
         place_revolute<double>(L.axis, Rj, theta[ti[i]], w);
       }
@@ -765,15 +783,43 @@ void composite_rigid(const Model& m, LinkState<double>* ws) {
   }
 }
 
+// The axes of a serial chain's joint variables as rows (s[k][b]: s_w of variable b for k < 3,
+// s_v for k ≥ 3), for chain_pairs; chains of up to kChainPairs variables.
+constexpr Index kChainPairs = 32;
+struct ChainAxes {
+  double s[6][kChainPairs];
+};
+
+// The CRBA's pairs of link a of a serial chain whose joint variables are in order
+// (ForwardPlan::every_pair: the movable ancestors of variable a are 0 … a − 1): column a above the
+// diagonal, M(b, a) = S_bᵀ (n, f) for b < a, down the column from the axes as rows (the sums of
+// dot3(s_w, n) + dot3(s_v, f) in the same order, vectorised across b), then mirrored into row a.
+void chain_pairs(const ChainAxes& ax, int a, const Eigen::Vector3d& n, const Eigen::Vector3d& f,
+                 double* Mt, Index ld) {
+  double* col = Mt + a * ld;
+  const double n0 = n(0), n1 = n(1), n2 = n(2), f0 = f(0), f1 = f(1), f2 = f(2);
+  for (int b = 0; b < a; ++b) {
+    col[b] = (ax.s[0][b] * n0 + ax.s[1][b] * n1 + ax.s[2][b] * n2) +
+             (ax.s[3][b] * f0 + ax.s[4][b] * f1 + ax.s[5][b] * f2);
+  }
+  for (int b = 0; b < a; ++b) Mt[a + b * ld] = col[b];
+}
+
+// Zeroes Mt (leading dimension ld) unless every pair of joint variables is a link and its
+// ancestor (a serial chain: then the CRBA writes every entry).
+void zero_unless_every_pair(const ForwardPlan& plan, double* Mt, Index nt, Index ld) {
+  if (plan.every_pair) return;
+  for (Index j = 0; j < nt; ++j)
+    for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = 0.0;
+}
+
 // crba_rigid and gravity_forces in one pass over the links, the ancestors from the plan (the
-// same sums in the same order). Mt (leading dimension ld) is zeroed first unless every pair of
-// joint variables is a link and its ancestor (a serial chain: then every entry is written).
+// same sums in the same order; a serial chain's by chain_pairs).
 void crba_gravity_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                         const LinkState<double>* ws, double* Mt, Index nt, Index ld, double* G) {
-  if (!plan.every_pair) {
-    for (Index j = 0; j < nt; ++j)
-      for (Index k = 0; k < nt; ++k) Mt[k + j * ld] = 0.0;
-  }
+  zero_unless_every_pair(plan, Mt, nt, ld);
+  ChainAxes ax;  // the axes of the variables before a (a serial chain of up to kChainPairs)
+  const bool chain = plan.every_pair && nt <= kChainPairs;
   const Eigen::Vector3d& g = m.gravity;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     const int a = ti[i];
@@ -782,12 +828,20 @@ void crba_gravity_rigid(const Model& m, const ForwardPlan& plan, const std::vect
     Eigen::Vector3d n, f;
     apply_inertia(w.m, w.h, w.I, w.sw[0], w.sv[0], n, f);
     Mt[a + a * ld] = dot3(w.sw[0], n) + dot3(w.sv[0], f);
-    const LinkPlan& P = plan.links[i];
-    for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k) {
-      const auto [j, b] = plan.ancestors[k];
-      const double v = dot3(ws[j].sw[0], n) + dot3(ws[j].sv[0], f);
-      Mt[a + b * ld] = v;
-      Mt[b + a * ld] = v;
+    if (chain) {
+      chain_pairs(ax, a, n, f, Mt, ld);
+      for (int k = 0; k < 3; ++k) {
+        ax.s[k][a] = w.sw[0](k);
+        ax.s[3 + k][a] = w.sv[0](k);
+      }
+    } else {
+      const LinkPlan& P = plan.links[i];
+      for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k) {
+        const auto [j, b] = plan.ancestors[k];
+        const double v = dot3(ws[j].sw[0], n) + dot3(ws[j].sv[0], f);
+        Mt[a + b * ld] = v;
+        Mt[b + a * ld] = v;
+      }
     }
     const Eigen::Vector3d gn = -w.h.cross(g), gf = -g * w.m;
     G[a] = dot3(w.sw[0], gn) + dot3(w.sv[0], gf);
@@ -807,7 +861,10 @@ void link_force_rigid(bool massless, LinkState<double>& w) {
   const Eigen::Vector3d cd = w.vv + w.vw.cross(w.c);
   const Eigen::Vector3d cdd = w.av + w.aw.cross(w.c) + w.vw.cross(cd);
   w.ff = cdd * w.m_own;
-  w.fn = w.c.cross(w.ff) + w.Ic * w.aw + w.vw.cross(Eigen::Vector3d(w.Ic * w.vw));
+  Eigen::Matrix<double, 3, 2> av;  // α and ω through Ic in one product
+  av << w.aw, w.vw;
+  const Eigen::Matrix<double, 3, 2> Iav = w.Ic * av;
+  w.fn = w.c.cross(w.ff) + Iav.col(0) + w.vw.cross(Eigen::Vector3d(Iav.col(1)));
 }
 
 // The velocity products C(θ, θ̇) θ̇ of a tree without ball joints (inverse_dynamics at θ̈ = 0
@@ -984,6 +1041,24 @@ const LinkState<double>* placed_links(ConstSlot placed, Index size, std::size_t 
   const auto bytes = static_cast<std::size_t>(nt) * sizeof(double);
   if (std::memcmp(th, theta, bytes) != 0 || std::memcmp(th + nt, thetad, bytes) != 0)
     return nullptr;
+  return reinterpret_cast<const LinkState<double>*>(placed.data());
+}
+
+// placed_links for a plan whose joint variables are the coordinates (ForwardPlan::identity):
+// θ = offset + q and θ̇ = 0 + q̇ formed entry by entry (theta_of_identity's bits) and compared
+// with the slot's as they are formed, without writing them anywhere.
+const LinkState<double>* placed_links_identity(ConstSlot placed, Index size, std::size_t links,
+                                               Index nt, const void* owner,
+                                               const std::vector<double>& offset, const double* q,
+                                               const double* qd) {
+  const double* th = moved_by(placed, size, links, nt, owner);
+  if (!th) return nullptr;
+  for (Index a = 0; a < nt; ++a) {
+    const double v = offset[static_cast<std::size_t>(a)] + q[a], vd = 0.0 + qd[a];
+    if (std::bit_cast<std::uint64_t>(v) != std::bit_cast<std::uint64_t>(th[a]) ||
+        std::bit_cast<std::uint64_t>(vd) != std::bit_cast<std::uint64_t>(th[nt + a]))
+      return nullptr;
+  }
   return reinterpret_cast<const LinkState<double>*>(placed.data());
 }
 
@@ -1665,6 +1740,43 @@ FrameMotion<S> frame_motion(const Model& m, const LinkState<S>* ws, int link,
   return f;
 }
 
+// True if R is exactly the identity (then R X = X and R x = x: 1 × x plus exact zeros).
+bool is_identity(const Eigen::Matrix3d& R) { return R == Eigen::Matrix3d::Identity(); }
+
+// frame_motion of a tree without ball joints (λ = 0, α and ω of the link's motion), written into
+// `out`: Ṙ and R̈ column by column, Ṙ_c = ω × R_c (the entries of [ω]× R without its exact zero
+// terms: the same bits) and R̈_c = α × R_c + ω × Ṙ_c (([α]× + [ω]×²) R regrouped: 6 cross
+// products instead of three 3 × 3 products; equal to round-off).
+void frame_motion_rigid(const Model& m, const LinkState<double>* ws, int link,
+                        const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset,
+                        FrameState& out) {
+  if (link < 0) {
+    out.p = m.root_translation + m.root_rotation * x_offset;
+    out.R = m.root_rotation * R_offset;
+    out.pd.setZero();
+    out.pdd.setZero();
+    out.Rd.setZero();
+    out.Rdd.setZero();
+    return;
+  }
+  const LinkState<double>& L = ws[link];
+  const Eigen::Vector3d vw = L.vw, aw = L.aw;
+  out.p = L.p + L.R * x_offset;
+  if (is_identity(R_offset)) {
+    out.R = L.R;
+  } else {
+    out.R.noalias() = L.R * R_offset;
+  }
+  out.pd = L.vv + vw.cross(out.p);
+  out.pdd = L.av + aw.cross(out.p) + vw.cross(out.pd);
+  for (int c = 0; c < 3; ++c) {
+    const Eigen::Vector3d Rc = out.R.col(c);
+    const Eigen::Vector3d Rdc = vw.cross(Rc);
+    out.Rd.col(c) = Rdc;
+    out.Rdd.col(c) = aw.cross(Rc) + vw.cross(Rdc);
+  }
+}
+
 // The terms of joint variable k of link L: a ball joint's variable k is its coordinate k.
 std::pair<const Term*, const Term*> variable_terms(const Link& L, int k) {
   if (L.type == JointType::ball)
@@ -1707,6 +1819,7 @@ MergedFrame merged_frame(const std::vector<TreeSubsystem::Placement>& placement,
                          const Eigen::Matrix3d& R_offset, const Eigen::Vector3d& x_offset) {
   if (frame_link < 0) return {-1, R_offset, x_offset};
   const TreeSubsystem::Placement& at = placement[static_cast<std::size_t>(frame_link)];
+  if (is_identity(at.R)) return {at.link, R_offset, at.p + x_offset};
   return {at.link, at.R * R_offset, at.p + at.R * x_offset};
 }
 
@@ -1758,6 +1871,35 @@ void twist_columns(const Model& m, const std::vector<int>& ti, const LinkState<d
   }
 }
 
+// twist_columns of a tree without ball joints whose joint variables are its coordinates
+// (ForwardPlan::identity): each movable link at or above `link` writes its own column
+// (s_v + s_w × p, s_w, 0) (the bits of twist_columns' 0 + 1 × x); the others are zeroed unless
+// every column is written.
+void twist_columns_rigid(const ForwardPlan& plan, const std::vector<int>& ti,
+                         const LinkState<double>* ws, int link, const Eigen::Vector3d& p,
+                         Index cols, double* twists) {
+  const auto put = [&](const LinkState<double>& w, int a) {
+    double* c = twists + 7 * a;
+    const Eigen::Vector3d sw = w.sw[0], v = w.sv[0] + sw.cross(p);
+    for (int r = 0; r < 3; ++r) {
+      c[r] = v(r);
+      c[3 + r] = sw(r);
+    }
+    c[6] = 0.0;
+  };
+  if (link < 0) {
+    std::fill_n(twists, 7 * cols, 0.0);
+    return;
+  }
+  const auto lu = static_cast<std::size_t>(link);
+  const LinkPlan& P = plan.links[lu];
+  const auto written = static_cast<Index>(P.ancestors_end - P.ancestors) + (ti[lu] >= 0 ? 1 : 0);
+  if (written != cols) std::fill_n(twists, 7 * cols, 0.0);
+  if (ti[lu] >= 0) put(ws[lu], ti[lu]);
+  for (std::size_t k = P.ancestors; k < P.ancestors_end; ++k)
+    put(ws[plan.ancestors[k].first], plan.ancestors[k].second);
+}
+
 }  // namespace
 
 void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
@@ -1766,16 +1908,26 @@ void TreeSubsystem::frame_twists(CVecRef q, CVecRef qd, int frame_link,
                                  double* twists) const {
   const MergedFrame at = merged_frame(placement_, frame_link, R_offset, x_offset);
   const std::size_t nl = merged_.links.size();
+  const LinkState<double>* links =
+      plan_->identity ? placed_links_identity(placed, slot_size_, nl, n_theta_, this, theta_offset_,
+                                              q.data(), qd.data())
+                      : nullptr;
   with_workspace(scratch, slot_size_, nl, n_theta_, [&](Workspace w) {
-    theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
-    const LinkState<double>* links =
-        placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
+    if (!links) {
+      theta_at(*plan_, theta_terms_, theta_offset_, q.data(), qd.data(), w.theta, w.thetad);
+      links = placed_links(placed, slot_size_, nl, n_theta_, this, w.theta, w.thetad);
+    }
     if (!links) {  // not placed at this state: the pass of frame_state
       place_for(merged_, *plan_, theta_index_, quaternions_, w.theta, w.links);
       link_motion<double>(merged_, theta_index_, quaternions_, w.thetad, nullptr,
                           Eigen::Vector3d::Zero(), w.links);
       mark_moved(w, this);
       links = w.links;
+    }
+    if (!quaternions_ && plan_->identity) {
+      frame_motion_rigid(merged_, links, at.link, at.R, at.x, out);
+      twist_columns_rigid(*plan_, theta_index_, links, at.link, out.p, dof(), twists);
+      return;
     }
     const FrameMotion<double> f = frame_motion(merged_, links, at.link, at.R, at.x);
     copy_motion(f, out);
