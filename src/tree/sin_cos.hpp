@@ -7,6 +7,12 @@
 // (k_sin.c, k_cos.c: error below 1 ulp there). Arguments of magnitude 1e5 or more, ∞ and NaN go
 // to std::sin and std::cos. tests/test_tree_sin_cos.cpp checks the result against the C
 // library's to 1 ulp.
+//
+// The kernels and the reduction's constants follow fdlibm, whose notice is kept as it asks:
+//   Copyright (C) 1993 by Sun Microsystems, Inc. All rights reserved.
+//   Developed at SunPro, a Sun Microsystems, Inc. business.
+//   Permission to use, copy, modify, and distribute this software is freely granted, provided
+//   that this notice is preserved.
 #pragma once
 
 #include <bit>
