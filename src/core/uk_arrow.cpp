@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #include "core/dense_kernels.hpp"
@@ -345,21 +346,48 @@ double reduce_groups(const ArrowProblem& P) {
   return w_ref;
 }
 
+// The kept count of a group's rows as a compile-time constant when every row is kept on a fixed
+// shape (KP = MK), else at run time (KP = 0): the loops whose bounds are the kept count then unroll
+// too. Both do the same operations in the same order.
+template <int MK, typename F>
+void with_kept(Index kept, F&& f) {
+  if constexpr (MK > 0) {
+    if (kept == MK) {
+      f(std::integral_constant<int, MK>{});
+      return;
+    }
+  }
+  f(std::integral_constant<int, 0>{});
+}
+
+// H += Σ_kept T_iᵀ t_i and g += Σ_kept t_iᵀ z_i with t_i = T_i / D_i (C1ᵀ S11⁻¹ C1 and
+// C1ᵀ S11⁻¹ r1; T transposed, row i at T + i n_L), lower triangle. Column jj of H from row jj down is
+// one fixed-size vector of n_L − jj entries: loaded once, every kept row's term added in the order
+// of the rows (each entry the sum it was with the rows outer), stored once.
+template <int NL, int JJ>
+void add_column_to_h(double* H, const double* T, const double* t, Index kp) {
+  using Col = Eigen::Matrix<double, NL - JJ, 1>;
+  Eigen::Map<Col> h(H + JJ + JJ * NL);
+  Col acc = h;
+  for (Index i = 0; i < kp; ++i) acc += Eigen::Map<const Col>(T + JJ + i * NL) * t[JJ + i * NL];
+  h = acc;
+}
+template <int NL, std::size_t... JJ>
+void add_columns_to_h(double* H, const double* T, const double* t, Index kp,
+                      std::index_sequence<JJ...> /*columns*/) {
+  (add_column_to_h<NL, static_cast<int>(JJ)>(H, T, t, kp), ...);
+}
+
 // Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
 // dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
-// (appended at mD, which is returned advanced).
-template <int NK, int MK, int NL>
-Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
-                      Index mD) {
+// (appended at mD, which is returned advanced). KP: the kept count when it is MK (with_kept).
+template <int NK, int MK, int NL, int KP>
+Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
   auto& ws = P.ws;
   auto& gb = ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const Index nL = sz.nL, mk = sz.mk;
-  const LdltPivots pv =
-      pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, gb.piv.data(), ws.tmp.data(), P.rule(w_ref));
-  gb.kept = pv.kept;
-  const Index kp = gb.kept;
-  pivots.add(pv);
+  const Index kp = KP > 0 ? Index{KP} : gb.kept;
   // The same row order for C (into T), r and b (into z, lam as scratch). T is kept transposed in
   // its buffer (row i at T + i n_L, contiguous), so the row operations below, the rank-1 updates
   // of H and the products with q̈_L (group_multipliers) run down contiguous memory.
@@ -369,6 +397,7 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
     for (Index j = 0; j < nL; ++j) T[j + i * nL] = C[i + j * mk];
   for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
   for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
+  UKDYN_UNROLL
   for (Index k = 0; k < kp; ++k) {
     const Index p = gb.piv[static_cast<std::size_t>(k)];
     if (p != k)
@@ -396,18 +425,33 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
       gb.lam[i] -= l * gb.lam[p];
     }
   }
-  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
   double* H = ws.H.data();
-  const Index ldh = NL > 0 ? Index{NL} : ws.H.rows();
-  for (Index i = 0; i < kp; ++i) {
-    const double inv = 1.0 / gb.S(i, i);
+  if constexpr (NL > 0 && MK > 0) {
+    // t_i = T_i / D_i of the kept rows, then H column by column and g, each entry's terms in the
+    // order of the rows as with the rows outer; every term added (an exact 0 too: the sums differ
+    // from skipping it only in the sign of a zero).
+    using Row = Eigen::Matrix<double, NL, 1>;
+    double t[(MK > 0 ? MK : 1) * (NL > 0 ? NL : 1)];
+    Row g = ws.gL.template head<NL>();
     UKDYN_UNROLL
-    for (Index jj = 0; jj < nL; ++jj) {
-      const double tj = T[jj + i * nL] * inv;
-      if (tj == 0.0) continue;
-      UKDYN_UNROLL
-      for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
-      ws.gL[jj] += tj * gb.z[i];
+    for (Index i = 0; i < kp; ++i) {
+      const Row ti = Eigen::Map<const Row>(T + i * NL) * (1.0 / gb.S(i, i));
+      Eigen::Map<Row>(t + i * NL) = ti;
+      g += ti * gb.z[i];
+    }
+    ws.gL.template head<NL>() = g;
+    add_columns_to_h<NL>(H, T, t, kp, std::make_index_sequence<NL>{});
+  } else {
+    // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i, the rows outer.
+    const Index ldh = ws.H.rows();
+    for (Index i = 0; i < kp; ++i) {
+      const double inv = 1.0 / gb.S(i, i);
+      for (Index jj = 0; jj < nL; ++jj) {
+        const double tj = T[jj + i * nL] * inv;
+        if (tj == 0.0) continue;
+        for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
+        ws.gL[jj] += tj * gb.z[i];
+      }
     }
   }
   for (Index i = kp; i < mk; ++i) {
@@ -416,6 +460,20 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
     ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
     ++mD;
   }
+  return mD;
+}
+
+template <int NK, int MK, int NL>
+Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
+                      Index mD) {
+  auto& gb = P.ws.g[gi];
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const LdltPivots pv =
+      pivoted_ldlt(gb.S.data(), gb.S.rows(), sz.mk, gb.piv.data(), P.ws.tmp.data(), P.rule(w_ref));
+  gb.kept = pv.kept;
+  pivots.add(pv);
+  with_kept<MK>(gb.kept,
+                [&](auto KP) { mD = eliminate_rows<NK, MK, NL, decltype(KP)::value>(P, gi, mD); });
   return mD;
 }
 
