@@ -113,11 +113,6 @@ using detail::LdltPivots;
 using detail::pivoted_ldlt;
 using detail::RankRule;
 
-// x ← L^{-1} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
-void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
-  detail::l_solve<0>(L, ldl, inv_diag, x, n);
-}
-
 // The lower triangle of G = X Xᵀ for the leading rows × cols of X (a Gram matrix: S, W_D).
 void lower_gram(const Mat& X, Index rows, Index cols, Mat& G) {
   for (Index j = 0; j < rows; ++j)
@@ -161,16 +156,22 @@ struct ArrowProblem {
         tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
   // The rank rule on the scale of the whole W (w_ref = max diag W, reduce_groups).
   [[nodiscard]] RankRule rule(double w_ref) const { return RankRule{tol2, 0.0, w_ref}; }
-  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
-  void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
-  // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
-  // (columns col0 .. col0 + nL of row i of X).
-  double load_part_of_w(const Mat& X, Index i, Index col0 = 0) const {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, col0 + j);
+  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ); NL: the load's size if fixed.
+  template <int NL>
+  void load_l_solve(double* x) const {
+    detail::l_solve<NL>(Ld + sL + sL * ldl, ldl, idg + sL, x, nL);
+  }
+  // |L_L⁻¹ c|² for row i of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
+  template <int NL>
+  double load_part_of_w(Index i) const {
+    const Index n = NL > 0 ? Index{NL} : nL, lda = A.rows();
+    const double* a = A.data() + i + sL * lda;
+    double* x = ws.tmp.data();
+    for (Index j = 0; j < n; ++j) x[j] = a[j * lda];
     double c2 = 0.0;
-    if (nL > 0) {
-      load_l_solve(ws.tmp.data());
-      for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    if (n > 0) {
+      load_l_solve<NL>(x);
+      for (Index j = 0; j < n; ++j) c2 += x[j] * x[j];
     }
     return c2;
   }
@@ -334,15 +335,19 @@ template <int NK, int MK, int NL>
 double reduce_groups(const ArrowProblem& P) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL;
+  const Index ldm = P.M.rows(), ldh = NL > 0 ? Index{NL} : ws.H.rows();
+  const double* ML = P.M.data() + P.sL + P.sL * ldm;
+  double* H = ws.H.data();
+  UKDYN_UNROLL
   for (Index j = 0; j < nL; ++j) {
     UKDYN_UNROLL
-    for (Index i = j; i < nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
+    for (Index i = j; i < nL; ++i) H[i + j * ldh] = ML[i + j * ldm];
     ws.gL[j] = P.Q[P.sL + j];
   }
   double w_ref = 0.0;
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
     w_ref = std::max(w_ref, reduce_group<NK, MK, NL>(P, gi));
-  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w(P.A, row, P.sL));
+  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w<NL>(row));
   return w_ref;
 }
 
@@ -747,13 +752,11 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     add_row(v, ab, P.b[row]);
   }
   // q̈ and Qc finite: x · 0 is ±0 for a finite x and NaN for ±inf and NaN, so the sum of them is
-  // 0 exactly when all are finite (one pass without a test and branch per entry).
-  double q2 = 0.0, nan_if_not_finite = 0.0;
-  for (Index j = 0; j < P.dws.layout.dof(); ++j) {
-    q2 += qdd[j] * qdd[j];
-    nan_if_not_finite += qdd[j] * 0.0 + Qc[j] * 0.0;
-  }
-  const bool finite = nan_if_not_finite == 0.0;
+  // 0 exactly when all are finite (without a test and branch per entry). |q̈|² and that sum as
+  // Eigen's vectorised reductions (two partial sums: |q̈|² differs from the sum in order in its
+  // last bits, which only the consistency test's scale reads).
+  const double q2 = qdd.squaredNorm();
+  const bool finite = (qdd.array() * 0.0 + Qc.array() * 0.0).sum() == 0.0;
   res = UkResult{};
   res.rank = static_cast<int>(pivots.rank);
   res.sigma_max = std::sqrt(pivots.max);
