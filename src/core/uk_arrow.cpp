@@ -286,7 +286,7 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       for (Index i = 0; i < mk; ++i) r[i] -= Xt[i + l * mk] * y[l];
   }
   double* S = gb.S.data();
-  const Index lds = gb.S.rows();
+  const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
   // |L_L⁻¹ C_iᵀ|² of every row at once (MK > 0: down Y's columns, each row's terms in the order of
   // l as one row at a time).
   double c2v[MK > 0 ? MK : 1] = {};
@@ -393,6 +393,8 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const Index nL = sz.nL, mk = sz.mk;
   const Index kp = KP > 0 ? Index{KP} : gb.kept;
+  const double* S = gb.S.data();  // the factors L (below the diagonal) and D of S_k
+  const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
   // The same row order for C (into T), r and b (into z, lam as scratch). T is kept transposed in
   // its buffer (row i at T + i n_L, contiguous), so the row operations below, the rank-1 updates
   // of H and the products with q̈_L (group_multipliers) run down contiguous memory.
@@ -417,7 +419,7 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
     const Index pe = std::min(i, kp);
     UKDYN_UNROLL
     for (Index p = 0; p < pe; ++p) {
-      const double l = gb.S(i, p);
+      const double l = S[i + p * lds];
       if (l == 0.0) continue;
       if constexpr (NL > 0) {  // a fixed-size row: the same operations, vectorised
         using Row = Eigen::Matrix<double, NL, 1>;
@@ -440,7 +442,7 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
     Row g = ws.gL.template head<NL>();
     UKDYN_UNROLL
     for (Index i = 0; i < kp; ++i) {
-      const Row ti = Eigen::Map<const Row>(T + i * NL) * (1.0 / gb.S(i, i));
+      const Row ti = Eigen::Map<const Row>(T + i * NL) * (1.0 / S[i + i * lds]);
       Eigen::Map<Row>(t + i * NL) = ti;
       g += ti * gb.z[i];
     }
@@ -450,7 +452,7 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
     // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i, the rows outer.
     const Index ldh = ws.H.rows();
     for (Index i = 0; i < kp; ++i) {
-      const double inv = 1.0 / gb.S(i, i);
+      const double inv = 1.0 / S[i + i * lds];
       for (Index jj = 0; jj < nL; ++jj) {
         const double tj = T[jj + i * nL] * inv;
         if (tj == 0.0) continue;
@@ -473,8 +475,8 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
                       Index mD) {
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
-  const LdltPivots pv =
-      pivoted_ldlt(gb.S.data(), gb.S.rows(), sz.mk, gb.piv.data(), P.ws.tmp.data(), P.rule(w_ref));
+  const LdltPivots pv = pivoted_ldlt(gb.S.data(), MK > 0 ? Index{MK} : gb.S.rows(), sz.mk,
+                                     gb.piv.data(), P.ws.tmp.data(), P.rule(w_ref));
   gb.kept = pv.kept;
   pivots.add(pv);
   with_kept<MK>(gb.kept,
@@ -590,25 +592,35 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
-  const Index mk = sz.mk, nk = sz.nk, nL = sz.nL, kp = gb.kept;
-  const double* qL = P.ws.qddL.data();
-  const double* T = gb.T.data();  // transposed (eliminate_group)
-  for (Index i = 0; i < kp; ++i) {
-    double v = gb.z[i];
-    for (Index j = 0; j < nL; ++j) v -= T[j + i * nL] * qL[j];
-    gb.lam[i] = v / gb.S(i, i);
-  }
-  for (Index e = kp; e < mk; ++e) {
-    const double le = gb.lam[e];
-    for (Index p = 0; p < kp; ++p) gb.lam[p] -= gb.S(e, p) * le;
-  }
-  for (Index p = kp - 1; p >= 0; --p) {
-    double v = gb.lam[p];
-    for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
-    gb.lam[p] = v;
-  }
-  for (Index k = kp - 1; k >= 0; --k)
-    std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  const Index mk = sz.mk, nk = sz.nk, nL = sz.nL;
+  with_kept<MK>(gb.kept, [&](auto KP) {
+    const Index kp = decltype(KP)::value > 0 ? Index{decltype(KP)::value} : gb.kept;
+    const double* qL = P.ws.qddL.data();
+    const double* T = gb.T.data();  // transposed (eliminate_group)
+    const double* S = gb.S.data();
+    const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
+    UKDYN_UNROLL
+    for (Index i = 0; i < kp; ++i) {
+      double v = gb.z[i];
+      UKDYN_UNROLL
+      for (Index j = 0; j < nL; ++j) v -= T[j + i * nL] * qL[j];
+      gb.lam[i] = v / S[i + i * lds];
+    }
+    for (Index e = kp; e < mk; ++e) {
+      const double le = gb.lam[e];
+      for (Index p = 0; p < kp; ++p) gb.lam[p] -= S[e + p * lds] * le;
+    }
+    UKDYN_UNROLL
+    for (Index p = kp - 1; p >= 0; --p) {
+      double v = gb.lam[p];
+      UKDYN_UNROLL
+      for (Index i = p + 1; i < kp; ++i) v -= S[i + p * lds] * gb.lam[i];
+      gb.lam[p] = v;
+    }
+    UKDYN_UNROLL
+    for (Index k = kp - 1; k >= 0; --k)
+      std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  });
   const Index s = grp.start;
   const double* B = gb.B.data();
   const double* C = gb.C.data();
