@@ -69,8 +69,21 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
     const double inv = 1.0 / ljj;
     L[j + j * ldl] = ljj;
     inv_diag[j] = inv;
+    Index i = j + 1;
+    if constexpr (N > 0) {
+      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), each entry
+      // the same sum in the same order as one row at a time.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      UKDYN_UNROLL
+      for (; i + 1 < n; i += 2) {
+        Pair s = Eigen::Map<const Pair>(M + i + j * ldm);
+        UKDYN_UNROLL
+        for (Index k = 0; k < j; ++k) s -= Eigen::Map<const Pair>(L + i + k * ldl) * L[j + k * ldl];
+        Eigen::Map<Pair>(L + i + j * ldl) = s * inv;
+      }
+    }
     UKDYN_UNROLL
-    for (Index i = j + 1; i < n; ++i) {
+    for (; i < n; ++i) {
       double s = M[i + j * ldm];
       UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) s -= L[i + k * ldl] * L[j + k * ldl];

@@ -491,9 +491,12 @@ Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots)
   Index mD = 0;
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
     mD = eliminate_group<NK, MK, NL>(P, gi, w_ref, pivots, mD);
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows(), ldd = ws.Dt.rows();
+  double* Dt = ws.Dt.data();
   for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
     const Index row = P.st.load_rows[j];
-    for (Index c = 0; c < P.nL; ++c) ws.Dt(mD, c) = P.A(row, P.sL + c);
+    const double* a = P.A.data() + row + P.sL * lda;
+    for (Index c = 0; c < nL; ++c) Dt[mD + c * ldd] = a[c * lda];
     ws.d[mD] = P.b[row];
     ws.d_from[static_cast<std::size_t>(mD)] = {-1, static_cast<Index>(j)};
     ++mD;
@@ -550,35 +553,49 @@ void ht_solve(const double* H, Index n_rt, double* x) {
 }
 
 // The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
-// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
-template <int NL>
-void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
+// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL. MD: the rows of
+// D when fixed (1: a free-body load's unit-norm row and no dropped row), else 0 (mD at run time);
+// the same operations in the same order.
+template <int NL, int MD>
+void solve_load(const ArrowProblem& P, Index mD_rt, double w_ref, ArrowPivots& pivots) {
   auto& ws = P.ws;
-  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  const Index nL = NL > 0 ? Index{NL} : P.nL, mD = MD > 0 ? Index{MD} : mD_rt;
   const double* H = ws.H.data();
   double* yH = ws.qddL.data();
+  double* Dt = ws.Dt.data();
+  const Index ldd = ws.Dt.rows(), ldw = ws.WD.rows();
+  double* tmp = ws.tmp.data();
   for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
   h_solve<NL>(H, nL, yH);
   for (Index i = 0; i < mD; ++i) {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
-    h_solve<NL>(H, nL, ws.tmp.data());
+    for (Index j = 0; j < nL; ++j) tmp[j] = Dt[i + j * ldd];
+    h_solve<NL>(H, nL, tmp);
     double v = ws.d[i];
     for (Index j = 0; j < nL; ++j) {
-      ws.Dt(i, j) = ws.tmp[j];
-      v -= ws.tmp[j] * yH[j];
+      Dt[i + j * ldd] = tmp[j];
+      v -= tmp[j] * yH[j];
     }
     ws.rD[i] = v;
   }
-  lower_gram(ws.Dt, mD, nL, ws.WD);
-  const LdltPivots pv =
-      pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, ws.pivD.data(), ws.tmp.data(), P.rule(w_ref));
+  if constexpr (MD > 0) {
+    double* W = ws.WD.data();
+    for (Index j = 0; j < mD; ++j)
+      for (Index i = j; i < mD; ++i) {
+        double v = 0.0;
+        for (Index l = 0; l < nL; ++l) v += Dt[i + l * ldd] * Dt[j + l * ldd];
+        W[i + j * ldw] = v;
+      }
+  } else {
+    lower_gram(ws.Dt, mD, nL, ws.WD);
+  }
+  const LdltPivots pv = pivoted_ldlt(ws.WD.data(), ldw, mD, ws.pivD.data(), tmp, P.rule(w_ref));
   pivots.add(pv);
   double* lam = ws.lamD.data();
   for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
-  detail::ldlt_basic_solve(ws.WD.data(), ws.WD.rows(), mD, pv.kept, ws.pivD.data(), lam);
+  detail::ldlt_basic_solve(ws.WD.data(), ldw, mD, pv.kept, ws.pivD.data(), lam);
   for (Index j = 0; j < nL; ++j) {
     double v = yH[j];
-    for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];
+    for (Index i = 0; i < mD; ++i) v += Dt[i + j * ldd] * lam[i];
     yH[j] = v;
   }
   ht_solve<NL>(H, nL, yH);
@@ -662,9 +679,12 @@ void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) 
   }
   Qc.setZero();
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers<NK, MK, NL>(P, gi, Qc);
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
+  double* qcL = Qc.data() + P.sL;
   for (const Index row : P.st.load_rows) {
     const double li = ws.lambda[row];
-    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += P.A(row, P.sL + j) * li;
+    const double* a = P.A.data() + row + P.sL * lda;
+    for (Index j = 0; j < nL; ++j) qcL[j] += a[j * lda] * li;
   }
 }
 
@@ -694,8 +714,11 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     }
     detail::lt_solve<NK>(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, x, nk);
   }
-  for (Index j = 0; j < P.nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
-  for (std::size_t k = 0; k < layout.blocks(); ++k) {
+  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  for (Index j = 0; j < nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
+  // Blocks without rows: only when the robots and the load are not all of them.
+  const std::size_t with_rows = P.st.groups.size() + (P.st.load_block >= 0 ? 1 : 0);
+  for (std::size_t k = 0; k < layout.blocks() && with_rows < layout.blocks(); ++k) {
     bool done = static_cast<Index>(k) == P.st.load_block;
     for (const auto& g : P.st.groups) done = done || g.block == static_cast<Index>(k);
     if (done) continue;
@@ -755,11 +778,14 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     add_block(C, qdd.data() + P.sL, nL);
     for (Index i = 0; i < mk; ++i) add_row(v[i], ab[i], gb.bb[i]);
   }
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
+  const double* qL = qdd.data() + P.sL;
   for (const Index row : P.st.load_rows) {
+    const double* a = P.A.data() + row + P.sL * lda;
     double v = -P.b[row], ab = 0.0;
-    for (Index j = 0; j < P.nL; ++j) {
-      v += P.A(row, P.sL + j) * qdd[P.sL + j];
-      ab += std::abs(P.A(row, P.sL + j));
+    for (Index j = 0; j < nL; ++j) {
+      v += a[j * lda] * qL[j];
+      ab += std::abs(a[j * lda]);
     }
     add_row(v, ab, P.b[row]);
   }
@@ -796,7 +822,12 @@ bool arrow_steps(const ArrowProblem& P, Vec& qdd, Vec& Qc, const UkSettings& set
   const double w_ref = reduce_groups<NK, MK, NL>(P);
   const Index mD = eliminate_groups<NK, MK, NL>(P, w_ref, pivots);
   if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
-  solve_load<NL>(P, mD, w_ref, pivots);
+  constexpr int kOneRow = NL > 0 ? 1 : 0;  // the runtime sizes keep mD at run time
+  if (kOneRow > 0 && mD == 1) {
+    solve_load<NL, kOneRow>(P, mD, w_ref, pivots);
+  } else {
+    solve_load<NL, 0>(P, mD, w_ref, pivots);
+  }
   multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
   accelerations<NK, MK, NL>(P, Qc, qdd);
   arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
