@@ -385,14 +385,15 @@ void add_columns_to_h(double* H, const double* T, const double* t, Index kp,
 
 // Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
 // dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
-// (appended at mD, which is returned advanced). KP: the kept count when it is MK (with_kept).
-template <int NK, int MK, int NL, int KP>
+// (appended at mD, which is returned advanced). Runtime sizes; eliminate_rows_fixed below is the
+// fixed shape's.
+template <int NK, int MK, int NL>
 Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
   auto& ws = P.ws;
   auto& gb = ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const Index nL = sz.nL, mk = sz.mk;
-  const Index kp = KP > 0 ? Index{KP} : gb.kept;
+  const Index kp = gb.kept;
   const double* S = gb.S.data();  // the factors L (below the diagonal) and D of S_k
   const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
   // The same row order for C (into T), r and b (into z, lam as scratch). T is kept transposed in
@@ -404,7 +405,6 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
     for (Index j = 0; j < nL; ++j) T[j + i * nL] = C[i + j * mk];
   for (Index i = 0; i < mk; ++i) gb.z[i] = gb.r[i];
   for (Index i = 0; i < mk; ++i) gb.lam[i] = gb.bb[i];
-  UKDYN_UNROLL
   for (Index k = 0; k < kp; ++k) {
     const Index p = gb.piv[static_cast<std::size_t>(k)];
     if (p != k)
@@ -414,56 +414,95 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
   }
   // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
   // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
-  UKDYN_UNROLL
   for (Index i = 1; i < mk; ++i) {
     const Index pe = std::min(i, kp);
-    UKDYN_UNROLL
     for (Index p = 0; p < pe; ++p) {
       const double l = S[i + p * lds];
       if (l == 0.0) continue;
-      if constexpr (NL > 0) {  // a fixed-size row: the same operations, vectorised
-        using Row = Eigen::Matrix<double, NL, 1>;
-        Eigen::Map<Row> ti(T + i * nL);
-        ti -= l * Eigen::Map<const Row>(T + p * nL);
-      } else {
-        for (Index j = 0; j < nL; ++j) T[j + i * nL] -= l * T[j + p * nL];
-      }
+      for (Index j = 0; j < nL; ++j) T[j + i * nL] -= l * T[j + p * nL];
       if (i < kp) gb.z[i] -= l * gb.z[p];
       gb.lam[i] -= l * gb.lam[p];
     }
   }
+  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1), the
+  // rows outer, a term with T_i(jj) = 0 skipped.
   double* H = ws.H.data();
-  if constexpr (NL > 0 && MK > 0) {
-    // t_i = T_i / D_i of the kept rows, then H column by column and g, each entry's terms in the
-    // order of the rows as with the rows outer; every term added (an exact 0 too: the sums differ
-    // from skipping it only in the sign of a zero).
-    using Row = Eigen::Matrix<double, NL, 1>;
-    double t[(MK > 0 ? MK : 1) * (NL > 0 ? NL : 1)];
-    Row g = ws.gL.template head<NL>();
-    UKDYN_UNROLL
-    for (Index i = 0; i < kp; ++i) {
-      const Row ti = Eigen::Map<const Row>(T + i * NL) * (1.0 / S[i + i * lds]);
-      Eigen::Map<Row>(t + i * NL) = ti;
-      g += ti * gb.z[i];
-    }
-    ws.gL.template head<NL>() = g;
-    add_columns_to_h<NL>(H, T, t, kp, std::make_index_sequence<NL>{});
-  } else {
-    // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i, the rows outer.
-    const Index ldh = ws.H.rows();
-    for (Index i = 0; i < kp; ++i) {
-      const double inv = 1.0 / S[i + i * lds];
-      for (Index jj = 0; jj < nL; ++jj) {
-        const double tj = T[jj + i * nL] * inv;
-        if (tj == 0.0) continue;
-        for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
-        ws.gL[jj] += tj * gb.z[i];
-      }
+  const Index ldh = ws.H.rows();
+  for (Index i = 0; i < kp; ++i) {
+    const double inv = 1.0 / S[i + i * lds];
+    for (Index jj = 0; jj < nL; ++jj) {
+      const double tj = T[jj + i * nL] * inv;
+      if (tj == 0.0) continue;
+      for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
+      ws.gL[jj] += tj * gb.z[i];
     }
   }
   for (Index i = kp; i < mk; ++i) {
     for (Index j = 0; j < nL; ++j) ws.Dt(mD, j) = T[j + i * nL];
     ws.d[mD] = gb.lam[i];
+    ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
+    ++mD;
+  }
+  return mD;
+}
+
+// The same on the fixed shape (n_L = NL, m_k = MK), KP the kept count when it is MK (with_kept),
+// else 0 (at run time). Each row of T is formed in registers: C's row in the pivoted order (the
+// transpositions applied to the row indices, not to the rows), less l_ip T_p of the rows before
+// it, stored once; for a kept row t_i = T_i / D_i and g += t_i z_i at once; then H column by
+// column (add_columns_to_h). Every entry gets the operations of eliminate_rows in their order,
+// except that H's and g's terms are added when t_i(jj) = 0 too (which changes at most the sign
+// of a zero sum).
+template <int MK, int NL, int KP>
+Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
+  using Row = Eigen::Matrix<double, NL, 1>;
+  auto& ws = P.ws;
+  auto& gb = ws.g[gi];
+  const Index kp = KP > 0 ? Index{KP} : gb.kept;
+  const double* S = gb.S.data();
+  const double* C = gb.C.data();
+  double* T = gb.T.data();
+  Index perm[MK];
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) perm[i] = i;
+  UKDYN_UNROLL
+  for (Index k = 0; k < kp; ++k) std::swap(perm[k], perm[gb.piv[static_cast<std::size_t>(k)]]);
+  double z[MK], lam[MK], t[MK * NL];
+  Row g = ws.gL.template head<NL>();
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) {
+    const Index src = perm[i];
+    Row ti;
+    UKDYN_UNROLL
+    for (Index j = 0; j < NL; ++j) ti[j] = C[src + j * MK];
+    double zi = gb.r[src], li = gb.bb[src];
+    const Index pe = std::min(i, kp);
+    for (Index p = 0; p < pe; ++p) {
+      const double l = S[i + p * MK];
+      if (l == 0.0) continue;
+      ti -= l * Eigen::Map<const Row>(T + p * NL);
+      if (i < kp) zi -= l * z[p];
+      li -= l * lam[p];
+    }
+    Eigen::Map<Row>(T + i * NL) = ti;
+    z[i] = zi;
+    lam[i] = li;
+    if (i < kp) {
+      const Row tr = ti * (1.0 / S[i + i * MK]);
+      Eigen::Map<Row>(t + i * NL) = tr;
+      g += tr * zi;
+    }
+  }
+  ws.gL.template head<NL>() = g;
+  add_columns_to_h<NL>(ws.H.data(), T, t, kp, std::make_index_sequence<NL>{});
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) {
+    gb.z[i] = z[i];
+    gb.lam[i] = lam[i];
+  }
+  for (Index i = kp; i < MK; ++i) {
+    for (Index j = 0; j < NL; ++j) ws.Dt(mD, j) = T[j + i * NL];
+    ws.d[mD] = lam[i];
     ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
     ++mD;
   }
@@ -479,9 +518,14 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
                                      gb.piv.data(), P.ws.tmp.data(), P.rule(w_ref));
   gb.kept = pv.kept;
   pivots.add(pv);
-  with_kept<MK>(gb.kept,
-                [&](auto KP) { mD = eliminate_rows<NK, MK, NL, decltype(KP)::value>(P, gi, mD); });
-  return mD;
+  if constexpr (MK > 0 && NL > 0) {
+    with_kept<MK>(gb.kept, [&](auto KP) {
+      mD = eliminate_rows_fixed<MK, NL, decltype(KP)::value>(P, gi, mD);
+    });
+    return mD;
+  } else {
+    return eliminate_rows<NK, MK, NL>(P, gi, mD);
+  }
 }
 
 // Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
