@@ -249,14 +249,16 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   // Xᵀ(:, l) = (B(:, l) − Σ_{p<l} L_lp Xᵀ(:, p)) / L_ll; the same for C and the load's factor.
   // MK > 0: each column a fixed-size vector (the same operations, element by element, in
   // registers).
-  auto forward_columns = [mk](const double* L, Index ldl, const double* inv, const double* in,
-                              double* out, Index n) {
-    if constexpr (MK > 0) {
+  auto forward_columns = [mk](auto N, const double* L, Index ldl, const double* inv,
+                              const double* in, double* out, Index n) {
+    if constexpr (MK > 0 && decltype(N)::value > 0) {
       using Col = Eigen::Matrix<double, MK, 1>;
-      for (Index l = 0; l < n; ++l) {
-        Col c = Eigen::Map<const Col>(in + l * mk);
-        for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * mk);
-        Eigen::Map<Col>(out + l * mk) = c * inv[l];
+      UKDYN_UNROLL
+      for (Index l = 0; l < decltype(N)::value; ++l) {
+        Col c = Eigen::Map<const Col>(in + l * MK);
+        UKDYN_UNROLL
+        for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * MK);
+        Eigen::Map<Col>(out + l * MK) = c * inv[l];
       }
       return;
     }
@@ -271,8 +273,9 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       for (Index i = 0; i < mk; ++i) out[i + l * mk] = c[i] * inv[l];
     }
   };
-  forward_columns(Lk, P.ldl, id, B, Xt, nk);
-  forward_columns(P.Ld + P.sL + P.sL * P.ldl, P.ldl, P.idg + P.sL, C, Y, nL);
+  forward_columns(std::integral_constant<int, NK>{}, Lk, P.ldl, id, B, Xt, nk);
+  forward_columns(std::integral_constant<int, NL>{}, P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                  P.idg + P.sL, C, Y, nL);
   double* r = gb.r.data();
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
