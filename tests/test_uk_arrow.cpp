@@ -128,11 +128,16 @@ TEST(UkArrow, AgreesWithDenseSolveRankDecisions) {
 
 // The shape with compile-time sizes (two arms of 10 coordinates with 6 rows each on a load of 7
 // with one row of its own: two Pandas welded to a plate) against the dense solve, on random
-// problems: full rank, and with one arm's row repeated (a rank decision in its block).
-void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
+// problems: full rank, and with one arm's row repeated (a rank decision in its block); each with
+// every arm's rows consecutive in A and with the two arms' rows interleaved.
+void expect_fixed_shape_agrees_with_dense(bool redundant, double tol, bool interleaved = false) {
   const ukdyn::BlockLayout lay{{0, 10, 20}, {10, 10, 7}};
   std::vector<std::vector<Index>> row_blocks(6, {0, 2});
   row_blocks.insert(row_blocks.end(), 6, {1, 2});
+  // Interleaved: the two robots' rows alternate in A, so neither group's rows are consecutive
+  // (the solve gathers them instead of reading A's columns in place).
+  if (interleaved)
+    for (std::size_t i = 0; i < 12; ++i) row_blocks[i] = {static_cast<Index>(i % 2), 2};
   row_blocks.push_back({2});
   const auto st = ukdyn::detect_arrow(lay, row_blocks);
   ASSERT_TRUE(st.has_value());
@@ -155,9 +160,10 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
           A(i, lay.start[static_cast<std::size_t>(blk)] + j) = u(rng);
     Vec Q = Vec::NullaryExpr(n, [&] { return u(rng); });
     Vec b = Vec::NullaryExpr(m, [&] { return u(rng); });
-    if (redundant) {  // row 5 = row 2 (its right-hand side too): rank 12
-      A.row(5) = A.row(2);
-      b[5] = b[2];
+    if (redundant) {  // a row repeated in its group (its right-hand side too): rank 12
+      const Index from = 2, to = interleaved ? 6 : 5;
+      A.row(to) = A.row(from);
+      b[to] = b[from];
     }
     Vec qdd(n), Qc(n), qdd_d(n), Qc_d(n);
     ukdyn::UkResult ra;
@@ -182,6 +188,8 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
 TEST(UkArrow, FixedSizeShapeAgreesWithDenseSolve) {
   expect_fixed_shape_agrees_with_dense(false, 1e-12);
   expect_fixed_shape_agrees_with_dense(true, 1e-10);
+  expect_fixed_shape_agrees_with_dense(false, 1e-12, true);
+  expect_fixed_shape_agrees_with_dense(true, 1e-10, true);
 }
 
 TEST(UkArrow, OtherMethodsUseTheDenseSolve) {

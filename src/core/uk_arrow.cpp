@@ -208,6 +208,33 @@ struct ArrowSizes {
         nL(NL > 0 ? Index{NL} : P.nL) {}
 };
 
+// Robot k's rows of A on its own columns (B) and on the load's (C), column j at B + j ld: on the
+// fixed shape with the group's rows consecutive in A (a weld's 6) A's own columns (ld = A's rows,
+// nothing copied), else the group's buffers that reduce_group gathers them into (ld = m_k).
+struct GroupColumns {
+  const double* B;
+  const double* C;
+  Index ld;
+};
+template <int MK>
+bool rows_in_place(const ArrowProblem& P, std::size_t gi) {
+  if constexpr (MK > 0) {
+    const Index* rows = P.st.groups[gi].rows.data();
+    return rows[MK - 1] - rows[0] == MK - 1;
+  }
+  return false;
+}
+template <int MK>
+GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
+  const auto& gb = P.ws.g[gi];
+  if (rows_in_place<MK>(P, gi)) {
+    const Index lda = P.A.rows();
+    const double* a = P.A.data() + P.st.groups[gi].rows[0];
+    return {a + P.st.groups[gi].start * lda, a + P.sL * lda, lda};
+  }
+  return {gb.B.data(), gb.C.data(), gb.B.rows()};
+}
+
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
 // y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Returns
 // max_i W_ii over the group's rows, W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (its part of the rank rule's
@@ -220,28 +247,20 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
-  double* B = gb.B.data();
-  double* C = gb.C.data();
   double* Xt = gb.Xt.data();
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
-  // B and C gathered column by column; rows that are consecutive in A (a weld's 6) as fixed-size
-  // columns (copies: the same values).
-  auto gather = [&](double* out, Index c0, Index n) {
-    if constexpr (MK > 0) {
-      if (rows[MK - 1] - rows[0] == MK - 1) {
-        using Col = Eigen::Matrix<double, MK, 1>;
-        for (Index j = 0; j < n; ++j)
-          Eigen::Map<Col>(out + j * mk) = Eigen::Map<const Col>(Ad + rows[0] + (c0 + j) * lda);
-        return;
-      }
-    }
-    for (Index j = 0; j < n; ++j)
-      for (Index i = 0; i < mk; ++i) out[i + j * mk] = Ad[rows[i] + (c0 + j) * lda];
-  };
-  gather(B, s, nk);
-  gather(C, P.sL, nL);
+  // B and C gathered column by column, unless the rows are consecutive in A (group_columns).
+  if (!rows_in_place<MK>(P, gi)) {
+    double* B = gb.B.data();
+    double* C = gb.C.data();
+    for (Index j = 0; j < nk; ++j)
+      for (Index i = 0; i < mk; ++i) B[i + j * mk] = Ad[rows[i] + (s + j) * lda];
+    for (Index j = 0; j < nL; ++j)
+      for (Index i = 0; i < mk; ++i) C[i + j * mk] = Ad[rows[i] + (P.sL + j) * lda];
+  }
+  const GroupColumns bc = group_columns<MK>(P, gi);
   for (Index i = 0; i < mk; ++i) gb.bb[i] = P.b[rows[i]];
   double* y = gb.w.data();
   for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
@@ -249,13 +268,14 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   // Xᵀ(:, l) = (B(:, l) − Σ_{p<l} L_lp Xᵀ(:, p)) / L_ll; the same for C and the load's factor.
   // MK > 0: each column a fixed-size vector (the same operations, element by element, in
   // registers).
-  auto forward_columns = [mk](auto N, const double* L, Index ldl, const double* inv,
-                              const double* in, double* out, Index n) {
+  auto forward_columns = [mk, ld = MK > 0 ? bc.ld : mk](auto N, const double* L, Index ldl,
+                                                        const double* inv, const double* in,
+                                                        double* out, Index n) {
     if constexpr (MK > 0 && decltype(N)::value > 0) {
       using Col = Eigen::Matrix<double, MK, 1>;
       UKDYN_UNROLL
       for (Index l = 0; l < decltype(N)::value; ++l) {
-        Col c = Eigen::Map<const Col>(in + l * MK);
+        Col c = Eigen::Map<const Col>(in + l * ld);
         UKDYN_UNROLL
         for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * MK);
         Eigen::Map<Col>(out + l * MK) = c * inv[l];
@@ -265,7 +285,7 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
     for (Index l = 0; l < n; ++l) {
       double col[MK > 0 ? MK : 1];
       double* c = MK > 0 ? col : out + l * mk;
-      for (Index i = 0; i < mk; ++i) c[i] = in[i + l * mk];
+      for (Index i = 0; i < mk; ++i) c[i] = in[i + l * ld];
       for (Index p = 0; p < l; ++p) {
         const double lp = L[l + p * ldl];
         for (Index i = 0; i < mk; ++i) c[i] -= lp * out[i + p * mk];
@@ -273,9 +293,9 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       for (Index i = 0; i < mk; ++i) out[i + l * mk] = c[i] * inv[l];
     }
   };
-  forward_columns(std::integral_constant<int, NK>{}, Lk, P.ldl, id, B, Xt, nk);
+  forward_columns(std::integral_constant<int, NK>{}, Lk, P.ldl, id, bc.B, Xt, nk);
   forward_columns(std::integral_constant<int, NL>{}, P.Ld + P.sL + P.sL * P.ldl, P.ldl,
-                  P.idg + P.sL, C, Y, nL);
+                  P.idg + P.sL, bc.C, Y, nL);
   double* r = gb.r.data();
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
@@ -463,7 +483,7 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
   auto& gb = ws.g[gi];
   const Index kp = KP > 0 ? Index{KP} : gb.kept;
   const double* S = gb.S.data();
-  const double* C = gb.C.data();
+  const GroupColumns bc = group_columns<MK>(P, gi);
   double* T = gb.T.data();
   Index perm[MK];
   UKDYN_UNROLL
@@ -477,7 +497,7 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
     const Index src = perm[i];
     Row ti;
     UKDYN_UNROLL
-    for (Index j = 0; j < NL; ++j) ti[j] = C[src + j * MK];
+    for (Index j = 0; j < NL; ++j) ti[j] = bc.C[src + j * bc.ld];
     double zi = gb.r[src], li = gb.bb[src];
     const Index pe = std::min(i, kp);
     for (Index p = 0; p < pe; ++p) {
@@ -686,8 +706,7 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
       std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
   });
   const Index s = grp.start;
-  const double* B = gb.B.data();
-  const double* C = gb.C.data();
+  const GroupColumns bc = group_columns<MK>(P, gi);
   const double* lam = gb.lam.data();
   for (Index i = 0; i < mk; ++i) P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = lam[i];
   // Qc += Bᵀ λ_k, Cᵀ λ_k entry by entry down B's and C's contiguous columns: each entry gets its
@@ -698,7 +717,7 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
     if constexpr (MK > 0) {
       using Col = Eigen::Matrix<double, MK, 1>;
       const Eigen::Map<const Col> lv(lam);
-      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * mk).dot(lv);
+      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * bc.ld).dot(lv);
       return;
     }
     for (Index j = 0; j < n; ++j) {
@@ -707,8 +726,8 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
       out[j] = v;
     }
   };
-  add_columns(B, Qc.data() + s, nk);
-  add_columns(C, Qc.data() + P.sL, nL);
+  add_columns(bc.B, Qc.data() + s, nk);
+  add_columns(bc.C, Qc.data() + P.sL, nL);
 }
 
 // Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
@@ -793,8 +812,7 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
     const auto& gb = P.ws.g[gi];
     const ArrowSizes<NK, MK, NL> sz(P, gi);
     const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
-    const double* B = gb.B.data();
-    const double* C = gb.C.data();
+    const GroupColumns bc = group_columns<MK>(P, gi);
     // Every row's sums side by side down B's and C's columns, each in the order of j as one row
     // at a time would add them (r and z are free by now: runtime sizes use them as the arrays).
     double v_buf[MK > 0 ? MK : 1], ab_buf[MK > 0 ? MK : 1];
@@ -809,7 +827,7 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
         using Col = Eigen::Matrix<double, MK, 1>;
         Eigen::Map<Col> vm(v), am(ab);
         for (Index j = 0; j < n; ++j) {
-          const Eigen::Map<const Col> xj(X + j * mk);
+          const Eigen::Map<const Col> xj(X + j * bc.ld);
           vm += xj * x[j];
           am += xj.cwiseAbs();
         }
@@ -821,8 +839,8 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
           ab[i] += std::abs(X[i + j * mk]);
         }
     };
-    add_block(B, qdd.data() + s, nk);
-    add_block(C, qdd.data() + P.sL, nL);
+    add_block(bc.B, qdd.data() + s, nk);
+    add_block(bc.C, qdd.data() + P.sL, nL);
     for (Index i = 0; i < mk; ++i) add_row(v[i], ab[i], gb.bb[i]);
   }
   const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
