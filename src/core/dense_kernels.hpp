@@ -210,13 +210,18 @@ struct LdltPivots {
       t[i] = colk[i];
       colk[i] *= inv_d;  // L_ik
     }
-    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
+    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk, rows i and i + 1 of a column as one
+    // 2-vector (adjacent in W's columns; each entry the same operation).
     UKDYN_UNROLL
     for (Index j = k + 1; j < m; ++j) {
+      using Pair = Eigen::Matrix<double, 2, 1>;
       const double tj = t[j];
       double* colj = W + j * ldw;
+      Index i = j;
       UKDYN_UNROLL
-      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
+      for (; i + 1 < m; i += 2)
+        Eigen::Map<Pair>(colj + i) -= Eigen::Map<const Pair>(colk + i) * tj;
+      if (i < m) colj[i] -= colk[i] * tj;
     }
     if (dp - rule.shift > count_floor) {
       pv.d_min_kept = std::min(pv.d_min_kept, dp - rule.shift);

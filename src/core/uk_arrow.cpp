@@ -240,7 +240,7 @@ GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
 // max_i W_ii over the group's rows, W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (its part of the rank rule's
 // scale); T holds the rows C_i L_L^{-ᵀ} as scratch. Every loop runs down a column of m_k rows.
 template <int NK, int MK, int NL>
-double reduce_group(const ArrowProblem& P, std::size_t gi) {
+[[gnu::always_inline]] inline double reduce_group(const ArrowProblem& P, std::size_t gi) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> z(P, gi);
@@ -533,8 +533,8 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
 }
 
 template <int NK, int MK, int NL>
-Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
-                      Index mD) {
+[[gnu::always_inline]] inline Index eliminate_group(const ArrowProblem& P, std::size_t gi,
+                                                    double w_ref, ArrowPivots& pivots, Index mD) {
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const LdltPivots pv = pivoted_ldlt(gb.S.data(), MK > 0 ? Index{MK} : gb.S.rows(), sz.mk,
