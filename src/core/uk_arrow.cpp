@@ -156,6 +156,12 @@ struct ArrowProblem {
         tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
   // The rank rule on the scale of the whole W (w_ref = max diag W, reduce_groups).
   [[nodiscard]] RankRule rule(double w_ref) const { return RankRule{tol2, 0.0, w_ref}; }
+  // Whether a piece factored on the scale lo (≤ max diag W) made the decisions it makes on any
+  // scale up to hi (≥ max diag W): every kept pivot above τ² max(D_0, hi). The stop, if any, was
+  // at a pivot under τ² max(D_0, lo), under the larger scale's cut-off too (RankScale).
+  [[nodiscard]] bool same_decisions(const LdltPivots& pv, double hi) const {
+    return pv.kept == 0 || pv.d_min_kept > tol2 * std::max(pv.d_max, hi);
+  }
   // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ); NL: the load's size if fixed.
   template <int NL>
   void load_l_solve(double* x) const {
@@ -176,6 +182,43 @@ struct ArrowProblem {
     return c2;
   }
 };
+
+// The scale of the rank decisions, max diag W with W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (the dense solve's,
+// dense_kernels.hpp), between bounds: lo = max_i S_ii ≤ max diag W ≤ hi = max_i (S_ii + F |C_i|²),
+// F twice ‖L_L⁻¹‖_F² ≥ ‖M_L⁻¹‖₂ (|L_L⁻¹ c|² ≤ ‖L_L⁻¹‖₂² |c|²; the factor 2 covers the round-off of
+// both sides). The pieces are factored on lo; when every decision is the same on any scale up to
+// hi (ArrowProblem::same_decisions: a pivot would have to lie within τ² of the scale), they are
+// the decisions on max diag W itself, which is then never formed; otherwise the solve is redone
+// with the exact scale (lo = hi = max diag W, each C_i L_L^{-ᵀ} formed).
+struct RankScale {
+  double lo = 0.0, hi = 0.0;
+  bool exact = false;
+  void add(double lo_i, double hi_i) {
+    lo = std::max(lo, lo_i);
+    hi = std::max(hi, hi_i);
+  }
+};
+
+// 2 ‖L⁻¹‖_F² = 2 trace(M⁻¹) for M = L Lᵀ (n × n lower factor L, leading dimension ldl, 1/L_ii in
+// inv_diag): column j of L⁻¹ by forward substitution from row j down. x: scratch of n.
+template <int N>
+double twice_inverse_frobenius2(const double* L, Index ldl, const double* inv_diag, double* x,
+                                Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  double f = 0.0;
+  UKDYN_UNROLL
+  for (Index j = 0; j < n; ++j) {
+    UKDYN_UNROLL
+    for (Index i = j; i < n; ++i) {
+      double v = i == j ? 1.0 : 0.0;
+      UKDYN_UNROLL
+      for (Index k = j; k < i; ++k) v -= L[i + k * ldl] * x[k];
+      x[i] = v * inv_diag[i];
+      f += x[i] * x[i];
+    }
+  }
+  return 2.0 * f;
+}
 
 // The rank decisions' pivots: the number kept and the largest and smallest kept.
 struct ArrowPivots {
@@ -236,11 +279,13 @@ GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
 }
 
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
-// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Returns
-// max_i W_ii over the group's rows, W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (its part of the rank rule's
-// scale); T holds the rows C_i L_L^{-ᵀ} as scratch. Every loop runs down a column of m_k rows.
+// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Adds the
+// group's rows to the rank scale w (RankScale: with w.exact W_ii = S_ii + |L_L⁻¹ C_iᵀ|², T holding
+// the rows C_i L_L^{-ᵀ} as scratch; else the bounds S_ii and S_ii + F |C_i|²). Every loop runs down
+// a column of m_k rows.
 template <int NK, int MK, int NL>
-[[gnu::always_inline]] inline double reduce_group(const ArrowProblem& P, std::size_t gi) {
+[[gnu::always_inline]] inline void reduce_group(const ArrowProblem& P, std::size_t gi, double F,
+                                                RankScale& w) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> z(P, gi);
@@ -294,8 +339,9 @@ template <int NK, int MK, int NL>
     }
   };
   forward_columns(std::integral_constant<int, NK>{}, Lk, P.ldl, id, bc.B, Xt, nk);
-  forward_columns(std::integral_constant<int, NL>{}, P.Ld + P.sL + P.sL * P.ldl, P.ldl,
-                  P.idg + P.sL, bc.C, Y, nL);
+  if (w.exact)
+    forward_columns(std::integral_constant<int, NL>{}, P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                    P.idg + P.sL, bc.C, Y, nL);
   double* r = gb.r.data();
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
@@ -310,18 +356,19 @@ template <int NK, int MK, int NL>
   }
   double* S = gb.S.data();
   const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
-  // |L_L⁻¹ C_iᵀ|² of every row at once (MK > 0: down Y's columns, each row's terms in the order of
-  // l as one row at a time).
+  // Each row's part of the rank scale (RankScale): exact, |L_L⁻¹ C_iᵀ|² (down Y's columns, each
+  // row's terms in the order of l as one row at a time); else |C_i|², down C's columns.
   double c2v[MK > 0 ? MK : 1] = {};
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
     Eigen::Map<Col> c2m(c2v);
+    const Index ldc = w.exact ? mk : bc.ld;
+    const double* X = w.exact ? Y : bc.C;
     for (Index l = 0; l < nL; ++l) {
-      const Eigen::Map<const Col> yl(Y + l * mk);
+      const Eigen::Map<const Col> yl(X + l * ldc);
       c2m += yl.cwiseProduct(yl);
     }
   }
-  double w_ref = 0.0;
   UKDYN_UNROLL
   for (Index j = 0; j < mk; ++j) {
     double acc[MK > 0 ? MK : 1] = {};
@@ -343,19 +390,25 @@ template <int NK, int MK, int NL>
     double c2 = 0.0;
     if constexpr (MK > 0) {
       c2 = c2v[j];
-    } else {
+    } else if (w.exact) {
       for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
+    } else {
+      for (Index l = 0; l < nL; ++l) c2 += bc.C[j + l * mk] * bc.C[j + l * mk];
     }
-    w_ref = std::max(w_ref, S[j + j * lds] + c2);
+    const double sjj = S[j + j * lds];
+    if (w.exact) {
+      w.add(sjj + c2, sjj + c2);
+    } else {
+      w.add(sjj, sjj + F * c2);
+    }
   }
-  return w_ref;
 }
 
 // H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
-// returns max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii + C_i M_L⁻¹ C_iᵀ): the scale of every rank
-// decision below, as the dense solve's.
+// returns the scale of every rank decision below, max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii +
+// C_i M_L⁻¹ C_iᵀ, as the dense solve's): itself (exact) or between bounds (RankScale).
 template <int NK, int MK, int NL>
-double reduce_groups(const ArrowProblem& P) {
+RankScale reduce_groups(const ArrowProblem& P, bool exact) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL;
   const Index ldm = P.M.rows(), ldh = NL > 0 ? Index{NL} : ws.H.rows();
@@ -367,11 +420,26 @@ double reduce_groups(const ArrowProblem& P) {
     for (Index i = j; i < nL; ++i) H[i + j * ldh] = ML[i + j * ldm];
     ws.gL[j] = P.Q[P.sL + j];
   }
-  double w_ref = 0.0;
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
-    w_ref = std::max(w_ref, reduce_group<NK, MK, NL>(P, gi));
-  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w<NL>(row));
-  return w_ref;
+  RankScale w;
+  w.exact = exact;
+  const double F = exact || nL == 0
+                       ? 0.0
+                       : twice_inverse_frobenius2<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                                                      P.idg + P.sL, ws.tmp.data(), nL);
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) reduce_group<NK, MK, NL>(P, gi, F, w);
+  const Index lda = P.A.rows();
+  for (const Index row : P.st.load_rows) {
+    if (exact) {
+      const double c2 = P.load_part_of_w<NL>(row);
+      w.add(c2, c2);
+    } else {
+      const double* a = P.A.data() + row + P.sL * lda;
+      double c2 = 0.0;
+      for (Index j = 0; j < nL; ++j) c2 += a[j * lda] * a[j * lda];
+      w.add(0.0, F * c2);
+    }
+  }
+  return w;
 }
 
 // The kept count of a group's rows as a compile-time constant when every row is kept on a fixed
@@ -534,11 +602,13 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
 
 template <int NK, int MK, int NL>
 [[gnu::always_inline]] inline Index eliminate_group(const ArrowProblem& P, std::size_t gi,
-                                                    double w_ref, ArrowPivots& pivots, Index mD) {
+                                                    const RankScale& w, ArrowPivots& pivots,
+                                                    Index mD, bool& same) {
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const LdltPivots pv = pivoted_ldlt(gb.S.data(), MK > 0 ? Index{MK} : gb.S.rows(), sz.mk,
-                                     gb.piv.data(), P.ws.tmp.data(), P.rule(w_ref));
+                                     gb.piv.data(), P.ws.tmp.data(), P.rule(w.lo));
+  same = same && (w.exact || P.same_decisions(pv, w.hi));
   gb.kept = pv.kept;
   pivots.add(pv);
   if constexpr (MK > 0 && NL > 0) {
@@ -551,13 +621,14 @@ template <int NK, int MK, int NL>
   }
 }
 
-// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
+// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D. `same`
+// is cleared when a decision might differ on the exact scale (RankScale).
 template <int NK, int MK, int NL>
-Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots) {
+Index eliminate_groups(const ArrowProblem& P, const RankScale& w, ArrowPivots& pivots, bool& same) {
   auto& ws = P.ws;
   Index mD = 0;
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
-    mD = eliminate_group<NK, MK, NL>(P, gi, w_ref, pivots, mD);
+  for (std::size_t gi = 0; gi < P.st.groups.size() && same; ++gi)
+    mD = eliminate_group<NK, MK, NL>(P, gi, w, pivots, mD, same);
   const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows(), ldd = ws.Dt.rows();
   double* Dt = ws.Dt.data();
   for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
@@ -622,9 +693,10 @@ void ht_solve(const double* H, Index n_rt, double* x) {
 // The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
 // r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL. MD: the rows of
 // D when fixed (1: a free-body load's unit-norm row and no dropped row), else 0 (mD at run time);
-// the same operations in the same order.
+// the same operations in the same order. Returns false, before q̈_L, when a decision might differ
+// on the exact scale (RankScale).
 template <int NL, int MD>
-void solve_load(const ArrowProblem& P, Index mD_rt, double w_ref, ArrowPivots& pivots) {
+bool solve_load(const ArrowProblem& P, Index mD_rt, const RankScale& w, ArrowPivots& pivots) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL, mD = MD > 0 ? Index{MD} : mD_rt;
   const double* H = ws.H.data();
@@ -655,7 +727,8 @@ void solve_load(const ArrowProblem& P, Index mD_rt, double w_ref, ArrowPivots& p
   } else {
     lower_gram(ws.Dt, mD, nL, ws.WD);
   }
-  const LdltPivots pv = pivoted_ldlt(ws.WD.data(), ldw, mD, ws.pivD.data(), tmp, P.rule(w_ref));
+  const LdltPivots pv = pivoted_ldlt(ws.WD.data(), ldw, mD, ws.pivD.data(), tmp, P.rule(w.lo));
+  if (!w.exact && !P.same_decisions(pv, w.hi)) return false;
   pivots.add(pv);
   double* lam = ws.lamD.data();
   for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
@@ -666,6 +739,7 @@ void solve_load(const ArrowProblem& P, Index mD_rt, double w_ref, ArrowPivots& p
     yH[j] = v;
   }
   ht_solve<NL>(H, nL, yH);
+  return true;
 }
 
 // Robot k's multipliers: u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v for the kept rows
@@ -880,23 +954,28 @@ bool arrow_shape_is(const ArrowStructure& st) {
 }
 
 // The steps of the solve in order, with the sizes of arrow_shape_is<NK, MK, NL> (0: runtime).
+// First on the rank scale's bounds, then, only if a decision might differ on max diag W itself,
+// again from the start on the exact scale (RankScale): the same decisions either way.
 template <int NK, int MK, int NL>
 bool arrow_steps(const ArrowProblem& P, Vec& qdd, Vec& Qc, const UkSettings& settings,
                  UkResult& res) {
-  ArrowPivots pivots;
-  const double w_ref = reduce_groups<NK, MK, NL>(P);
-  const Index mD = eliminate_groups<NK, MK, NL>(P, w_ref, pivots);
-  if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
-  constexpr int kOneRow = NL > 0 ? 1 : 0;  // the runtime sizes keep mD at run time
-  if (kOneRow > 0 && mD == 1) {
-    solve_load<NL, kOneRow>(P, mD, w_ref, pivots);
-  } else {
-    solve_load<NL, 0>(P, mD, w_ref, pivots);
+  for (const bool exact : {false, true}) {
+    ArrowPivots pivots;
+    const RankScale w = reduce_groups<NK, MK, NL>(P, exact);
+    bool same = true;
+    const Index mD = eliminate_groups<NK, MK, NL>(P, w, pivots, same);
+    if (!same) continue;
+    if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
+    constexpr int kOneRow = NL > 0 ? 1 : 0;  // the runtime sizes keep mD at run time
+    const bool solved = kOneRow > 0 && mD == 1 ? solve_load<NL, kOneRow>(P, mD, w, pivots)
+                                               : solve_load<NL, 0>(P, mD, w, pivots);
+    if (!solved) continue;
+    multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
+    accelerations<NK, MK, NL>(P, Qc, qdd);
+    arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
+    return true;
   }
-  multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
-  accelerations<NK, MK, NL>(P, Qc, qdd);
-  arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
-  return true;
+  return false;  // not reached: the exact pass makes its decisions itself
 }
 
 }  // namespace
