@@ -183,6 +183,28 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol, bool inter
     // The multipliers reproduce Qc.
     EXPECT_LE((A.transpose() * aws.lambda - Qc).lpNorm<Eigen::Infinity>(),
               1e-12 * std::max(1.0, Qc.lpNorm<Eigen::Infinity>()));
+    if (redundant) {
+      // The repeated row asking for another value: inconsistent for both solves, with the same
+      // residual (the basic solution keeps one of the two rows, 1 apart: ‖A q̈ − b‖ = 1).
+      Vec b_bad = b;
+      b_bad[interleaved ? 6 : 5] += 1.0;
+      ukdyn::UkResult rb;
+      ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b_bad, Q, arrow_dws, aws, qdd, Qc, {}, rb));
+      const ukdyn::UkResult rdb = ukdyn::uk_solve(M, A, b_bad, Q, dense_ws, qdd_d, Qc_d);
+      EXPECT_FALSE(rb.consistent) << "problem " << k;
+      EXPECT_FALSE(rdb.consistent) << "problem " << k;
+      EXPECT_NEAR(rb.residual, 1.0, 1e-9) << "problem " << k;
+      EXPECT_NEAR(rdb.residual, 1.0, 1e-9) << "problem " << k;
+      // A tolerance under which only the ‖A‖_∞ ‖q̈‖ term of the scale makes it consistent: half
+      // the residual over ‖b‖ + 1 (the scale's other terms), with ‖A‖_∞ ‖q̈‖ ≥ 2 (‖b‖ + 1).
+      const double a_inf = A.cwiseAbs().rowwise().sum().maxCoeff();
+      ASSERT_GE(a_inf * qdd_d.norm(), 2.0 * (b_bad.norm() + 1.0)) << "problem " << k;
+      ukdyn::UkSettings loose;
+      loose.consistency_rel_tol = 0.5 * rdb.residual / (b_bad.norm() + 1.0);
+      ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b_bad, Q, arrow_dws, aws, qdd, Qc, loose, rb));
+      EXPECT_TRUE(rb.consistent) << "problem " << k;
+      EXPECT_TRUE(ukdyn::uk_solve(M, A, b_bad, Q, dense_ws, qdd_d, Qc_d, loose).consistent);
+    }
   }
   EXPECT_LE(worst_q, tol);
   EXPECT_LE(worst_c, tol);

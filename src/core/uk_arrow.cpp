@@ -872,61 +872,71 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
   }
 }
 
-// ‖A q̈ − b‖, ‖A‖_∞, consistency and finiteness (as uk_solve.cpp's) with the pivots into res.
+// Row i of A q̈ − b (with_abs false) or Σ_j |A_ij| (true) for the rows of group gi into out, each
+// row's terms in the order of j as one row at a time would add them, side by side down B's and C's
+// columns.
+template <int NK, int MK, int NL, bool with_abs>
+void group_row_sums(const ArrowProblem& P, std::size_t gi, const Vec& qdd, double* out) {
+  const auto& gb = P.ws.g[gi];
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
+  const GroupColumns bc = group_columns<MK>(P, gi);
+  for (Index i = 0; i < mk; ++i) out[i] = with_abs ? 0.0 : -gb.bb[i];
+  auto add_block = [&](const double* X, const double* x, Index n) {
+    if constexpr (MK > 0) {  // fixed-size columns: the same operations, vectorised
+      using Col = Eigen::Matrix<double, MK, 1>;
+      Eigen::Map<Col> o(out);
+      for (Index j = 0; j < n; ++j) {
+        const Eigen::Map<const Col> xj(X + j * bc.ld);
+        if constexpr (with_abs) {
+          o += xj.cwiseAbs();
+        } else {
+          o += xj * x[j];
+        }
+      }
+      return;
+    }
+    for (Index j = 0; j < n; ++j)
+      for (Index i = 0; i < mk; ++i)
+        out[i] += with_abs ? std::abs(X[i + j * mk]) : X[i + j * mk] * x[j];
+  };
+  add_block(bc.B, qdd.data() + s, nk);
+  add_block(bc.C, qdd.data() + P.sL, nL);
+}
+
+// Row `row` (on the load alone) of A q̈ − b, or Σ_j |A_ij| (with_abs).
+template <int NL, bool with_abs>
+double load_row_sum(const ArrowProblem& P, Index row, const Vec& qdd) {
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
+  const double* a = P.A.data() + row + P.sL * lda;
+  const double* qL = qdd.data() + P.sL;
+  double v = with_abs ? 0.0 : -P.b[row];
+  for (Index j = 0; j < nL; ++j) v += with_abs ? std::abs(a[j * lda]) : a[j * lda] * qL[j];
+  return v;
+}
+
+// ‖A q̈ − b‖, consistency and finiteness (as uk_solve.cpp's) with the pivots into res. The test
+// ‖A q̈ − b‖ ≤ tol (‖b‖ + ‖A‖_∞ ‖q̈‖ + 1) holds whenever it holds without the middle term (≥ 0 for
+// a finite ‖q̈‖, and every rounding is monotone), so ‖A‖_∞ is summed only when it does not.
 template <int NK, int MK, int NL>
 void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const ArrowPivots& pivots,
                   const UkSettings& settings, UkResult& res) {
-  double r2 = 0.0, b2 = 0.0, a_inf = 0.0;
-  auto add_row = [&](double v, double ab, double bi) {
-    r2 += v * v;
-    b2 += bi * bi;
-    a_inf = std::max(a_inf, ab);
-  };
+  double r2 = 0.0, b2 = 0.0;
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
     const auto& gb = P.ws.g[gi];
-    const ArrowSizes<NK, MK, NL> sz(P, gi);
-    const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
-    const GroupColumns bc = group_columns<MK>(P, gi);
-    // Every row's sums side by side down B's and C's columns, each in the order of j as one row
-    // at a time would add them (r and z are free by now: runtime sizes use them as the arrays).
-    double v_buf[MK > 0 ? MK : 1], ab_buf[MK > 0 ? MK : 1];
+    // Runtime sizes: r is free by now.
+    double v_buf[MK > 0 ? MK : 1];
     double* v = MK > 0 ? v_buf : P.ws.g[gi].r.data();
-    double* ab = MK > 0 ? ab_buf : P.ws.g[gi].z.data();
-    for (Index i = 0; i < mk; ++i) {
-      v[i] = -gb.bb[i];
-      ab[i] = 0.0;
+    group_row_sums<NK, MK, NL, false>(P, gi, qdd, v);
+    for (Index i = 0; i < ArrowSizes<NK, MK, NL>(P, gi).mk; ++i) {
+      r2 += v[i] * v[i];
+      b2 += gb.bb[i] * gb.bb[i];
     }
-    auto add_block = [&](const double* X, const double* x, Index n) {
-      if constexpr (MK > 0) {  // fixed-size columns: the same operations, vectorised
-        using Col = Eigen::Matrix<double, MK, 1>;
-        Eigen::Map<Col> vm(v), am(ab);
-        for (Index j = 0; j < n; ++j) {
-          const Eigen::Map<const Col> xj(X + j * bc.ld);
-          vm += xj * x[j];
-          am += xj.cwiseAbs();
-        }
-        return;
-      }
-      for (Index j = 0; j < n; ++j)
-        for (Index i = 0; i < mk; ++i) {
-          v[i] += X[i + j * mk] * x[j];
-          ab[i] += std::abs(X[i + j * mk]);
-        }
-    };
-    add_block(bc.B, qdd.data() + s, nk);
-    add_block(bc.C, qdd.data() + P.sL, nL);
-    for (Index i = 0; i < mk; ++i) add_row(v[i], ab[i], gb.bb[i]);
   }
-  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
-  const double* qL = qdd.data() + P.sL;
   for (const Index row : P.st.load_rows) {
-    const double* a = P.A.data() + row + P.sL * lda;
-    double v = -P.b[row], ab = 0.0;
-    for (Index j = 0; j < nL; ++j) {
-      v += a[j * lda] * qL[j];
-      ab += std::abs(a[j * lda]);
-    }
-    add_row(v, ab, P.b[row]);
+    const double v = load_row_sum<NL, false>(P, row, qdd);
+    r2 += v * v;
+    b2 += P.b[row] * P.b[row];
   }
   // q̈ and Qc finite: x · 0 is ±0 for a finite x and NaN for ±inf and NaN, so the sum of them is
   // 0 exactly when all are finite (without a test and branch per entry). |q̈|² and that sum as
@@ -939,8 +949,20 @@ void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const Ar
   res.sigma_max = std::sqrt(pivots.max);
   res.sigma_min_kept = pivots.rank > 0 ? std::sqrt(pivots.min) : 0.0;
   res.residual = std::sqrt(r2);
-  res.consistent =
-      res.residual <= settings.consistency_rel_tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
+  const double tol = settings.consistency_rel_tol;
+  res.consistent = std::isfinite(q2) && res.residual <= tol * (std::sqrt(b2) + 1.0);
+  if (!res.consistent) {
+    double a_inf = 0.0;  // ‖A‖_∞, the largest absolute row sum
+    for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+      double ab_buf[MK > 0 ? MK : 1];
+      double* ab = MK > 0 ? ab_buf : P.ws.g[gi].r.data();
+      group_row_sums<NK, MK, NL, true>(P, gi, qdd, ab);
+      for (Index i = 0; i < ArrowSizes<NK, MK, NL>(P, gi).mk; ++i) a_inf = std::max(a_inf, ab[i]);
+    }
+    for (const Index row : P.st.load_rows)
+      a_inf = std::max(a_inf, load_row_sum<NL, true>(P, row, qdd));
+    res.consistent = res.residual <= tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
+  }
   res.finite = finite && std::isfinite(res.residual);
 }
 
