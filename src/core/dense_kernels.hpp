@@ -219,8 +219,7 @@ struct LdltPivots {
       double* colj = W + j * ldw;
       Index i = j;
       UKDYN_UNROLL
-      for (; i + 1 < m; i += 2)
-        Eigen::Map<Pair>(colj + i) -= Eigen::Map<const Pair>(colk + i) * tj;
+      for (; i + 1 < m; i += 2) Eigen::Map<Pair>(colj + i) -= Eigen::Map<const Pair>(colk + i) * tj;
       if (i < m) colj[i] -= colk[i] * tj;
     }
     if (dp - rule.shift > count_floor) {
