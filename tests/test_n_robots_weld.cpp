@@ -15,6 +15,7 @@
 #include <random>
 #include <sstream>
 
+#include "core/augmented_mass.hpp"
 #include "ukdyn/core/constraint_forces.hpp"
 #include "ukdyn/core/uk_singular.hpp"
 #include "ukdyn/model/system.hpp"
@@ -148,8 +149,10 @@ TEST(NRobotsWeld, GraspWrenchesObeyNewtonEulerAndDoNotSqueeze) {
 }
 
 // The free-body load's quaternion block of M is singular at every state; forward() takes the O(N)
-// block-arrow solve in the augmented form (core/uk_singular.hpp, augment_singular_blocks) and puts
-// M and Q back. Against the dense singular solve of the same (M, A, b, Q): the same q̈ and Qc.
+// block-arrow solve in the augmented form (core/uk_singular.hpp), M_a's block and Q_a formed beside
+// M and Q (core/augmented_mass.hpp), which stay as evaluated. Against the dense singular solve of
+// the same (M, A, b, Q): the same q̈ and Qc; and the condition estimate, formed in the factor's
+// pass, is mass_condition_estimate() of the M_a that solved_mass() forms.
 TEST(NRobotsWeld, ArrowSolveOfTheSingularLoadMatchesTheDenseSolve) {
   for (const char* file : {"n_robots_3_weld.yaml", "n_robots_4_weld.yaml"}) {
     const auto sc = ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/" + file);
@@ -181,8 +184,58 @@ TEST(NRobotsWeld, ArrowSolveOfTheSingularLoadMatchesTheDenseSolve) {
       // M is the subsystems' (block-diagonal, the load's block singular), not the augmented one.
       Mat Mk = d.M.bottomRightCorner(7, 7);
       EXPECT_LT(Eigen::SelfAdjointEigenSolver<Mat>(Mk).eigenvalues()(0), 1e-10);
+      std::size_t block = 99, block_ref = 98;
+      const double cond = ukdyn::mass_condition(d, &block);
+      EXPECT_EQ(cond, ukdyn::mass_condition_estimate(ukdyn::solved_mass(sys, d), d.uk, &block_ref))
+          << file;
+      EXPECT_EQ(block, block_ref) << file;
     }
   }
+}
+
+// factor_augmented_mass (the arrow path's factor of M_a, formed beside M) against the two steps it
+// replaces, on n_robots_3_weld's M, A, b, Q at a state: M_a and Q_a by augmented_blocks() on
+// copies, then factor_mass() and mass_condition_estimate(). The robots' blocks are set to the
+// identity (condition 1), so that the load's augmented block is the worst one the estimate reports.
+// The same factor and Q_a bit for bit, the same estimate and block, and M and Q unchanged.
+TEST(NRobotsWeld, TheAugmentedFactorIsTheFactorOfTheAugmentedMass) {
+  const auto sc =
+      ukdyn::load_scenario(std::string(UKDYN_SOURCE_DIR) + "/scenarios/n_robots_3_weld.yaml");
+  const auto& sys = *sc.system;
+  const auto& lay = sys.layout();
+  ForwardData d(sys);
+  ukdyn::forward(sys, d, 0.0, sc.q0, sc.qd0, Vec::Zero(sys.dof()), sc.sim.uk);
+  ASSERT_TRUE(d.used_arrow);
+  Mat M = d.M;
+  const std::size_t load = static_cast<std::size_t>(sys.arrow()->load_block);
+  for (std::size_t k = 0; k < lay.blocks(); ++k)
+    if (k != load) M.block(lay.start[k], lay.start[k], lay.size[k], lay.size[k]).setIdentity();
+  const Mat M_before = M;
+  const Vec Q_before = d.Q;
+  ukdyn::UkSingularWorkspace& sw = d.singular;
+  ukdyn::UkWorkspace ws(lay, sys.rows()), ws_ref(lay, sys.rows());
+  ukdyn::detail::MassCondition cond;
+  ASSERT_TRUE(ukdyn::detail::factor_augmented_mass(lay, M, d.A, d.b, d.Q, sw, ws, cond));
+  Mat Ma = M;
+  Vec Qa = d.Q;
+  ukdyn::augmented_blocks(lay, d.A, d.b, sw, Ma, Qa);
+  ASSERT_TRUE(ukdyn::factor_mass(Ma, ws_ref));
+  std::size_t block_ref = 99;
+  const double cond_ref = ukdyn::mass_condition_estimate(Ma, ws_ref, &block_ref);
+  EXPECT_EQ(block_ref, load);
+  EXPECT_EQ(cond.block, block_ref);
+  EXPECT_EQ(cond.estimate, cond_ref);
+  EXPECT_EQ(ws.pivot_ratio, ws_ref.pivot_ratio);
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], n = lay.size[k];
+    for (Index j = 0; j < n; ++j) {
+      EXPECT_EQ(ws.inv_diag[s + j], ws_ref.inv_diag[s + j]);
+      for (Index i = j; i < n; ++i) EXPECT_EQ(ws.L(s + i, s + j), ws_ref.L(s + i, s + j));
+    }
+  }
+  for (Index i = 0; i < sys.dof(); ++i) EXPECT_EQ(sw.Qa[i], Qa[i]) << i;
+  EXPECT_EQ((M - M_before).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_EQ((d.Q - Q_before).cwiseAbs().maxCoeff(), 0.0);
 }
 
 // A point-mass load (no rotational inertia): its block augmented by its own unit-norm row is still

@@ -3,6 +3,9 @@
 // rank-deficient robot block, duplicated rows, rows on the load alone and on a robot alone.
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <cmath>
 #include <random>
 
 #include "helpers.hpp"
@@ -128,11 +131,16 @@ TEST(UkArrow, AgreesWithDenseSolveRankDecisions) {
 
 // The shape with compile-time sizes (two arms of 10 coordinates with 6 rows each on a load of 7
 // with one row of its own: two Pandas welded to a plate) against the dense solve, on random
-// problems: full rank, and with one arm's row repeated (a rank decision in its block).
-void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
+// problems: full rank, and with one arm's row repeated (a rank decision in its block); each with
+// every arm's rows consecutive in A and with the two arms' rows interleaved.
+void expect_fixed_shape_agrees_with_dense(bool redundant, double tol, bool interleaved = false) {
   const ukdyn::BlockLayout lay{{0, 10, 20}, {10, 10, 7}};
   std::vector<std::vector<Index>> row_blocks(6, {0, 2});
   row_blocks.insert(row_blocks.end(), 6, {1, 2});
+  // Interleaved: the two robots' rows alternate in A, so neither group's rows are consecutive
+  // (the solve gathers them instead of reading A's columns in place).
+  if (interleaved)
+    for (std::size_t i = 0; i < 12; ++i) row_blocks[i] = {static_cast<Index>(i % 2), 2};
   row_blocks.push_back({2});
   const auto st = ukdyn::detect_arrow(lay, row_blocks);
   ASSERT_TRUE(st.has_value());
@@ -155,9 +163,10 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
           A(i, lay.start[static_cast<std::size_t>(blk)] + j) = u(rng);
     Vec Q = Vec::NullaryExpr(n, [&] { return u(rng); });
     Vec b = Vec::NullaryExpr(m, [&] { return u(rng); });
-    if (redundant) {  // row 5 = row 2 (its right-hand side too): rank 12
-      A.row(5) = A.row(2);
-      b[5] = b[2];
+    if (redundant) {  // a row repeated in its group (its right-hand side too): rank 12
+      const Index from = 2, to = interleaved ? 6 : 5;
+      A.row(to) = A.row(from);
+      b[to] = b[from];
     }
     Vec qdd(n), Qc(n), qdd_d(n), Qc_d(n);
     ukdyn::UkResult ra;
@@ -174,6 +183,28 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
     // The multipliers reproduce Qc.
     EXPECT_LE((A.transpose() * aws.lambda - Qc).lpNorm<Eigen::Infinity>(),
               1e-12 * std::max(1.0, Qc.lpNorm<Eigen::Infinity>()));
+    if (redundant) {
+      // The repeated row asking for another value: inconsistent for both solves, with the same
+      // residual (the basic solution keeps one of the two rows, 1 apart: ‖A q̈ − b‖ = 1).
+      Vec b_bad = b;
+      b_bad[interleaved ? 6 : 5] += 1.0;
+      ukdyn::UkResult rb;
+      ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b_bad, Q, arrow_dws, aws, qdd, Qc, {}, rb));
+      const ukdyn::UkResult rdb = ukdyn::uk_solve(M, A, b_bad, Q, dense_ws, qdd_d, Qc_d);
+      EXPECT_FALSE(rb.consistent) << "problem " << k;
+      EXPECT_FALSE(rdb.consistent) << "problem " << k;
+      EXPECT_NEAR(rb.residual, 1.0, 1e-9) << "problem " << k;
+      EXPECT_NEAR(rdb.residual, 1.0, 1e-9) << "problem " << k;
+      // A tolerance under which only the ‖A‖_∞ ‖q̈‖ term of the scale makes it consistent: half
+      // the residual over ‖b‖ + 1 (the scale's other terms), with ‖A‖_∞ ‖q̈‖ ≥ 2 (‖b‖ + 1).
+      const double a_inf = A.cwiseAbs().rowwise().sum().maxCoeff();
+      ASSERT_GE(a_inf * qdd_d.norm(), 2.0 * (b_bad.norm() + 1.0)) << "problem " << k;
+      ukdyn::UkSettings loose;
+      loose.consistency_rel_tol = 0.5 * rdb.residual / (b_bad.norm() + 1.0);
+      ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b_bad, Q, arrow_dws, aws, qdd, Qc, loose, rb));
+      EXPECT_TRUE(rb.consistent) << "problem " << k;
+      EXPECT_TRUE(ukdyn::uk_solve(M, A, b_bad, Q, dense_ws, qdd_d, Qc_d, loose).consistent);
+    }
   }
   EXPECT_LE(worst_q, tol);
   EXPECT_LE(worst_c, tol);
@@ -182,6 +213,86 @@ void expect_fixed_shape_agrees_with_dense(bool redundant, double tol) {
 TEST(UkArrow, FixedSizeShapeAgreesWithDenseSolve) {
   expect_fixed_shape_agrees_with_dense(false, 1e-12);
   expect_fixed_shape_agrees_with_dense(true, 1e-10);
+  expect_fixed_shape_agrees_with_dense(false, 1e-12, true);
+  expect_fixed_shape_agrees_with_dense(true, 1e-10, true);
+}
+
+// The rank scale max diag W, W_ii = S_ii + C_i M_L⁻¹ C_iᵀ, is formed only when a decision depends
+// on it (uk_arrow.cpp, RankScale): here one row's load part makes max diag W 1e8 times any S_ii, and
+// a near-repeated row (rows 2 and 5 differ by 1e-5 on the robot's columns alone) gives S_0 a pivot
+// dp that the rank rule drops on max diag W (τ² max diag W = 100 dp) but would keep on max S_ii. The
+// arrow solve must drop it as the dense solve does: the same rank, and q̈ and Qc to 1e-4 (the two
+// eliminations settle the dropped row's 1e-5 differently; kept, q̈ moves by O(1)). Robots of 10
+// (the compile-time shape) and of 9 coordinates (runtime sizes).
+void expect_scale_dependent_decision_as_dense(Index nk) {
+  const ukdyn::BlockLayout lay{{0, nk, 2 * nk}, {nk, nk, 7}};
+  std::vector<std::vector<Index>> row_blocks(6, {0, 2});
+  row_blocks.insert(row_blocks.end(), 6, {1, 2});
+  row_blocks.push_back({2});
+  const auto st = ukdyn::detect_arrow(lay, row_blocks);
+  ASSERT_TRUE(st.has_value());
+  const Index n = 2 * nk + 7, m = 13;
+  ukdyn::UkWorkspace arrow_dws(lay, m), dense_ws(lay, m);
+  ukdyn::ArrowWorkspace aws(*st, m);
+  std::mt19937 rng(20261206u);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int k = 0; k < 20; ++k) {
+    Mat M = Mat::Zero(n, n), A = Mat::Zero(m, n);
+    for (std::size_t blk = 0; blk < 3; ++blk) {
+      const Index s = lay.start[blk], nb = lay.size[blk];
+      const Mat F = Mat::NullaryExpr(nb, nb, [&] { return u(rng); });
+      M.block(s, s, nb, nb) = F * F.transpose() + 0.1 * Mat::Identity(nb, nb);
+    }
+    for (Index i = 0; i < m; ++i)
+      for (const Index blk : row_blocks[static_cast<std::size_t>(i)])
+        for (Index j = 0; j < lay.size[static_cast<std::size_t>(blk)]; ++j)
+          A(i, lay.start[static_cast<std::size_t>(blk)] + j) = u(rng);
+    A.block(0, 2 * nk, 1, 7) *= 1e4;  // row 0's load part: W_00 ≫ every S_ii
+    A.row(5) = A.row(2);
+    for (Index j = 0; j < nk; ++j) A(5, j) += 1e-5 * u(rng);
+    const Vec Q = Vec::NullaryExpr(n, [&] { return u(rng); });
+    Vec b = Vec::NullaryExpr(m, [&] { return u(rng); });
+    b[5] = b[2];
+    // The scales and the pivot, formed here from M and A directly.
+    const Mat Minv = M.inverse();
+    const Mat W = A * Minv * A.transpose();
+    const Mat B0 = A.block(0, 0, 6, nk);
+    const Mat S0 = B0 * Minv.block(0, 0, nk, nk) * B0.transpose();
+    const double w_ref = W.diagonal().maxCoeff();
+    double s_max = 0.0;
+    for (std::size_t g = 0; g < 2; ++g) {
+      const Mat Bg = A.block(6 * static_cast<Index>(g), nk * static_cast<Index>(g), 6, nk);
+      const Mat Sg = Bg *
+                     Minv.block(nk * static_cast<Index>(g), nk * static_cast<Index>(g), nk, nk) *
+                     Bg.transpose();
+      s_max = std::max(s_max, Sg.diagonal().maxCoeff());
+    }
+    const Eigen::SelfAdjointEigenSolver<Mat> es(S0);
+    const double dp =
+        es.eigenvalues()(0);  // ≈ the last pivot of S_0 (a 1-dimensional near-null space)
+    ukdyn::UkSettings settings;
+    settings.rank_rel_tol = std::sqrt(100.0 * dp / w_ref);
+    const double tol2 = settings.rank_rel_tol * settings.rank_rel_tol;
+    ASSERT_LT(tol2 * s_max, 1e-3 * dp) << "problem " << k;  // kept on max S_ii alone
+    Vec qdd(n), Qc(n), qdd_d(n), Qc_d(n);
+    ukdyn::UkResult ra;
+    ASSERT_TRUE(ukdyn::factor_mass(M, arrow_dws));
+    ASSERT_TRUE(ukdyn::uk_solve_arrow(*st, M, A, b, Q, arrow_dws, aws, qdd, Qc, settings, ra));
+    const ukdyn::UkResult rd = ukdyn::uk_solve(M, A, b, Q, dense_ws, qdd_d, Qc_d, settings);
+    EXPECT_EQ(rd.rank, 12) << "problem " << k;
+    EXPECT_EQ(ra.rank, rd.rank) << "problem " << k;
+    EXPECT_LE((qdd - qdd_d).lpNorm<Eigen::Infinity>(),
+              1e-4 * std::max(1.0, qdd_d.lpNorm<Eigen::Infinity>()))
+        << "problem " << k;
+    EXPECT_LE((Qc - Qc_d).lpNorm<Eigen::Infinity>(),
+              1e-4 * std::max(1.0, Qc_d.lpNorm<Eigen::Infinity>()))
+        << "problem " << k;
+  }
+}
+
+TEST(UkArrow, ARankDecisionThatDependsOnTheScaleIsTheDenseSolves) {
+  expect_scale_dependent_decision_as_dense(10);
+  expect_scale_dependent_decision_as_dense(9);
 }
 
 TEST(UkArrow, OtherMethodsUseTheDenseSolve) {

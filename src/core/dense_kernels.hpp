@@ -69,8 +69,21 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
     const double inv = 1.0 / ljj;
     L[j + j * ldl] = ljj;
     inv_diag[j] = inv;
+    Index i = j + 1;
+    if constexpr (N > 0) {
+      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), each entry
+      // the same sum in the same order as one row at a time.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      UKDYN_UNROLL
+      for (; i + 1 < n; i += 2) {
+        Pair s = Eigen::Map<const Pair>(M + i + j * ldm);
+        UKDYN_UNROLL
+        for (Index k = 0; k < j; ++k) s -= Eigen::Map<const Pair>(L + i + k * ldl) * L[j + k * ldl];
+        Eigen::Map<Pair>(L + i + j * ldl) = s * inv;
+      }
+    }
     UKDYN_UNROLL
-    for (Index i = j + 1; i < n; ++i) {
+    for (; i < n; ++i) {
       double s = M[i + j * ldm];
       UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) s -= L[i + k * ldl] * L[j + k * ldl];
@@ -197,13 +210,17 @@ struct LdltPivots {
       t[i] = colk[i];
       colk[i] *= inv_d;  // L_ik
     }
-    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk.
+    // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk, rows i and i + 1 of a column as one
+    // 2-vector (adjacent in W's columns; each entry the same operation).
     UKDYN_UNROLL
     for (Index j = k + 1; j < m; ++j) {
+      using Pair = Eigen::Matrix<double, 2, 1>;
       const double tj = t[j];
       double* colj = W + j * ldw;
+      Index i = j;
       UKDYN_UNROLL
-      for (Index i = j; i < m; ++i) colj[i] -= colk[i] * tj;
+      for (; i + 1 < m; i += 2) Eigen::Map<Pair>(colj + i) -= Eigen::Map<const Pair>(colk + i) * tj;
+      if (i < m) colj[i] -= colk[i] * tj;
     }
     if (dp - rule.shift > count_floor) {
       pv.d_min_kept = std::min(pv.d_min_kept, dp - rule.shift);

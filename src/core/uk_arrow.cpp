@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #include "core/dense_kernels.hpp"
@@ -112,11 +113,6 @@ using detail::LdltPivots;
 using detail::pivoted_ldlt;
 using detail::RankRule;
 
-// x ← L^{-1} x for a lower factor L (ldl) with 1/L_ii in inv_diag, runtime size.
-void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n) {
-  detail::l_solve<0>(L, ldl, inv_diag, x, n);
-}
-
 // The lower triangle of G = X Xᵀ for the leading rows × cols of X (a Gram matrix: S, W_D).
 void lower_gram(const Mat& X, Index rows, Index cols, Mat& G) {
   for (Index j = 0; j < rows; ++j)
@@ -160,20 +156,69 @@ struct ArrowProblem {
         tol2(settings.rank_rel_tol * settings.rank_rel_tol) {}
   // The rank rule on the scale of the whole W (w_ref = max diag W, reduce_groups).
   [[nodiscard]] RankRule rule(double w_ref) const { return RankRule{tol2, 0.0, w_ref}; }
-  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ).
-  void load_l_solve(double* x) const { l_solve(Ld + sL + sL * ldl, ldl, idg + sL, x, nL); }
-  // |L_L⁻¹ c|² for a row c of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
-  // (columns col0 .. col0 + nL of row i of X).
-  double load_part_of_w(const Mat& X, Index i, Index col0 = 0) const {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = X(i, col0 + j);
+  // Whether a piece factored on the scale lo (≤ max diag W) made the decisions it makes on any
+  // scale up to hi (≥ max diag W): every kept pivot above τ² max(D_0, hi). The stop, if any, was
+  // at a pivot under τ² max(D_0, lo), under the larger scale's cut-off too (RankScale).
+  [[nodiscard]] bool same_decisions(const LdltPivots& pv, double hi) const {
+    return pv.kept == 0 || pv.d_min_kept > tol2 * std::max(pv.d_max, hi);
+  }
+  // x ← L_L⁻¹ x with the load's own factor (M_L = L_L L_Lᵀ); NL: the load's size if fixed.
+  template <int NL>
+  void load_l_solve(double* x) const {
+    detail::l_solve<NL>(Ld + sL + sL * ldl, ldl, idg + sL, x, nL);
+  }
+  // |L_L⁻¹ c|² for row i of A on the load's columns (its part of a diagonal entry of A M⁻¹Aᵀ).
+  template <int NL>
+  double load_part_of_w(Index i) const {
+    const Index n = NL > 0 ? Index{NL} : nL, lda = A.rows();
+    const double* a = A.data() + i + sL * lda;
+    double* x = ws.tmp.data();
+    for (Index j = 0; j < n; ++j) x[j] = a[j * lda];
     double c2 = 0.0;
-    if (nL > 0) {
-      load_l_solve(ws.tmp.data());
-      for (Index j = 0; j < nL; ++j) c2 += ws.tmp[j] * ws.tmp[j];
+    if (n > 0) {
+      load_l_solve<NL>(x);
+      for (Index j = 0; j < n; ++j) c2 += x[j] * x[j];
     }
     return c2;
   }
 };
+
+// The scale of the rank decisions, max diag W with W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (the dense solve's,
+// dense_kernels.hpp), between bounds: lo = max_i S_ii ≤ max diag W ≤ hi = max_i (S_ii + F |C_i|²),
+// F twice ‖L_L⁻¹‖_F² ≥ ‖M_L⁻¹‖₂ (|L_L⁻¹ c|² ≤ ‖L_L⁻¹‖₂² |c|²; the factor 2 covers the round-off of
+// both sides). The pieces are factored on lo; when every decision is the same on any scale up to
+// hi (ArrowProblem::same_decisions: a pivot would have to lie within τ² of the scale), they are
+// the decisions on max diag W itself, which is then never formed; otherwise the solve is redone
+// with the exact scale (lo = hi = max diag W, each C_i L_L^{-ᵀ} formed).
+struct RankScale {
+  double lo = 0.0, hi = 0.0;
+  bool exact = false;
+  void add(double lo_i, double hi_i) {
+    lo = std::max(lo, lo_i);
+    hi = std::max(hi, hi_i);
+  }
+};
+
+// 2 ‖L⁻¹‖_F² = 2 trace(M⁻¹) for M = L Lᵀ (n × n lower factor L, leading dimension ldl, 1/L_ii in
+// inv_diag): column j of L⁻¹ by forward substitution from row j down. x: scratch of n.
+template <int N>
+double twice_inverse_frobenius2(const double* L, Index ldl, const double* inv_diag, double* x,
+                                Index n_rt) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  double f = 0.0;
+  UKDYN_UNROLL
+  for (Index j = 0; j < n; ++j) {
+    UKDYN_UNROLL
+    for (Index i = j; i < n; ++i) {
+      double v = i == j ? 1.0 : 0.0;
+      UKDYN_UNROLL
+      for (Index k = j; k < i; ++k) v -= L[i + k * ldl] * x[k];
+      x[i] = v * inv_diag[i];
+      f += x[i] * x[i];
+    }
+  }
+  return 2.0 * f;
+}
 
 // The rank decisions' pivots: the number kept and the largest and smallest kept.
 struct ArrowPivots {
@@ -206,40 +251,61 @@ struct ArrowSizes {
         nL(NL > 0 ? Index{NL} : P.nL) {}
 };
 
+// Robot k's rows of A on its own columns (B) and on the load's (C), column j at B + j ld: on the
+// fixed shape with the group's rows consecutive in A (a weld's 6) A's own columns (ld = A's rows,
+// nothing copied), else the group's buffers that reduce_group gathers them into (ld = m_k).
+struct GroupColumns {
+  const double* B;
+  const double* C;
+  Index ld;
+};
+template <int MK>
+bool rows_in_place(const ArrowProblem& P, std::size_t gi) {
+  if constexpr (MK > 0) {
+    const Index* rows = P.st.groups[gi].rows.data();
+    return rows[MK - 1] - rows[0] == MK - 1;
+  }
+  return false;
+}
+template <int MK>
+GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
+  const auto& gb = P.ws.g[gi];
+  if (rows_in_place<MK>(P, gi)) {
+    const Index lda = P.A.rows();
+    const double* a = P.A.data() + P.st.groups[gi].rows[0];
+    return {a + P.st.groups[gi].start * lda, a + P.sL * lda, lda};
+  }
+  return {gb.B.data(), gb.C.data(), gb.B.rows()};
+}
+
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
-// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Returns
-// max_i W_ii over the group's rows, W_ii = S_ii + |L_L⁻¹ C_iᵀ|² (its part of the rank rule's
-// scale); T holds the rows C_i L_L^{-ᵀ} as scratch. Every loop runs down a column of m_k rows.
+// y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Adds the
+// group's rows to the rank scale w (RankScale: with w.exact W_ii = S_ii + |L_L⁻¹ C_iᵀ|², T holding
+// the rows C_i L_L^{-ᵀ} as scratch; else the bounds S_ii and S_ii + F |C_i|²). Every loop runs down
+// a column of m_k rows.
 template <int NK, int MK, int NL>
-double reduce_group(const ArrowProblem& P, std::size_t gi) {
+[[gnu::always_inline]] inline void reduce_group(const ArrowProblem& P, std::size_t gi, double F,
+                                                RankScale& w) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> z(P, gi);
   const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
-  double* B = gb.B.data();
-  double* C = gb.C.data();
   double* Xt = gb.Xt.data();
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
-  // B and C gathered column by column; rows that are consecutive in A (a weld's 6) as fixed-size
-  // columns (copies: the same values).
-  auto gather = [&](double* out, Index c0, Index n) {
-    if constexpr (MK > 0) {
-      if (rows[MK - 1] - rows[0] == MK - 1) {
-        using Col = Eigen::Matrix<double, MK, 1>;
-        for (Index j = 0; j < n; ++j)
-          Eigen::Map<Col>(out + j * mk) = Eigen::Map<const Col>(Ad + rows[0] + (c0 + j) * lda);
-        return;
-      }
-    }
-    for (Index j = 0; j < n; ++j)
-      for (Index i = 0; i < mk; ++i) out[i + j * mk] = Ad[rows[i] + (c0 + j) * lda];
-  };
-  gather(B, s, nk);
-  gather(C, P.sL, nL);
+  // B and C gathered column by column, unless the rows are consecutive in A (group_columns).
+  if (!rows_in_place<MK>(P, gi)) {
+    double* B = gb.B.data();
+    double* C = gb.C.data();
+    for (Index j = 0; j < nk; ++j)
+      for (Index i = 0; i < mk; ++i) B[i + j * mk] = Ad[rows[i] + (s + j) * lda];
+    for (Index j = 0; j < nL; ++j)
+      for (Index i = 0; i < mk; ++i) C[i + j * mk] = Ad[rows[i] + (P.sL + j) * lda];
+  }
+  const GroupColumns bc = group_columns<MK>(P, gi);
   for (Index i = 0; i < mk; ++i) gb.bb[i] = P.b[rows[i]];
   double* y = gb.w.data();
   for (Index j = 0; j < nk; ++j) y[j] = P.Q[s + j];
@@ -247,21 +313,24 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
   // Xᵀ(:, l) = (B(:, l) − Σ_{p<l} L_lp Xᵀ(:, p)) / L_ll; the same for C and the load's factor.
   // MK > 0: each column a fixed-size vector (the same operations, element by element, in
   // registers).
-  auto forward_columns = [mk](const double* L, Index ldl, const double* inv, const double* in,
-                              double* out, Index n) {
-    if constexpr (MK > 0) {
+  auto forward_columns = [mk, ld = MK > 0 ? bc.ld : mk](auto N, const double* L, Index ldl,
+                                                        const double* inv, const double* in,
+                                                        double* out, Index n) {
+    if constexpr (MK > 0 && decltype(N)::value > 0) {
       using Col = Eigen::Matrix<double, MK, 1>;
-      for (Index l = 0; l < n; ++l) {
-        Col c = Eigen::Map<const Col>(in + l * mk);
-        for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * mk);
-        Eigen::Map<Col>(out + l * mk) = c * inv[l];
+      UKDYN_UNROLL
+      for (Index l = 0; l < decltype(N)::value; ++l) {
+        Col c = Eigen::Map<const Col>(in + l * ld);
+        UKDYN_UNROLL
+        for (Index p = 0; p < l; ++p) c -= L[l + p * ldl] * Eigen::Map<const Col>(out + p * MK);
+        Eigen::Map<Col>(out + l * MK) = c * inv[l];
       }
       return;
     }
     for (Index l = 0; l < n; ++l) {
       double col[MK > 0 ? MK : 1];
       double* c = MK > 0 ? col : out + l * mk;
-      for (Index i = 0; i < mk; ++i) c[i] = in[i + l * mk];
+      for (Index i = 0; i < mk; ++i) c[i] = in[i + l * ld];
       for (Index p = 0; p < l; ++p) {
         const double lp = L[l + p * ldl];
         for (Index i = 0; i < mk; ++i) c[i] -= lp * out[i + p * mk];
@@ -269,8 +338,10 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       for (Index i = 0; i < mk; ++i) out[i + l * mk] = c[i] * inv[l];
     }
   };
-  forward_columns(Lk, P.ldl, id, B, Xt, nk);
-  forward_columns(P.Ld + P.sL + P.sL * P.ldl, P.ldl, P.idg + P.sL, C, Y, nL);
+  forward_columns(std::integral_constant<int, NK>{}, Lk, P.ldl, id, bc.B, Xt, nk);
+  if (w.exact)
+    forward_columns(std::integral_constant<int, NL>{}, P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                    P.idg + P.sL, bc.C, Y, nL);
   double* r = gb.r.data();
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
@@ -284,19 +355,20 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
       for (Index i = 0; i < mk; ++i) r[i] -= Xt[i + l * mk] * y[l];
   }
   double* S = gb.S.data();
-  const Index lds = gb.S.rows();
-  // |L_L⁻¹ C_iᵀ|² of every row at once (MK > 0: down Y's columns, each row's terms in the order of
-  // l as one row at a time).
+  const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
+  // Each row's part of the rank scale (RankScale): exact, |L_L⁻¹ C_iᵀ|² (down Y's columns, each
+  // row's terms in the order of l as one row at a time); else |C_i|², down C's columns.
   double c2v[MK > 0 ? MK : 1] = {};
   if constexpr (MK > 0) {
     using Col = Eigen::Matrix<double, MK, 1>;
     Eigen::Map<Col> c2m(c2v);
+    const Index ldc = w.exact ? mk : bc.ld;
+    const double* X = w.exact ? Y : bc.C;
     for (Index l = 0; l < nL; ++l) {
-      const Eigen::Map<const Col> yl(Y + l * mk);
+      const Eigen::Map<const Col> yl(X + l * ldc);
       c2m += yl.cwiseProduct(yl);
     }
   }
-  double w_ref = 0.0;
   UKDYN_UNROLL
   for (Index j = 0; j < mk; ++j) {
     double acc[MK > 0 ? MK : 1] = {};
@@ -318,48 +390,103 @@ double reduce_group(const ArrowProblem& P, std::size_t gi) {
     double c2 = 0.0;
     if constexpr (MK > 0) {
       c2 = c2v[j];
-    } else {
+    } else if (w.exact) {
       for (Index l = 0; l < nL; ++l) c2 += Y[j + l * mk] * Y[j + l * mk];
+    } else {
+      for (Index l = 0; l < nL; ++l) c2 += bc.C[j + l * mk] * bc.C[j + l * mk];
     }
-    w_ref = std::max(w_ref, S[j + j * lds] + c2);
+    const double sjj = S[j + j * lds];
+    if (w.exact) {
+      w.add(sjj + c2, sjj + c2);
+    } else {
+      w.add(sjj, sjj + F * c2);
+    }
   }
-  return w_ref;
 }
 
 // H = M_L, g = Q_L (the load's own inertia and forces, lower triangle), every robot's rows reduced;
-// returns max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii + C_i M_L⁻¹ C_iᵀ): the scale of every rank
-// decision below, as the dense solve's.
+// returns the scale of every rank decision below, max diag W of W = A M⁻¹Aᵀ (W_ii = S_ii +
+// C_i M_L⁻¹ C_iᵀ, as the dense solve's): itself (exact) or between bounds (RankScale).
 template <int NK, int MK, int NL>
-double reduce_groups(const ArrowProblem& P) {
+RankScale reduce_groups(const ArrowProblem& P, bool exact) {
   auto& ws = P.ws;
   const Index nL = NL > 0 ? Index{NL} : P.nL;
+  const Index ldm = P.M.rows(), ldh = NL > 0 ? Index{NL} : ws.H.rows();
+  const double* ML = P.M.data() + P.sL + P.sL * ldm;
+  double* H = ws.H.data();
+  UKDYN_UNROLL
   for (Index j = 0; j < nL; ++j) {
     UKDYN_UNROLL
-    for (Index i = j; i < nL; ++i) ws.H(i, j) = P.M(P.sL + i, P.sL + j);
+    for (Index i = j; i < nL; ++i) H[i + j * ldh] = ML[i + j * ldm];
     ws.gL[j] = P.Q[P.sL + j];
   }
-  double w_ref = 0.0;
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
-    w_ref = std::max(w_ref, reduce_group<NK, MK, NL>(P, gi));
-  for (const Index row : P.st.load_rows) w_ref = std::max(w_ref, P.load_part_of_w(P.A, row, P.sL));
-  return w_ref;
+  RankScale w;
+  w.exact = exact;
+  const double F = exact || nL == 0
+                       ? 0.0
+                       : twice_inverse_frobenius2<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                                                      P.idg + P.sL, ws.tmp.data(), nL);
+  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) reduce_group<NK, MK, NL>(P, gi, F, w);
+  const Index lda = P.A.rows();
+  for (const Index row : P.st.load_rows) {
+    if (exact) {
+      const double c2 = P.load_part_of_w<NL>(row);
+      w.add(c2, c2);
+    } else {
+      const double* a = P.A.data() + row + P.sL * lda;
+      double c2 = 0.0;
+      for (Index j = 0; j < nL; ++j) c2 += a[j * lda] * a[j * lda];
+      w.add(0.0, F * c2);
+    }
+  }
+  return w;
+}
+
+// The kept count of a group's rows as a compile-time constant when every row is kept on a fixed
+// shape (KP = MK), else at run time (KP = 0): the loops whose bounds are the kept count then unroll
+// too. Both do the same operations in the same order.
+template <int MK, typename F>
+void with_kept(Index kept, F&& f) {
+  if constexpr (MK > 0) {
+    if (kept == MK) {
+      f(std::integral_constant<int, MK>{});
+      return;
+    }
+  }
+  f(std::integral_constant<int, 0>{});
+}
+
+// H += Σ_kept T_iᵀ t_i and g += Σ_kept t_iᵀ z_i with t_i = T_i / D_i (C1ᵀ S11⁻¹ C1 and
+// C1ᵀ S11⁻¹ r1; T transposed, row i at T + i n_L), lower triangle. Column jj of H from row jj down is
+// one fixed-size vector of n_L − jj entries: loaded once, every kept row's term added in the order
+// of the rows (each entry the sum it was with the rows outer), stored once.
+template <int NL, int JJ>
+void add_column_to_h(double* H, const double* T, const double* t, Index kp) {
+  using Col = Eigen::Matrix<double, NL - JJ, 1>;
+  Eigen::Map<Col> h(H + JJ + JJ * NL);
+  Col acc = h;
+  for (Index i = 0; i < kp; ++i) acc += Eigen::Map<const Col>(T + JJ + i * NL) * t[JJ + i * NL];
+  h = acc;
+}
+template <int NL, std::size_t... JJ>
+void add_columns_to_h(double* H, const double* T, const double* t, Index kp,
+                      std::index_sequence<JJ...> /*columns*/) {
+  (add_column_to_h<NL, static_cast<int>(JJ)>(H, T, t, kp), ...);
 }
 
 // Robot k's rows onto the load: pivoted LDLᵀ of S (pivots under rank_rel_tol² · max diag W
 // dropped); H += C1ᵀ S11⁻¹ C1, g += C1ᵀ S11⁻¹ r1; the dropped rows become rows D, d on the load
-// (appended at mD, which is returned advanced).
+// (appended at mD, which is returned advanced). Runtime sizes; eliminate_rows_fixed below is the
+// fixed shape's.
 template <int NK, int MK, int NL>
-Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, ArrowPivots& pivots,
-                      Index mD) {
+Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
   auto& ws = P.ws;
   auto& gb = ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
   const Index nL = sz.nL, mk = sz.mk;
-  const LdltPivots pv =
-      pivoted_ldlt(gb.S.data(), gb.S.rows(), mk, gb.piv.data(), ws.tmp.data(), P.rule(w_ref));
-  gb.kept = pv.kept;
   const Index kp = gb.kept;
-  pivots.add(pv);
+  const double* S = gb.S.data();  // the factors L (below the diagonal) and D of S_k
+  const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
   // The same row order for C (into T), r and b (into z, lam as scratch). T is kept transposed in
   // its buffer (row i at T + i n_L, contiguous), so the row operations below, the rank-1 updates
   // of H and the products with q̈_L (group_multipliers) run down contiguous memory.
@@ -378,34 +505,25 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   }
   // Kept rows: T1 = L11⁻¹ C1, z = L11⁻¹ r1, lam1 = L11⁻¹ b1 (unit lower). Dropped rows i: the
   // combinations e_i = row_i − L21 L11⁻¹ (kept rows): T_i = e_i C, lam_i = e_i b (no robot part).
-  UKDYN_UNROLL
   for (Index i = 1; i < mk; ++i) {
     const Index pe = std::min(i, kp);
-    UKDYN_UNROLL
     for (Index p = 0; p < pe; ++p) {
-      const double l = gb.S(i, p);
+      const double l = S[i + p * lds];
       if (l == 0.0) continue;
-      if constexpr (NL > 0) {  // a fixed-size row: the same operations, vectorised
-        using Row = Eigen::Matrix<double, NL, 1>;
-        Eigen::Map<Row> ti(T + i * nL);
-        ti -= l * Eigen::Map<const Row>(T + p * nL);
-      } else {
-        for (Index j = 0; j < nL; ++j) T[j + i * nL] -= l * T[j + p * nL];
-      }
+      for (Index j = 0; j < nL; ++j) T[j + i * nL] -= l * T[j + p * nL];
       if (i < kp) gb.z[i] -= l * gb.z[p];
       gb.lam[i] -= l * gb.lam[p];
     }
   }
-  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i  (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1).
+  // H += Σ_kept T_iᵀ T_i / D_i,  g += Σ_kept T_iᵀ z_i / D_i (C1ᵀ S11⁻¹ C1 and C1ᵀ S11⁻¹ r1), the
+  // rows outer, a term with T_i(jj) = 0 skipped.
   double* H = ws.H.data();
-  const Index ldh = NL > 0 ? Index{NL} : ws.H.rows();
+  const Index ldh = ws.H.rows();
   for (Index i = 0; i < kp; ++i) {
-    const double inv = 1.0 / gb.S(i, i);
-    UKDYN_UNROLL
+    const double inv = 1.0 / S[i + i * lds];
     for (Index jj = 0; jj < nL; ++jj) {
       const double tj = T[jj + i * nL] * inv;
       if (tj == 0.0) continue;
-      UKDYN_UNROLL
       for (Index ii = jj; ii < nL; ++ii) H[ii + jj * ldh] += T[ii + i * nL] * tj;
       ws.gL[jj] += tj * gb.z[i];
     }
@@ -419,16 +537,104 @@ Index eliminate_group(const ArrowProblem& P, std::size_t gi, double w_ref, Arrow
   return mD;
 }
 
-// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D.
+// The same on the fixed shape (n_L = NL, m_k = MK), KP the kept count when it is MK (with_kept),
+// else 0 (at run time). Each row of T is formed in registers: C's row in the pivoted order (the
+// transpositions applied to the row indices, not to the rows), less l_ip T_p of the rows before
+// it, stored once; for a kept row t_i = T_i / D_i and g += t_i z_i at once; then H column by
+// column (add_columns_to_h). Every entry gets the operations of eliminate_rows in their order,
+// except that H's and g's terms are added when t_i(jj) = 0 too (which changes at most the sign
+// of a zero sum).
+template <int MK, int NL, int KP>
+Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
+  using Row = Eigen::Matrix<double, NL, 1>;
+  auto& ws = P.ws;
+  auto& gb = ws.g[gi];
+  const Index kp = KP > 0 ? Index{KP} : gb.kept;
+  const double* S = gb.S.data();
+  const GroupColumns bc = group_columns<MK>(P, gi);
+  double* T = gb.T.data();
+  Index perm[MK];
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) perm[i] = i;
+  UKDYN_UNROLL
+  for (Index k = 0; k < kp; ++k) std::swap(perm[k], perm[gb.piv[static_cast<std::size_t>(k)]]);
+  double z[MK], lam[MK], t[MK * NL];
+  Row g = ws.gL.template head<NL>();
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) {
+    const Index src = perm[i];
+    Row ti;
+    UKDYN_UNROLL
+    for (Index j = 0; j < NL; ++j) ti[j] = bc.C[src + j * bc.ld];
+    double zi = gb.r[src], li = gb.bb[src];
+    const Index pe = std::min(i, kp);
+    for (Index p = 0; p < pe; ++p) {
+      const double l = S[i + p * MK];
+      if (l == 0.0) continue;
+      ti -= l * Eigen::Map<const Row>(T + p * NL);
+      if (i < kp) zi -= l * z[p];
+      li -= l * lam[p];
+    }
+    Eigen::Map<Row>(T + i * NL) = ti;
+    z[i] = zi;
+    lam[i] = li;
+    if (i < kp) {
+      const Row tr = ti * (1.0 / S[i + i * MK]);
+      Eigen::Map<Row>(t + i * NL) = tr;
+      g += tr * zi;
+    }
+  }
+  ws.gL.template head<NL>() = g;
+  add_columns_to_h<NL>(ws.H.data(), T, t, kp, std::make_index_sequence<NL>{});
+  UKDYN_UNROLL
+  for (Index i = 0; i < MK; ++i) {
+    gb.z[i] = z[i];
+    gb.lam[i] = lam[i];
+  }
+  for (Index i = kp; i < MK; ++i) {
+    for (Index j = 0; j < NL; ++j) ws.Dt(mD, j) = T[j + i * NL];
+    ws.d[mD] = lam[i];
+    ws.d_from[static_cast<std::size_t>(mD)] = {static_cast<Index>(gi), i};
+    ++mD;
+  }
+  return mD;
+}
+
 template <int NK, int MK, int NL>
-Index eliminate_groups(const ArrowProblem& P, double w_ref, ArrowPivots& pivots) {
+[[gnu::always_inline]] inline Index eliminate_group(const ArrowProblem& P, std::size_t gi,
+                                                    const RankScale& w, ArrowPivots& pivots,
+                                                    Index mD, bool& same) {
+  auto& gb = P.ws.g[gi];
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const LdltPivots pv = pivoted_ldlt(gb.S.data(), MK > 0 ? Index{MK} : gb.S.rows(), sz.mk,
+                                     gb.piv.data(), P.ws.tmp.data(), P.rule(w.lo));
+  same = same && (w.exact || P.same_decisions(pv, w.hi));
+  gb.kept = pv.kept;
+  pivots.add(pv);
+  if constexpr (MK > 0 && NL > 0) {
+    with_kept<MK>(gb.kept, [&](auto KP) {
+      mD = eliminate_rows_fixed<MK, NL, decltype(KP)::value>(P, gi, mD);
+    });
+    return mD;
+  } else {
+    return eliminate_rows<NK, MK, NL>(P, gi, mD);
+  }
+}
+
+// Every robot eliminated, then the load-only rows appended to D, d; returns the rows of D. `same`
+// is cleared when a decision might differ on the exact scale (RankScale).
+template <int NK, int MK, int NL>
+Index eliminate_groups(const ArrowProblem& P, const RankScale& w, ArrowPivots& pivots, bool& same) {
   auto& ws = P.ws;
   Index mD = 0;
-  for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi)
-    mD = eliminate_group<NK, MK, NL>(P, gi, w_ref, pivots, mD);
+  for (std::size_t gi = 0; gi < P.st.groups.size() && same; ++gi)
+    mD = eliminate_group<NK, MK, NL>(P, gi, w, pivots, mD, same);
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows(), ldd = ws.Dt.rows();
+  double* Dt = ws.Dt.data();
   for (std::size_t j = 0; j < P.st.load_rows.size(); ++j) {
     const Index row = P.st.load_rows[j];
-    for (Index c = 0; c < P.nL; ++c) ws.Dt(mD, c) = P.A(row, P.sL + c);
+    const double* a = P.A.data() + row + P.sL * lda;
+    for (Index c = 0; c < nL; ++c) Dt[mD + c * ldd] = a[c * lda];
     ws.d[mD] = P.b[row];
     ws.d_from[static_cast<std::size_t>(mD)] = {-1, static_cast<Index>(j)};
     ++mD;
@@ -485,38 +691,55 @@ void ht_solve(const double* H, Index n_rt, double* x) {
 }
 
 // The load's own U-K with H (factored): yH = L_H⁻¹ g, X_D = D L_H^{-ᵀ}, W_D = X_D X_Dᵀ,
-// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL.
-template <int NL>
-void solve_load(const ArrowProblem& P, Index mD, double w_ref, ArrowPivots& pivots) {
+// r_D = d − X_D yH; μ from W_D μ = r_D, q̈_L = L_H^{-ᵀ}(yH + X_Dᵀ μ) into ws.qddL. MD: the rows of
+// D when fixed (1: a free-body load's unit-norm row and no dropped row), else 0 (mD at run time);
+// the same operations in the same order. Returns false, before q̈_L, when a decision might differ
+// on the exact scale (RankScale).
+template <int NL, int MD>
+bool solve_load(const ArrowProblem& P, Index mD_rt, const RankScale& w, ArrowPivots& pivots) {
   auto& ws = P.ws;
-  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  const Index nL = NL > 0 ? Index{NL} : P.nL, mD = MD > 0 ? Index{MD} : mD_rt;
   const double* H = ws.H.data();
   double* yH = ws.qddL.data();
+  double* Dt = ws.Dt.data();
+  const Index ldd = ws.Dt.rows(), ldw = ws.WD.rows();
+  double* tmp = ws.tmp.data();
   for (Index j = 0; j < nL; ++j) yH[j] = ws.gL[j];
   h_solve<NL>(H, nL, yH);
   for (Index i = 0; i < mD; ++i) {
-    for (Index j = 0; j < nL; ++j) ws.tmp[j] = ws.Dt(i, j);
-    h_solve<NL>(H, nL, ws.tmp.data());
+    for (Index j = 0; j < nL; ++j) tmp[j] = Dt[i + j * ldd];
+    h_solve<NL>(H, nL, tmp);
     double v = ws.d[i];
     for (Index j = 0; j < nL; ++j) {
-      ws.Dt(i, j) = ws.tmp[j];
-      v -= ws.tmp[j] * yH[j];
+      Dt[i + j * ldd] = tmp[j];
+      v -= tmp[j] * yH[j];
     }
     ws.rD[i] = v;
   }
-  lower_gram(ws.Dt, mD, nL, ws.WD);
-  const LdltPivots pv =
-      pivoted_ldlt(ws.WD.data(), ws.WD.rows(), mD, ws.pivD.data(), ws.tmp.data(), P.rule(w_ref));
+  if constexpr (MD > 0) {
+    double* W = ws.WD.data();
+    for (Index j = 0; j < mD; ++j)
+      for (Index i = j; i < mD; ++i) {
+        double v = 0.0;
+        for (Index l = 0; l < nL; ++l) v += Dt[i + l * ldd] * Dt[j + l * ldd];
+        W[i + j * ldw] = v;
+      }
+  } else {
+    lower_gram(ws.Dt, mD, nL, ws.WD);
+  }
+  const LdltPivots pv = pivoted_ldlt(ws.WD.data(), ldw, mD, ws.pivD.data(), tmp, P.rule(w.lo));
+  if (!w.exact && !P.same_decisions(pv, w.hi)) return false;
   pivots.add(pv);
   double* lam = ws.lamD.data();
   for (Index i = 0; i < mD; ++i) lam[i] = ws.rD[i];
-  detail::ldlt_basic_solve(ws.WD.data(), ws.WD.rows(), mD, pv.kept, ws.pivD.data(), lam);
+  detail::ldlt_basic_solve(ws.WD.data(), ldw, mD, pv.kept, ws.pivD.data(), lam);
   for (Index j = 0; j < nL; ++j) {
     double v = yH[j];
-    for (Index i = 0; i < mD; ++i) v += ws.Dt(i, j) * lam[i];
+    for (Index i = 0; i < mD; ++i) v += Dt[i + j * ldd] * lam[i];
     yH[j] = v;
   }
   ht_solve<NL>(H, nL, yH);
+  return true;
 }
 
 // Robot k's multipliers: u = (z − T1 q̈_L) / D, v = u − L21ᵀ λ_E, λ1 = L11^{-ᵀ} v for the kept rows
@@ -527,28 +750,37 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
   const auto& grp = P.st.groups[gi];
   auto& gb = P.ws.g[gi];
   const ArrowSizes<NK, MK, NL> sz(P, gi);
-  const Index mk = sz.mk, nk = sz.nk, nL = sz.nL, kp = gb.kept;
-  const double* qL = P.ws.qddL.data();
-  const double* T = gb.T.data();  // transposed (eliminate_group)
-  for (Index i = 0; i < kp; ++i) {
-    double v = gb.z[i];
-    for (Index j = 0; j < nL; ++j) v -= T[j + i * nL] * qL[j];
-    gb.lam[i] = v / gb.S(i, i);
-  }
-  for (Index e = kp; e < mk; ++e) {
-    const double le = gb.lam[e];
-    for (Index p = 0; p < kp; ++p) gb.lam[p] -= gb.S(e, p) * le;
-  }
-  for (Index p = kp - 1; p >= 0; --p) {
-    double v = gb.lam[p];
-    for (Index i = p + 1; i < kp; ++i) v -= gb.S(i, p) * gb.lam[i];
-    gb.lam[p] = v;
-  }
-  for (Index k = kp - 1; k >= 0; --k)
-    std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  const Index mk = sz.mk, nk = sz.nk, nL = sz.nL;
+  with_kept<MK>(gb.kept, [&](auto KP) {
+    const Index kp = decltype(KP)::value > 0 ? Index{decltype(KP)::value} : gb.kept;
+    const double* qL = P.ws.qddL.data();
+    const double* T = gb.T.data();  // transposed (eliminate_group)
+    const double* S = gb.S.data();
+    const Index lds = MK > 0 ? Index{MK} : gb.S.rows();
+    UKDYN_UNROLL
+    for (Index i = 0; i < kp; ++i) {
+      double v = gb.z[i];
+      UKDYN_UNROLL
+      for (Index j = 0; j < nL; ++j) v -= T[j + i * nL] * qL[j];
+      gb.lam[i] = v / S[i + i * lds];
+    }
+    for (Index e = kp; e < mk; ++e) {
+      const double le = gb.lam[e];
+      for (Index p = 0; p < kp; ++p) gb.lam[p] -= S[e + p * lds] * le;
+    }
+    UKDYN_UNROLL
+    for (Index p = kp - 1; p >= 0; --p) {
+      double v = gb.lam[p];
+      UKDYN_UNROLL
+      for (Index i = p + 1; i < kp; ++i) v -= S[i + p * lds] * gb.lam[i];
+      gb.lam[p] = v;
+    }
+    UKDYN_UNROLL
+    for (Index k = kp - 1; k >= 0; --k)
+      std::swap(gb.lam[k], gb.lam[gb.piv[static_cast<std::size_t>(k)]]);
+  });
   const Index s = grp.start;
-  const double* B = gb.B.data();
-  const double* C = gb.C.data();
+  const GroupColumns bc = group_columns<MK>(P, gi);
   const double* lam = gb.lam.data();
   for (Index i = 0; i < mk; ++i) P.ws.lambda[grp.rows[static_cast<std::size_t>(i)]] = lam[i];
   // Qc += Bᵀ λ_k, Cᵀ λ_k entry by entry down B's and C's contiguous columns: each entry gets its
@@ -559,7 +791,7 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
     if constexpr (MK > 0) {
       using Col = Eigen::Matrix<double, MK, 1>;
       const Eigen::Map<const Col> lv(lam);
-      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * mk).dot(lv);
+      for (Index j = 0; j < n; ++j) out[j] += Eigen::Map<const Col>(X + j * bc.ld).dot(lv);
       return;
     }
     for (Index j = 0; j < n; ++j) {
@@ -568,8 +800,8 @@ void group_multipliers(const ArrowProblem& P, std::size_t gi, Vec& Qc) {
       out[j] = v;
     }
   };
-  add_columns(B, Qc.data() + s, nk);
-  add_columns(C, Qc.data() + P.sL, nL);
+  add_columns(bc.B, Qc.data() + s, nk);
+  add_columns(bc.C, Qc.data() + P.sL, nL);
 }
 
 // Every multiplier (the load-only and dropped rows' from μ, the robots' kept rows') and Qc = Aᵀ λ.
@@ -587,9 +819,12 @@ void multipliers_and_constraint_force(const ArrowProblem& P, Index mD, Vec& Qc) 
   }
   Qc.setZero();
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) group_multipliers<NK, MK, NL>(P, gi, Qc);
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
+  double* qcL = Qc.data() + P.sL;
   for (const Index row : P.st.load_rows) {
     const double li = ws.lambda[row];
-    for (Index j = 0; j < P.nL; ++j) Qc[P.sL + j] += P.A(row, P.sL + j) * li;
+    const double* a = P.A.data() + row + P.sL * lda;
+    for (Index j = 0; j < nL; ++j) qcL[j] += a[j * lda] * li;
   }
 }
 
@@ -619,8 +854,11 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     }
     detail::lt_solve<NK>(P.Ld + s + s * P.ldl, P.ldl, P.idg + s, x, nk);
   }
-  for (Index j = 0; j < P.nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
-  for (std::size_t k = 0; k < layout.blocks(); ++k) {
+  const Index nL = NL > 0 ? Index{NL} : P.nL;
+  for (Index j = 0; j < nL; ++j) qdd[P.sL + j] = P.ws.qddL[j];
+  // Blocks without rows: only when the robots and the load are not all of them.
+  const std::size_t with_rows = P.st.groups.size() + (P.st.load_block >= 0 ? 1 : 0);
+  for (std::size_t k = 0; k < layout.blocks() && with_rows < layout.blocks(); ++k) {
     bool done = static_cast<Index>(k) == P.st.load_block;
     for (const auto& g : P.st.groups) done = done || g.block == static_cast<Index>(k);
     if (done) continue;
@@ -634,75 +872,97 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
   }
 }
 
-// ‖A q̈ − b‖, ‖A‖_∞, consistency and finiteness (as uk_solve.cpp's) with the pivots into res.
+// Row i of A q̈ − b (with_abs false) or Σ_j |A_ij| (true) for the rows of group gi into out, each
+// row's terms in the order of j as one row at a time would add them, side by side down B's and C's
+// columns.
+template <int NK, int MK, int NL, bool with_abs>
+void group_row_sums(const ArrowProblem& P, std::size_t gi, const Vec& qdd, double* out) {
+  const auto& gb = P.ws.g[gi];
+  const ArrowSizes<NK, MK, NL> sz(P, gi);
+  const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
+  const GroupColumns bc = group_columns<MK>(P, gi);
+  for (Index i = 0; i < mk; ++i) out[i] = with_abs ? 0.0 : -gb.bb[i];
+  auto add_block = [&](const double* X, const double* x, Index n) {
+    if constexpr (MK > 0) {  // fixed-size columns: the same operations, vectorised
+      using Col = Eigen::Matrix<double, MK, 1>;
+      Eigen::Map<Col> o(out);
+      for (Index j = 0; j < n; ++j) {
+        const Eigen::Map<const Col> xj(X + j * bc.ld);
+        if constexpr (with_abs) {
+          o += xj.cwiseAbs();
+        } else {
+          o += xj * x[j];
+        }
+      }
+      return;
+    }
+    for (Index j = 0; j < n; ++j)
+      for (Index i = 0; i < mk; ++i)
+        out[i] += with_abs ? std::abs(X[i + j * mk]) : X[i + j * mk] * x[j];
+  };
+  add_block(bc.B, qdd.data() + s, nk);
+  add_block(bc.C, qdd.data() + P.sL, nL);
+}
+
+// Row `row` (on the load alone) of A q̈ − b, or Σ_j |A_ij| (with_abs).
+template <int NL, bool with_abs>
+double load_row_sum(const ArrowProblem& P, Index row, const Vec& qdd) {
+  const Index nL = NL > 0 ? Index{NL} : P.nL, lda = P.A.rows();
+  const double* a = P.A.data() + row + P.sL * lda;
+  const double* qL = qdd.data() + P.sL;
+  double v = with_abs ? 0.0 : -P.b[row];
+  for (Index j = 0; j < nL; ++j) v += with_abs ? std::abs(a[j * lda]) : a[j * lda] * qL[j];
+  return v;
+}
+
+// ‖A q̈ − b‖, consistency and finiteness (as uk_solve.cpp's) with the pivots into res. The test
+// ‖A q̈ − b‖ ≤ tol (‖b‖ + ‖A‖_∞ ‖q̈‖ + 1) holds whenever it holds without the middle term (≥ 0 for
+// a finite ‖q̈‖, and every rounding is monotone), so ‖A‖_∞ is summed only when it does not.
 template <int NK, int MK, int NL>
 void arrow_result(const ArrowProblem& P, const Vec& qdd, const Vec& Qc, const ArrowPivots& pivots,
                   const UkSettings& settings, UkResult& res) {
-  double r2 = 0.0, b2 = 0.0, a_inf = 0.0;
-  auto add_row = [&](double v, double ab, double bi) {
-    r2 += v * v;
-    b2 += bi * bi;
-    a_inf = std::max(a_inf, ab);
-  };
+  double r2 = 0.0, b2 = 0.0;
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
     const auto& gb = P.ws.g[gi];
-    const ArrowSizes<NK, MK, NL> sz(P, gi);
-    const Index s = P.st.groups[gi].start, mk = sz.mk, nk = sz.nk, nL = sz.nL;
-    const double* B = gb.B.data();
-    const double* C = gb.C.data();
-    // Every row's sums side by side down B's and C's columns, each in the order of j as one row
-    // at a time would add them (r and z are free by now: runtime sizes use them as the arrays).
-    double v_buf[MK > 0 ? MK : 1], ab_buf[MK > 0 ? MK : 1];
+    // Runtime sizes: r is free by now.
+    double v_buf[MK > 0 ? MK : 1];
     double* v = MK > 0 ? v_buf : P.ws.g[gi].r.data();
-    double* ab = MK > 0 ? ab_buf : P.ws.g[gi].z.data();
-    for (Index i = 0; i < mk; ++i) {
-      v[i] = -gb.bb[i];
-      ab[i] = 0.0;
+    group_row_sums<NK, MK, NL, false>(P, gi, qdd, v);
+    for (Index i = 0; i < ArrowSizes<NK, MK, NL>(P, gi).mk; ++i) {
+      r2 += v[i] * v[i];
+      b2 += gb.bb[i] * gb.bb[i];
     }
-    auto add_block = [&](const double* X, const double* x, Index n) {
-      if constexpr (MK > 0) {  // fixed-size columns: the same operations, vectorised
-        using Col = Eigen::Matrix<double, MK, 1>;
-        Eigen::Map<Col> vm(v), am(ab);
-        for (Index j = 0; j < n; ++j) {
-          const Eigen::Map<const Col> xj(X + j * mk);
-          vm += xj * x[j];
-          am += xj.cwiseAbs();
-        }
-        return;
-      }
-      for (Index j = 0; j < n; ++j)
-        for (Index i = 0; i < mk; ++i) {
-          v[i] += X[i + j * mk] * x[j];
-          ab[i] += std::abs(X[i + j * mk]);
-        }
-    };
-    add_block(B, qdd.data() + s, nk);
-    add_block(C, qdd.data() + P.sL, nL);
-    for (Index i = 0; i < mk; ++i) add_row(v[i], ab[i], gb.bb[i]);
   }
   for (const Index row : P.st.load_rows) {
-    double v = -P.b[row], ab = 0.0;
-    for (Index j = 0; j < P.nL; ++j) {
-      v += P.A(row, P.sL + j) * qdd[P.sL + j];
-      ab += std::abs(P.A(row, P.sL + j));
-    }
-    add_row(v, ab, P.b[row]);
+    const double v = load_row_sum<NL, false>(P, row, qdd);
+    r2 += v * v;
+    b2 += P.b[row] * P.b[row];
   }
   // q̈ and Qc finite: x · 0 is ±0 for a finite x and NaN for ±inf and NaN, so the sum of them is
-  // 0 exactly when all are finite (one pass without a test and branch per entry).
-  double q2 = 0.0, nan_if_not_finite = 0.0;
-  for (Index j = 0; j < P.dws.layout.dof(); ++j) {
-    q2 += qdd[j] * qdd[j];
-    nan_if_not_finite += qdd[j] * 0.0 + Qc[j] * 0.0;
-  }
-  const bool finite = nan_if_not_finite == 0.0;
+  // 0 exactly when all are finite (without a test and branch per entry). |q̈|² and that sum as
+  // Eigen's vectorised reductions (two partial sums: |q̈|² differs from the sum in order in its
+  // last bits, which only the consistency test's scale reads).
+  const double q2 = qdd.squaredNorm();
+  const bool finite = (qdd.array() * 0.0 + Qc.array() * 0.0).sum() == 0.0;
   res = UkResult{};
   res.rank = static_cast<int>(pivots.rank);
   res.sigma_max = std::sqrt(pivots.max);
   res.sigma_min_kept = pivots.rank > 0 ? std::sqrt(pivots.min) : 0.0;
   res.residual = std::sqrt(r2);
-  res.consistent =
-      res.residual <= settings.consistency_rel_tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
+  const double tol = settings.consistency_rel_tol;
+  res.consistent = std::isfinite(q2) && res.residual <= tol * (std::sqrt(b2) + 1.0);
+  if (!res.consistent) {
+    double a_inf = 0.0;  // ‖A‖_∞, the largest absolute row sum
+    for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) {
+      double ab_buf[MK > 0 ? MK : 1];
+      double* ab = MK > 0 ? ab_buf : P.ws.g[gi].r.data();
+      group_row_sums<NK, MK, NL, true>(P, gi, qdd, ab);
+      for (Index i = 0; i < ArrowSizes<NK, MK, NL>(P, gi).mk; ++i) a_inf = std::max(a_inf, ab[i]);
+    }
+    for (const Index row : P.st.load_rows)
+      a_inf = std::max(a_inf, load_row_sum<NL, true>(P, row, qdd));
+    res.consistent = res.residual <= tol * (std::sqrt(b2) + a_inf * std::sqrt(q2) + 1.0);
+  }
   res.finite = finite && std::isfinite(res.residual);
 }
 
@@ -716,18 +976,28 @@ bool arrow_shape_is(const ArrowStructure& st) {
 }
 
 // The steps of the solve in order, with the sizes of arrow_shape_is<NK, MK, NL> (0: runtime).
+// First on the rank scale's bounds, then, only if a decision might differ on max diag W itself,
+// again from the start on the exact scale (RankScale): the same decisions either way.
 template <int NK, int MK, int NL>
 bool arrow_steps(const ArrowProblem& P, Vec& qdd, Vec& Qc, const UkSettings& settings,
                  UkResult& res) {
-  ArrowPivots pivots;
-  const double w_ref = reduce_groups<NK, MK, NL>(P);
-  const Index mD = eliminate_groups<NK, MK, NL>(P, w_ref, pivots);
-  if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
-  solve_load<NL>(P, mD, w_ref, pivots);
-  multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
-  accelerations<NK, MK, NL>(P, Qc, qdd);
-  arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
-  return true;
+  for (const bool exact : {false, true}) {
+    ArrowPivots pivots;
+    const RankScale w = reduce_groups<NK, MK, NL>(P, exact);
+    bool same = true;
+    const Index mD = eliminate_groups<NK, MK, NL>(P, w, pivots, same);
+    if (!same) continue;
+    if (!cholesky_in_place<NL>(P.ws.H.data(), P.nL)) return false;
+    constexpr int kOneRow = NL > 0 ? 1 : 0;  // the runtime sizes keep mD at run time
+    const bool solved = kOneRow > 0 && mD == 1 ? solve_load<NL, kOneRow>(P, mD, w, pivots)
+                                               : solve_load<NL, 0>(P, mD, w, pivots);
+    if (!solved) continue;
+    multipliers_and_constraint_force<NK, MK, NL>(P, mD, Qc);
+    accelerations<NK, MK, NL>(P, Qc, qdd);
+    arrow_result<NK, MK, NL>(P, qdd, Qc, pivots, settings, res);
+    return true;
+  }
+  return false;  // not reached: the exact pass makes its decisions itself
 }
 
 }  // namespace

@@ -6,7 +6,13 @@
 #include <limits>
 #include <sstream>
 
+#include "core/augmented_mass.hpp"
+#include "core/dense_kernels.hpp"
+
 namespace ukdyn {
+
+using detail::chol_block;
+using detail::with_block_size;
 
 UkSingularWorkspace::UkSingularWorkspace(const BlockLayout& layout, Index m)
     : Ma(Mat::Zero(layout.dof(), layout.dof())),
@@ -198,6 +204,93 @@ bool augment_singular_blocks(const BlockLayout& lay, const Mat& A, const Vec& b,
     ok = !sw.structural[k] || !sw.own_rows[k].empty();
   if (!ok) restore_singular_blocks(lay, M, Q, sw);
   return ok;
+}
+
+namespace {
+
+// The lower triangle of block (s, s) of M + A_kᵀ α A_k over the rows `rows` into the same place of
+// `out`, and Q_a's segment into Qa (which holds Q there on entry): augment_row's sums in its order
+// (every product added, as there), on the entries a Cholesky factor reads.
+template <int N>
+void augmented_lower(const Mat& M, const Mat& A, const Vec& b, const std::vector<Index>& rows,
+                     Index s, Index n_rt, Mat& out, Vec& Qa) {
+  const Index n = N > 0 ? Index{N} : n_rt;
+  const Index ldm = M.rows(), ldo = out.rows(), lda = A.rows();
+  const double* Mk = M.data() + s + s * ldm;
+  double* Ok = out.data() + s + s * ldo;
+  double scale = 0.0;
+  UKDYN_UNROLL
+  for (Index j = 0; j < n; ++j) {
+    scale = std::max(scale, Mk[j + j * ldm]);
+    UKDYN_UNROLL
+    for (Index i = j; i < n; ++i) Ok[i + j * ldo] = Mk[i + j * ldm];
+  }
+  if (!(scale > 0.0)) scale = 1.0;
+  for (const Index r : rows) {
+    const double* a = A.data() + r + s * lda;  // row r on the block's columns, stride lda
+    double nn = 0.0;
+    UKDYN_UNROLL
+    for (Index c = 0; c < n; ++c) nn += a[c * lda] * a[c * lda];
+    if (!(nn > 0.0)) continue;
+    const double alpha = scale / nn;
+    UKDYN_UNROLL
+    for (Index c = 0; c < n; ++c) {
+      const double ac = alpha * a[c * lda];
+      if (ac == 0.0) continue;
+      UKDYN_UNROLL
+      for (Index i = c; i < n; ++i) Ok[i + c * ldo] += ac * a[i * lda];
+      Qa[s + c] += ac * b[r];
+    }
+  }
+}
+
+}  // namespace
+
+bool detail::factor_augmented_mass(const BlockLayout& lay, const Mat& M, const Mat& A, const Vec& b,
+                                   const Vec& Q, UkSingularWorkspace& sw, UkWorkspace& ws,
+                                   MassCondition& cond) {
+  const Index n = lay.dof();
+  for (Index i = 0; i < n; ++i) sw.Qa[i] = Q[i];
+  const Index ldm = M.rows(), ldl = ws.L.rows(), ldsc = sw.scratch.rows();
+  double ratio = std::numeric_limits<double>::infinity();
+  cond = MassCondition{};
+  for (std::size_t k = 0; k < lay.blocks(); ++k) {
+    const Index s = lay.start[k], nk = lay.size[k];
+    const bool augment = sw.structural[k] != 0;
+    if (augment && sw.own_rows[k].empty()) return false;  // stays singular: the dense solve
+    double* Lk = ws.L.data() + s + s * ldl;
+    double* id = ws.inv_diag.data() + s;
+    bool ok = false;
+    double block_ratio = 0.0, c = 0.0;
+    with_block_size(nk, [&](auto N) {
+      constexpr int NN = decltype(N)::value;
+      const double* Mk = M.data() + s + s * ldm;
+      Index ld = ldm;
+      if (augment) {
+        augmented_lower<NN>(M, A, b, sw.own_rows[k], s, nk, sw.scratch, sw.Qa);
+        Mk = sw.scratch.data() + s + s * ldsc;
+        ld = ldsc;
+      }
+      ok = chol_block<NN>(Mk, ld, Lk, ldl, id, nk, &block_ratio);
+      if (!ok) return;
+      // mass_condition_estimate()'s measure of this block, in its order.
+      const Index nb = NN > 0 ? Index{NN} : nk;
+      double dmax = 0.0, inv_max = 0.0;
+      for (Index i = 0; i < nb; ++i) {
+        dmax = std::max(dmax, Mk[i + i * ld]);
+        inv_max = std::max(inv_max, id[i]);
+      }
+      c = dmax * inv_max * inv_max;
+    });
+    if (!ok) return false;
+    ratio = std::min(ratio, block_ratio);
+    if (!(c <= cond.estimate)) {  // NaN counts as worst
+      cond.estimate = c;
+      cond.block = k;
+    }
+  }
+  ws.pivot_ratio = ratio;
+  return true;
 }
 
 void restore_singular_blocks(const BlockLayout& lay, Mat& M, Vec& Q,

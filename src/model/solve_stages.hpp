@@ -19,9 +19,10 @@ UkResult uk_solve_dispatch(ForwardData& data, const Vec& b, const Vec& Q, Vec& q
 void solve_stage(const System& system, ForwardData& data, const UkSettings& settings);
 /// The solve of solve_stage() for another b and Q (the drift projection's b = −Φ or −Φ̇ with
 /// Q = 0): the block-arrow solve when it applies (then data.used_arrow), else uk_solve_dispatch().
-/// Q is changed and put back when a structurally singular block is augmented. Allocation-free.
-UkResult solve_for(const System& system, ForwardData& data, const Vec& b, Vec& Q, Vec& qdd, Vec& Qc,
-                   const UkSettings& settings);
+/// Structurally singular blocks are augmented beside M and Q (data.singular's buffers): M and Q
+/// stay as they are. Allocation-free.
+UkResult solve_for(const System& system, ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd,
+                   Vec& Qc, const UkSettings& settings);
 /// The constraint stage of forward(): A and b at (t, q, q̇); when the block-arrow solve applies,
 /// only A's structural non-zeros are written (O(N) for N robots; the rest of data.A stays 0),
 /// else evaluate_constraints().

@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "core/augmented_mass.hpp"
 #include "model/slot_energy.hpp"
 #include "model/solve_stages.hpp"
 
@@ -295,40 +296,52 @@ void solve_stage(const System& system, ForwardData& data, const UkSettings& sett
   data.result = solve_for(system, data, data.b, data.Q, data.qdd, data.Qc, settings);
 }
 
-UkResult solve_for(const System& system, ForwardData& data, const Vec& b, Vec& Q, Vec& qdd, Vec& Qc,
-                   const UkSettings& settings) {
+UkResult solve_for(const System& system, ForwardData& data, const Vec& b, const Vec& Q, Vec& qdd,
+                   Vec& Qc, const UkSettings& settings) {
   // The block-arrow path (ukdyn/core/uk_arrow.hpp): O(N) for N robots on one load; the dense
   // solve stays the fallback (other methods, H or M not positive definite). The adaptive method's
   // damping lives in the dense solve: an arrow result whose smallest kept pivot falls inside the
   // adaptive band is redone densely (the pivots of the pieces stand for the singular values).
   // Structurally singular blocks (a free-body load's quaternion block) take the arrow solve in
-  // the augmented form (core/uk_singular.hpp, augment_singular_blocks), M and Q put back after;
-  // an augmented block that stays singular fails mass_factor_regular and goes to the dense path.
+  // the augmented form (core/uk_singular.hpp): M_a's blocks and Q_a formed beside M and Q, which
+  // stay as they are (factor_augmented_mass, core/augmented_mass.hpp); an augmented block that
+  // stays singular fails mass_factor_regular and goes to the dense path.
   data.used_arrow = false;
   UkSingularWorkspace& sw = data.singular;
   const bool augment = sw.any_structural;
-  if (arrow_applies(system, data, settings) &&
-      (!augment || augment_singular_blocks(system.layout(), data.A, b, data.M, Q, sw))) {
-    bool done = false;
+  if (arrow_applies(system, data, settings)) {
+    const ArrowStructure& st = *system.arrow();
+    // The arrow solve reads M on the load's block alone (H = M_L + …) and Q everywhere.
+    const Mat* Ms = &data.M;
+    const Vec* Qs = &Q;
+    detail::MassCondition cond;
+    bool factored = false;
+    if (augment) {
+      factored =
+          detail::factor_augmented_mass(system.layout(), data.M, data.A, b, Q, sw, data.uk, cond);
+      if (st.load_block >= 0 && sw.structural[static_cast<std::size_t>(st.load_block)])
+        Ms = &sw.scratch;
+      Qs = &sw.Qa;
+    } else {
+      factored = factor_mass(data.M, data.uk);
+    }
     UkResult res;
-    if (factor_mass(data.M, data.uk) && mass_factor_regular(data.M, data.uk) &&
-        uk_solve_arrow(*system.arrow(), data.M, data.A, b, Q, data.uk, data.arrow, qdd, Qc,
-                       settings, res)) {
+    if (factored && mass_factor_regular(*Ms, data.uk) &&
+        uk_solve_arrow(st, *Ms, data.A, b, *Qs, data.uk, data.arrow, qdd, Qc, settings, res)) {
       const bool in_band =
           settings.method == UkMethod::adaptive &&
           res.sigma_min_kept < settings.adaptive_band * settings.regularization * res.sigma_max;
-      done = !in_band;
-    }
-    if (augment) {
-      if (done) sw.cond_estimate = mass_condition_estimate(data.M, data.uk, &sw.cond_block);
-      restore_singular_blocks(system.layout(), data.M, Q, sw);
-    }
-    if (done) {
-      data.used_arrow = true;
-      sw.active = augment;  // mass_condition() then reports the augmented blocks' estimate
-      sw.dense_used = false;
-      sw.rank_deficient = false;
-      return res;
+      if (!in_band) {
+        if (augment) {
+          sw.cond_estimate = cond.estimate;
+          sw.cond_block = cond.block;
+        }
+        data.used_arrow = true;
+        sw.active = augment;  // mass_condition() then reports the augmented blocks' estimate
+        sw.dense_used = false;
+        sw.rank_deficient = false;
+        return res;
+      }
     }
   }
   return uk_solve_dispatch(data, b, Q, qdd, Qc, settings);

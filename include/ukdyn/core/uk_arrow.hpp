@@ -17,7 +17,8 @@
 // Rank decisions (redundant rows), both by the dense solve's pivoted LDLᵀ and rank rule (one
 // kernel, src/core/dense_kernels.hpp) with the relative tolerance settings.rank_rel_tol on singular
 // values: pivots ≤ tol² · max diag W are dropped, W = A M⁻¹Aᵀ, whose diagonal S_ii + C_i M_L⁻¹ C_iᵀ
-// is formed row by row (the dense solve's scale, passed to the kernel as its reference scale):
+// is the dense solve's scale, passed to the kernel as its reference scale (formed only when a
+// decision depends on it: between bounds otherwise, uk_arrow.cpp's RankScale):
 //  - per robot on S_k: a kept set of r_k rows; every dropped row i gives the combination
 //    e_i = row_i − L21 L11⁻¹ (kept rows), which has no robot part (e_i B_k = 0 up to round-off) and
 //    is therefore a constraint on the load alone: e_i C_k q̈_L = e_i b_k. It joins D (so a robot at
