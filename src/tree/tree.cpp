@@ -6,8 +6,10 @@
 // Christoffel matrix).
 #include "ukdyn/tree/tree.hpp"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -584,6 +586,11 @@ struct LinkPlan {
   int axis = -1;                // the joint's axis is e_axis of the joint frame (−1: any other)
   int terms = 0, term[3] = {};  // the nonzero entries of origin_translation
   bool massless = false;        // no mass and no inertia (flange, tool0, a platform's x, y)
+  // The inertia about the CoM as F Fᵀ, F lower triangular (its Cholesky factor; false when the
+  // inertia is not positive definite; Golub & Van Loan, Matrix Computations, 4th ed., §4.2):
+  // f = F00 F10 F20 F11 F21 F22.
+  bool factored = false;
+  double f[6] = {};
   std::size_t ancestors = 0, ancestors_end = 0;  // ForwardPlan::ancestors: the movable ones
 };
 struct ForwardPlan {
@@ -641,6 +648,15 @@ LinkPlan link_plan(const Link& L) {
     if (L.origin_translation(k) != 0.0) p.term[p.terms++] = k;
   }
   p.massless = L.mass == 0.0 && L.inertia.isZero(0.0);
+  const Eigen::LLT<Eigen::Matrix3d> llt(L.inertia);
+  if (!p.massless && L.inertia == L.inertia.transpose() && llt.info() == Eigen::Success) {
+    const Eigen::Matrix3d F = llt.matrixL();
+    if (F.allFinite()) {
+      p.factored = true;
+      const double f[6] = {F(0, 0), F(1, 0), F(2, 0), F(1, 1), F(2, 1), F(2, 2)};
+      std::copy(f, f + 6, p.f);
+    }
+  }
   return p;
 }
 
@@ -699,8 +715,8 @@ Eigen::Matrix3d joint_frame(const Eigen::Matrix3d& Rp, const Link& L, const Link
 // world origin written as the start of the composite sums (m, h, I). The own Ī and k are not
 // kept apart (link_force_rigid reads c and Ic, the CRBA and G the composite sums); h_own is
 // (potential() reads it).
-void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
-  if (massless) {
+void own_inertia_rigid(const Link& L, const LinkPlan& P, LinkState<double>& w) {
+  if (P.massless) {
     w.m_own = 0.0;
     w.h_own.setZero();
     w.Ic.setZero();
@@ -713,13 +729,26 @@ void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
   w.c = w.p + w.R * L.com;
   w.m_own = L.mass;
   w.h_own = w.c * L.mass;
-  // own_inertia's sums column by column (vectorised; the same products in the same order), the
-  // upper triangle mirrored.
-  const Eigen::Matrix3d T = w.R * L.inertia;
   const Eigen::Matrix3d& R = w.R;
-  w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
-  w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
-  w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
+  if (P.factored) {
+    // I = F Fᵀ (the plan's Cholesky factor), so R I Rᵀ = B Bᵀ with B = R F: 18 products for B
+    // (F lower triangular) and 18 for B Bᵀ's upper triangle, against 27 + 18 for R I and (R I) Rᵀ.
+    const double* f = P.f;
+    Eigen::Matrix3d B;
+    B.col(0) = R.col(0) * f[0] + R.col(1) * f[1] + R.col(2) * f[2];
+    B.col(1) = R.col(1) * f[3] + R.col(2) * f[4];
+    B.col(2) = R.col(2) * f[5];
+    w.Ic.col(2).noalias() = B * B.row(2).transpose();  // the upper triangle, then mirrored
+    w.Ic.col(1).head<2>().noalias() = B.topRows<2>() * B.row(1).transpose();
+    w.Ic(0, 0) = B(0, 0) * B(0, 0) + B(0, 1) * B(0, 1) + B(0, 2) * B(0, 2);
+  } else {
+    // own_inertia's sums column by column (vectorised; the same products in the same order),
+    // the upper triangle mirrored.
+    const Eigen::Matrix3d T = R * L.inertia;
+    w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
+    w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
+    w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
+  }
   w.Ic(1, 0) = w.Ic(0, 1);
   w.Ic(2, 0) = w.Ic(0, 2);
   w.Ic(2, 1) = w.Ic(1, 2);
@@ -768,7 +797,7 @@ void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>
       w.R = Rj;
       w.p = pj;
     }
-    own_inertia_rigid(L, P.massless, w);
+    own_inertia_rigid(L, P, w);
   }
 }
 
