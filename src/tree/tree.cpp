@@ -598,6 +598,7 @@ struct ForwardPlan {
   std::vector<std::pair<std::size_t, int>> ancestors;  // (link, joint variable), nearest first
   bool every_pair = false;  // each joint variable's link has every earlier one as an ancestor
   bool identity = false;    // θ = q (identity_map)
+  bool serial = false;      // link i's parent is i − 1 (an unbranched chain from link 0)
 };
 
 namespace {
@@ -687,7 +688,9 @@ ForwardPlan forward_plan(const Model& m, const std::vector<int>& ti, bool identi
   ForwardPlan plan;
   plan.identity = identity;
   plan.every_pair = true;
+  plan.serial = true;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
+    if (m.links[i].parent != static_cast<int>(i) - 1) plan.serial = false;
     LinkPlan p = link_plan(m.links[i]);
     p.ancestors = plan.ancestors.size();
     for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
@@ -802,8 +805,26 @@ void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>
 }
 
 // composite() for the rigid passes: place_rigid started the sums; k is not summed (no scales).
-void composite_rigid(const Model& m, LinkState<double>* ws) {
-  for (std::size_t i = m.links.size(); i-- > 0;) {
+// Down a serial chain (link i's parent i − 1) the child's composite is carried in locals and
+// added to link i's own, as ws[p].I += ws[i].I does.
+void composite_rigid(const Model& m, const ForwardPlan& plan, LinkState<double>* ws) {
+  const std::size_t n = m.links.size();
+  if (plan.serial && n > 0) {
+    double mass = ws[n - 1].m;
+    Eigen::Vector3d h = ws[n - 1].h;
+    Eigen::Matrix3d I = ws[n - 1].I;
+    for (std::size_t i = n - 1; i-- > 0;) {
+      LinkState<double>& w = ws[i];
+      mass = w.m + mass;
+      h = w.h + h;
+      I = w.I + I;
+      w.m = mass;
+      w.h = h;
+      w.I = I;
+    }
+    return;
+  }
+  for (std::size_t i = n; i-- > 0;) {
     const int p = m.links[i].parent;
     if (p < 0) continue;
     ws[p].m += ws[i].m;
@@ -896,20 +917,47 @@ void link_force_rigid(bool massless, LinkState<double>& w) {
   w.fn = w.c.cross(w.ff) + Iav.col(0) + w.vw.cross(Eigen::Vector3d(Iav.col(1)));
 }
 
+// velocity_products_rigid's backward pass down a serial chain (link i's parent i − 1): the
+// subtree force of link i + 1 carried in locals and added to link i's own, as ws[p].fn += w.fn
+// does.
+void forces_down_chain(const std::vector<int>& ti, std::size_t n, LinkState<double>* ws,
+                       double* tau) {
+  Eigen::Vector3d fn = Eigen::Vector3d::Zero(), ff = fn;
+  for (std::size_t i = n; i-- > 0;) {
+    LinkState<double>& w = ws[i];
+    if (i + 1 < n) {
+      fn = w.fn + fn;
+      ff = w.ff + ff;
+      w.fn = fn;
+      w.ff = ff;
+    } else {
+      fn = w.fn;
+      ff = w.ff;
+    }
+    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw[0], fn) + dot3(w.sv[0], ff);
+  }
+}
+
 // The velocity products C(θ, θ̇) θ̇ of a tree without ball joints (inverse_dynamics at θ̈ = 0
 // without gravity): each link's motion (link_motion, a_0 = 0) and own force in one forward pass,
-// then τ and the sums into the parents in one backward pass.
+// then τ and the sums into the parents in one backward pass. Down a serial chain the parent's
+// motion and the child's subtree force are carried in locals (the same values and sums).
 void velocity_products_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                              const double* thetad, LinkState<double>* ws, double* tau) {
+  Eigen::Vector3d vw = Eigen::Vector3d::Zero(), vv = vw, aw = vw, av = vw;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     LinkState<double>& w = ws[i];
     const int p = m.links[i].parent;
-    Eigen::Vector3d vw = Eigen::Vector3d::Zero(), vv = vw, aw = vw, av = vw;
-    if (p >= 0) {
+    if (p >= 0 && !plan.serial) {
       vw = ws[p].vw;
       vv = ws[p].vv;
       aw = ws[p].aw;
       av = ws[p].av;
+    } else if (p < 0) {
+      vw.setZero();
+      vv.setZero();
+      aw.setZero();
+      av.setZero();
     }
     if (ti[i] >= 0) {  // joint_motion's rigid case at θ̈ = 0, on locals
       const double qd = thetad[ti[i]];
@@ -926,6 +974,10 @@ void velocity_products_rigid(const Model& m, const ForwardPlan& plan, const std:
     w.vl = 0.0;
     w.al = 0.0;
     link_force_rigid(plan.links[i].massless, w);
+  }
+  if (plan.serial) {
+    forces_down_chain(ti, m.links.size(), ws, tau);
+    return;
   }
   for (std::size_t i = m.links.size(); i-- > 0;) {
     const LinkState<double>& w = ws[i];
@@ -1381,7 +1433,7 @@ namespace {
 void dynamics_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                     const Workspace& w, Index nt, double* Mt, Index ld, double* G) {
   place_rigid(m, plan, ti, w.theta, w.links);
-  composite_rigid(m, w.links);
+  composite_rigid(m, plan, w.links);
   crba_gravity_rigid(m, plan, ti, w.links, Mt, nt, ld, G);
 }
 
