@@ -6,8 +6,10 @@
 // Christoffel matrix).
 #include "ukdyn/tree/tree.hpp"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -584,6 +586,11 @@ struct LinkPlan {
   int axis = -1;                // the joint's axis is e_axis of the joint frame (−1: any other)
   int terms = 0, term[3] = {};  // the nonzero entries of origin_translation
   bool massless = false;        // no mass and no inertia (flange, tool0, a platform's x, y)
+  // The inertia about the CoM as F Fᵀ, F lower triangular (its Cholesky factor; false when the
+  // inertia is not positive definite; Golub & Van Loan, Matrix Computations, 4th ed., §4.2):
+  // f = F00 F10 F20 F11 F21 F22.
+  bool factored = false;
+  double f[6] = {};
   std::size_t ancestors = 0, ancestors_end = 0;  // ForwardPlan::ancestors: the movable ones
 };
 struct ForwardPlan {
@@ -591,6 +598,7 @@ struct ForwardPlan {
   std::vector<std::pair<std::size_t, int>> ancestors;  // (link, joint variable), nearest first
   bool every_pair = false;  // each joint variable's link has every earlier one as an ancestor
   bool identity = false;    // θ = q (identity_map)
+  bool serial = false;      // link i's parent is i − 1 (an unbranched chain from link 0)
 };
 
 namespace {
@@ -641,6 +649,15 @@ LinkPlan link_plan(const Link& L) {
     if (L.origin_translation(k) != 0.0) p.term[p.terms++] = k;
   }
   p.massless = L.mass == 0.0 && L.inertia.isZero(0.0);
+  const Eigen::LLT<Eigen::Matrix3d> llt(L.inertia);
+  if (!p.massless && L.inertia == L.inertia.transpose() && llt.info() == Eigen::Success) {
+    const Eigen::Matrix3d F = llt.matrixL();
+    if (F.allFinite()) {
+      p.factored = true;
+      const double f[6] = {F(0, 0), F(1, 0), F(2, 0), F(1, 1), F(2, 1), F(2, 2)};
+      std::copy(f, f + 6, p.f);
+    }
+  }
   return p;
 }
 
@@ -671,7 +688,9 @@ ForwardPlan forward_plan(const Model& m, const std::vector<int>& ti, bool identi
   ForwardPlan plan;
   plan.identity = identity;
   plan.every_pair = true;
+  plan.serial = true;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
+    if (m.links[i].parent != static_cast<int>(i) - 1) plan.serial = false;
     LinkPlan p = link_plan(m.links[i]);
     p.ancestors = plan.ancestors.size();
     for (int j = m.links[i].parent; j >= 0; j = m.links[static_cast<std::size_t>(j)].parent) {
@@ -699,8 +718,8 @@ Eigen::Matrix3d joint_frame(const Eigen::Matrix3d& Rp, const Link& L, const Link
 // world origin written as the start of the composite sums (m, h, I). The own Ī and k are not
 // kept apart (link_force_rigid reads c and Ic, the CRBA and G the composite sums); h_own is
 // (potential() reads it).
-void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
-  if (massless) {
+void own_inertia_rigid(const Link& L, const LinkPlan& P, LinkState<double>& w) {
+  if (P.massless) {
     w.m_own = 0.0;
     w.h_own.setZero();
     w.Ic.setZero();
@@ -713,13 +732,26 @@ void own_inertia_rigid(const Link& L, bool massless, LinkState<double>& w) {
   w.c = w.p + w.R * L.com;
   w.m_own = L.mass;
   w.h_own = w.c * L.mass;
-  // own_inertia's sums column by column (vectorised; the same products in the same order), the
-  // upper triangle mirrored.
-  const Eigen::Matrix3d T = w.R * L.inertia;
   const Eigen::Matrix3d& R = w.R;
-  w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
-  w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
-  w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
+  if (P.factored) {
+    // I = F Fᵀ (the plan's Cholesky factor), so R I Rᵀ = B Bᵀ with B = R F: 18 products for B
+    // (F lower triangular) and 18 for B Bᵀ's upper triangle, against 27 + 18 for R I and (R I) Rᵀ.
+    const double* f = P.f;
+    Eigen::Matrix3d B;
+    B.col(0) = R.col(0) * f[0] + R.col(1) * f[1] + R.col(2) * f[2];
+    B.col(1) = R.col(1) * f[3] + R.col(2) * f[4];
+    B.col(2) = R.col(2) * f[5];
+    w.Ic.col(2).noalias() = B * B.row(2).transpose();  // the upper triangle, then mirrored
+    w.Ic.col(1).head<2>().noalias() = B.topRows<2>() * B.row(1).transpose();
+    w.Ic(0, 0) = B(0, 0) * B(0, 0) + B(0, 1) * B(0, 1) + B(0, 2) * B(0, 2);
+  } else {
+    // own_inertia's sums column by column (vectorised; the same products in the same order),
+    // the upper triangle mirrored.
+    const Eigen::Matrix3d T = R * L.inertia;
+    w.Ic.col(2).noalias() = T * R.row(2).transpose();  // the upper triangle, then mirrored
+    w.Ic.col(1).head<2>().noalias() = T.topRows<2>() * R.row(1).transpose();
+    w.Ic(0, 0) = T(0, 0) * R(0, 0) + T(0, 1) * R(0, 1) + T(0, 2) * R(0, 2);
+  }
   w.Ic(1, 0) = w.Ic(0, 1);
   w.Ic(2, 0) = w.Ic(0, 2);
   w.Ic(2, 1) = w.Ic(1, 2);
@@ -768,13 +800,31 @@ void place_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>
       w.R = Rj;
       w.p = pj;
     }
-    own_inertia_rigid(L, P.massless, w);
+    own_inertia_rigid(L, P, w);
   }
 }
 
 // composite() for the rigid passes: place_rigid started the sums; k is not summed (no scales).
-void composite_rigid(const Model& m, LinkState<double>* ws) {
-  for (std::size_t i = m.links.size(); i-- > 0;) {
+// Down a serial chain (link i's parent i − 1) the child's composite is carried in locals and
+// added to link i's own, as ws[p].I += ws[i].I does.
+void composite_rigid(const Model& m, const ForwardPlan& plan, LinkState<double>* ws) {
+  const std::size_t n = m.links.size();
+  if (plan.serial && n > 0) {
+    double mass = ws[n - 1].m;
+    Eigen::Vector3d h = ws[n - 1].h;
+    Eigen::Matrix3d I = ws[n - 1].I;
+    for (std::size_t i = n - 1; i-- > 0;) {
+      LinkState<double>& w = ws[i];
+      mass = w.m + mass;
+      h = w.h + h;
+      I = w.I + I;
+      w.m = mass;
+      w.h = h;
+      w.I = I;
+    }
+    return;
+  }
+  for (std::size_t i = n; i-- > 0;) {
     const int p = m.links[i].parent;
     if (p < 0) continue;
     ws[p].m += ws[i].m;
@@ -867,20 +917,47 @@ void link_force_rigid(bool massless, LinkState<double>& w) {
   w.fn = w.c.cross(w.ff) + Iav.col(0) + w.vw.cross(Eigen::Vector3d(Iav.col(1)));
 }
 
+// velocity_products_rigid's backward pass down a serial chain (link i's parent i − 1): the
+// subtree force of link i + 1 carried in locals and added to link i's own, as ws[p].fn += w.fn
+// does.
+void forces_down_chain(const std::vector<int>& ti, std::size_t n, LinkState<double>* ws,
+                       double* tau) {
+  Eigen::Vector3d fn = Eigen::Vector3d::Zero(), ff = fn;
+  for (std::size_t i = n; i-- > 0;) {
+    LinkState<double>& w = ws[i];
+    if (i + 1 < n) {
+      fn = w.fn + fn;
+      ff = w.ff + ff;
+      w.fn = fn;
+      w.ff = ff;
+    } else {
+      fn = w.fn;
+      ff = w.ff;
+    }
+    if (ti[i] >= 0) tau[ti[i]] = dot3(w.sw[0], fn) + dot3(w.sv[0], ff);
+  }
+}
+
 // The velocity products C(θ, θ̇) θ̇ of a tree without ball joints (inverse_dynamics at θ̈ = 0
 // without gravity): each link's motion (link_motion, a_0 = 0) and own force in one forward pass,
-// then τ and the sums into the parents in one backward pass.
+// then τ and the sums into the parents in one backward pass. Down a serial chain the parent's
+// motion and the child's subtree force are carried in locals (the same values and sums).
 void velocity_products_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                              const double* thetad, LinkState<double>* ws, double* tau) {
+  Eigen::Vector3d vw = Eigen::Vector3d::Zero(), vv = vw, aw = vw, av = vw;
   for (std::size_t i = 0; i < m.links.size(); ++i) {
     LinkState<double>& w = ws[i];
     const int p = m.links[i].parent;
-    Eigen::Vector3d vw = Eigen::Vector3d::Zero(), vv = vw, aw = vw, av = vw;
-    if (p >= 0) {
+    if (p >= 0 && !plan.serial) {
       vw = ws[p].vw;
       vv = ws[p].vv;
       aw = ws[p].aw;
       av = ws[p].av;
+    } else if (p < 0) {
+      vw.setZero();
+      vv.setZero();
+      aw.setZero();
+      av.setZero();
     }
     if (ti[i] >= 0) {  // joint_motion's rigid case at θ̈ = 0, on locals
       const double qd = thetad[ti[i]];
@@ -897,6 +974,10 @@ void velocity_products_rigid(const Model& m, const ForwardPlan& plan, const std:
     w.vl = 0.0;
     w.al = 0.0;
     link_force_rigid(plan.links[i].massless, w);
+  }
+  if (plan.serial) {
+    forces_down_chain(ti, m.links.size(), ws, tau);
+    return;
   }
   for (std::size_t i = m.links.size(); i-- > 0;) {
     const LinkState<double>& w = ws[i];
@@ -1352,7 +1433,7 @@ namespace {
 void dynamics_rigid(const Model& m, const ForwardPlan& plan, const std::vector<int>& ti,
                     const Workspace& w, Index nt, double* Mt, Index ld, double* G) {
   place_rigid(m, plan, ti, w.theta, w.links);
-  composite_rigid(m, w.links);
+  composite_rigid(m, plan, w.links);
   crba_gravity_rigid(m, plan, ti, w.links, Mt, nt, ld, G);
 }
 
