@@ -292,7 +292,12 @@ template <int NK, int MK, int NL>
   const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
+  // Xᵀ's storage is Eigen's (aligned to EIGEN_MAX_ALIGN_BYTES ≥ 16 with SSE2): on the fixed shape
+  // with m_k even every column and every pair of rows from an even row is 16-byte aligned, so the
+  // products below take their operands from memory without a separate unaligned load.
   double* Xt = gb.Xt.data();
+  if constexpr (MK > 0 && MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16)
+    Xt = static_cast<double*>(__builtin_assume_aligned(Xt, 16));
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
@@ -845,7 +850,12 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     for (Index l = 0; l < nk; ++l) {
       if constexpr (MK > 0) {  // a fixed-size dot product, as in group_multipliers
         using Col = Eigen::Matrix<double, MK, 1>;
-        x[l] = y[l] + Eigen::Map<const Col>(Xt + l * mk).dot(Eigen::Map<const Col>(gb.lam.data()));
+        // Xᵀ's columns and λ_k: Eigen's storage, 16-byte aligned for an even m_k (reduce_group).
+        constexpr int kAl =
+            MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16 ? Eigen::Aligned16 : Eigen::Unaligned;
+        x[l] =
+            y[l] +
+            Eigen::Map<const Col, kAl>(Xt + l * mk).dot(Eigen::Map<const Col, kAl>(gb.lam.data()));
         continue;
       }
       double v = y[l];
