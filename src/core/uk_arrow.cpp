@@ -220,6 +220,53 @@ double twice_inverse_frobenius2(const double* L, Index ldl, const double* inv_di
   return 2.0 * f;
 }
 
+// The same on a fixed size N, L⁻¹ row by row (the rows of L⁻¹ L = I, forward substitution on
+// whole rows): row i = (e_i − Σ_{k<i} L_ik row k) / L_ii, row k held in the k + 1 entries rounded
+// up to even (the entries past k are 0), each as 16-byte pairs. Entry (i, j) gets the operations of
+// the column loop above in their order, plus, for k < j, the subtraction of L_ik · 0 (which leaves
+// it as it is); the squares are summed pairwise, so F differs from the column loop's in its last
+// bits (F only bounds the scale, RankScale: the factor 2 covers that).
+template <int N>
+constexpr int kInverseStride = (N + 1) & ~1;
+template <int K>
+[[gnu::always_inline]] inline void sub_inverse_row(double* v, const double* xk, double l) {
+  using Seg = Eigen::Matrix<double, (K + 2) & ~1, 1>;
+  Eigen::Map<Seg, Eigen::Aligned16>(v) -= l * Eigen::Map<const Seg, Eigen::Aligned16>(xk);
+}
+template <int N, int I, std::size_t... K>
+[[gnu::always_inline]] inline void inverse_row(const double* L, Index ldl, const double* inv_diag,
+                                               double (*x)[kInverseStride<N>],
+                                               Eigen::Matrix<double, kInverseStride<N>, 1>& f2,
+                                               std::index_sequence<K...> /*rows above*/) {
+  using Row = Eigen::Matrix<double, kInverseStride<N>, 1>;
+  alignas(16) double v[kInverseStride<N>] = {};
+  v[I] = 1.0;
+  (sub_inverse_row<static_cast<int>(K)>(v, x[K], L[I + static_cast<Index>(K) * ldl]), ...);
+  const Row r = Eigen::Map<const Row, Eigen::Aligned16>(v) * inv_diag[I];
+  Eigen::Map<Row, Eigen::Aligned16> xi(x[I]);
+  xi = r;
+  f2 += r.cwiseProduct(r);
+}
+template <int N, std::size_t... I>
+double twice_inverse_frobenius2_rows(const double* L, Index ldl, const double* inv_diag,
+                                     std::index_sequence<I...> /*rows*/) {
+  alignas(16) double x[N][kInverseStride<N>] = {};
+  Eigen::Matrix<double, kInverseStride<N>, 1> f2 =
+      Eigen::Matrix<double, kInverseStride<N>, 1>::Zero();
+  (inverse_row<N, static_cast<int>(I)>(L, ldl, inv_diag, x, f2, std::make_index_sequence<I>{}),
+   ...);
+  return 2.0 * f2.sum();
+}
+template <int N>
+double twice_inverse_frobenius2_fixed(const double* L, Index ldl, const double* inv_diag, double* x,
+                                      Index n_rt) {
+  if constexpr (N > 0) {
+    return twice_inverse_frobenius2_rows<N>(L, ldl, inv_diag, std::make_index_sequence<N>{});
+  } else {
+    return twice_inverse_frobenius2<N>(L, ldl, inv_diag, x, n_rt);
+  }
+}
+
 // The rank decisions' pivots: the number kept and the largest and smallest kept.
 struct ArrowPivots {
   Index rank = 0;
@@ -429,8 +476,8 @@ RankScale reduce_groups(const ArrowProblem& P, bool exact) {
   w.exact = exact;
   const double F = exact || nL == 0
                        ? 0.0
-                       : twice_inverse_frobenius2<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
-                                                      P.idg + P.sL, ws.tmp.data(), nL);
+                       : twice_inverse_frobenius2_fixed<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                                                            P.idg + P.sL, ws.tmp.data(), nL);
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) reduce_group<NK, MK, NL>(P, gi, F, w);
   const Index lda = P.A.rows();
   for (const Index row : P.st.load_rows) {
