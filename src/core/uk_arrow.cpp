@@ -325,6 +325,17 @@ GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
   return {gb.B.data(), gb.C.data(), gb.B.rows()};
 }
 
+// A buffer of Eigen's storage (aligned to EIGEN_MAX_ALIGN_BYTES ≥ 16 with SSE2) with columns of
+// m_k rows: on the fixed shape with m_k even every column and every pair of rows from an even row
+// is 16-byte aligned, so the products on them take their operands from memory without a separate
+// unaligned load (reduce_group's Xᵀ).
+template <int MK>
+double* aligned_columns(double* p) {
+  if constexpr (MK > 0 && MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16)
+    return static_cast<double*>(__builtin_assume_aligned(p, 16));
+  return p;
+}
+
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
 // y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Adds the
 // group's rows to the rank scale w (RankScale: with w.exact W_ii = S_ii + |L_L⁻¹ C_iᵀ|², T holding
@@ -339,12 +350,7 @@ template <int NK, int MK, int NL>
   const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
-  // Xᵀ's storage is Eigen's (aligned to EIGEN_MAX_ALIGN_BYTES ≥ 16 with SSE2): on the fixed shape
-  // with m_k even every column and every pair of rows from an even row is 16-byte aligned, so the
-  // products below take their operands from memory without a separate unaligned load.
-  double* Xt = gb.Xt.data();
-  if constexpr (MK > 0 && MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16)
-    Xt = static_cast<double*>(__builtin_assume_aligned(Xt, 16));
+  double* Xt = aligned_columns<MK>(gb.Xt.data());
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
