@@ -71,16 +71,28 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
     inv_diag[j] = inv;
     Index i = j + 1;
     if constexpr (N > 0) {
-      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), each entry
-      // the same sum in the same order as one row at a time.
+      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), the column's
+      // pairs side by side with k outer (L_jk loaded once), each entry the same sum in the same
+      // order as one row at a time; an odd last row beside them.
       using Pair = Eigen::Matrix<double, 2, 1>;
+      const Index np = (n - j - 1) / 2, it = j + 1 + 2 * np;
+      const bool tail = it < n;
+      Pair acc[N / 2 > 0 ? N / 2 : 1];
+      double st = tail ? M[it + j * ldm] : 0.0;
       UKDYN_UNROLL
-      for (; i + 1 < n; i += 2) {
-        Pair s = Eigen::Map<const Pair>(M + i + j * ldm);
+      for (Index t = 0; t < np; ++t) acc[t] = Eigen::Map<const Pair>(M + i + 2 * t + j * ldm);
+      UKDYN_UNROLL
+      for (Index k = 0; k < j; ++k) {
+        const double ljk = L[j + k * ldl];
         UKDYN_UNROLL
-        for (Index k = 0; k < j; ++k) s -= Eigen::Map<const Pair>(L + i + k * ldl) * L[j + k * ldl];
-        Eigen::Map<Pair>(L + i + j * ldl) = s * inv;
+        for (Index t = 0; t < np; ++t)
+          acc[t] -= Eigen::Map<const Pair>(L + i + 2 * t + k * ldl) * ljk;
+        if (tail) st -= L[it + k * ldl] * ljk;
       }
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) Eigen::Map<Pair>(L + i + 2 * t + j * ldl) = acc[t] * inv;
+      if (tail) L[it + j * ldl] = st * inv;
+      i = n;
     }
     UKDYN_UNROLL
     for (; i < n; ++i) {
