@@ -713,8 +713,28 @@ bool cholesky_in_place(double* H, Index n_rt) {
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
     H[j + j * n] = ljj;
+    Index i0 = j + 1;
+    if constexpr (NL > 0) {
+      // n_L fixed: the rows below the diagonal in pairs with k outer (H_jk loaded once), as
+      // dense_kernels.hpp's chol_block, each entry the same operations in the same order.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      const Index np = (n - j - 1) / 2, it = j + 1 + 2 * np;
+      Pair acc[NL / 2 > 0 ? NL / 2 : 1];
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) acc[t] = Eigen::Map<const Pair>(H + i0 + 2 * t + j * n);
+      UKDYN_UNROLL
+      for (Index k = 0; k < j; ++k) {
+        const double hjk = H[j + k * n];
+        UKDYN_UNROLL
+        for (Index t = 0; t < np; ++t)
+          acc[t] -= Eigen::Map<const Pair>(H + i0 + 2 * t + k * n) * hjk;
+      }
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) Eigen::Map<Pair>(H + i0 + 2 * t + j * n) = acc[t] / ljj;
+      i0 = it;
+    }
     UKDYN_UNROLL
-    for (Index i = j + 1; i < n; ++i) {
+    for (Index i = i0; i < n; ++i) {
       double v = H[i + j * n];
       UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) v -= H[i + k * n] * H[j + k * n];
