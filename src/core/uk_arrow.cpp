@@ -617,6 +617,7 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
   UKDYN_UNROLL
   for (Index k = 0; k < kp; ++k) std::swap(perm[k], perm[gb.piv[static_cast<std::size_t>(k)]]);
   double z[MK], lam[MK], t[MK * NL];
+  alignas(16) double zlam[2 * MK];  // (z_i, lam_i) side by side (KP > 0)
   Row g = ws.gL.template head<NL>();
   UKDYN_UNROLL
   for (Index i = 0; i < MK; ++i) {
@@ -626,12 +627,28 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
     for (Index j = 0; j < NL; ++j) ti[j] = bc.C[src + j * bc.ld];
     double zi = gb.r[src], li = gb.bb[src];
     const Index pe = std::min(i, kp);
-    for (Index p = 0; p < pe; ++p) {
-      const double l = S[i + p * MK];
-      if (l == 0.0) continue;
-      ti -= l * Eigen::Map<const Row>(T + p * NL);
-      if (i < kp) zi -= l * z[p];
-      li -= l * lam[p];
+    if constexpr (KP > 0) {
+      // Every row kept: z_i and lam_i as one 2-vector (the same operation on each).
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      Pair zl(zi, li);
+      UKDYN_UNROLL
+      for (Index p = 0; p < pe; ++p) {
+        const double l = S[i + p * MK];
+        if (l == 0.0) continue;
+        ti -= l * Eigen::Map<const Row>(T + p * NL);
+        zl -= l * Eigen::Map<const Pair>(zlam + 2 * p);
+      }
+      Eigen::Map<Pair>(zlam + 2 * i) = zl;
+      zi = zl[0];
+      li = zl[1];
+    } else {
+      for (Index p = 0; p < pe; ++p) {
+        const double l = S[i + p * MK];
+        if (l == 0.0) continue;
+        ti -= l * Eigen::Map<const Row>(T + p * NL);
+        if (i < kp) zi -= l * z[p];
+        li -= l * lam[p];
+      }
     }
     Eigen::Map<Row>(T + i * NL) = ti;
     z[i] = zi;
