@@ -600,8 +600,8 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
 // transpositions applied to the row indices, not to the rows), less l_ip T_p of the rows before
 // it, stored once; for a kept row t_i = T_i / D_i and g += t_i z_i at once; then H column by
 // column (add_columns_to_h). Every entry gets the operations of eliminate_rows in their order,
-// except that H's and g's terms are added when t_i(jj) = 0 too (which changes at most the sign
-// of a zero sum).
+// except that H's and g's terms are added when t_i(jj) = 0 too, and, with every row kept (KP > 0),
+// the terms l_ip T_p when l_ip = 0 too (neither changes more than the sign of a zero; no branch).
 template <int MK, int NL, int KP>
 Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
   using Row = Eigen::Matrix<double, NL, 1>;
@@ -634,7 +634,6 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
       UKDYN_UNROLL
       for (Index p = 0; p < pe; ++p) {
         const double l = S[i + p * MK];
-        if (l == 0.0) continue;
         ti -= l * Eigen::Map<const Row>(T + p * NL);
         zl -= l * Eigen::Map<const Pair>(zlam + 2 * p);
       }
