@@ -217,10 +217,20 @@ struct LdltPivots {
     }
     const double inv_d = 1.0 / dp;
     double* colk = W + k * ldw;
-    UKDYN_UNROLL
-    for (Index i = k + 1; i < m; ++i) {
-      t[i] = colk[i];
-      colk[i] *= inv_d;  // L_ik
+    {
+      // L_ik = W_ik / D_k (the old W_ik kept in t), rows i and i + 1 as one 2-vector.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      Index i = k + 1;
+      UKDYN_UNROLL
+      for (; i + 1 < m; i += 2) {
+        const Pair c = Eigen::Map<const Pair>(colk + i);
+        Eigen::Map<Pair>(t + i) = c;
+        Eigen::Map<Pair>(colk + i) = c * inv_d;
+      }
+      if (i < m) {
+        t[i] = colk[i];
+        colk[i] *= inv_d;
+      }
     }
     // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk, rows i and i + 1 of a column as one
     // 2-vector (adjacent in W's columns; each entry the same operation).
