@@ -110,6 +110,22 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
 template <int N>
 void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
   const Index n = N > 0 ? Index{N} : n_rt;
+  if constexpr (N > 0) {
+    // N fixed: by columns (x_k final, then x_i −= L_ik x_k below it), in a local copy of x; each
+    // x_i gets the same subtractions in the same order (k ascending) as the row loop below.
+    double v[N];
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) v[i] = x[i];
+    UKDYN_UNROLL
+    for (Index k = 0; k < N; ++k) {
+      v[k] = v[k] * inv_diag[k];
+      UKDYN_UNROLL
+      for (Index i = k + 1; i < N; ++i) v[i] -= L[i + k * ldl] * v[k];
+    }
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) x[i] = v[i];
+    return;
+  }
   UKDYN_UNROLL
   for (Index i = 0; i < n; ++i) {
     double s = x[i];
