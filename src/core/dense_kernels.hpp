@@ -139,6 +139,22 @@ void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Inde
 template <int N>
 void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
   const Index n = N > 0 ? Index{N} : n_rt;
+  if constexpr (N > 0) {
+    // N fixed: the same loop on a local copy of x (held in registers).
+    double v[N];
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) v[i] = x[i];
+    UKDYN_UNROLL
+    for (Index i = N - 1; i >= 0; --i) {
+      double s = v[i];
+      UKDYN_UNROLL
+      for (Index k = i + 1; k < N; ++k) s -= L[k + i * ldl] * v[k];
+      v[i] = s * inv_diag[i];
+    }
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) x[i] = v[i];
+    return;
+  }
   UKDYN_UNROLL
   for (Index i = n - 1; i >= 0; --i) {
     double s = x[i];
