@@ -71,16 +71,28 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
     inv_diag[j] = inv;
     Index i = j + 1;
     if constexpr (N > 0) {
-      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), each entry
-      // the same sum in the same order as one row at a time.
+      // N fixed: rows i and i + 1 as one 2-vector (adjacent in M's and L's columns), the column's
+      // pairs side by side with k outer (L_jk loaded once), each entry the same sum in the same
+      // order as one row at a time; an odd last row beside them.
       using Pair = Eigen::Matrix<double, 2, 1>;
+      const Index np = (n - j - 1) / 2, it = j + 1 + 2 * np;
+      const bool tail = it < n;
+      Pair acc[N / 2 > 0 ? N / 2 : 1];
+      double st = tail ? M[it + j * ldm] : 0.0;
       UKDYN_UNROLL
-      for (; i + 1 < n; i += 2) {
-        Pair s = Eigen::Map<const Pair>(M + i + j * ldm);
+      for (Index t = 0; t < np; ++t) acc[t] = Eigen::Map<const Pair>(M + i + 2 * t + j * ldm);
+      UKDYN_UNROLL
+      for (Index k = 0; k < j; ++k) {
+        const double ljk = L[j + k * ldl];
         UKDYN_UNROLL
-        for (Index k = 0; k < j; ++k) s -= Eigen::Map<const Pair>(L + i + k * ldl) * L[j + k * ldl];
-        Eigen::Map<Pair>(L + i + j * ldl) = s * inv;
+        for (Index t = 0; t < np; ++t)
+          acc[t] -= Eigen::Map<const Pair>(L + i + 2 * t + k * ldl) * ljk;
+        if (tail) st -= L[it + k * ldl] * ljk;
       }
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) Eigen::Map<Pair>(L + i + 2 * t + j * ldl) = acc[t] * inv;
+      if (tail) L[it + j * ldl] = st * inv;
+      i = n;
     }
     UKDYN_UNROLL
     for (; i < n; ++i) {
@@ -98,6 +110,22 @@ bool chol_block(const double* M, Index ldm, double* L, Index ldl, double* inv_di
 template <int N>
 void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
   const Index n = N > 0 ? Index{N} : n_rt;
+  if constexpr (N > 0) {
+    // N fixed: by columns (x_k final, then x_i −= L_ik x_k below it), in a local copy of x; each
+    // x_i gets the same subtractions in the same order (k ascending) as the row loop below.
+    double v[N];
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) v[i] = x[i];
+    UKDYN_UNROLL
+    for (Index k = 0; k < N; ++k) {
+      v[k] = v[k] * inv_diag[k];
+      UKDYN_UNROLL
+      for (Index i = k + 1; i < N; ++i) v[i] -= L[i + k * ldl] * v[k];
+    }
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) x[i] = v[i];
+    return;
+  }
   UKDYN_UNROLL
   for (Index i = 0; i < n; ++i) {
     double s = x[i];
@@ -111,6 +139,22 @@ void l_solve(const double* L, Index ldl, const double* inv_diag, double* x, Inde
 template <int N>
 void lt_solve(const double* L, Index ldl, const double* inv_diag, double* x, Index n_rt) {
   const Index n = N > 0 ? Index{N} : n_rt;
+  if constexpr (N > 0) {
+    // N fixed: the same loop on a local copy of x (held in registers).
+    double v[N];
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) v[i] = x[i];
+    UKDYN_UNROLL
+    for (Index i = N - 1; i >= 0; --i) {
+      double s = v[i];
+      UKDYN_UNROLL
+      for (Index k = i + 1; k < N; ++k) s -= L[k + i * ldl] * v[k];
+      v[i] = s * inv_diag[i];
+    }
+    UKDYN_UNROLL
+    for (Index i = 0; i < N; ++i) x[i] = v[i];
+    return;
+  }
   UKDYN_UNROLL
   for (Index i = n - 1; i >= 0; --i) {
     double s = x[i];
@@ -205,10 +249,20 @@ struct LdltPivots {
     }
     const double inv_d = 1.0 / dp;
     double* colk = W + k * ldw;
-    UKDYN_UNROLL
-    for (Index i = k + 1; i < m; ++i) {
-      t[i] = colk[i];
-      colk[i] *= inv_d;  // L_ik
+    {
+      // L_ik = W_ik / D_k (the old W_ik kept in t), rows i and i + 1 as one 2-vector.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      Index i = k + 1;
+      UKDYN_UNROLL
+      for (; i + 1 < m; i += 2) {
+        const Pair c = Eigen::Map<const Pair>(colk + i);
+        Eigen::Map<Pair>(t + i) = c;
+        Eigen::Map<Pair>(colk + i) = c * inv_d;
+      }
+      if (i < m) {
+        t[i] = colk[i];
+        colk[i] *= inv_d;
+      }
     }
     // Schur complement, lower triangle: W_ij −= L_ik D_k L_jk, rows i and i + 1 of a column as one
     // 2-vector (adjacent in W's columns; each entry the same operation).

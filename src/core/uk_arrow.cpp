@@ -220,6 +220,53 @@ double twice_inverse_frobenius2(const double* L, Index ldl, const double* inv_di
   return 2.0 * f;
 }
 
+// The same on a fixed size N, L⁻¹ row by row (the rows of L⁻¹ L = I, forward substitution on
+// whole rows): row i = (e_i − Σ_{k<i} L_ik row k) / L_ii, row k held in the k + 1 entries rounded
+// up to even (the entries past k are 0), each as 16-byte pairs. Entry (i, j) gets the operations of
+// the column loop above in their order, plus, for k < j, the subtraction of L_ik · 0 (which leaves
+// it as it is); the squares are summed pairwise, so F differs from the column loop's in its last
+// bits (F only bounds the scale, RankScale: the factor 2 covers that).
+template <int N>
+constexpr int kInverseStride = (N + 1) & ~1;
+template <int K>
+[[gnu::always_inline]] inline void sub_inverse_row(double* v, const double* xk, double l) {
+  using Seg = Eigen::Matrix<double, (K + 2) & ~1, 1>;
+  Eigen::Map<Seg, Eigen::Aligned16>(v) -= l * Eigen::Map<const Seg, Eigen::Aligned16>(xk);
+}
+template <int N, int I, std::size_t... K>
+[[gnu::always_inline]] inline void inverse_row(const double* L, Index ldl, const double* inv_diag,
+                                               double (*x)[kInverseStride<N>],
+                                               Eigen::Matrix<double, kInverseStride<N>, 1>& f2,
+                                               std::index_sequence<K...> /*rows above*/) {
+  using Row = Eigen::Matrix<double, kInverseStride<N>, 1>;
+  alignas(16) double v[kInverseStride<N>] = {};
+  v[I] = 1.0;
+  (sub_inverse_row<static_cast<int>(K)>(v, x[K], L[I + static_cast<Index>(K) * ldl]), ...);
+  const Row r = Eigen::Map<const Row, Eigen::Aligned16>(v) * inv_diag[I];
+  Eigen::Map<Row, Eigen::Aligned16> xi(x[I]);
+  xi = r;
+  f2 += r.cwiseProduct(r);
+}
+template <int N, std::size_t... I>
+double twice_inverse_frobenius2_rows(const double* L, Index ldl, const double* inv_diag,
+                                     std::index_sequence<I...> /*rows*/) {
+  alignas(16) double x[N][kInverseStride<N>] = {};
+  Eigen::Matrix<double, kInverseStride<N>, 1> f2 =
+      Eigen::Matrix<double, kInverseStride<N>, 1>::Zero();
+  (inverse_row<N, static_cast<int>(I)>(L, ldl, inv_diag, x, f2, std::make_index_sequence<I>{}),
+   ...);
+  return 2.0 * f2.sum();
+}
+template <int N>
+double twice_inverse_frobenius2_fixed(const double* L, Index ldl, const double* inv_diag, double* x,
+                                      Index n_rt) {
+  if constexpr (N > 0) {
+    return twice_inverse_frobenius2_rows<N>(L, ldl, inv_diag, std::make_index_sequence<N>{});
+  } else {
+    return twice_inverse_frobenius2<N>(L, ldl, inv_diag, x, n_rt);
+  }
+}
+
 // The rank decisions' pivots: the number kept and the largest and smallest kept.
 struct ArrowPivots {
   Index rank = 0;
@@ -278,6 +325,17 @@ GroupColumns group_columns(const ArrowProblem& P, std::size_t gi) {
   return {gb.B.data(), gb.C.data(), gb.B.rows()};
 }
 
+// A buffer of Eigen's storage (aligned to EIGEN_MAX_ALIGN_BYTES ≥ 16 with SSE2) with columns of
+// m_k rows: on the fixed shape with m_k even every column and every pair of rows from an even row
+// is 16-byte aligned, so the products on them take their operands from memory without a separate
+// unaligned load (reduce_group's Xᵀ).
+template <int MK>
+double* aligned_columns(double* p) {
+  if constexpr (MK > 0 && MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16)
+    return static_cast<double*>(__builtin_assume_aligned(p, 16));
+  return p;
+}
+
 // Robot k's rows of A: B (its columns), C (the load's), b; then Xᵀ = B L_k^{-ᵀ} column by column,
 // y = L_k⁻¹ Q_k, r = b − Xᵀ y (= b − B M_k⁻¹ Q_k) and S = Xᵀ X (lower) = B M_k⁻¹ Bᵀ. Adds the
 // group's rows to the rank scale w (RankScale: with w.exact W_ii = S_ii + |L_L⁻¹ C_iᵀ|², T holding
@@ -292,7 +350,7 @@ template <int NK, int MK, int NL>
   const Index mk = z.mk, nk = z.nk, nL = z.nL, s = grp.start, lda = P.A.rows();
   const double* Lk = P.Ld + s + s * P.ldl;
   const double* id = P.idg + s;
-  double* Xt = gb.Xt.data();
+  double* Xt = aligned_columns<MK>(gb.Xt.data());
   double* Y = gb.T.data();
   const double* Ad = P.A.data();
   const Index* rows = grp.rows.data();
@@ -424,8 +482,8 @@ RankScale reduce_groups(const ArrowProblem& P, bool exact) {
   w.exact = exact;
   const double F = exact || nL == 0
                        ? 0.0
-                       : twice_inverse_frobenius2<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
-                                                      P.idg + P.sL, ws.tmp.data(), nL);
+                       : twice_inverse_frobenius2_fixed<NL>(P.Ld + P.sL + P.sL * P.ldl, P.ldl,
+                                                            P.idg + P.sL, ws.tmp.data(), nL);
   for (std::size_t gi = 0; gi < P.st.groups.size(); ++gi) reduce_group<NK, MK, NL>(P, gi, F, w);
   const Index lda = P.A.rows();
   for (const Index row : P.st.load_rows) {
@@ -542,8 +600,8 @@ Index eliminate_rows(const ArrowProblem& P, std::size_t gi, Index mD) {
 // transpositions applied to the row indices, not to the rows), less l_ip T_p of the rows before
 // it, stored once; for a kept row t_i = T_i / D_i and g += t_i z_i at once; then H column by
 // column (add_columns_to_h). Every entry gets the operations of eliminate_rows in their order,
-// except that H's and g's terms are added when t_i(jj) = 0 too (which changes at most the sign
-// of a zero sum).
+// except that H's and g's terms are added when t_i(jj) = 0 too, and, with every row kept (KP > 0),
+// the terms l_ip T_p when l_ip = 0 too (neither changes more than the sign of a zero; no branch).
 template <int MK, int NL, int KP>
 Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
   using Row = Eigen::Matrix<double, NL, 1>;
@@ -559,6 +617,7 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
   UKDYN_UNROLL
   for (Index k = 0; k < kp; ++k) std::swap(perm[k], perm[gb.piv[static_cast<std::size_t>(k)]]);
   double z[MK], lam[MK], t[MK * NL];
+  alignas(16) double zlam[2 * MK];  // (z_i, lam_i) side by side (KP > 0)
   Row g = ws.gL.template head<NL>();
   UKDYN_UNROLL
   for (Index i = 0; i < MK; ++i) {
@@ -568,12 +627,27 @@ Index eliminate_rows_fixed(const ArrowProblem& P, std::size_t gi, Index mD) {
     for (Index j = 0; j < NL; ++j) ti[j] = bc.C[src + j * bc.ld];
     double zi = gb.r[src], li = gb.bb[src];
     const Index pe = std::min(i, kp);
-    for (Index p = 0; p < pe; ++p) {
-      const double l = S[i + p * MK];
-      if (l == 0.0) continue;
-      ti -= l * Eigen::Map<const Row>(T + p * NL);
-      if (i < kp) zi -= l * z[p];
-      li -= l * lam[p];
+    if constexpr (KP > 0) {
+      // Every row kept: z_i and lam_i as one 2-vector (the same operation on each).
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      Pair zl(zi, li);
+      UKDYN_UNROLL
+      for (Index p = 0; p < pe; ++p) {
+        const double l = S[i + p * MK];
+        ti -= l * Eigen::Map<const Row>(T + p * NL);
+        zl -= l * Eigen::Map<const Pair>(zlam + 2 * p);
+      }
+      Eigen::Map<Pair>(zlam + 2 * i) = zl;
+      zi = zl[0];
+      li = zl[1];
+    } else {
+      for (Index p = 0; p < pe; ++p) {
+        const double l = S[i + p * MK];
+        if (l == 0.0) continue;
+        ti -= l * Eigen::Map<const Row>(T + p * NL);
+        if (i < kp) zi -= l * z[p];
+        li -= l * lam[p];
+      }
     }
     Eigen::Map<Row>(T + i * NL) = ti;
     z[i] = zi;
@@ -655,8 +729,28 @@ bool cholesky_in_place(double* H, Index n_rt) {
     if (!(dj > 0.0)) return false;
     const double ljj = std::sqrt(dj);
     H[j + j * n] = ljj;
+    Index i0 = j + 1;
+    if constexpr (NL > 0) {
+      // n_L fixed: the rows below the diagonal in pairs with k outer (H_jk loaded once), as
+      // dense_kernels.hpp's chol_block, each entry the same operations in the same order.
+      using Pair = Eigen::Matrix<double, 2, 1>;
+      const Index np = (n - j - 1) / 2, it = j + 1 + 2 * np;
+      Pair acc[NL / 2 > 0 ? NL / 2 : 1];
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) acc[t] = Eigen::Map<const Pair>(H + i0 + 2 * t + j * n);
+      UKDYN_UNROLL
+      for (Index k = 0; k < j; ++k) {
+        const double hjk = H[j + k * n];
+        UKDYN_UNROLL
+        for (Index t = 0; t < np; ++t)
+          acc[t] -= Eigen::Map<const Pair>(H + i0 + 2 * t + k * n) * hjk;
+      }
+      UKDYN_UNROLL
+      for (Index t = 0; t < np; ++t) Eigen::Map<Pair>(H + i0 + 2 * t + j * n) = acc[t] / ljj;
+      i0 = it;
+    }
     UKDYN_UNROLL
-    for (Index i = j + 1; i < n; ++i) {
+    for (Index i = i0; i < n; ++i) {
       double v = H[i + j * n];
       UKDYN_UNROLL
       for (Index k = 0; k < j; ++k) v -= H[i + k * n] * H[j + k * n];
@@ -845,7 +939,12 @@ void accelerations(const ArrowProblem& P, const Vec& Qc, Vec& qdd) {
     for (Index l = 0; l < nk; ++l) {
       if constexpr (MK > 0) {  // a fixed-size dot product, as in group_multipliers
         using Col = Eigen::Matrix<double, MK, 1>;
-        x[l] = y[l] + Eigen::Map<const Col>(Xt + l * mk).dot(Eigen::Map<const Col>(gb.lam.data()));
+        // Xᵀ's columns and λ_k: Eigen's storage, 16-byte aligned for an even m_k (reduce_group).
+        constexpr int kAl =
+            MK % 2 == 0 && EIGEN_MAX_ALIGN_BYTES >= 16 ? Eigen::Aligned16 : Eigen::Unaligned;
+        x[l] =
+            y[l] +
+            Eigen::Map<const Col, kAl>(Xt + l * mk).dot(Eigen::Map<const Col, kAl>(gb.lam.data()));
         continue;
       }
       double v = y[l];
